@@ -1,0 +1,11 @@
+"""dqskin: dual-quaternion and linear-blend character skinning on NVIDIA Warp.
+
+Conventions (one place each): quaternions ``(..., 4)`` ``(w, x, y, z)``; dual quaternions
+``(..., 8)`` ``(rw, rx, ry, rz, dw, dx, dy, dz)`` with pose ``r + ε·½·t·r``; 4×4 matrices in the
+column-vector convention ``p' = M @ [p, 1]``; joints ordered parents first, ``parents[j] == -1``
+for roots; float32 on the device.
+"""
+
+from .skinning import METHODS, Skinner, skin_normals, skin_points
+
+__all__ = ["METHODS", "Skinner", "skin_normals", "skin_points"]

@@ -1,0 +1,162 @@
+"""Skeletons: joint hierarchy, bind and rest transforms, forward kinematics on the device."""
+
+import numpy as np
+import warp as wp
+
+from ._warp import resolve_device
+from .kernels import fk as FK
+from .kernels.dqmath import vec8
+
+__all__ = ["Skeleton", "forward_kinematics"]
+
+
+def _check_parents(parents, where="parents"):
+    p = np.asarray(parents)
+    if p.ndim != 1 or not np.issubdtype(p.dtype, np.integer):
+        raise ValueError(f"{where}: expected a 1-D integer array, got shape {p.shape} {p.dtype}")
+    j = np.arange(p.shape[0])
+    bad = np.nonzero((p < -1) | (p >= p.shape[0]))[0]
+    if bad.size:
+        raise ValueError(f"{where}: joint {bad[0]} has parent {p[bad[0]]} out of range "
+                         f"[-1, {p.shape[0]})")
+    bad = np.nonzero(p >= j)[0]
+    if bad.size:
+        k = int(bad[0])
+        # distinguish a cycle from a mere ordering problem
+        seen, cur = set(), k
+        while cur >= 0 and cur not in seen:
+            seen.add(cur)
+            cur = int(p[cur])
+        if cur >= 0:
+            raise ValueError(f"{where}: cycle in the joint hierarchy through joint {cur}")
+        raise ValueError(f"{where}: joint {k} comes before its parent {int(p[k])}; joints must be "
+                         "ordered parents first")
+    return p.astype(np.int32)
+
+
+def _check_matrices(name, m, count):
+    a = np.asarray(m, dtype=np.float64)
+    if a.shape != (count, 4, 4):
+        raise ValueError(f"{name}: expected ({count}, 4, 4), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name}: NaN or infinite entries")
+    return a
+
+
+class Skeleton:
+    """A joint hierarchy with its bind and rest pose.
+
+    Parameters
+    ----------
+    joint_names : sequence of str, length J
+    parents : (J,) int
+        Parent of each joint, ``-1`` for roots; parents come before children.
+    bind_transforms : (J, 4, 4) float, optional
+        World-space (skeleton-space) bind pose of each joint, column-vector convention. Identity
+        by default.
+    rest_transforms : (J, 4, 4) float, optional
+        Local (parent-relative) rest pose, used where no animation drives a joint. Defaults to the
+        local transforms implied by ``bind_transforms``.
+    name : str
+        Where the skeleton came from (USD prim path, glTF skin name); used in messages.
+    """
+
+    def __init__(self, joint_names, parents, bind_transforms=None, rest_transforms=None, *, name=""):
+        self.name = name
+        self.joint_names = [str(n) for n in joint_names]
+        self.parents = _check_parents(parents, f"{name or 'skeleton'}: parents")
+        J = self.joint_count
+        if len(self.joint_names) != J:
+            raise ValueError(f"{name or 'skeleton'}: {len(self.joint_names)} joint names for "
+                             f"{J} parents")
+        self.bind_transforms = (np.tile(np.eye(4), (J, 1, 1)) if bind_transforms is None else
+                                _check_matrices(f"{name or 'skeleton'}: bind_transforms",
+                                                bind_transforms, J))
+        if rest_transforms is None:
+            rest = self.bind_transforms.copy()
+            has_parent = self.parents >= 0
+            rest[has_parent] = (np.linalg.inv(self.bind_transforms[self.parents[has_parent]])
+                                @ self.bind_transforms[has_parent])
+            self.rest_transforms = rest
+        else:
+            self.rest_transforms = _check_matrices(f"{name or 'skeleton'}: rest_transforms",
+                                                   rest_transforms, J)
+        self._inverse_bind = None
+
+    @property
+    def joint_count(self):
+        return int(self.parents.shape[0])
+
+    @property
+    def inverse_bind_transforms(self):
+        """(J, 4, 4) float64 inverses of the bind transforms."""
+        if self._inverse_bind is None:
+            try:
+                self._inverse_bind = np.linalg.inv(self.bind_transforms)
+            except np.linalg.LinAlgError:
+                raise ValueError(f"{self.name or 'skeleton'}: singular bind transform") from None
+        return self._inverse_bind
+
+    def forward_kinematics(self, local_transforms=None, *, device=None, return_dq=False):
+        """World (skeleton-space) joint transforms from local ones.
+
+        Parameters
+        ----------
+        local_transforms : (..., J, 4, 4) float, optional
+            Parent-relative joint transforms; the rest pose when omitted.
+        return_dq : bool
+            Also return the rigid part as dual quaternions and the residual scale/shear.
+
+        Returns
+        -------
+        world : (..., J, 4, 4) float32
+        dq : (..., J, 8) float32, only with ``return_dq`` -- ``(rw, rx, ry, rz, dw, dx, dy, dz)``
+        residual : (..., J, 3, 3) float32, only with ``return_dq`` -- ``world = [R·S | t]``
+        """
+        local = self.rest_transforms if local_transforms is None else local_transforms
+        return forward_kinematics(self.parents, local, device=device, return_dq=return_dq)
+
+    def skinning_transforms(self, local_transforms=None, *, device=None):
+        """Bind-relative skinning transforms ``world ∘ inverse(bind)``, (..., J, 4, 4) float32."""
+        world = self.forward_kinematics(local_transforms, device=device)
+        return (world.astype(np.float64) @ self.inverse_bind_transforms).astype(np.float32)
+
+
+def forward_kinematics(parents, local_transforms, *, device=None, return_dq=False):
+    """Forward kinematics for one hierarchy over any batch of poses, in one launch.
+
+    The hierarchy is concatenated as dual quaternions; scale and shear ride along as a residual
+    3×3 (see :mod:`dqskin.kernels.fk`), so non-rigid skeletons come out exact.
+
+    Parameters
+    ----------
+    parents : (J,) int
+        Parents first, ``-1`` for roots.
+    local_transforms : (..., J, 4, 4) float
+        Parent-relative transforms, column-vector convention. The leading axes (frames,
+        characters) are flattened into one launch.
+
+    Returns
+    -------
+    world : (..., J, 4, 4) float32
+    dq, residual : (..., J, 8), (..., J, 3, 3) float32 with ``return_dq``.
+    """
+    par = _check_parents(parents)
+    J = par.shape[0]
+    loc = np.asarray(local_transforms, dtype=np.float32)
+    if loc.ndim < 3 or loc.shape[-3:] != (J, 4, 4):
+        raise ValueError(f"local_transforms: expected (..., {J}, 4, 4), got {loc.shape}")
+    batch = loc.shape[:-3]
+    B = int(np.prod(batch, dtype=np.int64))
+    d = resolve_device(device)
+    local = wp.array(np.ascontiguousarray(loc.reshape(B, J, 4, 4)), dtype=wp.mat44, device=d)
+    world_dq = wp.empty((B, J), dtype=vec8, device=d)
+    residual = wp.empty((B, J), dtype=wp.mat33, device=d)
+    world = wp.empty((B, J), dtype=wp.mat44, device=d)
+    FK.forward_kinematics(wp.array(par, dtype=wp.int32, device=d),
+                          wp.array(np.array([0, J], np.int32), dtype=wp.int32, device=d),
+                          local, world_dq, residual, world, device=d)
+    w = world.numpy().reshape(*batch, J, 4, 4)
+    if not return_dq:
+        return w
+    return w, world_dq.numpy().reshape(*batch, J, 8), residual.numpy().reshape(*batch, J, 3, 3)

@@ -1,0 +1,297 @@
+"""Skinning API: :func:`skin_points`, :func:`skin_normals` and the reusable :class:`Skinner`.
+
+Conventions: points ``(V, 3)`` in the mesh's own space; skinning transforms ``(J, 4, 4)`` or
+``(F, J, 4, 4)``, each joint's bind-relative transform (``world ∘ inverse(bind)``) in the
+column-vector convention ``p' = M @ [p, 1]``; the optional geom-bind transform maps mesh space to
+bind (skeleton) space before skinning. Results are float32 in skeleton space. Same meaning as
+``UsdSkel.SkinPoints`` / ``UsdSkel.SkinNormals`` up to the matrix convention (USD is row-vector).
+"""
+
+import numpy as np
+import warp as wp
+
+from ._warp import launch_rows, resolve_device
+from .kernels import skin as K
+from .kernels.dqmath import vec8
+
+__all__ = ["METHODS", "Skinner", "skin_points", "skin_normals"]
+
+METHODS = {"lbs": K.LBS, "dqs": K.DQS, "blend": K.BLEND}
+"""Skinning methods: linear blend, dual quaternion, per-vertex blend of the two."""
+
+
+def _method_code(method):
+    try:
+        return int(METHODS[method])
+    except KeyError:
+        raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}") from None
+
+
+def _as_array(name, x, dtype, tail):
+    a = np.asarray(x, dtype=dtype)
+    if a.ndim < len(tail) or tuple(a.shape[a.ndim - len(tail):]) != tuple(
+            t if t is not None else a.shape[a.ndim - len(tail) + i] for i, t in enumerate(tail)):
+        want = "(..., " + ", ".join("n" if t is None else str(t) for t in tail) + ")"
+        raise ValueError(f"{name}: expected shape {want}, got {a.shape}")
+    return a
+
+
+def _transforms(skinning_transforms):
+    x = _as_array("skinning_transforms", skinning_transforms, np.float64, (4, 4))
+    if x.ndim == 3:
+        return x[None], False
+    if x.ndim == 4:
+        return x, True
+    raise ValueError(f"skinning_transforms: expected (J, 4, 4) or (F, J, 4, 4), got {x.shape}")
+
+
+def _frames_of(name, a, count):
+    """(V, 3) or (F, V, 3) → (Fp, V, 3) with Fp 1 or F."""
+    if a.ndim == 2:
+        return a[None]
+    if a.ndim == 3 and a.shape[0] in (1, count):
+        return a
+    raise ValueError(f"{name}: expected (V, 3) or ({count}, V, 3), got {a.shape}")
+
+
+class Skinner:
+    """A mesh's skinning data uploaded once to a device, skinned for many frames.
+
+    Parameters
+    ----------
+    points : (V, 3) float
+        Rest points in mesh space.
+    joint_indices : (V, K) int
+        Joint of each influence, ``0 <= index < J``. Any ``K`` (1, 4, 8, ...); pad with weight 0.
+    joint_weights : (V, K) float
+        Influence weights, finite and non-negative; used as given (never renormalized, as UsdSkel).
+    geom_bind_transform : (4, 4) float, optional
+        Mesh space → bind space, column-vector convention. Identity by default.
+    blend_weights : (V,) float, optional
+        Per-vertex DQS fraction for ``method="blend"`` (0 = LBS, 1 = DQS).
+    device : str, optional
+        Warp device; CUDA when present, else CPU.
+    """
+
+    def __init__(self, points, joint_indices, joint_weights, *, geom_bind_transform=None,
+                 blend_weights=None, device=None):
+        self.device = resolve_device(device)
+        pts = _as_array("points", points, np.float64, (3,))
+        if pts.ndim != 2:
+            raise ValueError(f"points: expected (V, 3), got {pts.shape}")
+        idx = np.asarray(joint_indices)
+        wts = np.asarray(joint_weights, dtype=np.float32)
+        if idx.ndim == 1:
+            idx, wts = idx[:, None], wts[:, None]
+        if idx.ndim != 2 or idx.shape[0] != pts.shape[0] or wts.shape != idx.shape:
+            raise ValueError(f"joint_indices {idx.shape} and joint_weights {wts.shape} must both be "
+                             f"(V, K) with V = {pts.shape[0]} points")
+        if not np.issubdtype(idx.dtype, np.integer):
+            raise ValueError(f"joint_indices: expected integers, got {idx.dtype}")
+        if idx.size and idx.min() < 0:
+            raise ValueError(f"joint_indices: negative index {int(idx.min())}")
+        if not np.all(np.isfinite(wts)):
+            raise ValueError("joint_weights: NaN or infinite weight")
+        if wts.size and wts.min() < 0:
+            raise ValueError(f"joint_weights: negative weight {float(wts.min())}")
+        self.vertex_count, self.influence_count = idx.shape
+        self.joint_count_min = int(idx.max()) + 1 if idx.size else 0
+        g = np.eye(4) if geom_bind_transform is None else _as_array(
+            "geom_bind_transform", geom_bind_transform, np.float64, (4, 4)).reshape(4, 4)
+        self.geom_bind_transform = g
+        d = self.device
+        self._points = wp.array(self._bind_points(pts)[None], dtype=wp.vec3, device=d)
+        self._indices = wp.array(idx.astype(np.int32), dtype=wp.int32, device=d)
+        self._weights = wp.array(wts, dtype=wp.float32, device=d)
+        if blend_weights is None:
+            self._blend = wp.zeros(0, dtype=wp.float32, device=d)
+        else:
+            b = np.asarray(blend_weights, dtype=np.float32).reshape(-1)
+            if b.shape != (self.vertex_count,) or not np.all((b >= 0) & (b <= 1)):
+                raise ValueError(f"blend_weights: expected ({self.vertex_count},) values in [0, 1]")
+            self._blend = wp.array(b, dtype=wp.float32, device=d)
+
+    def _bind_points(self, pts):
+        g = self.geom_bind_transform
+        return (pts @ g[:3, :3].T + g[:3, 3]).astype(np.float32)
+
+    def _check_method(self, method):
+        code = _method_code(method)
+        if code == K.BLEND and self._blend.shape[0] == 0:
+            raise ValueError('method "blend" needs blend_weights')
+        return code
+
+    def _prepare(self, skinning_transforms):
+        x, batched = _transforms(skinning_transforms)
+        frames, joints = x.shape[:2]
+        if joints < self.joint_count_min:
+            raise ValueError(f"joint_indices: index {self.joint_count_min - 1} out of range for "
+                             f"{joints} skinning transforms")
+        d = self.device
+        prep = dict(
+            xforms=wp.array(x.astype(np.float32), dtype=wp.mat44, device=d),
+            dqs=wp.empty((frames, joints), dtype=vec8, device=d),
+            residuals=wp.empty((frames, joints), dtype=wp.mat33, device=d),
+            linears=wp.empty((frames, joints), dtype=wp.mat33, device=d),
+            rotations=wp.empty((frames, joints), dtype=wp.quat, device=d),
+            normal_linears=wp.empty((frames, joints), dtype=wp.mat33, device=d),
+            normal_residuals=wp.empty((frames, joints), dtype=wp.mat33, device=d),
+            normal_rotations=wp.empty((frames, joints), dtype=wp.quat, device=d),
+            has_residual=wp.zeros(frames, dtype=wp.int32, device=d),
+        )
+        wp.launch(K.prepare_joints_kernel, dim=(frames, joints), inputs=[prep["xforms"]],
+                  outputs=[prep[k] for k in ("dqs", "residuals", "linears", "rotations",
+                                             "normal_linears", "normal_residuals",
+                                             "normal_rotations", "has_residual")], device=d)
+        return prep, frames, batched
+
+    def skin(self, skinning_transforms, method="dqs", *, points=None, as_warp=False):
+        """Skin the points for one or many frames.
+
+        Parameters
+        ----------
+        skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float
+            Bind-relative joint transforms, column-vector convention.
+        method : {"dqs", "lbs", "blend"}
+        points : (V, 3) or (F, V, 3) float, optional
+            Rest points replacing the uploaded ones (e.g. after blend shapes), mesh space.
+        as_warp : bool
+            Return the device array ``wp.array2d(dtype=wp.vec3)`` of shape (F, V) without a copy.
+
+        Returns
+        -------
+        (V, 3) or (F, V, 3) float32
+            Skinned points in skeleton space; (F, V, 3) when the transforms have a frame axis.
+        """
+        code = self._check_method(method)
+        prep, frames, batched = self._prepare(skinning_transforms)
+        src = self._points
+        if points is not None:
+            p = _frames_of("points", _as_array("points", points, np.float64, (3,)), frames)
+            if p.shape[1] != self.vertex_count:
+                raise ValueError(f"points: expected {self.vertex_count} points, got {p.shape[1]}")
+            src = wp.array(np.stack([self._bind_points(q) for q in p]), dtype=wp.vec3,
+                           device=self.device)
+        out = wp.empty((frames, self.vertex_count), dtype=wp.vec3, device=self.device)
+
+        def launch(offset, count):
+            wp.launch(K.skin_points_kernel, dim=(frames, count),
+                      inputs=[src, self._indices, self._weights, self._blend, prep["xforms"],
+                              prep["dqs"], prep["residuals"], prep["has_residual"], code, offset],
+                      outputs=[out], device=self.device)
+
+        launch_rows(launch, self.vertex_count, self.device)
+        if as_warp:
+            return out
+        res = out.numpy()
+        return res if batched else res[0]
+
+    def skin_vectors(self, skinning_transforms, vectors, method="dqs", *, kind="normal",
+                     vector_vertex=None, as_warp=False):
+        """Skin normals or tangents; results are unit length.
+
+        Parameters
+        ----------
+        skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float
+        vectors : (N, 3) or (F, N, 3) float
+            Directions in mesh space.
+        kind : {"normal", "tangent"}
+            Normals transform by the inverse transpose of each linear part; tangents by the part.
+        vector_vertex : (N,) int, optional
+            Vertex whose influences each vector uses (for faceVarying data); identity by default,
+            which requires ``N == V``.
+
+        Returns
+        -------
+        (N, 3) or (F, N, 3) float32, skeleton space.
+        """
+        if kind not in ("normal", "tangent"):
+            raise ValueError(f'kind must be "normal" or "tangent", got {kind!r}')
+        code = self._check_method(method)
+        prep, frames, batched = self._prepare(skinning_transforms)
+        vec = _frames_of("vectors", _as_array("vectors", vectors, np.float64, (3,)), frames)
+        n = vec.shape[1]
+        if vector_vertex is None:
+            if n != self.vertex_count:
+                raise ValueError(f"vectors: {n} vectors for {self.vertex_count} points; pass "
+                                 "vector_vertex for face-varying data")
+            vv = np.arange(n, dtype=np.int32)
+        else:
+            vv = np.asarray(vector_vertex, dtype=np.int64).reshape(-1)
+            if vv.shape != (n,) or (n and (vv.min() < 0 or vv.max() >= self.vertex_count)):
+                raise ValueError(f"vector_vertex: expected ({n},) indices into {self.vertex_count} "
+                                 "points")
+        g = self.geom_bind_transform[:3, :3]
+        gm = np.linalg.inv(g).T if kind == "normal" else g
+        d = self.device
+        src = wp.array((vec @ gm.T).astype(np.float32), dtype=wp.vec3, device=d)
+        vv_w = wp.array(vv.astype(np.int32), dtype=wp.int32, device=d)
+        prefix = "normal_" if kind == "normal" else ""
+        lin, rot, res = (prep[prefix + k] for k in ("linears", "rotations", "residuals"))
+        out = wp.empty((frames, n), dtype=wp.vec3, device=d)
+
+        def launch(offset, count):
+            wp.launch(K.skin_vectors_kernel, dim=(frames, count),
+                      inputs=[src, vv_w, self._indices, self._weights, self._blend, lin, rot, res,
+                              prep["has_residual"], code, offset],
+                      outputs=[out], device=d)
+
+        launch_rows(launch, n, d)
+        if as_warp:
+            return out
+        r = out.numpy()
+        return r if batched else r[0]
+
+
+def skin_points(points, joint_indices, joint_weights, skinning_transforms, method="dqs", *,
+                geom_bind_transform=None, blend_weights=None, device=None):
+    """Skin points with LBS, DQS or a per-vertex blend (one call; see :class:`Skinner`).
+
+    Parameters
+    ----------
+    points : (V, 3) float
+        Rest points, mesh space.
+    joint_indices : (V, K) int
+    joint_weights : (V, K) float
+    skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float
+        Bind-relative joint transforms (world ∘ inverse bind), column-vector convention.
+    method : {"dqs", "lbs", "blend"}
+    geom_bind_transform : (4, 4) float, optional
+    blend_weights : (V,) float, optional
+        DQS fraction per vertex, required for ``"blend"``.
+    device : str, optional
+
+    Returns
+    -------
+    (V, 3) or (F, V, 3) float32
+        Skinned points in skeleton space.
+    """
+    sk = Skinner(points, joint_indices, joint_weights, geom_bind_transform=geom_bind_transform,
+                 blend_weights=blend_weights, device=device)
+    return sk.skin(skinning_transforms, method)
+
+
+def skin_normals(normals, joint_indices, joint_weights, skinning_transforms, method="dqs", *,
+                 geom_bind_transform=None, blend_weights=None, normal_vertex=None, device=None):
+    """Skin normals consistently with :func:`skin_points` (inverse-transpose for LBS and scale).
+
+    Parameters
+    ----------
+    normals : (N, 3) float
+        Mesh-space normals; ``N == V`` unless ``normal_vertex`` maps each normal to its vertex.
+    joint_indices, joint_weights : (V, K)
+    skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float
+    normal_vertex : (N,) int, optional
+        Vertex of each normal (faceVarying normals).
+
+    Returns
+    -------
+    (N, 3) or (F, N, 3) float32
+        Unit normals in skeleton space.
+    """
+    idx = np.asarray(joint_indices)
+    sk = Skinner(np.zeros((idx.shape[0], 3)), joint_indices, joint_weights,
+                 geom_bind_transform=geom_bind_transform, blend_weights=blend_weights,
+                 device=device)
+    return sk.skin_vectors(skinning_transforms, normals, method, kind="normal",
+                           vector_vertex=normal_vertex)
