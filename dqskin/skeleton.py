@@ -116,10 +116,50 @@ class Skeleton:
         local = self.rest_transforms if local_transforms is None else local_transforms
         return forward_kinematics(self.parents, local, device=device, return_dq=return_dq)
 
-    def skinning_transforms(self, local_transforms=None, *, device=None):
-        """Bind-relative skinning transforms ``world ∘ inverse(bind)``, (..., J, 4, 4) float32."""
-        world = self.forward_kinematics(local_transforms, device=device)
-        return (world.astype(np.float64) @ self.inverse_bind_transforms).astype(np.float32)
+    def skinning_transforms(self, local_transforms=None, *, device=None, as_warp=False):
+        """Bind-relative skinning transforms ``world ∘ inverse(bind)``.
+
+        Parameters
+        ----------
+        local_transforms : (..., J, 4, 4) float, optional
+            Parent-relative transforms; rest pose when omitted.
+        as_warp : bool
+            Return the device array (F, J) of ``wp.mat44`` (leading axes flattened), ready for
+            :meth:`dqskin.Skinner.skin` without leaving the device.
+
+        Returns
+        -------
+        (..., J, 4, 4) float32, or a Warp array with ``as_warp``.
+        """
+        local = self.rest_transforms if local_transforms is None else local_transforms
+        d = resolve_device(device)
+        world, batch = _forward_kinematics(self.parents, local, d)
+        inv = wp.array(self.inverse_bind_transforms.astype(np.float32), dtype=wp.mat44, device=d)
+        out = wp.empty(world.shape, dtype=wp.mat44, device=d)
+        FK.bind_relative(world, inv, out, device=d)
+        return out if as_warp else out.numpy().reshape(*batch, self.joint_count, 4, 4)
+
+
+def _forward_kinematics(parents, local_transforms, device, outputs=None):
+    """Launch FK; returns the (B, J) world ``wp.mat44`` array and the batch shape."""
+    par = _check_parents(parents)
+    J = par.shape[0]
+    loc = np.asarray(local_transforms, dtype=np.float32)
+    if loc.ndim < 3 or loc.shape[-3:] != (J, 4, 4):
+        raise ValueError(f"local_transforms: expected (..., {J}, 4, 4), got {loc.shape}")
+    batch = loc.shape[:-3]
+    B = int(np.prod(batch, dtype=np.int64))
+    d = device
+    local = wp.array(np.ascontiguousarray(loc.reshape(B, J, 4, 4)), dtype=wp.mat44, device=d)
+    world_dq = wp.empty((B, J), dtype=vec8, device=d)
+    residual = wp.empty((B, J), dtype=wp.mat33, device=d)
+    world = wp.empty((B, J), dtype=wp.mat44, device=d)
+    FK.forward_kinematics(wp.array(par, dtype=wp.int32, device=d),
+                          wp.array(np.array([0, J], np.int32), dtype=wp.int32, device=d),
+                          local, world_dq, residual, world, device=d)
+    if outputs is not None:
+        outputs.extend([world_dq, residual])
+    return world, batch
 
 
 def forward_kinematics(parents, local_transforms, *, device=None, return_dq=False):
@@ -141,22 +181,10 @@ def forward_kinematics(parents, local_transforms, *, device=None, return_dq=Fals
     world : (..., J, 4, 4) float32
     dq, residual : (..., J, 8), (..., J, 3, 3) float32 with ``return_dq``.
     """
-    par = _check_parents(parents)
-    J = par.shape[0]
-    loc = np.asarray(local_transforms, dtype=np.float32)
-    if loc.ndim < 3 or loc.shape[-3:] != (J, 4, 4):
-        raise ValueError(f"local_transforms: expected (..., {J}, 4, 4), got {loc.shape}")
-    batch = loc.shape[:-3]
-    B = int(np.prod(batch, dtype=np.int64))
-    d = resolve_device(device)
-    local = wp.array(np.ascontiguousarray(loc.reshape(B, J, 4, 4)), dtype=wp.mat44, device=d)
-    world_dq = wp.empty((B, J), dtype=vec8, device=d)
-    residual = wp.empty((B, J), dtype=wp.mat33, device=d)
-    world = wp.empty((B, J), dtype=wp.mat44, device=d)
-    FK.forward_kinematics(wp.array(par, dtype=wp.int32, device=d),
-                          wp.array(np.array([0, J], np.int32), dtype=wp.int32, device=d),
-                          local, world_dq, residual, world, device=d)
+    extra = []
+    world, batch = _forward_kinematics(parents, local_transforms, resolve_device(device), extra)
+    J = world.shape[1]
     w = world.numpy().reshape(*batch, J, 4, 4)
     if not return_dq:
         return w
-    return w, world_dq.numpy().reshape(*batch, J, 8), residual.numpy().reshape(*batch, J, 3, 3)
+    return w, extra[0].numpy().reshape(*batch, J, 8), extra[1].numpy().reshape(*batch, J, 3, 3)

@@ -122,14 +122,22 @@ class Skinner:
         return code
 
     def _prepare(self, skinning_transforms):
-        x, batched = _transforms(skinning_transforms)
-        frames, joints = x.shape[:2]
+        d = self.device
+        if isinstance(skinning_transforms, wp.array):
+            x = skinning_transforms
+            if x.dtype != wp.mat44 or x.ndim != 2 or x.device != d:
+                raise ValueError("skinning_transforms: a Warp array must be 2-D (F, J) of wp.mat44 on "
+                                 f"{d}, got {x.ndim}-D {x.dtype} on {x.device}")
+            batched = True
+        else:
+            xs, batched = _transforms(skinning_transforms)
+            x = wp.array(xs.astype(np.float32), dtype=wp.mat44, device=d)
+        frames, joints = x.shape
         if joints < self.joint_count_min:
             raise ValueError(f"joint_indices: index {self.joint_count_min - 1} out of range for "
                              f"{joints} skinning transforms")
-        d = self.device
         prep = dict(
-            xforms=wp.array(x.astype(np.float32), dtype=wp.mat44, device=d),
+            xforms=x,
             dqs=wp.empty((frames, joints), dtype=vec8, device=d),
             residuals=wp.empty((frames, joints), dtype=wp.mat33, device=d),
             linears=wp.empty((frames, joints), dtype=wp.mat33, device=d),
@@ -150,8 +158,9 @@ class Skinner:
 
         Parameters
         ----------
-        skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float
-            Bind-relative joint transforms, column-vector convention.
+        skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float, or wp.array2d of wp.mat44 (F, J)
+            Bind-relative joint transforms, column-vector convention. A Warp array on this
+            skinner's device is used in place (no copy).
         method : {"dqs", "lbs", "blend"}
         points : (V, 3) or (F, V, 3) float, optional
             Rest points replacing the uploaded ones (e.g. after blend shapes), mesh space.

@@ -158,7 +158,9 @@ def polar_rotation(a: wp.mat33):
     sigma = wp.vec3()
     v = wp.mat33()
     wp.svd3(a, u, sigma, v)
-    r = u * wp.transpose(v)
+    # svd3 keeps U, V proper rotations and may return a negative singular value: restore the sign
+    sgn = wp.vec3(wp.sign(sigma[0]), wp.sign(sigma[1]), wp.sign(sigma[2]))
+    r = u * wp.diag(sgn) * wp.transpose(v)
     if wp.determinant(r) < 0.0:
         r = -r
     return r
