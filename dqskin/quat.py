@@ -141,7 +141,7 @@ def conjugate(q):
 
 
 def inverse(q):
-    """Multiplicative inverse ``q* / |q|^2`` ([MS] sec. 2; equals ``q*`` for unit ``q``, [K] eq. 10).
+    """Multiplicative inverse ``q* / |q|^2`` ([MS] sec. 2); ``q*`` for unit ``q`` ([K] eq. 10).
 
     Parameters
     ----------
@@ -426,8 +426,8 @@ def slerp(q0, q1, t):
 
     Both inputs are normalized; ``q1`` is negated where ``dot(q0, q1) < 0`` so
     that the rotation takes the shortest path ([K] "Shortest or Longest
-    Interpolation Path"). ``slerp(q0, q1, 0) == q0`` and
-    ``slerp(q0, q1, 1) == +-q1``. Equals ``q0 (q0* q1)^t`` ([K] eq. 16).
+    Interpolation Path"). ``slerp(q0, q1, 0) == normalize(q0)`` and
+    ``slerp(q0, q1, 1) == +-normalize(q1)``. Equals ``q0 (q0* q1)^t`` ([K] eq. 16).
 
     Parameters
     ----------
@@ -447,8 +447,8 @@ def slerp(q0, q1, t):
     ValueError
         If any input quaternion is zero.
     """
-    q0 = normalize(q0)
-    q1 = normalize(q1)
+    q0 = normalize(_as_float(q0, "q0", 4))
+    q1 = normalize(_as_float(q1, "q1", 4))
     q1 = np.where(dot(q0, q1)[..., None] < 0, -q1, q1)
     t = _as_float(t, "t", dtype=np.result_type(q0, q1))[..., None]
     # Angle between the unit 4-vectors, accurate also for nearly equal inputs.

@@ -12,7 +12,6 @@ import warp as wp
 
 from ._warp import launch_rows, resolve_device
 from .kernels import skin as K
-from .kernels.dqmath import vec8
 
 __all__ = ["METHODS", "Skinner", "skin_points", "skin_normals"]
 
@@ -95,6 +94,9 @@ class Skinner:
         if wts.size and wts.min() < 0:
             raise ValueError(f"joint_weights: negative weight {float(wts.min())}")
         self.vertex_count, self.influence_count = idx.shape
+        # largest weight first (stable: first on ties) -- the kernels' antipodality pivot
+        order = np.argsort(-wts, axis=1, kind="stable")
+        idx, wts = np.take_along_axis(idx, order, 1), np.take_along_axis(wts, order, 1)
         self.joint_count_min = int(idx.max()) + 1 if idx.size else 0
         g = np.eye(4) if geom_bind_transform is None else _as_array(
             "geom_bind_transform", geom_bind_transform, np.float64, (4, 4)).reshape(4, 4)
@@ -138,17 +140,18 @@ class Skinner:
                              f"{joints} skinning transforms")
         prep = dict(
             xforms=x,
-            dqs=wp.empty((frames, joints), dtype=vec8, device=d),
+            affines=wp.empty((frames, joints), dtype=K.mat34, device=d),
+            dq_real=wp.empty((frames, joints), dtype=wp.quat, device=d),
+            dq_dual=wp.empty((frames, joints), dtype=wp.quat, device=d),
             residuals=wp.empty((frames, joints), dtype=wp.mat33, device=d),
             linears=wp.empty((frames, joints), dtype=wp.mat33, device=d),
-            rotations=wp.empty((frames, joints), dtype=wp.quat, device=d),
             normal_linears=wp.empty((frames, joints), dtype=wp.mat33, device=d),
             normal_residuals=wp.empty((frames, joints), dtype=wp.mat33, device=d),
             normal_rotations=wp.empty((frames, joints), dtype=wp.quat, device=d),
             has_residual=wp.zeros(frames, dtype=wp.int32, device=d),
         )
         wp.launch(K.prepare_joints_kernel, dim=(frames, joints), inputs=[prep["xforms"]],
-                  outputs=[prep[k] for k in ("dqs", "residuals", "linears", "rotations",
+                  outputs=[prep[k] for k in ("affines", "dq_real", "dq_dual", "residuals", "linears",
                                              "normal_linears", "normal_residuals",
                                              "normal_rotations", "has_residual")], device=d)
         return prep, frames, batched
@@ -183,11 +186,17 @@ class Skinner:
                            device=self.device)
         out = wp.empty((frames, self.vertex_count), dtype=wp.vec3, device=self.device)
 
+        pts = [src, self._indices, self._weights]
+        if code == K.LBS:
+            kernel, inputs = K.skin_lbs_kernel, pts + [prep["affines"]]
+        else:
+            dqs = [prep["dq_real"], prep["dq_dual"], prep["residuals"], prep["has_residual"]]
+            kernel, inputs = ((K.skin_dqs_kernel, pts + dqs) if code == K.DQS else
+                              (K.skin_blend_kernel, pts + [self._blend, prep["affines"]] + dqs))
+
         def launch(offset, count):
-            wp.launch(K.skin_points_kernel, dim=(frames, count),
-                      inputs=[src, self._indices, self._weights, self._blend, prep["xforms"],
-                              prep["dqs"], prep["residuals"], prep["has_residual"], code, offset],
-                      outputs=[out], device=self.device)
+            wp.launch(kernel, dim=count, inputs=inputs + [offset], outputs=[out],
+                      device=self.device)
 
         launch_rows(launch, self.vertex_count, self.device)
         if as_warp:
@@ -235,12 +244,14 @@ class Skinner:
         d = self.device
         src = wp.array((vec @ gm.T).astype(np.float32), dtype=wp.vec3, device=d)
         vv_w = wp.array(vv.astype(np.int32), dtype=wp.int32, device=d)
-        prefix = "normal_" if kind == "normal" else ""
-        lin, rot, res = (prep[prefix + k] for k in ("linears", "rotations", "residuals"))
+        if kind == "normal":
+            lin, rot, res = prep["normal_linears"], prep["normal_rotations"], prep["normal_residuals"]
+        else:
+            lin, rot, res = prep["linears"], prep["dq_real"], prep["residuals"]
         out = wp.empty((frames, n), dtype=wp.vec3, device=d)
 
         def launch(offset, count):
-            wp.launch(K.skin_vectors_kernel, dim=(frames, count),
+            wp.launch(K.skin_vectors_kernel, dim=count,
                       inputs=[src, vv_w, self._indices, self._weights, self._blend, lin, rot, res,
                               prep["has_residual"], code, offset],
                       outputs=[out], device=d)

@@ -8,7 +8,13 @@ zero-weight padding allowed). Semantics follow UsdSkel (``UsdSkelSkinPointsLBS/D
   quaternion ``η`` (``R``, ``t``) and a residual ``S``. If any joint of the frame has ``S ≠ I``, the
   point is first blended linearly through the residuals, ``p_s = Σ wᵢ·Sᵢ·p``; then
   ``p' = normalize(Σ ±wᵢ·ηᵢ)(p_s)``, each ``ηᵢ`` sign-flipped onto the hemisphere of the vertex's
-  largest-weight joint (antipodality) and normalized per Montgomery-Smith eq. 14 (Plücker).
+  largest-weight joint (antipodality). Normalization (Montgomery-Smith eq. 14) is folded into the
+  transform: for a blend ``b = r + ε·d``, ``p' = (r·p·r* + 2·(d·r*)_vec) / |r|²``; the Plücker
+  correction of eq. 14 only changes the scalar part of ``d·r*`` and so drops out.
+
+Influences must be sorted by descending weight per vertex (:class:`dqskin.Skinner` does it on
+upload), so slot 0 is the antipodality pivot -- the largest weight, first on ties, as UsdSkel.
+One thread per vertex loops over all frames, reading the vertex's influences once.
 * blend: ``p' = (1 − b)·LBS + b·DQS`` with a per-vertex ``b`` (Maya's "weight blended").
 
 Normals use the inverse transpose of each linear part; tangents use the linear part itself; both
@@ -17,8 +23,9 @@ are normalized after blending.
 
 import warp as wp
 
-from .dqmath import (dq_blend_add, dq_from_rt, dq_normalize_blend, dq_real, dq_transform_point,
-                     is_identity33, mat44_linear, orthonormalize_columns, polar_rotation, vec8)
+from .dqmath import dq_from_rt, is_identity33, mat44_linear, orthonormalize_columns, polar_rotation
+
+mat34 = wp.types.matrix(shape=(3, 4), dtype=wp.float32)
 
 LBS = wp.constant(0)
 DQS = wp.constant(1)
@@ -31,10 +38,11 @@ RESIDUAL_TOLERANCE = wp.constant(1.0e-6)
 def prepare_joints_kernel(
     xforms: wp.array2d(dtype=wp.mat44),
     # outputs
-    dqs: wp.array2d(dtype=vec8),
+    affines: wp.array2d(dtype=mat34),
+    dq_real: wp.array2d(dtype=wp.quat),
+    dq_dual: wp.array2d(dtype=wp.quat),
     residuals: wp.array2d(dtype=wp.mat33),
     linears: wp.array2d(dtype=wp.mat33),
-    rotations: wp.array2d(dtype=wp.quat),
     normal_linears: wp.array2d(dtype=wp.mat33),
     normal_residuals: wp.array2d(dtype=wp.mat33),
     normal_rotations: wp.array2d(dtype=wp.quat),
@@ -51,10 +59,14 @@ def prepare_joints_kernel(
     r = polar_rotation(a)
     s = wp.transpose(r) * a
     q = wp.normalize(wp.quat_from_matrix(r))
-    dqs[f, j] = dq_from_rt(q, wp.vec3(m[0, 3], m[1, 3], m[2, 3]))
+    eta = dq_from_rt(q, wp.vec3(m[0, 3], m[1, 3], m[2, 3]))
+    dq_real[f, j] = q
+    dq_dual[f, j] = wp.quat(eta[5], eta[6], eta[7], eta[4])
+    affines[f, j] = mat34(m[0, 0], m[0, 1], m[0, 2], m[0, 3],
+                          m[1, 0], m[1, 1], m[1, 2], m[1, 3],
+                          m[2, 0], m[2, 1], m[2, 2], m[2, 3])
     residuals[f, j] = s
     linears[f, j] = a
-    rotations[f, j] = q
     n = wp.transpose(wp.inverse(a))
     rn = orthonormalize_columns(n)
     normal_linears[f, j] = n
@@ -65,68 +77,140 @@ def prepare_joints_kernel(
 
 
 @wp.func
-def largest_weight_slot(weights: wp.array2d(dtype=float), v: int):
-    """Column of the vertex's largest weight (first one on ties)."""
-    best = int(0)
-    for k in range(1, weights.shape[1]):
-        if weights[v, k] > weights[v, best]:
-            best = k
-    return best
+def lbs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.int32),
+              weights: wp.array2d(dtype=float), affines: wp.array2d(dtype=mat34)):
+    """``Σ wᵢ·Aᵢ·[p, 1]``, blending the 3×4 matrices first."""
+    acc = mat34()
+    for k in range(indices.shape[1]):
+        acc += affines[f, indices[v, k]] * weights[v, k]
+    return acc * wp.vec4(p[0], p[1], p[2], 1.0)
 
 
 @wp.func
-def dqs_fraction(method: int, blend: wp.array(dtype=float), v: int):
-    if method == LBS:
-        return 0.0
-    if method == DQS:
-        return 1.0
-    return blend[v]
+def dqs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.int32),
+              weights: wp.array2d(dtype=float), dq_real: wp.array2d(dtype=wp.quat),
+              dq_dual: wp.array2d(dtype=wp.quat), residuals: wp.array2d(dtype=wp.mat33),
+              use_residual: bool):
+    """DQS of one point: pivot slot 0, sign-aligned blend, normalization folded in."""
+    pivot = dq_real[f, indices[v, 0]]
+    r = wp.quat(0.0, 0.0, 0.0, 0.0)
+    d = wp.quat(0.0, 0.0, 0.0, 0.0)
+    scaled = p
+    if use_residual:
+        scaled = wp.vec3()
+    for k in range(indices.shape[1]):
+        j = indices[v, k]
+        q = dq_real[f, j]
+        w = weights[v, k]
+        s = w * wp.sign(wp.dot(q, pivot))
+        r += q * s
+        d += dq_dual[f, j] * s
+        if use_residual:
+            scaled += (residuals[f, j] * p) * w
+    rv = wp.vec3(r[0], r[1], r[2])
+    rw = r[3]
+    n2 = rw * rw + wp.dot(rv, rv)
+    if n2 < 1.0e-20:
+        return scaled  # all weights zero: identity, as Gf's normalize
+    dv = wp.vec3(d[0], d[1], d[2])
+    return scaled + (2.0 / n2) * (wp.cross(rv, wp.cross(rv, scaled) + rw * scaled)
+                                  + rw * dv - d[3] * rv + wp.cross(rv, dv))
 
 
 @wp.kernel
-def skin_points_kernel(
+def skin_lbs_kernel(
     points: wp.array2d(dtype=wp.vec3),
     indices: wp.array2d(dtype=wp.int32),
     weights: wp.array2d(dtype=float),
-    blend: wp.array(dtype=float),
-    xforms: wp.array2d(dtype=wp.mat44),
-    dqs: wp.array2d(dtype=vec8),
-    residuals: wp.array2d(dtype=wp.mat33),
-    has_residual: wp.array(dtype=wp.int32),
-    method: int,
+    affines: wp.array2d(dtype=mat34),
     vertex_offset: int,
     # outputs
     out: wp.array2d(dtype=wp.vec3),
 ):
-    """``points`` (Fp, V) with Fp 1 or F, bind space; ``out`` (F, V) skinned points."""
-    f, i = wp.tid()
-    v = i + vertex_offset
-    p = points[wp.min(f, points.shape[0] - 1), v]
-    b = dqs_fraction(method, blend, v)
-    result = wp.vec3()
-    if b < 1.0:
-        acc = wp.vec3()
-        for k in range(indices.shape[1]):
-            w = weights[v, k]
-            if w != 0.0:
-                acc += wp.transform_point(xforms[f, indices[v, k]], p) * w
-        result = acc * (1.0 - b)
-    if b > 0.0:
-        pivot = dq_real(dqs[f, indices[v, largest_weight_slot(weights, v)]])
-        scaled = p
-        use_residual = has_residual[f] != 0
+    """LBS, one thread per vertex over all frames. ``points`` (Fp, V) bind space, Fp 1 or F;
+    ``affines`` (F, J); ``out`` (F, V) skeleton space."""
+    v = wp.tid() + vertex_offset
+    last = points.shape[0] - 1
+    for f in range(out.shape[0]):
+        out[f, v] = lbs_point(points[wp.min(f, last), v], v, f, indices, weights, affines)
+
+
+@wp.kernel
+def skin_dqs_kernel(
+    points: wp.array2d(dtype=wp.vec3),
+    indices: wp.array2d(dtype=wp.int32),
+    weights: wp.array2d(dtype=float),
+    dq_real: wp.array2d(dtype=wp.quat),
+    dq_dual: wp.array2d(dtype=wp.quat),
+    residuals: wp.array2d(dtype=wp.mat33),
+    has_residual: wp.array(dtype=wp.int32),
+    vertex_offset: int,
+    # outputs
+    out: wp.array2d(dtype=wp.vec3),
+):
+    """DQS, one thread per vertex over all frames (arrays as :func:`skin_lbs_kernel`)."""
+    v = wp.tid() + vertex_offset
+    last = points.shape[0] - 1
+    for f in range(out.shape[0]):
+        out[f, v] = dqs_point(points[wp.min(f, last), v], v, f, indices, weights, dq_real,
+                              dq_dual, residuals, has_residual[f] != 0)
+
+
+@wp.kernel
+def skin_blend_kernel(
+    points: wp.array2d(dtype=wp.vec3),
+    indices: wp.array2d(dtype=wp.int32),
+    weights: wp.array2d(dtype=float),
+    blend: wp.array(dtype=float),
+    affines: wp.array2d(dtype=mat34),
+    dq_real: wp.array2d(dtype=wp.quat),
+    dq_dual: wp.array2d(dtype=wp.quat),
+    residuals: wp.array2d(dtype=wp.mat33),
+    has_residual: wp.array(dtype=wp.int32),
+    vertex_offset: int,
+    # outputs
+    out: wp.array2d(dtype=wp.vec3),
+):
+    """Per-vertex mix ``(1 − b)·LBS + b·DQS`` with ``b = blend[v]``."""
+    v = wp.tid() + vertex_offset
+    last = points.shape[0] - 1
+    b = blend[v]
+    for f in range(out.shape[0]):
+        p = points[wp.min(f, last), v]
+        out[f, v] = (lbs_point(p, v, f, indices, weights, affines) * (1.0 - b)
+                     + dqs_point(p, v, f, indices, weights, dq_real, dq_dual, residuals,
+                                 has_residual[f] != 0) * b)
+
+
+@wp.func
+def dqs_vector(x: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.int32),
+               weights: wp.array2d(dtype=float), rotations: wp.array2d(dtype=wp.quat),
+               residuals: wp.array2d(dtype=wp.mat33), use_residual: bool):
+    """Rotation-only DQS of a direction (sign-aligned quaternion blend), unit length."""
+    pivot = rotations[f, indices[v, 0]]
+    r = wp.quat(0.0, 0.0, 0.0, 0.0)
+    scaled = x
+    if use_residual:
+        scaled = wp.vec3()
+    for k in range(indices.shape[1]):
+        j = indices[v, k]
+        q = rotations[f, j]
+        w = weights[v, k]
+        r += q * (w * wp.sign(wp.dot(q, pivot)))
         if use_residual:
-            scaled = wp.vec3()
-        acc8 = vec8()
-        for k in range(indices.shape[1]):
-            w = weights[v, k]
-            if w != 0.0:
-                j = indices[v, k]
-                acc8 = dq_blend_add(acc8, dqs[f, j], w, pivot)
-                if use_residual:
-                    scaled += (residuals[f, j] * p) * w
-        result += dq_transform_point(dq_normalize_blend(acc8), scaled) * b
-    out[f, v] = result
+            scaled += (residuals[f, j] * x) * w
+    if wp.length(r) < 1.0e-10:
+        return wp.normalize(scaled)
+    return wp.normalize(wp.quat_rotate(wp.normalize(r), scaled))
+
+
+@wp.func
+def lbs_vector(x: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.int32),
+               weights: wp.array2d(dtype=float), linears: wp.array2d(dtype=wp.mat33)):
+    acc = wp.mat33()
+    for k in range(indices.shape[1]):
+        acc += linears[f, indices[v, k]] * weights[v, k]
+    return wp.normalize(acc * x)
 
 
 @wp.kernel
@@ -145,44 +229,28 @@ def skin_vectors_kernel(
     # outputs
     out: wp.array2d(dtype=wp.vec3),
 ):
-    """Skin directions (normals or tangents), normalized.
+    """Skin directions (normals or tangents), normalized; one thread per vector, all frames.
 
     ``vectors`` (Fp, N); ``vector_vertex`` (N,) maps each vector to the vertex whose influences it
     uses (identity for per-vertex data, the face-vertex map for faceVarying). For normals pass the
-    inverse-transpose matrices as ``linears``/``residuals``; for tangents the matrices themselves.
+    inverse-transpose matrices and the rotations UsdSkel derives from them; for tangents the
+    matrices themselves and their polar rotations.
     """
-    f, i = wp.tid()
-    n = i + offset
+    n = wp.tid() + offset
     v = vector_vertex[n]
-    x = vectors[wp.min(f, vectors.shape[0] - 1), n]
-    b = dqs_fraction(method, blend, v)
-    result = wp.vec3()
-    if b < 1.0:
-        acc = wp.vec3()
-        for k in range(indices.shape[1]):
-            w = weights[v, k]
-            if w != 0.0:
-                acc += (linears[f, indices[v, k]] * x) * w
-        result = wp.normalize(acc) * (1.0 - b)
-    if b > 0.0:
-        pivot = rotations[f, indices[v, largest_weight_slot(weights, v)]]
-        scaled = x
-        use_residual = has_residual[f] != 0
-        if use_residual:
-            scaled = wp.vec3()
-        qsum = wp.quat(0.0, 0.0, 0.0, 0.0)
-        for k in range(indices.shape[1]):
-            w = weights[v, k]
-            if w != 0.0:
-                j = indices[v, k]
-                qj = rotations[f, j]
-                if wp.dot(qj, pivot) < 0.0:
-                    qsum = qsum - qj * w
-                else:
-                    qsum = qsum + qj * w
-                if use_residual:
-                    scaled += (residuals[f, j] * x) * w
-        if wp.length(qsum) < 1.0e-10:
-            qsum = wp.quat_identity()
-        result += wp.normalize(wp.quat_rotate(wp.normalize(qsum), scaled)) * b
-    out[f, n] = wp.normalize(result)
+    last = vectors.shape[0] - 1
+    x = vectors[0, n]
+    for f in range(out.shape[0]):
+        if last > 0:
+            x = vectors[f, n]
+        if method == LBS:
+            out[f, n] = lbs_vector(x, v, f, indices, weights, linears)
+        elif method == DQS:
+            out[f, n] = dqs_vector(x, v, f, indices, weights, rotations, residuals,
+                                   has_residual[f] != 0)
+        else:
+            b = blend[v]
+            out[f, n] = wp.normalize(
+                lbs_vector(x, v, f, indices, weights, linears) * (1.0 - b)
+                + dqs_vector(x, v, f, indices, weights, rotations, residuals,
+                             has_residual[f] != 0) * b)

@@ -8,7 +8,6 @@ from scipy.spatial.transform import Rotation
 
 import dqskin
 from dqskin.kernels import skin as K
-from dqskin.kernels.dqmath import vec8
 
 TOKENS = {"lbs": "classicLinear", "dqs": "dualQuaternion"}
 
@@ -161,11 +160,11 @@ def test_twist_keeps_radius_with_dqs_and_collapses_with_lbs(device, theta):
     np.testing.assert_allclose(np.linalg.norm(lbs[:, 1:], axis=1), abs(np.cos(theta / 2)), atol=1e-5)
 
 
-def _launch_points(prep, sk, method):
-    out = wp.empty((prep["dqs"].shape[0], sk.vertex_count), dtype=wp.vec3, device=sk.device)
-    wp.launch(K.skin_points_kernel, dim=out.shape,
-              inputs=[sk._points, sk._indices, sk._weights, sk._blend, prep["xforms"], prep["dqs"],
-                      prep["residuals"], prep["has_residual"], int(dqskin.METHODS[method]), 0],
+def _launch_dqs(prep, sk):
+    out = wp.empty((prep["dq_real"].shape[0], sk.vertex_count), dtype=wp.vec3, device=sk.device)
+    wp.launch(K.skin_dqs_kernel, dim=sk.vertex_count,
+              inputs=[sk._points, sk._indices, sk._weights, prep["dq_real"], prep["dq_dual"],
+                      prep["residuals"], prep["has_residual"], 0],
               outputs=[out], device=sk.device)
     return out.numpy()
 
@@ -175,12 +174,14 @@ def test_flipping_joint_dq_sign_changes_nothing(device):
     points, idx, w, M, _ = random_rig(rng, F=2)
     sk = dqskin.Skinner(points, idx, w, device=device)
     prep, _, _ = sk._prepare(M)
-    ref = _launch_points(prep, sk, "dqs")
-    dq = prep["dqs"].numpy()
-    flip = rng.random(dq.shape[:2]) < 0.5
-    dq[flip] *= -1
-    prep["dqs"] = wp.array(dq, dtype=vec8, device=device)
-    np.testing.assert_allclose(_launch_points(prep, sk, "dqs"), ref, atol=1e-5)
+    ref = _launch_dqs(prep, sk)
+    flip = rng.random(prep["dq_real"].shape) < 0.5
+    for part in ("dq_real", "dq_dual"):
+        q = prep[part].numpy()
+        q[flip] *= -1
+        prep[part] = wp.array(q, dtype=wp.quat, device=device)
+    assert flip.any()
+    np.testing.assert_allclose(_launch_dqs(prep, sk), ref, atol=1e-5)
 
 
 def test_blend_mixes_lbs_and_dqs(device):
