@@ -7,6 +7,7 @@ import warp as wp
 
 wp.config.enable_backward = False
 wp.config.quiet = True
+wp.config.log_level = wp.LOG_ERROR  # no init banner or per-module load timings on stdout
 
 _pool = None
 

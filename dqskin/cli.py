@@ -1,0 +1,244 @@
+"""The ``dqskin`` command line: ``skin``, ``info``, ``compare`` and ``demo``.
+
+Errors in the input print one line naming the file, prim or field and exit with status 2; no
+traceback. Existing outputs are never overwritten without ``--force``; outputs are atomic.
+"""
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["main"]
+
+EXIT_INPUT = 2
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
+
+
+class CliError(Exception):
+    """An error reported as one line, exit status 2."""
+
+
+def parse_frames(text):
+    """``START:END[:STEP]`` → (start, end, step) floats (END inclusive)."""
+    parts = text.split(":")
+    try:
+        if len(parts) not in (2, 3):
+            raise ValueError
+        start, end = float(parts[0]), float(parts[1])
+        step = float(parts[2]) if len(parts) == 3 else 1.0
+    except ValueError:
+        raise CliError(f"--frames {text!r}: expected START:END[:STEP]") from None
+    if step <= 0 or end < start:
+        raise CliError(f"--frames {text!r}: need END >= START and STEP > 0")
+    return start, end, step
+
+
+def select_times(scene, frames=None, fps=None):
+    """Sample times: the asset's own, an explicit ``--frames`` range, or ``--fps`` resampling."""
+    t = np.asarray(scene.times, np.float64)
+    if frames is not None:
+        start, end, step = parse_frames(frames)
+        t = np.arange(start, end + step * 1e-6, step)
+    elif fps is not None:
+        if fps <= 0:
+            raise CliError(f"--fps {fps}: must be positive")
+        step = scene.time_codes_per_second / fps
+        t = np.arange(t[0], t[-1] + step * 1e-6, step)
+    if t.size == 0:
+        raise CliError(f"{scene.path}: no frames selected")
+    return t
+
+
+def frame_numbers(scene, times):
+    """Integer frame numbers for file names: time codes for USD, frames at 24 fps for glTF."""
+    rate = 24.0 if scene.time_codes_per_second == 1.0 else 1.0
+    return np.round(np.asarray(times) * rate).astype(int)
+
+
+def skin_chunks(scene, times, method, device, chunk, normals, progress=True):
+    """Yield ``(slice, points, normals)`` per chunk of frames, so memory stays bounded."""
+    from tqdm import tqdm
+    bar = tqdm(total=len(times), unit="frame", disable=not progress or len(times) < 2 * chunk,
+               desc="skinning", file=sys.stderr)
+    for lo in range(0, len(times), chunk):
+        sl = slice(lo, min(lo + chunk, len(times)))
+        res = scene.skin(times[sl], method, device=device, normals=normals)
+        pts, nrm = res if normals else (res, None)
+        yield sl, pts, nrm
+        bar.update(sl.stop - sl.start)
+    bar.close()
+
+
+def check_output(out, inputs, force):
+    out = Path(out)
+    for src in inputs:
+        if out.resolve() == Path(src).resolve():
+            raise CliError(f"{out}: refusing to overwrite the input")
+    if out.exists() and not force:
+        raise CliError(f"{out}: exists (use --force to overwrite)")
+    return out
+
+
+def cmd_skin(args):
+    from . import io
+    scene = io.load(args.input, clip=args.clip)
+    times = select_times(scene, args.frames, args.fps)
+    out = str(args.out)
+    suffix = Path(out).suffix.lower()
+    names = [m.name for m in scene.meshes]
+    F = len(times)
+    if suffix in (".usd", ".usda", ".usdc"):
+        check_output(out, [args.input], args.force)
+        from .usd_cache import write_usd_cache
+        pts = {n: np.empty((F, len(scene.mesh(n).points), 3), np.float32) for n in names}
+        nrm = {}
+        for sl, p, n in skin_chunks(scene, times, args.method, args.device, args.chunk, True):
+            for name in names:
+                pts[name][sl] = p[name]
+                if name in n:
+                    nrm.setdefault(name, np.empty((F,) + n[name].shape[1:], np.float32))[sl] = n[name]
+        write_usd_cache(scene, out, times, pts, nrm or None, source_path=args.input)
+        print(f"wrote {out}: {len(names)} meshes × {F} frames ({args.method or 'asset method'})")
+    elif suffix == ".npz":
+        check_output(out, [args.input], args.force)
+        pts = {n: np.empty((F, len(scene.mesh(n).points), 3), np.float32) for n in names}
+        for sl, p, _ in skin_chunks(scene, times, args.method, args.device, args.chunk, False):
+            for name in names:
+                pts[name][sl] = p[name]
+        with io.atomic_path(out) as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, times=times, names=np.array(names),
+                         **{f"points_{i}": pts[n] for i, n in enumerate(names)},
+                         **{f"faces_{i}": scene.mesh(n).faces for i, n in enumerate(names)})
+        print(f"wrote {out}: {len(names)} meshes × {F} frames")
+    elif suffix in io.MESH_SUFFIXES:
+        numbers = frame_numbers(scene, times)
+        paths = io.frame_paths(out, numbers)
+        for p in paths:
+            check_output(p, [args.input], args.force)
+        faces, offset = [], 0
+        for m in scene.meshes:
+            faces.append(m.faces + offset)
+            offset += len(m.points)
+        faces = np.concatenate(faces)
+        for sl, p, _ in skin_chunks(scene, times, args.method, args.device, args.chunk, False):
+            stacked = np.concatenate([p[n] for n in names], axis=1)
+            io.write_frames(out, numbers[sl], stacked, faces, force=args.force)
+        print(f"wrote {len(paths)} files {paths[0]} … {paths[-1]}")
+    else:
+        raise CliError(f"--out {out}: unsupported output type; use .usd/.usda/.usdc, .npz, or a "
+                       "per-frame pattern like out/frame_{:04d}.obj (.obj .ply .stl .off .glb)")
+    return 0
+
+
+def cmd_info(args):
+    from . import io
+    scene = io.load(args.input, clip=args.clip)
+    print(f"{scene.path}")
+    t = np.asarray(scene.times)
+    unit = "s" if scene.time_codes_per_second == 1.0 else f"time codes @ {scene.time_codes_per_second:g}/s"
+    print(f"  time range: {t[0]:g} .. {t[-1]:g} ({len(t)} samples, {unit}); up axis {scene.up_axis}, "
+          f"{scene.meters_per_unit:g} m/unit")
+    if scene.clips:
+        print(f"  clips: {', '.join(scene.clips)} (loaded: {scene.clip})")
+    problems = []
+    for si, skel in enumerate(scene.skeletons):
+        anim = scene.animations[si]
+        print(f"  skeleton {si} {skel.name!r}: {skel.joint_count} joints, "
+              f"{'animated' if anim is not None else 'rest pose only'}")
+        children = {j: [] for j in range(-1, skel.joint_count)}
+        for j, p in enumerate(skel.parents):
+            children[int(p)].append(j)
+
+        def tree(j, depth):
+            print("    " + "  " * depth + skel.joint_names[j].split("/")[-1])
+            for c in children[j]:
+                tree(c, depth + 1)
+        for root in children[-1]:
+            tree(root, 0)
+    for m in scene.meshes:
+        w = np.asarray(m.joint_weights, np.float64)
+        sums = w.sum(1)
+        nnz = (w > 0).sum(1)
+        print(f"  mesh {m.name!r}: {len(m.points)} points, {len(m.faces)} triangles, skeleton "
+              f"{m.skeleton}, method {m.skinning_method}, {m.joint_indices.shape[1]} influence slots")
+        print(f"    influences per point: min {nnz.min()}, mean {nnz.mean():.2f}, max {nnz.max()}; "
+              f"weight sums: min {sums.min():.4f}, max {sums.max():.4f}")
+        if np.any(np.abs(sums - 1) > 1e-3):
+            problems.append(f"{m.name}: {(np.abs(sums - 1) > 1e-3).sum()} points with weights not "
+                            "summing to 1")
+        if np.any(nnz == 0):
+            problems.append(f"{m.name}: {(nnz == 0).sum()} points without influences")
+    print("  problems: " + ("none" if not problems else ""))
+    for p in problems:
+        print(f"    - {p}")
+    return 0
+
+
+def cmd_demo(args):
+    asset = Path(args.asset)
+    if not asset.is_file():
+        raise CliError(f"{asset}: demo asset not found (run from a source checkout, or pass --asset)")
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cache = out_dir / "humanoid_dqs.usdc"
+    print(f"dqskin demo: skinning {asset.name} with DQS")
+    cmd_skin(argparse.Namespace(input=str(asset), out=str(cache), method="dqs", frames=None,
+                                fps=None, clip=None, device=args.device, force=True, chunk=64))
+    from . import io
+    scene = io.load(asset)
+    lbs = scene.skin(method="lbs", device=args.device)
+    dqs = scene.skin(method="dqs", device=args.device)
+    for name in lbs:
+        gap = np.linalg.norm(lbs[name] - dqs[name], axis=-1)
+        print(f"  {name}: {lbs[name].shape[1]} points × {lbs[name].shape[0]} frames; "
+              f"LBS↔DQS distance max {gap.max():.4f}, mean {gap.mean():.4f}")
+    return 0
+
+
+def build_parser():
+    ap = argparse.ArgumentParser(prog="dqskin", description="Dual-quaternion and linear-blend "
+                                 "skinning on NVIDIA Warp")
+    sub = ap.add_subparsers(dest="command", required=True)
+    s = sub.add_parser("skin", help="skin every frame and write a cache")
+    s.add_argument("input")
+    s.add_argument("--out", required=True, help=".usd/.usda/.usdc cache, .npz, or a per-frame "
+                   "pattern like out/frame_{:04d}.obj")
+    s.add_argument("--method", choices=["dqs", "lbs", "blend"], default=None,
+                   help="default: what the asset asks for (LBS for glTF)")
+    s.add_argument("--frames", help="START:END[:STEP] in the asset's time unit (USD time codes, "
+                   "glTF seconds), END inclusive")
+    s.add_argument("--fps", type=float, help="resample the clip at this many frames per second")
+    s.add_argument("--clip", help="glTF animation name or index")
+    s.add_argument("--device", help="cpu or cuda (default: cuda when present)")
+    s.add_argument("--chunk", type=int, default=64, help="frames per chunk (bounds memory)")
+    s.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    s.set_defaults(run=cmd_skin)
+    i = sub.add_parser("info", help="skeleton tree, meshes, influences, time range, problems")
+    i.add_argument("input")
+    i.add_argument("--clip")
+    i.set_defaults(run=cmd_info)
+    d = sub.add_parser("demo", help="run the main job on the bundled humanoid")
+    d.add_argument("--asset", default=str(ASSETS / "humanoid.usda"))
+    d.add_argument("--out", default="out/demo")
+    d.add_argument("--device")
+    d.set_defaults(run=cmd_demo)
+    return ap
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    if getattr(args, "clip", None) is not None and args.clip.isdigit():
+        args.clip = int(args.clip)
+    try:
+        return args.run(args)
+    except (CliError, ValueError, FileExistsError, KeyError, OSError) as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"dqskin: error: {msg}", file=sys.stderr)
+        return EXIT_INPUT
+
+
+if __name__ == "__main__":
+    sys.exit(main())
