@@ -3,7 +3,7 @@
 import numpy as np
 import warp as wp
 
-from ._warp import resolve_device
+from ._warp import launch_rows, resolve_device
 from .kernels import fk as FK
 from .kernels.dqmath import vec8
 
@@ -154,9 +154,11 @@ def _forward_kinematics(parents, local_transforms, device, outputs=None):
     world_dq = wp.empty((B, J), dtype=vec8, device=d)
     residual = wp.empty((B, J), dtype=wp.mat33, device=d)
     world = wp.empty((B, J), dtype=wp.mat44, device=d)
-    FK.forward_kinematics(wp.array(par, dtype=wp.int32, device=d),
-                          wp.array(np.array([0, J], np.int32), dtype=wp.int32, device=d),
-                          local, world_dq, residual, world, device=d)
+    par_w = wp.array(par, dtype=wp.int32, device=d)
+    start = wp.array(np.array([0, J], np.int32), dtype=wp.int32, device=d)
+    launch_rows(lambda lo, n: FK.forward_kinematics(par_w, start, local, world_dq, residual, world,
+                                                    device=d, frame_offset=lo, frame_count=n),
+                B, d, min_chunk=64)
     if outputs is not None:
         outputs.extend([world_dq, residual])
     return world, batch

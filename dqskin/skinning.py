@@ -101,6 +101,7 @@ class Skinner:
         g = np.eye(4) if geom_bind_transform is None else _as_array(
             "geom_bind_transform", geom_bind_transform, np.float64, (4, 4)).reshape(4, 4)
         self.geom_bind_transform = g
+        self._cache = {}
         d = self.device
         self._points = wp.array(self._bind_points(pts)[None], dtype=wp.vec3, device=d)
         self._indices = wp.array(idx.astype(np.int32), dtype=wp.int32, device=d)
@@ -123,7 +124,24 @@ class Skinner:
             raise ValueError('method "blend" needs blend_weights')
         return code
 
-    def _prepare(self, skinning_transforms):
+    _POINT_BUFFERS = dict(affines=K.mat34, dq_real=wp.quat, dq_dual=wp.quat, residuals=wp.mat33)
+    _VECTOR_BUFFERS = dict(linears=wp.mat33, normal_linears=wp.mat33, normal_residuals=wp.mat33,
+                           normal_rotations=wp.quat)
+
+    def _buffers(self, kind, frames, joints):
+        """Per-(frame, joint) work arrays, allocated once per shape and reused across calls."""
+        key = (kind, frames, joints)
+        buf = self._cache.get(key)
+        if buf is None:
+            spec = self._POINT_BUFFERS if kind == "points" else self._VECTOR_BUFFERS
+            buf = {k: wp.empty((frames, joints), dtype=t, device=self.device)
+                   for k, t in spec.items()}
+            if kind == "points":
+                buf["has_residual"] = wp.zeros(frames, dtype=wp.int32, device=self.device)
+            self._cache[key] = buf
+        return buf
+
+    def _prepare(self, skinning_transforms, vectors=False):
         d = self.device
         if isinstance(skinning_transforms, wp.array):
             x = skinning_transforms
@@ -138,22 +156,16 @@ class Skinner:
         if joints < self.joint_count_min:
             raise ValueError(f"joint_indices: index {self.joint_count_min - 1} out of range for "
                              f"{joints} skinning transforms")
-        prep = dict(
-            xforms=x,
-            affines=wp.empty((frames, joints), dtype=K.mat34, device=d),
-            dq_real=wp.empty((frames, joints), dtype=wp.quat, device=d),
-            dq_dual=wp.empty((frames, joints), dtype=wp.quat, device=d),
-            residuals=wp.empty((frames, joints), dtype=wp.mat33, device=d),
-            linears=wp.empty((frames, joints), dtype=wp.mat33, device=d),
-            normal_linears=wp.empty((frames, joints), dtype=wp.mat33, device=d),
-            normal_residuals=wp.empty((frames, joints), dtype=wp.mat33, device=d),
-            normal_rotations=wp.empty((frames, joints), dtype=wp.quat, device=d),
-            has_residual=wp.zeros(frames, dtype=wp.int32, device=d),
-        )
-        wp.launch(K.prepare_joints_kernel, dim=(frames, joints), inputs=[prep["xforms"]],
-                  outputs=[prep[k] for k in ("affines", "dq_real", "dq_dual", "residuals", "linears",
-                                             "normal_linears", "normal_residuals",
-                                             "normal_rotations", "has_residual")], device=d)
+        prep = dict(self._buffers("points", frames, joints))
+        prep["has_residual"].zero_()
+        wp.launch(K.prepare_points_kernel, dim=(frames, joints), inputs=[x],
+                  outputs=[prep[k] for k in ("affines", "dq_real", "dq_dual", "residuals",
+                                             "has_residual")], device=d)
+        if vectors:
+            vec = self._buffers("vectors", frames, joints)
+            wp.launch(K.prepare_vectors_kernel, dim=(frames, joints), inputs=[x],
+                      outputs=list(vec.values()), device=d)
+            prep.update(vec)
         return prep, frames, batched
 
     def skin(self, skinning_transforms, method="dqs", *, points=None, as_warp=False):
@@ -226,7 +238,7 @@ class Skinner:
         if kind not in ("normal", "tangent"):
             raise ValueError(f'kind must be "normal" or "tangent", got {kind!r}')
         code = self._check_method(method)
-        prep, frames, batched = self._prepare(skinning_transforms)
+        prep, frames, batched = self._prepare(skinning_transforms, vectors=True)
         vec = _frames_of("vectors", _as_array("vectors", vectors, np.float64, (3,)), frames)
         n = vec.shape[1]
         if vector_vertex is None:

@@ -144,15 +144,21 @@ def mat44_linear(m: wp.mat44):
 
 
 @wp.func
+def is_rotation(a: wp.mat33):
+    """True when ``a`` is orthonormal with det +1 (to ~1e-6)."""
+    e = wp.transpose(a) * a - wp.identity(n=3, dtype=float)
+    err = wp.abs(e[0, 0]) + wp.abs(e[1, 1]) + wp.abs(e[2, 2]) + wp.abs(e[0, 1]) + wp.abs(e[0, 2]) + wp.abs(e[1, 2])
+    return err < 1.0e-6 and wp.determinant(a) > 0.0
+
+
+@wp.func
 def polar_rotation(a: wp.mat33):
     """Rotation factor ``R`` of the polar decomposition ``A = R·S``, det(R) = +1 (as ``GfMatrix4d::Factor``).
 
     Orthonormal input returns itself; otherwise ``R = U·Vᵀ`` from the SVD, negated when ``det A < 0``
     (Gf negates all three scales of a reflection, leaving a proper rotation).
     """
-    e = wp.transpose(a) * a - wp.identity(n=3, dtype=float)
-    err = wp.abs(e[0, 0]) + wp.abs(e[1, 1]) + wp.abs(e[2, 2]) + wp.abs(e[0, 1]) + wp.abs(e[0, 2]) + wp.abs(e[1, 2])
-    if err < 1.0e-6 and wp.determinant(a) > 0.0:
+    if is_rotation(a):
         return a
     u = wp.mat33()
     sigma = wp.vec3()

@@ -13,7 +13,8 @@ which reduces to ``η_p · η_l`` when ``S_p = I``. Local matrices are split by 
 
 import warp as wp
 
-from .dqmath import dq_from_rt, dq_mul, dq_to_matrix, mat44_linear, polar_rotation, vec8
+from .dqmath import (dq_from_rt, dq_mul, dq_to_matrix, is_identity33, is_rotation, mat44_linear, polar_rotation,
+                     vec8)
 
 
 @wp.kernel
@@ -21,6 +22,7 @@ def forward_kinematics_kernel(
     parents: wp.array(dtype=wp.int32),
     skeleton_start: wp.array(dtype=wp.int32),
     local: wp.array2d(dtype=wp.mat44),
+    frame_offset: int,
     # outputs
     world_dq: wp.array2d(dtype=vec8),
     world_residual: wp.array2d(dtype=wp.mat33),
@@ -29,23 +31,31 @@ def forward_kinematics_kernel(
     """One thread per (frame, skeleton), walking that skeleton's joints parents-first.
 
     ``parents`` holds global joint indices (−1 for roots); skeleton ``s`` owns joints
-    ``skeleton_start[s] .. skeleton_start[s+1]-1`` of the concatenated joint axis.
+    ``skeleton_start[s] .. skeleton_start[s+1]-1`` of the concatenated joint axis. Where the
+    parent's residual is the identity (rigid chains) the step is a plain DQ product.
     """
-    f, s = wp.tid()
+    i, s = wp.tid()
+    f = i + frame_offset
+    eye = wp.identity(n=3, dtype=float)
     for j in range(skeleton_start[s], skeleton_start[s + 1]):
         m = local[f, j]
         a = mat44_linear(m)
-        r = polar_rotation(a)
-        res = wp.transpose(r) * a
+        r = a
+        res = eye
+        if not is_rotation(a):
+            r = polar_rotation(a)
+            res = wp.transpose(r) * a
         q = wp.normalize(wp.quat_from_matrix(r))
         t = wp.vec3(m[0, 3], m[1, 3], m[2, 3])
         p = parents[j]
+        eta = dq_from_rt(q, t)
         if p >= 0:
             sp = world_residual[f, p]
-            eta = dq_mul(world_dq[f, p], dq_from_rt(q, sp * t))
-            res = wp.transpose(r) * sp * r * res
-        else:
-            eta = dq_from_rt(q, t)
+            if is_identity33(sp, 0.0):
+                eta = dq_mul(world_dq[f, p], eta)
+            else:
+                eta = dq_mul(world_dq[f, p], dq_from_rt(q, sp * t))
+                res = wp.transpose(r) * sp * r * res
         world_dq[f, j] = eta
         world_residual[f, j] = res
         rigid = dq_to_matrix(eta)
@@ -68,10 +78,13 @@ def bind_relative_kernel(
     skinning[f, j] = world[f, j] * inverse_bind[j]
 
 
-def forward_kinematics(parents, skeleton_start, local, world_dq, world_residual, world, *, device):
-    """Launch FK over ``local`` (F, J) mat44; fills the three (F, J) outputs in place."""
-    wp.launch(forward_kinematics_kernel, dim=(local.shape[0], skeleton_start.shape[0] - 1),
-              inputs=[parents, skeleton_start, local],
+def forward_kinematics(parents, skeleton_start, local, world_dq, world_residual, world, *, device,
+                       frame_offset=0, frame_count=None):
+    """Launch FK over frames ``frame_offset .. frame_offset + frame_count`` of ``local`` (F, J)
+    mat44; fills the three (F, J) outputs in place."""
+    count = local.shape[0] - frame_offset if frame_count is None else frame_count
+    wp.launch(forward_kinematics_kernel, dim=(count, skeleton_start.shape[0] - 1),
+              inputs=[parents, skeleton_start, local, frame_offset],
               outputs=[world_dq, world_residual, world], device=device)
 
 

@@ -35,24 +35,18 @@ RESIDUAL_TOLERANCE = wp.constant(1.0e-6)
 
 
 @wp.kernel
-def prepare_joints_kernel(
+def prepare_points_kernel(
     xforms: wp.array2d(dtype=wp.mat44),
     # outputs
     affines: wp.array2d(dtype=mat34),
     dq_real: wp.array2d(dtype=wp.quat),
     dq_dual: wp.array2d(dtype=wp.quat),
     residuals: wp.array2d(dtype=wp.mat33),
-    linears: wp.array2d(dtype=wp.mat33),
-    normal_linears: wp.array2d(dtype=wp.mat33),
-    normal_residuals: wp.array2d(dtype=wp.mat33),
-    normal_rotations: wp.array2d(dtype=wp.quat),
     has_residual: wp.array(dtype=wp.int32),
 ):
-    """Per (frame, joint): split the skinning matrix into DQ + residual and the normal matrices.
-
-    Points and tangents: polar split ``A = R·S``. Normals: ``N = A⁻ᵀ`` split as UsdSkel does,
-    ``N = Rn·(Rnᵀ·N)`` with ``Rn`` from :func:`orthonormalize_columns`.
-    """
+    """Per (frame, joint): 3×4 affine for LBS; polar split ``A = R·S`` into a dual quaternion
+    (real, dual as Warp quaternions) and the residual ``S`` for DQS. ``has_residual`` must be
+    zeroed before the launch; it is set for frames where some ``S ≠ I`` (1e-6, as UsdSkel)."""
     f, j = wp.tid()
     m = xforms[f, j]
     a = mat44_linear(m)
@@ -66,14 +60,30 @@ def prepare_joints_kernel(
                           m[1, 0], m[1, 1], m[1, 2], m[1, 3],
                           m[2, 0], m[2, 1], m[2, 2], m[2, 3])
     residuals[f, j] = s
+    if not is_identity33(s, RESIDUAL_TOLERANCE):
+        wp.atomic_max(has_residual, f, 1)
+
+
+@wp.kernel
+def prepare_vectors_kernel(
+    xforms: wp.array2d(dtype=wp.mat44),
+    # outputs
+    linears: wp.array2d(dtype=wp.mat33),
+    normal_linears: wp.array2d(dtype=wp.mat33),
+    normal_residuals: wp.array2d(dtype=wp.mat33),
+    normal_rotations: wp.array2d(dtype=wp.quat),
+):
+    """Per (frame, joint) matrices for directions. Tangents: the linear part ``A``. Normals:
+    ``N = A⁻ᵀ`` split as UsdSkel does, ``N = Rn·(Rnᵀ·N)`` with ``Rn`` from
+    :func:`orthonormalize_columns`."""
+    f, j = wp.tid()
+    a = mat44_linear(xforms[f, j])
     linears[f, j] = a
     n = wp.transpose(wp.inverse(a))
     rn = orthonormalize_columns(n)
     normal_linears[f, j] = n
     normal_residuals[f, j] = wp.transpose(rn) * n
     normal_rotations[f, j] = wp.normalize(wp.quat_from_matrix(rn))
-    if not is_identity33(s, RESIDUAL_TOLERANCE):
-        wp.atomic_max(has_residual, f, 1)
 
 
 @wp.func
