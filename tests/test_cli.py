@@ -1,0 +1,189 @@
+"""The ``dqskin`` CLI end to end: outputs, and every bad-input case with its message and exit code."""
+
+import hashlib
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+GOOD = """#usda 1.0
+(
+    defaultPrim = "Root"
+    startTimeCode = 0
+    endTimeCode = 2
+    timeCodesPerSecond = 24
+    upAxis = "Y"
+)
+def SkelRoot "Root" (
+    prepend apiSchemas = ["SkelBindingAPI"]
+)
+{
+    rel skel:skeleton = </Root/Skel>
+    def Skeleton "Skel" (
+        prepend apiSchemas = ["SkelBindingAPI"]
+    )
+    {
+        uniform token[] joints = JOINTS
+        uniform matrix4d[] bindTransforms = [((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,0,0,1)), ((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,1,0,1))]
+        uniform matrix4d[] restTransforms = [((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,0,0,1)), ((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,1,0,1))]
+        rel skel:animationSource = </Root/Skel/Anim>
+        def SkelAnimation "Anim"
+        {
+            uniform token[] joints = ["a", "a/b"]
+            float3[] translations = [(0,0,0), (0,1,0)]
+            quatf[] rotations.timeSamples = {0: [(1,0,0,0), (1,0,0,0)], 2: [(1,0,0,0), (0.70710678,0.70710678,0,0)]}
+            half3[] scales = [(1,1,1), (1,1,1)]
+        }
+    }
+    def Mesh "Mesh" (
+        prepend apiSchemas = ["SkelBindingAPI"]
+    )
+    {
+        int[] faceVertexCounts = [3, 3]
+        int[] faceVertexIndices = [0, 1, 2, 0, 2, 3]
+        point3f[] points = [(0,0,0), (1,0,0), (1,2,0), (0,2,0)]
+        int[] primvars:skel:jointIndices = INDICES (
+            interpolation = "vertex"
+            elementSize = 2
+        )
+        float[] primvars:skel:jointWeights = WEIGHTS (
+            interpolation = "vertex"
+            elementSize = 2
+        )
+        rel skel:skeleton = </Root/Skel>
+    }
+}
+"""
+DEFAULTS = dict(JOINTS='["a", "a/b"]', INDICES="[0, 1, 0, 1, 1, 0, 1, 0]",
+                WEIGHTS="[1, 0, 0.5, 0.5, 1, 0, 1, 0]")
+
+
+def usda(tmp_path, name="rig.usda", **over):
+    text = GOOD
+    for key, value in {**DEFAULTS, **over}.items():
+        text = text.replace(key, value)
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def run(*args):
+    proc = subprocess.run([sys.executable, "-m", "dqskin.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=300)
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+def assert_clean_error(rc, err, *needles):
+    assert rc == 2, err
+    assert "Traceback" not in err
+    lines = [ln for ln in err.splitlines() if ln.startswith("dqskin: error:")]
+    assert len(lines) == 1, err
+    for n in needles:
+        assert n.lower() in lines[0].lower(), lines[0]
+
+
+def test_skin_usd_to_npz_and_usd(tmp_path):
+    src = usda(tmp_path)
+    digest = hashlib.sha256(src.read_bytes()).hexdigest()
+    rc, out, err = run("skin", src, "--out", tmp_path / "o.npz", "--method", "dqs")
+    assert rc == 0, err
+    data = np.load(tmp_path / "o.npz")
+    pts = data["points_0"]
+    assert pts.shape == (3, 4, 3)
+    # closed form: vertex 0 and 1 at rest-bound joint a stay put; vertex 2, 3 bound to b rotate
+    # 90° about x around b's origin (0, 1, 0) at t = 2
+    np.testing.assert_allclose(pts[2, 0], [0, 0, 0], atol=1e-5)
+    np.testing.assert_allclose(pts[2, 3], [0, 1, 1], atol=1e-5)
+    np.testing.assert_allclose(pts[0], [[0, 0, 0], [1, 0, 0], [1, 2, 0], [0, 2, 0]], atol=1e-5)
+    rc, out, err = run("skin", src, "--out", tmp_path / "o.usda", "--frames", "0:2")
+    assert rc == 0, err
+    assert (tmp_path / "o.usda").is_file()
+    assert hashlib.sha256(src.read_bytes()).hexdigest() == digest  # input untouched
+
+
+def test_skin_per_frame_mesh_files(tmp_path):
+    src = usda(tmp_path)
+    rc, out, err = run("skin", src, "--out", tmp_path / "f_{:03d}.ply", "--method", "lbs")
+    assert rc == 0, err
+    import trimesh
+    for f in (0, 1, 2):
+        m = trimesh.load(tmp_path / f"f_{f:03d}.ply", process=False)
+        assert len(m.vertices) == 4 and len(m.faces) == 2
+
+
+def test_info_lists_skeleton_and_meshes(tmp_path):
+    rc, out, err = run("info", usda(tmp_path))
+    assert rc == 0, err
+    assert "2 joints" in out and "/Root/Mesh" in out and "problems" in out
+
+
+def test_existing_output_needs_force(tmp_path):
+    src = usda(tmp_path)
+    out = tmp_path / "o.npz"
+    out.write_bytes(b"precious")
+    rc, _, err = run("skin", src, "--out", out)
+    assert_clean_error(rc, err, "o.npz", "--force")
+    assert out.read_bytes() == b"precious"
+    rc, _, err = run("skin", src, "--out", out, "--force")
+    assert rc == 0, err
+
+
+def test_refuses_to_overwrite_input(tmp_path):
+    src = usda(tmp_path)
+    rc, _, err = run("skin", src, "--out", src, "--force")
+    assert_clean_error(rc, err, "input")
+
+
+@pytest.mark.parametrize("case,over,needles", [
+    ("index_out_of_range", dict(INDICES="[0, 1, 0, 7, 1, 0, 1, 0]"), ["rig.usda", "out of range"]),
+    ("nan_weight", dict(WEIGHTS="[1, 0, nan, 0.5, 1, 0, 1, 0]"), ["rig.usda", "nan"]),
+    ("negative_weight", dict(WEIGHTS="[1, 0, -0.5, 0.5, 1, 0, 1, 0]"), ["rig.usda", "negative"]),
+    ("mismatched_counts", dict(WEIGHTS="[1, 0, 0.5, 0.5, 1, 0]"), ["rig.usda", "/Root/Mesh"]),
+    ("bad_joint_order", dict(JOINTS='["a/b", "a"]'), ["rig.usda", "/Root/Skel"]),
+])
+def test_bad_usd_input(tmp_path, case, over, needles):
+    rc, _, err = run("skin", usda(tmp_path, **over), "--out", tmp_path / "o.npz")
+    assert_clean_error(rc, err, *needles)
+    assert not (tmp_path / "o.npz").exists()
+
+
+def test_missing_file(tmp_path):
+    rc, _, err = run("skin", tmp_path / "nope.usda", "--out", tmp_path / "o.npz")
+    assert_clean_error(rc, err, "nope.usda")
+
+
+@pytest.mark.parametrize("name", ["junk.usda", "junk.usdc", "junk.glb", "junk.gltf"])
+def test_corrupt_file(tmp_path, name):
+    path = tmp_path / name
+    path.write_bytes(b"\x00\x01 this is not a valid file \xff" * 10)
+    rc, _, err = run("info", path)
+    assert_clean_error(rc, err, name)
+
+
+def test_no_skeleton(tmp_path):
+    path = tmp_path / "plain.usda"
+    path.write_text('#usda 1.0\ndef Mesh "M"\n{\n    int[] faceVertexCounts = [3]\n'
+                    '    int[] faceVertexIndices = [0, 1, 2]\n'
+                    '    point3f[] points = [(0,0,0), (1,0,0), (0,1,0)]\n}\n')
+    rc, _, err = run("skin", path, "--out", tmp_path / "o.npz")
+    assert_clean_error(rc, err, "plain.usda")
+
+
+def test_cycle_in_gltf_hierarchy(tmp_path):
+    import pygltflib
+    g = pygltflib.GLTF2()
+    g.scenes = [pygltflib.Scene(nodes=[0])]
+    g.nodes = [pygltflib.Node(children=[1]), pygltflib.Node(children=[0])]
+    path = tmp_path / "cycle.gltf"
+    g.save(str(path))
+    rc, _, err = run("info", path)
+    assert_clean_error(rc, err, "cycle.gltf")
+
+
+def test_bad_arguments(tmp_path):
+    src = usda(tmp_path)
+    rc, _, err = run("skin", src, "--out", tmp_path / "o.npz", "--frames", "5:1")
+    assert_clean_error(rc, err, "--frames")
+    rc, _, err = run("skin", src, "--out", tmp_path / "o.xyz")
+    assert_clean_error(rc, err, "unsupported")
