@@ -6,6 +6,11 @@ column-vector convention ``p' = M @ [p, 1]``; joints ordered parents first, ``pa
 for roots; float32 on the device.
 """
 
+from . import dq, dual, quat
+from .io import load, load_mesh
+from .scene import Animation, Mesh, Scene
+from .skeleton import Skeleton, forward_kinematics
 from .skinning import METHODS, Skinner, skin_normals, skin_points
 
-__all__ = ["METHODS", "Skinner", "skin_normals", "skin_points"]
+__all__ = ["METHODS", "Animation", "Mesh", "Scene", "Skeleton", "Skinner", "dq", "dual",
+           "forward_kinematics", "load", "load_mesh", "quat", "skin_normals", "skin_points"]
