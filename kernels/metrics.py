@@ -146,21 +146,25 @@ def fan_volume_kernel(
     faces: wp.array(dtype=wp.vec3i),
     vf_offsets: wp.array(dtype=wp.int32),
     vf_faces: wp.array(dtype=wp.int32),
-    # output
+    # outputs
     volumes: wp.array2d(dtype=float),
+    areas: wp.array2d(dtype=float),
 ):
     """Signed volume of the cone from the vertex's apex to its one-ring faces,
-    ``Σ_{t ∋ v} (a−q)·((b−q)×(c−q)) / 6``."""
+    ``Σ_{t ∋ v} (a−q)·((b−q)×(c−q)) / 6``, and the one-ring area ``Σ_{t ∋ v} |(b−a)×(c−a)| / 2``."""
     f, v = wp.tid()
     q = apex[ref_frame(f, apex.shape[0]), v]
     total = float(0.0)
+    area = float(0.0)
     for k in range(vf_offsets[v], vf_offsets[v + 1]):
         tri = faces[vf_faces[k]]
         a = points[f, tri[0]] - q
         b = points[f, tri[1]] - q
         c = points[f, tri[2]] - q
         total += wp.dot(a, wp.cross(b, c))
+        area += wp.length(wp.cross(b - a, c - a))
     volumes[f, v] = total / 6.0
+    areas[f, v] = area / 2.0
 
 
 @wp.kernel

@@ -1,0 +1,665 @@
+"""Offscreen renderer: Warp ray casting against a ``wp.Mesh`` BVH, no display or OpenGL.
+
+Images are ``(H, W, 3)`` (or ``(H, W, 4)`` with ``transparent=True``) ``uint8`` arrays, row 0 at the
+top. A :class:`MeshRenderer` uploads a triangle mesh once and, for later frames with the same
+topology, moves the points and refits the BVH instead of rebuilding it. Shading is Lambert with a
+camera-attached key light plus ambient and rim terms (see :class:`Shading`); an optional per-vertex
+scalar is shown as a heat map through a Matplotlib colour map, interpolated barycentrically. Each
+image is rendered at ``supersample``× the size and box-filtered down (anti-aliasing).
+
+Cameras (:class:`Camera`) use world units and the column-vector convention of the package; frame
+one camera from the bounds of every frame and method you compare so the images line up.
+"""
+
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from ._warp import launch_rows, resolve_device
+from .kernels import render as K
+
+__all__ = ["VIEWS", "Camera", "MeshRenderer", "Shading", "add_colorbar", "colormap_lut",
+           "render", "save_png", "side_by_side"]
+
+VIEWS = ("front", "side", "three_quarter")
+"""Named view directions of :meth:`Camera.frame` (see :func:`_view_direction`)."""
+
+_UP = {"Y": np.array([0.0, 1.0, 0.0]), "Z": np.array([0.0, 0.0, 1.0])}
+# Direction from the target to the eye, per up axis: Y-up characters face +Z (USD, glTF);
+# Z-up characters face -Y (Blender).
+_FRONT = {"Y": np.array([0.0, 0.0, 1.0]), "Z": np.array([0.0, -1.0, 0.0])}
+_THREE_QUARTER_AZIMUTH = np.radians(45.0)
+_THREE_QUARTER_ELEVATION = np.radians(20.0)
+
+
+def _vec3(name, x):
+    a = np.asarray(x, dtype=np.float64)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name}: expected 3 finite numbers, got {np.asarray(x).tolist()!r}")
+    return a
+
+
+def _up_axis(up_axis):
+    if up_axis not in _UP:
+        raise ValueError(f'up_axis must be "Y" or "Z", got {up_axis!r}')
+    return up_axis
+
+
+def _view_direction(view, up_axis):
+    """Unit vector from the target to the eye for a named view or an explicit (3,) direction.
+
+    ``front`` looks at the character's front, ``side`` from its left-hand side (+X),
+    ``three_quarter`` from 45° between the two, raised 20° above the horizon.
+    """
+    up = _UP[_up_axis(up_axis)]
+    front = _FRONT[up_axis]
+    if isinstance(view, str):
+        if view == "front":
+            return front.copy()
+        if view == "side":
+            return np.array([1.0, 0.0, 0.0])
+        if view == "three_quarter":
+            horizontal = (np.cos(_THREE_QUARTER_AZIMUTH) * front
+                          + np.sin(_THREE_QUARTER_AZIMUTH) * np.array([1.0, 0.0, 0.0]))
+            return (np.cos(_THREE_QUARTER_ELEVATION) * horizontal
+                    + np.sin(_THREE_QUARTER_ELEVATION) * up)
+        raise ValueError(f"view must be one of {VIEWS} or a 3-vector, got {view!r}")
+    d = _vec3("view", view)
+    n = np.linalg.norm(d)
+    if n == 0:
+        raise ValueError("view: direction has zero length")
+    return d / n
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A pinhole (``fov``) or orthographic (``fov=None``, ``ortho_height``) camera.
+
+    Attributes
+    ----------
+    eye, target : (3,) float64
+        World positions of the eye and of the point looked at.
+    up : (3,) float64
+        Approximate up direction (made orthogonal to the view direction).
+    fov : float or None
+        Vertical field of view in degrees; None for an orthographic projection.
+    ortho_height : float or None
+        Orthographic only: world-space height covered by the full image.
+
+    The horizontal extent follows from the image aspect ratio ``width / height``. Pixel ``(x, y)``
+    (x right, y down, integer at pixel corners) sees normalized device coordinates
+    ``(2x/W − 1, 1 − 2y/H)``.
+    """
+
+    eye: np.ndarray
+    target: np.ndarray
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
+    fov: float | None = 30.0
+    ortho_height: float | None = None
+
+    def __post_init__(self):
+        for name in ("eye", "target", "up"):
+            object.__setattr__(self, name, _vec3(name, getattr(self, name)))
+        if self.fov is None:
+            if self.ortho_height is None or not self.ortho_height > 0:
+                raise ValueError("ortho_height: an orthographic camera (fov=None) needs a "
+                                 "positive ortho_height")
+        elif not 0 < self.fov < 180:
+            raise ValueError(f"fov: expected degrees in (0, 180), got {self.fov!r}")
+        forward = self.target - self.eye
+        if np.linalg.norm(forward) == 0:
+            raise ValueError("eye and target coincide")
+        if np.linalg.norm(np.cross(forward, self.up)) <= 1e-9 * np.linalg.norm(forward):
+            raise ValueError("up: parallel to the view direction")
+
+    @property
+    def orthographic(self):
+        return self.fov is None
+
+    def basis(self):
+        """Orthonormal ``(forward, right, up)`` (3, 3) float64 rows, right-handed screen axes."""
+        forward = self.target - self.eye
+        forward = forward / np.linalg.norm(forward)
+        right = np.cross(forward, self.up)
+        right /= np.linalg.norm(right)
+        return np.stack([forward, right, np.cross(right, forward)])
+
+    def half_extents(self, aspect):
+        """``(half_w, half_h)``: tangents of the half field of view, or orthographic half sizes."""
+        if self.orthographic:
+            half_h = 0.5 * self.ortho_height
+        else:
+            half_h = np.tan(np.radians(self.fov) / 2)
+        return half_h * aspect, half_h
+
+    def project(self, points, width, height):
+        """Pixel coordinates of world points.
+
+        Parameters
+        ----------
+        points : (N, 3) float
+        width, height : int
+            Image size in pixels.
+
+        Returns
+        -------
+        (N, 2) float64
+            ``(x, y)``: x to the right, y down, integer values at pixel corners.
+        """
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3) - self.eye
+        forward, right, up = self.basis()
+        half_w, half_h = self.half_extents(width / height)
+        depth = p @ forward if not self.orthographic else 1.0
+        x = (p @ right) / depth / half_w
+        y = (p @ up) / depth / half_h
+        return np.stack([(x + 1) * width / 2, (1 - y) * height / 2], axis=-1)
+
+    @classmethod
+    def frame(cls, bounds_min, bounds_max, view="front", *, up_axis="Y", fov=30.0, aspect=1.0,
+              margin=1.05):
+        """A camera that sees the whole box ``[bounds_min, bounds_max]``.
+
+        Parameters
+        ----------
+        bounds_min, bounds_max : (3,) float
+            World bounds; take them over every frame and method compared, so that the images of
+            one comparison share one camera and line up.
+        view : {"front", "side", "three_quarter"} or (3,) float
+            Named view (see :func:`_view_direction`) or the direction from the target to the eye.
+        up_axis : {"Y", "Z"}
+        fov : float or None
+            Vertical field of view in degrees; None for orthographic.
+        aspect : float
+            Image ``width / height`` the camera will render.
+        margin : float
+            Extra room around the box, as a factor on its projected half extents.
+
+        The target is the box centre. In perspective the eye distance is the smallest one for
+        which all eight corners project inside the image (shrunk by ``margin``).
+        """
+        lo, hi = _vec3("bounds_min", bounds_min), _vec3("bounds_max", bounds_max)
+        if np.any(hi < lo):
+            raise ValueError("bounds_max: below bounds_min")
+        center = 0.5 * (lo + hi)
+        back = _view_direction(view, up_axis)
+        up = _UP[up_axis]
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])]) - center
+        probe = cls(center + back, center, up, fov=fov, ortho_height=1.0)
+        _, right, cam_up = probe.basis()
+        x, y, z = np.abs(corners @ right), np.abs(corners @ cam_up), corners @ back
+        radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
+        if fov is None:
+            height = 2 * margin * max(y.max(), x.max() / aspect, 1e-6)
+            return cls(center + back * 2 * radius, center, up, fov=None, ortho_height=height)
+        half_w, half_h = probe.half_extents(aspect)
+        distance = float(np.max(z + margin * np.maximum(x / half_w, y / half_h)))
+        return cls(center + back * max(distance, 1e-6), center, up, fov=fov)
+
+    @classmethod
+    def frame_point(cls, center, radius, view="front", *, up_axis="Y", fov=30.0, aspect=1.0):
+        """A close-up: the sphere ``(center, radius)`` (e.g. around one joint) just fills the image.
+
+        Parameters as in :meth:`frame`; ``radius`` > 0 in world units.
+        """
+        c = _vec3("center", center)
+        if not radius > 0:
+            raise ValueError(f"radius: expected > 0, got {radius!r}")
+        back = _view_direction(view, up_axis)
+        up = _UP[up_axis]
+        if fov is None:
+            return cls(c + back * 2 * radius, c, up, fov=None,
+                       ortho_height=2 * radius * max(1.0, 1.0 / aspect))
+        half = np.radians(fov) / 2
+        half = min(half, np.arctan(np.tan(half) * aspect))
+        return cls(c + back * radius / np.sin(half), c, up, fov=fov)
+
+    def _params(self, aspect):
+        forward, right, up = self.basis()
+        half_w, half_h = self.half_extents(aspect)
+        p = K.CameraParams()
+        p.eye, p.forward, p.right, p.up = (wp.vec3(*map(float, v))
+                                           for v in (self.eye, forward, right, up))
+        p.half_w, p.half_h = float(half_w), float(half_h)
+        p.orthographic = int(self.orthographic)
+        return p
+
+
+@dataclass(frozen=True)
+class Shading:
+    """Colours (linear RGB in [0, 1]) and lights.
+
+    ``light`` is the key-light direction in camera axes ``(right, up, toward the viewer)``; it is
+    normalized, so the default comes from the upper left, in front. A surface point with unit
+    normal ``n`` (flipped to face the viewer) and unit direction ``v`` to the eye gets
+    ``albedo·(ambient + diffuse·max(n·l, 0)) + rim·(1 − max(n·v, 0))^rim_power``, clamped to
+    [0, 1]; ``lit=False`` shows the albedo alone (exact heat-map colours). ``smooth`` interpolates
+    area-weighted vertex normals; otherwise faces are flat.
+    """
+
+    base_color: tuple = (0.78, 0.78, 0.80)
+    background: tuple = (1.0, 1.0, 1.0)
+    light: tuple = (-0.4, 0.6, 1.0)
+    ambient: float = 0.25
+    diffuse: float = 0.75
+    rim: float = 0.25
+    rim_power: float = 3.0
+    lit: bool = True
+    smooth: bool = True
+    nan_color: tuple = (0.5, 0.5, 0.5)
+
+    def light_world(self, camera):
+        """Unit world direction from the surface to the key light, (3,) float64."""
+        forward, right, up = camera.basis()
+        lr, lu, lb = _vec3("light", self.light)
+        d = lr * right + lu * up - lb * forward
+        n = np.linalg.norm(d)
+        if n == 0:
+            raise ValueError("light: direction has zero length")
+        return d / n
+
+    def _params(self, camera):
+        p = K.ShadingParams()
+        p.light = wp.vec3(*map(float, self.light_world(camera)))
+        p.base_color = wp.vec3(*map(float, _vec3("base_color", self.base_color)))
+        p.background = wp.vec3(*map(float, _vec3("background", self.background)))
+        p.ambient, p.diffuse = float(self.ambient), float(self.diffuse)
+        p.rim, p.rim_power = float(self.rim), float(self.rim_power)
+        p.lit, p.smooth = int(bool(self.lit)), int(bool(self.smooth))
+        return p
+
+
+def colormap_lut(colormap="viridis", size=256):
+    """RGB samples of a Matplotlib colour map at ``linspace(0, 1, size)``.
+
+    Returns
+    -------
+    (size, 3) float32, linear in [0, 1].
+    """
+    import matplotlib
+
+    try:
+        cmap = matplotlib.colormaps[colormap]
+    except KeyError:
+        raise ValueError(f"colormap: unknown Matplotlib colour map {colormap!r}") from None
+    return cmap(np.linspace(0.0, 1.0, size))[:, :3].astype(np.float32)
+
+
+def _check_mesh(points, faces):
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points: expected (V, 3), got {pts.shape}")
+    if pts.shape[0] == 0:
+        raise ValueError("points: mesh has no points")
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("points: NaN or infinite coordinate")
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"faces: expected (T, 3) triangles, got {f.shape}")
+    if f.shape[0] == 0:
+        raise ValueError("faces: mesh has no faces")
+    if not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(f"faces: expected integers, got {f.dtype}")
+    if f.min() < 0 or f.max() >= pts.shape[0]:
+        raise ValueError(f"faces: vertex index out of range [0, {pts.shape[0]})")
+    return pts.astype(np.float32), f.astype(np.int32)
+
+
+def _vertex_faces(faces, vertex_count):
+    """Vertex → incident faces as CSR ``(offsets (V+1,), faces (3T,))`` int32."""
+    flat = faces.reshape(-1)
+    order = np.argsort(flat, kind="stable")
+    offsets = np.zeros(vertex_count + 1, dtype=np.int64)
+    np.cumsum(np.bincount(flat, minlength=vertex_count), out=offsets[1:])
+    return offsets.astype(np.int32), (order // 3).astype(np.int32)
+
+
+class MeshRenderer:
+    """A triangle mesh on a Warp device, ray cast from any camera.
+
+    Parameters
+    ----------
+    points : (V, 3) float
+        World positions.
+    faces : (T, 3) int
+        Triangles, indices into ``points``; T ≥ 1.
+    device : str, optional
+        Warp device; CUDA when present, else CPU.
+
+    The ``wp.Mesh`` (BVH) is built once; :meth:`update` moves the points and refits it.
+    """
+
+    def __init__(self, points, faces, *, device=None):
+        self.device = resolve_device(device)
+        pts, f = _check_mesh(points, faces)
+        d = self.device
+        self.vertex_count, self.face_count = pts.shape[0], f.shape[0]
+        self._faces = wp.array(f.reshape(-1), dtype=wp.int32, device=d)
+        offsets, vf = _vertex_faces(f, pts.shape[0])
+        self._vf_offsets = wp.array(offsets, dtype=wp.int32, device=d)
+        self._vf_faces = wp.array(vf, dtype=wp.int32, device=d)
+        self._normals = wp.empty(pts.shape[0], dtype=wp.vec3, device=d)
+        self.mesh = wp.Mesh(wp.array(pts, dtype=wp.vec3, device=d), self._faces)
+        self._luts = {}
+        self._update_normals()
+
+    def _update_normals(self):
+        wp.launch(K.vertex_normals_kernel, dim=self.vertex_count,
+                  inputs=[self.mesh.points, self._faces, self._vf_offsets, self._vf_faces],
+                  outputs=[self._normals], device=self.device)
+
+    def update(self, points):
+        """Move the vertices (same topology) and refit the BVH.
+
+        Parameters
+        ----------
+        points : (V, 3) float
+            New world positions, same V as at construction.
+        """
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.shape != (self.vertex_count, 3):
+            raise ValueError(f"points: expected ({self.vertex_count}, 3), got {pts.shape}")
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("points: NaN or infinite coordinate")
+        self.mesh.points.assign(pts.astype(np.float32))
+        self.mesh.refit()
+        self._update_normals()
+
+    def _lut(self, colormap):
+        if colormap not in self._luts:
+            self._luts[colormap] = wp.array(colormap_lut(colormap), dtype=wp.vec3,
+                                            device=self.device)
+        return self._luts[colormap]
+
+    def render(self, camera, *, width=512, height=512, supersample=2, scalars=None,
+               scalar_range=None, colormap="viridis", shading=None, transparent=False):
+        """Ray cast the current mesh.
+
+        Parameters
+        ----------
+        camera : Camera
+        width, height : int
+            Output size in pixels.
+        supersample : int
+            Rays per pixel along each axis (``supersample²`` per pixel), box-filtered.
+        scalars : (V,) float, optional
+            Per-vertex values shown as a heat map (interpolated barycentrically); NaN shows
+            ``shading.nan_color``.
+        scalar_range : (float, float), optional
+            Values mapped to the ends of the colour map (clamped beyond); default the finite
+            min and max of ``scalars``.
+        colormap : str
+            Matplotlib colour-map name.
+        shading : Shading, optional
+        transparent : bool
+            Return RGBA with the background transparent (straight alpha).
+
+        Returns
+        -------
+        (height, width, 3) uint8, or (height, width, 4) when ``transparent``.
+        """
+        shading = Shading() if shading is None else shading
+        for name, v in (("width", width), ("height", height), ("supersample", supersample)):
+            if int(v) != v or v < 1:
+                raise ValueError(f"{name}: expected a positive integer, got {v!r}")
+        width, height, s = int(width), int(height), int(supersample)
+        d = self.device
+        lo, scale = 0.0, 0.0
+        if scalars is None:
+            values = wp.zeros(0, dtype=wp.float32, device=d)
+            lut = self._lut(colormap)
+        else:
+            sv = np.asarray(scalars, dtype=np.float64).reshape(-1)
+            if sv.shape != (self.vertex_count,):
+                raise ValueError(f"scalars: expected ({self.vertex_count},), got "
+                                 f"{np.shape(scalars)}")
+            lo, hi = _scalar_range(sv, scalar_range)
+            scale = 1.0 / (hi - lo) if hi > lo else 0.0
+            values = wp.array(sv.astype(np.float32), dtype=wp.float32, device=d)
+            lut = self._lut(colormap)
+        sw, sh = width * s, height * s
+        samples = wp.empty(sw * sh, dtype=wp.vec4, device=d)
+        cam, shade = camera._params(width / height), shading._params(camera)
+        nan_color = wp.vec3(*map(float, _vec3("nan_color", shading.nan_color)))
+
+        def launch(offset, count):
+            wp.launch(K.render_kernel, dim=count,
+                      inputs=[self.mesh.id, self._faces, self._normals, values, lut, float(lo),
+                              float(scale), nan_color, cam, shade, sw, sh, offset],
+                      outputs=[samples], device=d)
+
+        launch_rows(launch, sw * sh, d)
+        out = wp.empty((height, width, 4), dtype=wp.uint8, device=d)
+        wp.launch(K.downsample_kernel, dim=(height, width), inputs=[samples, s, int(transparent)],
+                  outputs=[out], device=d)
+        img = out.numpy()
+        return img if transparent else img[..., :3].copy()
+
+    def render_frames(self, frames, camera, *, scalars=None, progress=False, **kwargs):
+        """Render a sequence of poses of this mesh, refitting between frames.
+
+        Parameters
+        ----------
+        frames : (F, V, 3) float
+            World positions per frame.
+        camera : Camera
+            One camera for all frames.
+        scalars : (V,) or (F, V) float, optional
+            Heat-map values, fixed or per frame. Pass ``scalar_range`` to keep colours comparable
+            across frames (the default range is per frame).
+        progress : bool
+            Show a tqdm progress bar.
+        **kwargs
+            As :meth:`render`.
+
+        Returns
+        -------
+        (F, H, W, 3 or 4) uint8
+        """
+        pts = np.asarray(frames, dtype=np.float64)
+        if pts.ndim != 3 or pts.shape[1:] != (self.vertex_count, 3):
+            raise ValueError(f"frames: expected (F, {self.vertex_count}, 3), got {pts.shape}")
+        sv = None if scalars is None else np.asarray(scalars, dtype=np.float64)
+        if sv is not None and sv.shape not in ((self.vertex_count,),
+                                               (pts.shape[0], self.vertex_count)):
+            raise ValueError(f"scalars: expected ({self.vertex_count},) or "
+                             f"({pts.shape[0]}, {self.vertex_count}), got {sv.shape}")
+        indices = range(pts.shape[0])
+        if progress:
+            from tqdm import tqdm
+
+            indices = tqdm(indices, desc="render", unit="frame")
+        images = []
+        for i in indices:
+            self.update(pts[i])
+            frame_scalars = None if sv is None else (sv if sv.ndim == 1 else sv[i])
+            images.append(self.render(camera, scalars=frame_scalars, **kwargs))
+        return np.stack(images)
+
+
+def _scalar_range(values, scalar_range):
+    if scalar_range is not None:
+        lo, hi = (float(v) for v in scalar_range)
+        if not (np.isfinite(lo) and np.isfinite(hi)) or hi < lo:
+            raise ValueError(f"scalar_range: expected finite (low, high) with low <= high, got "
+                             f"{tuple(scalar_range)!r}")
+        return lo, hi
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return 0.0, 1.0
+    return float(finite.min()), float(finite.max())
+
+
+def render(points, faces, camera, *, device=None, **kwargs):
+    """Render one mesh once (see :meth:`MeshRenderer.render` for the keyword arguments).
+
+    Parameters
+    ----------
+    points : (V, 3) float
+    faces : (T, 3) int
+    camera : Camera
+
+    Returns
+    -------
+    (H, W, 3) uint8, or (H, W, 4) when ``transparent=True``.
+    """
+    return MeshRenderer(points, faces, device=device).render(camera, **kwargs)
+
+
+def _as_image(name, image):
+    a = np.asarray(image)
+    if a.dtype != np.uint8 or not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (3, 4))):
+        raise ValueError(f"{name}: expected a uint8 (H, W), (H, W, 3) or (H, W, 4) image, got "
+                         f"{a.dtype} {a.shape}")
+    return a
+
+
+def _font(size):
+    from PIL import ImageFont
+
+    return ImageFont.load_default(size=size)
+
+
+def _rgb_bytes(name, color):
+    c = _vec3(name, color)
+    return tuple(int(round(v * 255)) for v in np.clip(c, 0, 1))
+
+
+def add_colorbar(image, scalar_range, colormap="viridis", *, label=None, ticks=5,
+                 background=(1.0, 1.0, 1.0), text_color=(0.0, 0.0, 0.0), font_size=None):
+    """Append a vertical colour bar with tick labels to the right of an image.
+
+    Parameters
+    ----------
+    image : (H, W, 3) or (H, W, 4) uint8
+    scalar_range : (float, float)
+        The values at the bottom and top of the bar (the renderer's ``scalar_range``).
+    colormap : str
+    label : str, optional
+        Written above the bar.
+    ticks : int
+        Number of evenly spaced tick labels (≥ 2).
+
+    Returns
+    -------
+    (H, W + bar panel width, C) uint8, same channel count as ``image``.
+    """
+    from PIL import Image, ImageDraw
+
+    img = _as_image("image", image)
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    lo, hi = _scalar_range(np.zeros(0), scalar_range)
+    if int(ticks) != ticks or ticks < 2:
+        raise ValueError(f"ticks: expected an integer >= 2, got {ticks!r}")
+    h, w, c = img.shape
+    size = font_size or max(10, h // 36)
+    font = _font(size)
+    label_h = int(1.6 * size) if label else 0
+    top, bottom = label_h + size, size
+    bar_h, bar_w = max(h - top - bottom, 2), max(size, w // 30)
+    labels = [f"{v:.3g}" for v in np.linspace(lo, hi, int(ticks))]
+    text_w = max(int(np.ceil(font.getlength(t))) for t in labels)
+    panel_w = size + bar_w + size // 2 + text_w + size
+    if label:
+        panel_w = max(panel_w, int(np.ceil(font.getlength(label))) + 2 * size)
+    bg = _rgb_bytes("background", background) + ((255,) if c == 4 else ())
+    panel = Image.new("RGBA" if c == 4 else "RGB", (panel_w, h), bg)
+    ramp = colormap_lut(colormap, bar_h)[::-1]
+    strip = (np.repeat(ramp[:, None, :], bar_w, axis=1) * 255 + 0.5).astype(np.uint8)
+    if c == 4:
+        strip = np.concatenate([strip, np.full(strip.shape[:2] + (1,), 255, np.uint8)], axis=2)
+    panel.paste(Image.fromarray(strip), (size, top))
+    draw = ImageDraw.Draw(panel)
+    ink = _rgb_bytes("text_color", text_color)
+    for i, text in enumerate(labels):
+        y = top + bar_h - 1 - i * (bar_h - 1) / (len(labels) - 1)
+        draw.line([(size + bar_w, y), (size + bar_w + size // 3, y)], fill=ink)
+        draw.text((size + bar_w + size // 2, y), text, fill=ink, font=font, anchor="lm")
+    if label:
+        draw.text((panel_w // 2, size // 2 + label_h // 2), label, fill=ink, font=font,
+                  anchor="mm")
+    return np.concatenate([img, np.asarray(panel)], axis=1)
+
+
+def side_by_side(images, labels=None, *, pad=8, background=(1.0, 1.0, 1.0),
+                 text_color=(0.0, 0.0, 0.0), font_size=None):
+    """Compose images in one row, each with an optional text label above it.
+
+    Parameters
+    ----------
+    images : sequence of (H, W, 3|4) or (H, W) uint8
+        RGBA images are composited over ``background``; heights may differ (top-aligned).
+    labels : sequence of str, optional
+        One per image.
+    pad : int
+        Pixels between and around the images.
+
+    Returns
+    -------
+    (H', W', 3) uint8
+    """
+    from PIL import Image, ImageDraw
+
+    imgs = [_as_image(f"images[{i}]", im) for i, im in enumerate(images)]
+    if not imgs:
+        raise ValueError("images: nothing to compose")
+    if labels is not None and len(labels) != len(imgs):
+        raise ValueError(f"labels: expected {len(imgs)} labels, got {len(labels)}")
+    bg = np.array(_rgb_bytes("background", background), dtype=np.float64)
+    rgb = []
+    for im in imgs:
+        if im.ndim == 2:
+            im = np.repeat(im[..., None], 3, axis=2)
+        if im.shape[2] == 4:
+            a = im[..., 3:4] / 255.0
+            im = (im[..., :3] * a + bg * (1 - a) + 0.5).astype(np.uint8)
+        rgb.append(im)
+    size = font_size or max(12, max(im.shape[0] for im in rgb) // 24)
+    label_h = int(size * 1.6) if labels else 0
+    width = pad + sum(im.shape[1] + pad for im in rgb)
+    height = 2 * pad + label_h + max(im.shape[0] for im in rgb)
+    canvas = Image.new("RGB", (width, height), tuple(int(v) for v in bg))
+    draw = ImageDraw.Draw(canvas)
+    font = _font(size) if labels else None
+    ink = _rgb_bytes("text_color", text_color)
+    x = pad
+    for i, im in enumerate(rgb):
+        canvas.paste(Image.fromarray(im), (x, pad + label_h))
+        if labels:
+            draw.text((x + im.shape[1] // 2, pad + label_h // 2), str(labels[i]), fill=ink,
+                      font=font, anchor="mm")
+        x += im.shape[1] + pad
+    return np.asarray(canvas)
+
+
+def save_png(path, image):
+    """Write an image as PNG atomically (temporary file in the same folder, then ``os.replace``).
+
+    Parameters
+    ----------
+    path : str or Path
+    image : (H, W), (H, W, 3) or (H, W, 4) uint8
+
+    Returns
+    -------
+    Path
+    """
+    from PIL import Image
+
+    img = _as_image("image", image)
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            Image.fromarray(img).save(fh, format="PNG")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
