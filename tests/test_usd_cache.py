@@ -1,0 +1,238 @@
+"""dqskin.usd_cache: point caches against Pixar's baked baselines, exact round trips, safety."""
+
+import hashlib
+import os
+
+import numpy as np
+import pytest
+from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
+
+from dqskin.usd import load_usd
+from dqskin.usd_cache import write_usd_cache
+
+BAKE = "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning"
+RIGID = ["/Root/Cube", "/Root/Cylinder", "/Root/Sphere"]
+
+
+def digest(path):
+    return hashlib.sha256(open(path, "rb").read()).hexdigest()
+
+
+def assert_unskinned(stage):
+    """No SkelRoot, no SkelBindingAPI and no skel property: UsdSkel skins nothing."""
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+        assert not prim.IsA(UsdSkel.Root), prim.GetPath()
+        assert not prim.HasAPI(UsdSkel.BindingAPI), prim.GetPath()
+        skel_props = [p.GetName() for p in prim.GetAuthoredProperties()
+                      if p.GetName().startswith(("skel:", "primvars:skel:"))]
+        assert not skel_props, (prim.GetPath(), skel_props)
+
+
+def random_frames(scene, times, seed=0):
+    rng = np.random.default_rng(seed)
+    F = len(times)
+    points = {m.name: rng.normal(size=(F,) + m.points.shape).astype(np.float32)
+              for m in scene.meshes}
+    normals = {m.name: rng.normal(size=(F,) + m.normals.shape).astype(np.float32)
+               for m in scene.meshes if m.normals is not None}
+    velocities = {m.name: rng.normal(size=(F,) + m.points.shape).astype(np.float32)
+                  for m in scene.meshes}
+    return points, normals, velocities
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_cache_matches_pixar_baseline(shared_assets, tmp_path, method):
+    """Points, normals, extent and rigid xformOp:transform of every frame vs ``*.baked.usda``."""
+    src = shared_assets / BAKE / f"{method}.usda"
+    before = digest(src)
+    scene = load_usd(src)
+    points, normals = scene.skin(device="cpu", normals=True)
+    out = write_usd_cache(scene, tmp_path / "cache.usdc", scene.times, points, normals,
+                          device="cpu")
+    assert digest(src) == before
+    stage = Usd.Stage.Open(out)
+    base = Usd.Stage.Open(str(shared_assets / BAKE / "baseline" / f"{method}.baked.usda"))
+    assert_unskinned(stage)
+    for name in list(points) + RIGID:
+        prim, ref_prim = stage.GetPrimAtPath(name), base.GetPrimAtPath(name)
+        attrs = (["xformOp:transform"] if name in RIGID else
+                 ["points", "extent"] + (["normals"] if name in normals else []))
+        for attr in attrs:
+            for t in scene.times:
+                ours = np.array(prim.GetAttribute(attr).Get(t), np.float64)
+                ref = np.array(ref_prim.GetAttribute(attr).Get(t), np.float64)
+                err = np.abs(ours - ref).max() / max(np.abs(ref).max(), 1.0)
+                assert err < 1e-5, f"{name}.{attr} at {t}: {err:.2e}"
+        if name in RIGID:
+            assert list(UsdGeom.Xformable(prim).GetXformOpOrderAttr().Get()) == [
+                "xformOp:transform"]
+    # the whole stage still composes what the baseline shows: same world-space bounds
+    bbox = UsdGeom.BBoxCache(Usd.TimeCode(20), ["default", "render"])
+    ref_box = UsdGeom.BBoxCache(Usd.TimeCode(20), ["default", "render"])
+    ours = bbox.ComputeWorldBound(stage.GetPrimAtPath("/Root")).ComputeAlignedRange()
+    ref = ref_box.ComputeWorldBound(base.GetPrimAtPath("/Root")).ComputeAlignedRange()
+    np.testing.assert_allclose([ours.GetMin(), ours.GetMax()], [ref.GetMin(), ref.GetMax()],
+                               atol=1e-5)
+
+
+@pytest.mark.parametrize("ext", [".usda", ".usdc", ".usd"])
+def test_round_trip_is_exact(shared_assets, tmp_path, ext):
+    src = shared_assets / BAKE / "lbs.usda"
+    before = digest(src)
+    scene = load_usd(src)
+    times = np.array([2.0, 3.5, 7.0])
+    points, normals, velocities = random_frames(scene, times)
+    out = write_usd_cache(scene, tmp_path / f"cache{ext}", times, points, normals,
+                          velocities=velocities, device="cpu")
+    assert digest(src) == before
+    assert os.listdir(tmp_path) == [f"cache{ext}"]  # no temporary file left behind
+    magic = open(out, "rb").read(8)
+    assert magic == (b"#usda 1." if ext == ".usda" else b"PXR-USDC")
+    layer = Sdf.Layer.FindOrOpen(out)
+    assert (layer.timeCodesPerSecond, layer.startTimeCode, layer.endTimeCode) == (24, 2, 7)
+    assert layer.pseudoRoot.GetInfo("upAxis") == "Y"
+    stage, source = Usd.Stage.Open(out), Usd.Stage.Open(str(src))
+    assert UsdGeom.GetStageMetersPerUnit(stage) == scene.meters_per_unit
+    assert_unskinned(stage)
+    for name, p in points.items():
+        prim = UsdGeom.PointBased(stage.GetPrimAtPath(name))
+        assert prim.GetPointsAttr().GetTimeSamples() == times.tolist()
+        for f, t in enumerate(times):
+            np.testing.assert_array_equal(prim.GetPointsAttr().Get(t), p[f])
+            np.testing.assert_array_equal(prim.GetVelocitiesAttr().Get(t), velocities[name][f])
+            np.testing.assert_array_equal(prim.GetExtentAttr().Get(t),
+                                          [p[f].min(axis=0), p[f].max(axis=0)])
+            if name in normals:
+                np.testing.assert_array_equal(prim.GetNormalsAttr().Get(t), normals[name][f])
+        if name in normals:
+            assert prim.GetNormalsInterpolation() == UsdGeom.PointBased(
+                source.GetPrimAtPath(name)).GetNormalsInterpolation()
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/MeshWithNormals"))
+    original = UsdGeom.Mesh(source.GetPrimAtPath("/Root/MeshWithNormals"))
+    assert mesh.GetFaceVertexIndicesAttr().Get() == original.GetFaceVertexIndicesAttr().Get()
+
+
+def test_instanced_characters_are_de_instanced(shared_assets, tmp_path):
+    """Two instances of the baked asset: each instance's prims get their own samples."""
+    world = tmp_path / "world.usda"
+    asset = (shared_assets / BAKE / "dqs.usda").as_posix()
+    world.write_text(f"""#usda 1.0
+(
+    startTimeCode = 1
+    endTimeCode = 30
+    timeCodesPerSecond = 24
+)
+def Xform "World"
+{{
+    def "A" (instanceable = true
+             references = @{asset}@</Root>) {{
+        double3 xformOp:translate = (3, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }}
+    def "B" (instanceable = true
+             references = @{asset}@</Root>) {{
+        double3 xformOp:translate = (-3, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }}
+}}
+""")
+    scene = load_usd(world)
+    assert len(scene.meshes) == 8 and len(scene.skeletons) == 2
+    points, normals = scene.skin([1.0, 15.0], device="cpu", normals=True)
+    out = write_usd_cache(scene, tmp_path / "cache.usda", [1.0, 15.0], points, normals,
+                          device="cpu")
+    stage = Usd.Stage.Open(out)
+    base = Usd.Stage.Open(str(shared_assets / BAKE / "baseline" / "dqs.baked.usda"))
+    assert_unskinned(stage)
+    for inst in ("A", "B"):
+        assert not stage.GetPrimAtPath(f"/World/{inst}").IsInstance()
+        for name, attr in (("Mesh", "points"), ("MeshWithNormals", "normals"),
+                           ("Cube", "xformOp:transform")):
+            ours = stage.GetPrimAtPath(f"/World/{inst}/{name}").GetAttribute(attr).Get(15.0)
+            ref = base.GetPrimAtPath(f"/Root/{name}").GetAttribute(attr).Get(15.0)
+            np.testing.assert_allclose(np.array(ours), np.array(ref), atol=1e-5)
+
+
+def test_refusals(shared_assets, tmp_path):
+    src = shared_assets / BAKE / "lbs.usda"
+    copy = tmp_path / "rig.usda"
+    copy.write_bytes(src.read_bytes())
+    top = tmp_path / "top.usda"
+    top.write_text('#usda 1.0\n(\n    subLayers = [@./rig.usda@]\n)\n')
+    scene = load_usd(top)
+    points, _, _ = random_frames(scene, [1.0])
+    before = {p: digest(p) for p in (copy, top)}
+    for target in (top, copy):
+        with pytest.raises(ValueError, match="refusing to overwrite an input"):
+            write_usd_cache(scene, target, [1.0], points)
+    assert {p: digest(p) for p in (copy, top)} == before
+    with pytest.raises(ValueError, match="does not exist"):
+        write_usd_cache(scene, tmp_path / "no" / "out.usda", [1.0], points)
+    with pytest.raises(ValueError, match="cannot write extension '.usdz'"):
+        write_usd_cache(scene, tmp_path / "out.usdz", [1.0], points)
+    with pytest.raises(ValueError, match=r"points\['/Root/Mesh'\]: expected shape \(2, 40, 3\)"):
+        write_usd_cache(scene, tmp_path / "out.usda", [1.0, 2.0], points)
+    with pytest.raises(ValueError, match="points: no mesh '/Root/Nope'"):
+        write_usd_cache(scene, tmp_path / "out.usda", [1.0], {"/Root/Nope": points["/Root/Mesh"]})
+    bad = dict(points)
+    bad["/Root/Mesh"] = np.full_like(points["/Root/Mesh"], np.nan)
+    with pytest.raises(ValueError, match="NaN"):
+        write_usd_cache(scene, tmp_path / "out.usda", [1.0], bad)
+    with pytest.raises(ValueError, match=r"normals\['/Root/Mesh'\]: the mesh has no rest normals"):
+        write_usd_cache(scene, tmp_path / "out.usda", [1.0], points,
+                        {"/Root/Mesh": points["/Root/Mesh"]})
+    assert sorted(os.listdir(tmp_path)) == ["rig.usda", "top.usda"]
+
+
+def test_overwrites_previous_output_atomically(shared_assets, tmp_path):
+    scene = load_usd(shared_assets / BAKE / "lbs.usda")
+    out = tmp_path / "cache.usdc"
+    for seed in (1, 2):
+        points, _, _ = random_frames(scene, [4.0], seed)
+        write_usd_cache(scene, out, [4.0], points, device="cpu")
+        fresh = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(out)))  # read from disk
+        got = fresh.GetPrimAtPath("/Root/Mesh").GetAttribute("points").Get(4)
+        np.testing.assert_array_equal(got, points["/Root/Mesh"][0])
+    assert os.listdir(tmp_path) == ["cache.usdc"]
+
+
+def test_indexed_primvar_normals_are_flattened(shared_assets, tmp_path):
+    """``primvars:normals`` (indexed) beats ``normals``; the cache writes flat values there."""
+    top = Sdf.Layer.CreateNew(str(tmp_path / "top.usda"))
+    top.subLayerPaths.append(str(shared_assets / BAKE / "lbs.usda"))
+    stage = Usd.Stage.Open(top)
+    prim = stage.GetPrimAtPath("/Root/MeshWithNormals")
+    pv = UsdGeom.PrimvarsAPI(prim).CreatePrimvar(
+        "normals", Sdf.ValueTypeNames.Normal3fArray, UsdGeom.Tokens.vertex)
+    unique = np.float32([[1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    pv.Set(Vt.Vec3fArray.FromNumpy(unique))
+    pv.SetIndices(Vt.IntArray.FromNumpy((np.arange(12) % 3).astype(np.int32)))
+    top.Save()
+    scene = load_usd(top.realPath)
+    mesh = scene.mesh("/Root/MeshWithNormals")
+    np.testing.assert_array_equal(mesh.normals, unique[np.arange(12) % 3])
+    points, normals = scene.skin([5.0], device="cpu", normals=True)
+    out = write_usd_cache(scene, tmp_path / "cache.usda", [5.0], points, normals, device="cpu")
+    cache = Usd.Stage.Open(out)
+    written = UsdGeom.PrimvarsAPI(cache.GetPrimAtPath(mesh.name)).GetPrimvar("normals")
+    assert not written.IsIndexed()
+    assert written.GetInterpolation() == UsdGeom.Tokens.vertex
+    np.testing.assert_array_equal(written.Get(5.0), normals[mesh.name][0])
+    assert np.abs(normals[mesh.name][0] - mesh.normals).max() > 0.1  # really skinned
+
+
+def test_usdz_source_keeps_uvs_materials_and_topology(shared_assets, tmp_path):
+    src = shared_assets / "usd-wg/CesiumMan/CesiumMan.usdz"
+    scene = load_usd(src)
+    points = scene.skin([1.0, 24.0], device="cpu")
+    out = write_usd_cache(scene, tmp_path / "cesium.usdc", [1.0, 24.0], points, device="cpu")
+    source, cache = Usd.Stage.Open(str(src)), Usd.Stage.Open(out)
+    assert_unskinned(cache)
+    (name,) = points
+    a, b = source.GetPrimAtPath(name), cache.GetPrimAtPath(name)
+    for attr in ("faceVertexCounts", "faceVertexIndices", "primvars:st"):
+        np.testing.assert_array_equal(b.GetAttribute(attr).Get(), a.GetAttribute(attr).Get())
+    material = UsdShade.MaterialBindingAPI(b).ComputeBoundMaterial()[0]
+    assert material and material.GetPath() == UsdShade.MaterialBindingAPI(
+        a).ComputeBoundMaterial()[0].GetPath()
+    np.testing.assert_array_equal(b.GetAttribute("points").Get(24.0), points[name][1])
