@@ -12,6 +12,7 @@ import warp as wp
 
 from ._warp import launch_rows, resolve_device
 from .kernels import skin as K
+from .kernels.dqmath import vec8
 
 __all__ = ["METHODS", "Skinner", "skin_points", "skin_normals"]
 
@@ -94,9 +95,13 @@ class Skinner:
         if wts.size and wts.min() < 0:
             raise ValueError(f"joint_weights: negative weight {float(wts.min())}")
         self.vertex_count, self.influence_count = idx.shape
-        # largest weight first (stable: first on ties) -- the kernels' antipodality pivot
+        # largest weight first (stable: first on ties) -- the kernels' antipodality pivot -- then
+        # zero-padded to groups of four (kernels.skin's influence layout)
         order = np.argsort(-wts, axis=1, kind="stable")
         idx, wts = np.take_along_axis(idx, order, 1), np.take_along_axis(wts, order, 1)
+        pad = -idx.shape[1] % 4
+        idx = np.pad(idx, ((0, 0), (0, pad)))
+        wts = np.pad(wts, ((0, 0), (0, pad)))
         self.joint_count_min = int(idx.max()) + 1 if idx.size else 0
         g = np.eye(4) if geom_bind_transform is None else _as_array(
             "geom_bind_transform", geom_bind_transform, np.float64, (4, 4)).reshape(4, 4)
@@ -104,8 +109,9 @@ class Skinner:
         self._cache = {}
         d = self.device
         self._points = wp.array(self._bind_points(pts)[None], dtype=wp.vec3, device=d)
-        self._indices = wp.array(idx.astype(np.int32), dtype=wp.int32, device=d)
-        self._weights = wp.array(wts, dtype=wp.float32, device=d)
+        V = self.vertex_count
+        self._indices = wp.array(idx.astype(np.int32).reshape(V, -1, 4), dtype=wp.vec4i, device=d)
+        self._weights = wp.array(wts.reshape(V, -1, 4), dtype=wp.vec4, device=d)
         if blend_weights is None:
             self._blend = wp.zeros(0, dtype=wp.float32, device=d)
         else:
@@ -124,9 +130,9 @@ class Skinner:
             raise ValueError('method "blend" needs blend_weights')
         return code
 
-    _POINT_BUFFERS = dict(affines=K.mat34, dq_real=wp.quat, dq_dual=wp.quat, residuals=wp.mat33)
-    _VECTOR_BUFFERS = dict(linears=wp.mat33, normal_linears=wp.mat33, normal_residuals=wp.mat33,
-                           normal_rotations=wp.quat)
+    _POINT_BUFFERS = dict(affines=K.mat34, dqs=vec8, residuals=wp.mat33)
+    _VECTOR_BUFFERS = dict(linears=wp.mat33, rotations=wp.quat, normal_linears=wp.mat33,
+                           normal_residuals=wp.mat33, normal_rotations=wp.quat)
 
     def _buffers(self, kind, frames, joints):
         """Per-(frame, joint) work arrays, allocated once per shape and reused across calls."""
@@ -159,8 +165,8 @@ class Skinner:
         prep = dict(self._buffers("points", frames, joints))
         prep["has_residual"].zero_()
         wp.launch(K.prepare_points_kernel, dim=(frames, joints), inputs=[x],
-                  outputs=[prep[k] for k in ("affines", "dq_real", "dq_dual", "residuals",
-                                             "has_residual")], device=d)
+                  outputs=[prep[k] for k in ("affines", "dqs", "residuals", "has_residual")],
+                  device=d)
         if vectors:
             vec = self._buffers("vectors", frames, joints)
             wp.launch(K.prepare_vectors_kernel, dim=(frames, joints), inputs=[x],
@@ -202,7 +208,7 @@ class Skinner:
         if code == K.LBS:
             kernel, inputs = K.skin_lbs_kernel, pts + [prep["affines"]]
         else:
-            dqs = [prep["dq_real"], prep["dq_dual"], prep["residuals"], prep["has_residual"]]
+            dqs = [prep["dqs"], prep["residuals"], prep["has_residual"]]
             kernel, inputs = ((K.skin_dqs_kernel, pts + dqs) if code == K.DQS else
                               (K.skin_blend_kernel, pts + [self._blend, prep["affines"]] + dqs))
 
@@ -259,7 +265,7 @@ class Skinner:
         if kind == "normal":
             lin, rot, res = prep["normal_linears"], prep["normal_rotations"], prep["normal_residuals"]
         else:
-            lin, rot, res = prep["linears"], prep["dq_real"], prep["residuals"]
+            lin, rot, res = prep["linears"], prep["rotations"], prep["residuals"]
         out = wp.empty((frames, n), dtype=wp.vec3, device=d)
 
         def launch(offset, count):

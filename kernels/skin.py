@@ -1,7 +1,6 @@
 """Per-vertex skinning kernels: LBS, DQS and the per-vertex LBS↔DQS blend, batched over frames.
 
-Launch grids are ``(frames, vertices)``; any number of influences per vertex (``K`` columns,
-zero-weight padding allowed). Semantics follow UsdSkel (``UsdSkelSkinPointsLBS/DQS``):
+Semantics follow UsdSkel (``UsdSkelSkinPointsLBS/DQS``):
 
 * LBS: ``p' = Σ wᵢ·Mᵢ·p`` -- weights used as given, never renormalized.
 * DQS: each skinning matrix is split by the polar decomposition ``A = R·S`` into a unit dual
@@ -11,19 +10,22 @@ zero-weight padding allowed). Semantics follow UsdSkel (``UsdSkelSkinPointsLBS/D
   largest-weight joint (antipodality). Normalization (Montgomery-Smith eq. 14) is folded into the
   transform: for a blend ``b = r + ε·d``, ``p' = (r·p·r* + 2·(d·r*)_vec) / |r|²``; the Plücker
   correction of eq. 14 only changes the scalar part of ``d·r*`` and so drops out.
-
-Influences must be sorted by descending weight per vertex (:class:`dqskin.Skinner` does it on
-upload), so slot 0 is the antipodality pivot -- the largest weight, first on ties, as UsdSkel.
-One thread per vertex loops over all frames, reading the vertex's influences once.
 * blend: ``p' = (1 − b)·LBS + b·DQS`` with a per-vertex ``b`` (Maya's "weight blended").
 
-Normals use the inverse transpose of each linear part; tangents use the linear part itself; both
-are normalized after blending.
+Normals use the inverse transpose of each linear part; tangents the linear part itself; both are
+normalized after blending.
+
+Influence layout (:class:`dqskin.Skinner` builds it on upload): ``indices`` (V, C) ``wp.vec4i`` and
+``weights`` (V, C) ``wp.vec4`` -- ``K`` influences in ``C = ceil(K/4)`` groups of four, sorted by
+descending weight and zero-padded, so slot 0 is the antipodality pivot (the largest weight, first
+on ties, as UsdSkel). One thread per vertex loops over all frames, reading its influences once.
+Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
 """
 
 import warp as wp
 
-from .dqmath import dq_from_rt, is_identity33, mat44_linear, orthonormalize_columns, polar_rotation
+from .dqmath import (dq_from_rt, is_identity33, mat44_linear, orthonormalize_columns, polar_rotation,
+                     vec8)
 
 mat34 = wp.types.matrix(shape=(3, 4), dtype=wp.float32)
 
@@ -39,13 +41,12 @@ def prepare_points_kernel(
     xforms: wp.array2d(dtype=wp.mat44),
     # outputs
     affines: wp.array2d(dtype=mat34),
-    dq_real: wp.array2d(dtype=wp.quat),
-    dq_dual: wp.array2d(dtype=wp.quat),
+    dqs: wp.array2d(dtype=vec8),
     residuals: wp.array2d(dtype=wp.mat33),
     has_residual: wp.array(dtype=wp.int32),
 ):
-    """Per (frame, joint): 3×4 affine for LBS; polar split ``A = R·S`` into a dual quaternion
-    (real, dual as Warp quaternions) and the residual ``S`` for DQS. ``has_residual`` must be
+    """Per (frame, joint): 3×4 affine for LBS; polar split ``A = R·S`` into a unit dual
+    quaternion and the residual ``S`` for DQS. ``has_residual`` must be
     zeroed before the launch; it is set for frames where some ``S ≠ I`` (1e-6, as UsdSkel)."""
     f, j = wp.tid()
     m = xforms[f, j]
@@ -53,9 +54,7 @@ def prepare_points_kernel(
     r = polar_rotation(a)
     s = wp.transpose(r) * a
     q = wp.normalize(wp.quat_from_matrix(r))
-    eta = dq_from_rt(q, wp.vec3(m[0, 3], m[1, 3], m[2, 3]))
-    dq_real[f, j] = q
-    dq_dual[f, j] = wp.quat(eta[5], eta[6], eta[7], eta[4])
+    dqs[f, j] = dq_from_rt(q, wp.vec3(m[0, 3], m[1, 3], m[2, 3]))
     affines[f, j] = mat34(m[0, 0], m[0, 1], m[0, 2], m[0, 3],
                           m[1, 0], m[1, 1], m[1, 2], m[1, 3],
                           m[2, 0], m[2, 1], m[2, 2], m[2, 3])
@@ -69,16 +68,19 @@ def prepare_vectors_kernel(
     xforms: wp.array2d(dtype=wp.mat44),
     # outputs
     linears: wp.array2d(dtype=wp.mat33),
+    rotations: wp.array2d(dtype=wp.quat),
     normal_linears: wp.array2d(dtype=wp.mat33),
     normal_residuals: wp.array2d(dtype=wp.mat33),
     normal_rotations: wp.array2d(dtype=wp.quat),
 ):
-    """Per (frame, joint) matrices for directions. Tangents: the linear part ``A``. Normals:
+    """Per (frame, joint) matrices for directions. Tangents: the linear part ``A`` and its polar
+    rotation (Warp quaternion). Normals:
     ``N = A⁻ᵀ`` split as UsdSkel does, ``N = Rn·(Rnᵀ·N)`` with ``Rn`` from
     :func:`orthonormalize_columns`."""
     f, j = wp.tid()
     a = mat44_linear(xforms[f, j])
     linears[f, j] = a
+    rotations[f, j] = wp.normalize(wp.quat_from_matrix(polar_rotation(a)))
     n = wp.transpose(wp.inverse(a))
     rn = orthonormalize_columns(n)
     normal_linears[f, j] = n
@@ -87,51 +89,51 @@ def prepare_vectors_kernel(
 
 
 @wp.func
-def lbs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.int32),
-              weights: wp.array2d(dtype=float), affines: wp.array2d(dtype=mat34)):
+def lbs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
+              weights: wp.array2d(dtype=wp.vec4), affines: wp.array2d(dtype=mat34)):
     """``Σ wᵢ·Aᵢ·[p, 1]``, blending the 3×4 matrices first."""
     acc = mat34()
-    for k in range(indices.shape[1]):
-        acc += affines[f, indices[v, k]] * weights[v, k]
+    for c in range(indices.shape[1]):
+        iv = indices[v, c]
+        wv = weights[v, c]
+        for k in range(4):
+            acc += affines[f, iv[k]] * wv[k]
     return acc * wp.vec4(p[0], p[1], p[2], 1.0)
 
 
 @wp.func
-def dqs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.int32),
-              weights: wp.array2d(dtype=float), dq_real: wp.array2d(dtype=wp.quat),
-              dq_dual: wp.array2d(dtype=wp.quat), residuals: wp.array2d(dtype=wp.mat33),
-              use_residual: bool):
+def dqs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
+              weights: wp.array2d(dtype=wp.vec4), dqs: wp.array2d(dtype=vec8),
+              residuals: wp.array2d(dtype=wp.mat33), use_residual: bool):
     """DQS of one point: pivot slot 0, sign-aligned blend, normalization folded in."""
-    pivot = dq_real[f, indices[v, 0]]
-    r = wp.quat(0.0, 0.0, 0.0, 0.0)
-    d = wp.quat(0.0, 0.0, 0.0, 0.0)
+    pv = dqs[f, indices[v, 0][0]]
+    b = vec8()
     scaled = p
     if use_residual:
         scaled = wp.vec3()
-    for k in range(indices.shape[1]):
-        j = indices[v, k]
-        q = dq_real[f, j]
-        w = weights[v, k]
-        s = w * wp.sign(wp.dot(q, pivot))
-        r += q * s
-        d += dq_dual[f, j] * s
-        if use_residual:
-            scaled += (residuals[f, j] * p) * w
-    rv = wp.vec3(r[0], r[1], r[2])
-    rw = r[3]
+    for c in range(indices.shape[1]):
+        iv = indices[v, c]
+        wv = weights[v, c]
+        for k in range(4):
+            x = dqs[f, iv[k]]
+            b += x * (wv[k] * wp.sign(x[0] * pv[0] + x[1] * pv[1] + x[2] * pv[2] + x[3] * pv[3]))
+            if use_residual:
+                scaled += (residuals[f, iv[k]] * p) * wv[k]
+    rv = wp.vec3(b[1], b[2], b[3])
+    rw = b[0]
     n2 = rw * rw + wp.dot(rv, rv)
     if n2 < 1.0e-20:
         return scaled  # all weights zero: identity, as Gf's normalize
-    dv = wp.vec3(d[0], d[1], d[2])
+    dv = wp.vec3(b[5], b[6], b[7])
     return scaled + (2.0 / n2) * (wp.cross(rv, wp.cross(rv, scaled) + rw * scaled)
-                                  + rw * dv - d[3] * rv + wp.cross(rv, dv))
+                                  + rw * dv - b[4] * rv + wp.cross(rv, dv))
 
 
 @wp.kernel
 def skin_lbs_kernel(
     points: wp.array2d(dtype=wp.vec3),
-    indices: wp.array2d(dtype=wp.int32),
-    weights: wp.array2d(dtype=float),
+    indices: wp.array2d(dtype=wp.vec4i),
+    weights: wp.array2d(dtype=wp.vec4),
     affines: wp.array2d(dtype=mat34),
     vertex_offset: int,
     # outputs
@@ -148,10 +150,9 @@ def skin_lbs_kernel(
 @wp.kernel
 def skin_dqs_kernel(
     points: wp.array2d(dtype=wp.vec3),
-    indices: wp.array2d(dtype=wp.int32),
-    weights: wp.array2d(dtype=float),
-    dq_real: wp.array2d(dtype=wp.quat),
-    dq_dual: wp.array2d(dtype=wp.quat),
+    indices: wp.array2d(dtype=wp.vec4i),
+    weights: wp.array2d(dtype=wp.vec4),
+    dqs: wp.array2d(dtype=vec8),
     residuals: wp.array2d(dtype=wp.mat33),
     has_residual: wp.array(dtype=wp.int32),
     vertex_offset: int,
@@ -162,19 +163,18 @@ def skin_dqs_kernel(
     v = wp.tid() + vertex_offset
     last = points.shape[0] - 1
     for f in range(out.shape[0]):
-        out[f, v] = dqs_point(points[wp.min(f, last), v], v, f, indices, weights, dq_real,
-                              dq_dual, residuals, has_residual[f] != 0)
+        out[f, v] = dqs_point(points[wp.min(f, last), v], v, f, indices, weights, dqs, residuals,
+                              has_residual[f] != 0)
 
 
 @wp.kernel
 def skin_blend_kernel(
     points: wp.array2d(dtype=wp.vec3),
-    indices: wp.array2d(dtype=wp.int32),
-    weights: wp.array2d(dtype=float),
+    indices: wp.array2d(dtype=wp.vec4i),
+    weights: wp.array2d(dtype=wp.vec4),
     blend: wp.array(dtype=float),
     affines: wp.array2d(dtype=mat34),
-    dq_real: wp.array2d(dtype=wp.quat),
-    dq_dual: wp.array2d(dtype=wp.quat),
+    dqs: wp.array2d(dtype=vec8),
     residuals: wp.array2d(dtype=wp.mat33),
     has_residual: wp.array(dtype=wp.int32),
     vertex_offset: int,
@@ -188,38 +188,42 @@ def skin_blend_kernel(
     for f in range(out.shape[0]):
         p = points[wp.min(f, last), v]
         out[f, v] = (lbs_point(p, v, f, indices, weights, affines) * (1.0 - b)
-                     + dqs_point(p, v, f, indices, weights, dq_real, dq_dual, residuals,
+                     + dqs_point(p, v, f, indices, weights, dqs, residuals,
                                  has_residual[f] != 0) * b)
 
 
 @wp.func
-def dqs_vector(x: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.int32),
-               weights: wp.array2d(dtype=float), rotations: wp.array2d(dtype=wp.quat),
+def dqs_vector(x: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
+               weights: wp.array2d(dtype=wp.vec4), rotations: wp.array2d(dtype=wp.quat),
                residuals: wp.array2d(dtype=wp.mat33), use_residual: bool):
     """Rotation-only DQS of a direction (sign-aligned quaternion blend), unit length."""
-    pivot = rotations[f, indices[v, 0]]
+    pivot = rotations[f, indices[v, 0][0]]
     r = wp.quat(0.0, 0.0, 0.0, 0.0)
     scaled = x
     if use_residual:
         scaled = wp.vec3()
-    for k in range(indices.shape[1]):
-        j = indices[v, k]
-        q = rotations[f, j]
-        w = weights[v, k]
-        r += q * (w * wp.sign(wp.dot(q, pivot)))
-        if use_residual:
-            scaled += (residuals[f, j] * x) * w
+    for c in range(indices.shape[1]):
+        iv = indices[v, c]
+        wv = weights[v, c]
+        for k in range(4):
+            q = rotations[f, iv[k]]
+            r += q * (wv[k] * wp.sign(wp.dot(q, pivot)))
+            if use_residual:
+                scaled += (residuals[f, iv[k]] * x) * wv[k]
     if wp.length(r) < 1.0e-10:
         return wp.normalize(scaled)
     return wp.normalize(wp.quat_rotate(wp.normalize(r), scaled))
 
 
 @wp.func
-def lbs_vector(x: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.int32),
-               weights: wp.array2d(dtype=float), linears: wp.array2d(dtype=wp.mat33)):
+def lbs_vector(x: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
+               weights: wp.array2d(dtype=wp.vec4), linears: wp.array2d(dtype=wp.mat33)):
     acc = wp.mat33()
-    for k in range(indices.shape[1]):
-        acc += linears[f, indices[v, k]] * weights[v, k]
+    for c in range(indices.shape[1]):
+        iv = indices[v, c]
+        wv = weights[v, c]
+        for k in range(4):
+            acc += linears[f, iv[k]] * wv[k]
     return wp.normalize(acc * x)
 
 
@@ -227,8 +231,8 @@ def lbs_vector(x: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.int32),
 def skin_vectors_kernel(
     vectors: wp.array2d(dtype=wp.vec3),
     vector_vertex: wp.array(dtype=wp.int32),
-    indices: wp.array2d(dtype=wp.int32),
-    weights: wp.array2d(dtype=float),
+    indices: wp.array2d(dtype=wp.vec4i),
+    weights: wp.array2d(dtype=wp.vec4),
     blend: wp.array(dtype=float),
     linears: wp.array2d(dtype=wp.mat33),
     rotations: wp.array2d(dtype=wp.quat),
@@ -249,10 +253,8 @@ def skin_vectors_kernel(
     n = wp.tid() + offset
     v = vector_vertex[n]
     last = vectors.shape[0] - 1
-    x = vectors[0, n]
     for f in range(out.shape[0]):
-        if last > 0:
-            x = vectors[f, n]
+        x = vectors[wp.min(f, last), n]
         if method == LBS:
             out[f, n] = lbs_vector(x, v, f, indices, weights, linears)
         elif method == DQS:

@@ -27,14 +27,18 @@ from dqskin.skeleton import forward_kinematics
 JOINTS, INFLUENCES = 64, 4
 
 
-def best_time(fn, repeat):
-    fn()  # warm-up (kernel load, caches)
-    times = []
+def best_times(fns, repeat):
+    """Best wall time of each callable, rounds interleaved so machine noise hits all alike."""
+    for fn in fns.values():
+        fn()  # warm-up (kernel load, caches)
+    best = dict.fromkeys(fns, float("inf"))
     for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+        for name, fn in fns.items():
+            time.sleep(0.3)  # let the previous implementation's worker threads (TBB, BLAS) go idle
+            t0 = time.perf_counter()
+            fn()
+            best[name] = min(best[name], time.perf_counter() - t0)
+    return best
 
 
 def make_rig(rng, V):
@@ -80,19 +84,19 @@ def bench_skinning(sizes, repeat, devices, rows):
         xf = Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(M.transpose(0, 2, 1)))
         vi, vw = Vt.IntArray.FromNumpy(idx.ravel()), Vt.FloatArray.FromNumpy(w.ravel())
         for method, token in (("lbs", "classicLinear"), ("dqs", "dualQuaternion")):
-            res = {}
+            fns = {}
             for dev in devices:
                 sk = dqskin.Skinner(points, idx, w, device=dev)
-                res[f"dqskin {dev}"] = best_time(lambda: (sk.skin(M, method), wp.synchronize()), rep)
+                fns[f"dqskin {dev}"] = (lambda sk=sk: (sk.skin(M, method), wp.synchronize()))
+            src = Vt.Vec3fArray.FromNumpy(points)
             for serial in (True, False):
-                src = Vt.Vec3fArray.FromNumpy(points)
-
-                def usd():
+                def usd(serial=serial):
                     p = Vt.Vec3fArray(src)
                     UsdSkel.SkinPoints(token, Gf.Matrix4d(1), xf, vi, vw, INFLUENCES, p, serial)
-                res["UsdSkel " + ("serial" if serial else "parallel")] = best_time(usd, rep)
+                fns["UsdSkel " + ("serial" if serial else "parallel")] = usd
             oracle = numpy_lbs if method == "lbs" else numpy_dqs
-            res["NumPy"] = best_time(lambda: oracle(points, idx, w, M), max(1, rep // 2))
+            fns["NumPy"] = lambda oracle=oracle: oracle(points, idx, w, M)
+            res = best_times(fns, rep)
             for impl, t in res.items():
                 rows.append(dict(kind="skin", method=method, vertices=V, impl=impl, seconds=t,
                                  mpts_per_s=V / t / 1e6))
@@ -105,21 +109,19 @@ def bench_fk(devices, rows, skeletons=1000):
     local[..., :3, :3] = Rotation.random(skeletons * JOINTS, random_state=rng).as_matrix().reshape(
         skeletons, JOINTS, 3, 3)
     local[..., :3, 3] = rng.normal(size=(skeletons, JOINTS, 3))
-    res = {}
-    for dev in devices:
-        res[f"dqskin {dev}"] = best_time(lambda: forward_kinematics(parents, local, device=dev), 5)
-
     def numpy_fk():
         world = np.empty_like(local)
         for j, p in enumerate(parents):
             world[:, j] = local[:, j] if p < 0 else world[:, p] @ local[:, j]
         return world
-    res["NumPy"] = best_time(numpy_fk, 5)
     topo = UsdSkel.Topology(Vt.IntArray([int(p) for p in parents]))
     usd_local = [Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(local[s].transpose(0, 2, 1)))
                  for s in range(skeletons)]
-    res["UsdSkel serial"] = best_time(
-        lambda: [UsdSkel.ConcatJointTransforms(topo, x) for x in usd_local], 3)
+    fns = {f"dqskin {dev}": (lambda dev=dev: forward_kinematics(parents, local, device=dev))
+           for dev in devices}
+    fns["NumPy"] = numpy_fk
+    fns["UsdSkel serial"] = lambda: [UsdSkel.ConcatJointTransforms(topo, x) for x in usd_local]
+    res = best_times(fns, 5)
     for impl, t in res.items():
         rows.append(dict(kind="fk", skeletons=skeletons, joints=JOINTS, impl=impl, seconds=t,
                          mjoints_per_s=skeletons * JOINTS / t / 1e6))
