@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .motion import INTERPOLATIONS
+
 __all__ = ["main"]
 
 EXIT_INPUT = 2
@@ -35,8 +37,9 @@ def parse_frames(text):
     return start, end, step
 
 
-def select_times(scene, frames=None, fps=None):
-    """Sample times: the asset's own, an explicit ``--frames`` range, or ``--fps`` resampling."""
+def select_times(scene, frames=None, fps=None, substeps=1):
+    """Sample times: the asset's own, an explicit ``--frames`` range, or ``--fps`` resampling;
+    ``substeps`` more samples evenly inside each interval (motion-blur sub-frames)."""
     t = np.asarray(scene.times, np.float64)
     if frames is not None:
         start, end, step = parse_frames(frames)
@@ -48,6 +51,11 @@ def select_times(scene, frames=None, fps=None):
         t = np.arange(t[0], t[-1] + step * 1e-6, step)
     if t.size == 0:
         raise CliError(f"{scene.path}: no frames selected")
+    if substeps < 1:
+        raise CliError(f"--substeps {substeps}: must be at least 1")
+    if substeps > 1 and t.size > 1:
+        u = np.arange(substeps) / substeps
+        t = np.append((t[:-1, None] + np.diff(t)[:, None] * u).ravel(), t[-1])
     return t
 
 
@@ -57,14 +65,25 @@ def frame_numbers(scene, times):
     return np.round(np.asarray(times) * rate).astype(int)
 
 
-def skin_chunks(scene, times, method, device, chunk, normals, progress=True):
+def chunk_velocities(scene, times, method, interp, device):
+    """Per-mesh velocities (units per second) for one chunk; "blend" mixes LBS and DQS."""
+    from .motion import scene_velocities
+    if method != "blend":
+        return scene_velocities(scene, times, method, interp, device=device)
+    lbs = scene_velocities(scene, times, "lbs", interp, device=device)
+    dqs = scene_velocities(scene, times, "dqs", interp, device=device)
+    return {m.name: (lbs[m.name] * (1 - m.blend_or_default()[:, None])
+                     + dqs[m.name] * m.blend_or_default()[:, None]) for m in scene.meshes}
+
+
+def skin_chunks(scene, times, method, device, chunk, normals, progress=True, interp="trs"):
     """Yield ``(slice, points, normals)`` per chunk of frames, so memory stays bounded."""
     from tqdm import tqdm
     bar = tqdm(total=len(times), unit="frame", disable=not progress or len(times) < 2 * chunk,
                desc="skinning", file=sys.stderr)
     for lo in range(0, len(times), chunk):
         sl = slice(lo, min(lo + chunk, len(times)))
-        res = scene.skin(times[sl], method, device=device, normals=normals)
+        res = scene.skin(times[sl], method, device=device, normals=normals, interp=interp)
         pts, nrm = res if normals else (res, None)
         yield sl, pts, nrm
         bar.update(sl.stop - sl.start)
@@ -84,7 +103,7 @@ def check_output(out, inputs, force):
 def cmd_skin(args):
     from . import io
     scene = io.load(args.input, clip=args.clip)
-    times = select_times(scene, args.frames, args.fps)
+    times = select_times(scene, args.frames, args.fps, args.substeps)
     out = str(args.out)
     suffix = Path(out).suffix.lower()
     names = [m.name for m in scene.meshes]
@@ -93,18 +112,26 @@ def cmd_skin(args):
         check_output(out, [args.input], args.force)
         from .usd_cache import write_usd_cache
         pts = {n: np.empty((F, len(scene.mesh(n).points), 3), np.float32) for n in names}
-        nrm = {}
-        for sl, p, n in skin_chunks(scene, times, args.method, args.device, args.chunk, True):
+        nrm, vel = {}, {}
+        for sl, p, n in skin_chunks(scene, times, args.method, args.device, args.chunk, True,
+                                    interp=args.interp):
+            v = (chunk_velocities(scene, times[sl], args.method, args.interp, args.device)
+                 if args.velocities else {})
             for name in names:
                 pts[name][sl] = p[name]
                 if name in n:
                     nrm.setdefault(name, np.empty((F,) + n[name].shape[1:], np.float32))[sl] = n[name]
-        write_usd_cache(scene, out, times, pts, nrm or None, source_path=args.input)
-        print(f"wrote {out}: {len(names)} meshes × {F} frames ({args.method or 'asset method'})")
+                if name in v:
+                    vel.setdefault(name, np.empty((F,) + v[name].shape[1:], np.float32))[sl] = v[name]
+        write_usd_cache(scene, out, times, pts, nrm or None, velocities=vel or None,
+                        source_path=args.input, method=args.method, device=args.device)
+        print(f"wrote {out}: {len(names)} meshes × {F} frames ({args.method or 'asset method'}"
+              f"{', velocities' if vel else ''})")
     elif suffix == ".npz":
         check_output(out, [args.input], args.force)
         pts = {n: np.empty((F, len(scene.mesh(n).points), 3), np.float32) for n in names}
-        for sl, p, _ in skin_chunks(scene, times, args.method, args.device, args.chunk, False):
+        for sl, p, _ in skin_chunks(scene, times, args.method, args.device, args.chunk, False,
+                                    interp=args.interp):
             for name in names:
                 pts[name][sl] = p[name]
         with io.atomic_path(out) as tmp:
@@ -123,7 +150,8 @@ def cmd_skin(args):
             faces.append(m.faces + offset)
             offset += len(m.points)
         faces = np.concatenate(faces)
-        for sl, p, _ in skin_chunks(scene, times, args.method, args.device, args.chunk, False):
+        for sl, p, _ in skin_chunks(scene, times, args.method, args.device, args.chunk, False,
+                                    interp=args.interp):
             stacked = np.concatenate([p[n] for n in names], axis=1)
             io.write_frames(out, numbers[sl], stacked, faces, force=args.force)
         print(f"wrote {len(paths)} files {paths[0]} … {paths[-1]}")
@@ -185,8 +213,9 @@ def cmd_demo(args):
     out_dir.mkdir(parents=True, exist_ok=True)
     cache = out_dir / "humanoid_dqs.usdc"
     print(f"dqskin demo: skinning {asset.name} with DQS")
-    cmd_skin(argparse.Namespace(input=str(asset), out=str(cache), method="dqs", frames=None,
-                                fps=None, clip=None, device=args.device, force=True, chunk=64))
+    cmd_skin(build_parser().parse_args(["skin", str(asset), "--out", str(cache), "--method", "dqs",
+                                        "--force"] + (["--device", args.device] if args.device
+                                                      else [])))
     from . import io
     scene = io.load(asset)
     lbs = scene.skin(method="lbs", device=args.device)
@@ -211,6 +240,13 @@ def build_parser():
     s.add_argument("--frames", help="START:END[:STEP] in the asset's time unit (USD time codes, "
                    "glTF seconds), END inclusive")
     s.add_argument("--fps", type=float, help="resample the clip at this many frames per second")
+    s.add_argument("--substeps", type=int, default=1,
+                   help="samples per frame interval (motion-blur sub-frames)")
+    s.add_argument("--interp", choices=INTERPOLATIONS, default="trs",
+                   help="joint interpolation between keys: trs = the asset's own (default); "
+                   "sclerp, dlb, spline, catmull-rom interpolate dual quaternions")
+    s.add_argument("--no-velocities", dest="velocities", action="store_false",
+                   help="don't write per-point velocities (units/s) to USD caches")
     s.add_argument("--clip", help="glTF animation name or index")
     s.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     s.add_argument("--chunk", type=int, default=64, help="frames per chunk (bounds memory)")

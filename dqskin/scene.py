@@ -73,6 +73,8 @@ class Mesh:
     face_vertex_counts, face_vertex_indices : int32 arrays or None
         Original polygon topology (kept by writers).
     uvs : (U, 2) float32 or None
+    blend_weights : (V,) float32 or None
+        DQS fraction per vertex for ``method="blend"``; None means ½ everywhere.
     """
 
     name: str
@@ -91,6 +93,13 @@ class Mesh:
     face_vertex_counts: np.ndarray | None = None
     face_vertex_indices: np.ndarray | None = None
     uvs: np.ndarray | None = None
+    blend_weights: np.ndarray | None = None
+
+    def blend_or_default(self):
+        """(V,) float32 blend weights, ½ where none were given."""
+        if self.blend_weights is not None:
+            return np.asarray(self.blend_weights, np.float32)
+        return np.full(len(self.points), 0.5, np.float32)
 
 
 @dataclass
@@ -132,16 +141,28 @@ class Scene:
                 return m
         raise KeyError(f"{self.path}: no mesh {name!r}; meshes: {[m.name for m in self.meshes]}")
 
-    def skinning_transforms(self, times, skeleton=0, *, device=None):
-        """(F, J, 4, 4) float32 bind-relative transforms of one skeleton at ``times``."""
+    def local_transforms(self, times, skeleton=0, *, interp="trs"):
+        """(F, J, 4, 4) float64 local joint transforms of one skeleton at ``times``.
+
+        ``interp`` is :data:`dqskin.motion.INTERPOLATIONS`: "trs" is the asset's own sampler
+        (what glTF and USD players show); the others interpolate the keys with dual quaternions.
+        """
         skel: Skeleton = self.skeletons[skeleton]
         anim = self.animations[skeleton]
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-        local = (np.broadcast_to(skel.rest_transforms, (t.shape[0],) + skel.rest_transforms.shape)
-                 if anim is None else anim.local_transforms(t))
-        return skel.skinning_transforms(local, device=device)
+        if anim is None:
+            return np.broadcast_to(skel.rest_transforms, (t.shape[0],) + skel.rest_transforms.shape)
+        if interp == "trs":
+            return anim.local_transforms(t)
+        from .motion import sample
+        return sample(anim, t, interp)
 
-    def skin(self, times=None, method=None, *, device=None, normals=False):
+    def skinning_transforms(self, times, skeleton=0, *, device=None, interp="trs"):
+        """(F, J, 4, 4) float32 bind-relative transforms of one skeleton at ``times``."""
+        return self.skeletons[skeleton].skinning_transforms(
+            self.local_transforms(times, skeleton, interp=interp), device=device)
+
+    def skin(self, times=None, method=None, *, device=None, normals=False, interp="trs"):
         """Skin every mesh at ``times``.
 
         Parameters
@@ -152,6 +173,8 @@ class Scene:
             None uses each mesh's own ``skinning_method``.
         normals : bool
             Also return skinned normals.
+        interp : str
+            Joint interpolation between keys (:data:`dqskin.motion.INTERPOLATIONS`).
 
         Returns
         -------
@@ -163,11 +186,13 @@ class Scene:
         points, norms = {}, {}
         for m in self.meshes:
             if m.skeleton not in xforms:
-                xforms[m.skeleton] = self.skinning_transforms(t, m.skeleton, device=device)
+                xforms[m.skeleton] = self.skinning_transforms(t, m.skeleton, device=device,
+                                                              interp=interp)
             x = xforms[m.skeleton]
             meth = method or m.skinning_method
             sk = Skinner(m.points, m.joint_indices, m.joint_weights,
-                         geom_bind_transform=m.geom_bind_transform, device=device)
+                         geom_bind_transform=m.geom_bind_transform, device=device,
+                         blend_weights=m.blend_or_default() if meth == "blend" else None)
             rest = None if m.rest_points_at is None else m.rest_points_at(t)
             p = sk.skin(x, meth, points=rest)
             out = None if m.output_transforms is None else np.asarray(m.output_transforms(t))

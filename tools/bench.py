@@ -80,7 +80,7 @@ def bench_skinning(sizes, repeat, devices, rows):
     rng = np.random.default_rng(0)
     for V in sizes:
         points, idx, w, M = make_rig(rng, V)
-        rep = max(1, repeat if V <= 100_000 else max(2, repeat // 2))
+        rep = repeat
         xf = Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(M.transpose(0, 2, 1)))
         vi, vw = Vt.IntArray.FromNumpy(idx.ravel()), Vt.FloatArray.FromNumpy(w.ravel())
         for method, token in (("lbs", "classicLinear"), ("dqs", "dualQuaternion")):
