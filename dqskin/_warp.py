@@ -25,6 +25,40 @@ def cpu_threads():
     return max(1, int(os.environ.get("DQSKIN_THREADS", os.cpu_count() or 1)))
 
 
+FRAME_BLOCK = 16
+"""Frames one skinning thread handles: the joints of 16 frames stay in L1 while every vertex of
+the block is skinned, and influences are read once per block."""
+
+
+def _pool_map(tasks):
+    global _pool
+    if _pool is None:
+        _pool = ThreadPoolExecutor(max_workers=cpu_threads(), thread_name_prefix="dqskin")
+    for fut in [_pool.submit(*t) for t in tasks]:
+        fut.result()
+
+
+def launch_blocks(launch, rows, frames, device, min_work=4096):
+    """Call ``launch(block_offset, block_count, row_offset, row_count)`` over a grid of
+    ``ceil(frames / FRAME_BLOCK)`` frame blocks × ``rows``.
+
+    On CUDA one call covers the grid. On the CPU the grid is split along its longer axis into one
+    piece per core, launched from a thread pool (Warp releases the GIL during CPU launches).
+    """
+    blocks = -(-frames // FRAME_BLOCK)
+    threads = cpu_threads() if device.is_cpu else 1
+    chunks = min(threads, max(1, rows * frames // min_work))
+    if chunks <= 1:
+        launch(0, blocks, 0, rows)
+        return
+    if blocks >= chunks and blocks * FRAME_BLOCK >= rows:
+        cut = [blocks * c // chunks for c in range(chunks + 1)]
+        _pool_map([(launch, cut[c], cut[c + 1] - cut[c], 0, rows) for c in range(chunks)])
+    else:
+        cut = [rows * c // chunks for c in range(chunks + 1)]
+        _pool_map([(launch, 0, blocks, cut[c], cut[c + 1] - cut[c]) for c in range(chunks)])
+
+
 def launch_rows(launch, count, device, min_chunk=4096):
     """Call ``launch(offset, n)`` over ``range(count)`` split in chunks.
 
@@ -36,10 +70,5 @@ def launch_rows(launch, count, device, min_chunk=4096):
     if chunks <= 1:
         launch(0, count)
         return
-    global _pool
-    if _pool is None:
-        _pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="dqskin")
     bounds = [count * c // chunks for c in range(chunks + 1)]
-    futures = [_pool.submit(launch, bounds[c], bounds[c + 1] - bounds[c]) for c in range(chunks)]
-    for fut in futures:
-        fut.result()
+    _pool_map([(launch, bounds[c], bounds[c + 1] - bounds[c]) for c in range(chunks)])

@@ -11,6 +11,7 @@ from typing import Callable
 import numpy as np
 
 from .skeleton import Skeleton
+from ._warp import resolve_device
 from .skinning import Skinner
 
 __all__ = ["Animation", "Mesh", "Scene"]
@@ -133,6 +134,18 @@ class Scene:
     meters_per_unit: float = 1.0
     clips: list = field(default_factory=list)
     clip: str | None = None
+    _skinners: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def skinner(self, mesh, device=None):
+        """The :class:`dqskin.Skinner` of ``mesh`` on ``device``, uploaded once and reused."""
+        key = (mesh.name, str(resolve_device(device)))
+        sk = self._skinners.get(key)
+        if sk is None:
+            sk = Skinner(mesh.points, mesh.joint_indices, mesh.joint_weights,
+                         geom_bind_transform=mesh.geom_bind_transform,
+                         blend_weights=mesh.blend_or_default(), device=device)
+            self._skinners[key] = sk
+        return sk
 
     def mesh(self, name):
         """The mesh called ``name`` (KeyError naming the known meshes)."""
@@ -190,21 +203,12 @@ class Scene:
                                                               interp=interp)
             x = xforms[m.skeleton]
             meth = method or m.skinning_method
-            sk = Skinner(m.points, m.joint_indices, m.joint_weights,
-                         geom_bind_transform=m.geom_bind_transform, device=device,
-                         blend_weights=m.blend_or_default() if meth == "blend" else None)
+            sk = self.skinner(m, device)
             rest = None if m.rest_points_at is None else m.rest_points_at(t)
-            p = sk.skin(x, meth, points=rest)
             out = None if m.output_transforms is None else np.asarray(m.output_transforms(t))
-            if out is not None:
-                p = (np.einsum("fij,fvj->fvi", out[:, :3, :3], p) + out[:, None, :3, 3])
-            points[m.name] = p.astype(np.float32)
+            points[m.name] = sk.skin(x, meth, points=rest, output_transforms=out)
             if normals and m.normals is not None:
                 rn = m.normals if m.rest_normals_at is None else m.rest_normals_at(t)
-                n = sk.skin_vectors(x, rn, meth, kind="normal", vector_vertex=m.normal_vertex)
-                if out is not None:
-                    nm = np.linalg.inv(out[:, :3, :3]).transpose(0, 2, 1)
-                    n = np.einsum("fij,fvj->fvi", nm, n)
-                    n /= np.linalg.norm(n, axis=-1, keepdims=True)
-                norms[m.name] = n.astype(np.float32)
+                norms[m.name] = sk.skin_vectors(x, rn, meth, kind="normal",
+                                                vector_vertex=m.normal_vertex, output_transforms=out)
         return (points, norms) if normals else points

@@ -10,7 +10,7 @@ bind (skeleton) space before skinning. Results are float32 in skeleton space. Sa
 import numpy as np
 import warp as wp
 
-from ._warp import launch_rows, resolve_device
+from ._warp import FRAME_BLOCK, launch_blocks, resolve_device
 from .kernels import skin as K
 from .kernels.dqmath import vec8
 
@@ -174,7 +174,25 @@ class Skinner:
             prep.update(vec)
         return prep, frames, batched
 
-    def skin(self, skinning_transforms, method="dqs", *, points=None, as_warp=False):
+    def _output(self, out, output_transforms, frames, normals):
+        """Apply per-frame output transforms (F, 4, 4) to ``out`` (F, N) in place, on the device."""
+        if output_transforms is None:
+            return
+        xf = _as_array("output_transforms", output_transforms, np.float64, (4, 4)).reshape(-1, 4, 4)
+        if xf.shape[0] not in (1, frames):
+            raise ValueError(f"output_transforms: expected (4, 4) or ({frames}, 4, 4), got {xf.shape}")
+        xf = np.broadcast_to(xf, (frames, 4, 4))
+        if normals:
+            lin = np.linalg.inv(xf[:, :3, :3]).transpose(0, 2, 1)
+            xf = np.zeros((frames, 4, 4))
+            xf[:, :3, :3] = lin
+            xf[:, 3, 3] = 1.0
+        wp.launch(K.transform_frames_kernel, dim=out.shape,
+                  inputs=[wp.array(xf.astype(np.float32), dtype=wp.mat44, device=self.device),
+                          int(normals)], outputs=[out], device=self.device)
+
+    def skin(self, skinning_transforms, method="dqs", *, points=None, output_transforms=None,
+             as_warp=False):
         """Skin the points for one or many frames.
 
         Parameters
@@ -185,6 +203,8 @@ class Skinner:
         method : {"dqs", "lbs", "blend"}
         points : (V, 3) or (F, V, 3) float, optional
             Rest points replacing the uploaded ones (e.g. after blend shapes), mesh space.
+        output_transforms : (4, 4) or (F, 4, 4) float, optional
+            Applied to the skinned points on the device (e.g. skeleton space → prim space).
         as_warp : bool
             Return the device array ``wp.array2d(dtype=wp.vec3)`` of shape (F, V) without a copy.
 
@@ -212,18 +232,20 @@ class Skinner:
             kernel, inputs = ((K.skin_dqs_kernel, pts + dqs) if code == K.DQS else
                               (K.skin_blend_kernel, pts + [self._blend, prep["affines"]] + dqs))
 
-        def launch(offset, count):
-            wp.launch(kernel, dim=count, inputs=inputs + [offset], outputs=[out],
+        def launch(block_offset, blocks, offset, count):
+            wp.launch(kernel, dim=(blocks, count),
+                      inputs=inputs + [FRAME_BLOCK, block_offset, offset], outputs=[out],
                       device=self.device)
 
-        launch_rows(launch, self.vertex_count, self.device)
+        launch_blocks(launch, self.vertex_count, frames, self.device)
+        self._output(out, output_transforms, frames, normals=False)
         if as_warp:
             return out
         res = out.numpy()
         return res if batched else res[0]
 
     def skin_vectors(self, skinning_transforms, vectors, method="dqs", *, kind="normal",
-                     vector_vertex=None, as_warp=False):
+                     vector_vertex=None, output_transforms=None, as_warp=False):
         """Skin normals or tangents; results are unit length.
 
         Parameters
@@ -236,6 +258,9 @@ class Skinner:
         vector_vertex : (N,) int, optional
             Vertex whose influences each vector uses (for faceVarying data); identity by default,
             which requires ``N == V``.
+        output_transforms : (4, 4) or (F, 4, 4) float, optional
+            Point transforms applied after skinning (normals get their inverse transpose and are
+            renormalized; tangents their linear part).
 
         Returns
         -------
@@ -268,13 +293,25 @@ class Skinner:
             lin, rot, res = prep["linears"], prep["rotations"], prep["residuals"]
         out = wp.empty((frames, n), dtype=wp.vec3, device=d)
 
-        def launch(offset, count):
-            wp.launch(K.skin_vectors_kernel, dim=count,
+        def launch(block_offset, blocks, offset, count):
+            wp.launch(K.skin_vectors_kernel, dim=(blocks, count),
                       inputs=[src, vv_w, self._indices, self._weights, self._blend, lin, rot, res,
-                              prep["has_residual"], code, offset],
+                              prep["has_residual"], code, FRAME_BLOCK, block_offset, offset],
                       outputs=[out], device=d)
 
-        launch_rows(launch, n, d)
+        launch_blocks(launch, n, frames, d)
+        if output_transforms is not None:
+            xf = np.array(np.broadcast_to(_as_array("output_transforms", output_transforms,
+                                                    np.float64, (4, 4)), (frames, 4, 4)))
+            xf[:, :3, 3] = 0.0
+            if kind == "normal":
+                self._output(out, xf, frames, normals=True)
+            else:
+                self._output(out, xf, frames, normals=False)
+                wp.launch(K.transform_frames_kernel, dim=out.shape,
+                          inputs=[wp.array(np.tile(np.eye(4, dtype=np.float32), (frames, 1, 1)),
+                                           dtype=wp.mat44, device=d), 1],
+                          outputs=[out], device=d)
         if as_warp:
             return out
         r = out.numpy()

@@ -18,7 +18,8 @@ normalized after blending.
 Influence layout (:class:`dqskin.Skinner` builds it on upload): ``indices`` (V, C) ``wp.vec4i`` and
 ``weights`` (V, C) ``wp.vec4`` -- ``K`` influences in ``C = ceil(K/4)`` groups of four, sorted by
 descending weight and zero-padded, so slot 0 is the antipodality pivot (the largest weight, first
-on ties, as UsdSkel). One thread per vertex loops over all frames, reading its influences once.
+on ties, as UsdSkel). Grids are (frame block, vertex): a thread skins one vertex for a block of
+frames, so influences are read once per block and the block's joints stay in cache.
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
 """
 
@@ -135,15 +136,19 @@ def skin_lbs_kernel(
     indices: wp.array2d(dtype=wp.vec4i),
     weights: wp.array2d(dtype=wp.vec4),
     affines: wp.array2d(dtype=mat34),
+    frame_block: int,
+    block_offset: int,
     vertex_offset: int,
     # outputs
     out: wp.array2d(dtype=wp.vec3),
 ):
-    """LBS, one thread per vertex over all frames. ``points`` (Fp, V) bind space, Fp 1 or F;
-    ``affines`` (F, J); ``out`` (F, V) skeleton space."""
-    v = wp.tid() + vertex_offset
+    """LBS over a (frame block, vertex) grid; each thread skins one vertex for ``frame_block``
+    frames. ``points`` (Fp, V) bind space, Fp 1 or F; ``affines`` (F, J); ``out`` (F, V)."""
+    b, i = wp.tid()
+    v = i + vertex_offset
     last = points.shape[0] - 1
-    for f in range(out.shape[0]):
+    f0 = (b + block_offset) * frame_block
+    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
         out[f, v] = lbs_point(points[wp.min(f, last), v], v, f, indices, weights, affines)
 
 
@@ -155,14 +160,18 @@ def skin_dqs_kernel(
     dqs: wp.array2d(dtype=vec8),
     residuals: wp.array2d(dtype=wp.mat33),
     has_residual: wp.array(dtype=wp.int32),
+    frame_block: int,
+    block_offset: int,
     vertex_offset: int,
     # outputs
     out: wp.array2d(dtype=wp.vec3),
 ):
-    """DQS, one thread per vertex over all frames (arrays as :func:`skin_lbs_kernel`)."""
-    v = wp.tid() + vertex_offset
+    """DQS over a (frame block, vertex) grid (arrays as :func:`skin_lbs_kernel`)."""
+    b, i = wp.tid()
+    v = i + vertex_offset
     last = points.shape[0] - 1
-    for f in range(out.shape[0]):
+    f0 = (b + block_offset) * frame_block
+    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
         out[f, v] = dqs_point(points[wp.min(f, last), v], v, f, indices, weights, dqs, residuals,
                               has_residual[f] != 0)
 
@@ -177,15 +186,20 @@ def skin_blend_kernel(
     dqs: wp.array2d(dtype=vec8),
     residuals: wp.array2d(dtype=wp.mat33),
     has_residual: wp.array(dtype=wp.int32),
+    frame_block: int,
+    block_offset: int,
     vertex_offset: int,
     # outputs
     out: wp.array2d(dtype=wp.vec3),
 ):
-    """Per-vertex mix ``(1 − b)·LBS + b·DQS`` with ``b = blend[v]``."""
-    v = wp.tid() + vertex_offset
+    """Per-vertex mix ``(1 − b)·LBS + b·DQS`` with ``b = blend[v]``, over a (frame block,
+    vertex) grid."""
+    blk, i = wp.tid()
+    v = i + vertex_offset
     last = points.shape[0] - 1
     b = blend[v]
-    for f in range(out.shape[0]):
+    f0 = (blk + block_offset) * frame_block
+    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
         p = points[wp.min(f, last), v]
         out[f, v] = (lbs_point(p, v, f, indices, weights, affines) * (1.0 - b)
                      + dqs_point(p, v, f, indices, weights, dqs, residuals,
@@ -239,21 +253,25 @@ def skin_vectors_kernel(
     residuals: wp.array2d(dtype=wp.mat33),
     has_residual: wp.array(dtype=wp.int32),
     method: int,
+    frame_block: int,
+    block_offset: int,
     offset: int,
     # outputs
     out: wp.array2d(dtype=wp.vec3),
 ):
-    """Skin directions (normals or tangents), normalized; one thread per vector, all frames.
+    """Skin directions (normals or tangents), normalized, over a (frame block, vector) grid.
 
     ``vectors`` (Fp, N); ``vector_vertex`` (N,) maps each vector to the vertex whose influences it
     uses (identity for per-vertex data, the face-vertex map for faceVarying). For normals pass the
     inverse-transpose matrices and the rotations UsdSkel derives from them; for tangents the
     matrices themselves and their polar rotations.
     """
-    n = wp.tid() + offset
+    blk, i = wp.tid()
+    n = i + offset
     v = vector_vertex[n]
     last = vectors.shape[0] - 1
-    for f in range(out.shape[0]):
+    f0 = (blk + block_offset) * frame_block
+    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
         x = vectors[wp.min(f, last), n]
         if method == LBS:
             out[f, n] = lbs_vector(x, v, f, indices, weights, linears)
@@ -266,3 +284,19 @@ def skin_vectors_kernel(
                 lbs_vector(x, v, f, indices, weights, linears) * (1.0 - b)
                 + dqs_vector(x, v, f, indices, weights, rotations, residuals,
                              has_residual[f] != 0) * b)
+
+
+@wp.kernel
+def transform_frames_kernel(
+    xforms: wp.array(dtype=wp.mat44),
+    normalize: int,
+    # outputs
+    values: wp.array2d(dtype=wp.vec3),
+):
+    """In place ``values[f, i] = xforms[f] · [values[f, i], 1]`` (points). For directions pass the
+    inverse transpose with a zero translation and ``normalize = 1``."""
+    f, i = wp.tid()
+    y = wp.transform_point(xforms[f], values[f, i])
+    if normalize != 0:
+        y = wp.normalize(y)
+    values[f, i] = y

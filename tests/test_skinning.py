@@ -163,9 +163,9 @@ def test_twist_keeps_radius_with_dqs_and_collapses_with_lbs(device, theta):
 
 def _launch_dqs(prep, sk):
     out = wp.empty((prep["dqs"].shape[0], sk.vertex_count), dtype=wp.vec3, device=sk.device)
-    wp.launch(K.skin_dqs_kernel, dim=sk.vertex_count,
+    wp.launch(K.skin_dqs_kernel, dim=(out.shape[0], sk.vertex_count),
               inputs=[sk._points, sk._indices, sk._weights, prep["dqs"], prep["residuals"],
-                      prep["has_residual"], 0],
+                      prep["has_residual"], 1, 0, 0],
               outputs=[out], device=sk.device)
     return out.numpy()
 

@@ -1,0 +1,597 @@
+"""Offscreen LBS-vs-DQS comparison: skin an asset with each method, measure the artifacts, render
+side-by-side panels and write a self-contained HTML report (``dqskin compare``).
+
+Everything is computed in skeleton (bind) space: rest points are the mesh points through their
+geom-bind transform, posed points come from :class:`dqskin.Skinner` with the scene's skinning
+transforms (blend shapes are not applied, so the comparison isolates skinning). Per mesh, method
+and frame (see :mod:`dqskin.metrics`):
+
+* ``volume_ratio``: enclosed volume / rest volume (closed meshes only; otherwise None and a
+  reason);
+* ``min_section_ratio``: smallest cross-section ratio around any joint (1 intact, 0 candy
+  wrapper), over the vertices each joint bends (:func:`~dqskin.metrics.dominant_pair_regions`),
+  with the axes of :func:`~dqskin.metrics.joint_axes`;
+* ``max_bulge_ratio``: largest per-vertex radial ratio around any joint (> 1 bulges).
+
+The ``blend`` method mixes the two with a DQS fraction of :data:`BLEND_WEIGHT` on every vertex.
+
+Outputs in ``DIR``: ``frames/<view>_<k>.png`` (one panel per compared frame ``k`` and view:
+one image per method and a heat map of the per-vertex LBS↔DQS distance), ``frames/closeup.png``
+(the joint with the worst ``min_section_ratio``), ``metrics.json`` and ``report.html`` (images
+embedded as data URIs; opens from disk without a network).
+"""
+
+import json
+import re
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import metrics as M
+from .io import atomic_path, load
+from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
+from .scene import Scene
+from .skinning import METHODS, Skinner
+
+__all__ = ["BLEND_WEIGHT", "METRICS", "SWEEP_RIGS", "add_compare_arguments", "cmd_compare",
+           "default_frames", "parse_times", "run_compare", "sweeps"]
+
+BLEND_WEIGHT = 0.5
+"""DQS fraction of every vertex for ``method="blend"`` (0 = LBS, 1 = DQS)."""
+
+METRICS = ("volume_ratio", "min_section_ratio", "max_bulge_ratio")
+"""Per-frame metrics of ``metrics.json``, each judged by how far it strays from 1."""
+
+SWEEP_RIGS = {
+    "twist": ("twist_cylinder.usda", 0.5, 3.0),
+    "bend": ("bending_arm.usda", 0.25, 6.0),
+}
+"""Procedural rigs of the sweeps: ``name → (file in assets/, f, d)``. ``f`` is the weight ramp's
+width over the limb length (assets/README.md), ``d`` the divisor of the continuum LBS volume ratio
+``1 − f(1 − cos θ)/d`` (linear ramp, cylinder; caps outside the ramp). Twist about the bone:
+each cross-section shrinks by ``k² = 1 − 2w(1−w)(1−cos θ)``, whose mean over the ramp is
+``1 − (1 − cos θ)/3``. Bend about an axis through the joint: the cross-section area term is the
+same, but the Jacobian's rank-one part (the blend changing along the bone) adds back
+``(1 − cos θ)x²/(2a²)`` on the half-width-``a`` ramp, a sixth over the ramp, hence ``d = 6``. DQS
+keeps 1 in both (rigid rotation of each section)."""
+
+_LABELS = {"lbs": "LBS", "dqs": "DQS", "blend": f"Blend ({BLEND_WEIGHT:g} DQS)"}
+_FRAME_FILE = re.compile(r"^(?:(?:%s)_\d{3}|closeup)\.png$" % "|".join(VIEWS))
+_HEAT_SHADING = Shading(ambient=0.55, diffuse=0.45, rim=0.0)
+_HEAT_COLORMAP = "viridis"
+
+
+def default_frames(times, count=10):
+    """Up to ``count`` evenly spaced samples of ``times`` (first and last included).
+
+    Parameters
+    ----------
+    times : (T,) float
+        The asset's sample times.
+
+    Returns
+    -------
+    (F,) float64, F = min(T, count).
+    """
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    if t.size == 0:
+        raise ValueError("times: the asset has no sample times")
+    pick = np.unique(np.round(np.linspace(0, t.size - 1, min(t.size, count))).astype(int))
+    return t[pick]
+
+
+def parse_times(text):
+    """``--frames`` text → times: ``START:END[:STEP]`` (END inclusive) or ``T1,T2,...``.
+
+    Returns
+    -------
+    (F,) float64
+    """
+    try:
+        if ":" in text:
+            parts = [float(p) for p in text.split(":")]
+            if len(parts) not in (2, 3):
+                raise ValueError
+            start, end = parts[:2]
+            step = parts[2] if len(parts) == 3 else 1.0
+            if step <= 0 or end < start:
+                raise ValueError(f"--frames {text!r}: need END >= START and STEP > 0")
+            times = np.arange(start, end + step * 1e-6, step)
+        else:
+            times = np.array([float(p) for p in text.split(",")])
+    except ValueError as exc:
+        if exc.args and str(exc.args[0]).startswith("--frames"):
+            raise
+        raise ValueError(f"--frames {text!r}: expected START:END[:STEP] or a comma-separated "
+                         "list of times") from None
+    return times
+
+
+def _choice_list(name, values, allowed):
+    items = [values] if isinstance(values, str) else list(values)
+    if not items:
+        raise ValueError(f"{name}: empty; choose from {', '.join(allowed)}")
+    for v in items:
+        if v not in allowed:
+            raise ValueError(f"{name}: unknown {v!r}; choose from {', '.join(allowed)}")
+    if len(set(items)) != len(items):
+        raise ValueError(f"{name}: repeated entries in {items}")
+    return tuple(items)
+
+
+@dataclass
+class _SkinnedMesh:
+    """One mesh's skeleton-space rest and posed points and what its metrics need."""
+
+    name: str
+    skeleton: int
+    faces: np.ndarray  # (T, 3) int32
+    rest: np.ndarray  # (V, 3) float64
+    joint_indices: np.ndarray
+    joint_weights: np.ndarray
+    posed: dict = field(default_factory=dict)  # method → (F, V, 3) float32
+
+
+def _skin(scene, times, methods, device):
+    """Skin every renderable mesh; meshes without faces are skipped (name → reason)."""
+    meshes, skipped, xforms = [], {}, {}
+    for m in scene.meshes:
+        if len(m.points) == 0:
+            skipped[m.name] = "no points"
+            continue
+        if len(m.faces) == 0:
+            skipped[m.name] = "no faces (points only)"
+            continue
+        if m.skeleton not in xforms:
+            xforms[m.skeleton] = scene.skinning_transforms(times, m.skeleton, device=device)
+        g = np.asarray(m.geom_bind_transform, dtype=np.float64)
+        rest = np.asarray(m.points, dtype=np.float64) @ g[:3, :3].T + g[:3, 3]
+        blend = np.full(len(m.points), BLEND_WEIGHT) if "blend" in methods else None
+        sk = Skinner(m.points, m.joint_indices, m.joint_weights,
+                     geom_bind_transform=m.geom_bind_transform, blend_weights=blend,
+                     device=device)
+        sm = _SkinnedMesh(m.name, m.skeleton, np.asarray(m.faces, dtype=np.int32), rest,
+                          np.asarray(m.joint_indices), np.asarray(m.joint_weights))
+        for meth in methods:
+            sm.posed[meth] = sk.skin(xforms[m.skeleton], meth)
+        meshes.append(sm)
+    if not meshes:
+        detail = "; ".join(f"{k}: {v}" for k, v in skipped.items()) or "no skinned meshes"
+        raise ValueError(f"{scene.path}: nothing to render ({detail})")
+    return meshes, skipped, xforms
+
+
+def _nan_reduce(a, fn):
+    """Per-frame reduction over joints of an (F, J) array; NaN where a frame has no value."""
+    out = np.full(a.shape[0], np.nan)
+    arg = np.full(a.shape[0], -1)
+    for f in range(a.shape[0]):
+        ok = np.flatnonzero(np.isfinite(a[f]))
+        if ok.size:
+            k = ok[fn(a[f, ok])]
+            out[f], arg[f] = a[f, k], k
+    return out, arg
+
+
+def _measure(mesh, skeleton, xforms, method, device):
+    """Per-frame metrics of one mesh and method: dict of (F,) float64 arrays (NaN undefined)."""
+    posed = mesh.posed[method]
+    ratio, reason = M.volume_ratio(posed, mesh.rest, mesh.faces, device=device)
+    bind = skeleton.bind_transforms[:, :3, 3]
+    regions = M.dominant_pair_regions(mesh.joint_indices, mesh.joint_weights, skeleton.parents)
+    rest_seg, parent_side, child_side = M.joint_axes(bind, skeleton.parents, xforms)
+    sec = M.joint_sections(mesh.rest, posed, rest_seg, parent_side, regions,
+                           child_segments=child_side, device=device)
+    section, section_joint = _nan_reduce(sec.min_section_ratio, np.argmin)
+    bulge, bulge_joint = _nan_reduce(sec.max_bulge_ratio, np.argmax)
+    return {"volume_ratio": None if ratio is None else np.asarray(ratio, dtype=np.float64),
+            "volume_ratio_reason": reason,
+            "min_section_ratio": section, "min_section_joint": section_joint,
+            "max_bulge_ratio": bulge, "max_bulge_joint": bulge_joint,
+            "regions": regions}
+
+
+def _json_floats(a):
+    return [float(v) if np.isfinite(v) else None for v in np.asarray(a, dtype=np.float64)]
+
+
+def _worst(metric, values):
+    """Index of the worst finite value of a metric and its deviation from 1 (None if none)."""
+    v = np.asarray(values, dtype=np.float64)
+    ok = np.flatnonzero(np.isfinite(v))
+    if not ok.size:
+        return None
+    if metric == "min_section_ratio":
+        k = ok[np.argmin(v[ok])]
+        return k, 1.0 - v[k]
+    if metric == "max_bulge_ratio":
+        k = ok[np.argmax(v[ok])]
+        return k, v[k] - 1.0
+    k = ok[np.argmax(np.abs(v[ok] - 1.0))]
+    return k, abs(v[k] - 1.0)
+
+
+def _summary(measures, meshes, skeletons, times, methods, tie=1e-3):
+    """Worst frame and value of each metric per method over all meshes, and the winner."""
+    out = {}
+    for metric in METRICS:
+        by_method = {}
+        for meth in methods:
+            best = None
+            for mesh in meshes:
+                values = measures[mesh.name][meth][metric]
+                if values is None:
+                    continue
+                w = _worst(metric, values)
+                if w is not None and (best is None or w[1] > best[1]):
+                    joint = None
+                    if metric != "volume_ratio":
+                        j = measures[mesh.name][meth][metric.replace("_ratio", "_joint")][w[0]]
+                        joint = skeletons[mesh.skeleton].joint_names[j] if j >= 0 else None
+                    best = (w[1], mesh.name, int(w[0]), float(values[w[0]]), joint)
+            by_method[meth] = None if best is None else {
+                "value": best[3], "deviation": best[0], "frame": best[2],
+                "time": float(times[best[2]]), "mesh": best[1], "joint": best[4]}
+        scored = {m: r["deviation"] for m, r in by_method.items() if r is not None}
+        winner = None
+        if scored:
+            lowest = min(scored.values())
+            leaders = [m for m, d in scored.items() if d <= lowest + tie]
+            winner = leaders[0] if len(leaders) == 1 else "tie"
+        out[metric] = {"by_method": by_method, "winner": winner}
+    return out
+
+
+def _closeup_target(measures, meshes, skeletons, xforms, methods):
+    """(method, mesh, frame, joint) of the worst min_section_ratio over everything, or None."""
+    best = None
+    for mesh in meshes:
+        for meth in methods:
+            v = measures[mesh.name][meth]["min_section_ratio"]
+            w = _worst("min_section_ratio", v)
+            if w is not None and (best is None or w[1] > best[0]):
+                j = int(measures[mesh.name][meth]["min_section_joint"][w[0]])
+                best = (w[1], meth, mesh, int(w[0]), j)
+    if best is None:
+        return None
+    _, meth, mesh, f, j = best
+    skel = skeletons[mesh.skeleton]
+    x = np.asarray(xforms[mesh.skeleton][f], dtype=np.float64)
+    bind = skel.bind_transforms[:, :3, 3]
+    center = x[j, :3, :3] @ bind[j] + x[j, :3, 3]
+    parent = skel.parents[j]
+    bone = center - (x[parent, :3, :3] @ bind[parent] + x[parent, :3, 3]) if parent >= 0 else None
+    members = mesh.rest[measures[mesh.name][meth]["regions"] == j]
+    radius = 1.4 * float(np.linalg.norm(members - bind[j], axis=1).max()) if len(members) else 0
+    if not radius > 0:
+        radius = 0.25 * float(np.linalg.norm(np.ptp(mesh.rest, axis=0)))
+    return {"method": meth, "mesh": mesh.name, "frame": f, "joint": skel.joint_names[j],
+            "value": float(measures[mesh.name][meth]["min_section_ratio"][f]),
+            "center": center, "radius": radius, "bone": bone}
+
+
+def _side_view(bone, up_axis):
+    """The named view most perpendicular to a bone (the collapse shows in profile)."""
+    if bone is None or not np.linalg.norm(bone) > 0:
+        return "three_quarter"
+    b = bone / np.linalg.norm(bone)
+
+    def along(view):  # |cos| between the bone and the view direction
+        cam = Camera.frame_point(np.zeros(3), 1.0, view, up_axis=up_axis)
+        return abs(float(cam.basis()[0] @ b))
+
+    return min(VIEWS, key=along)
+
+
+def _render(meshes, times, methods, views, up_axis, width, supersample, frames_dir, closeup,
+            distance, progress, device):
+    """Render every panel to ``frames_dir``; returns {view: [paths per frame]} and the close-up."""
+    offsets = np.cumsum([0] + [len(m.rest) for m in meshes])
+    faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets[:-1])])
+    posed = {meth: np.concatenate([m.posed[meth] for m in meshes], axis=1) for meth in methods}
+    lo = np.min([p.min(axis=(0, 1)) for p in posed.values()], axis=0).astype(np.float64)
+    hi = np.max([p.max(axis=(0, 1)) for p in posed.values()], axis=0).astype(np.float64)
+    cameras = {v: Camera.frame(lo, hi, v, up_axis=up_axis) for v in views}
+    heat = distance is not None
+    dmax = float(np.nanmax(distance)) if heat and np.isfinite(distance).any() else 0.0
+    heat_range = (0.0, dmax if dmax > 0 else 1.0)
+    renderers = {meth: MeshRenderer(posed[meth][0], faces, device=device) for meth in methods}
+    heat_renderer = renderers["dqs"] if heat else None
+    kw = {"width": width, "height": width, "supersample": supersample}
+    from tqdm import tqdm
+
+    total = len(times) * len(views) * (len(methods) + heat) + (len(methods) + heat) * bool(closeup)
+    bar = tqdm(total=total, desc="render", unit="image", disable=not progress, file=sys.stderr)
+    labels = [_LABELS[m] for m in methods] + (["|LBS - DQS|"] if heat else [])
+
+    def panel(f, cams):
+        images = {v: [] for v in cams}
+        for meth in methods:
+            renderers[meth].update(posed[meth][f])
+            for v, cam in cams.items():
+                images[v].append(renderers[meth].render(cam, **kw))
+                bar.update()
+        if heat:
+            for v, cam in cams.items():
+                img = heat_renderer.render(cam, scalars=distance[f], scalar_range=heat_range,
+                                           colormap=_HEAT_COLORMAP, shading=_HEAT_SHADING, **kw)
+                images[v].append(add_colorbar(img, heat_range, _HEAT_COLORMAP, label="distance"))
+                bar.update()
+        return {v: side_by_side(imgs, labels) for v, imgs in images.items()}
+
+    paths = {v: [] for v in views}
+    for f in range(len(times)):
+        for v, img in panel(f, cameras).items():
+            paths[v].append(save_png(frames_dir / f"{v}_{f:03d}.png", img))
+    closeup_path = None
+    if closeup:
+        view = _side_view(closeup["bone"], up_axis)
+        cam = Camera.frame_point(closeup["center"], closeup["radius"], view, up_axis=up_axis)
+        closeup["view"] = view
+        img = panel(closeup["frame"], {view: cam})[view]
+        closeup_path = save_png(frames_dir / "closeup.png", img)
+    bar.close()
+    return paths, closeup_path, dmax
+
+
+def _rotation_angles(x):
+    """Rotation angle in radians of each (…, 4, 4) transform's 3×3 block, in [0, π]."""
+    r = np.asarray(x, dtype=np.float64)[..., :3, :3]
+    return np.arccos(np.clip((np.trace(r, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0))
+
+
+def sweeps(assets_dir, *, device=None):
+    """Artifact curves of LBS and DQS against the joint angle on the procedural rigs.
+
+    Every frame of ``twist_cylinder.usda`` (twist 0→180°) and ``bending_arm.usda`` (bend 0→150°)
+    in ``assets_dir`` is skinned with both methods; the angle is the rotation angle of the
+    animated joint's skinning transform.
+
+    Returns
+    -------
+    dict
+        ``name → {"asset", "joint", "fraction", "angle_deg": [...], "lbs"/"dqs": {metric:
+        [...]}, "reference": {"lbs_volume_ratio": [...], "lbs_min_section_ratio": [...] (twist
+        only)}, "formulas": {...}}`` (JSON-safe; see :data:`SWEEP_RIGS` for the references), or
+        ``{"skipped": reason}`` when a rig file is missing.
+    """
+    out = {}
+    for name, (file, fraction, divisor) in SWEEP_RIGS.items():
+        path = Path(assets_dir) / file
+        if not path.is_file():
+            out[name] = {"skipped": f"{path}: not found"}
+            continue
+        scene = load(path)
+        times = np.asarray(scene.times, dtype=np.float64)
+        meshes, _, xforms = _skin(scene, times, ("lbs", "dqs"), device)
+        mesh = meshes[0]
+        skel = scene.skeletons[mesh.skeleton]
+        theta_all = _rotation_angles(xforms[mesh.skeleton])
+        joint = int(np.argmax(theta_all[-1]))
+        theta = theta_all[:, joint]
+        entry = {"asset": file, "joint": skel.joint_names[joint], "fraction": fraction,
+                 "angle_deg": _json_floats(np.degrees(theta))}
+        for meth in ("lbs", "dqs"):
+            m = _measure(mesh, skel, xforms[mesh.skeleton], meth, device)
+            entry[meth] = {k: (None if m[k] is None else _json_floats(m[k])) for k in METRICS}
+        entry["reference"] = {"lbs_volume_ratio": _json_floats(
+            1 - fraction * (1 - np.cos(theta)) / divisor)}
+        entry["formulas"] = {"lbs_volume_ratio": f"1 − {fraction:g}(1 − cos θ)/{divisor:g}"}
+        if name == "twist":
+            entry["reference"]["lbs_min_section_ratio"] = _json_floats(
+                np.sqrt(1 - 2 * 0.25 * (1 - np.cos(theta))))
+            entry["formulas"]["lbs_min_section_ratio"] = "√(1 − 2w(1−w)(1 − cos θ)), w = ½"
+        out[name] = entry
+    return out
+
+
+def _default_assets():
+    import dqskin
+
+    return Path(dqskin.__file__).resolve().parents[1] / "assets"
+
+
+def _prepare_out(out_dir, force):
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: exists and is not a directory")
+    for name in ("report.html", "metrics.json"):
+        if (out / name).exists() and not force:
+            raise FileExistsError(f"{out / name}: exists (use --force to overwrite)")
+    frames = out / "frames"
+    frames.mkdir(parents=True, exist_ok=True)
+    for p in frames.iterdir():  # stale panels of an earlier run (only names this module writes)
+        if p.is_file() and _FRAME_FILE.match(p.name):
+            p.unlink()
+    return out, frames
+
+
+def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, views=VIEWS,
+                device=None, width=512, supersample=2, progress=True, force=False,
+                sweeps_dir="default", up_axis=None, clip=None):
+    """Compare skinning methods on an asset and write ``report.html``, ``metrics.json`` and
+    ``frames/*.png`` in ``out_dir``.
+
+    Parameters
+    ----------
+    input_path : str, Path or dqskin.Scene
+        A character file (:func:`dqskin.load`) or an already loaded scene.
+    out_dir : str or Path
+        Created if needed. An existing ``report.html`` or ``metrics.json`` there raises
+        FileExistsError unless ``force``; ``force`` also removes earlier panels in ``frames/``.
+    methods : sequence of {"lbs", "dqs", "blend"}
+        The heat map of the per-vertex LBS↔DQS distance needs both ``lbs`` and ``dqs``.
+    frames : sequence of float, optional
+        Times in the asset's unit; default :func:`default_frames` of the asset's times.
+    views : sequence of {"front", "side", "three_quarter"}
+    device : str, optional
+        Warp device.
+    width : int
+        Pixel width and height of each rendered image.
+    supersample : int
+        Anti-aliasing rays per pixel along each axis.
+    progress : bool
+        tqdm progress bar on stderr while rendering.
+    sweeps_dir : str, Path or None
+        Folder of the procedural rigs for the angle sweeps (:func:`sweeps`); ``"default"`` is
+        the repository's ``assets/`` folder, None leaves the sweeps out. A missing folder or rig
+        is noted in the report.
+    up_axis : {"Y", "Z"}, optional
+        Up axis of the skeleton space for the cameras; default ``scene.up_axis``.
+    clip : str or int, optional
+        glTF animation to load.
+
+    Returns
+    -------
+    dict
+        The contents of ``metrics.json``.
+    """
+    t0 = time.perf_counter()
+    methods = _choice_list("methods", methods, tuple(METHODS))
+    views = _choice_list("views", views, VIEWS)
+    for name, v, low in (("width", width, 16), ("supersample", supersample, 1)):
+        if isinstance(v, bool) or int(v) != v or v < low:
+            raise ValueError(f"{name}: expected an integer >= {low}, got {v!r}")
+    scene = input_path if isinstance(input_path, Scene) else load(input_path, clip=clip)
+    up = scene.up_axis if up_axis is None else up_axis
+    if up not in ("Y", "Z"):
+        raise ValueError(f"{scene.path}: up axis must be Y or Z, got {up!r}")
+    if frames is None:
+        times = default_frames(scene.times)
+    else:
+        times = np.asarray(frames, dtype=np.float64).reshape(-1)
+        if times.size == 0 or not np.all(np.isfinite(times)):
+            raise ValueError(f"frames: expected finite times, got {list(frames)!r}")
+    out, frames_dir = _prepare_out(out_dir, force)
+
+    meshes, skipped, xforms = _skin(scene, times, methods, device)
+    t_skin = time.perf_counter()
+    skeletons = scene.skeletons
+    measures = {m.name: {meth: _measure(m, skeletons[m.skeleton], xforms[m.skeleton], meth,
+                                        device) for meth in methods} for m in meshes}
+    heat = "lbs" in methods and "dqs" in methods
+    distance, dist_json = None, None
+    if heat:
+        per_mesh = [M.vertex_distance(m.posed["lbs"], m.posed["dqs"], device=device)
+                    for m in meshes]
+        distance = np.concatenate(per_mesh, axis=1)
+        dist_json = {m.name: {"max": _json_floats(d.max(axis=1)),
+                              "mean": _json_floats(d.mean(axis=1))}
+                     for m, d in zip(meshes, per_mesh)}
+    summary = _summary(measures, meshes, skeletons, times, methods)
+    closeup = _closeup_target(measures, meshes, skeletons, xforms, methods)
+    t_metrics = time.perf_counter()
+
+    panels, closeup_path, dmax = _render(meshes, times, methods, views, up, width, supersample,
+                                         frames_dir, closeup, distance, progress, device)
+    t_render = time.perf_counter()
+
+    sweep_data = None
+    if sweeps_dir is not None:
+        folder = _default_assets() if sweeps_dir == "default" else Path(sweeps_dir)
+        sweep_data = (sweeps(folder, device=device) if folder.is_dir()
+                      else {"skipped": f"{folder}: rig folder not found"})
+
+    def mesh_json(m, meth):
+        r = measures[m.name][meth]
+        names = skeletons[m.skeleton].joint_names
+        return {"volume_ratio": None if r["volume_ratio"] is None else _json_floats(
+                    r["volume_ratio"]),
+                "volume_ratio_reason": r["volume_ratio_reason"],
+                "min_section_ratio": _json_floats(r["min_section_ratio"]),
+                "min_section_joint": [names[j] if j >= 0 else None
+                                      for j in r["min_section_joint"]],
+                "max_bulge_ratio": _json_floats(r["max_bulge_ratio"]),
+                "max_bulge_joint": [names[j] if j >= 0 else None for j in r["max_bulge_joint"]]}
+
+    def rel(path):
+        return path.relative_to(out).as_posix()
+
+    result = {
+        "asset": str(scene.path),
+        "methods": list(methods),
+        "blend_weight": BLEND_WEIGHT if "blend" in methods else None,
+        "frames": _json_floats(times),
+        "time_codes_per_second": float(scene.time_codes_per_second),
+        "up_axis": up,
+        "views": list(views),
+        "space": "skeleton",
+        "meshes": {m.name: {meth: mesh_json(m, meth) for meth in methods} for m in meshes},
+        "skipped_meshes": skipped,
+        "lbs_dqs_distance": dist_json,
+        "summary": summary,
+        "closeup": None if closeup is None else {
+            k: closeup[k] for k in ("method", "mesh", "frame", "joint", "value", "view")},
+        "images": {"frames": {v: [rel(p) for p in ps] for v, ps in panels.items()},
+                   "closeup": None if closeup_path is None else rel(closeup_path),
+                   "heat_range": [0.0, dmax] if heat else None},
+        "sweeps": sweep_data,
+        "render": {"width": int(width), "supersample": int(supersample),
+                   "vertices": int(sum(len(m.rest) for m in meshes)),
+                   "faces": int(sum(len(m.faces) for m in meshes))},
+    }
+    t_sweeps = time.perf_counter()
+    result["timing_s"] = {"skin": t_skin - t0, "metrics": t_metrics - t_skin,
+                          "render": t_render - t_metrics, "sweeps": t_sweeps - t_render}
+    from .report import write_report
+
+    with atomic_path(out / "metrics.json") as tmp:
+        tmp.write_text(json.dumps(result, indent=1, ensure_ascii=False, allow_nan=False),
+                       encoding="utf-8")
+    with atomic_path(out / "report.html") as tmp:
+        write_report(tmp, result, out)
+    result["timing_s"]["total"] = time.perf_counter() - t0
+    return result
+
+
+def add_compare_arguments(parser):
+    """Add the ``compare`` sub-command's arguments to an argparse parser."""
+    parser.add_argument("input", help="character file (.usd/.usda/.usdc/.usdz, .gltf/.glb)")
+    parser.add_argument("--out", required=True, help="output folder: report.html, metrics.json, "
+                        "frames/*.png")
+    parser.add_argument("--methods", default="lbs,dqs",
+                        help="comma-separated from lbs, dqs, blend (default: lbs,dqs)")
+    parser.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
+                        "asset's time unit; default: up to 10 evenly spaced samples")
+    parser.add_argument("--views", default=",".join(VIEWS),
+                        help=f"comma-separated from {', '.join(VIEWS)} (default: all)")
+    parser.add_argument("--width", type=int, default=512, help="image size in pixels "
+                        "(default: 512)")
+    parser.add_argument("--supersample", type=int, default=2, help="anti-aliasing rays per pixel "
+                        "along each axis (default: 2)")
+    parser.add_argument("--up-axis", choices=["Y", "Z"], help="skeleton-space up axis for the "
+                        "cameras (default: the asset's)")
+    parser.add_argument("--no-sweeps", action="store_true", help="leave out the twist/bend "
+                        "sweeps on the procedural rigs")
+    parser.add_argument("--clip", help="glTF animation name or index")
+    parser.add_argument("--device", help="cpu or cuda (default: cuda when present)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--force", action="store_true", help="overwrite an existing report")
+
+
+def cmd_compare(args):
+    """Run :func:`run_compare` from parsed arguments; prints where the report is. Returns 0."""
+    clip = args.clip
+    if isinstance(clip, str) and clip.isdigit():
+        clip = int(clip)
+    result = run_compare(
+        args.input, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],
+        frames=None if args.frames is None else parse_times(args.frames),
+        views=[v.strip() for v in args.views.split(",") if v.strip()], device=args.device,
+        width=args.width, supersample=args.supersample, progress=not args.quiet,
+        force=args.force, sweeps_dir=None if args.no_sweeps else "default",
+        up_axis=args.up_axis, clip=clip)
+    lines = []
+    for metric, s in result["summary"].items():
+        worst = ", ".join(f"{_LABELS[m]} {r['value']:.3f} @ t={r['time']:g}"
+                          for m, r in s["by_method"].items() if r is not None)
+        if worst:
+            lines.append(f"  {metric}: {worst}; best: {s['winner']}")
+    print(f"wrote {Path(args.out) / 'report.html'} ({len(result['frames'])} frames × "
+          f"{len(result['methods'])} methods × {len(result['views'])} views, "
+          f"{result['timing_s']['total']:.1f} s)")
+    print("\n".join(lines))
+    return 0

@@ -1,0 +1,337 @@
+"""The HTML report of ``dqskin compare``: one self-contained file (CSS inline, every image a
+``data:image/png;base64`` URI, no script, no network reference) built from the metrics dictionary
+of :func:`dqskin.compare.run_compare` and the panels it rendered. Plots are drawn with Matplotlib's
+Agg canvas (no pyplot, no display).
+"""
+
+import base64
+import html
+import io
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["METRIC_TITLES", "build_html", "frame_plot_png", "sweep_plot_png", "write_report"]
+
+METRIC_TITLES = {
+    "volume_ratio": "volume ratio",
+    "min_section_ratio": "min section ratio",
+    "max_bulge_ratio": "max bulge ratio",
+}
+"""Display names of the per-frame metrics."""
+
+_COLORS = {"lbs": "#d62728", "dqs": "#1f77b4", "blend": "#9467bd"}
+_NAMES = {"lbs": "LBS", "dqs": "DQS", "blend": "Blend"}
+_MAX_WORST_FRAMES = 4
+
+_CSS = """
+body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 24px;
+       color: #222; max-width: 1400px; }
+h1 { font-size: 1.6em; margin-bottom: 0.2em; } h2 { margin-top: 1.6em; border-bottom: 1px solid #ccc; }
+table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.92em; }
+th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: right; vertical-align: top; }
+th { background: #f3f3f3; } td.l, th.l { text-align: left; }
+td.win { background: #e6f4ea; font-weight: 600; }
+img { max-width: 100%; height: auto; display: block; margin: 6px 0 14px; border: 1px solid #eee; }
+.note { color: #555; font-size: 0.9em; } .meta td { text-align: left; }
+figure { margin: 0; } figcaption { font-size: 0.9em; color: #444; }
+"""
+
+
+def _esc(x):
+    return html.escape(str(x), quote=True)
+
+
+def _data_uri(png):
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def _img(png, alt):
+    return f'<img src="{_data_uri(png)}" alt="{_esc(alt)}">'
+
+
+def _fmt(v, digits=4):
+    return "—" if v is None else f"{v:.{digits}g}"
+
+
+def _figure_png(fig):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    return buf.getvalue()
+
+
+def _array(values):
+    return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+
+
+def _scene_series(metrics, metric, method):
+    """Per-frame scene-wide extreme of a metric over the meshes (NaN where none is defined)."""
+    rows = []
+    for per_method in metrics["meshes"].values():
+        v = per_method[method][metric]
+        if v is not None:
+            rows.append(_array(v))
+    frames = len(metrics["frames"])
+    if not rows:
+        return np.full(frames, np.nan)
+    a = np.stack(rows)
+    out = np.full(frames, np.nan)
+    for f in range(frames):
+        col = a[:, f][np.isfinite(a[:, f])]
+        if col.size:
+            if metric == "min_section_ratio":
+                out[f] = col.min()
+            elif metric == "max_bulge_ratio":
+                out[f] = col.max()
+            else:
+                out[f] = col[np.argmax(np.abs(col - 1))]
+    return out
+
+
+def frame_plot_png(metrics):
+    """Per-frame plots of each metric (scene-wide worst over meshes) and of the LBS↔DQS distance.
+
+    Returns
+    -------
+    bytes
+        PNG image.
+    """
+    from matplotlib.figure import Figure
+
+    t = np.asarray(metrics["frames"], dtype=np.float64)
+    panels = list(METRIC_TITLES) + (["distance"] if metrics.get("lbs_dqs_distance") else [])
+    fig = Figure(figsize=(5.2 * len(panels), 3.6), layout="constrained")
+    for ax, metric in zip(fig.subplots(1, len(panels), squeeze=False)[0], panels):
+        if metric == "distance":
+            d = np.stack([_array(v["max"]) for v in metrics["lbs_dqs_distance"].values()])
+            m = np.stack([_array(v["mean"]) for v in metrics["lbs_dqs_distance"].values()])
+            ax.plot(t, d.max(axis=0), "o-", color="k", label="max")
+            ax.plot(t, m.mean(axis=0), "s--", color="0.5", label="mean")
+            ax.set_title("|LBS − DQS| vertex distance")
+        else:
+            for meth in metrics["methods"]:
+                ax.plot(t, _scene_series(metrics, metric, meth), "o-", color=_COLORS[meth],
+                        label=_NAMES[meth])
+            ax.axhline(1.0, color="0.6", lw=0.8, ls=":")
+            ax.set_title(METRIC_TITLES[metric])
+        ax.set_xlabel("time")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    return _figure_png(fig)
+
+
+def sweep_plot_png(sweeps):
+    """Min section ratio and volume ratio against the joint angle on the procedural rigs, LBS and
+    DQS measured (solid) and the closed-form LBS references (dashed).
+
+    Returns
+    -------
+    bytes or None
+        PNG image; None when every rig was skipped.
+    """
+    from matplotlib.figure import Figure
+
+    rigs = [(k, v) for k, v in sweeps.items() if isinstance(v, dict) and "angle_deg" in v]
+    if not rigs:
+        return None
+    fig = Figure(figsize=(11, 3.4 * len(rigs)), layout="constrained")
+    axes = fig.subplots(len(rigs), 2, squeeze=False)
+    for row, (name, rig) in zip(axes, rigs):
+        theta = np.asarray(rig["angle_deg"], dtype=np.float64)
+        for ax, metric in zip(row, ("min_section_ratio", "volume_ratio")):
+            for meth in ("lbs", "dqs"):
+                v = rig[meth][metric]
+                if v is not None:
+                    ax.plot(theta, _array(v), "-", marker=".", color=_COLORS[meth],
+                            label=f"{_NAMES[meth]} measured")
+            ref = rig["reference"].get(f"lbs_{metric}")
+            if ref is not None:
+                ax.plot(theta, _array(ref), "--", color="k", lw=1.2,
+                        label=f"LBS closed form {rig['formulas'][f'lbs_{metric}']}")
+            ax.set_title(f"{name} ({rig['asset']}): {METRIC_TITLES[metric]}")
+            ax.set_xlabel(f"{name} angle (degrees)")
+            ax.set_ylim(bottom=0 if metric == "min_section_ratio" else None)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8)
+    return _figure_png(fig)
+
+
+def _summary_table(metrics):
+    methods = metrics["methods"]
+    head = "".join(f"<th>{_NAMES[m]} worst</th>" for m in methods)
+    rows = []
+    for metric, s in metrics["summary"].items():
+        cells = []
+        for m in methods:
+            r = s["by_method"][m]
+            if r is None:
+                cells.append("<td>—</td>")
+                continue
+            where = f"t = {r['time']:g}, {r['mesh']}" + (f", {r['joint']}" if r["joint"] else "")
+            win = ' class="win"' if s["winner"] == m else ""
+            cells.append(f"<td{win}><b>{r['value']:.4f}</b><br><span class=note>"
+                         f"{_esc(where)}</span></td>")
+        winner = s["winner"]
+        winner = "—" if winner is None else ("tie" if winner == "tie" else _NAMES[winner])
+        rows.append(f"<tr><th class=l>{METRIC_TITLES[metric]}</th>{''.join(cells)}"
+                    f"<td class=l>{_esc(winner)}</td></tr>")
+    return (f"<table><tr><th class=l>metric</th>{head}<th class=l>best</th></tr>"
+            f"{''.join(rows)}</table>")
+
+
+def _worst_of(metric, values):
+    v = _array(values)
+    ok = np.isfinite(v)
+    if not ok.any():
+        return None
+    if metric == "min_section_ratio":
+        return float(np.min(v[ok]))
+    if metric == "max_bulge_ratio":
+        return float(np.max(v[ok]))
+    return float(v[ok][np.argmax(np.abs(v[ok] - 1))])
+
+
+def _mesh_table(metrics):
+    methods = metrics["methods"]
+    head = "".join(f"<th>{METRIC_TITLES[k]}<br>{_NAMES[m]}</th>" for k in METRIC_TITLES
+                   for m in methods)
+    rows = []
+    for name, per in metrics["meshes"].items():
+        cells = []
+        for k in METRIC_TITLES:
+            for m in methods:
+                v = per[m][k]
+                if v is None:
+                    reason = per[m].get(f"{k}_reason") or "undefined"
+                    cells.append(f'<td title="{_esc(reason)}">n/a</td>')
+                else:
+                    cells.append(f"<td>{_fmt(_worst_of(k, v))}</td>")
+        rows.append(f"<tr><td class=l>{_esc(name)}</td>{''.join(cells)}</tr>")
+    reasons = sorted({per[m]["volume_ratio_reason"] for per in metrics["meshes"].values()
+                      for m in methods if per[m]["volume_ratio_reason"]})
+    note = ("" if not reasons else "<p class=note>Volume ratio n/a: "
+            + "; ".join(_esc(r) for r in reasons) + ".</p>")
+    return (f"<table><tr><th class=l>mesh</th>{head}</tr>{''.join(rows)}</table>{note}")
+
+
+def _worst_frames(metrics):
+    """Frame indices to show: each metric's worst frame (worst method first), then the frame of
+    the largest LBS↔DQS distance; at most :data:`_MAX_WORST_FRAMES`, with the reasons."""
+    picks = []
+    for metric, s in metrics["summary"].items():
+        ranked = sorted(((r["deviation"], m, r) for m, r in s["by_method"].items()
+                         if r is not None), key=lambda x: -x[0])
+        for _, method, r in ranked[:1]:
+            picks.append((r["frame"], f"worst {METRIC_TITLES[metric]} ({_NAMES[method]} "
+                          f"{r['value']:.3f})"))
+    dist = metrics.get("lbs_dqs_distance")
+    if dist:
+        d = np.nanmax(np.stack([_array(v["max"]) for v in dist.values()]), axis=0)
+        if np.isfinite(d).any():
+            picks.append((int(np.nanargmax(d)), f"largest LBS↔DQS distance ({np.nanmax(d):.3g})"))
+    frames = {}
+    for f, why in picks:
+        frames.setdefault(f, []).append(why)
+    return sorted(frames.items())[:_MAX_WORST_FRAMES]
+
+
+def build_html(metrics, out_dir):
+    """The report as one HTML string, images read from ``out_dir`` (paths in ``metrics``)."""
+    out = Path(out_dir)
+    m = metrics
+    t = m["frames"]
+    render = m["render"]
+    parts = [f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
+             f"<title>dqskin compare: {_esc(Path(m['asset']).name)}</title>"
+             f"<style>{_CSS}</style></head><body>",
+             f"<h1>Skinning comparison: {_esc(Path(m['asset']).name)}</h1>",
+             "<table class=meta>"
+             f"<tr><th class=l>asset</th><td>{_esc(m['asset'])}</td></tr>"
+             f"<tr><th class=l>meshes</th><td>{len(m['meshes'])} rendered together: "
+             f"{render['vertices']} vertices, {render['faces']} triangles</td></tr>"
+             f"<tr><th class=l>methods</th><td>{', '.join(_NAMES[x] for x in m['methods'])}"
+             + (f" (blend: DQS fraction {m['blend_weight']:g} on every vertex)"
+                if m.get("blend_weight") is not None else "") + "</td></tr>"
+             f"<tr><th class=l>frames</th><td>{len(t)} times: {_esc(', '.join(f'{x:g}' for x in t))}"
+             f" ({m['time_codes_per_second']:g} per second)</td></tr>"
+             f"<tr><th class=l>views</th><td>{_esc(', '.join(m['views']))}; up axis "
+             f"{_esc(m['up_axis'])}; {render['width']} px, {render['supersample']}× "
+             f"supersampled</td></tr></table>"]
+    if m.get("skipped_meshes"):
+        parts.append("<p class=note>Not rendered: " + "; ".join(
+            f"{_esc(k)} ({_esc(v)})" for k, v in m["skipped_meshes"].items()) + ".</p>")
+
+    parts.append("<h2>Summary</h2>"
+                 "<p class=note>Worst value of each metric over all meshes, joints and frames, "
+                 "where it happens, and the method that strays least from 1 (ties within "
+                 "0.001).</p>" + _summary_table(m))
+    parts.append("<h3>Per mesh (worst over frames)</h3>" + _mesh_table(m))
+
+    parts.append("<h2>Per-frame metrics</h2><p class=note>Scene-wide worst per frame: the "
+                 "smallest section ratio, the largest bulge, the volume ratio furthest from "
+                 "1.</p>" + _img(frame_plot_png(m), "per-frame metric plots"))
+
+    c = m.get("closeup")
+    if c and m["images"].get("closeup"):
+        png = (out / m["images"]["closeup"]).read_bytes()
+        parts.append(f"<h2>Close-up: worst joint</h2><p>{_esc(c['joint'])} of {_esc(c['mesh'])} "
+                     f"at t = {t[c['frame']]:g}: {_NAMES[c['method']]} min section ratio "
+                     f"{c['value']:.4f} ({_esc(c['view'])} view).</p>"
+                     + _img(png, f"close-up of {c['joint']}"))
+
+    parts.append("<h2>Worst frames</h2>")
+    heat = m["images"].get("heat_range")
+    if heat:
+        parts.append(f"<p class=note>Heat map: per-vertex distance between the LBS and DQS "
+                     f"results drawn on the DQS surface, colour range 0 – {heat[1]:.3g} "
+                     "(same for every frame).</p>")
+    for f, reasons in _worst_frames(m):
+        parts.append(f"<h3>t = {t[f]:g}: {_esc('; '.join(reasons))}</h3>")
+        for view, paths in m["images"]["frames"].items():
+            png = (out / paths[f]).read_bytes()
+            parts.append(f"<figure>{_img(png, f'{view} view at t = {t[f]:g}')}"
+                         f"<figcaption>{_esc(view)} view, t = {t[f]:g}</figcaption></figure>")
+    parts.append("<p class=note>Every compared frame is in <code>frames/</code> next to this "
+                 "report.</p>")
+
+    parts.append("<h2>Angle sweeps on the procedural rigs</h2>")
+    sw = m.get("sweeps")
+    if sw is None:
+        parts.append("<p class=note>Sweeps left out (--no-sweeps).</p>")
+    elif "skipped" in sw:
+        parts.append(f"<p class=note>Sweeps skipped: {_esc(sw['skipped'])}.</p>")
+    else:
+        for name, rig in sw.items():
+            if "skipped" in rig:
+                parts.append(f"<p class=note>{_esc(name)} sweep skipped: "
+                             f"{_esc(rig['skipped'])}.</p>")
+        png = sweep_plot_png(sw)
+        if png is not None:
+            parts.append("<p class=note>Every frame of each rig, skinned with LBS and DQS; the "
+                         "angle is the rotation of the animated joint. Dashed: continuum LBS "
+                         "closed forms for a linear weight ramp of width f·L (twist section at "
+                         "w = ½: √(1 − 2w(1−w)(1 − cos θ)) = |cos(θ/2)|; volume 1 − f(1 − cos θ)/3 "
+                         "for the twist, 1 − f(1 − cos θ)/6 for the bend). DQS keeps both at 1 "
+                         "in a twist.</p>" + _img(png, "twist and bend sweeps"))
+    parts.append(
+        "<h2>Definitions</h2><ul class=note>"
+        "<li>All measures in skeleton space; blend shapes are not applied.</li>"
+        "<li><b>volume ratio</b>: enclosed volume over rest volume (closed meshes only).</li>"
+        "<li><b>min section ratio</b>: around each joint, the vertices whose two largest "
+        "weights are the joint and its parent are cut into 16 slices along the bone; a slice's "
+        "ratio is its mean posed distance to the bone axis over its mean rest distance; the "
+        "smallest slice over all joints is reported (1 intact, 0 candy-wrapper collapse).</li>"
+        "<li><b>max bulge ratio</b>: the largest per-vertex posed/rest distance to the bone "
+        "axis in those regions (&gt; 1 bulges).</li></ul>"
+        f"<p class=note>Timing: skinning {m['timing_s']['skin']:.2f} s, metrics "
+        f"{m['timing_s']['metrics']:.2f} s, rendering {m['timing_s']['render']:.2f} s, sweeps "
+        f"{m['timing_s']['sweeps']:.2f} s.</p></body></html>")
+    return "\n".join(parts)
+
+
+def write_report(path, metrics, out_dir):
+    """Write :func:`build_html` to ``path`` (UTF-8)."""
+    Path(path).write_text(build_html(metrics, out_dir), encoding="utf-8")
