@@ -36,11 +36,14 @@ from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png
 from .scene import Scene
 from .skinning import METHODS, Skinner
 
-__all__ = ["BLEND_WEIGHT", "METRICS", "SWEEP_RIGS", "add_compare_arguments", "cmd_compare",
+__all__ = ["BLEND_WEIGHT", "METRICS", "SECTION_SLICES", "SWEEP_RIGS", "add_compare_arguments", "cmd_compare",
            "default_frames", "parse_times", "run_compare", "sweeps"]
 
 BLEND_WEIGHT = 0.5
 """DQS fraction of every vertex for ``method="blend"`` (0 = LBS, 1 = DQS)."""
+
+SECTION_SLICES = 16
+"""Slices per joint region of :func:`dqskin.metrics.joint_sections` (``min_section_ratio``)."""
 
 METRICS = ("volume_ratio", "min_section_ratio", "max_bulge_ratio")
 """Per-frame metrics of ``metrics.json``, each judged by how far it strays from 1."""
@@ -135,16 +138,27 @@ class _SkinnedMesh:
     posed: dict = field(default_factory=dict)  # method → (F, V, 3) float32
 
 
-def _skin(scene, times, methods, device):
-    """Skin every renderable mesh; meshes without faces are skipped (name → reason)."""
-    meshes, skipped, xforms = [], {}, {}
+def _renderable(scene):
+    """The meshes with points and faces, and the others (name → reason); ValueError if none."""
+    keep, skipped = [], {}
     for m in scene.meshes:
         if len(m.points) == 0:
             skipped[m.name] = "no points"
-            continue
-        if len(m.faces) == 0:
+        elif len(m.faces) == 0:
             skipped[m.name] = "no faces (points only)"
-            continue
+        else:
+            keep.append(m)
+    if not keep:
+        detail = "; ".join(f"{k}: {v}" for k, v in skipped.items()) or "no skinned meshes"
+        raise ValueError(f"{scene.path}: nothing to render ({detail})")
+    return keep, skipped
+
+
+def _skin(scene, times, methods, device):
+    """Skin every renderable mesh in skeleton space (meshes without faces are skipped)."""
+    renderable, skipped = _renderable(scene)
+    meshes, xforms = [], {}
+    for m in renderable:
         if m.skeleton not in xforms:
             xforms[m.skeleton] = scene.skinning_transforms(times, m.skeleton, device=device)
         g = np.asarray(m.geom_bind_transform, dtype=np.float64)
@@ -158,9 +172,6 @@ def _skin(scene, times, methods, device):
         for meth in methods:
             sm.posed[meth] = sk.skin(xforms[m.skeleton], meth)
         meshes.append(sm)
-    if not meshes:
-        detail = "; ".join(f"{k}: {v}" for k, v in skipped.items()) or "no skinned meshes"
-        raise ValueError(f"{scene.path}: nothing to render ({detail})")
     return meshes, skipped, xforms
 
 
@@ -184,7 +195,7 @@ def _measure(mesh, skeleton, xforms, method, device):
     regions = M.dominant_pair_regions(mesh.joint_indices, mesh.joint_weights, skeleton.parents)
     rest_seg, parent_side, child_side = M.joint_axes(bind, skeleton.parents, xforms)
     sec = M.joint_sections(mesh.rest, posed, rest_seg, parent_side, regions,
-                           child_segments=child_side, device=device)
+                           child_segments=child_side, slices=SECTION_SLICES, device=device)
     section, section_joint = _nan_reduce(sec.min_section_ratio, np.argmin)
     bulge, bulge_joint = _nan_reduce(sec.max_bulge_ratio, np.argmax)
     return {"volume_ratio": None if ratio is None else np.asarray(ratio, dtype=np.float64),
@@ -226,7 +237,7 @@ def _summary(measures, meshes, skeletons, times, methods, tie=1e-3):
                 if values is None:
                     continue
                 w = _worst(metric, values)
-                if w is not None and (best is None or w[1] > best[1]):
+                if w is not None and (best is None or w[1] > best[0]):
                     joint = None
                     if metric != "volume_ratio":
                         j = measures[mesh.name][meth][metric.replace("_ratio", "_joint")][w[0]]
@@ -286,6 +297,15 @@ def _side_view(bone, up_axis):
     return min(VIEWS, key=along)
 
 
+def _aspect(camera, lo, hi, limits=(0.5, 2.0)):
+    """Width / height of the box ``[lo, hi]`` as ``camera`` sees it (square image), clamped."""
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])
+    px = camera.project(corners, 1000, 1000)
+    extent = np.ptp(px, axis=0)
+    return float(np.clip(extent[0] / max(extent[1], 1e-9), *limits))
+
+
 def _render(meshes, times, methods, views, up_axis, width, supersample, frames_dir, closeup,
             distance, progress, device):
     """Render every panel to ``frames_dir``; returns {view: [paths per frame]} and the close-up."""
@@ -294,53 +314,63 @@ def _render(meshes, times, methods, views, up_axis, width, supersample, frames_d
     posed = {meth: np.concatenate([m.posed[meth] for m in meshes], axis=1) for meth in methods}
     lo = np.min([p.min(axis=(0, 1)) for p in posed.values()], axis=0).astype(np.float64)
     hi = np.max([p.max(axis=(0, 1)) for p in posed.values()], axis=0).astype(np.float64)
-    cameras = {v: Camera.frame(lo, hi, v, up_axis=up_axis) for v in views}
+    cameras, sizes = {}, {}
+    for v in views:  # one camera per view; the image aspect hugs the projected bounds
+        aspect = _aspect(Camera.frame(lo, hi, v, up_axis=up_axis), lo, hi)
+        cameras[v] = Camera.frame(lo, hi, v, up_axis=up_axis, aspect=aspect)
+        sizes[v] = {"width": width, "height": max(16, int(round(width / aspect)))}
     heat = distance is not None
     dmax = float(np.nanmax(distance)) if heat and np.isfinite(distance).any() else 0.0
     heat_range = (0.0, dmax if dmax > 0 else 1.0)
     renderers = {meth: MeshRenderer(posed[meth][0], faces, device=device) for meth in methods}
     heat_renderer = renderers["dqs"] if heat else None
-    kw = {"width": width, "height": width, "supersample": supersample}
     from tqdm import tqdm
 
     total = len(times) * len(views) * (len(methods) + heat) + (len(methods) + heat) * bool(closeup)
     bar = tqdm(total=total, desc="render", unit="image", disable=not progress, file=sys.stderr)
     labels = [_LABELS[m] for m in methods] + (["|LBS - DQS|"] if heat else [])
 
-    def panel(f, cams):
+    def panel(f, cams, dims):
         images = {v: [] for v in cams}
         for meth in methods:
             renderers[meth].update(posed[meth][f])
             for v, cam in cams.items():
-                images[v].append(renderers[meth].render(cam, **kw))
+                images[v].append(renderers[meth].render(cam, supersample=supersample,
+                                                        **dims[v]))
                 bar.update()
         if heat:
             for v, cam in cams.items():
                 img = heat_renderer.render(cam, scalars=distance[f], scalar_range=heat_range,
-                                           colormap=_HEAT_COLORMAP, shading=_HEAT_SHADING, **kw)
-                images[v].append(add_colorbar(img, heat_range, _HEAT_COLORMAP, label="distance"))
+                                           colormap=_HEAT_COLORMAP, shading=_HEAT_SHADING,
+                                           supersample=supersample, **dims[v])
+                images[v].append(add_colorbar(img, heat_range, _HEAT_COLORMAP,
+                                              label="distance"))
                 bar.update()
         return {v: side_by_side(imgs, labels) for v, imgs in images.items()}
 
     paths = {v: [] for v in views}
     for f in range(len(times)):
-        for v, img in panel(f, cameras).items():
+        for v, img in panel(f, cameras, sizes).items():
             paths[v].append(save_png(frames_dir / f"{v}_{f:03d}.png", img))
     closeup_path = None
     if closeup:
         view = _side_view(closeup["bone"], up_axis)
         cam = Camera.frame_point(closeup["center"], closeup["radius"], view, up_axis=up_axis)
         closeup["view"] = view
-        img = panel(closeup["frame"], {view: cam})[view]
+        img = panel(closeup["frame"], {view: cam}, {view: {"width": width, "height": width}})[view]
         closeup_path = save_png(frames_dir / "closeup.png", img)
     bar.close()
     return paths, closeup_path, dmax
 
 
 def _rotation_angles(x):
-    """Rotation angle in radians of each (…, 4, 4) transform's 3×3 block, in [0, π]."""
+    """Rotation angle in radians of each (…, 4, 4) transform's 3×3 block, in [0, π]:
+    ``atan2(|axial(R − Rᵀ)|, (tr R − 1)/2)``, accurate near 0 and π alike."""
     r = np.asarray(x, dtype=np.float64)[..., :3, :3]
-    return np.arccos(np.clip((np.trace(r, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0))
+    axial = np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0],
+                      r[..., 1, 0] - r[..., 0, 1]], axis=-1)
+    return np.arctan2(0.5 * np.linalg.norm(axial, axis=-1),
+                      0.5 * (np.trace(r, axis1=-2, axis2=-1) - 1))
 
 
 def sweeps(assets_dir, *, device=None):
@@ -465,6 +495,7 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         times = np.asarray(frames, dtype=np.float64).reshape(-1)
         if times.size == 0 or not np.all(np.isfinite(times)):
             raise ValueError(f"frames: expected finite times, got {list(frames)!r}")
+    _renderable(scene)
     out, frames_dir = _prepare_out(out_dir, force)
 
     meshes, skipped, xforms = _skin(scene, times, methods, device)
@@ -519,6 +550,7 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         "up_axis": up,
         "views": list(views),
         "space": "skeleton",
+        "section_slices": SECTION_SLICES,
         "meshes": {m.name: {meth: mesh_json(m, meth) for meth in methods} for m in meshes},
         "skipped_meshes": skipped,
         "lbs_dqs_distance": dist_json,

@@ -124,8 +124,8 @@ def frame_plot_png(metrics):
 
 
 def sweep_plot_png(sweeps):
-    """Min section ratio and volume ratio against the joint angle on the procedural rigs, LBS and
-    DQS measured (solid) and the closed-form LBS references (dashed).
+    """Min section, max bulge and volume ratios against the joint angle on the procedural rigs,
+    LBS and DQS measured (solid) and the closed-form LBS references (dashed).
 
     Returns
     -------
@@ -137,11 +137,11 @@ def sweep_plot_png(sweeps):
     rigs = [(k, v) for k, v in sweeps.items() if isinstance(v, dict) and "angle_deg" in v]
     if not rigs:
         return None
-    fig = Figure(figsize=(11, 3.4 * len(rigs)), layout="constrained")
-    axes = fig.subplots(len(rigs), 2, squeeze=False)
+    fig = Figure(figsize=(15, 3.6 * len(rigs)), layout="constrained")
+    axes = fig.subplots(len(rigs), 3, squeeze=False)
     for row, (name, rig) in zip(axes, rigs):
         theta = np.asarray(rig["angle_deg"], dtype=np.float64)
-        for ax, metric in zip(row, ("min_section_ratio", "volume_ratio")):
+        for ax, metric in zip(row, ("min_section_ratio", "max_bulge_ratio", "volume_ratio")):
             for meth in ("lbs", "dqs"):
                 v = rig[meth][metric]
                 if v is not None:
@@ -314,14 +314,17 @@ def build_html(metrics, out_dir):
                          "angle is the rotation of the animated joint. Dashed: continuum LBS "
                          "closed forms for a linear weight ramp of width f·L (twist section at "
                          "w = ½: √(1 − 2w(1−w)(1 − cos θ)) = |cos(θ/2)|; volume 1 − f(1 − cos θ)/3 "
-                         "for the twist, 1 − f(1 − cos θ)/6 for the bend). DQS keeps both at 1 "
-                         "in a twist.</p>" + _img(png, "twist and bend sweeps"))
+                         "for the twist, 1 − f(1 − cos θ)/6 for the bend). DQS keeps every measure "
+                         "at 1 in a twist. In a strong bend the section and bulge measures are "
+                         "indicative only: right at the joint the parent and child bone frames "
+                         "disagree, for either method.</p>" + _img(png, "twist and bend sweeps"))
     parts.append(
         "<h2>Definitions</h2><ul class=note>"
         "<li>All measures in skeleton space; blend shapes are not applied.</li>"
         "<li><b>volume ratio</b>: enclosed volume over rest volume (closed meshes only).</li>"
         "<li><b>min section ratio</b>: around each joint, the vertices whose two largest "
-        "weights are the joint and its parent are cut into 16 slices along the bone; a slice's "
+        f"weights are the joint and its parent are cut into {m['section_slices']} slices "
+        "along the bone; a slice's "
         "ratio is its mean posed distance to the bone axis over its mean rest distance; the "
         "smallest slice over all joints is reported (1 intact, 0 candy-wrapper collapse).</li>"
         "<li><b>max bulge ratio</b>: the largest per-vertex posed/rest distance to the bone "

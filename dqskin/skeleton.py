@@ -102,8 +102,9 @@ class Skeleton:
 
         Parameters
         ----------
-        local_transforms : (..., J, 4, 4) float, optional
-            Parent-relative joint transforms; the rest pose when omitted.
+        local_transforms : (..., J, 4, 4) float or (translations, rotations, scales), optional
+            Parent-relative joint transforms (see :func:`forward_kinematics`); the rest pose
+            when omitted.
         return_dq : bool
             Also return the rigid part as dual quaternions and the residual scale/shear.
 
@@ -140,17 +141,42 @@ class Skeleton:
         return out if as_warp else out.numpy().reshape(*batch, self.joint_count, 4, 4)
 
 
-def _forward_kinematics(parents, local_transforms, device, outputs=None):
-    """Launch FK; returns the (B, J) world ``wp.mat44`` array and the batch shape."""
-    par = _check_parents(parents)
-    J = par.shape[0]
+def _local_arrays(local_transforms, J, device):
+    """Upload local poses: (..., J, 4, 4) matrices, or a (translations, rotations, scales) tuple of
+    (..., J, 3), (..., J, 4) ``(w, x, y, z)``, (..., J, 3) or None. Returns (arrays, batch)."""
+    if isinstance(local_transforms, (tuple, list)):
+        if len(local_transforms) != 3:
+            raise ValueError("local_transforms: a TRS pose is (translations, rotations, scales)")
+        tr, rot, sc = local_transforms
+        rot = np.asarray(rot, dtype=np.float32)
+        if rot.ndim < 2 or rot.shape[-2:] != (J, 4):
+            raise ValueError(f"rotations: expected (..., {J}, 4) (w, x, y, z), got {rot.shape}")
+        batch = rot.shape[:-2]
+        B = int(np.prod(batch, dtype=np.int64))
+        tr = np.asarray(tr, dtype=np.float32)
+        sc = np.ones(rot.shape[:-1] + (3,), np.float32) if sc is None else np.asarray(sc, np.float32)
+        for name, a in (("translations", tr), ("scales", sc)):
+            if a.shape != batch + (J, 3):
+                raise ValueError(f"{name}: expected {batch + (J, 3)}, got {a.shape}")
+        arrays = tuple(wp.array(np.ascontiguousarray(a.reshape(B, J, -1)), dtype=t, device=device)
+                       for a, t in ((tr, wp.vec3), (rot, wp.vec4), (sc, wp.vec3)))
+        return arrays, batch
     loc = np.asarray(local_transforms, dtype=np.float32)
     if loc.ndim < 3 or loc.shape[-3:] != (J, 4, 4):
         raise ValueError(f"local_transforms: expected (..., {J}, 4, 4), got {loc.shape}")
     batch = loc.shape[:-3]
     B = int(np.prod(batch, dtype=np.int64))
+    return wp.array(np.ascontiguousarray(loc.reshape(B, J, 4, 4)), dtype=wp.mat44,
+                    device=device), batch
+
+
+def _forward_kinematics(parents, local_transforms, device, outputs=None):
+    """Launch FK; returns the (B, J) world ``wp.mat44`` array and the batch shape."""
+    par = _check_parents(parents)
+    J = par.shape[0]
     d = device
-    local = wp.array(np.ascontiguousarray(loc.reshape(B, J, 4, 4)), dtype=wp.mat44, device=d)
+    local, batch = _local_arrays(local_transforms, J, d)
+    B = int(np.prod(batch, dtype=np.int64))
     world_dq = wp.empty((B, J), dtype=vec8, device=d)
     residual = wp.empty((B, J), dtype=wp.mat33, device=d)
     world = wp.empty((B, J), dtype=wp.mat44, device=d)
@@ -174,9 +200,11 @@ def forward_kinematics(parents, local_transforms, *, device=None, return_dq=Fals
     ----------
     parents : (J,) int
         Parents first, ``-1`` for roots.
-    local_transforms : (..., J, 4, 4) float
-        Parent-relative transforms, column-vector convention. The leading axes (frames,
-        characters) are flattened into one launch.
+    local_transforms : (..., J, 4, 4) float, or (translations, rotations, scales)
+        Parent-relative transforms, column-vector convention; or TRS poses as animations store
+        them: translations (..., J, 3), unit rotations (..., J, 4) ``(w, x, y, z)``, scales
+        (..., J, 3) or None, composed as ``T·R·S``. The leading axes (frames, characters) are
+        flattened into one launch.
 
     Returns
     -------

@@ -35,23 +35,64 @@ def dq_pack(r: wp.quat, d: wp.quat):
 @wp.func
 def dq_from_rt(r: wp.quat, t: wp.vec3):
     """Pose that rotates by unit quaternion ``r`` then translates by ``t``: ``r + ε·½·t·r``."""
-    d = wp.mul(wp.quat(t[0], t[1], t[2], 0.0), r) * 0.5
-    return dq_pack(r, d)
+    x = r[0]
+    y = r[1]
+    z = r[2]
+    w = r[3]
+    return vec8(w, x, y, z,
+                -0.5 * (t[0] * x + t[1] * y + t[2] * z),
+                0.5 * (t[0] * w + t[1] * z - t[2] * y),
+                0.5 * (t[1] * w + t[2] * x - t[0] * z),
+                0.5 * (t[2] * w + t[0] * y - t[1] * x))
 
 
 @wp.func
 def dq_translation(a: vec8):
-    """Translation of a unit dual quaternion: ``t = 2·d·r*``."""
-    t = wp.mul(dq_dual(a), wp.quat_inverse(dq_real(a))) * 2.0
-    return wp.vec3(t[0], t[1], t[2])
+    """Translation of a unit dual quaternion: the vector part of ``t = 2·d·r*``."""
+    w = a[0]
+    x = a[1]
+    y = a[2]
+    z = a[3]
+    dw = a[4]
+    dx = a[5]
+    dy = a[6]
+    dz = a[7]
+    return wp.vec3(2.0 * (dx * w - dw * x + dz * y - dy * z),
+                   2.0 * (dy * w - dw * y + dx * z - dz * x),
+                   2.0 * (dz * w - dw * z + dy * x - dx * y))
 
 
 @wp.func
 def dq_mul(a: vec8, b: vec8):
-    """Concatenation ``a·b`` (apply ``b`` first, then ``a``), as the matrix product ``A @ B``."""
-    ar = dq_real(a)
-    br = dq_real(b)
-    return dq_pack(wp.mul(ar, br), wp.mul(ar, dq_dual(b)) + wp.mul(dq_dual(a), br))
+    """Concatenation ``a·b`` (apply ``b`` first, then ``a``), as the matrix product ``A @ B``.
+
+    Written out per component: ``r = ra·rb``, ``d = ra·db + da·rb`` (Hamilton products).
+    """
+    aw = a[0]
+    ax = a[1]
+    ay = a[2]
+    az = a[3]
+    bw = b[0]
+    bx = b[1]
+    by = b[2]
+    bz = b[3]
+    cw = a[4]
+    cx = a[5]
+    cy = a[6]
+    cz = a[7]
+    dw = b[4]
+    dx = b[5]
+    dy = b[6]
+    dz = b[7]
+    return vec8(
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * dw - ax * dx - ay * dy - az * dz + cw * bw - cx * bx - cy * by - cz * bz,
+        aw * dx + ax * dw + ay * dz - az * dy + cw * bx + cx * bw + cy * bz - cz * by,
+        aw * dy - ax * dz + ay * dw + az * dx + cw * by - cx * bz + cy * bw + cz * bx,
+        aw * dz + ax * dy - ay * dx + az * dw + cw * bz + cx * by - cy * bx + cz * bw)
 
 
 @wp.func
@@ -87,22 +128,46 @@ def dq_transform_vector(a: vec8, v: wp.vec3):
 
 
 @wp.func
+def quat_from_rotation(m: wp.mat33):
+    """Unit Warp quaternion ``(x, y, z, w)`` of a rotation matrix (Shepperd's method)."""
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    q = wp.quat()
+    if tr > 0.0:
+        s = wp.sqrt(tr + 1.0) * 2.0
+        q = wp.quat((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s,
+                    0.25 * s)
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = wp.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2.0
+        q = wp.quat(0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s,
+                    (m[2, 1] - m[1, 2]) / s)
+    elif m[1, 1] > m[2, 2]:
+        s = wp.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2.0
+        q = wp.quat((m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s,
+                    (m[0, 2] - m[2, 0]) / s)
+    else:
+        s = wp.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2.0
+        q = wp.quat((m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s,
+                    (m[1, 0] - m[0, 1]) / s)
+    return wp.normalize(q)
+
+
+@wp.func
 def dq_from_matrix(m: wp.mat44):
     """Dual quaternion of a rigid 4×4 matrix (column-vector convention, rotation orthonormal)."""
-    r = wp.quat_from_matrix(wp.mat33(m[0, 0], m[0, 1], m[0, 2],
-                                      m[1, 0], m[1, 1], m[1, 2],
-                                      m[2, 0], m[2, 1], m[2, 2]))
-    return dq_from_rt(wp.normalize(r), wp.vec3(m[0, 3], m[1, 3], m[2, 3]))
+    return dq_from_rt(quat_from_rotation(mat44_linear(m)), wp.vec3(m[0, 3], m[1, 3], m[2, 3]))
 
 
 @wp.func
 def dq_to_matrix(a: vec8):
     """4×4 rigid matrix (column-vector convention) of unit dual quaternion ``a``."""
-    rm = wp.quat_to_matrix(dq_real(a))
+    w = a[0]
+    x = a[1]
+    y = a[2]
+    z = a[3]
     t = dq_translation(a)
-    return wp.mat44(rm[0, 0], rm[0, 1], rm[0, 2], t[0],
-                    rm[1, 0], rm[1, 1], rm[1, 2], t[1],
-                    rm[2, 0], rm[2, 1], rm[2, 2], t[2],
+    return wp.mat44(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y), t[0],
+                    2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x), t[1],
+                    2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y), t[2],
                     0.0, 0.0, 0.0, 1.0)
 
 

@@ -8,13 +8,46 @@ exactly::
     (η_p, S_p) ∘ (η_l, S_l) = (η_p · η(R_l, S_p·t_l),  R_lᵀ · S_p · R_l · S_l)
 
 which reduces to ``η_p · η_l`` when ``S_p = I``. Local matrices are split by the polar decomposition
-``A = R·S`` (the same split UsdSkel uses for its DQS).
+``A = R·S`` (the same split UsdSkel uses for its DQS); local TRS poses (what animations store) need
+no split: ``η = η(q, t)`` and ``S = diag(s)``.
+
+Kernels run one thread per (frame, skeleton), walking that skeleton's joints parents-first;
+``parents`` holds global joint indices (−1 for roots) and skeleton ``s`` owns joints
+``skeleton_start[s] .. skeleton_start[s+1]-1`` of the concatenated joint axis.
 """
 
 import warp as wp
 
-from .dqmath import (dq_from_rt, dq_mul, dq_to_matrix, is_identity33, is_rotation, mat44_linear, polar_rotation,
-                     vec8)
+from .dqmath import (dq_from_rt, dq_mul, dq_to_matrix, is_identity33, is_rotation, mat44_linear,
+                     polar_rotation, quat_from_rotation, vec8)
+
+
+@wp.func
+def fk_joint(f: int, j: int, p: int, q: wp.quat, t: wp.vec3, res: wp.mat33, rigid: bool,
+             world_dq: wp.array2d(dtype=vec8), world_residual: wp.array2d(dtype=wp.mat33),
+             world: wp.array2d(dtype=wp.mat44)):
+    """Compose joint ``j`` (local rotation ``q``, translation ``t``, residual ``res``) onto its
+    parent ``p`` and store the world pair and matrix. Rigid parents take a plain DQ product."""
+    eta = dq_from_rt(q, t)
+    if p >= 0:
+        sp = world_residual[f, p]
+        if is_identity33(sp, 0.0):
+            eta = dq_mul(world_dq[f, p], eta)
+        else:
+            rigid = False
+            r = wp.quat_to_matrix(q)
+            eta = dq_mul(world_dq[f, p], dq_from_rt(q, sp * t))
+            res = wp.transpose(r) * sp * r * res
+    world_dq[f, j] = eta
+    world_residual[f, j] = res
+    x = dq_to_matrix(eta)
+    if not rigid:
+        lin = mat44_linear(x) * res
+        x = wp.mat44(lin[0, 0], lin[0, 1], lin[0, 2], x[0, 3],
+                     lin[1, 0], lin[1, 1], lin[1, 2], x[1, 3],
+                     lin[2, 0], lin[2, 1], lin[2, 2], x[2, 3],
+                     0.0, 0.0, 0.0, 1.0)
+    world[f, j] = x
 
 
 @wp.kernel
@@ -28,42 +61,44 @@ def forward_kinematics_kernel(
     world_residual: wp.array2d(dtype=wp.mat33),
     world: wp.array2d(dtype=wp.mat44),
 ):
-    """One thread per (frame, skeleton), walking that skeleton's joints parents-first.
-
-    ``parents`` holds global joint indices (−1 for roots); skeleton ``s`` owns joints
-    ``skeleton_start[s] .. skeleton_start[s+1]-1`` of the concatenated joint axis. Where the
-    parent's residual is the identity (rigid chains) the step is a plain DQ product.
-    """
+    """FK from local 4×4 matrices (F, J), polar-split per joint."""
     i, s = wp.tid()
     f = i + frame_offset
-    eye = wp.identity(n=3, dtype=float)
     for j in range(skeleton_start[s], skeleton_start[s + 1]):
         m = local[f, j]
         a = mat44_linear(m)
         r = a
-        res = eye
-        if not is_rotation(a):
+        res = wp.identity(n=3, dtype=float)
+        rigid = is_rotation(a)
+        if not rigid:
             r = polar_rotation(a)
             res = wp.transpose(r) * a
-        q = wp.normalize(wp.quat_from_matrix(r))
-        t = wp.vec3(m[0, 3], m[1, 3], m[2, 3])
-        p = parents[j]
-        eta = dq_from_rt(q, t)
-        if p >= 0:
-            sp = world_residual[f, p]
-            if is_identity33(sp, 0.0):
-                eta = dq_mul(world_dq[f, p], eta)
-            else:
-                eta = dq_mul(world_dq[f, p], dq_from_rt(q, sp * t))
-                res = wp.transpose(r) * sp * r * res
-        world_dq[f, j] = eta
-        world_residual[f, j] = res
-        rigid = dq_to_matrix(eta)
-        lin = mat44_linear(rigid) * res
-        world[f, j] = wp.mat44(lin[0, 0], lin[0, 1], lin[0, 2], rigid[0, 3],
-                               lin[1, 0], lin[1, 1], lin[1, 2], rigid[1, 3],
-                               lin[2, 0], lin[2, 1], lin[2, 2], rigid[2, 3],
-                               0.0, 0.0, 0.0, 1.0)
+        fk_joint(f, j, parents[j], quat_from_rotation(r), wp.vec3(m[0, 3], m[1, 3], m[2, 3]), res,
+                 rigid, world_dq, world_residual, world)
+
+
+@wp.kernel
+def forward_kinematics_trs_kernel(
+    parents: wp.array(dtype=wp.int32),
+    skeleton_start: wp.array(dtype=wp.int32),
+    translations: wp.array2d(dtype=wp.vec3),
+    rotations: wp.array2d(dtype=wp.vec4),
+    scales: wp.array2d(dtype=wp.vec3),
+    frame_offset: int,
+    # outputs
+    world_dq: wp.array2d(dtype=vec8),
+    world_residual: wp.array2d(dtype=wp.mat33),
+    world: wp.array2d(dtype=wp.mat44),
+):
+    """FK from local TRS (F, J): rotations are unit quaternions ``(w, x, y, z)``; ``M = T·R·S``."""
+    i, s = wp.tid()
+    f = i + frame_offset
+    for j in range(skeleton_start[s], skeleton_start[s + 1]):
+        r = rotations[f, j]
+        sc = scales[f, j]
+        rigid = sc[0] == 1.0 and sc[1] == 1.0 and sc[2] == 1.0
+        fk_joint(f, j, parents[j], wp.normalize(wp.quat(r[1], r[2], r[3], r[0])), translations[f, j],
+                 wp.diag(sc), rigid, world_dq, world_residual, world)
 
 
 @wp.kernel
@@ -80,11 +115,15 @@ def bind_relative_kernel(
 
 def forward_kinematics(parents, skeleton_start, local, world_dq, world_residual, world, *, device,
                        frame_offset=0, frame_count=None):
-    """Launch FK over frames ``frame_offset .. frame_offset + frame_count`` of ``local`` (F, J)
-    mat44; fills the three (F, J) outputs in place."""
-    count = local.shape[0] - frame_offset if frame_count is None else frame_count
-    wp.launch(forward_kinematics_kernel, dim=(count, skeleton_start.shape[0] - 1),
-              inputs=[parents, skeleton_start, local, frame_offset],
+    """Launch FK over frames ``frame_offset .. frame_offset + frame_count``; ``local`` is a (F, J)
+    ``wp.mat44`` array or a ``(translations, rotations, scales)`` tuple of (F, J) arrays. Fills
+    the three (F, J) outputs in place."""
+    trs = isinstance(local, tuple)
+    frames = (local[0] if trs else local).shape[0]
+    count = frames - frame_offset if frame_count is None else frame_count
+    kernel = forward_kinematics_trs_kernel if trs else forward_kinematics_kernel
+    inputs = [parents, skeleton_start] + (list(local) if trs else [local]) + [frame_offset]
+    wp.launch(kernel, dim=(count, skeleton_start.shape[0] - 1), inputs=inputs,
               outputs=[world_dq, world_residual, world], device=device)
 
 

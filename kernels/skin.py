@@ -26,7 +26,7 @@ Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, 
 import warp as wp
 
 from .dqmath import (dq_from_rt, is_identity33, mat44_linear, orthonormalize_columns, polar_rotation,
-                     vec8)
+                     quat_from_rotation, vec8)
 
 mat34 = wp.types.matrix(shape=(3, 4), dtype=wp.float32)
 
@@ -54,7 +54,7 @@ def prepare_points_kernel(
     a = mat44_linear(m)
     r = polar_rotation(a)
     s = wp.transpose(r) * a
-    q = wp.normalize(wp.quat_from_matrix(r))
+    q = quat_from_rotation(r)
     dqs[f, j] = dq_from_rt(q, wp.vec3(m[0, 3], m[1, 3], m[2, 3]))
     affines[f, j] = mat34(m[0, 0], m[0, 1], m[0, 2], m[0, 3],
                           m[1, 0], m[1, 1], m[1, 2], m[1, 3],
@@ -81,12 +81,12 @@ def prepare_vectors_kernel(
     f, j = wp.tid()
     a = mat44_linear(xforms[f, j])
     linears[f, j] = a
-    rotations[f, j] = wp.normalize(wp.quat_from_matrix(polar_rotation(a)))
+    rotations[f, j] = quat_from_rotation(polar_rotation(a))
     n = wp.transpose(wp.inverse(a))
     rn = orthonormalize_columns(n)
     normal_linears[f, j] = n
     normal_residuals[f, j] = wp.transpose(rn) * n
-    normal_rotations[f, j] = wp.normalize(wp.quat_from_matrix(rn))
+    normal_rotations[f, j] = quat_from_rotation(rn)
 
 
 @wp.func

@@ -99,3 +99,20 @@ def test_mismatched_counts_raise():
         Skeleton(["a", "b"], [-1, 0, 1])
     with pytest.raises(ValueError, match="bind_transforms"):
         Skeleton(["a", "b"], [-1, 0], np.eye(4)[None])
+
+
+@pytest.mark.parametrize("scaled", [False, True], ids=["rigid", "scaled"])
+def test_fk_from_trs_matches_matrices(device, scaled):
+    rng = np.random.default_rng(11)
+    J = 20
+    parents = random_hierarchy(rng, J)
+    rot = Rotation.random((3 * J), random_state=rng)
+    t = rng.normal(size=(3, J, 3))
+    s = rng.uniform(0.5, 2.0, size=(3, J, 3)) if scaled else None
+    M = np.tile(np.eye(4), (3, J, 1, 1))
+    M[..., :3, :3] = rot.as_matrix().reshape(3, J, 3, 3) * (1 if s is None else s[..., None, :])
+    M[..., :3, 3] = t
+    q_wxyz = rot.as_quat()[:, [3, 0, 1, 2]].reshape(3, J, 4)
+    world = forward_kinematics(parents, (t, q_wxyz, s), device=device)
+    ref = chain_product(parents, M)
+    assert np.abs(world - ref).max() / np.abs(ref).max() <= 1e-5

@@ -103,24 +103,42 @@ def bench_skinning(sizes, repeat, devices, rows):
 
 
 def bench_fk(devices, rows, skeletons=1000):
+    """FK of ``skeletons`` × 64 joints from local matrices and from TRS (what animations store).
+
+    UsdSkel: ``ConcatJointTransforms`` per skeleton (its API is one skeleton per call), after
+    ``MakeTransforms`` for TRS. Inputs are converted to each implementation's native form untimed.
+    """
     rng = np.random.default_rng(1)
     parents = np.array([-1] + [int(rng.integers(0, j)) for j in range(1, JOINTS)])
-    local = np.tile(np.eye(4), (skeletons, JOINTS, 1, 1))
-    local[..., :3, :3] = Rotation.random(skeletons * JOINTS, random_state=rng).as_matrix().reshape(
-        skeletons, JOINTS, 3, 3)
-    local[..., :3, 3] = rng.normal(size=(skeletons, JOINTS, 3))
+    rot = Rotation.random(skeletons * JOINTS, random_state=rng)
+    q_wxyz = rot.as_quat()[:, [3, 0, 1, 2]].reshape(skeletons, JOINTS, 4).astype(np.float32)
+    trans = rng.normal(size=(skeletons, JOINTS, 3)).astype(np.float32)
+    scale = np.ones((skeletons, JOINTS, 3), np.float32)
+    local = np.tile(np.eye(4, dtype=np.float32), (skeletons, JOINTS, 1, 1))
+    local[..., :3, :3] = rot.as_matrix().reshape(skeletons, JOINTS, 3, 3)
+    local[..., :3, 3] = trans
+
     def numpy_fk():
         world = np.empty_like(local)
         for j, p in enumerate(parents):
             world[:, j] = local[:, j] if p < 0 else world[:, p] @ local[:, j]
         return world
     topo = UsdSkel.Topology(Vt.IntArray([int(p) for p in parents]))
-    usd_local = [Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(local[s].transpose(0, 2, 1)))
-                 for s in range(skeletons)]
-    fns = {f"dqskin {dev}": (lambda dev=dev: forward_kinematics(parents, local, device=dev))
-           for dev in devices}
-    fns["NumPy"] = numpy_fk
-    fns["UsdSkel serial"] = lambda: [UsdSkel.ConcatJointTransforms(topo, x) for x in usd_local]
+    usd_local = [Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(
+        local[s].astype(np.float64).transpose(0, 2, 1))) for s in range(skeletons)]
+    usd_trs = [(Vt.Vec3fArray.FromNumpy(trans[s]),
+                Vt.QuatfArray([Gf.Quatf(float(w), float(x), float(y), float(z))
+                               for w, x, y, z in q_wxyz[s]]),
+                Vt.Vec3hArray.FromNumpy(scale[s].astype(np.float16))) for s in range(skeletons)]
+    fns = {}
+    for dev in devices:
+        fns[f"dqskin {dev} matrices"] = lambda dev=dev: forward_kinematics(parents, local, device=dev)
+        fns[f"dqskin {dev} TRS"] = lambda dev=dev: forward_kinematics(
+            parents, (trans, q_wxyz, scale), device=dev)
+    fns["NumPy matrices"] = numpy_fk
+    fns["UsdSkel matrices"] = lambda: [UsdSkel.ConcatJointTransforms(topo, x) for x in usd_local]
+    fns["UsdSkel TRS"] = lambda: [UsdSkel.ConcatJointTransforms(topo, UsdSkel.MakeTransforms(*x))
+                                  for x in usd_trs]
     res = best_times(fns, 5)
     for impl, t in res.items():
         rows.append(dict(kind="fk", skeletons=skeletons, joints=JOINTS, impl=impl, seconds=t,
@@ -128,8 +146,18 @@ def bench_fk(devices, rows, skeletons=1000):
 
 
 def print_tables(rows):
-    print(f"\nSkinning: {INFLUENCES} influences, {JOINTS} joints, float32 (Mpts/s, higher is better)")
     skin = [r for r in rows if r["kind"] == "skin"]
+    if skin:
+        print_skin_table(skin)
+    fk = [r for r in rows if r["kind"] == "fk"]
+    if fk:
+        print(f"\nFK: {fk[0]['skeletons']} skeletons × {fk[0]['joints']} joints (M joints/s)")
+        for r in fk:
+            print(f"| {r['impl']:>22} | {r['mjoints_per_s']:8.2f} | {r['seconds'] * 1e3:8.2f} ms |")
+
+
+def print_skin_table(skin):
+    print(f"\nSkinning: {INFLUENCES} influences, {JOINTS} joints, float32 (Mpts/s, higher is better)")
     impls = list(dict.fromkeys(r["impl"] for r in skin))
     head = f"| {'vertices':>9} | method | " + " | ".join(f"{i:>17}" for i in impls)
     print(head + " | ×UsdSkel par. | DQS/LBS time |")
@@ -143,11 +171,6 @@ def print_tables(rows):
             dl = sel[ours]["seconds"] / other[ours]["seconds"]
             cells = " | ".join(f"{sel[i]['mpts_per_s']:17.1f}" for i in impls)
             print(f"| {V:>9} | {method:6} | {cells} | {ratio:12.2f}× | {dl:11.2f}× |")
-    fk = [r for r in rows if r["kind"] == "fk"]
-    if fk:
-        print(f"\nFK: {fk[0]['skeletons']} skeletons × {fk[0]['joints']} joints (M joints/s)")
-        for r in fk:
-            print(f"| {r['impl']:>16} | {r['mjoints_per_s']:8.2f} | {r['seconds'] * 1e3:8.2f} ms |")
 
 
 def main(argv=None):
