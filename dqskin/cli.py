@@ -76,17 +76,34 @@ def chunk_velocities(scene, times, method, interp, device):
                      + dqs[m.name] * m.blend_or_default()[:, None]) for m in scene.meshes}
 
 
-def skin_chunks(scene, times, method, device, chunk, normals, progress=True, interp="trs"):
-    """Yield ``(slice, points, normals)`` per chunk of frames, so memory stays bounded."""
+def skin_chunks(scene, times, method, device, chunk, normals, progress=True, interp="trs",
+                velocities=False):
+    """Yield ``(slice, points, normals, velocities)`` per chunk of frames, so memory stays bounded.
+
+    The next chunk is skinned on a worker thread while the caller writes the current one (Warp
+    launches and NumPy release the GIL, so the two overlap).
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
     from tqdm import tqdm
-    bar = tqdm(total=len(times), unit="frame", disable=not progress or len(times) < 2 * chunk,
-               desc="skinning", file=sys.stderr)
-    for lo in range(0, len(times), chunk):
-        sl = slice(lo, min(lo + chunk, len(times)))
+
+    def compute(sl):
         res = scene.skin(times[sl], method, device=device, normals=normals, interp=interp)
-        pts, nrm = res if normals else (res, None)
-        yield sl, pts, nrm
-        bar.update(sl.stop - sl.start)
+        pts, nrm = res if normals else (res, {})
+        vel = chunk_velocities(scene, times[sl], method, interp, device) if velocities else {}
+        return sl, pts, nrm, vel
+
+    slices = [slice(lo, min(lo + chunk, len(times))) for lo in range(0, len(times), chunk)]
+    bar = tqdm(total=len(times), unit="frame", disable=not progress or len(slices) < 3,
+               desc="skinning", file=sys.stderr)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-skin") as ex:
+        fut = ex.submit(compute, slices[0])
+        for k, sl in enumerate(slices):
+            res = fut.result()
+            if k + 1 < len(slices):
+                fut = ex.submit(compute, slices[k + 1])
+            yield res
+            bar.update(sl.stop - sl.start)
     bar.close()
 
 
@@ -110,28 +127,22 @@ def cmd_skin(args):
     F = len(times)
     if suffix in (".usd", ".usda", ".usdc"):
         check_output(out, [args.input], args.force)
-        from .usd_cache import write_usd_cache
-        pts = {n: np.empty((F, len(scene.mesh(n).points), 3), np.float32) for n in names}
-        nrm, vel = {}, {}
-        for sl, p, n in skin_chunks(scene, times, args.method, args.device, args.chunk, True,
-                                    interp=args.interp):
-            v = (chunk_velocities(scene, times[sl], args.method, args.interp, args.device)
-                 if args.velocities else {})
-            for name in names:
-                pts[name][sl] = p[name]
-                if name in n:
-                    nrm.setdefault(name, np.empty((F,) + n[name].shape[1:], np.float32))[sl] = n[name]
-                if name in v:
-                    vel.setdefault(name, np.empty((F,) + v[name].shape[1:], np.float32))[sl] = v[name]
-        write_usd_cache(scene, out, times, pts, nrm or None, velocities=vel or None,
-                        source_path=args.input, method=args.method, device=args.device)
+        from .usd_cache import UsdCacheWriter
+        wrote_velocities = False
+        with UsdCacheWriter(scene, out, source_path=args.input, method=args.method,
+                            device=args.device) as writer:
+            for sl, p, n, v in skin_chunks(scene, times, args.method, args.device, args.chunk,
+                                           args.normals, interp=args.interp,
+                                           velocities=args.velocities):
+                writer.write(times[sl], p, n, v)
+                wrote_velocities |= bool(v)
         print(f"wrote {out}: {len(names)} meshes × {F} frames ({args.method or 'asset method'}"
-              f"{', velocities' if vel else ''})")
+              f"{', velocities' if wrote_velocities else ''})")
     elif suffix == ".npz":
         check_output(out, [args.input], args.force)
         pts = {n: np.empty((F, len(scene.mesh(n).points), 3), np.float32) for n in names}
-        for sl, p, _ in skin_chunks(scene, times, args.method, args.device, args.chunk, False,
-                                    interp=args.interp):
+        for sl, p, _, _ in skin_chunks(scene, times, args.method, args.device, args.chunk, False,
+                                       interp=args.interp):
             for name in names:
                 pts[name][sl] = p[name]
         with io.atomic_path(out) as tmp:
@@ -150,8 +161,8 @@ def cmd_skin(args):
             faces.append(m.faces + offset)
             offset += len(m.points)
         faces = np.concatenate(faces)
-        for sl, p, _ in skin_chunks(scene, times, args.method, args.device, args.chunk, False,
-                                    interp=args.interp):
+        for sl, p, _, _ in skin_chunks(scene, times, args.method, args.device, args.chunk, False,
+                                       interp=args.interp):
             stacked = np.concatenate([p[n] for n in names], axis=1)
             io.write_frames(out, numbers[sl], stacked, faces, force=args.force)
         print(f"wrote {len(paths)} files {paths[0]} … {paths[-1]}")
@@ -247,9 +258,11 @@ def build_parser():
                    "sclerp, dlb, spline, catmull-rom interpolate dual quaternions")
     s.add_argument("--no-velocities", dest="velocities", action="store_false",
                    help="don't write per-point velocities (units/s) to USD caches")
+    s.add_argument("--no-normals", dest="normals", action="store_false",
+                   help="don't skin normals into USD caches (they keep their rest values)")
     s.add_argument("--clip", help="glTF animation name or index")
     s.add_argument("--device", help="cpu or cuda (default: cuda when present)")
-    s.add_argument("--chunk", type=int, default=64, help="frames per chunk (bounds memory)")
+    s.add_argument("--chunk", type=int, default=256, help="frames per chunk (bounds memory)")
     s.add_argument("--force", action="store_true", help="overwrite existing outputs")
     s.set_defaults(run=cmd_skin)
     i = sub.add_parser("info", help="skeleton tree, meshes, influences, time range, problems")

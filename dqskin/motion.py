@@ -60,6 +60,8 @@ References
     Kinematics", 2023 (shared/references/003_d8d7d9932a992693.txt).
 """
 
+import weakref
+
 import numpy as np
 import warp as wp
 
@@ -430,14 +432,21 @@ def _name(animation):
     return getattr(animation, "name", type(animation).__name__)
 
 
+_KEYS_CACHE = weakref.WeakKeyDictionary()
+
+
 def _keys_of(animation):
+    """The decomposed key poses of ``animation``, computed once per animation object."""
     if isinstance(animation, KeyedAnimation):
         return animation._keys
-    name = _name(animation)
-    kt = np.asarray(animation.key_times, dtype=np.float64)
-    if kt.ndim != 1 or kt.shape[0] == 0:
-        raise ValueError(f"{name}: animation has no key_times")
-    return _Keys(kt, animation.local_transforms(kt), name)
+    keys = _KEYS_CACHE.get(animation)
+    if keys is None:
+        name = _name(animation)
+        kt = np.asarray(animation.key_times, dtype=np.float64)
+        if kt.ndim != 1 or kt.shape[0] == 0:
+            raise ValueError(f"{name}: animation has no key_times")
+        keys = _KEYS_CACHE[animation] = _Keys(kt, animation.local_transforms(kt), name)
+    return keys
 
 
 def _motion(animation, times, interp):

@@ -18,7 +18,7 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
 from .usd import load_rigid_prims, rigid_transforms
 
-__all__ = ["CACHE_EXTENSIONS", "write_usd_cache"]
+__all__ = ["CACHE_EXTENSIONS", "UsdCacheWriter", "write_usd_cache"]
 
 CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
 """Extensions :func:`write_usd_cache` writes (``.usd`` is binary crate)."""
@@ -90,8 +90,9 @@ def _attribute(layer, prim_spec, name, type_name, variability=Sdf.VariabilityVar
 
 
 def _set_samples(layer, attr_path, times, frames, vt_type):
-    for t, value in zip(times, frames):
-        layer.SetTimeSample(attr_path, float(t), vt_type.FromNumpy(np.ascontiguousarray(value)))
+    frames = np.ascontiguousarray(frames)
+    for t, value in zip(times.tolist(), frames):
+        layer.SetTimeSample(attr_path, t, vt_type.FromNumpy(value))
 
 
 def _rest_widths(prim):
@@ -114,38 +115,208 @@ def _prim_spec(layer, path):
     return layer.GetPrimAtPath(sdf_path) or Sdf.CreatePrimInLayer(layer, sdf_path)
 
 
-def write_usd_cache(scene, out_path, times, points, normals=None, *, velocities=None,
-                    source_path=None, method=None, device=None):
-    """Write skinned points (and normals, velocities) as a new USD stage.
+class UsdCacheWriter:
+    """Incremental USD point-cache writer: open once, :meth:`write` chunks of frames, :meth:`close`.
+
+    Use as a context manager; on an exception nothing is written. Memory holds the new layer
+    (which keeps every sample until export) but no copy of the caller's arrays, so a clip can be
+    skinned and written chunk by chunk.
 
     Parameters
     ----------
     scene : Scene
         What :func:`dqskin.usd.load_usd` returned; its metadata (``time_codes_per_second``,
-        ``up_axis``, ``meters_per_unit``) is written and its meshes' rest data checks the
-        shapes.
+        ``up_axis``, ``meters_per_unit``) is written and its meshes' rest data checks the shapes.
     out_path : str or os.PathLike
         ``.usda``, ``.usdc`` or ``.usd``. Written atomically (temporary file in the same folder,
-        then ``os.replace``). Must not be the source file or any layer it reads.
-    times : (F,) float
-        USD time codes of the frames; ``startTimeCode``/``endTimeCode`` become their min/max.
-    points : dict str → (F, V, 3) float
-        Per mesh (prim path, ``Mesh.name``): points in the prim's own space, as
-        :meth:`Scene.skin` returns them. Meshes left out keep their rest points (unbound too).
-    normals : dict str → (F, N, 3) float, optional
-        Skinned normals, ``N`` = the mesh's rest normal count; written to the attribute the
-        normals were read from (``primvars:normals`` loses its ``:indices``, the values being
-        flattened), keeping its interpolation.
-    velocities : dict str → (F, V, 3) float, optional
-        Point velocities in prim-space units per second, written to ``velocities``.
+        then ``os.replace``) by :meth:`close`. Must not be the source file or any layer it reads.
     source_path : str or os.PathLike, optional
         The stage to copy; ``scene.path`` by default.
     method : {"lbs", "dqs"} or None
         Skinning method for the skinned prims without points (``Sphere``, ``Cube``, ...), baked
         as ``xformOp:transform`` samples as ``UsdSkel.BakeSkinning`` does; None uses each prim's
-        own. Pass the method that produced ``points``.
+        own. Pass the method that produced the points.
     device : str, optional
         Warp device for those transforms.
+    """
+
+    def __init__(self, scene, out_path, *, source_path=None, method=None, device=None):
+        out = os.fspath(out_path)
+        src = os.fspath(scene.path if source_path is None else source_path)
+        ext = os.path.splitext(out)[1].lower()
+        if ext not in CACHE_EXTENSIONS:
+            raise ValueError(f"{out}: cannot write extension {ext!r}; use one of "
+                             f"{', '.join(CACHE_EXTENSIONS)}")
+        folder = os.path.dirname(os.path.abspath(out))
+        if not os.path.isdir(folder):
+            raise ValueError(f"{out}: folder {folder} does not exist")
+        try:
+            stage = Usd.Stage.Open(src, Usd.Stage.LoadAll)
+        except Tf.ErrorException:
+            stage = None
+        if stage is None:
+            raise ValueError(f"{src}: cannot open the source stage")
+        if os.path.exists(out) and any(_same_file(out, f) for f in _source_files(stage, src)
+                                       if os.path.exists(f)):
+            raise ValueError(f"{out}: refusing to overwrite an input of {src}")
+        self.scene, self.out, self.src, self.ext, self.folder = scene, out, src, ext, folder
+        self.method, self.device = method, device
+        self.stage = stage
+        self.meshes = {m.name: m for m in scene.meshes}
+        self.rigid = load_rigid_prims(scene)
+        self.layer = stage.Flatten()
+        _remove_skel_binding(self.layer)
+        self._attrs = {}
+        self._t_min, self._t_max = np.inf, -np.inf
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.close()
+        return False
+
+    def _attr(self, name, what):
+        """Attribute path of ``what`` on mesh ``name``, its spec made on first use."""
+        key = (name, what)
+        if key in self._attrs:
+            return self._attrs[key]
+        layer, prim = self.layer, self.stage.GetPrimAtPath(name)
+        if not prim or not UsdGeom.PointBased(prim):
+            raise ValueError(f"{self.src}: {name}: not a point-based prim")
+        spec = _prim_spec(layer, name)
+        if not any(k[0] == name for k in self._attrs):
+            for anc in Sdf.Path(name).GetPrefixes()[:-1]:
+                anc_spec = layer.GetPrimAtPath(anc)
+                if anc_spec is not None and "extentsHint" in anc_spec.properties:
+                    anc_spec.RemoveProperty(anc_spec.properties["extentsHint"])
+        if what == "normals":
+            pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
+            if pv and pv.HasAuthoredValue():
+                attr = "primvars:normals"
+                idx = layer.GetAttributeAtPath(spec.path.AppendProperty(attr + ":indices"))
+                if idx is not None:
+                    spec.RemoveProperty(idx)
+                interp = pv.GetInterpolation()
+            else:
+                attr, interp = "normals", UsdGeom.PointBased(prim).GetNormalsInterpolation()
+            path = _attribute(layer, spec, attr, Sdf.ValueTypeNames.Normal3fArray,
+                              interpolation=interp).path
+        else:
+            type_name = {"points": Sdf.ValueTypeNames.Point3fArray,
+                         "extent": Sdf.ValueTypeNames.Float3Array,
+                         "velocities": Sdf.ValueTypeNames.Vector3fArray}[what]
+            path = _attribute(layer, spec, what, type_name).path
+        self._attrs[key] = (path, prim)
+        return path, prim
+
+    def write(self, times, points, normals=None, velocities=None):
+        """Add samples for ``times``.
+
+        Parameters
+        ----------
+        times : (F,) float
+            USD time codes of these frames.
+        points : dict str → (F, V, 3) float
+            Per mesh (prim path, ``Mesh.name``): points in the prim's own space, as
+            :meth:`Scene.skin` returns them. Meshes left out keep their rest points (unbound).
+        normals : dict str → (F, N, 3) float, optional
+            Skinned normals, ``N`` = the mesh's rest normal count; written to the attribute the
+            normals were read from (``primvars:normals`` loses its ``:indices``, the values being
+            flattened), keeping its interpolation.
+        velocities : dict str → (F, V, 3) float, optional
+            Point velocities in prim-space units per second, written to ``velocities``.
+        """
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)):
+            raise ValueError(f"times: expected a non-empty 1-D array of finite time codes, "
+                             f"got shape {t.shape}")
+        F = t.shape[0]
+        meshes = self.meshes
+        normals, velocities = normals or {}, velocities or {}
+        for what, d in (("points", points), ("normals", normals), ("velocities", velocities)):
+            unknown = sorted(set(d) - set(meshes))
+            if unknown:
+                raise ValueError(f"{what}: no mesh {unknown[0]!r} in {self.scene.path}; meshes: "
+                                 f"{sorted(meshes)}")
+        pts = {n: _frames(n, "points", p, F, meshes[n].points.shape[0]) for n, p in points.items()}
+        nrm = {}
+        for n, v in normals.items():
+            if meshes[n].normals is None:
+                raise ValueError(f"normals[{n!r}]: the mesh has no rest normals to replace")
+            nrm[n] = _frames(n, "normals", v, F, meshes[n].normals.shape[0])
+        vel = {n: _frames(n, "velocities", v, F, meshes[n].points.shape[0])
+               for n, v in velocities.items()}
+        rigid = [(r.name, rigid_transforms(self.scene, r, t, self.method, device=self.device))
+                 for r in self.rigid]
+        layer = self.layer
+        with Sdf.ChangeBlock():
+            for name in sorted(set(pts) | set(nrm) | set(vel)):
+                if name in pts:
+                    p = pts[name]
+                    path, prim = self._attr(name, "points")
+                    _set_samples(layer, path, t, p, Vt.Vec3fArray)
+                    # per component: contiguous reductions (a min over axis 1 of (F, V, 3) is slow)
+                    lo = np.stack([p[..., k].min(axis=1) for k in range(3)], axis=1)
+                    hi = np.stack([p[..., k].max(axis=1) for k in range(3)], axis=1)
+                    w = _rest_widths(prim)
+                    if w is not None and len(w):
+                        pad = 0.5 * float(np.max(np.asarray(w)))
+                        lo, hi = lo - pad, hi + pad
+                    _set_samples(layer, self._attr(name, "extent")[0], t,
+                                 np.stack([lo, hi], axis=1), Vt.Vec3fArray)
+                if name in nrm:
+                    _set_samples(layer, self._attr(name, "normals")[0], t, nrm[name], Vt.Vec3fArray)
+                if name in vel:
+                    _set_samples(layer, self._attr(name, "velocities")[0], t, vel[name],
+                                 Vt.Vec3fArray)
+            for name, xf in rigid:
+                spec = _prim_spec(layer, name)
+                key = (name, "xformOp:transform")
+                if key not in self._attrs:
+                    self._attrs[key] = (_attribute(layer, spec, "xformOp:transform",
+                                                   Sdf.ValueTypeNames.Matrix4d).path, None)
+                    order = _attribute(layer, spec, "xformOpOrder", Sdf.ValueTypeNames.TokenArray,
+                                       Sdf.VariabilityUniform)
+                    order.default = Vt.TokenArray(["xformOp:transform"])
+                path = self._attrs[key][0]
+                for ti, m in zip(t, xf):
+                    layer.SetTimeSample(path, float(ti), Gf.Matrix4d(m.T.tolist()))
+        self._t_min, self._t_max = min(self._t_min, t.min()), max(self._t_max, t.max())
+
+    def close(self):
+        """Set the stage metadata and write the file atomically. Returns ``out_path``."""
+        if not np.isfinite(self._t_min):
+            raise ValueError(f"{self.out}: no frames were written")
+        layer, scene = self.layer, self.scene
+        with Sdf.ChangeBlock():
+            layer.timeCodesPerSecond = float(scene.time_codes_per_second)
+            layer.framesPerSecond = float(scene.time_codes_per_second)
+            layer.startTimeCode, layer.endTimeCode = float(self._t_min), float(self._t_max)
+            root = layer.pseudoRoot
+            root.SetInfo(UsdGeom.Tokens.upAxis, str(scene.up_axis))
+            root.SetInfo(UsdGeom.Tokens.metersPerUnit, float(scene.meters_per_unit))
+            layer.documentation = f"dqskin point cache of {self.src}"
+        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(self.out) + ".", suffix=self.ext,
+                                   dir=self.folder)
+        os.close(fd)
+        try:
+            args = {"format": "usdc"} if self.ext == ".usd" else {}
+            if not layer.Export(tmp, args=args):
+                raise ValueError(f"{self.out}: USD could not write the cache")
+            os.replace(tmp, self.out)
+        finally:
+            if os.path.exists(tmp):
+                os.remove(tmp)
+        return self.out
+
+
+def write_usd_cache(scene, out_path, times, points, normals=None, *, velocities=None,
+                    source_path=None, method=None, device=None):
+    """Write skinned points (and normals, velocities) for all ``times`` as a new USD stage.
+
+    One :class:`UsdCacheWriter` chunk; see it for the parameters.
 
     Returns
     -------
@@ -158,112 +329,7 @@ def write_usd_cache(scene, out_path, times, points, normals=None, *, velocities=
         Unsupported extension, missing output folder, output equal to an input file, unknown
         mesh names, or arrays whose shape disagrees with ``times`` and the mesh.
     """
-    out = os.fspath(out_path)
-    src = os.fspath(scene.path if source_path is None else source_path)
-    ext = os.path.splitext(out)[1].lower()
-    if ext not in CACHE_EXTENSIONS:
-        raise ValueError(f"{out}: cannot write extension {ext!r}; use one of "
-                         f"{', '.join(CACHE_EXTENSIONS)}")
-    folder = os.path.dirname(os.path.abspath(out))
-    if not os.path.isdir(folder):
-        raise ValueError(f"{out}: folder {folder} does not exist")
-    t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-    if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)):
-        raise ValueError(f"times: expected a non-empty 1-D array of finite time codes, "
-                         f"got shape {t.shape}")
-    F = t.shape[0]
-    meshes = {m.name: m for m in scene.meshes}
-    normals, velocities = normals or {}, velocities or {}
-    for what, d in (("points", points), ("normals", normals), ("velocities", velocities)):
-        unknown = sorted(set(d) - set(meshes))
-        if unknown:
-            raise ValueError(f"{what}: no mesh {unknown[0]!r} in {scene.path}; meshes: "
-                             f"{sorted(meshes)}")
-    pts = {n: _frames(n, "points", p, F, meshes[n].points.shape[0]) for n, p in points.items()}
-    nrm = {}
-    for n, v in normals.items():
-        if meshes[n].normals is None:
-            raise ValueError(f"normals[{n!r}]: the mesh has no rest normals to replace")
-        nrm[n] = _frames(n, "normals", v, F, meshes[n].normals.shape[0])
-    vel = {n: _frames(n, "velocities", v, F, meshes[n].points.shape[0])
-           for n, v in velocities.items()}
-
-    try:
-        stage = Usd.Stage.Open(src, Usd.Stage.LoadAll)
-    except Tf.ErrorException:
-        stage = None
-    if stage is None:
-        raise ValueError(f"{src}: cannot open the source stage")
-    if os.path.exists(out) and any(_same_file(out, f) for f in _source_files(stage, src)
-                                   if os.path.exists(f)):
-        raise ValueError(f"{out}: refusing to overwrite an input of {src}")
-
-    rigid = [(r.name, rigid_transforms(scene, r, t, method, device=device))
-             for r in load_rigid_prims(scene)]
-    layer = stage.Flatten()
-    with Sdf.ChangeBlock():
-        _remove_skel_binding(layer)
-        for name in sorted(set(pts) | set(nrm) | set(vel)):
-            prim = stage.GetPrimAtPath(name)
-            if not prim or not UsdGeom.PointBased(prim):
-                raise ValueError(f"{src}: {name}: not a point-based prim")
-            spec = _prim_spec(layer, name)
-            for anc in Sdf.Path(name).GetPrefixes()[:-1]:
-                anc_spec = layer.GetPrimAtPath(anc)
-                if anc_spec is not None and "extentsHint" in anc_spec.properties:
-                    anc_spec.RemoveProperty(anc_spec.properties["extentsHint"])
-            if name in pts:
-                p = pts[name]
-                a = _attribute(layer, spec, "points", Sdf.ValueTypeNames.Point3fArray)
-                _set_samples(layer, a.path, t, p, Vt.Vec3fArray)
-                by_axis = np.ascontiguousarray(p.transpose(0, 2, 1))  # fast reductions
-                lo, hi = by_axis.min(axis=2), by_axis.max(axis=2)
-                w = _rest_widths(prim)
-                if w is not None and len(w):
-                    pad = 0.5 * float(np.max(np.asarray(w)))
-                    lo, hi = lo - pad, hi + pad
-                a = _attribute(layer, spec, "extent", Sdf.ValueTypeNames.Float3Array)
-                _set_samples(layer, a.path, t, np.stack([lo, hi], axis=1), Vt.Vec3fArray)
-            if name in nrm:
-                pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
-                if pv and pv.HasAuthoredValue():
-                    attr = "primvars:normals"
-                    idx = layer.GetAttributeAtPath(spec.path.AppendProperty(attr + ":indices"))
-                    if idx is not None:
-                        spec.RemoveProperty(idx)
-                    interp = pv.GetInterpolation()
-                else:
-                    attr, interp = "normals", UsdGeom.PointBased(prim).GetNormalsInterpolation()
-                a = _attribute(layer, spec, attr, Sdf.ValueTypeNames.Normal3fArray,
-                               interpolation=interp)
-                _set_samples(layer, a.path, t, nrm[name], Vt.Vec3fArray)
-            if name in vel:
-                a = _attribute(layer, spec, "velocities", Sdf.ValueTypeNames.Vector3fArray)
-                _set_samples(layer, a.path, t, vel[name], Vt.Vec3fArray)
-        for name, xf in rigid:
-            spec = _prim_spec(layer, name)
-            a = _attribute(layer, spec, "xformOp:transform", Sdf.ValueTypeNames.Matrix4d)
-            for ti, m in zip(t, xf):
-                layer.SetTimeSample(a.path, float(ti), Gf.Matrix4d(m.T.tolist()))
-            order = _attribute(layer, spec, "xformOpOrder", Sdf.ValueTypeNames.TokenArray,
-                               Sdf.VariabilityUniform)
-            order.default = Vt.TokenArray(["xformOp:transform"])
-        layer.timeCodesPerSecond = float(scene.time_codes_per_second)
-        layer.framesPerSecond = float(scene.time_codes_per_second)
-        layer.startTimeCode, layer.endTimeCode = float(t.min()), float(t.max())
-        root = layer.pseudoRoot
-        root.SetInfo(UsdGeom.Tokens.upAxis, str(scene.up_axis))
-        root.SetInfo(UsdGeom.Tokens.metersPerUnit, float(scene.meters_per_unit))
-        layer.documentation = f"dqskin point cache of {src}"
-
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(out) + ".", suffix=ext, dir=folder)
-    os.close(fd)
-    try:
-        args = {"format": "usdc"} if ext == ".usd" else {}
-        if not layer.Export(tmp, args=args):
-            raise ValueError(f"{out}: USD could not write the cache")
-        os.replace(tmp, out)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-    return out
+    with UsdCacheWriter(scene, out_path, source_path=source_path, method=method,
+                        device=device) as writer:
+        writer.write(times, points, normals, velocities)
+    return writer.out
