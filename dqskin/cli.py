@@ -227,14 +227,20 @@ def cmd_demo(args):
     cmd_skin(build_parser().parse_args(["skin", str(asset), "--out", str(cache), "--method", "dqs",
                                         "--force"] + (["--device", args.device] if args.device
                                                       else [])))
-    from . import io
-    scene = io.load(asset)
-    lbs = scene.skin(method="lbs", device=args.device)
-    dqs = scene.skin(method="dqs", device=args.device)
-    for name in lbs:
-        gap = np.linalg.norm(lbs[name] - dqs[name], axis=-1)
-        print(f"  {name}: {lbs[name].shape[1]} points × {lbs[name].shape[0]} frames; "
-              f"LBS↔DQS distance max {gap.max():.4f}, mean {gap.mean():.4f}")
+    from .compare import run_compare
+    report = out_dir / "report"
+    print(f"dqskin demo: comparing LBS and DQS on {asset.name}")
+    metrics = run_compare(asset, report, device=args.device, force=True)
+    def worst(values, pick):
+        values = [v for v in values if v is not None]
+        return f"{pick(values):.3f}" if values else "n/a"
+
+    for name, per in metrics["meshes"].items():
+        lbs, dqs = per["lbs"], per["dqs"]
+        print(f"  {name}: min section LBS {worst(lbs['min_section_ratio'], min)} / DQS "
+              f"{worst(dqs['min_section_ratio'], min)}; max bulge LBS "
+              f"{worst(lbs['max_bulge_ratio'], max)} / DQS {worst(dqs['max_bulge_ratio'], max)}")
+    print(f"report: {(report / 'report.html').resolve()}")
     return 0
 
 
@@ -269,6 +275,11 @@ def build_parser():
     i.add_argument("input")
     i.add_argument("--clip")
     i.set_defaults(run=cmd_info)
+    from .compare import add_compare_arguments, cmd_compare
+    c = sub.add_parser("compare", help="offscreen LBS-vs-DQS report: report.html, metrics.json, "
+                       "frames/*.png")
+    add_compare_arguments(c)
+    c.set_defaults(run=cmd_compare)
     d = sub.add_parser("demo", help="run the main job on the bundled humanoid")
     d.add_argument("--asset", default=str(ASSETS / "humanoid.usda"))
     d.add_argument("--out", default="out/demo")

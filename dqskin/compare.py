@@ -15,6 +15,9 @@ and frame (see :mod:`dqskin.metrics`):
 
 The ``blend`` method mixes the two with a DQS fraction of :data:`BLEND_WEIGHT` on every vertex.
 
+All meshes are rendered together in skeleton space (up axis ``scene.up_axis`` unless given), one
+camera per view framed once from the bounds over every frame and method, so the images line up.
+
 Outputs in ``DIR``: ``frames/<view>_<k>.png`` (one panel per compared frame ``k`` and view:
 one image per method and a heat map of the per-vertex LBS↔DQS distance), ``frames/closeup.png``
 (the joint with the worst ``min_section_ratio``), ``metrics.json`` and ``report.html`` (images
@@ -36,8 +39,8 @@ from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png
 from .scene import Scene
 from .skinning import METHODS, Skinner
 
-__all__ = ["BLEND_WEIGHT", "METRICS", "SECTION_SLICES", "SWEEP_RIGS", "add_compare_arguments", "cmd_compare",
-           "default_frames", "parse_times", "run_compare", "sweeps"]
+__all__ = ["BLEND_WEIGHT", "METRICS", "SECTION_SLICES", "SWEEP_RIGS", "add_compare_arguments",
+           "cmd_compare", "default_frames", "parse_times", "run_compare", "sweeps", "worst"]
 
 BLEND_WEIGHT = 0.5
 """DQS fraction of every vertex for ``method="blend"`` (0 = LBS, 1 = DQS)."""
@@ -46,7 +49,8 @@ SECTION_SLICES = 16
 """Slices per joint region of :func:`dqskin.metrics.joint_sections` (``min_section_ratio``)."""
 
 METRICS = ("volume_ratio", "min_section_ratio", "max_bulge_ratio")
-"""Per-frame metrics of ``metrics.json``, each judged by how far it strays from 1."""
+"""Per-frame metrics of ``metrics.json``. The summary judges each by its worst value: the volume
+ratio furthest from 1, the smallest section ratio, the largest bulge ratio."""
 
 SWEEP_RIGS = {
     "twist": ("twist_cylinder.usda", 0.5, 3.0),
@@ -93,24 +97,22 @@ def parse_times(text):
     -------
     (F,) float64
     """
+    ranged = ":" in text
+    message = (f"--frames {text!r}: expected START:END[:STEP] or a comma-separated list of "
+               "times")
     try:
-        if ":" in text:
-            parts = [float(p) for p in text.split(":")]
-            if len(parts) not in (2, 3):
-                raise ValueError
-            start, end = parts[:2]
-            step = parts[2] if len(parts) == 3 else 1.0
-            if step <= 0 or end < start:
-                raise ValueError(f"--frames {text!r}: need END >= START and STEP > 0")
-            times = np.arange(start, end + step * 1e-6, step)
-        else:
-            times = np.array([float(p) for p in text.split(",")])
-    except ValueError as exc:
-        if exc.args and str(exc.args[0]).startswith("--frames"):
-            raise
-        raise ValueError(f"--frames {text!r}: expected START:END[:STEP] or a comma-separated "
-                         "list of times") from None
-    return times
+        parts = [float(p) for p in text.split(":" if ranged else ",")]
+    except ValueError:
+        raise ValueError(message) from None
+    if not ranged:
+        return np.array(parts)
+    if len(parts) not in (2, 3):
+        raise ValueError(message)
+    start, end = parts[:2]
+    step = parts[2] if len(parts) == 3 else 1.0
+    if not step > 0 or not end >= start:
+        raise ValueError(f"--frames {text!r}: need END >= START and STEP > 0")
+    return np.arange(start, end + step * 1e-6, step)
 
 
 def _choice_list(name, values, allowed):
@@ -209,8 +211,23 @@ def _json_floats(a):
     return [float(v) if np.isfinite(v) else None for v in np.asarray(a, dtype=np.float64)]
 
 
-def _worst(metric, values):
-    """Index of the worst finite value of a metric and its deviation from 1 (None if none)."""
+def worst(metric, values):
+    """The worst finite value of a metric.
+
+    Parameters
+    ----------
+    metric : str
+        One of :data:`METRICS`.
+    values : (N,) float
+        NaN for undefined values.
+
+    Returns
+    -------
+    (index, severity) or None
+        Index of the worst value and how bad it is: ``|v − 1|`` for the volume ratio, ``1 − v``
+        for the smallest section ratio, ``v − 1`` for the largest bulge ratio (negative: no
+        collapse, no bulge). None when no value is finite.
+    """
     v = np.asarray(values, dtype=np.float64)
     ok = np.flatnonzero(np.isfinite(v))
     if not ok.size:
@@ -226,7 +243,8 @@ def _worst(metric, values):
 
 
 def _summary(measures, meshes, skeletons, times, methods, tie=1e-3):
-    """Worst frame and value of each metric per method over all meshes, and the winner."""
+    """Worst frame and value of each metric per method over all meshes, and the winner: the
+    method of least severity (see :func:`worst`), or ``"tie"`` within ``tie``."""
     out = {}
     for metric in METRICS:
         by_method = {}
@@ -236,7 +254,7 @@ def _summary(measures, meshes, skeletons, times, methods, tie=1e-3):
                 values = measures[mesh.name][meth][metric]
                 if values is None:
                     continue
-                w = _worst(metric, values)
+                w = worst(metric, values)
                 if w is not None and (best is None or w[1] > best[0]):
                     joint = None
                     if metric != "volume_ratio":
@@ -244,9 +262,9 @@ def _summary(measures, meshes, skeletons, times, methods, tie=1e-3):
                         joint = skeletons[mesh.skeleton].joint_names[j] if j >= 0 else None
                     best = (w[1], mesh.name, int(w[0]), float(values[w[0]]), joint)
             by_method[meth] = None if best is None else {
-                "value": best[3], "deviation": best[0], "frame": best[2],
+                "value": best[3], "severity": best[0], "frame": best[2],
                 "time": float(times[best[2]]), "mesh": best[1], "joint": best[4]}
-        scored = {m: r["deviation"] for m, r in by_method.items() if r is not None}
+        scored = {m: r["severity"] for m, r in by_method.items() if r is not None}
         winner = None
         if scored:
             lowest = min(scored.values())
@@ -262,7 +280,7 @@ def _closeup_target(measures, meshes, skeletons, xforms, methods):
     for mesh in meshes:
         for meth in methods:
             v = measures[mesh.name][meth]["min_section_ratio"]
-            w = _worst("min_section_ratio", v)
+            w = worst("min_section_ratio", v)
             if w is not None and (best is None or w[1] > best[0]):
                 j = int(measures[mesh.name][meth]["min_section_joint"][w[0]])
                 best = (w[1], meth, mesh, int(w[0]), j)
@@ -315,10 +333,11 @@ def _render(meshes, times, methods, views, up_axis, width, supersample, frames_d
     lo = np.min([p.min(axis=(0, 1)) for p in posed.values()], axis=0).astype(np.float64)
     hi = np.max([p.max(axis=(0, 1)) for p in posed.values()], axis=0).astype(np.float64)
     cameras, sizes = {}, {}
-    for v in views:  # one camera per view; the image aspect hugs the projected bounds
+    for v in views:  # one camera per view; the image (about width² pixels) hugs the bounds
         aspect = _aspect(Camera.frame(lo, hi, v, up_axis=up_axis), lo, hi)
         cameras[v] = Camera.frame(lo, hi, v, up_axis=up_axis, aspect=aspect)
-        sizes[v] = {"width": width, "height": max(16, int(round(width / aspect)))}
+        sizes[v] = {"width": max(16, int(round(width * np.sqrt(aspect)))),
+                    "height": max(16, int(round(width / np.sqrt(aspect))))}
     heat = distance is not None
     dmax = float(np.nanmax(distance)) if heat and np.isfinite(distance).any() else 0.0
     heat_range = (0.0, dmax if dmax > 0 else 1.0)
@@ -411,8 +430,9 @@ def sweeps(assets_dir, *, device=None):
             1 - fraction * (1 - np.cos(theta)) / divisor)}
         entry["formulas"] = {"lbs_volume_ratio": f"1 − {fraction:g}(1 − cos θ)/{divisor:g}"}
         if name == "twist":
+            w = 0.5  # the ramp's middle, where LBS collapses most
             entry["reference"]["lbs_min_section_ratio"] = _json_floats(
-                np.sqrt(1 - 2 * 0.25 * (1 - np.cos(theta))))
+                np.sqrt(1 - 2 * w * (1 - w) * (1 - np.cos(theta))))
             entry["formulas"]["lbs_min_section_ratio"] = "√(1 − 2w(1−w)(1 − cos θ)), w = ½"
         out[name] = entry
     return out
@@ -425,17 +445,24 @@ def _default_assets():
 
 
 def _prepare_out(out_dir, force):
+    """Create ``out_dir/frames``. Earlier outputs (the report, the metrics, panels named as this
+    module names them) raise FileExistsError, or with ``force`` the panels are removed."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ValueError(f"{out}: exists and is not a directory")
-    for name in ("report.html", "metrics.json"):
-        if (out / name).exists() and not force:
-            raise FileExistsError(f"{out / name}: exists (use --force to overwrite)")
     frames = out / "frames"
+    if frames.exists() and not frames.is_dir():
+        raise ValueError(f"{frames}: exists and is not a directory")
+    panels = []
+    if frames.is_dir():
+        panels = sorted(p for p in frames.iterdir() if p.is_file() and _FRAME_FILE.match(p.name))
+    if not force:
+        for p in [out / "report.html", out / "metrics.json"] + panels:
+            if p.exists():
+                raise FileExistsError(f"{p}: exists (use --force to overwrite)")
     frames.mkdir(parents=True, exist_ok=True)
-    for p in frames.iterdir():  # stale panels of an earlier run (only names this module writes)
-        if p.is_file() and _FRAME_FILE.match(p.name):
-            p.unlink()
+    for p in panels:
+        p.unlink()
     return out, frames
 
 
@@ -450,8 +477,9 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     input_path : str, Path or dqskin.Scene
         A character file (:func:`dqskin.load`) or an already loaded scene.
     out_dir : str or Path
-        Created if needed. An existing ``report.html`` or ``metrics.json`` there raises
-        FileExistsError unless ``force``; ``force`` also removes earlier panels in ``frames/``.
+        Created if needed. An earlier ``report.html``, ``metrics.json`` or panel in ``frames/``
+        raises FileExistsError unless ``force``; ``force`` also removes the earlier panels
+        (files named as this function names them; nothing else).
     methods : sequence of {"lbs", "dqs", "blend"}
         The heat map of the per-vertex LBS↔DQS distance needs both ``lbs`` and ``dqs``.
     frames : sequence of float, optional
@@ -460,7 +488,8 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     device : str, optional
         Warp device.
     width : int
-        Pixel width and height of each rendered image.
+        Size of each rendered image: about ``width²`` pixels, shaped to the view's aspect ratio
+        (within 1:2 and 2:1); the close-up is ``width × width``.
     supersample : int
         Anti-aliasing rays per pixel along each axis.
     progress : bool
@@ -568,14 +597,16 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     t_sweeps = time.perf_counter()
     result["timing_s"] = {"skin": t_skin - t0, "metrics": t_metrics - t_skin,
                           "render": t_render - t_metrics, "sweeps": t_sweeps - t_render}
-    from .report import write_report
+    from .report import build_html
 
+    page = build_html(result, out)
+    result["timing_s"]["report"] = time.perf_counter() - t_sweeps
+    result["timing_s"]["total"] = time.perf_counter() - t0
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(result, indent=1, ensure_ascii=False, allow_nan=False),
                        encoding="utf-8")
     with atomic_path(out / "report.html") as tmp:
-        write_report(tmp, result, out)
-    result["timing_s"]["total"] = time.perf_counter() - t0
+        tmp.write_text(page, encoding="utf-8")
     return result
 
 
@@ -590,8 +621,8 @@ def add_compare_arguments(parser):
                         "asset's time unit; default: up to 10 evenly spaced samples")
     parser.add_argument("--views", default=",".join(VIEWS),
                         help=f"comma-separated from {', '.join(VIEWS)} (default: all)")
-    parser.add_argument("--width", type=int, default=512, help="image size in pixels "
-                        "(default: 512)")
+    parser.add_argument("--width", type=int, default=512, help="image size: about WIDTH² "
+                        "pixels, shaped to each view (default: 512)")
     parser.add_argument("--supersample", type=int, default=2, help="anti-aliasing rays per pixel "
                         "along each axis (default: 2)")
     parser.add_argument("--up-axis", choices=["Y", "Z"], help="skeleton-space up axis for the "

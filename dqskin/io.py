@@ -65,7 +65,7 @@ def load_mesh(path):
 class atomic_path:
     """Context manager yielding a temporary path beside ``path``, moved onto it on success.
 
-    ``keep_suffix`` keeps the extension so format-sniffing writers (USD, trimesh) still work.
+    The temporary file keeps the extension so format-sniffing writers (USD, trimesh) work.
     """
 
     def __init__(self, path):
@@ -81,6 +81,9 @@ class atomic_path:
 
     def __exit__(self, exc_type, exc, tb):
         if exc_type is None:
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(self.tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the usual file mode
             os.replace(self.tmp, self.path)
         else:
             self.tmp.unlink(missing_ok=True)

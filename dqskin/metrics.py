@@ -583,7 +583,7 @@ def dominant_pair_regions(joint_indices, joint_weights, parents, *, min_weight=0
         raise ValueError(f"joint_indices: index out of range [0, {par.shape[0]})")
     order = np.argsort(-w, axis=1, kind="stable")[:, :2]
     rows = np.arange(idx.shape[0])[:, None]
-    (a, b), (wa, wb) = idx[rows, order].T, w[rows, order].T
+    (a, b), wb = idx[rows, order].T, w[rows, order][:, 1]
     strong = wb >= min_weight
     regions[strong & (par[a] == b)] = a[strong & (par[a] == b)]
     regions[strong & (par[b] == a)] = b[strong & (par[b] == a)]

@@ -11,8 +11,6 @@ Cameras (:class:`Camera`) use world units and the column-vector convention of th
 one camera from the bounds of every frame and method you compare so the images line up.
 """
 
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,6 +18,7 @@ import numpy as np
 import warp as wp
 
 from ._warp import launch_rows, resolve_device
+from .io import atomic_path
 from .kernels import render as K
 
 __all__ = ["VIEWS", "Camera", "MeshRenderer", "Shading", "add_colorbar", "colormap_lut",
@@ -653,13 +652,6 @@ def save_png(path, image):
 
     img = _as_image("image", image)
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            Image.fromarray(img).save(fh, format="PNG")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp:
+        Image.fromarray(img).save(tmp, format="PNG")
     return path

@@ -11,7 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["METRIC_TITLES", "build_html", "frame_plot_png", "sweep_plot_png", "write_report"]
+from .compare import worst
+
+__all__ = ["METRIC_TITLES", "build_html", "frame_plot_png", "sweep_plot_png"]
 
 METRIC_TITLES = {
     "volume_ratio": "volume ratio",
@@ -27,7 +29,8 @@ _MAX_WORST_FRAMES = 4
 _CSS = """
 body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 24px;
        color: #222; max-width: 1400px; }
-h1 { font-size: 1.6em; margin-bottom: 0.2em; } h2 { margin-top: 1.6em; border-bottom: 1px solid #ccc; }
+h1 { font-size: 1.6em; margin-bottom: 0.2em; }
+h2 { margin-top: 1.6em; border-bottom: 1px solid #ccc; }
 table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.92em; }
 th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: right; vertical-align: top; }
 th { background: #f3f3f3; } td.l, th.l { text-align: left; }
@@ -80,14 +83,9 @@ def _scene_series(metrics, metric, method):
     a = np.stack(rows)
     out = np.full(frames, np.nan)
     for f in range(frames):
-        col = a[:, f][np.isfinite(a[:, f])]
-        if col.size:
-            if metric == "min_section_ratio":
-                out[f] = col.min()
-            elif metric == "max_bulge_ratio":
-                out[f] = col.max()
-            else:
-                out[f] = col[np.argmax(np.abs(col - 1))]
+        w = worst(metric, a[:, f])
+        if w is not None:
+            out[f] = a[w[0], f]
     return out
 
 
@@ -182,18 +180,6 @@ def _summary_table(metrics):
             f"{''.join(rows)}</table>")
 
 
-def _worst_of(metric, values):
-    v = _array(values)
-    ok = np.isfinite(v)
-    if not ok.any():
-        return None
-    if metric == "min_section_ratio":
-        return float(np.min(v[ok]))
-    if metric == "max_bulge_ratio":
-        return float(np.max(v[ok]))
-    return float(v[ok][np.argmax(np.abs(v[ok] - 1))])
-
-
 def _mesh_table(metrics):
     methods = metrics["methods"]
     head = "".join(f"<th>{METRIC_TITLES[k]}<br>{_NAMES[m]}</th>" for k in METRIC_TITLES
@@ -208,7 +194,8 @@ def _mesh_table(metrics):
                     reason = per[m].get(f"{k}_reason") or "undefined"
                     cells.append(f'<td title="{_esc(reason)}">n/a</td>')
                 else:
-                    cells.append(f"<td>{_fmt(_worst_of(k, v))}</td>")
+                    w = worst(k, _array(v))
+                    cells.append(f"<td>{_fmt(None if w is None else v[w[0]])}</td>")
         rows.append(f"<tr><td class=l>{_esc(name)}</td>{''.join(cells)}</tr>")
     reasons = sorted({per[m]["volume_ratio_reason"] for per in metrics["meshes"].values()
                       for m in methods if per[m]["volume_ratio_reason"]})
@@ -222,7 +209,7 @@ def _worst_frames(metrics):
     the largest LBS↔DQS distance; at most :data:`_MAX_WORST_FRAMES`, with the reasons."""
     picks = []
     for metric, s in metrics["summary"].items():
-        ranked = sorted(((r["deviation"], m, r) for m, r in s["by_method"].items()
+        ranked = sorted(((r["severity"], m, r) for m, r in s["by_method"].items()
                          if r is not None), key=lambda x: -x[0])
         for _, method, r in ranked[:1]:
             picks.append((r["frame"], f"worst {METRIC_TITLES[metric]} ({_NAMES[method]} "
@@ -255,7 +242,8 @@ def build_html(metrics, out_dir):
              f"<tr><th class=l>methods</th><td>{', '.join(_NAMES[x] for x in m['methods'])}"
              + (f" (blend: DQS fraction {m['blend_weight']:g} on every vertex)"
                 if m.get("blend_weight") is not None else "") + "</td></tr>"
-             f"<tr><th class=l>frames</th><td>{len(t)} times: {_esc(', '.join(f'{x:g}' for x in t))}"
+             f"<tr><th class=l>frames</th><td>{len(t)} times: "
+             f"{_esc(', '.join(f'{x:g}' for x in t))}"
              f" ({m['time_codes_per_second']:g} per second)</td></tr>"
              f"<tr><th class=l>views</th><td>{_esc(', '.join(m['views']))}; up axis "
              f"{_esc(m['up_axis'])}; {render['width']} px, {render['supersample']}× "
@@ -265,8 +253,9 @@ def build_html(metrics, out_dir):
             f"{_esc(k)} ({_esc(v)})" for k, v in m["skipped_meshes"].items()) + ".</p>")
 
     parts.append("<h2>Summary</h2>"
-                 "<p class=note>Worst value of each metric over all meshes, joints and frames, "
-                 "where it happens, and the method that strays least from 1 (ties within "
+                 "<p class=note>Worst value of each metric over all meshes, joints and frames "
+                 "(volume ratio furthest from 1, smallest section ratio, largest bulge ratio), "
+                 "where it happens, and the method whose worst is mildest (ties within "
                  "0.001).</p>" + _summary_table(m))
     parts.append("<h3>Per mesh (worst over frames)</h3>" + _mesh_table(m))
 
@@ -334,7 +323,3 @@ def build_html(metrics, out_dir):
         f"{m['timing_s']['sweeps']:.2f} s.</p></body></html>")
     return "\n".join(parts)
 
-
-def write_report(path, metrics, out_dir):
-    """Write :func:`build_html` to ``path`` (UTF-8)."""
-    Path(path).write_text(build_html(metrics, out_dir), encoding="utf-8")

@@ -11,11 +11,11 @@ be drawn in the rest pose); ``SkelAnimation`` prims stay as inert data.
 """
 
 import os
-import tempfile
 
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
+from .io import atomic_path
 from .usd import load_rigid_prims, rigid_transforms
 
 __all__ = ["CACHE_EXTENSIONS", "UsdCacheWriter", "write_usd_cache"]
@@ -298,17 +298,10 @@ class UsdCacheWriter:
             root.SetInfo(UsdGeom.Tokens.upAxis, str(scene.up_axis))
             root.SetInfo(UsdGeom.Tokens.metersPerUnit, float(scene.meters_per_unit))
             layer.documentation = f"dqskin point cache of {self.src}"
-        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(self.out) + ".", suffix=self.ext,
-                                   dir=self.folder)
-        os.close(fd)
-        try:
+        with atomic_path(self.out) as tmp:
             args = {"format": "usdc"} if self.ext == ".usd" else {}
-            if not layer.Export(tmp, args=args):
+            if not layer.Export(str(tmp), args=args):
                 raise ValueError(f"{self.out}: USD could not write the cache")
-            os.replace(tmp, self.out)
-        finally:
-            if os.path.exists(tmp):
-                os.remove(tmp)
         return self.out
 
 

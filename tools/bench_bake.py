@@ -53,13 +53,15 @@ def make_long_clip(asset, frames, out):
 
 
 def import_usdskel():
-    from pxr import Usd, UsdSkel  # noqa: F401
+    import importlib
+    for name in ("pxr.Usd", "pxr.UsdSkel"):
+        importlib.import_module(name)
 
 
 def import_dqskin():
-    import dqskin.cli  # noqa: F401
-    import dqskin.usd  # noqa: F401
-    import dqskin.usd_cache  # noqa: F401
+    import importlib
+    for name in ("dqskin.cli", "dqskin.usd", "dqskin.usd_cache"):
+        importlib.import_module(name)
 
 
 def run_usdskel(src, dst):

@@ -1,0 +1,349 @@
+"""``dqskin compare``: outputs and their schema, metric values on the procedural rigs against the
+closed forms of assets/README.md's geometry, the self-contained report, the sweeps, bad input and
+``--force``.
+
+Oracles: the twist rig is a radius-1 cylinder along +X, ``root/twist`` at x = 2 turning 7.5° per
+frame about +X, weights ``(1 − w, w)`` on a linear ramp of width f·L = 2 (f = ½) centred at the
+joint, 65 rings over 0 ≤ x ≤ 4 (assets/README.md). A ring of weight w is turned by the blended
+transform: LBS maps it to ``((1 − w) + w·e^{iθ})·p`` in the complex (y, z) plane, radius factor
+``k = √(1 − 2w(1−w)(1 − cos θ))``; DQS turns it rigidly by the angle of the normalized blend of
+the two rotation quaternions, ``ψ(w) = 2·atan2(w sin(θ/2), 1 − w + w cos(θ/2))``.
+"""
+
+import argparse
+import base64
+import io
+import json
+import re
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+import dqskin
+from dqskin.compare import (SECTION_SLICES, add_compare_arguments, cmd_compare, parse_times,
+                            run_compare)
+from dqskin.render import VIEWS
+
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
+TWIST = ASSETS / "twist_cylinder.usda"
+MESH = "/TwistCylinder/Cylinder"
+FRAMES = [0.0, 12.0, 24.0]
+DEG_PER_FRAME = {"twist": 7.5, "bend": 5.0}
+FRACTION = {"twist": 0.5, "bend": 0.25}
+# Ring spacing in weight units: (length / 64 ring intervals) / ramp width f·L.
+RING_DW = {"twist": (4 / 64) / 2, "bend": (4 / 64) / 1}
+SEGMENTS = 32  # vertices around each ring
+
+
+def _lbs_factor(w, theta):
+    return np.sqrt(np.maximum(1 - 2 * w * (1 - w) * (1 - np.cos(theta)), 0.0))
+
+
+def _dqs_angle(w, theta):
+    return 2 * np.arctan2(w * np.sin(theta / 2), 1 - w + w * np.cos(theta / 2))
+
+
+def _max_ring_turn(theta, method, dw):
+    """Largest turn between consecutive rings (weights k·dw) about the axis; a ring shrunk to a
+    point turns nothing (the bands next to it are cones)."""
+    w = np.arange(round(1 / dw) + 1) * dw
+    if method == "lbs":
+        phi = np.arctan2(w * np.sin(theta), 1 - w + w * np.cos(theta))
+        radius = _lbs_factor(w, theta)
+    else:
+        phi, radius = _dqs_angle(w, theta), np.ones_like(w)
+    turn = np.abs(np.angle(np.exp(1j * np.diff(phi))))
+    return turn[(radius[:-1] > 1e-9) & (radius[1:] > 1e-9)].max()
+
+
+def _volume_tolerance(theta, method, rig="twist"):
+    """Meshed vs continuum volume ratio on the ramp (a fraction f of the volume).
+
+    A band between two rings ``a·p_j`` and ``b·p_j`` (complex scale factors, ``p_j = e^{iβj}``,
+    β = 2π/N, turned by Δ relative to each other) is a prismatoid, ``V = h(A₁ + 4A_m + A₂)/6``.
+    Its mid-section runs through the midpoints of the ring-to-ring edges, ``(a + b)p_j/2``, and
+    of the quad diagonals, ``(a p_j + b p_{j+1})/2``: per quad its area is
+    ``|a+b|² sin β/8 − |a||b| sin Δ (1 − cos β)/2`` (shoelace formula), so the diagonals change the
+    band's volume by at most ``(2/3)|Δ| tan(β/2)`` of it, and the ruled mid-section
+    ``|a+b|²/4`` differs from the turned ring's by ``O(Δ²)`` (≤ Δ² relative). Integrating k²
+    ring by ring costs ≤ Δw²·max|d²k²/dw²|/12 ≤ (1 − cos θ)Δw². Float32 skinning adds ~1e-6.
+    """
+    dw, turn = RING_DW[rig], _max_ring_turn(theta, method, RING_DW[rig])
+    return FRACTION[rig] * ((2 / 3) * turn * np.tan(np.pi / SEGMENTS) + turn ** 2
+                            + (1 - np.cos(theta)) * dw ** 2) + 1e-5
+
+
+def _twist_oracle_volume(theta):
+    """Volume ratio of the twist rig skinned in float64 straight from the blend equations (README
+    motion: ``root/twist`` turns about +X), measured by trimesh (independent of dqskin)."""
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(TWIST))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath(MESH))
+    p = np.array(mesh.GetPointsAttr().Get(), dtype=np.float64)
+    counts = np.array(mesh.GetFaceVertexCountsAttr().Get())
+    flat = np.array(mesh.GetFaceVertexIndicesAttr().Get())
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    faces = np.array([[flat[s], flat[s + k], flat[s + k + 1]] for s, n in zip(starts, counts)
+                      for k in range(1, n - 1)])
+    w = np.clip((p[:, 0] - 1) / 2, 0, 1)  # linear ramp x ∈ [1, 3]
+    yz = p[:, 1] + 1j * p[:, 2]
+    posed = {"lbs": ((1 - w) + w * np.exp(1j * theta)) * yz,
+             "dqs": np.exp(1j * _dqs_angle(w, theta)) * yz}
+    rest = trimesh.Trimesh(p, faces, process=False).volume
+    return {m: trimesh.Trimesh(np.stack([p[:, 0], q.real, q.imag], 1), faces,
+                               process=False).volume / rest for m, q in posed.items()}
+
+
+def _section_bounds(theta):
+    """LBS min section ratio: every slice mean is ≥ the smallest ring factor |cos(θ/2)| (at
+    w = ½, a ring of the rig); the slice holding that ring spans ≤ 1/SECTION_SLICES of the ramp
+    in w, so its mean is ≤ k(½ + 1/SECTION_SLICES) = √(cos²(θ/2) + 2 d²(1 − cos θ))."""
+    d = 1 / SECTION_SLICES
+    low = abs(np.cos(theta / 2))
+    return low - 1e-5, np.sqrt(low ** 2 + 2 * d ** 2 * (1 - np.cos(theta))) + 1e-5
+
+
+def _reject_nan(name):
+    raise AssertionError(f"metrics.json holds {name}")
+
+
+@pytest.fixture(scope="module")
+def twist(tmp_path_factory):
+    out = tmp_path_factory.mktemp("twist")
+    result = run_compare(TWIST, out, frames=FRAMES, width=48, supersample=1, progress=False,
+                         device="cpu")
+    return out, result
+
+
+def test_outputs_and_schema(twist):
+    out, result = twist
+    assert (out / "report.html").is_file()
+    saved = json.loads((out / "metrics.json").read_text(encoding="utf-8"),
+                       parse_constant=_reject_nan)
+    assert saved == json.loads(json.dumps(result))
+    assert saved["asset"].endswith("twist_cylinder.usda")
+    assert saved["methods"] == ["lbs", "dqs"] and saved["frames"] == FRAMES
+    assert list(saved["meshes"]) == [MESH]
+    for method in ("lbs", "dqs"):
+        m = saved["meshes"][MESH][method]
+        assert m["volume_ratio_reason"] is None
+        for key in ("volume_ratio", "min_section_ratio", "max_bulge_ratio"):
+            assert len(m[key]) == len(FRAMES) and all(isinstance(v, float) for v in m[key])
+        assert m["min_section_joint"] == ["root/twist"] * len(FRAMES)
+    for view in VIEWS:
+        paths = saved["images"]["frames"][view]
+        assert paths == [f"frames/{view}_{k:03d}.png" for k in range(len(FRAMES))]
+        for p in paths:
+            with Image.open(out / p) as img:
+                img.verify()
+    assert saved["images"]["closeup"] == "frames/closeup.png"
+    assert sorted(p.name for p in (out / "frames").iterdir()) == sorted(
+        [f"{v}_{k:03d}.png" for v in VIEWS for k in range(len(FRAMES))] + ["closeup.png"])
+
+
+def test_twist_metrics_match_closed_forms(twist):
+    _, result = twist
+    theta = np.radians(DEG_PER_FRAME["twist"] * np.array(FRAMES))
+    lbs, dqs = result["meshes"][MESH]["lbs"], result["meshes"][MESH]["dqs"]
+    for k, th in enumerate(theta):
+        low, high = _section_bounds(th)
+        assert low <= lbs["min_section_ratio"][k] <= high
+        assert dqs["min_section_ratio"][k] == pytest.approx(1.0, abs=1e-4)
+        assert lbs["volume_ratio"][k] == pytest.approx(
+            1 - FRACTION["twist"] * (1 - np.cos(th)) / 3, abs=_volume_tolerance(th, "lbs"))
+        assert dqs["volume_ratio"][k] == pytest.approx(1.0, abs=_volume_tolerance(th, "dqs"))
+        exact = _twist_oracle_volume(th)  # the same polyhedra, float64
+        assert lbs["volume_ratio"][k] == pytest.approx(exact["lbs"], abs=2e-5)
+        assert dqs["volume_ratio"][k] == pytest.approx(exact["dqs"], abs=2e-5)
+        # Neither method pushes a ring outward: LBS rings only shrink, DQS rings keep radius 1.
+        assert lbs["max_bulge_ratio"][k] <= 1 + 1e-5
+        assert dqs["max_bulge_ratio"][k] == pytest.approx(1.0, abs=1e-4)
+    assert result["meshes"][MESH]["lbs"]["min_section_ratio"][-1] < 2 / SECTION_SLICES  # ≈ 0
+    # Largest LBS↔DQS distance per frame: |(1 − w) + w·e^{iθ} − e^{iψ(w)}| over the ring weights
+    # (cap vertices have w ∈ {0, 1}: distance 0).
+    w = np.arange(33)[None] / 32
+    th = theta[:, None]
+    gap = np.abs((1 - w) + w * np.exp(1j * th) - np.exp(1j * _dqs_angle(w, th))).max(axis=1)
+    np.testing.assert_allclose(result["lbs_dqs_distance"][MESH]["max"], gap, atol=1e-5)
+    # Summary: DQS keeps volume and sections; the worst LBS frame is the 180° one.
+    s = result["summary"]
+    assert s["min_section_ratio"]["winner"] == "dqs" and s["volume_ratio"]["winner"] == "dqs"
+    assert s["min_section_ratio"]["by_method"]["lbs"]["time"] == FRAMES[-1]
+    assert s["min_section_ratio"]["by_method"]["lbs"]["joint"] == "root/twist"
+    assert result["closeup"]["method"] == "lbs" and result["closeup"]["joint"] == "root/twist"
+    assert result["closeup"]["frame"] == len(FRAMES) - 1
+    assert result["images"]["heat_range"][1] == pytest.approx(gap.max(), abs=1e-5)
+
+
+def test_report_is_self_contained(twist):
+    out, _ = twist
+    text = (out / "report.html").read_text(encoding="utf-8")
+    assert not re.search(r"https?://", text, re.IGNORECASE)
+    assert not re.search(r"<(script|link|iframe|object|embed)\b", text, re.IGNORECASE)
+    assert "url(" not in text
+    refs = re.findall(r"""\b(?:src|href)\s*=\s*["']([^"']*)["']""", text, re.IGNORECASE)
+    images = re.findall(r"<img\b[^>]*>", text, re.IGNORECASE)
+    # frame plots, close-up, sweeps, and the three views of each worst frame
+    assert len(images) >= 6 and len(refs) == len(images)
+    for tag in images:
+        src = re.search(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', tag)
+        assert src, tag[:80]
+        with Image.open(io.BytesIO(base64.b64decode(src.group(1), validate=True))) as img:
+            assert img.format == "PNG"
+            img.load()
+            assert img.width > 0 and img.height > 0
+
+
+def _bend_oracle_volume(theta):
+    """LBS volume ratio of the bending arm in float64 from README's motion alone: the elbow turns
+    about +Z through (2, 0, 0); measured by trimesh (independent of dqskin.metrics)."""
+    scene = dqskin.load(ASSETS / "bending_arm.usda")
+    m = scene.meshes[0]
+    p = np.asarray(m.points, dtype=np.float64)
+    w = np.where(m.joint_indices == 1, m.joint_weights, 0).sum(axis=1)[:, None]
+    c, s = np.cos(theta), np.sin(theta)
+    q = p - [2.0, 0, 0]
+    turned = np.stack([c * q[:, 0] - s * q[:, 1], s * q[:, 0] + c * q[:, 1], q[:, 2]], 1)
+    turned += [2.0, 0, 0]
+    posed = (1 - w) * p + w * turned
+    return (trimesh.Trimesh(posed, m.faces, process=False).volume
+            / trimesh.Trimesh(p, m.faces, process=False).volume)
+
+
+def test_sweeps_reproduce_the_classic_curves(twist):
+    _, result = twist
+    sw = result["sweeps"]
+    twist_rig, bend = sw["twist"], sw["bend"]
+    np.testing.assert_allclose(twist_rig["angle_deg"], 7.5 * np.arange(25), atol=1e-3)
+    np.testing.assert_allclose(bend["angle_deg"], 5.0 * np.arange(31), atol=1e-3)
+    for k, th in enumerate(np.radians(twist_rig["angle_deg"])):
+        low, high = _section_bounds(th)
+        assert low <= twist_rig["lbs"]["min_section_ratio"][k] <= high
+        assert twist_rig["dqs"]["min_section_ratio"][k] == pytest.approx(1.0, abs=1e-4)
+        assert twist_rig["lbs"]["volume_ratio"][k] == pytest.approx(
+            1 - FRACTION["twist"] * (1 - np.cos(th)) / 3, abs=_volume_tolerance(th, "lbs"))
+        assert twist_rig["dqs"]["volume_ratio"][k] == pytest.approx(
+            1.0, abs=_volume_tolerance(th, "dqs"))
+    np.testing.assert_allclose(twist_rig["reference"]["lbs_min_section_ratio"],
+                               np.abs(np.cos(np.radians(7.5 * np.arange(25)) / 2)), atol=1e-6)
+    theta = np.radians(bend["angle_deg"])
+    lbs = np.array(bend["lbs"]["volume_ratio"])
+    # Exact polyhedron (float64 oracle), then the continuum curve 1 − f(1 − cos θ)/6 (derived in
+    # dqskin.compare.SWEEP_RIGS): the meshed deficit stays within O(Δw²) of it, Δw = 1/16 (the
+    # bound 4Δw² ≈ 1.6% relative is chosen, not derived, for the bend; DQS likewise reuses the
+    # twist's band bound with the bend's ring turns).
+    for k in (10, 30):
+        assert lbs[k] == pytest.approx(_bend_oracle_volume(theta[k]), abs=2e-5)
+    deficit = FRACTION["bend"] * (1 - np.cos(theta)) / 6
+    np.testing.assert_allclose(np.array(bend["reference"]["lbs_volume_ratio"]), 1 - deficit,
+                               atol=1e-9)
+    np.testing.assert_allclose(1 - lbs, deficit, rtol=4 * RING_DW["bend"] ** 2, atol=1e-5)
+    dqs_tol = [_volume_tolerance(th, "dqs", "bend") for th in theta]
+    assert np.all(np.abs(np.array(bend["dqs"]["volume_ratio"]) - 1) <= dqs_tol)
+
+
+def test_multi_mesh_scene_renders_together(tmp_path):
+    result = run_compare(ASSETS / "humanoid.usda", tmp_path, methods=("dqs", "blend"),
+                         frames=[0, 12], views=("front",), width=32, supersample=1,
+                         progress=False, sweeps_dir=None, device="cpu")
+    names = ["Body", "Arm_L", "Arm_R", "Leg_L", "Leg_R", "Foot_L", "Foot_R"]
+    assert sorted(result["meshes"]) == sorted(f"/Humanoid/{n}" for n in names)
+    assert result["render"]["vertices"] == 5302  # assets/README.md
+    assert result["blend_weight"] == 0.5 and result["lbs_dqs_distance"] is None
+    for name in ("Foot_L", "Foot_R"):  # rigid: one influence, no joint region
+        assert result["meshes"][f"/Humanoid/{name}"]["dqs"]["min_section_ratio"] == [None, None]
+    for per in result["meshes"].values():
+        assert per["blend"]["volume_ratio"] is not None  # every mesh is closed
+    assert (tmp_path / "frames" / "front_001.png").is_file()
+    html = (tmp_path / "report.html").read_text(encoding="utf-8")
+    assert "Sweeps left out" in html
+
+
+def _write_faceless(path):
+    """A copy of the twist rig without topology (edits the copy: never the shared asset's
+    in-memory layer, which other open stages would then see)."""
+    import shutil
+
+    from pxr import Usd
+
+    shutil.copyfile(TWIST, path)
+    stage = Usd.Stage.Open(str(path))
+    prim = stage.GetPrimAtPath(MESH)
+    for name in ("faceVertexCounts", "faceVertexIndices", "normals", "primvars:st",
+                 "primvars:st:indices"):
+        prim.RemoveProperty(name)
+    stage.GetRootLayer().Save()
+
+
+def test_bad_input(tmp_path):
+    out = tmp_path / "out"
+    with pytest.raises(ValueError, match="no such file"):
+        run_compare(tmp_path / "missing.usda", out, progress=False)
+    faceless = tmp_path / "faceless.usda"
+    _write_faceless(faceless)
+    with pytest.raises(ValueError, match="no faces"):
+        run_compare(faceless, out, progress=False)
+    scene = dqskin.load(TWIST)
+    empty = replace(scene.meshes[0], points=np.zeros((0, 3), np.float32),
+                    faces=np.zeros((0, 3), np.int32), joint_indices=np.zeros((0, 2), np.int32),
+                    joint_weights=np.zeros((0, 2), np.float32))
+    with pytest.raises(ValueError, match="no points"):
+        run_compare(replace(scene, meshes=[empty]), out, progress=False)
+    assert not out.exists()  # nothing written for bad input
+    for kwargs, needle in ((dict(methods=("lbs", "magic")), "methods"),
+                           (dict(views=("top",)), "views"), (dict(width=0), "width"),
+                           (dict(frames=[]), "frames"), (dict(frames=[0, np.nan]), "frames")):
+        with pytest.raises(ValueError, match=needle):
+            run_compare(TWIST, out, progress=False, **kwargs)
+    for text in ("a:b", "0:1:2:3", "5:1", "0:4:0", "1,x"):
+        with pytest.raises(ValueError, match="--frames"):
+            parse_times(text)
+
+
+def test_existing_report_needs_force(tmp_path):
+    small = dict(frames=[0, 24], views=("front",), width=24, supersample=1, progress=False,
+                 sweeps_dir=None, device="cpu")
+    (tmp_path / "report.html").write_text("old report")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    (frames / "front_099.png").write_bytes(b"stale panel")
+    (frames / "notes.txt").write_text("mine")
+    with pytest.raises(FileExistsError, match="--force"):
+        run_compare(TWIST, tmp_path, **small)
+    assert (tmp_path / "report.html").read_text() == "old report"
+    assert not (tmp_path / "metrics.json").exists()
+    run_compare(TWIST, tmp_path, force=True, **small)
+    assert (tmp_path / "report.html").read_text(encoding="utf-8").startswith("<!DOCTYPE html>")
+    assert not (frames / "front_099.png").exists()  # stale panel of an earlier run removed
+    assert (frames / "notes.txt").read_text() == "mine"  # anything else kept
+    (tmp_path / "report.html").unlink()
+    with pytest.raises(FileExistsError, match="metrics.json"):  # any earlier output blocks
+        run_compare(TWIST, tmp_path, **small)
+    (tmp_path / "metrics.json").unlink()
+    with pytest.raises(FileExistsError, match=r"frames/\w+\.png: exists"):
+        run_compare(TWIST, tmp_path, **small)
+    assert (frames / "front_000.png").is_file() and (frames / "notes.txt").is_file()
+
+
+def test_command_line(tmp_path, capsys):
+    parser = argparse.ArgumentParser(prog="dqskin")
+    add_compare_arguments(parser.add_subparsers(dest="command").add_parser("compare"))
+    args = parser.parse_args(["compare", str(TWIST), "--out", str(tmp_path), "--frames",
+                              "0:24:12", "--views", "front,side", "--methods", "lbs,dqs,blend",
+                              "--width", "24", "--supersample", "1", "--no-sweeps", "--quiet",
+                              "--device", "cpu"])
+    assert cmd_compare(args) == 0
+    assert "report.html" in capsys.readouterr().out
+    saved = json.loads((tmp_path / "metrics.json").read_text(encoding="utf-8"))
+    assert saved["frames"] == FRAMES and saved["views"] == ["front", "side"]
+    assert saved["methods"] == ["lbs", "dqs", "blend"] and saved["sweeps"] is None
+    np.testing.assert_allclose(parse_times("0, 6.5,12"), [0, 6.5, 12])
+    bad = parser.parse_args(["compare", str(TWIST), "--out", str(tmp_path / "x"), "--methods",
+                             "lbs,nope"])
+    with pytest.raises(ValueError, match="nope"):
+        cmd_compare(bad)
