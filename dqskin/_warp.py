@@ -1,23 +1,29 @@
-"""Warp set-up shared by the package: configuration, device choice, CPU chunked launches."""
+"""Warp helpers shared by the package: device choice and CPU chunked launches.
+
+The package leaves Warp's global configuration alone (kernels set their own module options);
+the CLI quiets Warp's console output.
+"""
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import warp as wp
 
-wp.config.enable_backward = False
-wp.config.quiet = True
-wp.config.log_level = wp.LOG_ERROR  # no init banner or per-module load timings on stdout
-
 _pool = None
+_pool_lock = threading.Lock()
 
 
 def resolve_device(device=None):
-    """Warp device for ``device`` (``None`` → CUDA when present, else CPU)."""
+    """Warp device for ``device`` (``None`` → CUDA when present, else CPU); ValueError if there
+    is no such device."""
+    wp.init()
     if device is None:
-        wp.init()
         return wp.get_device("cuda:0" if wp.get_cuda_device_count() > 0 else "cpu")
-    return wp.get_device(device)
+    try:
+        return wp.get_device(device)
+    except (RuntimeError, ValueError) as exc:
+        raise ValueError(f"device {device!r}: {exc}") from None
 
 
 def cpu_threads():
@@ -32,8 +38,9 @@ the block is skinned, and influences are read once per block."""
 
 def _pool_map(tasks):
     global _pool
-    if _pool is None:
-        _pool = ThreadPoolExecutor(max_workers=cpu_threads(), thread_name_prefix="dqskin")
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=cpu_threads(), thread_name_prefix="dqskin")
     for fut in [_pool.submit(*t) for t in tasks]:
         fut.result()
 

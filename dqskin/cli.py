@@ -60,9 +60,15 @@ def select_times(scene, frames=None, fps=None, substeps=1):
 
 
 def frame_numbers(scene, times):
-    """Integer frame numbers for file names: time codes for USD, frames at 24 fps for glTF."""
-    rate = 24.0 if scene.time_codes_per_second == 1.0 else 1.0
-    return np.round(np.asarray(times) * rate).astype(int)
+    """Integer frame numbers for file names: USD time codes, or glTF seconds at 24 fps; a
+    CliError when two frames would share a name (sub-frame times)."""
+    from .io import GLTF_SUFFIXES
+    rate = 24.0 if Path(scene.path).suffix.lower() in GLTF_SUFFIXES else 1.0
+    numbers = np.round(np.asarray(times) * rate).astype(int)
+    if len(set(numbers.tolist())) != len(numbers):
+        raise CliError(f"--out: {len(numbers)} frames map to {len(set(numbers.tolist()))} file "
+                       "names (sub-frame times); write .usd/.usdc/.npz instead")
+    return numbers
 
 
 def chunk_velocities(scene, times, method, interp, device):
@@ -119,6 +125,8 @@ def check_output(out, inputs, force):
 
 def cmd_skin(args):
     from . import io
+    if args.chunk < 1:
+        raise CliError(f"--chunk {args.chunk}: must be at least 1")
     scene = io.load(args.input, clip=args.clip)
     times = select_times(scene, args.frames, args.fps, args.substeps)
     out = str(args.out)
@@ -130,7 +138,7 @@ def cmd_skin(args):
         from .usd_cache import UsdCacheWriter
         wrote_velocities = False
         with UsdCacheWriter(scene, out, source_path=args.input, method=args.method,
-                            device=args.device) as writer:
+                            device=args.device, interp=args.interp) as writer:
             for sl, p, n, v in skin_chunks(scene, times, args.method, args.device, args.chunk,
                                            args.normals, interp=args.interp,
                                            velocities=args.velocities):
@@ -289,6 +297,9 @@ def build_parser():
 
 
 def main(argv=None):
+    import warp as wp
+    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_ERROR  # no init banner or per-module load timings on stdout
     args = build_parser().parse_args(argv)
     if getattr(args, "clip", None) is not None and args.clip.isdigit():
         args.clip = int(args.clip)

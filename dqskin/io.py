@@ -9,10 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["USD_SUFFIXES", "GLTF_SUFFIXES", "MESH_SUFFIXES", "load", "load_mesh", "write_frames",
-           "atomic_path"]
+__all__ = ["USD_SUFFIXES", "GLTF_SUFFIXES", "MESH_SUFFIXES", "atomic_path", "frame_paths", "load",
+           "load_mesh", "write_frames"]
 
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)  # read once, at import (setting it later could race with other threads)
 GLTF_SUFFIXES = (".gltf", ".glb")
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb")
 
@@ -81,9 +83,7 @@ class atomic_path:
 
     def __exit__(self, exc_type, exc, tb):
         if exc_type is None:
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(self.tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the usual file mode
+            os.chmod(self.tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the usual file mode
             os.replace(self.tmp, self.path)
         else:
             self.tmp.unlink(missing_ok=True)

@@ -18,6 +18,7 @@ import warp as wp
 
 from ._warp import resolve_device
 from .kernels import metrics as K
+from .skeleton import check_parents
 
 __all__ = ["JointSections", "bone_segments", "dominant_pair_regions", "edge_strain", "is_closed",
            "joint_axes", "joint_axis_apex", "joint_sections", "local_volume_ratio", "mesh_edges",
@@ -486,14 +487,10 @@ def joint_axis_apex(rest_points, joint_indices, joint_weights, bind_positions, p
 
 
 def _parents(parents, count):
-    par = np.asarray(parents)
-    if par.ndim != 1 or not np.issubdtype(par.dtype, np.integer) or (
-            count >= 0 and par.shape[0] != count):
-        raise ValueError(f"parents: expected ({count if count >= 0 else 'J'},) integers, got "
-                         f"{par.dtype} {par.shape}")
-    par = par.astype(np.int64)
-    if np.any(par >= np.arange(par.shape[0])) or np.any(par < -1):
-        raise ValueError("parents: each parent must precede its child (-1 <= parents[j] < j)")
+    """:func:`dqskin.skeleton.check_parents`, plus the joint count when ``count >= 0``."""
+    par = check_parents(parents).astype(np.int64)
+    if count >= 0 and par.shape[0] != count:
+        raise ValueError(f"parents: expected ({count},) integers, got {par.shape}")
     return par
 
 

@@ -71,8 +71,7 @@ from .kernels import velocity as KV
 from .kernels.dqmath import vec8
 from .kernels.skin import mat34
 from .scene import Animation
-from .skeleton import _check_parents
-from .skinning import Skinner
+from .skeleton import check_parents
 
 __all__ = [
     "INTERPOLATIONS",
@@ -536,7 +535,7 @@ def forward_kinematics_derivative(parents, local, local_dot):
     world, world_dot : (..., J, 4, 4) float64
         Skeleton-space transforms and their derivatives.
     """
-    par = _check_parents(parents)
+    par = check_parents(parents)
     loc = np.asarray(local, dtype=np.float64)
     loc_dot = np.asarray(local_dot, dtype=np.float64)
     J = par.shape[0]
@@ -795,8 +794,7 @@ def scene_velocities(scene, times=None, method=None, interp="trs", time_codes_pe
                      - np.asarray(m.output_transforms(t - h), np.float64)) / (2 * h)
             v = np.einsum("fij,fvj->fvi", o[:, :3, :3], v)
             if np.any(o_dot):
-                p = Skinner(m.points, m.joint_indices, m.joint_weights,
-                            geom_bind_transform=m.geom_bind_transform, device=device).skin(
+                p = scene.skinner(m, device).skin(
                     x, meth, points=None if m.rest_points_at is None else rest)
                 v += np.einsum("fij,fvj->fvi", o_dot[:, :3, :3], p) + o_dot[:, None, :3, 3]
         out[m.name] = (v * tcps).astype(np.float32)

@@ -7,10 +7,14 @@ from ._warp import launch_rows, resolve_device
 from .kernels import fk as FK
 from .kernels.dqmath import vec8
 
-__all__ = ["Skeleton", "forward_kinematics"]
+__all__ = ["Skeleton", "check_parents", "forward_kinematics"]
 
 
-def _check_parents(parents, where="parents"):
+def check_parents(parents, where="parents"):
+    """Validate a joint hierarchy: (J,) ints in [-1, J), parents before children, no cycles.
+
+    Returns the parents as int32; raises ValueError naming ``where`` and the offending joint.
+    """
     p = np.asarray(parents)
     if p.ndim != 1 or not np.issubdtype(p.dtype, np.integer):
         raise ValueError(f"{where}: expected a 1-D integer array, got shape {p.shape} {p.dtype}")
@@ -64,7 +68,7 @@ class Skeleton:
     def __init__(self, joint_names, parents, bind_transforms=None, rest_transforms=None, *, name=""):
         self.name = name
         self.joint_names = [str(n) for n in joint_names]
-        self.parents = _check_parents(parents, f"{name or 'skeleton'}: parents")
+        self.parents = check_parents(parents, f"{name or 'skeleton'}: parents")
         J = self.joint_count
         if len(self.joint_names) != J:
             raise ValueError(f"{name or 'skeleton'}: {len(self.joint_names)} joint names for "
@@ -172,7 +176,7 @@ def _local_arrays(local_transforms, J, device):
 
 def _forward_kinematics(parents, local_transforms, device, outputs=None):
     """Launch FK; returns the (B, J) world ``wp.mat44`` array and the batch shape."""
-    par = _check_parents(parents)
+    par = check_parents(parents)
     J = par.shape[0]
     d = device
     local, batch = _local_arrays(local_transforms, J, d)

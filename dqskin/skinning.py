@@ -7,6 +7,8 @@ bind (skeleton) space before skinning. Results are float32 in skeleton space. Sa
 ``UsdSkel.SkinPoints`` / ``UsdSkel.SkinNormals`` up to the matrix convention (USD is row-vector).
 """
 
+import threading
+
 import numpy as np
 import warp as wp
 
@@ -107,6 +109,7 @@ class Skinner:
             "geom_bind_transform", geom_bind_transform, np.float64, (4, 4)).reshape(4, 4)
         self.geom_bind_transform = g
         self._cache = {}
+        self._lock = threading.Lock()
         d = self.device
         self._points = wp.array(self._bind_points(pts)[None], dtype=wp.vec3, device=d)
         V = self.vertex_count
@@ -211,8 +214,13 @@ class Skinner:
         Returns
         -------
         (V, 3) or (F, V, 3) float32
-            Skinned points in skeleton space; (F, V, 3) when the transforms have a frame axis.
+            Skinned points in skeleton space (or where ``output_transforms`` take them); (F, V, 3)
+            when the transforms have a frame axis.
         """
+        with self._lock:  # the per-shape work buffers are shared between calls
+            return self._skin(skinning_transforms, method, points, output_transforms, as_warp)
+
+    def _skin(self, skinning_transforms, method, points, output_transforms, as_warp):
         code = self._check_method(method)
         prep, frames, batched = self._prepare(skinning_transforms)
         src = self._points
@@ -266,6 +274,12 @@ class Skinner:
         -------
         (N, 3) or (F, N, 3) float32, skeleton space.
         """
+        with self._lock:
+            return self._skin_vectors(skinning_transforms, vectors, method, kind, vector_vertex,
+                                      output_transforms, as_warp)
+
+    def _skin_vectors(self, skinning_transforms, vectors, method, kind, vector_vertex,
+                      output_transforms, as_warp):
         if kind not in ("normal", "tangent"):
             raise ValueError(f'kind must be "normal" or "tangent", got {kind!r}')
         code = self._check_method(method)

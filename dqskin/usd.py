@@ -38,6 +38,7 @@ from typing import Callable
 import numpy as np
 from pxr import Tf, Usd, UsdGeom, UsdSkel, Vt
 
+from .io import USD_SUFFIXES
 from .scene import Animation, Mesh, Scene
 from .skeleton import Skeleton
 from .skinning import skin_points
@@ -45,7 +46,7 @@ from .skinning import skin_points
 __all__ = ["SKINNING_METHODS", "USD_EXTENSIONS", "RigidPrim", "UsdSkelAnimation",
            "load_rigid_prims", "load_usd", "rigid_transforms"]
 
-USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
+USD_EXTENSIONS = USD_SUFFIXES
 """File extensions :func:`load_usd` reads."""
 
 SKINNING_METHODS = {"classicLinear": "lbs", "dualQuaternion": "dqs"}
@@ -67,11 +68,13 @@ def _matrices(gf_matrices):
 
 
 def _rest_value(attr):
-    """An attribute's default value, else its earliest time sample (None if unauthored)."""
+    """The value USD resolves before any animation: the earliest time sample when there are
+    samples (they win over the default at every time), else the default (None if unauthored)."""
     if not attr or not attr.HasAuthoredValue():
         return None
-    value = attr.Get(Usd.TimeCode.Default())
-    return attr.Get(Usd.TimeCode.EarliestTime()) if value is None else value
+    if attr.GetNumTimeSamples() > 0:
+        return attr.Get(Usd.TimeCode.EarliestTime())
+    return attr.Get(Usd.TimeCode.Default())
 
 
 class UsdSkelAnimation(Animation):
@@ -520,7 +523,7 @@ class _RestDeformer:
 
     def __init__(self, points_attr, points, normals, normal_vertex):
         self.points_attr = points_attr
-        self.animated_points = points_attr.GetNumTimeSamples() > 1
+        self.animated_points = points_attr.GetNumTimeSamples() > 0
         self.points = points
         self.normals = normals
         self.normal_vertex = normal_vertex
@@ -684,7 +687,7 @@ def load_rigid_prims(scene):
     return out
 
 
-def rigid_transforms(scene, prim, times, method=None, *, device=None):
+def rigid_transforms(scene, prim, times, method=None, *, device=None, interp="trs"):
     """Local transforms of a rigidly skinned prim, skinned by the engine.
 
     The skinned transform is recovered exactly from four skinned points (origin and the three
@@ -696,8 +699,10 @@ def rigid_transforms(scene, prim, times, method=None, *, device=None):
     scene : Scene
     prim : RigidPrim
     times : (F,) float
-    method : {"lbs", "dqs"} or None
-        None uses the prim's own ``skinning_method``.
+    method : {"lbs", "dqs", "blend"} or None
+        None uses the prim's own ``skinning_method``; "blend" mixes half and half.
+    interp : str
+        Joint interpolation (:data:`dqskin.motion.INTERPOLATIONS`), as for the meshes.
 
     Returns
     -------
@@ -705,12 +710,13 @@ def rigid_transforms(scene, prim, times, method=None, *, device=None):
         Prim space → parent space, column-vector convention (``xformOp:transform``, transposed).
     """
     t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-    x = scene.skinning_transforms(t, prim.skeleton, device=device)
+    x = scene.skinning_transforms(t, prim.skeleton, device=device, interp=interp)
     frame = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=np.float64)
     idx = np.tile(prim.joint_indices, (4, 1))
     wts = np.tile(prim.joint_weights, (4, 1))
-    q = skin_points(frame, idx, wts, x, method or prim.skinning_method,
-                    geom_bind_transform=prim.geom_bind_transform, device=device)
+    meth = method or prim.skinning_method
+    q = skin_points(frame, idx, wts, x, meth, geom_bind_transform=prim.geom_bind_transform,
+                    blend_weights=np.full(4, 0.5) if meth == "blend" else None, device=device)
     q = q.astype(np.float64).reshape(t.shape[0], 4, 3)
     m = np.tile(np.eye(4), (t.shape[0], 1, 1))
     m[:, :3, 3] = q[:, 0]

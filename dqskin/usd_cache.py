@@ -138,18 +138,19 @@ class UsdCacheWriter:
         own. Pass the method that produced the points.
     device : str, optional
         Warp device for those transforms.
+    interp : str
+        Joint interpolation for those transforms (:data:`dqskin.motion.INTERPOLATIONS`); pass
+        the one that produced the points.
     """
 
-    def __init__(self, scene, out_path, *, source_path=None, method=None, device=None):
+    def __init__(self, scene, out_path, *, source_path=None, method=None, device=None,
+                 interp="trs"):
         out = os.fspath(out_path)
         src = os.fspath(scene.path if source_path is None else source_path)
         ext = os.path.splitext(out)[1].lower()
         if ext not in CACHE_EXTENSIONS:
             raise ValueError(f"{out}: cannot write extension {ext!r}; use one of "
                              f"{', '.join(CACHE_EXTENSIONS)}")
-        folder = os.path.dirname(os.path.abspath(out))
-        if not os.path.isdir(folder):
-            raise ValueError(f"{out}: folder {folder} does not exist")
         try:
             stage = Usd.Stage.Open(src, Usd.Stage.LoadAll)
         except Tf.ErrorException:
@@ -159,8 +160,8 @@ class UsdCacheWriter:
         if os.path.exists(out) and any(_same_file(out, f) for f in _source_files(stage, src)
                                        if os.path.exists(f)):
             raise ValueError(f"{out}: refusing to overwrite an input of {src}")
-        self.scene, self.out, self.src, self.ext, self.folder = scene, out, src, ext, folder
-        self.method, self.device = method, device
+        self.scene, self.out, self.src, self.ext = scene, out, src, ext
+        self.method, self.device, self.interp = method, device, interp
         self.stage = stage
         self.meshes = {m.name: m for m in scene.meshes}
         self.rigid = load_rigid_prims(scene)
@@ -248,8 +249,8 @@ class UsdCacheWriter:
             nrm[n] = _frames(n, "normals", v, F, meshes[n].normals.shape[0])
         vel = {n: _frames(n, "velocities", v, F, meshes[n].points.shape[0])
                for n, v in velocities.items()}
-        rigid = [(r.name, rigid_transforms(self.scene, r, t, self.method, device=self.device))
-                 for r in self.rigid]
+        rigid = [(r.name, rigid_transforms(self.scene, r, t, self.method, device=self.device,
+                                           interp=self.interp)) for r in self.rigid]
         layer = self.layer
         with Sdf.ChangeBlock():
             for name in sorted(set(pts) | set(nrm) | set(vel)):
@@ -306,7 +307,7 @@ class UsdCacheWriter:
 
 
 def write_usd_cache(scene, out_path, times, points, normals=None, *, velocities=None,
-                    source_path=None, method=None, device=None):
+                    source_path=None, method=None, device=None, interp="trs"):
     """Write skinned points (and normals, velocities) for all ``times`` as a new USD stage.
 
     One :class:`UsdCacheWriter` chunk; see it for the parameters.
@@ -319,10 +320,10 @@ def write_usd_cache(scene, out_path, times, points, normals=None, *, velocities=
     Raises
     ------
     ValueError
-        Unsupported extension, missing output folder, output equal to an input file, unknown
-        mesh names, or arrays whose shape disagrees with ``times`` and the mesh.
+        Unsupported extension, output equal to an input file, unknown mesh names, or arrays
+        whose shape disagrees with ``times`` and the mesh.
     """
-    with UsdCacheWriter(scene, out_path, source_path=source_path, method=method,
-                        device=device) as writer:
+    with UsdCacheWriter(scene, out_path, source_path=source_path, method=method, device=device,
+                        interp=interp) as writer:
         writer.write(times, points, normals, velocities)
     return writer.out

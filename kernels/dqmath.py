@@ -3,13 +3,21 @@
 A dual quaternion is stored as :data:`vec8` ``(rw, rx, ry, rz, dw, dx, dy, dz)`` -- the project's
 public component order -- and represents the pose ``r + ε·½·t·r`` (rotate by ``r``, then translate
 by ``t``). Warp's ``wp.quat`` is ``(x, y, z, w)``; the conversion happens only here, in
-:func:`dq_real` / :func:`dq_dual` / :func:`dq_pack`.
+:func:`dq_real` / :func:`dq_dual` / :func:`dq_from_rt`.
+
+Public ``@wp.func`` API (tested against :mod:`dqskin.dq` in ``tests/test_dqmath.py``): product
+:func:`dq_mul`, :func:`dq_conjugate`, :func:`dq_normalize`, :func:`dq_transform_point`,
+:func:`dq_transform_vector`, :func:`dq_from_rt` / :func:`dq_translation`,
+:func:`dq_from_transform` / :func:`dq_to_transform`, :func:`dq_from_matrix` /
+:func:`dq_to_matrix`, and the antipodal blend :func:`dq_blend_add`.
 
 References: Kenwright, "Dual-Quaternions: From Classical Mechanics to Computer Graphics and Beyond"
 (product, transform, DLB); Montgomery-Smith & Shy, eq. 14 (normalization).
 """
 
 import warp as wp
+
+wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 vec8 = wp.types.vector(length=8, dtype=wp.float32)
 
@@ -24,12 +32,6 @@ def dq_real(a: vec8):
 def dq_dual(a: vec8):
     """Dual part as a Warp quaternion ``(x, y, z, w)``."""
     return wp.quat(a[5], a[6], a[7], a[4])
-
-
-@wp.func
-def dq_pack(r: wp.quat, d: wp.quat):
-    """Pack real and dual Warp quaternions into a :data:`vec8` in ``(w, x, y, z)`` order."""
-    return vec8(r[3], r[0], r[1], r[2], d[3], d[0], d[1], d[2])
 
 
 @wp.func
@@ -97,7 +99,7 @@ def dq_mul(a: vec8, b: vec8):
 
 @wp.func
 def dq_conjugate(a: vec8):
-    """Quaternion conjugate of both parts; the inverse of a unit dual quaternion."""
+    """Quaternion conjugate of both parts, ``r* + ε·d*``: the inverse of a unit dual quaternion."""
     return vec8(a[0], -a[1], -a[2], -a[3], a[4], -a[5], -a[6], -a[7])
 
 
@@ -105,26 +107,46 @@ def dq_conjugate(a: vec8):
 def dq_normalize(a: vec8):
     """Unit dual quaternion nearest ``a`` (Montgomery-Smith & Shy eq. 14).
 
-    ``r' = r/|r|``, ``d' = d/|r| − (r'·d/|r|)·r'``: unit real part and Plücker condition ``r'·d' = 0``.
+    ``r' = r/|r|``, ``d' = d/|r| − (r'·d/|r|)·r'``: unit real part and Plücker condition
+    ``r'·d' = 0``.
     """
-    r = dq_real(a)
-    inv = 1.0 / wp.length(r)
-    rn = r * inv
-    dn = dq_dual(a) * inv
-    dn = dn - rn * wp.dot(rn, dn)
-    return dq_pack(rn, dn)
+    inv = 1.0 / wp.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2] + a[3] * a[3])
+    b = a * inv
+    k = b[0] * b[4] + b[1] * b[5] + b[2] * b[6] + b[3] * b[7]
+    return vec8(b[0], b[1], b[2], b[3], b[4] - k * b[0], b[5] - k * b[1], b[6] - k * b[2],
+                b[7] - k * b[3])
+
+
+@wp.func
+def dq_transform_vector(a: vec8, v: wp.vec3):
+    """Rotate direction ``v`` by unit dual quaternion ``a`` (no translation)."""
+    return wp.quat_rotate(dq_real(a), v)
 
 
 @wp.func
 def dq_transform_point(a: vec8, p: wp.vec3):
     """Apply unit dual quaternion ``a`` to point ``p``: rotate, then translate."""
-    return wp.quat_rotate(dq_real(a), p) + dq_translation(a)
+    return dq_transform_vector(a, p) + dq_translation(a)
 
 
 @wp.func
-def dq_transform_vector(a: vec8, v: wp.vec3):
-    """Apply the rotation of unit dual quaternion ``a`` to direction ``v`` (no translation)."""
-    return wp.quat_rotate(dq_real(a), v)
+def dq_blend_add(acc: vec8, a: vec8, w: float, pivot: vec8):
+    """``acc + ±w·a``, the sign putting ``a``'s real part on ``pivot``'s hemisphere (antipodality)
+    -- one step of dual-quaternion linear blending (Kavan et al.); normalize the sum after."""
+    return acc + a * (w * wp.sign(a[0] * pivot[0] + a[1] * pivot[1] + a[2] * pivot[2]
+                                  + a[3] * pivot[3]))
+
+
+@wp.func
+def dq_from_transform(x: wp.transform):
+    """Dual quaternion of a Warp ``wp.transform`` ``(p, q)``."""
+    return dq_from_rt(wp.transform_get_rotation(x), wp.transform_get_translation(x))
+
+
+@wp.func
+def dq_to_transform(a: vec8):
+    """Warp ``wp.transform`` ``(p, q)`` of unit dual quaternion ``a``."""
+    return wp.transform(dq_translation(a), dq_real(a))
 
 
 @wp.func
@@ -152,12 +174,6 @@ def quat_from_rotation(m: wp.mat33):
 
 
 @wp.func
-def dq_from_matrix(m: wp.mat44):
-    """Dual quaternion of a rigid 4×4 matrix (column-vector convention, rotation orthonormal)."""
-    return dq_from_rt(quat_from_rotation(mat44_linear(m)), wp.vec3(m[0, 3], m[1, 3], m[2, 3]))
-
-
-@wp.func
 def dq_to_matrix(a: vec8):
     """4×4 rigid matrix (column-vector convention) of unit dual quaternion ``a``."""
     w = a[0]
@@ -172,32 +188,9 @@ def dq_to_matrix(a: vec8):
 
 
 @wp.func
-def dq_to_transform(a: vec8):
-    """Warp ``wp.transform`` ``(p, q)`` of unit dual quaternion ``a``."""
-    return wp.transform(dq_translation(a), dq_real(a))
-
-
-@wp.func
-def dq_from_transform(x: wp.transform):
-    """Dual quaternion of a Warp ``wp.transform``."""
-    return dq_from_rt(wp.transform_get_rotation(x), wp.transform_get_translation(x))
-
-
-@wp.func
-def dq_blend_add(acc: vec8, a: vec8, w: float, pivot: wp.quat):
-    """Accumulate ``w·a`` into ``acc``, flipping ``a`` onto the hemisphere of ``pivot`` (antipodality)."""
-    s = w
-    if wp.dot(dq_real(a), pivot) < 0.0:
-        s = -w
-    return acc + a * s
-
-
-@wp.func
-def dq_normalize_blend(a: vec8):
-    """:func:`dq_normalize` of a blended sum; the identity when its real part vanishes (as Gf)."""
-    if wp.length(dq_real(a)) < 1.0e-10:
-        return vec8(1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    return dq_normalize(a)
+def dq_from_matrix(m: wp.mat44):
+    """Dual quaternion of a rigid 4×4 matrix (column-vector convention, rotation orthonormal)."""
+    return dq_from_rt(quat_from_rotation(mat44_linear(m)), wp.vec3(m[0, 3], m[1, 3], m[2, 3]))
 
 
 @wp.func

@@ -8,6 +8,8 @@ Undefined values (zero-length references, vertices outside any region) are writt
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # forward-only kernels
+
 
 @wp.func
 def ref_frame(f: int, frames: int):

@@ -11,6 +11,8 @@ index ``i = y·width + x``.
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # forward-only kernels
+
 
 @wp.struct
 class CameraParams:

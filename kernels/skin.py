@@ -25,8 +25,10 @@ Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, 
 
 import warp as wp
 
-from .dqmath import (dq_from_rt, is_identity33, mat44_linear, orthonormalize_columns, polar_rotation,
-                     quat_from_rotation, vec8)
+wp.set_module_options({"enable_backward": False})  # forward-only kernels
+
+from .dqmath import (dq_blend_add, dq_from_rt, is_identity33, mat44_linear, orthonormalize_columns,
+                     polar_rotation, quat_from_rotation, vec8)
 
 mat34 = wp.types.matrix(shape=(3, 4), dtype=wp.float32)
 
@@ -116,8 +118,7 @@ def dqs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
         iv = indices[v, c]
         wv = weights[v, c]
         for k in range(4):
-            x = dqs[f, iv[k]]
-            b += x * (wv[k] * wp.sign(x[0] * pv[0] + x[1] * pv[1] + x[2] * pv[2] + x[3] * pv[3]))
+            b = dq_blend_add(b, dqs[f, iv[k]], wv[k], pv)
             if use_residual:
                 scaled += (residuals[f, iv[k]] * p) * wv[k]
     rv = wp.vec3(b[1], b[2], b[3])

@@ -20,6 +20,8 @@ order and are converted to Warp quaternions with :func:`~dqskin.kernels.dqmath.d
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # forward-only kernels
+
 from .dqmath import dq_dual, dq_real, vec8
 from .skin import mat34
 

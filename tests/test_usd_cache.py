@@ -166,8 +166,9 @@ def test_refusals(shared_assets, tmp_path):
         with pytest.raises(ValueError, match="refusing to overwrite an input"):
             write_usd_cache(scene, target, [1.0], points)
     assert {p: digest(p) for p in (copy, top)} == before
-    with pytest.raises(ValueError, match="does not exist"):
-        write_usd_cache(scene, tmp_path / "no" / "out.usda", [1.0], points)
+    nested = tmp_path / "new" / "folder" / "out.usda"  # made, as for every other output
+    write_usd_cache(scene, nested, [1.0], points)
+    assert nested.is_file()
     with pytest.raises(ValueError, match="cannot write extension '.usdz'"):
         write_usd_cache(scene, tmp_path / "out.usdz", [1.0], points)
     with pytest.raises(ValueError, match=r"points\['/Root/Mesh'\]: expected shape \(2, 40, 3\)"):

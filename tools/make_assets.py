@@ -19,13 +19,13 @@ writes the same bytes on every machine. Conventions inside: 4×4 matrices column
 """
 
 import argparse
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+
+from dqskin.io import atomic_path
 
 __all__ = ["RigSpec", "MeshSpec", "twist_cylinder", "bending_arm", "humanoid", "author_rig",
            "write_assets", "main"]
@@ -610,16 +610,8 @@ def author_rig(rig):
 
 def _write_atomic(path, text):
     """Write ``text`` (UTF-8) to ``path`` through a temporary file in the same folder."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(text.encode("utf-8"))
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(text.encode("utf-8"))
 
 
 ASSETS = {"twist_cylinder.usda": twist_cylinder, "bending_arm.usda": bending_arm,
