@@ -166,9 +166,6 @@ def test_refusals(shared_assets, tmp_path):
         with pytest.raises(ValueError, match="refusing to overwrite an input"):
             write_usd_cache(scene, target, [1.0], points)
     assert {p: digest(p) for p in (copy, top)} == before
-    nested = tmp_path / "new" / "folder" / "out.usda"  # made, as for every other output
-    write_usd_cache(scene, nested, [1.0], points)
-    assert nested.is_file()
     with pytest.raises(ValueError, match="cannot write extension '.usdz'"):
         write_usd_cache(scene, tmp_path / "out.usdz", [1.0], points)
     with pytest.raises(ValueError, match=r"points\['/Root/Mesh'\]: expected shape \(2, 40, 3\)"):
@@ -183,6 +180,9 @@ def test_refusals(shared_assets, tmp_path):
         write_usd_cache(scene, tmp_path / "out.usda", [1.0], points,
                         {"/Root/Mesh": points["/Root/Mesh"]})
     assert sorted(os.listdir(tmp_path)) == ["rig.usda", "top.usda"]
+    nested = tmp_path / "new" / "folder" / "out.usda"  # made, as for every other output
+    write_usd_cache(scene, nested, [1.0], points)
+    assert nested.is_file()
 
 
 def test_overwrites_previous_output_atomically(shared_assets, tmp_path):
