@@ -222,3 +222,31 @@ def test_interp_keeps_key_poses(tmp_path, interp):
     rc, _, err = run("skin", asset, "--out", other, "--frames", "0:30:5", "--interp", interp)
     assert rc == 0, err
     np.testing.assert_allclose(np.load(other)["points_0"], np.load(base)["points_0"], atol=1e-4)
+
+
+def test_bad_chunk_and_device(tmp_path):
+    src = usda(tmp_path)
+    rc, _, err = run("skin", src, "--out", tmp_path / "o.npz", "--chunk", "0")
+    assert_clean_error(rc, err, "--chunk")
+    rc, _, err = run("skin", src, "--out", tmp_path / "o.npz", "--device", "cuda:7")
+    assert_clean_error(rc, err, "cuda:7")
+
+
+def test_sub_frame_times_cannot_share_file_names(tmp_path):
+    src = usda(tmp_path)
+    rc, _, err = run("skin", src, "--out", tmp_path / "f_{:03d}.obj", "--frames", "0:2:0.5")
+    assert_clean_error(rc, err, "file names")
+    assert not list(tmp_path.glob("f_*.obj"))
+
+
+def test_blend_bakes_rigid_prims(shared_assets, tmp_path):
+    """--method blend also covers prims skinned rigidly (baked as xformOp:transform)."""
+    from pxr import Usd
+    src = (shared_assets / "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning/lbs.usda")
+    out = tmp_path / "blend.usda"
+    rc, _, err = run("skin", src, "--out", out, "--method", "blend", "--frames", "1:3")
+    assert rc == 0, err
+    stage = Usd.Stage.Open(str(out))
+    rigid = [p for p in stage.Traverse() if p.HasAttribute("xformOp:transform")
+             and p.GetAttribute("xformOp:transform").GetNumTimeSamples() == 3]
+    assert rigid

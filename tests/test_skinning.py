@@ -263,3 +263,18 @@ def test_inputs_not_modified():
     dqskin.skin_points(points, idx, w, M, "dqs", geom_bind_transform=G, device="cpu")
     for a, c in zip((points, idx, w, M, G), copies):
         np.testing.assert_array_equal(a, c)
+
+
+@pytest.mark.parametrize("V,F", [(50, 200), (300, 37), (5000, 3)], ids=["frames", "mixed", "rows"])
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_frame_blocks_and_threads_cover_the_grid(device, monkeypatch, V, F, method):
+    """Every (frame, vertex) is skinned once whichever way the grid is split: many frames and few
+    vertices (split by frame blocks, a partial last block), few frames and many vertices (split
+    by vertices), with 3 worker threads."""
+    monkeypatch.setenv("DQSKIN_THREADS", "3")
+    rng = np.random.default_rng(V + F)
+    points, idx, w, M, _ = random_rig(rng, V=V, K=4, J=6, F=F)
+    ours = dqskin.skin_points(points, idx, w, M, method, device=device)
+    oracle = numpy_lbs if method == "lbs" else numpy_dqs
+    for f in range(F):
+        assert rel_err(ours[f], oracle(points, idx, w, M[f])) <= 1e-5, f
