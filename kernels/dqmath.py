@@ -19,6 +19,7 @@ import warp as wp
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
+
 vec8 = wp.types.vector(length=8, dtype=wp.float32)
 
 

@@ -18,10 +18,11 @@ Kernels run one thread per (frame, skeleton), walking that skeleton's joints par
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 from .dqmath import (dq_from_rt, dq_mul, dq_to_matrix, is_identity33, is_rotation, mat44_linear,
                      polar_rotation, quat_from_rotation, vec8)
+
+wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 
 @wp.func

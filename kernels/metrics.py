@@ -11,6 +11,7 @@ import warp as wp
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 
+
 @wp.func
 def ref_frame(f: int, frames: int):
     """Frame of a reference array: ``f``, or 0 when the reference has a single frame."""

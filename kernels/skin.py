@@ -25,10 +25,11 @@ Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, 
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 from .dqmath import (dq_blend_add, dq_from_rt, is_identity33, mat44_linear, orthonormalize_columns,
                      polar_rotation, quat_from_rotation, vec8)
+
+wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 mat34 = wp.types.matrix(shape=(3, 4), dtype=wp.float32)
 

@@ -1,7 +1,8 @@
 """Per-vertex velocity kernels: time derivatives of LBS and DQS skinned points, batched over frames.
 
-Same layout and semantics as :mod:`dqskin.kernels.skin` (one thread per vertex looping over all
-frames, influences sorted by descending weight so slot 0 is the antipodality pivot). Each kernel
+Same semantics as :mod:`dqskin.kernels.skin` (influences sorted by descending weight so slot 0 is
+the antipodality pivot); its own simpler layout: influences as plain (V, K) arrays, one thread per
+vertex looping over all frames. Each kernel
 differentiates the skinning formula by the chain rule, given the time derivatives of the joint data
 and of the rest points:
 
@@ -20,10 +21,11 @@ order and are converted to Warp quaternions with :func:`~dqskin.kernels.dqmath.d
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 from .dqmath import dq_dual, dq_real, vec8
 from .skin import mat34
+
+wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 
 @wp.kernel
