@@ -134,6 +134,9 @@ def cmd_skin(args):
     names = [m.name for m in scene.meshes]
     F = len(times)
     if suffix in (".usd", ".usda", ".usdc"):
+        if Path(args.input).suffix.lower() not in io.USD_SUFFIXES:
+            raise CliError(f"--out {out}: a USD point cache copies the input stage, so it needs a "
+                           "USD input; for glTF write .npz or per-frame .obj/.ply/.glb files")
         check_output(out, [args.input], args.force)
         from .usd_cache import UsdCacheWriter
         wrote_velocities = False

@@ -106,30 +106,50 @@ def lbs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
 
 
 @wp.func
-def dqs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
-              weights: wp.array2d(dtype=wp.vec4), dqs: wp.array2d(dtype=vec8),
-              residuals: wp.array2d(dtype=wp.mat33), use_residual: bool):
-    """DQS of one point: pivot slot 0, sign-aligned blend, normalization folded in."""
+def dqs_blend(v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
+              weights: wp.array2d(dtype=wp.vec4), dqs: wp.array2d(dtype=vec8)):
+    """Sign-aligned weighted sum of the vertex's dual quaternions (pivot: slot 0)."""
     pv = dqs[f, indices[v, 0][0]]
     b = vec8()
-    scaled = p
-    if use_residual:
-        scaled = wp.vec3()
     for c in range(indices.shape[1]):
         iv = indices[v, c]
         wv = weights[v, c]
         for k in range(4):
             b = dq_blend_add(b, dqs[f, iv[k]], wv[k], pv)
-            if use_residual:
-                scaled += (residuals[f, iv[k]] * p) * wv[k]
+    return b
+
+
+@wp.func
+def residual_blend(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
+                   weights: wp.array2d(dtype=wp.vec4), residuals: wp.array2d(dtype=wp.mat33)):
+    """``Σ wᵢ·Sᵢ·p``: the point blended through the joints' scale/shear residuals."""
+    x = wp.vec3()
+    for c in range(indices.shape[1]):
+        iv = indices[v, c]
+        wv = weights[v, c]
+        for k in range(4):
+            x += (residuals[f, iv[k]] * p) * wv[k]
+    return x
+
+
+@wp.func
+def dqs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
+              weights: wp.array2d(dtype=wp.vec4), dqs: wp.array2d(dtype=vec8),
+              residuals: wp.array2d(dtype=wp.mat33), use_residual: bool):
+    """DQS of one point: residual blend (frames with scale/shear only), then the normalized,
+    sign-aligned DQ blend applied with the normalization folded in."""
+    x = p
+    if use_residual:
+        x = residual_blend(p, v, f, indices, weights, residuals)
+    b = dqs_blend(v, f, indices, weights, dqs)
     rv = wp.vec3(b[1], b[2], b[3])
     rw = b[0]
     n2 = rw * rw + wp.dot(rv, rv)
     if n2 < 1.0e-20:
-        return scaled  # all weights zero: identity, as Gf's normalize
+        return x  # all weights zero: identity, as Gf's normalize
     dv = wp.vec3(b[5], b[6], b[7])
-    return scaled + (2.0 / n2) * (wp.cross(rv, wp.cross(rv, scaled) + rw * scaled)
-                                  + rw * dv - b[4] * rv + wp.cross(rv, dv))
+    return x + (2.0 / n2) * (wp.cross(rv, wp.cross(rv, x) + rw * x)
+                             + rw * dv - b[4] * rv + wp.cross(rv, dv))
 
 
 @wp.kernel

@@ -184,6 +184,8 @@ def main(argv=None):
     sizes = [int(s) for s in args.sizes.split(",")]
     if args.quick:
         sizes, args.repeat = [s for s in sizes if s <= 100_000], 3
+    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_ERROR
     wp.init()
     devices = ["cpu"] + (["cuda:0"] if wp.get_cuda_device_count() > 0 else [])
     skip = set(filter(None, args.skip.split(",")))

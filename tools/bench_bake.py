@@ -84,6 +84,16 @@ def run_dqskin_normals(src, dst):
     run_dqskin(src, dst, normals=True)
 
 
+def peak_rss_mb():
+    """This process's peak resident memory (VmHWM; unlike ru_maxrss it restarts at exec, so a
+    child forked from a large parent reports its own)."""
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def child(which, src, dst):
     """Time imports and the bake separately, in this fresh process."""
     t0 = time.perf_counter()
@@ -92,7 +102,7 @@ def child(which, src, dst):
     {"usdskel": run_usdskel, "dqskin": run_dqskin, "dqskin+normals": run_dqskin_normals}[which](
         src, dst)
     t2 = time.perf_counter()
-    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    peak_mb = peak_rss_mb()
     print(json.dumps(dict(seconds=t2 - t1, import_seconds=t1 - t0, peak_mb=peak_mb)))
 
 
