@@ -19,6 +19,7 @@ import warp as wp
 from ._warp import resolve_device
 from .kernels import metrics as K
 from .skeleton import check_parents
+from .topology import check_faces, incidence
 
 __all__ = ["JointSections", "bone_segments", "dominant_pair_regions", "edge_strain", "is_closed",
            "joint_axes", "joint_axis_apex", "joint_sections", "local_volume_ratio", "mesh_edges",
@@ -44,30 +45,8 @@ def _reference(name, points, frames, vertex_count):
     return a
 
 
-def _faces(faces, vertex_count):
-    f = np.asarray(faces)
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"faces: expected (T, 3) triangles, got {f.shape}")
-    if f.shape[0] == 0:
-        raise ValueError("faces: mesh has no faces")
-    if not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"faces: expected integers, got {f.dtype}")
-    if f.min() < 0 or f.max() >= vertex_count:
-        raise ValueError(f"faces: vertex index out of range [0, {vertex_count})")
-    return f.astype(np.int32)
-
-
 def _vec3s(a, device):
     return wp.array(np.ascontiguousarray(a, dtype=np.float32), dtype=wp.vec3, device=device)
-
-
-def _csr(items_of, count):
-    """Index → incident items as CSR ``(offsets (count+1,), items)`` int32, from an (N, k) table."""
-    flat = items_of.reshape(-1)
-    order = np.argsort(flat, kind="stable")
-    offsets = np.zeros(count + 1, dtype=np.int64)
-    np.cumsum(np.bincount(flat, minlength=count), out=offsets[1:])
-    return offsets.astype(np.int32), (order // items_of.shape[1]).astype(np.int32)
 
 
 def _launch(kernel, dim, inputs, outputs, device):
@@ -97,7 +76,7 @@ def volume(points, faces, *, device=None):
     """
     d = resolve_device(device)
     pts, batched = _frames("points", points)
-    f = _faces(faces, pts.shape[1])
+    f = check_faces(faces, pts.shape[1])
     origins = 0.5 * (pts.min(axis=1) + pts.max(axis=1))
     (vols,) = _launch(K.face_volume_kernel, (pts.shape[0], f.shape[0]),
                       [_vec3s(pts, d), wp.array(f, dtype=wp.vec3i, device=d), _vec3s(origins, d)],
@@ -180,7 +159,7 @@ def volume_ratio(points, rest_points, faces, *, device=None):
     rest, _ = _frames("rest_points", rest_points)
     if rest.shape[0] != 1:
         raise ValueError(f"rest_points: expected (V, 3), got {np.shape(rest_points)}")
-    f = _faces(faces, rest.shape[1])
+    f = check_faces(faces, rest.shape[1])
     problem = _closure_problem(f, rest[0])
     if problem:
         return None, problem
@@ -258,10 +237,10 @@ def vertex_edge_strain(points, rest_points, faces, *, device=None):
     """
     d = resolve_device(device)
     pts, batched = _frames("points", points)
-    f = _faces(faces, pts.shape[1])
+    f = check_faces(faces, pts.shape[1])
     edges = mesh_edges(f)
     strain = edge_strain(pts, rest_points, edges, device=d)
-    offsets, items = _csr(edges, pts.shape[1])
+    offsets, items = incidence(edges, pts.shape[1])
     (out,) = _launch(K.vertex_extreme_kernel, (pts.shape[0], pts.shape[1]),
                      [wp.array(strain, dtype=float, device=d),
                       wp.array(offsets, dtype=wp.int32, device=d),
@@ -279,7 +258,7 @@ def _normals(pts, faces, per, device):
               outputs=[fn], device=device)
     if per == "face":
         return fn
-    offsets, items = _csr(faces, count)
+    offsets, items = incidence(faces, count)
     vn = wp.empty((frames, count), dtype=wp.vec3, device=device)
     wp.launch(K.vertex_normal_kernel, dim=vn.shape,
               inputs=[fn, wp.array(offsets, dtype=wp.int32, device=device),
@@ -318,7 +297,7 @@ def normal_deviation(points, faces, reference_points=None, *, reference_normals=
         raise ValueError("give exactly one of reference_points and reference_normals")
     d = resolve_device(device)
     pts, batched = _frames("points", points)
-    f = _faces(faces, pts.shape[1])
+    f = check_faces(faces, pts.shape[1])
     normals = _normals(pts, f, per, d)
     count = normals.shape[1]
     if reference_points is not None:
@@ -391,10 +370,10 @@ def local_volume_ratio(points, rest_points, faces, apex, rest_apex, *, min_eleva
     pts, batched = _frames("points", points)
     count = pts.shape[1]
     rest = _reference("rest_points", rest_points, 1, count)
-    f = _faces(faces, count)
+    f = check_faces(faces, count)
     q = _reference("apex", apex, pts.shape[0], count)
     q0 = _reference("rest_apex", rest_apex, 1, count)
-    offsets, items = _csr(f, count)
+    offsets, items = incidence(f, count)
     topo = [wp.array(f, dtype=wp.vec3i, device=d), wp.array(offsets, dtype=wp.int32, device=d),
             wp.array(items, dtype=wp.int32, device=d)]
 

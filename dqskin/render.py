@@ -19,6 +19,7 @@ import warp as wp
 
 from ._warp import launch_rows, resolve_device
 from .io import atomic_path
+from .topology import check_faces, incidence
 from .kernels import render as K
 
 __all__ = ["VIEWS", "Camera", "MeshRenderer", "Shading", "add_colorbar", "colormap_lut",
@@ -296,25 +297,7 @@ def _check_mesh(points, faces):
         raise ValueError("points: mesh has no points")
     if not np.all(np.isfinite(pts)):
         raise ValueError("points: NaN or infinite coordinate")
-    f = np.asarray(faces)
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"faces: expected (T, 3) triangles, got {f.shape}")
-    if f.shape[0] == 0:
-        raise ValueError("faces: mesh has no faces")
-    if not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"faces: expected integers, got {f.dtype}")
-    if f.min() < 0 or f.max() >= pts.shape[0]:
-        raise ValueError(f"faces: vertex index out of range [0, {pts.shape[0]})")
-    return pts.astype(np.float32), f.astype(np.int32)
-
-
-def _vertex_faces(faces, vertex_count):
-    """Vertex → incident faces as CSR ``(offsets (V+1,), faces (3T,))`` int32."""
-    flat = faces.reshape(-1)
-    order = np.argsort(flat, kind="stable")
-    offsets = np.zeros(vertex_count + 1, dtype=np.int64)
-    np.cumsum(np.bincount(flat, minlength=vertex_count), out=offsets[1:])
-    return offsets.astype(np.int32), (order // 3).astype(np.int32)
+    return pts.astype(np.float32), check_faces(faces, pts.shape[0])
 
 
 class MeshRenderer:
@@ -338,7 +321,7 @@ class MeshRenderer:
         d = self.device
         self.vertex_count, self.face_count = pts.shape[0], f.shape[0]
         self._faces = wp.array(f.reshape(-1), dtype=wp.int32, device=d)
-        offsets, vf = _vertex_faces(f, pts.shape[0])
+        offsets, vf = incidence(f, pts.shape[0])
         self._vf_offsets = wp.array(offsets, dtype=wp.int32, device=d)
         self._vf_faces = wp.array(vf, dtype=wp.int32, device=d)
         self._normals = wp.empty(pts.shape[0], dtype=wp.vec3, device=d)

@@ -1,0 +1,33 @@
+"""Triangle-mesh topology helpers shared by the metrics and the renderer."""
+
+import numpy as np
+
+__all__ = ["check_faces", "incidence"]
+
+
+def check_faces(faces, vertex_count):
+    """Validate triangles and return them as (T, 3) int32.
+
+    Raises ValueError naming ``faces`` for a wrong shape, no faces, non-integer indices or an
+    index outside ``[0, vertex_count)``.
+    """
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"faces: expected (T, 3) triangles, got {f.shape}")
+    if f.shape[0] == 0:
+        raise ValueError("faces: mesh has no faces")
+    if not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(f"faces: expected integers, got {f.dtype}")
+    if f.min() < 0 or f.max() >= vertex_count:
+        raise ValueError(f"faces: vertex index out of range [0, {vertex_count})")
+    return f.astype(np.int32)
+
+
+def incidence(items_of, count):
+    """Index → incident items as CSR ``(offsets (count+1,), items)`` int32, from an (N, k) table
+    (e.g. faces (T, 3) → for each vertex the faces that use it)."""
+    flat = items_of.reshape(-1)
+    order = np.argsort(flat, kind="stable")
+    offsets = np.zeros(count + 1, dtype=np.int64)
+    np.cumsum(np.bincount(flat, minlength=count), out=offsets[1:])
+    return offsets.astype(np.int32), (order // items_of.shape[1]).astype(np.int32)
