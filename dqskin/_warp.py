@@ -45,7 +45,7 @@ def _pool_map(tasks):
         fut.result()
 
 
-def launch_blocks(launch, rows, frames, device, min_work=4096):
+def launch_blocks(launch, rows, frames, device, min_work=32768):
     """Call ``launch(block_offset, block_count, row_offset, row_count)`` over a grid of
     ``ceil(frames / FRAME_BLOCK)`` frame blocks × ``rows``.
 

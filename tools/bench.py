@@ -3,7 +3,8 @@
     python tools/bench.py [--sizes 10000,100000,1000000] [--json out/bench.json] [--quick]
 
 Skinning: random rigid rigs, 4 influences, 64 joints, float32; each implementation skins the same
-points with the same transforms; best of ``--repeat`` runs. dqskin times include uploading the
+points with the same transforms; per-call time is the best over ``--repeat`` rounds of the mean of
+a burst of back-to-back calls. dqskin times include uploading the
 frame's transforms, preparing them and reading the result back (the mesh is uploaded once, as a
 pipeline would). FK: 1,000 skeletons × 64 joints. Prints a table and writes JSON.
 """
@@ -27,17 +28,25 @@ from dqskin.skeleton import forward_kinematics
 JOINTS, INFLUENCES = 64, 4
 
 
-def best_times(fns, repeat):
-    """Best wall time of each callable, rounds interleaved so machine noise hits all alike."""
-    for fn in fns.values():
+def best_times(fns, repeat, burst_seconds=0.1):
+    """Per-call wall time of each callable: the best over ``repeat`` rounds of the mean of a burst
+    of back-to-back calls (about ``burst_seconds`` long, so steady state, as in a pipeline).
+    Rounds are interleaved so machine noise hits every implementation alike, with a pause before
+    each burst so the previous implementation's worker threads (TBB, BLAS) go idle."""
+    bursts = {}
+    for name, fn in fns.items():
         fn()  # warm-up (kernel load, caches)
+        t0 = time.perf_counter()
+        fn()
+        bursts[name] = max(1, min(50, int(burst_seconds / max(time.perf_counter() - t0, 1e-6))))
     best = dict.fromkeys(fns, float("inf"))
     for _ in range(repeat):
         for name, fn in fns.items():
-            time.sleep(0.3)  # let the previous implementation's worker threads (TBB, BLAS) go idle
+            time.sleep(0.3)
             t0 = time.perf_counter()
-            fn()
-            best[name] = min(best[name], time.perf_counter() - t0)
+            for _ in range(bursts[name]):
+                fn()
+            best[name] = min(best[name], (time.perf_counter() - t0) / bursts[name])
     return best
 
 
