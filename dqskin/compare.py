@@ -40,7 +40,8 @@ from .scene import Scene
 from .skinning import METHODS, Skinner
 
 __all__ = ["BLEND_WEIGHT", "METRICS", "SECTION_SLICES", "SWEEP_RIGS", "add_compare_arguments",
-           "cmd_compare", "default_frames", "parse_times", "run_compare", "sweeps", "worst"]
+           "cmd_compare", "default_frames", "parse_times", "run_compare", "skeleton_up_axis",
+           "sweeps", "worst"]
 
 BLEND_WEIGHT = 0.5
 """DQS fraction of every vertex for ``method="blend"`` (0 = LBS, 1 = DQS)."""
@@ -466,6 +467,20 @@ def _prepare_out(out_dir, force):
     return out, frames
 
 
+def skeleton_up_axis(scene):
+    """The skeleton-space axis ("Y" or "Z") that points closest to the stage's up direction.
+
+    Rendering happens in skeleton space; a USD skeleton under a rotating transform (a converter's
+    ``Z_UP`` group, say) has its own up axis. Uses the first skeleton's ``world_transform``.
+    """
+    if not scene.skeletons:
+        return scene.up_axis
+    world_up = np.eye(3)[1 if scene.up_axis == "Y" else 2]
+    lin = np.asarray(scene.skeletons[0].world_transform, np.float64)[:3, :3]
+    up = np.linalg.solve(lin, world_up)  # the world up direction in skeleton axes
+    return "Y" if abs(up[1]) >= abs(up[2]) else "Z"
+
+
 def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, views=VIEWS,
                 device=None, width=512, supersample=2, progress=True, force=False,
                 sweeps_dir="default", up_axis=None, clip=None):
@@ -499,7 +514,7 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         the repository's ``assets/`` folder, None leaves the sweeps out. A missing folder or rig
         is noted in the report.
     up_axis : {"Y", "Z"}, optional
-        Up axis of the skeleton space for the cameras; default ``scene.up_axis``.
+        Up axis of the skeleton space for the cameras; default :func:`skeleton_up_axis`.
     clip : str or int, optional
         glTF animation to load.
 
@@ -515,7 +530,7 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         if isinstance(v, bool) or int(v) != v or v < low:
             raise ValueError(f"{name}: expected an integer >= {low}, got {v!r}")
     scene = input_path if isinstance(input_path, Scene) else load(input_path, clip=clip)
-    up = scene.up_axis if up_axis is None else up_axis
+    up = skeleton_up_axis(scene) if up_axis is None else up_axis
     if up not in ("Y", "Z"):
         raise ValueError(f"{scene.path}: up axis must be Y or Z, got {up!r}")
     if frames is None:

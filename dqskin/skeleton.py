@@ -63,6 +63,13 @@ class Skeleton:
         local transforms implied by ``bind_transforms``.
     name : str
         Where the skeleton came from (USD prim path, glTF skin name); used in messages.
+
+    Attributes
+    ----------
+    world_transform : (4, 4) float64
+        Skeleton space → world space (USD: the Skeleton prim's local-to-world at the default
+        time; identity for glTF, whose skeleton space is the world). Used for orientation only,
+        e.g. which skeleton axis points up when rendering.
     """
 
     def __init__(self, joint_names, parents, bind_transforms=None, rest_transforms=None, *, name=""):
@@ -86,6 +93,7 @@ class Skeleton:
             self.rest_transforms = _check_matrices(f"{name or 'skeleton'}: rest_transforms",
                                                    rest_transforms, J)
         self._inverse_bind = None
+        self.world_transform = np.eye(4)
 
     @property
     def joint_count(self):

@@ -228,6 +228,8 @@ class _Loader:
                                 name=key)
         except ValueError as exc:
             raise ValueError(f"{self.path}: {exc}") from None
+        skeleton.world_transform = _matrices(UsdGeom.Imageable(skel.GetPrim())
+                                             .ComputeLocalToWorldTransform(Usd.TimeCode.Default()))[0]
         anim = query.GetAnimQuery()
         self.skeleton_index[key] = len(self.skeletons)
         self.skeletons.append(skeleton)

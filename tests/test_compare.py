@@ -347,3 +347,14 @@ def test_command_line(tmp_path, capsys):
                              "lbs,nope"])
     with pytest.raises(ValueError, match="nope"):
         cmd_compare(bad)
+
+
+def test_cameras_use_the_skeleton_spaces_up_axis(shared_assets):
+    """usd-wg's CesiumMan keeps its skeleton under a Z_UP group (−90° about x) on a Y-up stage,
+    so its skeleton space is Z-up; the glTF's skeleton space is the Y-up world."""
+    from dqskin.compare import skeleton_up_axis
+    usdz = dqskin.load(shared_assets / "usd-wg" / "CesiumMan" / "CesiumMan.usdz")
+    glb = dqskin.load(shared_assets / "khronos-gltf" / "CesiumMan" / "CesiumMan.glb")
+    assert usdz.up_axis == "Y" and skeleton_up_axis(usdz) == "Z"
+    assert skeleton_up_axis(glb) == "Y"
+    assert skeleton_up_axis(dqskin.load(TWIST)) == "Y"
