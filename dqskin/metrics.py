@@ -19,6 +19,7 @@ import warp as wp
 from ._warp import resolve_device
 from .kernels import metrics as K
 from .skeleton import check_parents
+from .skinning import check_influences
 from .topology import check_faces, incidence
 
 __all__ = ["JointSections", "bone_segments", "dominant_pair_regions", "edge_strain", "is_closed",
@@ -391,14 +392,8 @@ def local_volume_ratio(points, rest_points, faces, apex, rest_apex, *, min_eleva
 
 
 def _influences(joint_indices, joint_weights):
-    idx = np.asarray(joint_indices)
-    w = np.asarray(joint_weights, dtype=np.float64)
-    if idx.ndim == 1:
-        idx, w = idx[:, None], w[:, None]
-    if idx.ndim != 2 or w.shape != idx.shape or not np.issubdtype(idx.dtype, np.integer):
-        raise ValueError(f"joint_indices {idx.shape} and joint_weights {w.shape}: expected (V, K) "
-                         "integers and weights of the same shape")
-    return idx.astype(np.int64), w
+    idx, w = check_influences(joint_indices, joint_weights)
+    return idx, w.astype(np.float64)
 
 
 def joint_axis_apex(rest_points, joint_indices, joint_weights, bind_positions, parents,

@@ -72,6 +72,7 @@ from .kernels.dqmath import vec8
 from .kernels.skin import mat34
 from .scene import Animation
 from .skeleton import check_parents
+from .skinning import check_influences
 
 __all__ = [
     "INTERPOLATIONS",
@@ -679,16 +680,7 @@ def skinned_velocities(points, joint_indices, joint_weights, skinning_transforms
     if not batched:
         x, x_dot = x[None], x_dot[None]
     frames, joints = x.shape[:2]
-    idx = np.asarray(joint_indices)
-    wts = np.asarray(joint_weights, dtype=np.float32)
-    if idx.ndim == 1:
-        idx, wts = idx[:, None], wts[:, None]
-    if idx.ndim != 2 or wts.shape != idx.shape or not np.issubdtype(idx.dtype, np.integer):
-        raise ValueError(f"joint_indices {idx.shape} {idx.dtype} and joint_weights {wts.shape} "
-                         "must be (V, K) integers and floats")
-    if idx.size and (idx.min() < 0 or idx.max() >= joints):
-        raise ValueError(f"joint_indices: values must be in [0, {joints}), got "
-                         f"[{idx.min()}, {idx.max()}]")
+    idx, wts = check_influences(joint_indices, joint_weights, joint_count=joints)
     count = idx.shape[0]
     pts = _frames_of("points", points, frames, count)
     vel = (np.zeros((1, count, 3)) if point_velocities is None else

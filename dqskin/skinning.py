@@ -16,7 +16,7 @@ from ._warp import FRAME_BLOCK, launch_blocks, resolve_device
 from .kernels import skin as K
 from .kernels.dqmath import vec8
 
-__all__ = ["METHODS", "Skinner", "skin_points", "skin_normals"]
+__all__ = ["METHODS", "Skinner", "check_influences", "skin_points", "skin_normals"]
 
 METHODS = {"lbs": K.LBS, "dqs": K.DQS, "blend": K.BLEND}
 """Skinning methods: linear blend, dual quaternion, per-vertex blend of the two."""
@@ -56,6 +56,36 @@ def _frames_of(name, a, count):
     raise ValueError(f"{name}: expected (V, 3) or ({count}, V, 3), got {a.shape}")
 
 
+def check_influences(joint_indices, joint_weights, vertex_count=None, joint_count=None):
+    """Validate per-vertex influences; returns ``(indices (V, K) int64, weights (V, K) float32)``.
+
+    1-D inputs are one influence per vertex. Raises ValueError naming ``joint_indices`` or
+    ``joint_weights`` for mismatched shapes, non-integer or out-of-range indices (``0 <= index <
+    joint_count`` when given), and NaN, infinite or negative weights.
+    """
+    idx = np.asarray(joint_indices)
+    wts = np.asarray(joint_weights, dtype=np.float32)
+    if idx.ndim == 1:
+        idx, wts = idx[:, None], wts[:, None]
+    if idx.ndim != 2 or wts.shape != idx.shape or (vertex_count is not None
+                                                   and idx.shape[0] != vertex_count):
+        want = "(V, K)" if vertex_count is None else f"({vertex_count}, K)"
+        raise ValueError(f"joint_indices {idx.shape} and joint_weights {wts.shape} must both be "
+                         f"{want}")
+    if not np.issubdtype(idx.dtype, np.integer):
+        raise ValueError(f"joint_indices: expected integers, got {idx.dtype}")
+    if idx.size and idx.min() < 0:
+        raise ValueError(f"joint_indices: negative index {int(idx.min())}")
+    if joint_count is not None and idx.size and idx.max() >= joint_count:
+        raise ValueError(f"joint_indices: index {int(idx.max())} out of range for {joint_count} "
+                         "joints")
+    if not np.all(np.isfinite(wts)):
+        raise ValueError("joint_weights: NaN or infinite weight")
+    if wts.size and wts.min() < 0:
+        raise ValueError(f"joint_weights: negative weight {float(wts.min())}")
+    return idx.astype(np.int64), wts
+
+
 class Skinner:
     """A mesh's skinning data uploaded once to a device, skinned for many frames.
 
@@ -81,21 +111,7 @@ class Skinner:
         pts = _as_array("points", points, np.float64, (3,))
         if pts.ndim != 2:
             raise ValueError(f"points: expected (V, 3), got {pts.shape}")
-        idx = np.asarray(joint_indices)
-        wts = np.asarray(joint_weights, dtype=np.float32)
-        if idx.ndim == 1:
-            idx, wts = idx[:, None], wts[:, None]
-        if idx.ndim != 2 or idx.shape[0] != pts.shape[0] or wts.shape != idx.shape:
-            raise ValueError(f"joint_indices {idx.shape} and joint_weights {wts.shape} must both be "
-                             f"(V, K) with V = {pts.shape[0]} points")
-        if not np.issubdtype(idx.dtype, np.integer):
-            raise ValueError(f"joint_indices: expected integers, got {idx.dtype}")
-        if idx.size and idx.min() < 0:
-            raise ValueError(f"joint_indices: negative index {int(idx.min())}")
-        if not np.all(np.isfinite(wts)):
-            raise ValueError("joint_weights: NaN or infinite weight")
-        if wts.size and wts.min() < 0:
-            raise ValueError(f"joint_weights: negative weight {float(wts.min())}")
+        idx, wts = check_influences(joint_indices, joint_weights, pts.shape[0])
         self.vertex_count, self.influence_count = idx.shape
         # largest weight first (stable: first on ties) -- the kernels' antipodality pivot -- then
         # zero-padded to groups of four (kernels.skin's influence layout)
