@@ -66,7 +66,7 @@ import numpy as np
 import warp as wp
 
 from . import dq, quat
-from ._warp import launch_rows, resolve_device
+from ._warp import FRAME_BLOCK, launch_blocks, resolve_device
 from .kernels import velocity as KV
 from .kernels.dqmath import vec8
 from .kernels.skin import mat34
@@ -721,11 +721,12 @@ def skinned_velocities(points, joint_indices, joint_weights, skinning_transforms
                    wp.array(has_res.astype(np.int32), dtype=wp.int32, device=d)]
     out = wp.empty((frames, count), dtype=wp.vec3, device=d)
 
-    def launch(offset, n):
-        wp.launch(kernel, dim=n, inputs=arrays + [offset], outputs=[out], device=d)
+    def launch(block_offset, blocks, offset, n):
+        wp.launch(kernel, dim=(blocks, n), inputs=arrays + [FRAME_BLOCK, block_offset, offset],
+                  outputs=[out], device=d)
 
     if count:
-        launch_rows(launch, count, d)
+        launch_blocks(launch, count, frames, d)
     res = out.numpy()
     return res if batched else res[0]
 

@@ -1,8 +1,8 @@
 """Per-vertex velocity kernels: time derivatives of LBS and DQS skinned points, batched over frames.
 
-Same semantics as :mod:`dqskin.kernels.skin` (influences sorted by descending weight so slot 0 is
-the antipodality pivot); its own simpler layout: influences as plain (V, K) arrays, one thread per
-vertex looping over all frames. Each kernel
+Same semantics and grid as :mod:`dqskin.kernels.skin` (influences sorted by descending weight so
+slot 0 is the antipodality pivot; a thread per vertex and block of frames); influences as plain
+(V, K) arrays. Each kernel
 differentiates the skinning formula by the chain rule, given the time derivatives of the joint data
 and of the rest points:
 
@@ -36,16 +36,20 @@ def lbs_velocity_kernel(
     weights: wp.array2d(dtype=float),
     affines: wp.array2d(dtype=mat34),
     affine_derivatives: wp.array2d(dtype=mat34),
+    frame_block: int,
+    block_offset: int,
     vertex_offset: int,
     # outputs
     out: wp.array2d(dtype=wp.vec3),
 ):
     """LBS velocity. ``points``, ``point_velocities`` (Fp, V) bind space, Fp 1 or F;
     ``affines``, ``affine_derivatives`` (F, J) 3×4; ``out`` (F, V) skeleton space per unit time."""
-    v = wp.tid() + vertex_offset
+    b, i = wp.tid()
+    v = i + vertex_offset
+    f0 = (b + block_offset) * frame_block
     last_p = points.shape[0] - 1
     last_v = point_velocities.shape[0] - 1
-    for f in range(out.shape[0]):
+    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
         p = points[wp.min(f, last_p), v]
         pd = point_velocities[wp.min(f, last_v), v]
         acc = mat34()
@@ -70,16 +74,20 @@ def dqs_velocity_kernel(
     residuals: wp.array2d(dtype=wp.mat33),
     residual_derivatives: wp.array2d(dtype=wp.mat33),
     has_residual: wp.array(dtype=wp.int32),
+    frame_block: int,
+    block_offset: int,
     vertex_offset: int,
     # outputs
     out: wp.array2d(dtype=wp.vec3),
 ):
     """DQS velocity. ``dqs``, ``dq_derivatives`` (F, J) unit joint DQs and their time derivatives;
     ``residuals`` and their derivatives (F, J); other arrays as :func:`lbs_velocity_kernel`."""
-    v = wp.tid() + vertex_offset
+    b, i = wp.tid()
+    v = i + vertex_offset
+    f0 = (b + block_offset) * frame_block
     last_p = points.shape[0] - 1
     last_v = point_velocities.shape[0] - 1
-    for f in range(out.shape[0]):
+    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
         p = points[wp.min(f, last_p), v]
         pd = point_velocities[wp.min(f, last_v), v]
         use_residual = has_residual[f] != 0
