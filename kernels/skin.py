@@ -133,23 +133,27 @@ def residual_blend(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4
 
 
 @wp.func
+def dqs_apply(b: vec8, x: wp.vec3):
+    """Apply a blended (unnormalized) dual quaternion ``b = r + ε·d`` to ``x``, normalization
+    folded in: ``x + 2·(r⃗×(r⃗×x + r_w·x) + r_w·d⃗ − d_w·r⃗ + r⃗×d⃗)/|r|²``. A zero blend (all
+    weights zero) leaves ``x`` unchanged, as Gf's normalize returns the identity."""
+    rv = wp.vec3(b[1], b[2], b[3])
+    rw = b[0]
+    dv = wp.vec3(b[5], b[6], b[7])
+    s = 2.0 / wp.max(rw * rw + wp.dot(rv, rv), 1.0e-30)
+    return x + s * (wp.cross(rv, wp.cross(rv, x) + rw * x) + rw * dv - b[4] * rv + wp.cross(rv, dv))
+
+
+@wp.func
 def dqs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
               weights: wp.array2d(dtype=wp.vec4), dqs: wp.array2d(dtype=vec8),
               residuals: wp.array2d(dtype=wp.mat33), use_residual: bool):
-    """DQS of one point: residual blend (frames with scale/shear only), then the normalized,
-    sign-aligned DQ blend applied with the normalization folded in."""
-    x = p
-    if use_residual:
-        x = residual_blend(p, v, f, indices, weights, residuals)
+    """DQS of one point: the sign-aligned DQ blend applied to the point, or, on frames with
+    scale/shear, to the point blended through the residuals first."""
     b = dqs_blend(v, f, indices, weights, dqs)
-    rv = wp.vec3(b[1], b[2], b[3])
-    rw = b[0]
-    n2 = rw * rw + wp.dot(rv, rv)
-    if n2 < 1.0e-20:
-        return x  # all weights zero: identity, as Gf's normalize
-    dv = wp.vec3(b[5], b[6], b[7])
-    return x + (2.0 / n2) * (wp.cross(rv, wp.cross(rv, x) + rw * x)
-                             + rw * dv - b[4] * rv + wp.cross(rv, dv))
+    if use_residual:
+        return dqs_apply(b, residual_blend(p, v, f, indices, weights, residuals))
+    return dqs_apply(b, p)
 
 
 @wp.kernel
