@@ -22,14 +22,14 @@ class CliError(Exception):
     """An error reported as one line, exit status 2."""
 
 
-def parse_frames(text):
+def parse_frames(text, default_step=1.0):
     """``START:END[:STEP]`` → (start, end, step) floats (END inclusive)."""
     parts = text.split(":")
     try:
         if len(parts) not in (2, 3):
             raise ValueError
         start, end = float(parts[0]), float(parts[1])
-        step = float(parts[2]) if len(parts) == 3 else 1.0
+        step = float(parts[2]) if len(parts) == 3 else default_step
     except ValueError:
         raise CliError(f"--frames {text!r}: expected START:END[:STEP]") from None
     if step <= 0 or end < start:
@@ -38,16 +38,17 @@ def parse_frames(text):
 
 
 def select_times(scene, frames=None, fps=None, substeps=1):
-    """Sample times: the asset's own, an explicit ``--frames`` range, or ``--fps`` resampling;
-    ``substeps`` more samples evenly inside each interval (motion-blur sub-frames)."""
+    """Sample times: the asset's own, an explicit ``--frames`` range, or ``--fps`` resampling
+    (which also sets the default STEP of ``--frames``); ``substeps`` more samples evenly inside
+    each interval (motion-blur sub-frames)."""
     t = np.asarray(scene.times, np.float64)
+    if fps is not None and fps <= 0:
+        raise CliError(f"--fps {fps}: must be positive")
+    step = 1.0 if fps is None else scene.time_codes_per_second / fps
     if frames is not None:
-        start, end, step = parse_frames(frames)
+        start, end, step = parse_frames(frames, step)
         t = np.arange(start, end + step * 1e-6, step)
     elif fps is not None:
-        if fps <= 0:
-            raise CliError(f"--fps {fps}: must be positive")
-        step = scene.time_codes_per_second / fps
         t = np.arange(t[0], t[-1] + step * 1e-6, step)
     if t.size == 0:
         raise CliError(f"{scene.path}: no frames selected")
@@ -60,14 +61,21 @@ def select_times(scene, frames=None, fps=None, substeps=1):
 
 
 def frame_numbers(scene, times):
-    """Integer frame numbers for file names: USD time codes, or glTF seconds at 24 fps; a
-    CliError when two frames would share a name (sub-frame times)."""
+    """Integer frame numbers for file names: USD time codes; for glTF (seconds) the sample rate's
+    frames (24 fps, or finer when the samples are). A CliError when two frames would still share
+    a name."""
     from .io import GLTF_SUFFIXES
-    rate = 24.0 if Path(scene.path).suffix.lower() in GLTF_SUFFIXES else 1.0
-    numbers = np.round(np.asarray(times) * rate).astype(int)
+    t = np.asarray(times, dtype=np.float64)
+    gltf = Path(scene.path).suffix.lower() in GLTF_SUFFIXES
+    rate = 1.0
+    if gltf:
+        step = np.diff(t).min() if t.size > 1 else 1.0
+        rate = max(24.0, float(np.round(1.0 / step)) if step > 0 else 24.0)
+    numbers = np.round(t * rate).astype(int)
     if len(set(numbers.tolist())) != len(numbers):
         raise CliError(f"--out: {len(numbers)} frames map to {len(set(numbers.tolist()))} file "
-                       "names (sub-frame times); write .usd/.usdc/.npz instead")
+                       "names (sub-frame times); write .npz"
+                       + ("" if gltf else " or .usd/.usdc") + " instead")
     return numbers
 
 
@@ -267,7 +275,8 @@ def build_parser():
                    help="default: what the asset asks for (LBS for glTF)")
     s.add_argument("--frames", help="START:END[:STEP] in the asset's time unit (USD time codes, "
                    "glTF seconds), END inclusive")
-    s.add_argument("--fps", type=float, help="resample the clip at this many frames per second")
+    s.add_argument("--fps", type=float, help="resample the clip at this many frames per second "
+                   "(also the default STEP of --frames)")
     s.add_argument("--substeps", type=int, default=1,
                    help="samples per frame interval (motion-blur sub-frames)")
     s.add_argument("--interp", choices=INTERPOLATIONS, default="trs",

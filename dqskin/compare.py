@@ -477,7 +477,10 @@ def skeleton_up_axis(scene):
         return scene.up_axis
     world_up = np.eye(3)[1 if scene.up_axis == "Y" else 2]
     lin = np.asarray(scene.skeletons[0].world_transform, np.float64)[:3, :3]
-    up = np.linalg.solve(lin, world_up)  # the world up direction in skeleton axes
+    try:
+        up = np.linalg.solve(lin, world_up)  # the world up direction in skeleton axes
+    except np.linalg.LinAlgError:  # a degenerate (zero-scale) skeleton transform
+        return scene.up_axis
     return "Y" if abs(up[1]) >= abs(up[2]) else "Z"
 
 

@@ -13,8 +13,6 @@ __all__ = ["USD_SUFFIXES", "GLTF_SUFFIXES", "MESH_SUFFIXES", "atomic_path", "fra
            "load_mesh", "write_frames"]
 
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
-_UMASK = os.umask(0o022)
-os.umask(_UMASK)  # read once, at import (setting it later could race with other threads)
 GLTF_SUFFIXES = (".gltf", ".glb")
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb")
 
@@ -64,6 +62,20 @@ def load_mesh(path):
     return np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.int32)
 
 
+def _umask():
+    """The process umask, read without changing it (Linux ``/proc``), else set-and-restore."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 class atomic_path:
     """Context manager yielding a temporary path beside ``path``, moved onto it on success.
 
@@ -83,7 +95,7 @@ class atomic_path:
 
     def __exit__(self, exc_type, exc, tb):
         if exc_type is None:
-            os.chmod(self.tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the usual file mode
+            os.chmod(self.tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual file mode
             os.replace(self.tmp, self.path)
         else:
             self.tmp.unlink(missing_ok=True)

@@ -392,8 +392,8 @@ def local_volume_ratio(points, rest_points, faces, apex, rest_apex, *, min_eleva
 
 
 def _influences(joint_indices, joint_weights):
-    idx, w = check_influences(joint_indices, joint_weights)
-    return idx, w.astype(np.float64)
+    idx, _ = check_influences(joint_indices, joint_weights)
+    return idx, np.asarray(joint_weights, dtype=np.float64).reshape(idx.shape)
 
 
 def joint_axis_apex(rest_points, joint_indices, joint_weights, bind_positions, parents,

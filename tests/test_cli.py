@@ -250,3 +250,12 @@ def test_blend_bakes_rigid_prims(shared_assets, tmp_path):
     rigid = [p for p in stage.Traverse() if p.HasAttribute("xformOp:transform")
              and p.GetAttribute("xformOp:transform").GetNumTimeSamples() == 3]
     assert rigid
+
+
+def test_gltf_frame_files_follow_the_sample_rate(shared_assets, tmp_path):
+    """glTF times are seconds: 30 samples per second get 30 distinct frame numbers."""
+    src = shared_assets / "khronos-gltf" / "CesiumMan" / "CesiumMan.glb"
+    rc, _, err = run("skin", src, "--out", tmp_path / "f_{:04d}.ply", "--frames", "0:0.5",
+                     "--fps", "30")
+    assert rc == 0, err
+    assert len(list(tmp_path.glob("f_*.ply"))) == 16

@@ -1,5 +1,6 @@
 """A non-editable install ships the kernels as ``dqskin.kernels`` and imports from outside the repo."""
 
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -10,8 +11,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_wheel_ships_kernels_and_imports_outside_the_repo(tmp_path):
+    # build from a clean copy: stale files in the checkout's build/ must not hide a missing module
+    src = tmp_path / "src"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(
+        ".git", ".venv", "build", "dist", "out", "*.egg-info", "__pycache__", ".pytest_cache"))
     build = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w",
-                            str(tmp_path / "dist"), str(ROOT)], capture_output=True, text=True,
+                            str(tmp_path / "dist"), str(src)], capture_output=True, text=True,
                            timeout=600)
     assert build.returncode == 0, build.stderr
     (wheel,) = (tmp_path / "dist").glob("dqskin-*.whl")
