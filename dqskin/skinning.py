@@ -251,6 +251,8 @@ class Skinner:
         pts = [src, self._indices, self._weights]
         if code == K.LBS:
             kernel, inputs = K.skin_lbs_kernel, pts + [prep["affines"]]
+        elif code == K.DQS and not prep["has_residual"].numpy().any():
+            kernel, inputs = K.skin_dqs_rigid_kernel, pts + [prep["dqs"]]
         else:
             dqs = [prep["dqs"], prep["residuals"], prep["has_residual"]]
             kernel, inputs = ((K.skin_dqs_kernel, pts + dqs) if code == K.DQS else

@@ -284,3 +284,19 @@ def test_frame_blocks_and_threads_cover_the_grid(device, monkeypatch, V, F, meth
     oracle = numpy_lbs if method == "lbs" else numpy_dqs
     for f in range(F):
         assert rel_err(ours[f], oracle(points, idx, w, M[f])) <= 1e-5, f
+
+
+def test_rigid_fast_path_is_taken_and_equals_the_general_kernel(device, monkeypatch):
+    """Launches without scale/shear use skin_dqs_rigid_kernel; it gives what the general kernel
+    (residual path compiled in) gives on the same data."""
+    rng = np.random.default_rng(12)
+    points, idx, w, M, _ = random_rig(rng, F=2)
+    sk = dqskin.Skinner(points, idx, w, device=device)
+    launched = []
+    real = wp.launch
+    monkeypatch.setattr(wp, "launch", lambda k, *a, **kw: (launched.append(k.key), real(k, *a, **kw)))
+    fast = sk.skin(M, "dqs")
+    assert any("skin_dqs_rigid_kernel" in name for name in launched)
+    monkeypatch.setattr(wp, "launch", real)
+    prep, _, _ = sk._prepare(M)
+    np.testing.assert_allclose(fast, _launch_dqs(prep, sk), atol=1e-5)
