@@ -261,17 +261,15 @@ def dqs_vector(x: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
     """Rotation-only DQS of a direction (sign-aligned quaternion blend), unit length."""
     pivot = rotations[f, indices[v, 0][0]]
     r = wp.quat(0.0, 0.0, 0.0, 0.0)
-    scaled = x
-    if use_residual:
-        scaled = wp.vec3()
     for c in range(indices.shape[1]):
         iv = indices[v, c]
         wv = weights[v, c]
         for k in range(4):
             q = rotations[f, iv[k]]
             r += q * (wv[k] * wp.sign(wp.dot(q, pivot)))
-            if use_residual:
-                scaled += (residuals[f, iv[k]] * x) * wv[k]
+    scaled = x
+    if use_residual:
+        scaled = residual_blend(x, v, f, indices, weights, residuals)
     if wp.length(r) < 1.0e-10:
         return wp.normalize(scaled)
     return wp.normalize(wp.quat_rotate(wp.normalize(r), scaled))
