@@ -7,8 +7,9 @@ for roots; float32 on the device.
 """
 
 from . import dq, dual, quat
-from .io import load, load_mesh
-from .scene import Animation, Mesh, Scene
+from .formats import load, load_mesh
+from .animation import Animation
+from .scene import Mesh, Scene
 from .skeleton import Skeleton, forward_kinematics
 from .skinning import METHODS, Skinner, skin_normals, skin_points
 

@@ -1,4 +1,4 @@
-"""Skinning-artifact metrics per mesh and per frame: volume, local volume, strain, normals, and the
+"""Skinning-artifact metrics per mesh and per frame: volume, edge strain, vertex distance, and the
 candy-wrapper / bulge measures near joints.
 
 Shapes: ``points`` are ``(V, 3)`` or ``(F, V, 3)`` (F frames); results carry the frame axis only
@@ -18,41 +18,22 @@ import warp as wp
 
 from ._warp import resolve_device
 from .kernels import metrics as K
+from .shapes import frames_of
 from .skeleton import check_parents
 from .skinning import check_influences
-from .topology import check_faces, incidence
+from .topology import check_faces
 
-__all__ = ["JointSections", "bone_segments", "dominant_pair_regions", "edge_strain", "is_closed",
-           "joint_axes", "joint_axis_apex", "joint_sections", "local_volume_ratio", "mesh_edges",
-           "normal_deviation", "vertex_distance", "vertex_edge_strain", "volume", "volume_ratio"]
-
-
-def _frames(name, points, vertex_count=None):
-    """``(V, 3)`` or ``(F, V, 3)`` → float64 ``(F, V, 3)`` and whether a frame axis was given."""
-    a = np.asarray(points, dtype=np.float64)
-    if a.ndim not in (2, 3) or a.shape[-1] != 3:
-        raise ValueError(f"{name}: expected (V, 3) or (F, V, 3), got {a.shape}")
-    if vertex_count is not None and a.shape[-2] != vertex_count:
-        raise ValueError(f"{name}: expected {vertex_count} points, got {a.shape[-2]}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name}: NaN or infinite coordinate")
-    return (a, True) if a.ndim == 3 else (a[None], False)
-
-
-def _reference(name, points, frames, vertex_count):
-    a, _ = _frames(name, points, vertex_count)
-    if a.shape[0] not in (1, frames):
-        raise ValueError(f"{name}: expected (V, 3) or ({frames}, V, 3), got {a.shape}")
-    return a
+__all__ = ["METRICS", "JointSections", "bone_segments", "dominant_pair_regions", "edge_strain",
+           "joint_axes", "joint_sections", "mesh_edges", "vertex_distance", "volume",
+           "volume_ratio", "worst"]
 
 
 def _vec3s(a, device):
     return wp.array(np.ascontiguousarray(a, dtype=np.float32), dtype=wp.vec3, device=device)
 
 
-def _launch(kernel, dim, inputs, outputs, device):
-    wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
-    return [o.numpy() for o in outputs]
+def _floats(shape, device):
+    return wp.empty(shape, dtype=float, device=device)
 
 
 def _result(a, batched):
@@ -64,7 +45,7 @@ def volume(points, faces, *, device=None):
 
     ``V = Σ_t (a−o)·((b−o)×(c−o)) / 6`` over the triangles, with ``o`` the frame's bounding-box
     centre. Positive for a closed mesh wound outward; meaningless for an open mesh (see
-    :func:`is_closed`).
+    :func:`volume_ratio`).
 
     Parameters
     ----------
@@ -76,13 +57,13 @@ def volume(points, faces, *, device=None):
     float or (F,) float64
     """
     d = resolve_device(device)
-    pts, batched = _frames("points", points)
+    pts, batched = frames_of("points", points, finite=True)
     f = check_faces(faces, pts.shape[1])
     origins = 0.5 * (pts.min(axis=1) + pts.max(axis=1))
-    (vols,) = _launch(K.face_volume_kernel, (pts.shape[0], f.shape[0]),
-                      [_vec3s(pts, d), wp.array(f, dtype=wp.vec3i, device=d), _vec3s(origins, d)],
-                      [wp.empty((pts.shape[0], f.shape[0]), dtype=float, device=d)], d)
-    v = vols.astype(np.float64).sum(axis=1)
+    vols = _floats((pts.shape[0], f.shape[0]), d)
+    K.volumes(points=_vec3s(pts, d), faces=wp.array(f, dtype=wp.vec3i, device=d),
+              origins=_vec3s(origins, d), out=vols, device=d)
+    v = vols.numpy().astype(np.float64).sum(axis=1)
     return v if batched else float(v[0])
 
 
@@ -92,17 +73,11 @@ def _weld(faces, points):
     return inverse.reshape(-1)[faces]
 
 
-def _closure_problem(faces, points=None):
-    """None if every edge is shared by exactly two faces traversing it in opposite directions."""
-    f = np.asarray(faces)
-    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"faces: expected (T, 3) integer triangles, got {f.dtype} {f.shape}")
-    f = f.astype(np.int64)
-    if points is not None:
-        p = np.asarray(points)
-        if p.ndim != 2 or p.shape[1] != 3 or (f.size and f.max() >= p.shape[0]):
-            raise ValueError(f"points: expected (V, 3) covering the face indices, got {p.shape}")
-        f = _weld(f, p)
+def _closure_problem(faces, points):
+    """Why the mesh of ``faces`` (T, 3), welded at bit-identical ``points`` (V, 3), is not closed,
+    edge-manifold and consistently wound; None if every edge is shared by exactly two faces
+    traversing it in opposite directions (degenerate faces with a repeated vertex are ignored)."""
+    f = _weld(faces.astype(np.int64), points)
     f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
     if f.shape[0] == 0:
         return "no non-degenerate faces"
@@ -121,22 +96,6 @@ def _closure_problem(faces, points=None):
     return None
 
 
-def is_closed(faces, points=None):
-    """Whether a triangle mesh is closed, edge-manifold and consistently wound.
-
-    Every undirected edge must be shared by exactly two faces that traverse it in opposite
-    directions (degenerate faces with a repeated vertex are ignored).
-
-    Parameters
-    ----------
-    faces : (T, 3) int
-    points : (V, 3) float, optional
-        If given, vertices at bit-identical positions are merged first (seams of UV- or
-        normal-split meshes).
-    """
-    return _closure_problem(faces, points) is None
-
-
 def volume_ratio(points, rest_points, faces, *, device=None):
     """Enclosed volume relative to the rest volume, for closed meshes.
 
@@ -145,9 +104,11 @@ def volume_ratio(points, rest_points, faces, *, device=None):
     points : (V, 3) or (F, V, 3) float
         Posed points.
     rest_points : (V, 3) float
-        Rest points in the same space. Vertices at bit-identical rest positions are merged for the
-        closedness test (:func:`is_closed`).
+        Rest points in the same space.
     faces : (T, 3) int
+        Must form a closed mesh: every undirected edge shared by exactly two faces that traverse
+        it in opposite directions (degenerate faces with a repeated vertex are ignored), after
+        merging vertices at bit-identical rest positions (seams of UV- or normal-split meshes).
 
     Returns
     -------
@@ -157,9 +118,7 @@ def volume_ratio(points, rest_points, faces, *, device=None):
         Why ``ratios`` is None (open, non-manifold or inconsistently wound mesh; zero rest
         volume), else None.
     """
-    rest, _ = _frames("rest_points", rest_points)
-    if rest.shape[0] != 1:
-        raise ValueError(f"rest_points: expected (V, 3), got {np.shape(rest_points)}")
+    rest, _ = frames_of("rest_points", rest_points, 1, finite=True)
     f = check_faces(faces, rest.shape[1])
     problem = _closure_problem(f, rest[0])
     if problem:
@@ -168,7 +127,7 @@ def volume_ratio(points, rest_points, faces, *, device=None):
     scale = np.ptp(rest[0], axis=0).max() if rest.shape[1] else 0.0
     if not abs(rest_volume) > 1e-9 * scale ** 3:
         return None, f"rest volume is zero ({rest_volume:g})"
-    _frames("points", points, rest.shape[1])
+    frames_of("points", points, count=rest.shape[1], finite=True)
     return volume(points, f, device=device) / rest_volume, None
 
 
@@ -208,112 +167,18 @@ def edge_strain(points, rest_points, edges, *, device=None):
         0 for unchanged length, > 0 stretched, < 0 compressed; NaN for zero-length rest edges.
     """
     d = resolve_device(device)
-    pts, batched = _frames("points", points)
-    rest = _reference("rest_points", rest_points, pts.shape[0], pts.shape[1])
+    pts, batched = frames_of("points", points, finite=True)
+    rest, _ = frames_of("rest_points", rest_points, *pts.shape[:2], finite=True)
     e = np.asarray(edges)
     if e.ndim != 2 or e.shape[1] != 2 or not np.issubdtype(e.dtype, np.integer):
         raise ValueError(f"edges: expected (E, 2) integers, got {e.dtype} {e.shape}")
     if e.size and (e.min() < 0 or e.max() >= pts.shape[1]):
         raise ValueError(f"edges: vertex index out of range [0, {pts.shape[1]})")
-    (strain,) = _launch(K.edge_strain_kernel, (pts.shape[0], e.shape[0]),
-                        [_vec3s(pts, d), _vec3s(rest, d),
-                         wp.array(e.astype(np.int32), dtype=wp.vec2i, device=d)],
-                        [wp.empty((pts.shape[0], e.shape[0]), dtype=float, device=d)], d)
-    return _result(strain, batched)
-
-
-def vertex_edge_strain(points, rest_points, faces, *, device=None):
-    """Per vertex, the strain of its most strained incident edge (largest ``|strain|``, signed).
-
-    Parameters
-    ----------
-    points : (V, 3) or (F, V, 3) float
-    rest_points : (V, 3) or (F, V, 3) float
-    faces : (T, 3) int
-
-    Returns
-    -------
-    (V,) or (F, V) float32
-        See :func:`edge_strain`; NaN for vertices without a valid edge.
-    """
-    d = resolve_device(device)
-    pts, batched = _frames("points", points)
-    f = check_faces(faces, pts.shape[1])
-    edges = mesh_edges(f)
-    strain = edge_strain(pts, rest_points, edges, device=d)
-    offsets, items = incidence(edges, pts.shape[1])
-    (out,) = _launch(K.vertex_extreme_kernel, (pts.shape[0], pts.shape[1]),
-                     [wp.array(strain, dtype=float, device=d),
-                      wp.array(offsets, dtype=wp.int32, device=d),
-                      wp.array(items, dtype=wp.int32, device=d)],
-                     [wp.empty((pts.shape[0], pts.shape[1]), dtype=float, device=d)], d)
-    return _result(out, batched)
-
-
-def _normals(pts, faces, per, device):
-    """Area-weighted face normals, or unit vertex normals, as a device array (F, T|V)."""
-    frames, count = pts.shape[0], pts.shape[1]
-    fn = wp.empty((frames, faces.shape[0]), dtype=wp.vec3, device=device)
-    wp.launch(K.face_normal_kernel, dim=fn.shape,
-              inputs=[_vec3s(pts, device), wp.array(faces, dtype=wp.vec3i, device=device)],
-              outputs=[fn], device=device)
-    if per == "face":
-        return fn
-    offsets, items = incidence(faces, count)
-    vn = wp.empty((frames, count), dtype=wp.vec3, device=device)
-    wp.launch(K.vertex_normal_kernel, dim=vn.shape,
-              inputs=[fn, wp.array(offsets, dtype=wp.int32, device=device),
-                      wp.array(items, dtype=wp.int32, device=device)],
-              outputs=[vn], device=device)
-    return vn
-
-
-def normal_deviation(points, faces, reference_points=None, *, reference_normals=None,
-                     per="vertex", device=None):
-    """Angle between the surface normals of ``points`` and reference normals.
-
-    The reference is either another pose of the same mesh (``reference_points``: e.g. the other
-    skinning method, or the rest pose moved rigidly), whose normals are computed the same way, or
-    given directions (``reference_normals``: e.g. rest normals skinned with
-    :func:`dqskin.skin_normals`).
-
-    Parameters
-    ----------
-    points : (V, 3) or (F, V, 3) float
-    faces : (T, 3) int
-    reference_points : (V, 3) or (F, V, 3) float, optional
-    reference_normals : (N, 3) or (F, N, 3) float, optional
-        N = V for ``per="vertex"``, T for ``per="face"``; need not be unit length.
-    per : {"vertex", "face"}
-        Face normals (right-hand winding) or unit area-weighted vertex normals.
-
-    Returns
-    -------
-    (N,) or (F, N) float32
-        Radians in [0, π]; NaN where a normal has zero length.
-    """
-    if per not in ("vertex", "face"):
-        raise ValueError(f'per must be "vertex" or "face", got {per!r}')
-    if (reference_points is None) == (reference_normals is None):
-        raise ValueError("give exactly one of reference_points and reference_normals")
-    d = resolve_device(device)
-    pts, batched = _frames("points", points)
-    f = check_faces(faces, pts.shape[1])
-    normals = _normals(pts, f, per, d)
-    count = normals.shape[1]
-    if reference_points is not None:
-        ref = _normals(_reference("reference_points", reference_points, pts.shape[0],
-                                  pts.shape[1]), f, per, d)
-    else:
-        r = np.asarray(reference_normals, dtype=np.float64)
-        r = r[None] if r.ndim == 2 else r
-        if r.ndim != 3 or r.shape[0] not in (1, pts.shape[0]) or r.shape[1:] != (count, 3):
-            raise ValueError(f"reference_normals: expected ({count}, 3) or ({pts.shape[0]}, "
-                             f"{count}, 3) for per={per!r}, got {np.shape(reference_normals)}")
-        ref = _vec3s(r, d)
-    (angles,) = _launch(K.angle_kernel, normals.shape, [normals, ref],
-                        [wp.empty(normals.shape, dtype=float, device=d)], d)
-    return _result(angles, batched)
+    strain = _floats((pts.shape[0], e.shape[0]), d)
+    K.edge_strain(points=_vec3s(pts, d), rest_points=_vec3s(rest, d),
+                  edges=wp.array(e.astype(np.int32), dtype=wp.vec2i, device=d), out=strain,
+                  device=d)
+    return _result(strain.numpy(), batched)
 
 
 def vertex_distance(points, reference_points, *, device=None):
@@ -329,135 +194,16 @@ def vertex_distance(points, reference_points, *, device=None):
     (V,) or (F, V) float32, in the points' units.
     """
     d = resolve_device(device)
-    pts, batched = _frames("points", points)
-    ref = _reference("reference_points", reference_points, pts.shape[0], pts.shape[1])
-    (dist,) = _launch(K.distance_kernel, pts.shape[:2], [_vec3s(pts, d), _vec3s(ref, d)],
-                      [wp.empty(pts.shape[:2], dtype=float, device=d)], d)
-    return _result(dist, batched)
-
-
-def local_volume_ratio(points, rest_points, faces, apex, rest_apex, *, min_elevation=0.25,
-                       device=None):
-    """Per-vertex volume change of the cone from an inner apex to the vertex's one-ring.
-
-    For vertex ``v`` with apex ``q_v`` (a point inside the body that moves with it, e.g. its
-    dominant joint's bone axis, :func:`joint_axis_apex`), the one-ring cone volume is
-    ``C_v = Σ_{t ∋ v} (a−q_v)·((b−q_v)×(c−q_v)) / 6`` over the faces ``t = (a, b, c)`` around
-    ``v``: the volume of flesh between the apex and that skin patch. The result is
-    ``C_v(posed) / C_v(rest)``: 1 under rigid motion of the patch with its apex, ``s³`` under a
-    uniform scale ``s`` about the apex, ``k²`` where a limb's cross-section shrinks by ``k``
-    about an axis through the apex (candy wrapper). Works on open meshes. The ratio is left
-    undefined (NaN) where the rest apex does not lie clearly behind the patch: the cone's mean
-    height ``3·C_v / area`` must be at least ``min_elevation × |v − q_v|``.
-
-    Parameters
-    ----------
-    points : (V, 3) or (F, V, 3) float
-    rest_points : (V, 3) float
-    faces : (T, 3) int
-    apex : (V, 3) or (F, V, 3) float
-        Posed apex per vertex.
-    rest_apex : (V, 3) float
-        Rest apex per vertex.
-    min_elevation : float
-        In [0, 1]: 1 asks for the apex straight under the patch, 0 accepts any positive volume.
-
-    Returns
-    -------
-    (V,) or (F, V) float64
-        NaN where the rest cone is too flat or inverted (see above).
-    """
-    d = resolve_device(device)
-    pts, batched = _frames("points", points)
-    count = pts.shape[1]
-    rest = _reference("rest_points", rest_points, 1, count)
-    f = check_faces(faces, count)
-    q = _reference("apex", apex, pts.shape[0], count)
-    q0 = _reference("rest_apex", rest_apex, 1, count)
-    offsets, items = incidence(f, count)
-    topo = [wp.array(f, dtype=wp.vec3i, device=d), wp.array(offsets, dtype=wp.int32, device=d),
-            wp.array(items, dtype=wp.int32, device=d)]
-
-    def cones(p, a):
-        c, area = _launch(K.fan_volume_kernel, p.shape[:2], [_vec3s(p, d), _vec3s(a, d)] + topo,
-                          [wp.empty(p.shape[:2], dtype=float, device=d) for _ in range(2)], d)
-        return c.astype(np.float64), area.astype(np.float64)
-
-    c0, area0 = cones(rest, q0)
-    distance = np.linalg.norm(rest[0] - q0[0], axis=1)
-    usable = (c0[0] > 0) & (3 * c0[0] >= min_elevation * area0[0] * distance)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(usable, cones(pts, q)[0] / c0, np.nan)
-    return _result(ratio, batched)
+    pts, batched = frames_of("points", points, finite=True)
+    ref, _ = frames_of("reference_points", reference_points, *pts.shape[:2], finite=True)
+    dist = _floats(pts.shape[:2], d)
+    K.distances(points=_vec3s(pts, d), reference=_vec3s(ref, d), out=dist, device=d)
+    return _result(dist.numpy(), batched)
 
 
 def _influences(joint_indices, joint_weights):
     idx, _ = check_influences(joint_indices, joint_weights)
     return idx, np.asarray(joint_weights, dtype=np.float64).reshape(idx.shape)
-
-
-def joint_axis_apex(rest_points, joint_indices, joint_weights, bind_positions, parents,
-                    skinning_transforms):
-    """Per-vertex apex on the dominant joint's bone axis, at rest and posed
-    (for :func:`local_volume_ratio`).
-
-    A vertex's dominant joint ``j`` is its largest-weight influence (earliest slot on ties). The
-    axis of ``j`` is the line through its bind position along the normalized sum of the unit
-    directions to its children, or from its parent for a leaf. The rest apex is the orthogonal
-    projection of the rest point onto that axis (the joint itself for a childless root, or where
-    the directions cancel); the posed apex is the rest apex moved by ``j``'s skinning transform, so
-    it follows the joint rigidly.
-
-    Parameters
-    ----------
-    rest_points : (V, 3) float
-        Bind-space rest points.
-    joint_indices, joint_weights : (V, K)
-    bind_positions : (J, 3) float
-        Bind-space joint positions (translation of the world bind transforms).
-    parents : (J,) int
-        Parent joint, -1 for roots, parents before children.
-    skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float
-        Bind-relative joint transforms, column-vector convention.
-
-    Returns
-    -------
-    rest_apex : (V, 3) float64
-    apex : (V, 3) or (F, V, 3) float64
-    """
-    rest, _ = _frames("rest_points", rest_points)
-    if rest.shape[0] != 1:
-        raise ValueError(f"rest_points: expected (V, 3), got {np.shape(rest_points)}")
-    rest = rest[0]
-    idx, w = _influences(joint_indices, joint_weights)
-    if idx.shape[0] != rest.shape[0]:
-        raise ValueError(f"joint_indices: expected {rest.shape[0]} rows, got {idx.shape[0]}")
-    pos = np.asarray(bind_positions, dtype=np.float64)
-    par = _parents(parents, pos.shape[0] if pos.ndim == 2 else -1)
-    if pos.shape != (par.shape[0], 3):
-        raise ValueError(f"bind_positions: expected ({par.shape[0]}, 3), got {pos.shape}")
-    x = np.asarray(skinning_transforms, dtype=np.float64)
-    if x.shape[-3:] != (par.shape[0], 4, 4) or x.ndim not in (3, 4):
-        raise ValueError(f"skinning_transforms: expected ({par.shape[0]}, 4, 4) or (F, "
-                         f"{par.shape[0]}, 4, 4), got {x.shape}")
-    directions = np.zeros_like(pos)
-    child = np.flatnonzero(par >= 0)
-    bone = pos[child] - pos[par[child]]
-    length = np.linalg.norm(bone, axis=1, keepdims=True)
-    unit = np.divide(bone, length, out=np.zeros_like(bone), where=length > 0)
-    np.add.at(directions, par[child], unit)
-    leaf = np.linalg.norm(directions, axis=1) == 0
-    directions[leaf & (par >= 0)] = unit[np.searchsorted(child, np.flatnonzero(leaf & (par >= 0)))]
-    norm = np.linalg.norm(directions, axis=1, keepdims=True)
-    directions = np.divide(directions, norm, out=np.zeros_like(directions), where=norm > 1e-9)
-    dominant = idx[np.arange(idx.shape[0]), np.argmax(w, axis=1)]
-    if dominant.size and (dominant.min() < 0 or dominant.max() >= par.shape[0]):
-        raise ValueError(f"joint_indices: index out of range [0, {par.shape[0]})")
-    origin, u = pos[dominant], directions[dominant]
-    rest_apex = origin + np.sum((rest - origin) * u, axis=1, keepdims=True) * u
-    m = x[..., dominant, :, :]
-    apex = np.einsum("...vij,vj->...vi", m[..., :3, :3], rest_apex) + m[..., :3, 3]
-    return rest_apex, apex
 
 
 def _parents(parents, count):
@@ -645,9 +391,9 @@ def joint_sections(rest_points, points, rest_segments, segments, regions, *, chi
         Arrays with a leading frame axis (F = 1 for (V, 3) points).
     """
     d = resolve_device(device)
-    pts, _ = _frames("points", points)
+    pts, _ = frames_of("points", points, finite=True)
     frames, count = pts.shape[:2]
-    rest = _reference("rest_points", rest_points, 1, count)
+    rest, _ = frames_of("rest_points", rest_points, 1, count, finite=True)
     reg = np.asarray(regions)
     if reg.shape != (count,) or not np.issubdtype(reg.dtype, np.integer):
         raise ValueError(f"regions: expected ({count},) integers, got {reg.dtype} {reg.shape}")
@@ -664,11 +410,11 @@ def joint_sections(rest_points, points, rest_segments, segments, regions, *, chi
     reg_w = wp.array(reg.astype(np.int32), dtype=wp.int32, device=d)
 
     def cylindrical(p, seg):
-        f = p.shape[0]
-        return (a.astype(np.float64) for a in _launch(
-            K.axis_coordinates_kernel, (f, count),
-            [_vec3s(p, d), reg_w, _vec3s(seg[:, :, 1], d), _vec3s(seg[:, :, 1] - seg[:, :, 0], d)],
-            [wp.empty((f, count), dtype=float, device=d) for _ in range(2)], d))
+        axial, radial = (_floats((p.shape[0], count), d) for _ in range(2))
+        K.axis_coordinates(points=_vec3s(p, d), regions=reg_w, origins=_vec3s(seg[:, :, 1], d),
+                           directions=_vec3s(seg[:, :, 1] - seg[:, :, 0], d), axial=axial,
+                           radial=radial, device=d)
+        return axial.numpy().astype(np.float64), radial.numpy().astype(np.float64)
 
     s0, rho0 = (a[0] for a in cylindrical(rest, rseg))
     _, rho = cylindrical(pts, pseg)
@@ -712,3 +458,40 @@ def joint_sections(rest_points, points, rest_segments, segments, regions, *, chi
     return JointSections(min_section_ratio=min_section, max_bulge_ratio=bulge,
                          slice_ratio=slice_ratio, slice_axial=slice_axial,
                          vertex_ratio=vertex_ratio)
+
+
+METRICS = ("volume_ratio", "min_section_ratio", "max_bulge_ratio")
+"""Per-frame metrics of ``dqskin compare``'s ``metrics.json``. The summary judges each by its worst
+value (:func:`worst`): the volume ratio furthest from 1, the smallest section ratio, the largest
+bulge ratio."""
+
+
+def worst(metric, values):
+    """The worst finite value of a metric.
+
+    Parameters
+    ----------
+    metric : str
+        One of :data:`METRICS`.
+    values : (N,) float
+        NaN for undefined values.
+
+    Returns
+    -------
+    (index, severity) or None
+        Index of the worst value and how bad it is: ``|v − 1|`` for the volume ratio, ``1 − v``
+        for the smallest section ratio, ``v − 1`` for the largest bulge ratio (negative: no
+        collapse, no bulge). None when no value is finite.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    ok = np.flatnonzero(np.isfinite(v))
+    if not ok.size:
+        return None
+    if metric == "min_section_ratio":
+        k = ok[np.argmin(v[ok])]
+        return k, 1.0 - v[k]
+    if metric == "max_bulge_ratio":
+        k = ok[np.argmax(v[ok])]
+        return k, v[k] - 1.0
+    k = ok[np.argmax(np.abs(v[ok] - 1.0))]
+    return k, abs(v[k] - 1.0)

@@ -5,41 +5,21 @@ same engine for every format: animation → local transforms → forward kinemat
 quaternions) → skinning transforms → per-vertex skinning → output space.
 """
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
-from .skeleton import Skeleton
 from ._warp import resolve_device
+from .animation import Deformer, TransformTrack, sample
+from .motion import skinning_transforms_with_derivative
+from .skeleton import Skeleton
 from .skinning import Skinner
 
-__all__ = ["Animation", "Mesh", "Scene"]
+__all__ = ["DEFAULT_BLEND", "Mesh", "Scene", "SkinnedFrames"]
 
-
-class Animation:
-    """Keyed local joint transforms of one skeleton (format loaders subclass it).
-
-    Attributes
-    ----------
-    key_times : (K,) float64
-        Times of the keys, in the scene's time unit (USD time codes, glTF seconds).
-    """
-
-    key_times = np.zeros(0)
-
-    def local_transforms(self, times):
-        """Parent-relative joint transforms at ``times``.
-
-        Parameters
-        ----------
-        times : (F,) float
-
-        Returns
-        -------
-        (F, J, 4, 4) float64, column-vector convention.
-        """
-        raise NotImplementedError
+DEFAULT_BLEND = 0.5
+"""DQS fraction of ``method="blend"`` for meshes without their own ``blend_weights``."""
 
 
 @dataclass
@@ -65,12 +45,12 @@ class Mesh:
     normals : (N, 3) float32 or None
         Rest normals in mesh space; ``normal_vertex`` (N,) int32 maps each to its vertex when
         they are face-varying (None when per-vertex).
-    output_transforms : callable or None
-        ``f(times) -> (F, 4, 4)``: skeleton space → the space results are reported in (USD: the
-        prim's local space; glTF: world). Identity when None.
-    rest_points_at : callable or None
-        ``f(times) -> (F, V, 3)`` rest points with blend shapes applied; ``rest_normals_at`` the
-        same for normals.
+    output_transforms : dqskin.animation.TransformTrack or None
+        Skeleton space → the space results are reported in (USD: the prim's local space; glTF:
+        world), keyed over time. Identity when None.
+    deformer : dqskin.animation.Deformer or None
+        Rest points (and normals) changing over time before skinning: blend shapes,
+        time-sampled points.
     face_vertex_counts, face_vertex_indices : int32 arrays or None
         Original polygon topology (kept by writers).
     uvs : (U, 2) float32 or None
@@ -88,19 +68,26 @@ class Mesh:
     skinning_method: str = "lbs"
     normals: np.ndarray | None = None
     normal_vertex: np.ndarray | None = None
-    output_transforms: Callable | None = None
-    rest_points_at: Callable | None = None
-    rest_normals_at: Callable | None = None
+    output_transforms: TransformTrack | None = None
+    deformer: Deformer | None = None
     face_vertex_counts: np.ndarray | None = None
     face_vertex_indices: np.ndarray | None = None
     uvs: np.ndarray | None = None
     blend_weights: np.ndarray | None = None
 
+    def __post_init__(self):
+        # read-only arrays: a Skinner uploaded from them stays valid (replace a mesh, then call
+        # Scene.invalidate, to change one)
+        for name in ("points", "faces", "joint_indices", "joint_weights", "normals", "blend_weights"):
+            a = getattr(self, name)
+            if isinstance(a, np.ndarray):
+                a.flags.writeable = False
+
     def blend_or_default(self):
         """(V,) float32 blend weights, ½ where none were given."""
         if self.blend_weights is not None:
             return np.asarray(self.blend_weights, np.float32)
-        return np.full(len(self.points), 0.5, np.float32)
+        return np.full(len(self.points), DEFAULT_BLEND, np.float32)
 
 
 @dataclass
@@ -122,6 +109,10 @@ class Scene:
     meters_per_unit : float
     clips : list of str
         Animation clip names available (glTF); the loaded one is ``clip``.
+
+    Each mesh's ``skeleton`` indexes ``skeletons`` and ``animations`` alike (checked on
+    construction). Skinners are uploaded once per mesh and device (:meth:`skinner`); after
+    replacing a mesh, call :meth:`invalidate`.
     """
 
     path: str
@@ -135,6 +126,20 @@ class Scene:
     clips: list = field(default_factory=list)
     clip: str | None = None
     _skinners: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self):
+        if len(self.animations) != len(self.skeletons):
+            raise ValueError(f"{self.path}: {len(self.animations)} animations for "
+                             f"{len(self.skeletons)} skeletons (one per skeleton, None for rest)")
+        for m in self.meshes:
+            if not 0 <= m.skeleton < len(self.skeletons):
+                raise ValueError(f"{self.path}: mesh {m.name!r}: skeleton {m.skeleton} out of "
+                                 f"range for {len(self.skeletons)} skeletons")
+
+    def invalidate(self, name=None):
+        """Drop the uploaded skinner of mesh ``name`` (every mesh when None)."""
+        for key in [k for k in self._skinners if name is None or k[0] == name]:
+            del self._skinners[key]
 
     def skinner(self, mesh, device=None):
         """The :class:`dqskin.Skinner` of ``mesh`` on ``device``, uploaded once and reused."""
@@ -167,7 +172,6 @@ class Scene:
             return np.broadcast_to(skel.rest_transforms, (t.shape[0],) + skel.rest_transforms.shape)
         if interp == "trs":
             return anim.local_transforms(t)
-        from .motion import sample
         return sample(anim, t, interp)
 
     def skinning_transforms(self, times, skeleton=0, *, device=None, interp="trs"):
@@ -175,40 +179,114 @@ class Scene:
         return self.skeletons[skeleton].skinning_transforms(
             self.local_transforms(times, skeleton, interp=interp), device=device)
 
-    def skin(self, times=None, method=None, *, device=None, normals=False, interp="trs"):
-        """Skin every mesh at ``times``.
+    def skin(self, times=None, method=None, *, device=None, normals=False, velocities=False,
+             interp="trs", space="output", blend_shapes=True):
+        """Skin every mesh at ``times``: the one per-mesh loop of the engine.
 
         Parameters
         ----------
         times : (F,) float, optional
-            Default: ``self.times``.
+            Scene time unit; default ``self.times``.
         method : {"lbs", "dqs", "blend"} or None
             None uses each mesh's own ``skinning_method``.
         normals : bool
-            Also return skinned normals.
+            Also skin the rest normals (meshes without normals are left out of ``normals``).
+        velocities : bool
+            Also compute point velocities, length units per second
+            (:meth:`dqskin.Skinner.skin_velocities` on the analytic joint motion of
+            :mod:`dqskin.motion`).
         interp : str
-            Joint interpolation between keys (:data:`dqskin.motion.INTERPOLATIONS`).
+            Joint interpolation between keys (:data:`dqskin.animation.INTERPOLATIONS`).
+        space : {"output", "skeleton"}
+            "output": each mesh's output space (``output_transforms``: USD prim space, glTF
+            world); "skeleton": skeleton (bind) space.
+        blend_shapes : bool
+            Apply each mesh's ``deformer`` (blend shapes, animated points); False skins the bind
+            points, isolating skinning.
 
         Returns
         -------
-        dict name → (F, V, 3) float32 points in each mesh's output space, and with ``normals`` a
-        second dict name → (F, N, 3) float32 (meshes without normals omitted).
+        SkinnedFrames
         """
+        if space not in ("output", "skeleton"):
+            raise ValueError(f'space must be "output" or "skeleton", got {space!r}')
         t = self.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
-        xforms = {}
-        points, norms = {}, {}
+        result = SkinnedFrames(t)
+        xforms, rates = {}, {}
         for m in self.meshes:
-            if m.skeleton not in xforms:
-                xforms[m.skeleton] = self.skinning_transforms(t, m.skeleton, device=device,
-                                                              interp=interp)
-            x = xforms[m.skeleton]
+            s = m.skeleton
+            if s not in xforms:
+                xforms[s] = self.skinning_transforms(t, s, device=device, interp=interp)
+                if velocities:
+                    rates[s] = skinning_transforms_with_derivative(
+                        self.skeletons[s], self.animations[s], t, interp)[1]
             meth = method or m.skinning_method
             sk = self.skinner(m, device)
-            rest = None if m.rest_points_at is None else m.rest_points_at(t)
-            out = None if m.output_transforms is None else np.asarray(m.output_transforms(t))
-            points[m.name] = sk.skin(x, meth, points=rest, output_transforms=out)
+            deformer = m.deformer if blend_shapes else None
+            rest = None if deformer is None else deformer.points_at(t)
+            track = m.output_transforms if space == "output" else None
+            out = None if track is None else track.at(t)
+            result.points[m.name] = sk.skin(xforms[s], meth, points=rest, output_transforms=out)
             if normals and m.normals is not None:
-                rn = m.normals if m.rest_normals_at is None else m.rest_normals_at(t)
-                norms[m.name] = sk.skin_vectors(x, rn, meth, kind="normal",
-                                                vector_vertex=m.normal_vertex, output_transforms=out)
-        return (points, norms) if normals else points
+                rn = None if deformer is None else deformer.normals_at(t)
+                rn = m.normals if rn is None else rn
+                result.normals[m.name] = sk.skin_vectors(xforms[s], rn, meth, kind="normal",
+                                                         vector_vertex=m.normal_vertex,
+                                                         output_transforms=out)
+            if velocities:
+                result.velocities[m.name] = self._velocities(sk, t, meth, xforms[s], rates[s],
+                                                             rest, deformer, track)
+        return result
+
+    def skin_chunks(self, times, chunk, **skin_args):
+        """Yield ``(slice, SkinnedFrames)`` for consecutive chunks of ``chunk`` frames, so memory
+        stays bounded; ``skin_args`` go to :meth:`skin`.
+
+        The next chunk is skinned on a worker thread while the caller consumes the current one
+        (Warp launches and NumPy release the GIL, so the two overlap).
+        """
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        if int(chunk) < 1:
+            raise ValueError(f"--chunk {chunk}: must be at least 1")
+        slices = [slice(lo, min(lo + chunk, len(t))) for lo in range(0, len(t), chunk)]
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-skin") as ex:
+            fut = ex.submit(self.skin, t[slices[0]], **skin_args)
+            for k, sl in enumerate(slices):
+                res = fut.result()
+                if k + 1 < len(slices):
+                    fut = ex.submit(self.skin, t[slices[k + 1]], **skin_args)
+                yield sl, res
+
+    def _velocities(self, skinner, t, method, xforms, rates, rest, deformer, track):
+        """(F, V, 3) float32 velocities per second of one mesh, the chain rule through every
+        time-varying input: joints, the deformer's rest points, the output transform."""
+        rest_dot = None if deformer is None else deformer.point_velocities_at(t)
+        v = skinner.skin_velocities(xforms, rates, method, points=rest,
+                                    point_velocities=rest_dot).astype(np.float64)
+        if track is not None:
+            o, o_dot = track.with_derivative(t)
+            v = np.einsum("fij,fvj->fvi", o[:, :3, :3], v)
+            if np.any(o_dot):
+                p = skinner.skin(xforms, method, points=rest)
+                v += np.einsum("fij,fvj->fvi", o_dot[:, :3, :3], p) + o_dot[:, None, :3, 3]
+        return (v * float(self.time_codes_per_second)).astype(np.float32)
+
+
+@dataclass
+class SkinnedFrames:
+    """What :meth:`Scene.skin` returns, per mesh name.
+
+    Attributes
+    ----------
+    times : (F,) float64
+    points : dict name → (F, V, 3) float32
+    normals : dict name → (F, N, 3) float32
+        Unit normals (meshes with normals, when asked).
+    velocities : dict name → (F, V, 3) float32
+        Length units per second (when asked).
+    """
+
+    times: np.ndarray
+    points: dict = field(default_factory=dict)
+    normals: dict = field(default_factory=dict)
+    velocities: dict = field(default_factory=dict)

@@ -3,7 +3,7 @@
 import numpy as np
 import warp as wp
 
-from ._warp import launch_rows, resolve_device
+from ._warp import resolve_device
 from .kernels import fk as FK
 from .kernels.dqmath import vec8
 
@@ -64,15 +64,14 @@ class Skeleton:
     name : str
         Where the skeleton came from (USD prim path, glTF skin name); used in messages.
 
-    Attributes
-    ----------
-    world_transform : (4, 4) float64
+    world_transform : (4, 4) float, optional
         Skeleton space → world space (USD: the Skeleton prim's local-to-world at the default
         time; identity for glTF, whose skeleton space is the world). Used for orientation only,
         e.g. which skeleton axis points up when rendering.
     """
 
-    def __init__(self, joint_names, parents, bind_transforms=None, rest_transforms=None, *, name=""):
+    def __init__(self, joint_names, parents, bind_transforms=None, rest_transforms=None, *, name="",
+                 world_transform=None):
         self.name = name
         self.joint_names = [str(n) for n in joint_names]
         self.parents = check_parents(parents, f"{name or 'skeleton'}: parents")
@@ -93,7 +92,8 @@ class Skeleton:
             self.rest_transforms = _check_matrices(f"{name or 'skeleton'}: rest_transforms",
                                                    rest_transforms, J)
         self._inverse_bind = None
-        self.world_transform = np.eye(4)
+        self.world_transform = (np.eye(4) if world_transform is None else
+                                np.asarray(world_transform, dtype=np.float64).reshape(4, 4))
 
     @property
     def joint_count(self):
@@ -149,7 +149,7 @@ class Skeleton:
         world, batch = _forward_kinematics(self.parents, local, d)
         inv = wp.array(self.inverse_bind_transforms.astype(np.float32), dtype=wp.mat44, device=d)
         out = wp.empty(world.shape, dtype=wp.mat44, device=d)
-        FK.bind_relative(world, inv, out, device=d)
+        FK.bind_relative(world=world, inverse_bind=inv, skinning=out, device=d)
         return out if as_warp else out.numpy().reshape(*batch, self.joint_count, 4, 4)
 
 
@@ -194,9 +194,8 @@ def _forward_kinematics(parents, local_transforms, device, outputs=None):
     world = wp.empty((B, J), dtype=wp.mat44, device=d)
     par_w = wp.array(par, dtype=wp.int32, device=d)
     start = wp.array(np.array([0, J], np.int32), dtype=wp.int32, device=d)
-    launch_rows(lambda lo, n: FK.forward_kinematics(par_w, start, local, world_dq, residual, world,
-                                                    device=d, frame_offset=lo, frame_count=n),
-                B, d, min_chunk=64)
+    FK.forward_kinematics(parents=par_w, skeleton_start=start, local=local, world_dq=world_dq,
+                          world_residual=residual, world=world, device=d)
     if outputs is not None:
         outputs.extend([world_dq, residual])
     return world, batch

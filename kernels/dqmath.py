@@ -21,6 +21,14 @@ wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 
 vec8 = wp.types.vector(length=8, dtype=wp.float32)
+"""A dual quaternion ``(rw, rx, ry, rz, dw, dx, dy, dz)``."""
+
+mat34 = wp.types.matrix(shape=(3, 4), dtype=wp.float32)
+"""The top three rows of a 4×4 affine transform."""
+
+RESIDUAL_TOLERANCE = wp.constant(1.0e-6)
+"""A scale/shear residual ``S`` within this of the identity (every entry) counts as rigid, as in
+UsdSkel's DQS. The one definition for the kernels and the host."""
 
 
 @wp.func
@@ -131,11 +139,16 @@ def dq_transform_point(a: vec8, p: wp.vec3):
 
 
 @wp.func
+def dq_sign(a: vec8, pivot: vec8):
+    """±1 putting ``a``'s real part on ``pivot``'s hemisphere (antipodality)."""
+    return wp.sign(a[0] * pivot[0] + a[1] * pivot[1] + a[2] * pivot[2] + a[3] * pivot[3])
+
+
+@wp.func
 def dq_blend_add(acc: vec8, a: vec8, w: float, pivot: vec8):
-    """``acc + ±w·a``, the sign putting ``a``'s real part on ``pivot``'s hemisphere (antipodality)
-    -- one step of dual-quaternion linear blending (Kavan et al.); normalize the sum after."""
-    return acc + a * (w * wp.sign(a[0] * pivot[0] + a[1] * pivot[1] + a[2] * pivot[2]
-                                  + a[3] * pivot[3]))
+    """``acc + ±w·a``, the sign from :func:`dq_sign` -- one step of dual-quaternion linear
+    blending (Kavan et al.); normalize the sum after."""
+    return acc + a * (w * dq_sign(a, pivot))
 
 
 @wp.func

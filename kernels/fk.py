@@ -21,6 +21,7 @@ import warp as wp
 
 from .dqmath import (dq_from_rt, dq_mul, dq_to_matrix, is_identity33, is_rotation, mat44_linear,
                      polar_rotation, quat_from_rotation, vec8)
+from .grid import launch, launch_rows
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
@@ -116,21 +117,19 @@ def bind_relative_kernel(
     skinning[f, j] = world[f, j] * inverse_bind[j]
 
 
-def forward_kinematics(parents, skeleton_start, local, world_dq, world_residual, world, *, device,
-                       frame_offset=0, frame_count=None):
-    """Launch FK over frames ``frame_offset .. frame_offset + frame_count``; ``local`` is a (F, J)
-    ``wp.mat44`` array or a ``(translations, rotations, scales)`` tuple of (F, J) arrays. Fills
-    the three (F, J) outputs in place."""
+def forward_kinematics(*, parents, skeleton_start, local, world_dq, world_residual, world,
+                       device):
+    """FK of every skeleton for every frame: ``local`` is a (F, J) ``wp.mat44`` array or a
+    ``(translations, rotations, scales)`` tuple of (F, J) arrays; fills the three (F, J) outputs.
+    One thread per (frame, skeleton); on the CPU, frames are split across the cores."""
     trs = isinstance(local, tuple)
     frames = (local[0] if trs else local).shape[0]
-    count = frames - frame_offset if frame_count is None else frame_count
     kernel = forward_kinematics_trs_kernel if trs else forward_kinematics_kernel
-    inputs = [parents, skeleton_start] + (list(local) if trs else [local]) + [frame_offset]
-    wp.launch(kernel, dim=(count, skeleton_start.shape[0] - 1), inputs=inputs,
-              outputs=[world_dq, world_residual, world], device=device)
+    launch_rows(kernel, frames, [parents, skeleton_start] + (list(local) if trs else [local]),
+                [world_dq, world_residual, world], device, min_chunk=64,
+                inner=(skeleton_start.shape[0] - 1,))
 
 
-def bind_relative(world, inverse_bind, skinning, *, device):
-    """Launch ``skinning[f, j] = world[f, j] @ inverse_bind[j]``."""
-    wp.launch(bind_relative_kernel, dim=world.shape, inputs=[world, inverse_bind],
-              outputs=[skinning], device=device)
+def bind_relative(*, world, inverse_bind, skinning, device):
+    """``skinning[f, j] = world[f, j] @ inverse_bind[j]``."""
+    launch(bind_relative_kernel, world.shape, [world, inverse_bind], [skinning], device)

@@ -11,6 +11,8 @@ index ``i = y·width + x``.
 
 import warp as wp
 
+from .grid import launch, launch_rows
+
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 
@@ -49,11 +51,12 @@ def vertex_normals_kernel(
     faces: wp.array(dtype=wp.int32),
     vf_offsets: wp.array(dtype=wp.int32),
     vf_faces: wp.array(dtype=wp.int32),
+    row_offset: int,
     # output
     normals: wp.array(dtype=wp.vec3),
 ):
     """Unit area-weighted vertex normals, gathered over each vertex's faces (CSR ``vf_*``)."""
-    v = wp.tid()
+    v = wp.tid() + row_offset
     n = wp.vec3(0.0)
     for k in range(vf_offsets[v], vf_offsets[v + 1]):
         f = vf_faces[k]
@@ -100,17 +103,17 @@ def render_kernel(
     shading: ShadingParams,
     width: int,
     height: int,
-    offset: int,
+    row_offset: int,
     # output: straight RGB and coverage per super-sampled pixel
     image: wp.array(dtype=wp.vec4),
 ):
-    """Shade one super-sampled pixel (row-major index ``offset + tid``).
+    """Shade one super-sampled pixel (row-major index ``row_offset + tid``).
 
     ``scalars`` empty → constant ``base_color``; else the albedo is
     ``lut((s − scalar_min)·scalar_scale)`` with ``s`` interpolated barycentrically, or
     ``nan_color`` where ``s`` is not finite.
     """
-    i = wp.tid() + offset
+    i = wp.tid() + row_offset
     px = i % width
     py = i // width
     x = 2.0 * (float(px) + 0.5) / float(width) - 1.0
@@ -194,3 +197,31 @@ def downsample_kernel(
     out[y, x, 1] = to_byte(rgb[1])
     out[y, x, 2] = to_byte(rgb[2])
     out[y, x, 3] = to_byte(alpha)
+
+
+# ---------------------------------------------------------------------------------------------
+# launchers: keyword arguments, chunked over the CPU cores by dqskin.kernels.grid
+
+
+def vertex_normals(*, points, faces, vf_offsets, vf_faces, out, device):
+    """Unit area-weighted normals of ``points`` (V,) into ``out`` (V,); ``faces`` (3T,) int32
+    flat triangles, ``vf_offsets`` (V+1,) and ``vf_faces`` the vertex → face CSR lists."""
+    launch_rows(vertex_normals_kernel, out.shape[0], [points, faces, vf_offsets, vf_faces], [out],
+                device)
+
+
+def render(*, mesh, faces, normals, scalars, lut, scalar_min, scalar_scale, nan_color, camera,
+           shading, width, height, out, device):
+    """Ray cast every super-sampled pixel of a ``width × height`` image into ``out``
+    (width·height,) ``wp.vec4``; ``mesh`` is a ``wp.Mesh`` id (see :func:`render_kernel` for the
+    other arguments)."""
+    launch_rows(render_kernel, width * height,
+                [mesh, faces, normals, scalars, lut, float(scalar_min), float(scalar_scale),
+                 nan_color, camera, shading, int(width), int(height)], [out], device)
+
+
+def downsample(*, samples, factor, transparent, out, device):
+    """Box-filter ``samples`` (H·factor · W·factor,) ``wp.vec4`` into the 8-bit RGBA ``out``
+    (H, W, 4)."""
+    launch(downsample_kernel, out.shape[:2], [samples, int(factor), int(transparent)], [out],
+           device)

@@ -26,18 +26,18 @@ Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, 
 import warp as wp
 
 
-from .dqmath import (dq_blend_add, dq_from_rt, is_identity33, mat44_linear, orthonormalize_columns,
-                     polar_rotation, quat_from_rotation, vec8)
+from .dqmath import (RESIDUAL_TOLERANCE, dq_blend_add, dq_from_rt, dq_sign, is_identity33,
+                     mat44_linear, orthonormalize_columns, polar_rotation, quat_from_rotation,
+                     vec8)
+from .dqmath import mat34
+from .grid import launch, launch_blocks
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
-mat34 = wp.types.matrix(shape=(3, 4), dtype=wp.float32)
 
 LBS = wp.constant(0)
 DQS = wp.constant(1)
 BLEND = wp.constant(2)
-
-RESIDUAL_TOLERANCE = wp.constant(1.0e-6)
 
 
 @wp.kernel
@@ -93,16 +93,23 @@ def prepare_vectors_kernel(
 
 
 @wp.func
-def lbs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
-              weights: wp.array2d(dtype=wp.vec4), affines: wp.array2d(dtype=mat34)):
-    """``Σ wᵢ·Aᵢ·[p, 1]``, blending the 3×4 matrices first."""
+def lbs_matrix(v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
+               weights: wp.array2d(dtype=wp.vec4), affines: wp.array2d(dtype=mat34)):
+    """``Σ wᵢ·Aᵢ``: the vertex's 3×4 matrices blended (also their derivatives, for velocities)."""
     acc = mat34()
     for c in range(indices.shape[1]):
         iv = indices[v, c]
         wv = weights[v, c]
         for k in range(4):
             acc += affines[f, iv[k]] * wv[k]
-    return acc * wp.vec4(p[0], p[1], p[2], 1.0)
+    return acc
+
+
+@wp.func
+def lbs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
+              weights: wp.array2d(dtype=wp.vec4), affines: wp.array2d(dtype=mat34)):
+    """``Σ wᵢ·Aᵢ·[p, 1]``, blending the 3×4 matrices first."""
+    return lbs_matrix(v, f, indices, weights, affines) * wp.vec4(p[0], p[1], p[2], 1.0)
 
 
 @wp.func
@@ -117,6 +124,23 @@ def dqs_blend(v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
         for k in range(4):
             b = dq_blend_add(b, dqs[f, iv[k]], wv[k], pv)
     return b
+
+
+@wp.func
+def dqs_blend_derivative(v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
+                         weights: wp.array2d(dtype=wp.vec4), dqs: wp.array2d(dtype=vec8),
+                         dq_derivatives: wp.array2d(dtype=vec8)):
+    """``Σ sᵢ·wᵢ·η̇ᵢ``: the derivative of :func:`dqs_blend`, whose signs ``sᵢ`` (against the
+    pivot, slot 0) are locally constant."""
+    pv = dqs[f, indices[v, 0][0]]
+    acc = vec8()
+    for c in range(indices.shape[1]):
+        iv = indices[v, c]
+        wv = weights[v, c]
+        for k in range(4):
+            j = iv[k]
+            acc += dq_derivatives[f, j] * (wv[k] * dq_sign(dqs[f, j], pv))
+    return acc
 
 
 @wp.func
@@ -346,3 +370,53 @@ def transform_frames_kernel(
     if normalize != 0:
         y = wp.normalize(y)
     values[f, i] = y
+
+
+# ---------------------------------------------------------------------------------------------
+# launchers: keyword arguments, chunked over the CPU cores by dqskin.kernels.grid
+
+
+def prepare_points(*, xforms, affines, dqs, residuals, has_residual, device):
+    """Per (frame, joint) data of :func:`skin_points` from ``xforms`` (F, J) ``wp.mat44``: zeroes
+    ``has_residual`` (F,) and fills the (F, J) ``affines``, ``dqs`` and ``residuals``."""
+    has_residual.zero_()
+    launch(prepare_points_kernel, xforms.shape, [xforms], [affines, dqs, residuals, has_residual],
+           device)
+
+
+def prepare_vectors(*, xforms, linears, rotations, normal_linears, normal_residuals,
+                    normal_rotations, device):
+    """Per (frame, joint) data of :func:`skin_vectors` (see :func:`prepare_vectors_kernel`)."""
+    launch(prepare_vectors_kernel, xforms.shape, [xforms],
+           [linears, rotations, normal_linears, normal_residuals, normal_rotations], device)
+
+
+def skin_points(*, method, points, indices, weights, blend, affines, dqs, residuals, has_residual,
+                rigid, out, device):
+    """Skin ``points`` (Fp, V) into ``out`` (F, V) with ``method`` (:data:`LBS`, :data:`DQS`,
+    :data:`BLEND`). ``rigid`` (no frame has a residual) selects the DQS kernel without the
+    residual code; the other arrays are :func:`prepare_points`' and the influence layout."""
+    head = [points, indices, weights]
+    if method == LBS:
+        kernel, inputs = skin_lbs_kernel, head + [affines]
+    elif method == DQS and rigid:
+        kernel, inputs = skin_dqs_rigid_kernel, head + [dqs]
+    elif method == DQS:
+        kernel, inputs = skin_dqs_kernel, head + [dqs, residuals, has_residual]
+    else:
+        kernel, inputs = skin_blend_kernel, head + [blend, affines, dqs, residuals, has_residual]
+    launch_blocks(kernel, out.shape[1], out.shape[0], inputs, [out], device)
+
+
+def skin_vectors(*, method, vectors, vector_vertex, indices, weights, blend, linears, rotations,
+                 residuals, has_residual, out, device):
+    """Skin directions ``vectors`` (Fp, N) into ``out`` (F, N), normalized (see
+    :func:`skin_vectors_kernel` for which per-joint arrays normals and tangents take)."""
+    launch_blocks(skin_vectors_kernel, out.shape[1], out.shape[0],
+                  [vectors, vector_vertex, indices, weights, blend, linears, rotations, residuals,
+                   has_residual, int(method)], [out], device)
+
+
+def transform_frames(*, xforms, normalize, values, device):
+    """In place ``values[f, i] = xforms[f]·[values[f, i], 1]`` (normalized with ``normalize``)."""
+    launch(transform_frames_kernel, values.shape, [xforms, int(normalize)], [values], device)

@@ -1,10 +1,8 @@
-"""Per-vertex velocity kernels: time derivatives of LBS and DQS skinned points, batched over frames.
+"""Per-vertex velocity kernels: time derivatives of LBS, DQS and blended skinned points.
 
-Same semantics and grid as :mod:`dqskin.kernels.skin` (influences sorted by descending weight so
-slot 0 is the antipodality pivot; a thread per vertex and block of frames); influences as plain
-(V, K) arrays. Each kernel
-differentiates the skinning formula by the chain rule, given the time derivatives of the joint data
-and of the rest points:
+Same semantics, influence layout and grid as :mod:`dqskin.kernels.skin`, whose ``@wp.func``
+blends they call. Each kernel differentiates the skinning formula by the chain rule, given the time
+derivatives of the skinning transforms ``Ȧ`` and of the rest points ``ṗ``:
 
 * LBS: ``p' = Σ wᵢ·Aᵢ·[p, 1]`` → ``ṗ' = Σ wᵢ·(Ȧᵢ·[p, 1] + Aᵢ·[ṗ, 0])``.
 * DQS: ``b = r + ε·d = Σ sᵢ·wᵢ·ηᵢ`` (``sᵢ = ±1``, locally constant) and, with ``x`` the point (or
@@ -13,125 +11,172 @@ and of the rest points:
   eq. 14 folded into the transform, as in the skinning kernel). Then
   ``ṗ' = ẋ + 2·ġ/|r|² − 2·g·(2·r·ṙ)/|r|⁴`` with ``ḃ = Σ sᵢ·wᵢ·η̇ᵢ`` and
   ``ẋ = Σ wᵢ·(Ṡᵢ·p + Sᵢ·ṗ)`` (``ẋ = ṗ`` without a residual).
+* blend: ``(1 − b)·LBS' + b·DQS'``.
 
-Dual quaternions arrive as :data:`~dqskin.kernels.dqmath.vec8` in the project's ``(w, x, y, z)``
-order and are converted to Warp quaternions with :func:`~dqskin.kernels.dqmath.dq_real` /
-:func:`~dqskin.kernels.dqmath.dq_dual`.
+The joints' ``η̇`` and ``Ṡ`` come from the polar split ``A = R·S`` (:func:`polar_rotation`, as
+skinning) and its derivative ``Rᵀ·Ȧ = [ω]×·S + Ṡ``: the skew part gives
+``((tr S)·I − S)·ω = 2·vee(Rᵀ·Ȧ)``, then ``q̇ = ½·q·ω`` and ``Ṡ = Rᵀ·Ȧ − [ω]×·S``.
 """
 
 import warp as wp
 
-
-from .dqmath import dq_dual, dq_real, vec8
-from .skin import mat34
+from .dqmath import (RESIDUAL_TOLERANCE, dq_from_rt, is_identity33, mat34, mat44_linear,
+                     polar_rotation, quat_from_rotation, vec8)
+from .grid import launch, launch_blocks
+from .skin import (DQS, LBS, dqs_blend, dqs_blend_derivative, lbs_matrix, prepare_points,
+                   residual_blend)
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 
+@wp.func
+def skew(w: wp.vec3):
+    """Cross-product matrix ``[w]×``."""
+    return wp.mat33(0.0, -w[2], w[1], w[2], 0.0, -w[0], -w[1], w[0], 0.0)
+
+
 @wp.kernel
-def lbs_velocity_kernel(
+def prepare_derivatives_kernel(
+    xforms: wp.array2d(dtype=wp.mat44),
+    xform_derivatives: wp.array2d(dtype=wp.mat44),
+    # outputs
+    affine_derivatives: wp.array2d(dtype=mat34),
+    dq_derivatives: wp.array2d(dtype=vec8),
+    residual_derivatives: wp.array2d(dtype=wp.mat33),
+    has_residual: wp.array(dtype=wp.int32),
+):
+    """Per (frame, joint): ``Ȧ`` as 3×4, ``η̇`` and ``Ṡ`` from the polar split's derivative.
+    Raises ``has_residual`` (set by :func:`~dqskin.kernels.skin.prepare_points_kernel`) on
+    frames where some ``Ṡ ≠ 0``."""
+    f, j = wp.tid()
+    m = xforms[f, j]
+    md = xform_derivatives[f, j]
+    a = mat44_linear(m)
+    r = polar_rotation(a)
+    s = wp.transpose(r) * a
+    x = wp.transpose(r) * mat44_linear(md)
+    axial = wp.vec3(x[2, 1] - x[1, 2], x[0, 2] - x[2, 0], x[1, 0] - x[0, 1])
+    trace = s[0, 0] + s[1, 1] + s[2, 2]
+    omega = wp.inverse(wp.identity(n=3, dtype=float) * trace - s) * axial
+    s_dot = x - skew(omega) * s
+    q = quat_from_rotation(r)
+    q_dot = q * wp.quat(omega[0], omega[1], omega[2], 0.0) * 0.5
+    t = wp.vec3(m[0, 3], m[1, 3], m[2, 3])
+    t_dot = wp.vec3(md[0, 3], md[1, 3], md[2, 3])
+    # η = q + ε·½·t·q (dq_from_rt is linear in q)  →  η̇ = q̇ + ε·½·(t·q̇ + ṫ·q)
+    e = dq_from_rt(q_dot, t)
+    e_t = dq_from_rt(q, t_dot)
+    dq_derivatives[f, j] = vec8(e[0], e[1], e[2], e[3], e[4] + e_t[4], e[5] + e_t[5],
+                                e[6] + e_t[6], e[7] + e_t[7])
+    affine_derivatives[f, j] = mat34(md[0, 0], md[0, 1], md[0, 2], md[0, 3],
+                                     md[1, 0], md[1, 1], md[1, 2], md[1, 3],
+                                     md[2, 0], md[2, 1], md[2, 2], md[2, 3])
+    residual_derivatives[f, j] = s_dot
+    if not is_identity33(s_dot + wp.identity(n=3, dtype=float), RESIDUAL_TOLERANCE):
+        wp.atomic_max(has_residual, f, 1)
+
+
+@wp.func
+def dqs_apply_derivative(b: vec8, b_dot: vec8, x: wp.vec3, x_dot: wp.vec3):
+    """``d/dt`` of :func:`~dqskin.kernels.skin.dqs_apply` ``(b, x)`` along ``(ḃ, ẋ)``; a zero blend
+    (all weights zero) leaves the point as it is, so its velocity is ``ẋ``."""
+    rv = wp.vec3(b[1], b[2], b[3])
+    rw = b[0]
+    n2 = rw * rw + wp.dot(rv, rv)
+    if n2 < 1.0e-20:
+        return x_dot
+    dv = wp.vec3(b[5], b[6], b[7])
+    dw = b[4]
+    rdv = wp.vec3(b_dot[1], b_dot[2], b_dot[3])
+    rdw = b_dot[0]
+    ddv = wp.vec3(b_dot[5], b_dot[6], b_dot[7])
+    ddw = b_dot[4]
+    rx = wp.cross(rv, x)
+    g = wp.cross(rv, rx) + rw * rx + rw * dv - dw * rv + wp.cross(rv, dv)
+    rx_dot = wp.cross(rdv, x) + wp.cross(rv, x_dot)
+    g_dot = (wp.cross(rdv, rx) + wp.cross(rv, rx_dot) + rdw * rx + rw * rx_dot
+             + rdw * dv + rw * ddv - ddw * rv - dw * rdv + wp.cross(rdv, dv) + wp.cross(rv, ddv))
+    n2_dot = 2.0 * (rw * rdw + wp.dot(rv, rdv))
+    return x_dot + (2.0 / n2) * g_dot - (2.0 * n2_dot / (n2 * n2)) * g
+
+
+@wp.kernel
+def velocity_kernel(
     points: wp.array2d(dtype=wp.vec3),
     point_velocities: wp.array2d(dtype=wp.vec3),
-    indices: wp.array2d(dtype=wp.int32),
-    weights: wp.array2d(dtype=float),
+    indices: wp.array2d(dtype=wp.vec4i),
+    weights: wp.array2d(dtype=wp.vec4),
+    blend: wp.array(dtype=float),
     affines: wp.array2d(dtype=mat34),
     affine_derivatives: wp.array2d(dtype=mat34),
-    frame_block: int,
-    block_offset: int,
-    vertex_offset: int,
-    # outputs
-    out: wp.array2d(dtype=wp.vec3),
-):
-    """LBS velocity. ``points``, ``point_velocities`` (Fp, V) bind space, Fp 1 or F;
-    ``affines``, ``affine_derivatives`` (F, J) 3×4; ``out`` (F, V) skeleton space per unit time."""
-    b, i = wp.tid()
-    v = i + vertex_offset
-    f0 = (b + block_offset) * frame_block
-    last_p = points.shape[0] - 1
-    last_v = point_velocities.shape[0] - 1
-    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
-        p = points[wp.min(f, last_p), v]
-        pd = point_velocities[wp.min(f, last_v), v]
-        acc = mat34()
-        acc_dot = mat34()
-        for k in range(indices.shape[1]):
-            j = indices[v, k]
-            w = weights[v, k]
-            acc += affines[f, j] * w
-            acc_dot += affine_derivatives[f, j] * w
-        out[f, v] = (acc_dot * wp.vec4(p[0], p[1], p[2], 1.0)
-                     + acc * wp.vec4(pd[0], pd[1], pd[2], 0.0))
-
-
-@wp.kernel
-def dqs_velocity_kernel(
-    points: wp.array2d(dtype=wp.vec3),
-    point_velocities: wp.array2d(dtype=wp.vec3),
-    indices: wp.array2d(dtype=wp.int32),
-    weights: wp.array2d(dtype=float),
     dqs: wp.array2d(dtype=vec8),
     dq_derivatives: wp.array2d(dtype=vec8),
     residuals: wp.array2d(dtype=wp.mat33),
     residual_derivatives: wp.array2d(dtype=wp.mat33),
     has_residual: wp.array(dtype=wp.int32),
+    method: int,
     frame_block: int,
     block_offset: int,
     vertex_offset: int,
     # outputs
     out: wp.array2d(dtype=wp.vec3),
 ):
-    """DQS velocity. ``dqs``, ``dq_derivatives`` (F, J) unit joint DQs and their time derivatives;
-    ``residuals`` and their derivatives (F, J); other arrays as :func:`lbs_velocity_kernel`."""
-    b, i = wp.tid()
+    """Velocities of skinned points over a (frame block, vertex) grid. ``points``,
+    ``point_velocities`` (Fp, V) bind space, Fp 1 or F; per-joint arrays (F, J); ``out`` (F, V)
+    skeleton space per unit time."""
+    blk, i = wp.tid()
     v = i + vertex_offset
-    f0 = (b + block_offset) * frame_block
     last_p = points.shape[0] - 1
     last_v = point_velocities.shape[0] - 1
+    f0 = (blk + block_offset) * frame_block
     for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
         p = points[wp.min(f, last_p), v]
         pd = point_velocities[wp.min(f, last_v), v]
-        use_residual = has_residual[f] != 0
-        pivot = dq_real(dqs[f, indices[v, 0]])
-        r = wp.quat(0.0, 0.0, 0.0, 0.0)
-        d = wp.quat(0.0, 0.0, 0.0, 0.0)
-        rd = wp.quat(0.0, 0.0, 0.0, 0.0)
-        dd = wp.quat(0.0, 0.0, 0.0, 0.0)
-        x = p
-        xd = pd
-        if use_residual:
-            x = wp.vec3()
-            xd = wp.vec3()
-        for k in range(indices.shape[1]):
-            j = indices[v, k]
-            eta = dqs[f, j]
-            eta_dot = dq_derivatives[f, j]
-            q = dq_real(eta)
-            w = weights[v, k]
-            s = w * wp.sign(wp.dot(q, pivot))
-            r += q * s
-            d += dq_dual(eta) * s
-            rd += dq_real(eta_dot) * s
-            dd += dq_dual(eta_dot) * s
-            if use_residual:
-                x += (residuals[f, j] * p) * w
-                xd += (residual_derivatives[f, j] * p + residuals[f, j] * pd) * w
-        rv = wp.vec3(r[0], r[1], r[2])
-        rw = r[3]
-        n2 = rw * rw + wp.dot(rv, rv)
-        if n2 < 1.0e-20:
-            out[f, v] = xd  # all weights zero: the skinned point is x itself
+        lbs = wp.vec3()
+        dqs_v = wp.vec3()
+        if method != DQS:
+            lbs = (lbs_matrix(v, f, indices, weights, affine_derivatives)
+                   * wp.vec4(p[0], p[1], p[2], 1.0)
+                   + lbs_matrix(v, f, indices, weights, affines) * wp.vec4(pd[0], pd[1], pd[2], 0.0))
+        if method != LBS:
+            x = p
+            xd = pd
+            if has_residual[f] != 0:
+                x = residual_blend(p, v, f, indices, weights, residuals)
+                xd = (residual_blend(p, v, f, indices, weights, residual_derivatives)
+                      + residual_blend(pd, v, f, indices, weights, residuals))
+            dqs_v = dqs_apply_derivative(dqs_blend(v, f, indices, weights, dqs),
+                                         dqs_blend_derivative(v, f, indices, weights, dqs,
+                                                              dq_derivatives), x, xd)
+        if method == LBS:
+            out[f, v] = lbs
+        elif method == DQS:
+            out[f, v] = dqs_v
         else:
-            dv = wp.vec3(d[0], d[1], d[2])
-            dw = d[3]
-            rdv = wp.vec3(rd[0], rd[1], rd[2])
-            rdw = rd[3]
-            ddv = wp.vec3(dd[0], dd[1], dd[2])
-            ddw = dd[3]
-            rx = wp.cross(rv, x)
-            g = wp.cross(rv, rx) + rw * rx + rw * dv - dw * rv + wp.cross(rv, dv)
-            rx_dot = wp.cross(rdv, x) + wp.cross(rv, xd)
-            g_dot = (wp.cross(rdv, rx) + wp.cross(rv, rx_dot) + rdw * rx + rw * rx_dot
-                     + rdw * dv + rw * ddv - ddw * rv - dw * rdv
-                     + wp.cross(rdv, dv) + wp.cross(rv, ddv))
-            n2_dot = 2.0 * (rw * rdw + wp.dot(rv, rdv))
-            out[f, v] = xd + (2.0 / n2) * g_dot - (2.0 * n2_dot / (n2 * n2)) * g
+            b = blend[v]
+            out[f, v] = lbs * (1.0 - b) + dqs_v * b
+
+
+# ---------------------------------------------------------------------------------------------
+# launchers
+
+
+def prepare(*, xforms, xform_derivatives, affines, affine_derivatives, dqs, dq_derivatives,
+            residuals, residual_derivatives, has_residual, device):
+    """Per (frame, joint) data of :func:`velocities` from the (F, J) ``wp.mat44`` transforms and
+    their derivatives."""
+    prepare_points(xforms=xforms, affines=affines, dqs=dqs, residuals=residuals,
+                   has_residual=has_residual, device=device)
+    launch(prepare_derivatives_kernel, xforms.shape, [xforms, xform_derivatives],
+           [affine_derivatives, dq_derivatives, residual_derivatives, has_residual], device)
+
+
+def velocities(*, method, points, point_velocities, indices, weights, blend, affines,
+               affine_derivatives, dqs, dq_derivatives, residuals, residual_derivatives,
+               has_residual, out, device):
+    """Velocities of ``points`` skinned with ``method`` into ``out`` (F, V) (arrays from
+    :func:`prepare` and the influence layout)."""
+    launch_blocks(velocity_kernel, out.shape[1], out.shape[0],
+                  [points, point_velocities, indices, weights, blend, affines, affine_derivatives,
+                   dqs, dq_derivatives, residuals, residual_derivatives, has_residual, int(method)],
+                  [out], device)

@@ -10,7 +10,6 @@ transform: LBS maps it to ``((1 − w) + w·e^{iθ})·p`` in the complex (y, z) 
 the two rotation quaternions, ``ψ(w) = 2·atan2(w sin(θ/2), 1 − w + w cos(θ/2))``.
 """
 
-import argparse
 import base64
 import io
 import json
@@ -24,9 +23,10 @@ import trimesh
 from PIL import Image
 
 import dqskin
-from dqskin.compare import (SECTION_SLICES, add_compare_arguments, cmd_compare, parse_times,
-                            run_compare)
-from dqskin.render import VIEWS
+from dqskin.cli import build_parser
+from dqskin.report.compare import SECTION_SLICES, run_compare
+from dqskin.times import parse_frames
+from dqskin.report.render import VIEWS
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
 TWIST = ASSETS / "twist_cylinder.usda"
@@ -247,10 +247,10 @@ def test_sweeps_reproduce_the_classic_curves(twist):
     assert np.all(np.abs(np.array(bend["dqs"]["volume_ratio"]) - 1) <= dqs_tol)
 
 
-def test_multi_mesh_scene_renders_together(tmp_path):
+def test_multi_mesh_scene_renders_together(tmp_path, device):
     result = run_compare(ASSETS / "humanoid.usda", tmp_path, methods=("dqs", "blend"),
                          frames=[0, 12], views=("front",), width=32, supersample=1,
-                         progress=False, sweeps_dir=None, device="cpu")
+                         progress=False, sweeps_dir=None, device=device)
     names = ["Body", "Arm_L", "Arm_R", "Leg_L", "Leg_R", "Foot_L", "Foot_R"]
     assert sorted(result["meshes"]) == sorted(f"/Humanoid/{n}" for n in names)
     assert result["render"]["vertices"] == 5302  # assets/README.md
@@ -302,12 +302,12 @@ def test_bad_input(tmp_path):
             run_compare(TWIST, out, progress=False, **kwargs)
     for text in ("a:b", "0:1:2:3", "5:1", "0:4:0", "1,x"):
         with pytest.raises(ValueError, match="--frames"):
-            parse_times(text)
+            parse_frames(text)
 
 
-def test_existing_report_needs_force(tmp_path):
+def test_existing_report_needs_force(tmp_path, device):
     small = dict(frames=[0, 24], views=("front",), width=24, supersample=1, progress=False,
-                 sweeps_dir=None, device="cpu")
+                 sweeps_dir=None, device=device)
     (tmp_path / "report.html").write_text("old report")
     frames = tmp_path / "frames"
     frames.mkdir()
@@ -330,29 +330,28 @@ def test_existing_report_needs_force(tmp_path):
     assert (frames / "front_000.png").is_file() and (frames / "notes.txt").is_file()
 
 
-def test_command_line(tmp_path, capsys):
-    parser = argparse.ArgumentParser(prog="dqskin")
-    add_compare_arguments(parser.add_subparsers(dest="command").add_parser("compare"))
+def test_command_line(tmp_path, capsys, device):
+    parser = build_parser()
     args = parser.parse_args(["compare", str(TWIST), "--out", str(tmp_path), "--frames",
                               "0:24:12", "--views", "front,side", "--methods", "lbs,dqs,blend",
                               "--width", "24", "--supersample", "1", "--no-sweeps", "--quiet",
-                              "--device", "cpu"])
-    assert cmd_compare(args) == 0
+                              "--device", device])
+    assert args.run(args) == 0
     assert "report.html" in capsys.readouterr().out
     saved = json.loads((tmp_path / "metrics.json").read_text(encoding="utf-8"))
     assert saved["frames"] == FRAMES and saved["views"] == ["front", "side"]
     assert saved["methods"] == ["lbs", "dqs", "blend"] and saved["sweeps"] is None
-    np.testing.assert_allclose(parse_times("0, 6.5,12"), [0, 6.5, 12])
+    np.testing.assert_allclose(parse_frames("0, 6.5,12"), [0, 6.5, 12])
     bad = parser.parse_args(["compare", str(TWIST), "--out", str(tmp_path / "x"), "--methods",
                              "lbs,nope"])
     with pytest.raises(ValueError, match="nope"):
-        cmd_compare(bad)
+        bad.run(bad)
 
 
 def test_cameras_use_the_skeleton_spaces_up_axis(shared_assets):
     """usd-wg's CesiumMan keeps its skeleton under a Z_UP group (−90° about x) on a Y-up stage,
     so its skeleton space is Z-up; the glTF's skeleton space is the Y-up world."""
-    from dqskin.compare import skeleton_up_axis
+    from dqskin.report.compare import skeleton_up_axis
     usdz = dqskin.load(shared_assets / "usd-wg" / "CesiumMan" / "CesiumMan.usdz")
     glb = dqskin.load(shared_assets / "khronos-gltf" / "CesiumMan" / "CesiumMan.glb")
     assert usdz.up_axis == "Y" and skeleton_up_axis(usdz) == "Z"

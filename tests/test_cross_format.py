@@ -17,7 +17,7 @@ CHARACTERS = {"RiggedSimple": True, "RiggedFigure": False, "CesiumMan": False}
 
 
 def world_points(stage, scene, times, method):
-    out = scene.skin(times, method)
+    out = scene.skin(times, method).points
     (name, pts), = out.items()
     prim = stage.GetPrimAtPath(name)
     res = []
@@ -36,7 +36,7 @@ def test_glb_and_usdz_agree(shared_assets, name, method):
     stage = Usd.Stage.Open(str(usdz_path))
     assert usdz.up_axis == "Y" and usdz.meters_per_unit == 1.0
     times = glb.times[np.linspace(0, len(glb.times) - 1, min(6, len(glb.times))).astype(int)]
-    (g,) = glb.skin(times, method).values()
+    (g,) = glb.skin(times, method).points.values()
     u = world_points(stage, usdz, times * usdz.time_codes_per_second, method)
     assert g.shape == u.shape
     scale = np.abs(g).max()

@@ -15,7 +15,7 @@ import numpy as np
 import pygltflib as gl
 import pytest
 
-from dqskin.gltf import load_gltf
+from dqskin.formats.gltf import load_gltf
 
 ASSETS = ["khronos-gltf/RiggedSimple/RiggedSimple.glb",
           "khronos-gltf/RiggedFigure/RiggedFigure.glb",
@@ -187,9 +187,9 @@ def ref_sample(t, keys, out, interp, rotation):
     return p / np.linalg.norm(p) if rotation else p
 
 
-def check_against_oracle(path, times, clip=0, method="lbs"):
+def check_against_oracle(path, times, clip=0, method="lbs", *, device):
     scene = load_gltf(path, clip=clip)
-    got = scene.skin(times, method=method, device="cpu")
+    got = scene.skin(times, method=method, device=device).points
     oracle = oracle_of(path)
     want = [oracle.skin(t, clip) for t in times]
     assert sorted(got) == sorted(want[0])
@@ -215,12 +215,12 @@ def mid_times(keys, n=2):
 
 
 @pytest.mark.parametrize("asset", ASSETS)
-def test_asset_matches_oracle(shared_assets, asset):
+def test_asset_matches_oracle(shared_assets, asset, device):
     path = shared_assets / asset
     oracle = oracle_of(path)
     keys = oracle.key_times(0)
     times = np.concatenate([keys, mid_times(keys), [keys[0] - 1.0, keys[-1] + 1.0]])
-    scene, _, _ = check_against_oracle(path, times)
+    scene, _, _ = check_against_oracle(path, times, device=device)
     np.testing.assert_array_equal(scene.times, keys)
     assert scene.time_codes_per_second == 1.0 and scene.up_axis == "Y"
     for skel in scene.skeletons:
@@ -242,12 +242,12 @@ def test_asset_matches_oracle(shared_assets, asset):
 
 
 @pytest.mark.parametrize("asset", ASSETS)
-def test_asset_dqs_rigid_vertices(shared_assets, asset):
+def test_asset_dqs_rigid_vertices(shared_assets, asset, device):
     """DQS runs; where one joint has all the weight it equals the rigid (LBS) oracle."""
     path = shared_assets / asset
     scene = load_gltf(path)
     times = scene.times[:: max(1, scene.times.size // 6)]
-    dqs = scene.skin(times, method="dqs", device="cpu")
+    dqs = scene.skin(times, method="dqs", device=device).points
     want = [oracle_of(path).skin(t) for t in times]
     for m in scene.meshes:
         single = np.sum(m.joint_weights > 0, axis=1) == 1
@@ -258,7 +258,7 @@ def test_asset_dqs_rigid_vertices(shared_assets, asset):
             assert np.abs(dqs[m.name][:, single] - ref[:, single]).max() <= 1e-5 * size
 
 
-def test_greenman_clips(shared_assets):
+def test_greenman_clips(shared_assets, device):
     path = shared_assets / "raylib-gltf/greenman.glb"
     oracle = oracle_of(path)
     names = [a.name for a in oracle.g.animations]
@@ -268,10 +268,12 @@ def test_greenman_clips(shared_assets):
     by_name, by_index = load_gltf(path, clip=names[2]), load_gltf(path, clip=2)
     assert by_name.clip == by_index.clip == names[2]
     np.testing.assert_array_equal(by_name.times, oracle.key_times(2))
-    np.testing.assert_array_equal(by_name.skin(by_name.times, "lbs", device="cpu")["1_body"],
-                                  by_index.skin(by_index.times, "lbs", device="cpu")["1_body"])
+    np.testing.assert_array_equal(
+        by_name.skin(by_name.times, "lbs", device=device).points["1_body"],
+        by_index.skin(by_index.times, "lbs", device=device).points["1_body"])
     keys = oracle.key_times(3)
-    check_against_oracle(path, np.concatenate([keys[::3], mid_times(keys)]), clip=names[3])
+    check_against_oracle(path, np.concatenate([keys[::3], mid_times(keys)]), clip=names[3],
+                         device=device)
     for bad in ("nope", 4):
         with pytest.raises(ValueError, match=r"greenman\.glb.*available clips.*1_idle"):
             load_gltf(path, clip=bad)
@@ -430,11 +432,11 @@ def build_rig(path, how="glb", weights_ctype=FLOAT):
 
 
 @pytest.mark.parametrize("how", ["glb", "embedded", "external"])
-def test_synthetic_rig(tmp_path, how):
+def test_synthetic_rig(tmp_path, how, device):
     path = build_rig(tmp_path / ("rig.glb" if how == "glb" else "rig.gltf"), how)
     keys = oracle_of(path).key_times(0)
     times = np.concatenate([keys, mid_times(keys, 6), [-0.3, 2.5]])
-    scene, _, _ = check_against_oracle(path, times)
+    scene, _, _ = check_against_oracle(path, times, device=device)
     np.testing.assert_array_equal(scene.times, keys)
     assert scene.times[-1] == np.float32(2.5)
     assert [m.name for m in scene.meshes] == ["body/primitive0", "body/primitive1", "prop"]
@@ -451,15 +453,15 @@ def test_synthetic_rig(tmp_path, how):
     np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-6)
     np.testing.assert_array_equal(w[3], np.eye(8)[0])
     # the second clip
-    check_against_oracle(path, [0.0, 0.25, 1.0], clip="animation_1")
-    check_against_oracle(path, [0.5], clip=1)
+    check_against_oracle(path, [0.0, 0.25, 1.0], clip="animation_1", device=device)
+    check_against_oracle(path, [0.5], clip=1, device=device)
 
 
-def test_synthetic_dqs_single_influence(tmp_path):
+def test_synthetic_dqs_single_influence(tmp_path, device):
     path = build_rig(tmp_path / "rig.glb")
     scene = load_gltf(path)
     times = np.concatenate([scene.times, mid_times(scene.times, 3)])
-    dqs = scene.skin(times, method="dqs", device="cpu")
+    dqs = scene.skin(times, method="dqs", device=device).points
     want = [oracle_of(path).skin(t) for t in times]
     for m in scene.meshes:
         single = np.sum(m.joint_weights > 0, axis=1) == 1
@@ -469,10 +471,11 @@ def test_synthetic_dqs_single_influence(tmp_path):
         assert np.abs(dqs[m.name][:, single] - ref).max() <= 1e-5 * size
 
 
-def test_normalized_ubyte_weights(tmp_path):
+def test_normalized_ubyte_weights(tmp_path, device):
     path = build_rig(tmp_path / "rig.glb", weights_ctype=UBYTE)
     oracle = oracle_of(path)
-    scene, _, _ = check_against_oracle(path, np.concatenate([oracle.key_times(0), [0.33]]))
+    scene, _, _ = check_against_oracle(path, np.concatenate([oracle.key_times(0), [0.33]]),
+                                       device=device)
     attrs = oracle.g.meshes[0].primitives[1].attributes
     raw = np.concatenate([oracle.read(attrs.WEIGHTS_0), oracle.read(attrs.WEIGHTS_1)], axis=1)
     ok = raw.sum(axis=1) > 0
@@ -532,7 +535,7 @@ def write_static(path, *, joints=None, weights=None, skin=True, count_mismatch=F
     return d.save(path), pts
 
 
-def test_mesh_node_transform_ignored(tmp_path):
+def test_mesh_node_transform_ignored(tmp_path, device):
     """Closed form: IBM = inverse(rest global) and no animation → skinned points are the rest
     points, whatever the skinned mesh node's own transform."""
     path, pts = write_static(tmp_path / "static.glb")
@@ -542,7 +545,7 @@ def test_mesh_node_transform_ignored(tmp_path):
     np.testing.assert_allclose(scene.meshes[0].uvs, np.arange(10).reshape(5, 2) * 6000 / 65535,
                                rtol=1e-6)
     for method in ("lbs", "dqs"):
-        got = scene.skin(method=method, device="cpu")["mesh"][0]
+        got = scene.skin(method=method, device=device).points["mesh"][0]
         np.testing.assert_allclose(got, pts, atol=1e-5)
     with pytest.raises(ValueError, match=r"static\.glb.*available clips: \[\]"):
         load_gltf(path, clip=0)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from dqskin.io import atomic_path, load_mesh
+from dqskin.formats import atomic_path, load_mesh
 
 
 @pytest.mark.parametrize("suffix", [".obj", ".ply", ".stl", ".off"])

@@ -12,11 +12,11 @@ import pytest
 from scipy.interpolate import CubicHermiteSpline, CubicSpline
 from scipy.spatial.transform import Rotation, Slerp
 
-from dqskin import dq, motion
-from dqskin.scene import Animation
+from dqskin import animation, dq, motion
+from dqskin.animation import Animation
 
 CESIUM = "khronos-gltf/CesiumMan/CesiumMan.glb"
-INTERPS = motion.INTERPOLATIONS
+INTERPS = animation.INTERPOLATIONS
 
 # --------------------------------------------------------------------------------------------
 # independent float64 helpers
@@ -135,11 +135,11 @@ def inside(kt, n=4):
 @pytest.mark.parametrize("interp", INTERPS)
 def test_keys_reproduced_and_clamped(interp):
     kt, local = random_keys(1, scale=True)
-    anim = motion.KeyedAnimation(kt, local)
-    np.testing.assert_allclose(motion.sample(anim, kt, interp), local, atol=1e-12)
-    ends = motion.sample(anim, [kt[0] - 5, kt[-1] + 5], interp)
+    anim = animation.KeyedAnimation(kt, local)
+    np.testing.assert_allclose(animation.sample(anim, kt, interp), local, atol=1e-12)
+    ends = animation.sample(anim, [kt[0] - 5, kt[-1] + 5], interp)
     np.testing.assert_allclose(ends, local[[0, -1]], atol=1e-12)
-    _, vel = motion.sample_with_derivative(anim, [kt[0] - 5, kt[-1] + 5], interp)
+    _, vel = animation.sample_with_derivative(anim, [kt[0] - 5, kt[-1] + 5], interp)
     assert np.all(vel == 0)
 
 
@@ -151,9 +151,9 @@ def test_trs_is_slerp_lerp_of_keys():
     tr = rng.normal(size=(K, J, 3))
     sc = 0.5 + rng.random((K, J, 3))
     keys = matrices(rots, tr.reshape(-1, 3), sc.reshape(-1, 3)).reshape(K, J, 4, 4)
-    anim = motion.KeyedAnimation(kt, keys)
+    anim = animation.KeyedAnimation(kt, keys)
     t = np.linspace(kt[0], kt[-1], 41)
-    got = motion.sample(anim, t, "trs")
+    got = animation.sample(anim, t, "trs")
     for j in range(J):
         rj = Slerp(kt, Rotation.from_matrix(rots.as_matrix().reshape(K, J, 3, 3)[:, j]))(t)
         tj = np.stack([np.interp(t, kt, tr[:, j, c]) for c in range(3)], -1)
@@ -176,9 +176,9 @@ def test_sclerp_fixed_axis_matches_scipy_slerp():
     thetas = np.array([0.0, 2.5, 5.5, 4.0])  # 2.5 -> 5.5 rad is taken the short way (-3.28 rad)
     ds = np.array([0.0, 1.0, -0.5, 2.0])
     rot, keys = screw_keys(thetas, ds, axis, point)
-    anim = motion.KeyedAnimation(kt, keys[:, None])
+    anim = animation.KeyedAnimation(kt, keys[:, None])
     t = np.linspace(0, 3, 61)
-    got = motion.sample(anim, t, "sclerp")[:, 0]
+    got = animation.sample(anim, t, "sclerp")[:, 0]
     ref_rot = Slerp(kt, rot)(t)  # scipy: constant angular velocity, shorter arc
     # slide: linear in t along the axis; the short-way rotation does not change the slide
     ref = matrices(ref_rot, point - ref_rot.apply(point) + np.outer(np.interp(t, kt, ds), axis))
@@ -191,10 +191,10 @@ def test_sclerp_fixed_axis_matches_scipy_slerp():
 
 def test_sclerp_constant_screw_and_exp_log():
     kt, local = random_keys(4, K=4, J=3)
-    anim = motion.KeyedAnimation(kt, local)
+    anim = animation.KeyedAnimation(kt, local)
     for k in range(len(kt) - 1):
         t = np.linspace(kt[k], kt[k + 1], 9)[:-1]
-        m = motion.sample(anim, t, "sclerp")
+        m = animation.sample(anim, t, "sclerp")
         step = np.linalg.inv(m[:-1]) @ m[1:]  # body-frame increment over equal time steps
         np.testing.assert_allclose(step, np.broadcast_to(step[0], step.shape), atol=1e-12)
         # constant twist equal to the key-to-key relative rotation spread over the interval
@@ -215,23 +215,23 @@ def test_sclerp_constant_screw_and_exp_log():
 
 def test_dlb_and_catmull_rom_against_scipy():
     kt, local = random_keys(5, K=6, J=3)
-    anim = motion.KeyedAnimation(kt, local)
+    anim = animation.KeyedAnimation(kt, local)
     p = key_dqs(local)
     t = np.linspace(kt[0], kt[-1], 77)
     # dlb: normalized linear blend of consecutive (aligned) keys
     i = np.clip(np.searchsorted(kt, t, "right") - 1, 0, len(kt) - 2)
     u = ((t - kt[i]) / (kt[i + 1] - kt[i]))[:, None, None]
-    np.testing.assert_allclose(motion.sample(anim, t, "dlb"),
+    np.testing.assert_allclose(animation.sample(anim, t, "dlb"),
                                dq_matrix((1 - u) * p[i] + u * p[i + 1]), atol=1e-12)
     # Catmull-Rom tangents (central differences, one-sided at the ends), Hermite, normalized
     m = np.gradient(p, kt, axis=0, edge_order=1)
     m[1:-1] = (p[2:] - p[:-2]) / (kt[2:] - kt[:-2])[:, None, None]
     herm = CubicHermiteSpline(kt, p, m, axis=0)
-    np.testing.assert_allclose(motion.sample(anim, t, "catmull-rom"), dq_matrix(herm(t)),
+    np.testing.assert_allclose(animation.sample(anim, t, "catmull-rom"), dq_matrix(herm(t)),
                                atol=1e-12)
     # C1 at interior keys: one-sided derivatives agree
-    _, left = motion.sample_with_derivative(anim, kt[1:-1] - 1e-9, "catmull-rom")
-    _, right = motion.sample_with_derivative(anim, kt[1:-1], "catmull-rom")
+    _, left = animation.sample_with_derivative(anim, kt[1:-1] - 1e-9, "catmull-rom")
+    _, right = animation.sample_with_derivative(anim, kt[1:-1], "catmull-rom")
     np.testing.assert_allclose(left, right, atol=1e-6)
 
 
@@ -257,21 +257,21 @@ def ramp_oracle(t, k):
 def test_ramp_eq32_33():
     k = np.array([0.0, 0.8, 1.1, 2.0, 3.5])
     t = np.linspace(-1, 4.5, 301)
-    s, s_dot = motion.ramp(t, k)
+    s, s_dot = animation.ramp(t, k)
     np.testing.assert_allclose(s, ramp_oracle(t, k), atol=1e-14)
-    np.testing.assert_allclose(motion.ramp(k[1:-1], k)[0], k[1:-1], atol=1e-14)  # s(t_k) = t_k
+    np.testing.assert_allclose(animation.ramp(k[1:-1], k)[0], k[1:-1], atol=1e-14)  # s(t_k) = t_k
     h = 1e-6
     fd = (ramp_oracle(t + h, k) - ramp_oracle(t - h, k)) / (2 * h)
     np.testing.assert_allclose(s_dot, fd, atol=1e-6)
-    sd_ends = motion.ramp(k[[0, -1]], k)[1]
+    sd_ends = animation.ramp(k[[0, -1]], k)[1]
     assert np.all(sd_ends == 0)  # f'(0) = 0
-    np.testing.assert_allclose(motion.ramp(k[[1, -2]], k)[1], 1.0)  # f'(1) = 1
+    np.testing.assert_allclose(animation.ramp(k[[1, -2]], k)[1], 1.0)  # f'(1) = 1
 
 
 @pytest.mark.parametrize("K", [2, 3, 6])
 def test_spline_is_normalized_natural_spline_with_ramp(K):
     kt, local = random_keys(6, K=K, J=3)
-    anim = motion.KeyedAnimation(kt, local)
+    anim = animation.KeyedAnimation(kt, local)
     p = key_dqs(local)
     keys_t = kt
     if K == 2:  # documented: the screw midpoint is inserted
@@ -283,29 +283,29 @@ def test_spline_is_normalized_natural_spline_with_ramp(K):
     knots[0], knots[-1] = keys_t[:2].mean(), keys_t[-2:].mean()
     spline = CubicSpline(knots, p, axis=0, bc_type="natural")
     t = np.linspace(kt[0] - 0.2, kt[-1] + 0.2, 97)
-    np.testing.assert_allclose(motion.sample(anim, t, "spline"),
+    np.testing.assert_allclose(animation.sample(anim, t, "spline"),
                                dq_matrix(spline(ramp_oracle(t, keys_t))), atol=1e-11)
-    np.testing.assert_allclose(motion.sample(anim, kt, "spline"), local, atol=1e-12)
+    np.testing.assert_allclose(animation.sample(anim, kt, "spline"), local, atol=1e-12)
     # ramp-up / ramp-down: zero velocity at t0 and tn, growing quadratically (zero acceleration)
-    _, v_end = motion.sample_with_derivative(anim, kt[[0, -1]], "spline")
+    _, v_end = animation.sample_with_derivative(anim, kt[[0, -1]], "spline")
     assert np.abs(v_end).max() < 1e-12
     d = 1e-3 * (kt[1] - kt[0])
-    _, v1 = motion.sample_with_derivative(anim, [kt[0] + d, kt[-1] - d], "spline")
-    _, v2 = motion.sample_with_derivative(anim, [kt[0] + 2 * d, kt[-1] - 2 * d], "spline")
+    _, v1 = animation.sample_with_derivative(anim, [kt[0] + d, kt[-1] - d], "spline")
+    _, v2 = animation.sample_with_derivative(anim, [kt[0] + 2 * d, kt[-1] - 2 * d], "spline")
     ratio = np.abs(v2).max(axis=(1, 2, 3)) / np.abs(v1).max(axis=(1, 2, 3))
     np.testing.assert_allclose(ratio, 4.0, rtol=1e-2)
 
 
 def third_difference_max(anim, interp, t0, t1, h, point):
     t = np.arange(t0, t1, h)
-    m = motion.sample(anim, t, interp)
+    m = animation.sample(anim, t, interp)
     x = m[:, :, :3, :3] @ point + m[:, :, :3, 3]
     return np.abs(np.diff(x, n=3, axis=0)).max() / h ** 3
 
 
 def test_spline_low_jerk():
     kt, local = random_keys(7, K=7, J=2)
-    anim = motion.KeyedAnimation(kt, local)
+    anim = animation.KeyedAnimation(kt, local)
     point = np.array([0.5, -0.3, 0.8])
     jerk = {(i, h): third_difference_max(anim, i, kt[0] - 0.5, kt[-1] + 0.5, h, point)
             for i in ("spline", "sclerp", "dlb") for h in (2e-3, 1e-3)}
@@ -318,7 +318,7 @@ def test_spline_low_jerk():
 
 
 def test_gltf_trs_matches_key_values(shared_assets):
-    from dqskin.gltf import load_gltf  # must exist: fail, not skip, if the loader is missing
+    from dqskin.formats.gltf import load_gltf  # must exist: fail, not skip, if the loader is missing
 
     path = shared_assets / CESIUM
     scene = load_gltf(path)
@@ -340,7 +340,7 @@ def test_gltf_trs_matches_key_values(shared_assets):
         sam = g.animations[0].samplers[ch.sampler]
         times, values = read(sam.input)[:, 0], read(sam.output)
         j = joint[g.nodes[ch.target.node].name]
-        m = motion.sample(anim, times, "trs")[:, j]
+        m = animation.sample(anim, times, "trs")[:, j]
         lin = m[:, :3, :3]
         scale = np.linalg.norm(lin, axis=1)
         if ch.target.path == "translation":
@@ -358,7 +358,7 @@ def test_gltf_trs_matches_key_values(shared_assets):
     # every DQ interpolant passes through the clip's key poses as well
     keys = anim.local_transforms(anim.key_times)
     for interp in INTERPS[1:]:
-        np.testing.assert_allclose(motion.sample(anim, anim.key_times, interp), keys, atol=1e-9)
+        np.testing.assert_allclose(animation.sample(anim, anim.key_times, interp), keys, atol=1e-9)
 
 
 # --------------------------------------------------------------------------------------------
@@ -397,10 +397,10 @@ def two_joint_rig(nonrigid):
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_skinned_velocities_match_finite_differences(method, interp, nonrigid, device):
     kt, local, bind, pts, idx, w, geom = two_joint_rig(nonrigid)
-    anim = motion.KeyedAnimation(kt, local)
+    anim = animation.KeyedAnimation(kt, local)
     parents = np.array([-1, 0])
     t = inside(kt, 3)
-    loc, loc_dot = motion.sample_with_derivative(anim, t, interp)
+    loc, loc_dot = animation.sample_with_derivative(anim, t, interp)
     world, world_dot = motion.forward_kinematics_derivative(parents, loc, loc_dot)
     inv_bind = np.linalg.inv(bind)
     vel = motion.skinned_velocities(pts, idx, w, world @ inv_bind, world_dot @ inv_bind, method,
@@ -409,7 +409,7 @@ def test_skinned_velocities_match_finite_differences(method, interp, nonrigid, d
     h = 1e-5
 
     def skinned(tt):
-        xf = fk(parents, motion.sample(anim, tt, interp)) @ inv_bind
+        xf = fk(parents, animation.sample(anim, tt, interp)) @ inv_bind
         return SKIN[method](bind_pts, idx, w, xf)
 
     fd = (skinned(t + h) - skinned(t - h)) / (2 * h)
@@ -421,21 +421,21 @@ def test_skinned_velocities_match_finite_differences(method, interp, nonrigid, d
 
 def test_world_joint_twists_match_finite_differences():
     kt, local, *_ = two_joint_rig(False)
-    anim = motion.KeyedAnimation(kt, local)
+    anim = animation.KeyedAnimation(kt, local)
     parents = np.array([-1, 0])
     t = inside(kt, 2)
     for interp in ("trs", "spline"):
         omega, v = motion.joint_twists(anim, t, interp, frame="world", parents=parents)
         h = 1e-6
-        wp_, wm = (fk(parents, motion.sample(anim, t + s * h, interp)) for s in (1, -1))
-        w0 = fk(parents, motion.sample(anim, t, interp))
+        wp_, wm = (fk(parents, animation.sample(anim, t + s * h, interp)) for s in (1, -1))
+        w0 = fk(parents, animation.sample(anim, t, interp))
         np.testing.assert_allclose(v, (wp_[..., :3, 3] - wm[..., :3, 3]) / (2 * h), atol=1e-6)
         spin = (wp_[..., :3, :3] - wm[..., :3, :3]) / (2 * h) @ np.swapaxes(w0[..., :3, :3], -1, -2)
         np.testing.assert_allclose(omega, axial(spin), atol=1e-6)
         # local body twists: dt/dt = R v and dR/dt = R [omega]x of each parent-relative transform
         om_l, v_l = motion.joint_twists(anim, t, interp)
-        lp, lm = (motion.sample(anim, t + s * h, interp) for s in (1, -1))
-        l0 = motion.sample(anim, t, interp)
+        lp, lm = (animation.sample(anim, t + s * h, interp) for s in (1, -1))
+        l0 = animation.sample(anim, t, interp)
         np.testing.assert_allclose(np.einsum("fjab,fjb->fja", l0[..., :3, :3], v_l),
                                    (lp[..., :3, 3] - lm[..., :3, 3]) / (2 * h), atol=1e-6)
         body = np.swapaxes(l0[..., :3, :3], -1, -2) @ (lp[..., :3, :3] - lm[..., :3, :3]) / (2 * h)
@@ -444,15 +444,15 @@ def test_world_joint_twists_match_finite_differences():
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_cesium_man_velocities_match_finite_differences(shared_assets, method):
-    from dqskin.gltf import load_gltf  # must exist: fail, not skip, if the loader is missing
+    from dqskin.formats.gltf import load_gltf  # must exist: fail, not skip, if the loader is missing
 
     scene = load_gltf(shared_assets / CESIUM)
     kt = scene.animations[0].key_times
     t = inside(kt[::6], 1)  # interval midpoints of every 6th key: away from kinks at keys
     t = 0.5 * (kt[np.searchsorted(kt, t) - 1] + kt[np.searchsorted(kt, t)])
-    vel = motion.scene_velocities(scene, t, method)
+    vel = scene.skin(t, method, velocities=True).velocities
     h = 3e-3  # float32 skinning: larger steps average out rounding; still inside the interval
-    plus, minus = scene.skin(t + h, method), scene.skin(t - h, method)
+    plus, minus = scene.skin(t + h, method).points, scene.skin(t - h, method).points
     for m in scene.meshes:
         fd = (plus[m.name].astype(np.float64) - minus[m.name]) / (2 * h)
         err = np.linalg.norm(vel[m.name] - fd, axis=-1)
@@ -462,7 +462,7 @@ def test_cesium_man_velocities_match_finite_differences(shared_assets, method):
     # the same clip through the DQ spline: velocities of the curve sample() draws
     sk = scene.skeletons[0]
     m = scene.meshes[0]
-    vel = motion.scene_velocities(scene, t, method, interp="spline")[m.name]
+    vel = scene.skin(t, method, velocities=True, interp="spline").velocities[m.name]
     bind = np.linalg.inv(sk.bind_transforms)
     g = m.geom_bind_transform
     pts = m.points.astype(np.float64) @ g[:3, :3].T + g[:3, 3]
@@ -470,7 +470,7 @@ def test_cesium_man_velocities_match_finite_differences(shared_assets, method):
 
     def skinned(tt):
         return SKIN[method](pts, m.joint_indices, m.joint_weights.astype(np.float64),
-                            fk(sk.parents, motion.sample(scene.animations[0], tt, "spline")) @ bind)
+                            fk(sk.parents, animation.sample(scene.animations[0], tt, "spline")) @ bind)
 
     fd = (skinned(t + h) - skinned(t - h)) / (2 * h)
     err = np.linalg.norm(vel - fd, axis=-1)
@@ -485,15 +485,15 @@ def test_scene_velocities_per_second():
     skel = Skeleton(["a", "b"], [-1, 0], bind_transforms=bind)
     mesh = Mesh("m", pts.astype(np.float32), np.zeros((0, 3), np.int32), idx.astype(np.int32),
                 w.astype(np.float32), geom_bind_transform=geom, skinning_method="dqs")
-    scene = Scene("rig", [mesh], [skel], [motion.KeyedAnimation(kt * 24, local)], kt * 24,
+    scene = Scene("rig", [mesh], [skel], [animation.KeyedAnimation(kt * 24, local)], kt * 24,
                   time_codes_per_second=24.0)
     t = inside(kt, 2) * 24
     per_code = motion.skinned_velocities(pts, idx, w, *motion.skinning_transforms_with_derivative(
         skel, scene.animations[0], t), "dqs", geom_bind_transform=geom)
-    got = motion.scene_velocities(scene, t)["m"]
+    got = scene.skin(t, velocities=True).velocities["m"]
     np.testing.assert_allclose(got, 24.0 * per_code, rtol=1e-5, atol=1e-5 * np.abs(got).max())
     still = Scene("rest", [mesh], [skel], [None], np.zeros(1))
-    assert np.all(motion.scene_velocities(still)["m"] == 0)
+    assert np.all(still.skin(velocities=True).velocities["m"] == 0)
 
 
 # --------------------------------------------------------------------------------------------
@@ -514,22 +514,22 @@ class StepAnimation(Animation):
 
 def test_bad_input():
     kt, local = random_keys(9, K=3, J=2)
-    anim = motion.KeyedAnimation(kt, local)
+    anim = animation.KeyedAnimation(kt, local)
     with pytest.raises(ValueError, match="interp"):
-        motion.sample(anim, kt, "cubic")
+        animation.sample(anim, kt, "cubic")
     with pytest.raises(ValueError, match="strictly increasing"):
-        motion.KeyedAnimation(kt[::-1], local)
+        animation.KeyedAnimation(kt[::-1], local)
     with pytest.raises(ValueError, match=r"\(3, J, 4, 4\)"):
-        motion.KeyedAnimation(kt, local[:2])
+        animation.KeyedAnimation(kt, local[:2])
     step = StepAnimation(kt, local)
-    np.testing.assert_allclose(motion.sample(step, kt, "sclerp"), local, atol=1e-12)
+    np.testing.assert_allclose(animation.sample(step, kt, "sclerp"), local, atol=1e-12)
     with pytest.raises(ValueError, match="not linear TRS"):
-        motion.sample_with_derivative(step, inside(kt), "trs")
+        animation.sample_with_derivative(step, inside(kt), "trs")
     with pytest.raises(ValueError, match="parents"):
         motion.joint_twists(anim, kt, frame="world")
     with pytest.raises(ValueError, match="method"):
         motion.skinned_velocities(np.zeros((1, 3)), [[0]], [[1.0]], np.eye(4)[None],
                                   np.zeros((1, 4, 4)), "blend")
     before = local.copy()
-    motion.sample(anim, kt, "spline")
+    animation.sample(anim, kt, "spline")
     assert np.array_equal(local, before)

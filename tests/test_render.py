@@ -8,7 +8,7 @@ import trimesh
 from PIL import Image
 from scipy.spatial import ConvexHull
 
-from dqskin.render import (Camera, MeshRenderer, Shading, add_colorbar, colormap_lut, render,
+from dqskin.report.render import (Camera, MeshRenderer, Shading, add_colorbar, colormap_lut, render,
                            save_png, side_by_side)
 
 

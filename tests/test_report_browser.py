@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from dqskin.compare import run_compare
+from dqskin.report.compare import run_compare
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
 IN_CI = os.environ.get("CI", "").lower() == "true"

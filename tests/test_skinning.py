@@ -272,10 +272,10 @@ def test_frame_blocks_and_threads_cover_the_grid(device, monkeypatch, V, F, meth
     vertices (split by frame blocks, a partial last block), few frames and many vertices (split
     by vertices), with 3 worker threads."""
     monkeypatch.setenv("DQSKIN_THREADS", "3")
-    from dqskin import _warp
+    from dqskin.kernels import grid
     calls = []
-    real = _warp._pool_map
-    monkeypatch.setattr(_warp, "_pool_map", lambda tasks: (calls.append(len(tasks)), real(tasks)))
+    real = grid._pool_map
+    monkeypatch.setattr(grid, "_pool_map", lambda tasks: (calls.append(len(tasks)), real(tasks)))
     rng = np.random.default_rng(V + F)
     points, idx, w, M, _ = random_rig(rng, V=V, K=4, J=6, F=F)
     ours = dqskin.skin_points(points, idx, w, M, method, device=device)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
 
-from dqskin.usd import load_rigid_prims, load_usd, rigid_transforms
+from dqskin.formats.usd import load_rigid_prims, load_usd, rigid_transforms
 
 TOKENS = {"lbs": "classicLinear", "dqs": "dualQuaternion"}
 BAKE = "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning"
@@ -112,15 +112,16 @@ def assert_close(ours, ref, scale, what):
 # -- Pixar's baked baselines --------------------------------------------------------------------
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
-def test_bake_matches_pixar_baseline(shared_assets, method):
+def test_bake_matches_pixar_baseline(shared_assets, method, device):
     """Points and normals of every point-based prim, every frame, against ``*.baked.usda``."""
     scene = load_usd(shared_assets / BAKE / f"{method}.usda")
     assert {m.skinning_method for m in scene.meshes} == {method}
     assert np.array_equal(scene.times, np.arange(1.0, 31.0))
     base = Usd.Stage.Open(str(shared_assets / BAKE / "baseline" / f"{method}.baked.usda"))
     other = "dqs" if method == "lbs" else "lbs"
-    points, normals = scene.skin(device="cpu", normals=True)
-    wrong = scene.skin(method=other, device="cpu")
+    skinned = scene.skin(device=device, normals=True)
+    points, normals = skinned.points, skinned.normals
+    wrong = scene.skin(method=other, device=device).points
     assert sorted(points) == ["/Root/Curves", "/Root/Mesh", "/Root/MeshWithFaceVaryingNormals",
                               "/Root/MeshWithNormals"]
     assert sorted(normals) == ["/Root/MeshWithFaceVaryingNormals", "/Root/MeshWithNormals"]
@@ -139,14 +140,14 @@ def test_bake_matches_pixar_baseline(shared_assets, method):
 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
-def test_rigid_prims_match_pixar_baseline(shared_assets, method):
+def test_rigid_prims_match_pixar_baseline(shared_assets, method, device):
     """Sphere/Cube/Cylinder (constant influences, no points) are baked as xformOp:transform."""
     scene = load_usd(shared_assets / BAKE / f"{method}.usda")
     rigid = load_rigid_prims(scene)
     assert sorted(r.name for r in rigid) == ["/Root/Cube", "/Root/Cylinder", "/Root/Sphere"]
     base = Usd.Stage.Open(str(shared_assets / BAKE / "baseline" / f"{method}.baked.usda"))
     for r in rigid:
-        ours = rigid_transforms(scene, r, scene.times, device="cpu")
+        ours = rigid_transforms(scene, r, scene.times, device=device)
         attr = base.GetPrimAtPath(r.name).GetAttribute("xformOp:transform")
         ref = np.stack([np.array(attr.Get(t)).T for t in scene.times])
         assert_close(ours, ref, np.abs(ref).max(), r.name)
@@ -163,13 +164,14 @@ def test_every_shared_usd_asset_is_covered(shared_assets):
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
 @pytest.mark.parametrize("asset", ASSETS)
-def test_asset_matches_usdskel(shared_assets, asset, method):
+def test_asset_matches_usdskel(shared_assets, asset, method, device):
     path = shared_assets / asset
     scene = load_usd(path)
     stage = Usd.Stage.Open(str(path))
     cache = usdskel_cache(stage)
     times = sample_times(scene)
-    points, normals = scene.skin(times, method, device="cpu", normals=True)
+    skinned = scene.skin(times, method, device=device, normals=True)
+    points, normals = skinned.points, skinned.normals
     for m in scene.meshes:
         rest_n, normal_vertex = usd_rest_normals(stage, m.name)
         assert (rest_n is None) == (m.normals is None), m.name
@@ -337,20 +339,21 @@ def build_rig(path, *, method="classicLinear", joints=("a", "a/b", "a/b/c"), joi
 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
-def test_blend_shapes_and_animated_parents_match_bake(tmp_path, method):
+def test_blend_shapes_and_animated_parents_match_bake(tmp_path, method, device):
     """UsdSkel.BakeSkinning on an in-memory copy is the oracle (blend shapes before skinning,
     inbetweens, normal offsets, undriven joints at rest, time-varying skel/gprim transforms)."""
     path = build_rig(tmp_path / "rig.usda", method=TOKENS[method], normal_offsets=True)
     scene = load_usd(path)
     (m,) = scene.meshes
-    assert m.rest_points_at is not None and m.output_transforms is not None
+    assert m.deformer is not None and m.output_transforms is not None
     assert np.array_equal(scene.times, np.arange(5.0))
     baked = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(path)))
     assert UsdSkel.BakeSkinning(baked.Traverse())
     prim = baked.GetPrimAtPath(m.name)
     times = np.array(prim.GetAttribute("points").GetTimeSamples())
     assert len(times) >= 5 and np.any(times % 1)  # fractional times: interpolated animation
-    points, normals = scene.skin(times, device="cpu", normals=True)
+    skinned = scene.skin(times, device=device, normals=True)
+    points, normals = skinned.points, skinned.normals
     moved = 0.0
     for i, t in enumerate(times):
         ref = np.asarray(prim.GetAttribute("points").Get(t), np.float64)
@@ -358,8 +361,27 @@ def test_blend_shapes_and_animated_parents_match_bake(tmp_path, method):
         ref_n = np.asarray(prim.GetAttribute("normals").Get(t), np.float64)
         ref_n /= np.linalg.norm(ref_n, axis=1, keepdims=True)
         assert_close(normals[m.name][i], ref_n, 1.0, f"normals at {t}")
-        moved = max(moved, np.abs(m.rest_points_at([t])[0] - m.points).max())
+        moved = max(moved, np.abs(m.deformer.points_at([t])[0] - m.points).max())
     assert moved > 0.1, "blend shapes had no effect"
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_velocities_through_blend_shapes_and_animated_parents(tmp_path, method, device):
+    """Velocities are the analytic derivative of what is skinned: blend-shape weights, inbetweens,
+    a translating skeleton parent and a rotating gprim parent, chained with the joints. Oracle: a
+    central difference of skinned points inside each interval (away from the kinks at keys)."""
+    path = build_rig(tmp_path / "rig.usda", method=TOKENS[method], normal_offsets=True)
+    scene = load_usd(path)
+    (m,) = scene.meshes
+    t = np.array([0.3, 1.6, 2.45, 3.7])
+    vel = scene.skin(t, device=device, velocities=True).velocities[m.name]
+    h = 1e-3
+    plus = scene.skin(t + h, device=device).points[m.name].astype(np.float64)
+    minus = scene.skin(t - h, device=device).points[m.name].astype(np.float64)
+    fd = (plus - minus) / (2 * h) * scene.time_codes_per_second
+    speed = np.linalg.norm(fd, axis=-1).max()
+    assert speed > 0.1
+    assert np.abs(vel - fd).max() <= 2e-3 * speed, np.abs(vel - fd).max() / speed
 
 
 def test_blend_shape_rest_points_follow_the_definition(tmp_path):
@@ -379,10 +401,10 @@ def test_blend_shape_rest_points_follow_the_definition(tmp_path):
     half = puff[:, [1, 2, 0]] * 0.7
     expect = {1.0: m.points + 1.0 * smile + 0.5 * half,  # smile 1, puff 0.25
               3.0: m.points - 0.5 * smile + 0.4 * half + 0.6 * puff}  # smile -0.5, puff 0.8
-    got = m.rest_points_at(list(expect))
+    got = m.deformer.points_at(list(expect))
     for f, want in enumerate(expect.values()):
         np.testing.assert_allclose(got[f], want, atol=1e-6)
-    normals = m.rest_normals_at([1.0, 3.0])
+    normals = m.deformer.normals_at([1.0, 3.0])
     np.testing.assert_allclose(normals[0], m.normals + smile_n, atol=1e-6)
     np.testing.assert_allclose(normals[1], m.normals - 0.5 * smile_n, atol=1e-6)
 
@@ -422,7 +444,7 @@ def test_joint_influence_error_cases(shared_assets, tmp_path, prim):
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
 @pytest.mark.parametrize("prim", ["RigidWeights", "NonRigidWeights", "NonRigidWeightsDQ"])
-def test_unnormalized_weights_match_usdskel(shared_assets, tmp_path, prim, method):
+def test_unnormalized_weights_match_usdskel(shared_assets, tmp_path, prim, method, device):
     """jointInfluences.usda's valid prims (weights 5..8, never renormalized), given points and a
     5-joint skeleton by an over layer, skin as UsdSkel skins them."""
     asset = shared_assets / JOINT_INFLUENCES
@@ -449,7 +471,7 @@ def test_unnormalized_weights_match_usdskel(shared_assets, tmp_path, prim, metho
     idx, w = q.ComputeVaryingJointInfluences(2)
     np.testing.assert_array_equal(m.joint_weights.ravel(), np.asarray(w))
     np.testing.assert_array_equal(m.joint_indices.ravel(), np.asarray(idx))
-    ours = scene.skin([0.0], method, device="cpu")[m.name][0]
+    ours = scene.skin([0.0], method, device=device).points[m.name][0]
     ref, _ = usdskel_skin(stage, usdskel_cache(stage), str(path), 0.0, method)
     assert_close(ours, ref, np.abs(ref).max(), prim)
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 
-from dqskin.usd import load_usd
-from dqskin.usd_cache import write_usd_cache
+from dqskin.formats.usd import load_usd
+from dqskin.formats.usd_cache import write_usd_cache
 
 BAKE = "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning"
 RIGID = ["/Root/Cube", "/Root/Cylinder", "/Root/Sphere"]
@@ -41,14 +41,15 @@ def random_frames(scene, times, seed=0):
 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
-def test_cache_matches_pixar_baseline(shared_assets, tmp_path, method):
+def test_cache_matches_pixar_baseline(shared_assets, tmp_path, method, device):
     """Points, normals, extent and rigid xformOp:transform of every frame vs ``*.baked.usda``."""
     src = shared_assets / BAKE / f"{method}.usda"
     before = digest(src)
     scene = load_usd(src)
-    points, normals = scene.skin(device="cpu", normals=True)
+    skinned = scene.skin(device=device, normals=True)
+    points, normals = skinned.points, skinned.normals
     out = write_usd_cache(scene, tmp_path / "cache.usdc", scene.times, points, normals,
-                          device="cpu")
+                          device=device)
     assert digest(src) == before
     stage = Usd.Stage.Open(out)
     base = Usd.Stage.Open(str(shared_assets / BAKE / "baseline" / f"{method}.baked.usda"))
@@ -76,14 +77,14 @@ def test_cache_matches_pixar_baseline(shared_assets, tmp_path, method):
 
 
 @pytest.mark.parametrize("ext", [".usda", ".usdc", ".usd"])
-def test_round_trip_is_exact(shared_assets, tmp_path, ext):
+def test_round_trip_is_exact(shared_assets, tmp_path, ext, device):
     src = shared_assets / BAKE / "lbs.usda"
     before = digest(src)
     scene = load_usd(src)
     times = np.array([2.0, 3.5, 7.0])
     points, normals, velocities = random_frames(scene, times)
     out = write_usd_cache(scene, tmp_path / f"cache{ext}", times, points, normals,
-                          velocities=velocities, device="cpu")
+                          velocities=velocities, device=device)
     assert digest(src) == before
     assert os.listdir(tmp_path) == [f"cache{ext}"]  # no temporary file left behind
     magic = open(out, "rb").read(8)
@@ -112,7 +113,7 @@ def test_round_trip_is_exact(shared_assets, tmp_path, ext):
     assert mesh.GetFaceVertexIndicesAttr().Get() == original.GetFaceVertexIndicesAttr().Get()
 
 
-def test_instanced_characters_are_de_instanced(shared_assets, tmp_path):
+def test_instanced_characters_are_de_instanced(shared_assets, tmp_path, device):
     """Two instances of the baked asset: each instance's prims get their own samples."""
     world = tmp_path / "world.usda"
     asset = (shared_assets / BAKE / "dqs.usda").as_posix()
@@ -138,9 +139,10 @@ def Xform "World"
 """)
     scene = load_usd(world)
     assert len(scene.meshes) == 8 and len(scene.skeletons) == 2
-    points, normals = scene.skin([1.0, 15.0], device="cpu", normals=True)
+    skinned = scene.skin([1.0, 15.0], device=device, normals=True)
+    points, normals = skinned.points, skinned.normals
     out = write_usd_cache(scene, tmp_path / "cache.usda", [1.0, 15.0], points, normals,
-                          device="cpu")
+                          device=device)
     stage = Usd.Stage.Open(out)
     base = Usd.Stage.Open(str(shared_assets / BAKE / "baseline" / "dqs.baked.usda"))
     assert_unskinned(stage)
@@ -185,19 +187,19 @@ def test_refusals(shared_assets, tmp_path):
     assert nested.is_file()
 
 
-def test_overwrites_previous_output_atomically(shared_assets, tmp_path):
+def test_overwrites_previous_output_atomically(shared_assets, tmp_path, device):
     scene = load_usd(shared_assets / BAKE / "lbs.usda")
     out = tmp_path / "cache.usdc"
     for seed in (1, 2):
         points, _, _ = random_frames(scene, [4.0], seed)
-        write_usd_cache(scene, out, [4.0], points, device="cpu")
+        write_usd_cache(scene, out, [4.0], points, device=device)
         fresh = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(out)))  # read from disk
         got = fresh.GetPrimAtPath("/Root/Mesh").GetAttribute("points").Get(4)
         np.testing.assert_array_equal(got, points["/Root/Mesh"][0])
     assert os.listdir(tmp_path) == ["cache.usdc"]
 
 
-def test_indexed_primvar_normals_are_flattened(shared_assets, tmp_path):
+def test_indexed_primvar_normals_are_flattened(shared_assets, tmp_path, device):
     """``primvars:normals`` (indexed) beats ``normals``; the cache writes flat values there."""
     top = Sdf.Layer.CreateNew(str(tmp_path / "top.usda"))
     top.subLayerPaths.append(str(shared_assets / BAKE / "lbs.usda"))
@@ -212,8 +214,9 @@ def test_indexed_primvar_normals_are_flattened(shared_assets, tmp_path):
     scene = load_usd(top.realPath)
     mesh = scene.mesh("/Root/MeshWithNormals")
     np.testing.assert_array_equal(mesh.normals, unique[np.arange(12) % 3])
-    points, normals = scene.skin([5.0], device="cpu", normals=True)
-    out = write_usd_cache(scene, tmp_path / "cache.usda", [5.0], points, normals, device="cpu")
+    skinned = scene.skin([5.0], device=device, normals=True)
+    points, normals = skinned.points, skinned.normals
+    out = write_usd_cache(scene, tmp_path / "cache.usda", [5.0], points, normals, device=device)
     cache = Usd.Stage.Open(out)
     written = UsdGeom.PrimvarsAPI(cache.GetPrimAtPath(mesh.name)).GetPrimvar("normals")
     assert not written.IsIndexed()
@@ -222,11 +225,11 @@ def test_indexed_primvar_normals_are_flattened(shared_assets, tmp_path):
     assert np.abs(normals[mesh.name][0] - mesh.normals).max() > 0.1  # really skinned
 
 
-def test_usdz_source_keeps_uvs_materials_and_topology(shared_assets, tmp_path):
+def test_usdz_source_keeps_uvs_materials_and_topology(shared_assets, tmp_path, device):
     src = shared_assets / "usd-wg/CesiumMan/CesiumMan.usdz"
     scene = load_usd(src)
-    points = scene.skin([1.0, 24.0], device="cpu")
-    out = write_usd_cache(scene, tmp_path / "cesium.usdc", [1.0, 24.0], points, device="cpu")
+    points = scene.skin([1.0, 24.0], device=device).points
+    out = write_usd_cache(scene, tmp_path / "cesium.usdc", [1.0, 24.0], points, device=device)
     source, cache = Usd.Stage.Open(str(src)), Usd.Stage.Open(out)
     assert_unskinned(cache)
     (name,) = points

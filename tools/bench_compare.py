@@ -18,7 +18,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 import dqskin
-from dqskin.compare import run_compare
+from dqskin.report.compare import run_compare
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -22,11 +22,15 @@ from urllib.parse import unquote
 import numpy as np
 import pygltflib
 
-from . import quat
-from .scene import Animation, Mesh, Scene
-from .skeleton import Skeleton
+from .. import quat
+from ..animation import Animation
+from ..scene import Mesh, Scene
+from ..skeleton import Skeleton
 
-__all__ = ["GltfAnimation", "load_gltf"]
+__all__ = ["SUFFIXES", "GltfAnimation", "load", "load_gltf"]
+
+SUFFIXES = (".gltf", ".glb")
+"""glTF files :func:`load` reads."""
 
 _COMPONENT_DTYPES = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 # Dequantization of normalized integers (glTF 2.0 §3.11): f = max(c / (2^(b-1) - 1), -1) signed,
@@ -564,6 +568,11 @@ class _Reader:
             if not np.all(np.any(key_values != 0, axis=1)):
                 raise self.error(f"{where}.output: zero rotation quaternion")
         return keys, values, interpolation
+
+
+def load(path, *, clip=None):
+    """The format's loader: :func:`load_gltf`."""
+    return load_gltf(path, clip=clip)
 
 
 def load_gltf(path, *, clip=None):

@@ -15,7 +15,7 @@ import os
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
-from .io import atomic_path
+from .atomic import atomic_path
 from .usd import load_rigid_prims, rigid_transforms
 
 __all__ = ["CACHE_EXTENSIONS", "UsdCacheWriter", "write_usd_cache"]

@@ -19,10 +19,13 @@ What a loaded :class:`~dqskin.scene.Mesh` holds for a skinned ``UsdGeom.PointBas
   faceVarying (``normal_vertex`` = ``faceVertexIndices``); constant/uniform normals are not
   skinned (None).
 - ``output_transforms``: skeleton space → prim space, ``inverse(gprimLocalToWorld) @
-  skelLocalToWorld`` per time (what ``UsdSkel.BakeSkinning`` applies); None when identity.
-- ``rest_points_at``/``rest_normals_at``: blend shapes (offsets, normalOffsets, pointIndices,
-  inbetweens) driven by the skeleton's ``SkelAnimation.blendShapeWeights``, and time-sampled rest
-  points; None when there are neither.
+  skelLocalToWorld`` (what ``UsdSkel.BakeSkinning`` applies) as a
+  :class:`~dqskin.animation.TransformTrack` keyed at every time sample of the transforms above
+  the two prims (exact there; between samples interpolated as joints are, which is USD's own
+  interpolation for translate, orient and scale ops); None when identity.
+- ``deformer``: blend shapes (offsets, normalOffsets, pointIndices, inbetweens) driven by the
+  skeleton's ``SkelAnimation.blendShapeWeights``, and time-sampled rest points, with their
+  analytic time derivative; None when there are neither.
 
 Skinned prims that are not point-based (``Sphere``, ``Cube``, …, bound with constant
 influences) have no points for a :class:`Scene`; :func:`load_rigid_prims` returns them and
@@ -33,20 +36,21 @@ influences) have no points for a :class:`Scene`; :func:`load_rigid_prims` return
 import os
 import re
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from pxr import Tf, Usd, UsdGeom, UsdSkel, Vt
 
-from .io import USD_SUFFIXES
-from .scene import Animation, Mesh, Scene
-from .skeleton import Skeleton
-from .skinning import skin_points
+from ..animation import Animation, Deformer, TransformTrack, segment_rates
+from .usd_xform import XformChain, read_local_to_world
+from ..scene import Mesh, Scene
+from ..skeleton import Skeleton
+from ..skinning import skin_points
 
-__all__ = ["SKINNING_METHODS", "USD_EXTENSIONS", "RigidPrim", "UsdSkelAnimation",
+__all__ = ["SKINNING_METHODS", "SUFFIXES", "load", "RigidPrim", "UsdSkelAnimation",
            "load_rigid_prims", "load_usd", "rigid_transforms"]
 
-USD_EXTENSIONS = USD_SUFFIXES
+SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+"""USD files :func:`load` reads."""
 """File extensions :func:`load_usd` reads."""
 
 SKINNING_METHODS = {"classicLinear": "lbs", "dualQuaternion": "dqs"}
@@ -133,6 +137,17 @@ class UsdSkelAnimation(Animation):
             out[i] = _matrices(xf)
         return out
 
+    def blend_shape_weight_rates(self, times):
+        """``(F, S)`` float64 time derivatives of :meth:`blend_shape_weights` (USD interpolates
+        the weights linearly between time samples)."""
+        attr = UsdSkel.Animation(self._anim.GetPrim()).GetBlendShapeWeightsAttr()
+        keys = np.asarray(attr.GetTimeSamples() if attr else [], dtype=np.float64)
+        S = len(self.blend_shape_names)
+        if keys.size < 2 or S == 0:
+            return np.zeros((np.atleast_1d(times).shape[0], S))
+        return np.stack(segment_rates(keys, lambda k: self.blend_shape_weights([keys[k]])[0],
+                                      times))
+
     def blend_shape_weights(self, times):
         """``(F, S)`` float32 weights of :attr:`blend_shape_names` at ``times`` (0 when unset)."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
@@ -159,8 +174,8 @@ class RigidPrim:
     geom_bind_transform : (4, 4) float64
         Prim (geometry) space → skeleton bind space, column-vector convention.
     skinning_method : {"lbs", "dqs"}
-    parent_transforms : callable or None
-        ``f(times) -> (F, 4, 4)``: skeleton space → the parent prim's space; identity when None.
+    parent_transforms : dqskin.animation.TransformTrack or None
+        Skeleton space → the parent prim's space; identity when None.
     """
 
     name: str
@@ -169,7 +184,7 @@ class RigidPrim:
     joint_weights: np.ndarray
     geom_bind_transform: np.ndarray
     skinning_method: str
-    parent_transforms: Callable | None = None
+    parent_transforms: TransformTrack | None = None
 
 
 class _Loader:
@@ -189,9 +204,9 @@ class _Loader:
         if not os.path.isfile(self.path):
             raise ValueError(f"{self.path}: no such file")
         ext = os.path.splitext(self.path)[1].lower()
-        if ext not in USD_EXTENSIONS:
+        if ext not in SUFFIXES:
             raise ValueError(f"{self.path}: not a USD file (extension {ext!r}, expected one of "
-                             f"{', '.join(USD_EXTENSIONS)})")
+                             f"{', '.join(SUFFIXES)})")
         try:
             stage = Usd.Stage.Open(self.path, Usd.Stage.LoadAll)
         except Tf.ErrorException as exc:
@@ -221,15 +236,15 @@ class _Loader:
             self.fail(key, f"bindTransforms has {0 if bind is None else len(bind)} matrices for "
                            f"{J} joints")
         rest = query.ComputeJointLocalTransforms(Usd.TimeCode.Default(), True)
+        world = _matrices(UsdGeom.Imageable(skel.GetPrim())
+                          .ComputeLocalToWorldTransform(Usd.TimeCode.Default()))[0]
         try:
             skeleton = Skeleton([str(j) for j in joints], query.GetTopology().GetParentIndices(),
                                 _matrices(bind) if J else None,
                                 _matrices(rest) if rest is not None and len(rest) == J else None,
-                                name=key)
+                                name=key, world_transform=world)
         except ValueError as exc:
             raise ValueError(f"{self.path}: {exc}") from None
-        skeleton.world_transform = _matrices(UsdGeom.Imageable(skel.GetPrim())
-                                             .ComputeLocalToWorldTransform(Usd.TimeCode.Default()))[0]
         anim = query.GetAnimQuery()
         self.skeleton_index[key] = len(self.skeletons)
         self.skeletons.append(skeleton)
@@ -407,8 +422,7 @@ class _Loader:
             skinning_method=method, normals=normals,
             normal_vertex=normal_vertex,
             output_transforms=_output_transforms(self, where, skel_prim, prim),
-            rest_points_at=None if deform is None else deform.points_at,
-            rest_normals_at=None if deform is None or normals is None else deform.normals_at,
+            deformer=deform,
             face_vertex_counts=counts, face_vertex_indices=fvi, uvs=uvs))
 
     def load_rigid(self, q, skeleton, skel_prim):
@@ -475,33 +489,18 @@ class _Loader:
         return np.array(sorted(keys) or [0.0], dtype=np.float64)
 
 
-def _might_vary(prim):
-    """Whether ``prim``'s local-to-world transform may change over time."""
-    while prim and not prim.IsPseudoRoot():
-        xf = UsdGeom.Xformable(prim)
-        if xf and xf.TransformMightBeTimeVarying():
-            return True
-        prim = prim.GetParent()
-    return False
-
-
 def _output_transforms(loader, where, skel_prim, gprim):
-    """``f(times) -> (F, 4, 4)`` skeleton space → gprim space, or None when identity."""
-    skel_img, gprim_img = UsdGeom.Imageable(skel_prim), UsdGeom.Imageable(gprim)
-
-    def at(tc):
-        s = _matrices(skel_img.ComputeLocalToWorldTransform(tc))[0]
-        g = _matrices(gprim_img.ComputeLocalToWorldTransform(tc))[0]
-        if abs(np.linalg.det(g[:3, :3])) < 1e-300:
-            loader.fail(where, f"singular local-to-world transform at time {tc.GetValue()}")
-        return np.linalg.solve(g, s)
-
-    if _might_vary(skel_prim) or _might_vary(gprim):
-        return lambda times: np.stack([at(Usd.TimeCode(float(t))) for t in np.atleast_1d(times)])
-    fixed = at(Usd.TimeCode.Default())
-    if np.allclose(fixed, np.eye(4), rtol=0, atol=1e-12):
+    """Skeleton space → gprim space as an :class:`XformChain`, or None when it is the identity
+    at every time."""
+    track = XformChain(read_local_to_world(skel_prim), read_local_to_world(gprim),
+                       name=f"{loader.path}: {where}")
+    try:
+        m = track.at(track.key_times)
+    except ValueError as exc:
+        loader.fail(where, str(exc).split(": ")[-1])
+    if np.allclose(m, np.eye(4), rtol=0, atol=1e-12) and track.key_times.shape[0] == 1:
         return None
-    return lambda times: np.broadcast_to(fixed, (np.atleast_1d(times).shape[0], 4, 4)).copy()
+    return track
 
 
 def _add_at(dst, idx, delta):
@@ -514,13 +513,18 @@ def _add_at(dst, idx, delta):
         np.add.at(dst, (slice(None), idx), delta)
 
 
-class _RestDeformer:
+class _RestDeformer(Deformer):
     """Per-time rest points/normals: time-sampled points, then blend shapes (UsdSkel order).
 
     Sub-shape weights (primary and inbetweens, extrapolation included) come from
     ``UsdSkel.BlendShapeQuery.ComputeSubShapeWeights``; offsets are added with NumPy, vectorized
     over frames. ``normalOffsets`` use the same ``pointIndices``; face-varying normals take the
     offset of their vertex.
+
+    Velocities are exact: USD interpolates points and blend-shape weights linearly between time
+    samples (:func:`~dqskin.animation.segment_rates`), and each blend shape's sub-shape weights are
+    piecewise linear in its weight, between the sub-shapes' own weights (the zero shape at 0,
+    inbetweens, the primary at 1).
     """
 
     def __init__(self, points_attr, points, normals, normal_vertex):
@@ -535,6 +539,8 @@ class _RestDeformer:
         # per sub-shape: (point indices or None, offsets (n, 3), normal offsets or None), or None
         # for the zero shape UsdSkel puts at weight 0
         self.sub_shapes = []
+        # per prim blend shape: (sub-shape indices, their weights), sorted by weight
+        self.knots = []
 
     @classmethod
     def build(cls, loader, where, q, skeleton, points_attr, points, normals, normal_vertex):
@@ -569,6 +575,7 @@ class _RestDeformer:
             off = np.asarray(offsets[s], dtype=np.float32).reshape(-1, 3)
             if off.shape[0] == 0:  # the implicit rest shape at weight 0
                 self.sub_shapes.append(None)
+                self._add_knot(shape, s, 0.0)
                 continue
             count = idx.size if idx.size else V
             if off.shape[0] != count:
@@ -576,6 +583,7 @@ class _RestDeformer:
             if idx.size and (idx.min() < 0 or idx.max() >= V):
                 loader.fail(name, f"pointIndices out of range for the {V} points of {where}")
             inbetween = bsq.GetInbetween(s)
+            self._add_knot(shape, s, inbetween.GetWeight() if inbetween else 1.0)
             nrm = (inbetween.GetNormalOffsets() if inbetween
                    else _rest_value(target.GetNormalOffsetsAttr()))
             nrm = None if nrm is None or len(nrm) == 0 else np.asarray(nrm, np.float32)
@@ -584,6 +592,51 @@ class _RestDeformer:
             self.sub_shapes.append((idx if idx.size else None, off, nrm))
         self.query = bsq
         self.animation = anim
+
+    def _add_knot(self, shape, sub, weight):
+        while len(self.knots) <= shape:
+            self.knots.append(([], []))
+        subs, weights = self.knots[shape]
+        k = int(np.searchsorted(weights, weight))
+        subs.insert(k, sub)
+        weights.insert(k, float(weight))
+
+    def sub_shape_rates(self, times):
+        """``(F, S_sub)`` float64 time derivatives of :meth:`sub_shape_weights`."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        anim_w = self.animation.blend_shape_weights(t)
+        anim_rate = self.animation.blend_shape_weight_rates(t)
+        out = np.zeros((t.shape[0], len(self.sub_shapes)))
+        for shape, (subs, knots) in enumerate(self.knots):
+            col = self.shape_from_anim[shape]
+            if col < 0:
+                continue
+            w, rate = anim_w[:, col], anim_rate[:, col]
+            if len(subs) == 1:  # no inbetweens: the primary's weight is the shape's weight
+                out[:, subs[0]] = rate
+                continue
+            k = np.clip(np.searchsorted(knots, w, side="right") - 1, 0, len(knots) - 2)
+            span = np.diff(knots)[k]
+            rows = np.arange(t.shape[0])
+            out[rows, np.asarray(subs)[k + 1]] += rate / span
+            out[rows, np.asarray(subs)[k]] -= rate / span
+        return out
+
+    def point_velocities_at(self, times):
+        """``(F, V, 3)`` float64 ``d points / dt`` per time code, prim space."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        V = self.points.shape[0]
+        vel = np.zeros((t.shape[0], V, 3))
+        if self.animated_points:
+            keys = np.asarray(self.points_attr.GetTimeSamples(), dtype=np.float64)
+            vel += np.stack(segment_rates(keys, lambda k: np.asarray(
+                self.points_attr.Get(Usd.TimeCode(float(keys[k]))), np.float64).reshape(V, 3), t))
+        if self.sub_shapes:
+            rate = self.sub_shape_rates(t)
+            for s, sub in enumerate(self.sub_shapes):
+                if sub is not None:
+                    _add_at(vel, sub[0], rate[:, s, None, None] * sub[1][None])
+        return vel
 
     def sub_shape_weights(self, times):
         """``(F, S_sub)`` float32 sub-shape weights at ``times``."""
@@ -618,7 +671,10 @@ class _RestDeformer:
         return pts
 
     def normals_at(self, times):
-        """``(F, N, 3)`` float32 rest normals with blend-shape normal offsets (not normalized)."""
+        """``(F, N, 3)`` float32 rest normals with blend-shape normal offsets (not normalized), or
+        None without normals."""
+        if self.normals is None:
+            return None
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         V = self.points.shape[0]
         nrm = np.broadcast_to(self.normals, (t.shape[0],) + self.normals.shape).copy()
@@ -662,6 +718,14 @@ def load_usd(path):
         file and the prim.
     """
     return _Loader(path).load()
+
+
+def load(path, *, clip=None):
+    """:func:`load_usd` with the signature every format's loader has (USD has one animation per
+    skeleton, so ``clip`` must be None)."""
+    if clip is not None:
+        raise ValueError(f"{path}: --clip applies to glTF files; USD has one animation per skeleton")
+    return load_usd(path)
 
 
 def load_rigid_prims(scene):
@@ -723,4 +787,4 @@ def rigid_transforms(scene, prim, times, method=None, *, device=None, interp="tr
     m = np.tile(np.eye(4), (t.shape[0], 1, 1))
     m[:, :3, 3] = q[:, 0]
     m[:, :3, :3] = (q[:, 1:] - q[:, :1]).transpose(0, 2, 1)
-    return m if prim.parent_transforms is None else prim.parent_transforms(t) @ m
+    return m if prim.parent_transforms is None else prim.parent_transforms.at(t) @ m

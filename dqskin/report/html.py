@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .compare import worst
+from ..metrics import worst
 
 __all__ = ["METRIC_TITLES", "build_html", "frame_plot_png", "sweep_plot_png"]
 

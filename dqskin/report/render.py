@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from ._warp import launch_rows, resolve_device
-from .io import atomic_path
-from .topology import check_faces, incidence
-from .kernels import render as K
+from .._warp import resolve_device
+from ..formats import atomic_path
+from ..topology import check_faces, incidence
+from ..kernels import render as K
 
 __all__ = ["VIEWS", "Camera", "MeshRenderer", "Shading", "add_colorbar", "colormap_lut",
            "render", "save_png", "side_by_side"]
@@ -330,9 +330,8 @@ class MeshRenderer:
         self._update_normals()
 
     def _update_normals(self):
-        wp.launch(K.vertex_normals_kernel, dim=self.vertex_count,
-                  inputs=[self.mesh.points, self._faces, self._vf_offsets, self._vf_faces],
-                  outputs=[self._normals], device=self.device)
+        K.vertex_normals(points=self.mesh.points, faces=self._faces, vf_offsets=self._vf_offsets,
+                         vf_faces=self._vf_faces, out=self._normals, device=self.device)
 
     def update(self, points):
         """Move the vertices (same topology) and refit the BVH.
@@ -405,19 +404,13 @@ class MeshRenderer:
             lut = self._lut(colormap)
         sw, sh = width * s, height * s
         samples = wp.empty(sw * sh, dtype=wp.vec4, device=d)
-        cam, shade = camera._params(width / height), shading._params(camera)
-        nan_color = wp.vec3(*map(float, _vec3("nan_color", shading.nan_color)))
-
-        def launch(offset, count):
-            wp.launch(K.render_kernel, dim=count,
-                      inputs=[self.mesh.id, self._faces, self._normals, values, lut, float(lo),
-                              float(scale), nan_color, cam, shade, sw, sh, offset],
-                      outputs=[samples], device=d)
-
-        launch_rows(launch, sw * sh, d)
+        K.render(mesh=self.mesh.id, faces=self._faces, normals=self._normals, scalars=values,
+                 lut=lut, scalar_min=lo, scalar_scale=scale, camera=camera._params(width / height),
+                 shading=shading._params(camera),
+                 nan_color=wp.vec3(*map(float, _vec3("nan_color", shading.nan_color))),
+                 width=sw, height=sh, out=samples, device=d)
         out = wp.empty((height, width, 4), dtype=wp.uint8, device=d)
-        wp.launch(K.downsample_kernel, dim=(height, width), inputs=[samples, s, int(transparent)],
-                  outputs=[out], device=d)
+        K.downsample(samples=samples, factor=s, transparent=transparent, out=out, device=d)
         img = out.numpy()
         return img if transparent else img[..., :3].copy()
 

@@ -29,29 +29,29 @@ import re
 import sys
 import time
 from dataclasses import dataclass, field
+from importlib.resources import files
 from pathlib import Path
 
 import numpy as np
 
-from . import metrics as M
-from .io import atomic_path, load
+from .. import metrics as M
+from ..metrics import METRICS, worst
+from ..times import default_frames
+from ..formats import atomic_path, load
 from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
-from .scene import Scene
-from .skinning import METHODS, Skinner
+from ..scene import Scene
+from ..scene import DEFAULT_BLEND
+from ..skinning import METHODS
 
-__all__ = ["BLEND_WEIGHT", "METRICS", "SECTION_SLICES", "SWEEP_RIGS", "add_compare_arguments",
-           "cmd_compare", "default_frames", "parse_times", "run_compare", "skeleton_up_axis",
-           "sweeps", "worst"]
+__all__ = ["BLEND_WEIGHT", "SECTION_SLICES", "SWEEP_RIGS", "run_compare", "skeleton_up_axis",
+           "summary_lines", "sweeps"]
 
-BLEND_WEIGHT = 0.5
+BLEND_WEIGHT = DEFAULT_BLEND
 """DQS fraction of every vertex for ``method="blend"`` (0 = LBS, 1 = DQS)."""
 
 SECTION_SLICES = 16
 """Slices per joint region of :func:`dqskin.metrics.joint_sections` (``min_section_ratio``)."""
 
-METRICS = ("volume_ratio", "min_section_ratio", "max_bulge_ratio")
-"""Per-frame metrics of ``metrics.json``. The summary judges each by its worst value: the volume
-ratio furthest from 1, the smallest section ratio, the largest bulge ratio."""
 
 SWEEP_RIGS = {
     "twist": ("twist_cylinder.usda", 0.5, 3.0),
@@ -70,50 +70,6 @@ _LABELS = {"lbs": "LBS", "dqs": "DQS", "blend": f"Blend ({BLEND_WEIGHT:g} DQS)"}
 _FRAME_FILE = re.compile(r"^(?:(?:%s)_\d{3}|closeup)\.png$" % "|".join(VIEWS))
 _HEAT_SHADING = Shading(ambient=0.55, diffuse=0.45, rim=0.0)
 _HEAT_COLORMAP = "viridis"
-
-
-def default_frames(times, count=10):
-    """Up to ``count`` evenly spaced samples of ``times`` (first and last included).
-
-    Parameters
-    ----------
-    times : (T,) float
-        The asset's sample times.
-
-    Returns
-    -------
-    (F,) float64, F = min(T, count).
-    """
-    t = np.asarray(times, dtype=np.float64).reshape(-1)
-    if t.size == 0:
-        raise ValueError("times: the asset has no sample times")
-    pick = np.unique(np.round(np.linspace(0, t.size - 1, min(t.size, count))).astype(int))
-    return t[pick]
-
-
-def parse_times(text):
-    """``--frames`` text → times: ``START:END[:STEP]`` (END inclusive) or ``T1,T2,...``.
-
-    Returns
-    -------
-    (F,) float64
-    """
-    ranged = ":" in text
-    message = (f"--frames {text!r}: expected START:END[:STEP] or a comma-separated list of "
-               "times")
-    try:
-        parts = [float(p) for p in text.split(":" if ranged else ",")]
-    except ValueError:
-        raise ValueError(message) from None
-    if not ranged:
-        return np.array(parts)
-    if len(parts) not in (2, 3):
-        raise ValueError(message)
-    start, end = parts[:2]
-    step = parts[2] if len(parts) == 3 else 1.0
-    if not step > 0 or not end >= start:
-        raise ValueError(f"--frames {text!r}: need END >= START and STEP > 0")
-    return np.arange(start, end + step * 1e-6, step)
 
 
 def _choice_list(name, values, allowed):
@@ -158,22 +114,20 @@ def _renderable(scene):
 
 
 def _skin(scene, times, methods, device):
-    """Skin every renderable mesh in skeleton space (meshes without faces are skipped)."""
+    """Skin every renderable mesh in skeleton space with each method, bind points (no blend
+    shapes), through the scene's one loop (meshes without faces are skipped)."""
     renderable, skipped = _renderable(scene)
-    meshes, xforms = [], {}
+    xforms = {s: scene.skinning_transforms(times, s, device=device)
+              for s in sorted({m.skeleton for m in renderable})}
+    posed = {meth: scene.skin(times, meth, device=device, space="skeleton",
+                              blend_shapes=False).points for meth in methods}
+    meshes = []
     for m in renderable:
-        if m.skeleton not in xforms:
-            xforms[m.skeleton] = scene.skinning_transforms(times, m.skeleton, device=device)
         g = np.asarray(m.geom_bind_transform, dtype=np.float64)
         rest = np.asarray(m.points, dtype=np.float64) @ g[:3, :3].T + g[:3, 3]
-        blend = np.full(len(m.points), BLEND_WEIGHT) if "blend" in methods else None
-        sk = Skinner(m.points, m.joint_indices, m.joint_weights,
-                     geom_bind_transform=m.geom_bind_transform, blend_weights=blend,
-                     device=device)
         sm = _SkinnedMesh(m.name, m.skeleton, np.asarray(m.faces, dtype=np.int32), rest,
                           np.asarray(m.joint_indices), np.asarray(m.joint_weights))
-        for meth in methods:
-            sm.posed[meth] = sk.skin(xforms[m.skeleton], meth)
+        sm.posed = {meth: posed[meth][m.name] for meth in methods}
         meshes.append(sm)
     return meshes, skipped, xforms
 
@@ -210,37 +164,6 @@ def _measure(mesh, skeleton, xforms, method, device):
 
 def _json_floats(a):
     return [float(v) if np.isfinite(v) else None for v in np.asarray(a, dtype=np.float64)]
-
-
-def worst(metric, values):
-    """The worst finite value of a metric.
-
-    Parameters
-    ----------
-    metric : str
-        One of :data:`METRICS`.
-    values : (N,) float
-        NaN for undefined values.
-
-    Returns
-    -------
-    (index, severity) or None
-        Index of the worst value and how bad it is: ``|v − 1|`` for the volume ratio, ``1 − v``
-        for the smallest section ratio, ``v − 1`` for the largest bulge ratio (negative: no
-        collapse, no bulge). None when no value is finite.
-    """
-    v = np.asarray(values, dtype=np.float64)
-    ok = np.flatnonzero(np.isfinite(v))
-    if not ok.size:
-        return None
-    if metric == "min_section_ratio":
-        k = ok[np.argmin(v[ok])]
-        return k, 1.0 - v[k]
-    if metric == "max_bulge_ratio":
-        k = ok[np.argmax(v[ok])]
-        return k, v[k] - 1.0
-    k = ok[np.argmax(np.abs(v[ok] - 1.0))]
-    return k, abs(v[k] - 1.0)
 
 
 def _summary(measures, meshes, skeletons, times, methods, tie=1e-3):
@@ -440,9 +363,7 @@ def sweeps(assets_dir, *, device=None):
 
 
 def _default_assets():
-    import dqskin
-
-    return Path(dqskin.__file__).resolve().parents[1] / "assets"
+    return Path(str(files("dqskin.assets")))
 
 
 def _prepare_out(out_dir, force):
@@ -615,7 +536,7 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     t_sweeps = time.perf_counter()
     result["timing_s"] = {"skin": t_skin - t0, "metrics": t_metrics - t_skin,
                           "render": t_render - t_metrics, "sweeps": t_sweeps - t_render}
-    from .report import build_html
+    from .html import build_html
 
     page = build_html(result, out)
     result["timing_s"]["report"] = time.perf_counter() - t_sweeps
@@ -628,51 +549,13 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     return result
 
 
-def add_compare_arguments(parser):
-    """Add the ``compare`` sub-command's arguments to an argparse parser."""
-    parser.add_argument("input", help="character file (.usd/.usda/.usdc/.usdz, .gltf/.glb)")
-    parser.add_argument("--out", required=True, help="output folder: report.html, metrics.json, "
-                        "frames/*.png")
-    parser.add_argument("--methods", default="lbs,dqs",
-                        help="comma-separated from lbs, dqs, blend (default: lbs,dqs)")
-    parser.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
-                        "asset's time unit; default: up to 10 evenly spaced samples")
-    parser.add_argument("--views", default=",".join(VIEWS),
-                        help=f"comma-separated from {', '.join(VIEWS)} (default: all)")
-    parser.add_argument("--width", type=int, default=512, help="image size: about WIDTH² "
-                        "pixels, shaped to each view (default: 512)")
-    parser.add_argument("--supersample", type=int, default=2, help="anti-aliasing rays per pixel "
-                        "along each axis (default: 2)")
-    parser.add_argument("--up-axis", choices=["Y", "Z"], help="skeleton-space up axis for the "
-                        "cameras (default: the asset's)")
-    parser.add_argument("--no-sweeps", action="store_true", help="leave out the twist/bend "
-                        "sweeps on the procedural rigs")
-    parser.add_argument("--clip", help="glTF animation name or index")
-    parser.add_argument("--device", help="cpu or cuda (default: cuda when present)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    parser.add_argument("--force", action="store_true", help="overwrite an existing report")
-
-
-def cmd_compare(args):
-    """Run :func:`run_compare` from parsed arguments; prints where the report is. Returns 0."""
-    clip = args.clip
-    if isinstance(clip, str) and clip.isdigit():
-        clip = int(clip)
-    result = run_compare(
-        args.input, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],
-        frames=None if args.frames is None else parse_times(args.frames),
-        views=[v.strip() for v in args.views.split(",") if v.strip()], device=args.device,
-        width=args.width, supersample=args.supersample, progress=not args.quiet,
-        force=args.force, sweeps_dir=None if args.no_sweeps else "default",
-        up_axis=args.up_axis, clip=clip)
+def summary_lines(result):
+    """The summary of a :func:`run_compare` result as text lines: each metric's worst value per
+    method and the best method."""
     lines = []
     for metric, s in result["summary"].items():
-        worst = ", ".join(f"{_LABELS[m]} {r['value']:.3f} @ t={r['time']:g}"
-                          for m, r in s["by_method"].items() if r is not None)
-        if worst:
-            lines.append(f"  {metric}: {worst}; best: {s['winner']}")
-    print(f"wrote {Path(args.out) / 'report.html'} ({len(result['frames'])} frames × "
-          f"{len(result['methods'])} methods × {len(result['views'])} views, "
-          f"{result['timing_s']['total']:.1f} s)")
-    print("\n".join(lines))
-    return 0
+        worst_values = ", ".join(f"{_LABELS[m]} {r['value']:.3f} @ t={r['time']:g}"
+                                 for m, r in s["by_method"].items() if r is not None)
+        if worst_values:
+            lines.append(f"  {metric}: {worst_values}; best: {s['winner']}")
+    return lines

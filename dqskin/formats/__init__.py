@@ -1,0 +1,51 @@
+"""File formats: what dqskin reads and writes, one module per format.
+
+Each format module owns its suffixes (``SUFFIXES``) and its loader; :func:`load` dispatches on
+them. Characters: :mod:`.usd` (UsdSkel) and :mod:`.gltf` (glTF 2.0 skins). Outputs:
+:mod:`.usd_cache` (USD point caches), :mod:`.npz`, :mod:`.mesh_files` (one trimesh file per
+frame; also :func:`load_mesh` for plain geometry). Every writer goes through
+:func:`.atomic.atomic_path`.
+"""
+
+from pathlib import Path
+
+from . import gltf, mesh_files, npz, usd, usd_cache
+from .atomic import atomic_path
+from .mesh_files import load_mesh
+
+__all__ = ["CHARACTER_SUFFIXES", "atomic_path", "format_of", "load", "load_mesh"]
+
+_LOADERS = {**{s: usd.load for s in usd.SUFFIXES}, **{s: gltf.load for s in gltf.SUFFIXES}}
+
+CHARACTER_SUFFIXES = tuple(_LOADERS)
+"""Suffixes :func:`load` reads."""
+
+
+def format_of(path):
+    """The format module that reads ``path`` (:mod:`.usd` or :mod:`.gltf`), by suffix, or None."""
+    suffix = Path(path).suffix.lower()
+    return usd if suffix in usd.SUFFIXES else gltf if suffix in gltf.SUFFIXES else None
+
+
+def load(path, *, clip=None):
+    """Read a skinned character.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.usd/.usda/.usdc/.usdz`` (UsdSkel) or ``.gltf/.glb`` (glTF 2.0 skins).
+    clip : str or int, optional
+        glTF animation to load (name or index); the first by default.
+
+    Returns
+    -------
+    dqskin.scene.Scene
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"{p}: no such file")
+    loader = _LOADERS.get(p.suffix.lower())
+    if loader is None:
+        raise ValueError(f"{p}: unsupported file type {p.suffix.lower()!r}; expected one of "
+                         f"{', '.join(CHARACTER_SUFFIXES)}")
+    return loader(p, clip=clip)

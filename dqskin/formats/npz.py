@@ -1,0 +1,28 @@
+"""Skinned frames as one NumPy ``.npz`` archive."""
+
+import numpy as np
+
+from .atomic import atomic_path
+
+__all__ = ["SUFFIXES", "write_npz"]
+
+SUFFIXES = (".npz",)
+
+
+def write_npz(path, times, names, points, faces):
+    """Write ``times``, ``names`` and per mesh ``i`` (in ``names`` order) ``points_i`` and
+    ``faces_i``, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    times : (F,) float64
+    names : sequence of str, length M
+    points : sequence of (F, V_i, 3) float32, length M
+    faces : sequence of (T_i, 3) int32, length M
+    """
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, times=np.asarray(times, np.float64), names=np.array(list(names)),
+                     **{f"points_{i}": p for i, p in enumerate(points)},
+                     **{f"faces_{i}": f for i, f in enumerate(faces)})

@@ -1,0 +1,96 @@
+"""Per-vertex joint influences: validated once and laid out once for every kernel that blends them
+(skinning, velocities), as UsdSkel sorts influences once in ``UsdSkelSortInfluences``."""
+
+import threading
+
+import numpy as np
+import warp as wp
+
+__all__ = ["Influences", "check_influences"]
+
+
+def check_influences(joint_indices, joint_weights, vertex_count=None, joint_count=None):
+    """Validate per-vertex influences; returns ``(indices (V, K) int64, weights (V, K) float32)``.
+
+    1-D inputs are one influence per vertex. Raises ValueError naming ``joint_indices`` or
+    ``joint_weights`` for mismatched shapes, non-integer or out-of-range indices (``0 <= index <
+    joint_count`` when given), and NaN, infinite or negative weights.
+    """
+    idx = np.asarray(joint_indices)
+    wts = np.asarray(joint_weights, dtype=np.float32)
+    if idx.ndim == 1:
+        idx, wts = idx[:, None], wts[:, None]
+    if idx.ndim != 2 or wts.shape != idx.shape or (vertex_count is not None
+                                                   and idx.shape[0] != vertex_count):
+        want = "(V, K)" if vertex_count is None else f"({vertex_count}, K)"
+        raise ValueError(f"joint_indices {idx.shape} and joint_weights {wts.shape} must both be "
+                         f"{want}")
+    if not np.issubdtype(idx.dtype, np.integer):
+        raise ValueError(f"joint_indices: expected integers, got {idx.dtype}")
+    if idx.size and idx.min() < 0:
+        raise ValueError(f"joint_indices: negative index {int(idx.min())}")
+    if joint_count is not None and idx.size and idx.max() >= joint_count:
+        raise ValueError(f"joint_indices: index {int(idx.max())} out of range for {joint_count} "
+                         "joints")
+    if not np.all(np.isfinite(wts)):
+        raise ValueError("joint_weights: NaN or infinite weight")
+    if wts.size and wts.min() < 0:
+        raise ValueError(f"joint_weights: negative weight {float(wts.min())}")
+    return idx.astype(np.int64), wts
+
+
+class Influences:
+    """A mesh's influences in the kernels' layout.
+
+    Each vertex's ``K`` influences are sorted by descending weight (stable: first on ties), so slot
+    0 is the antipodality pivot of DQS (the largest weight, as UsdSkel), and zero-padded to
+    ``C = ceil(K / 4)`` groups of four.
+
+    Parameters
+    ----------
+    joint_indices : (V, K) int
+        Joint of each influence, ``0 <= index``. Any ``K`` (1, 4, 8, ...); pad with weight 0.
+    joint_weights : (V, K) float
+        Finite and non-negative; used as given (never renormalized, as UsdSkel).
+    vertex_count : int, optional
+        Required V.
+
+    Attributes
+    ----------
+    indices : (V, C, 4) int32
+    weights : (V, C, 4) float32
+    vertex_count, influence_count : int
+        V and K.
+    joint_count_min : int
+        Joints the skinning transforms must at least have (largest index + 1).
+    """
+
+    def __init__(self, joint_indices, joint_weights, *, vertex_count=None):
+        idx, wts = check_influences(joint_indices, joint_weights, vertex_count)
+        self.vertex_count, self.influence_count = idx.shape
+        order = np.argsort(-wts, axis=1, kind="stable")
+        idx, wts = np.take_along_axis(idx, order, 1), np.take_along_axis(wts, order, 1)
+        pad = -idx.shape[1] % 4
+        V = self.vertex_count
+        self.indices = np.pad(idx, ((0, 0), (0, pad))).astype(np.int32).reshape(V, -1, 4)
+        self.weights = np.pad(wts, ((0, 0), (0, pad))).reshape(V, -1, 4)
+        self.joint_count_min = int(idx.max()) + 1 if idx.size else 0
+        self._device_arrays = {}
+        self._lock = threading.Lock()
+
+    def check_joint_count(self, joint_count):
+        """ValueError when skinning transforms for ``joint_count`` joints cannot cover the indices."""
+        if joint_count < self.joint_count_min:
+            raise ValueError(f"joint_indices: index {self.joint_count_min - 1} out of range for "
+                             f"{joint_count} skinning transforms")
+
+    def on(self, device):
+        """``(indices (V, C) wp.vec4i, weights (V, C) wp.vec4)`` on ``device``, uploaded once."""
+        key = str(device)
+        with self._lock:
+            arrays = self._device_arrays.get(key)
+            if arrays is None:
+                arrays = (wp.array(self.indices, dtype=wp.vec4i, device=device),
+                          wp.array(self.weights, dtype=wp.vec4, device=device))
+                self._device_arrays[key] = arrays
+        return arrays

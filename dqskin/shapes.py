@@ -1,0 +1,59 @@
+"""Array shape checks shared by the API: one place that turns user arrays into the shapes the
+engine works with, with errors naming the argument."""
+
+import numpy as np
+
+__all__ = ["as_array", "frames_of"]
+
+
+def as_array(name, x, dtype, tail):
+    """``x`` as an array of ``dtype`` whose trailing axes are ``tail`` (None: any length).
+
+    Raises ValueError naming ``name`` with the expected ``(..., tail)`` shape otherwise.
+    """
+    a = np.asarray(x, dtype=dtype)
+    n = len(tail)
+    if a.ndim < n or any(t is not None and a.shape[a.ndim - n + i] != t
+                         for i, t in enumerate(tail)):
+        want = "(..., " + ", ".join("n" if t is None else str(t) for t in tail) + ")"
+        raise ValueError(f"{name}: expected shape {want}, got {a.shape}")
+    return a
+
+
+def frames_of(name, a, frames=None, count=None, *, dtype=np.float64, finite=False,
+              broadcast=True):
+    """Per-frame rows of 3-vectors: ``(N, 3)`` or ``(F, N, 3)`` → ``(Fp, N, 3)`` of ``dtype``.
+
+    Parameters
+    ----------
+    name : str
+        Used in messages (e.g. ``"points"``, ``"velocities['/Root/Mesh']"``).
+    a : (N, 3) or (F, N, 3) array_like
+    frames : int, optional
+        Required frame count F: the result has ``Fp == frames``, or ``Fp == 1`` for a single
+        ``(N, 3)`` array when ``broadcast``.
+    count : int, optional
+        Required row count N.
+    finite : bool
+        Reject NaN and infinite values.
+    broadcast : bool
+        Accept one frame for all (``Fp == 1``); otherwise exactly ``frames`` frames.
+
+    Returns
+    -------
+    (Fp, N, 3) array of ``dtype``, and whether ``a`` had a frame axis.
+    """
+    x = np.asarray(a, dtype=dtype)
+    batched = x.ndim == 3
+    if x.ndim == 2:
+        x = x[None]
+    frame_ok = frames is None or x.shape[0] == frames or (broadcast and x.shape[0] == 1)
+    if x.ndim != 3 or x.shape[2] != 3 or not frame_ok or (count is not None
+                                                         and x.shape[1] != count):
+        n = "N" if count is None else count
+        want = (f"({n}, 3) or (F, {n}, 3)" if frames is None else
+                f"({n}, 3) or ({frames}, {n}, 3)" if broadcast else f"({frames}, {n}, 3)")
+        raise ValueError(f"{name}: expected shape {want}, got {np.shape(a)}")
+    if finite and not np.all(np.isfinite(x)):
+        raise ValueError(f"{name}: NaN or infinite values")
+    return x, batched

@@ -1,0 +1,147 @@
+"""Which times to skin: the ``--frames`` grammar, resampling, sub-frames and frame numbers.
+
+One grammar for every command: ``START:END[:STEP]`` (END inclusive) or ``T1,T2,...``, in the
+asset's time unit (USD time codes, glTF seconds). Ranges are evaluated in decimal arithmetic, so
+``0:48:0.1`` gives ``0.3`` and ``47.9``, not ``0.30000000000000004``.
+"""
+
+from decimal import Decimal, InvalidOperation
+
+import numpy as np
+
+__all__ = ["default_frames", "frame_numbers", "parse_frames", "select_times"]
+
+
+def _decimal(text):
+    d = Decimal(text.strip())
+    if not d.is_finite():
+        raise InvalidOperation
+    return d
+
+
+def _range(start, end, step):
+    """Decimal ``start, start + step, …`` up to ``end`` (inclusive within 1e-6 step), as floats."""
+    count = int((end - start) / step + Decimal("1e-6")) + 1
+    return np.array([float(start + k * step) for k in range(count)], dtype=np.float64)
+
+
+def parse_frames(text, default_step=1.0):
+    """``--frames`` text → times.
+
+    Parameters
+    ----------
+    text : str
+        ``START:END[:STEP]`` (END inclusive) or a comma-separated list ``T1,T2,...``.
+    default_step : float
+        STEP when the range gives none (``--fps`` sets it).
+
+    Returns
+    -------
+    (F,) float64
+
+    Raises
+    ------
+    ValueError
+        Naming ``--frames`` and the expected grammar.
+    """
+    message = (f"--frames {text!r}: expected START:END[:STEP] or a comma-separated list of "
+               "times")
+    ranged = ":" in text
+    try:
+        parts = [_decimal(p) for p in text.split(":" if ranged else ",")]
+    except InvalidOperation:
+        raise ValueError(message) from None
+    if not ranged:
+        return np.array([float(p) for p in parts], dtype=np.float64)
+    if len(parts) not in (2, 3):
+        raise ValueError(message)
+    start, end = parts[:2]
+    step = parts[2] if len(parts) == 3 else Decimal(repr(float(default_step)))
+    if not step > 0 or not end >= start:
+        raise ValueError(f"--frames {text!r}: need END >= START and STEP > 0")
+    return _range(start, end, step)
+
+
+def select_times(times, time_codes_per_second, frames=None, fps=None, substeps=1):
+    """Sample times: the asset's own, an explicit ``--frames`` selection, or ``--fps`` resampling
+    (which also sets the default STEP of ``--frames``); ``substeps`` samples per interval
+    (motion-blur sub-frames).
+
+    Parameters
+    ----------
+    times : (T,) float
+        The asset's sample times.
+    time_codes_per_second : float
+        Rate of ``times`` (1 for glTF seconds).
+    frames : str, optional
+        ``--frames`` text (:func:`parse_frames`).
+    fps : float, optional
+    substeps : int
+
+    Returns
+    -------
+    (F,) float64
+    """
+    t = np.asarray(times, np.float64)
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"--fps {fps}: must be a positive number")
+    step = 1.0 if fps is None else time_codes_per_second / fps
+    if frames is not None:
+        t = parse_frames(frames, step)
+    elif fps is not None:
+        t = _range(Decimal(repr(float(t[0]))), Decimal(repr(float(t[-1]))),
+                   Decimal(repr(float(step))))
+    if t.size == 0:
+        raise ValueError("--frames: no frames selected")
+    if substeps < 1:
+        raise ValueError(f"--substeps {substeps}: must be at least 1")
+    if substeps > 1 and t.size > 1:
+        u = np.arange(substeps) / substeps
+        t = np.append((t[:-1, None] + np.diff(t)[:, None] * u).ravel(), t[-1])
+    return t
+
+
+def default_frames(times, count=10):
+    """Up to ``count`` evenly spaced samples of ``times`` (first and last included).
+
+    Parameters
+    ----------
+    times : (T,) float
+        The asset's sample times.
+
+    Returns
+    -------
+    (F,) float64, F = min(T, count).
+    """
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    if t.size == 0:
+        raise ValueError("times: the asset has no sample times")
+    pick = np.unique(np.round(np.linspace(0, t.size - 1, min(t.size, count))).astype(int))
+    return t[pick]
+
+
+def frame_numbers(times, seconds):
+    """Integer frame numbers for file names.
+
+    Parameters
+    ----------
+    times : (F,) float
+    seconds : bool
+        Whether ``times`` are seconds (glTF): then frames of the sample rate (24 fps, or finer
+        when the samples are); otherwise they are time codes, rounded.
+
+    Returns
+    -------
+    (F,) int; ValueError when two frames would share a number (sub-frame times).
+    """
+    t = np.asarray(times, dtype=np.float64)
+    rate = 1.0
+    if seconds:
+        step = np.diff(t).min() if t.size > 1 else 1.0
+        rate = max(24.0, float(np.round(1.0 / step)) if step > 0 else 24.0)
+    numbers = np.round(t * rate).astype(int)
+    if len(set(numbers.tolist())) != len(numbers):
+        raise ValueError(f"--out: {len(numbers)} frames map to {len(set(numbers.tolist()))} file "
+                         "names (sub-frame times); write .npz"
+                         + ("" if seconds else " or .usd/.usdc") + " instead")
+    return numbers

@@ -1,0 +1,96 @@
+"""How the kernel modules launch: one call on CUDA, chunks of the grid from a thread pool on the CPU.
+
+Warp runs a CPU launch on one thread but releases the GIL, so chunks launched from Python threads
+use every core. The launchers beside each kernel (``skin.skin_points``, ``fk.forward_kinematics``,
+``metrics.volumes``, ...) call :func:`launch_blocks` or :func:`launch_rows`; nothing outside
+``dqskin.kernels`` calls ``wp.launch``.
+
+Grids over frames are (frame block, row): a thread handles one row (vertex, vector) for
+:data:`FRAME_BLOCK` frames, so its influences are read once per block and the block's joints stay
+in cache. Kernels on such a grid take ``frame_block, block_offset, row_offset`` after their inputs.
+"""
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import warp as wp
+
+__all__ = ["FRAME_BLOCK", "cpu_threads", "launch", "launch_blocks", "launch_rows"]
+
+FRAME_BLOCK = 16
+"""Frames one thread handles on a (frame block, row) grid: the joints of 16 frames stay in L1
+while every vertex of the block is skinned, and influences are read once per block."""
+
+_pool = None
+_pool_lock = threading.Lock()
+
+
+def cpu_threads():
+    """Threads used for CPU launches (``DQSKIN_THREADS`` or the core count)."""
+    return max(1, int(os.environ.get("DQSKIN_THREADS", os.cpu_count() or 1)))
+
+
+def _pool_map(tasks):
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=cpu_threads(), thread_name_prefix="dqskin")
+    for fut in [_pool.submit(*t) for t in tasks]:
+        fut.result()
+
+
+def launch(kernel, dim, inputs, outputs, device):
+    """``wp.launch`` for grids that need no chunking (per joint, per frame, small images)."""
+    if all(int(d) > 0 for d in ((dim,) if isinstance(dim, int) else dim)):
+        wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
+
+
+def launch_blocks(kernel, rows, frames, inputs, outputs, device, min_work=32768):
+    """Launch ``kernel`` over ``ceil(frames / FRAME_BLOCK)`` frame blocks × ``rows``.
+
+    ``kernel`` takes ``inputs``, then ``frame_block, block_offset, row_offset``, then ``outputs``.
+    On CUDA one launch covers the grid. On the CPU, above ``min_work`` row-frames, the grid is
+    split along its longer axis into one piece per core, launched from a thread pool.
+    """
+    if rows <= 0 or frames <= 0:
+        return
+    blocks = -(-frames // FRAME_BLOCK)
+
+    def run(block_offset, block_count, row_offset, row_count):
+        wp.launch(kernel, dim=(block_count, row_count),
+                  inputs=list(inputs) + [FRAME_BLOCK, block_offset, row_offset],
+                  outputs=outputs, device=device)
+
+    threads = cpu_threads() if wp.get_device(device).is_cpu else 1
+    chunks = min(threads, max(1, rows * frames // min_work))
+    if chunks <= 1:
+        run(0, blocks, 0, rows)
+    elif blocks >= chunks and blocks * FRAME_BLOCK >= rows:
+        cut = [blocks * c // chunks for c in range(chunks + 1)]
+        _pool_map([(run, cut[c], cut[c + 1] - cut[c], 0, rows) for c in range(chunks)])
+    else:
+        cut = [rows * c // chunks for c in range(chunks + 1)]
+        _pool_map([(run, 0, blocks, cut[c], cut[c + 1] - cut[c]) for c in range(chunks)])
+
+
+def launch_rows(kernel, count, inputs, outputs, device, min_chunk=4096, inner=()):
+    """Launch ``kernel`` over ``range(count)`` rows, split in chunks on the CPU.
+
+    ``kernel`` takes ``inputs``, then ``row_offset``, then ``outputs``; its grid is
+    ``(rows of the chunk,) + inner``. On CUDA one launch covers everything.
+    """
+    if count <= 0 or any(int(d) <= 0 for d in inner):
+        return
+
+    def run(offset, n):
+        wp.launch(kernel, dim=(n,) + tuple(inner), inputs=list(inputs) + [offset],
+                  outputs=outputs, device=device)
+
+    threads = cpu_threads() if wp.get_device(device).is_cpu else 1
+    chunks = min(threads, max(1, count // min_chunk))
+    if chunks <= 1:
+        run(0, count)
+        return
+    bounds = [count * c // chunks for c in range(chunks + 1)]
+    _pool_map([(run, bounds[c], bounds[c + 1] - bounds[c]) for c in range(chunks)])
