@@ -17,6 +17,7 @@ demo: $(STAMP)
 	$(PY) -m dqskin.cli demo
 
 test: $(STAMP)
+	$(PY) -m ruff check .
 	$(PY) -m pytest -q
 
 bench: $(STAMP)

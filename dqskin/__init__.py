@@ -7,11 +7,13 @@ for roots; float32 on the device.
 """
 
 from . import dq, dual, quat
+from .animation import Animation, KeyedAnimation
+from .baking import bake
 from .formats import load, load_mesh
-from .animation import Animation
-from .scene import Mesh, Scene
+from .scene import Mesh, Scene, SkinnedFrames
 from .skeleton import Skeleton, forward_kinematics
 from .skinning import METHODS, Skinner, skin_normals, skin_points
 
-__all__ = ["METHODS", "Animation", "Mesh", "Scene", "Skeleton", "Skinner", "dq", "dual",
-           "forward_kinematics", "load", "load_mesh", "quat", "skin_normals", "skin_points"]
+__all__ = ["METHODS", "Animation", "KeyedAnimation", "Mesh", "Scene", "Skeleton", "Skinner",
+           "SkinnedFrames", "bake", "dq", "dual", "forward_kinematics", "load", "load_mesh", "quat",
+           "skin_normals", "skin_points"]

@@ -4,8 +4,11 @@ set their own options; the CLI quiets Warp's console output)."""
 
 import warp as wp
 
+Device = str | wp.Device | None
+"""A Warp device or its name (``"cpu"``, ``"cuda:0"``); None picks CUDA when present."""
 
-def resolve_device(device=None):
+
+def resolve_device(device: Device = None) -> wp.Device:
     """Warp device for ``device`` (``None`` → CUDA when present, else CPU); ValueError if there
     is no such device."""
     wp.init()

@@ -56,17 +56,23 @@ References
 
 import abc
 import weakref
+from collections.abc import Callable
+from typing import Literal, get_args
 
 import numpy as np
+import numpy.typing as npt
 
 from . import dq, quat
 from .linalg import hat, polar
 
-__all__ = ["INTERPOLATIONS", "Animation", "Deformer", "KeyedAnimation", "TransformTrack", "ramp",
-           "sample", "sample_with_derivative", "segment_rates"]
+__all__ = ["INTERPOLATIONS", "Animation", "Deformer", "Interpolation", "KeyedAnimation",
+           "TransformTrack", "ramp", "sample", "sample_with_derivative", "segment_rates"]
 
-INTERPOLATIONS = ("trs", "sclerp", "dlb", "spline", "catmull-rom")
-"""Pose interpolation methods accepted by :func:`sample` (see the module docstring)."""
+Interpolation = Literal["trs", "sclerp", "dlb", "spline", "catmull-rom"]
+"""Pose interpolation between keys (see the module docstring)."""
+
+INTERPOLATIONS = get_args(Interpolation)
+"""Every :data:`Interpolation`, in order."""
 
 _TRS_TOLERANCE = 1e-5  # relative: "trs" velocities need the player to be linear TRS between keys
 
@@ -90,7 +96,7 @@ class Animation(abc.ABC):
     key_times: np.ndarray
 
     @abc.abstractmethod
-    def local_transforms(self, times):
+    def local_transforms(self, times: npt.ArrayLike) -> np.ndarray:
         """Parent-relative joint transforms at ``times``.
 
         Parameters
@@ -137,7 +143,7 @@ def _normalize_with_derivative(g, g_dot):
     return eta, eta_dot
 
 
-def ramp(times, key_times):
+def ramp(times: npt.ArrayLike, key_times: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Ramp-up / ramp-down reparametrization ``s(t)`` of [MS] §6 eq. 32–33 and its derivative.
 
     ``f(x) = ½ + ½·(2 − x)·x³`` (eq. 33). With keys ``t₀ < … < tₙ`` (``n ≥ 2``)::
@@ -379,7 +385,8 @@ class KeyedAnimation(Animation):
         Used in messages.
     """
 
-    def __init__(self, key_times, local, *, name="KeyedAnimation"):
+    def __init__(self, key_times: npt.ArrayLike, local: npt.ArrayLike, *,
+                 name: str = "KeyedAnimation") -> None:
         self.name = name
         self._keys = _Keys(key_times, local, name)
         self.key_times = self._keys.times
@@ -436,7 +443,8 @@ def _motion(animation, times, interp):
 # public sampling and kinematics
 
 
-def sample(animation, times, interp="trs"):
+def sample(animation: Animation, times: npt.ArrayLike,
+           interp: Interpolation = "trs") -> np.ndarray:
     """Local joint transforms of ``animation`` at ``times``.
 
     Parameters
@@ -460,7 +468,8 @@ def sample(animation, times, interp="trs"):
     return _keys_of(animation).local(t, interp, derivative=False)[0]
 
 
-def sample_with_derivative(animation, times, interp="trs"):
+def sample_with_derivative(animation: Animation, times: npt.ArrayLike,
+                           interp: Interpolation = "trs") -> tuple[np.ndarray, np.ndarray]:
     """Local joint transforms and their analytic time derivatives.
 
     Parameters
@@ -494,11 +503,11 @@ class TransformTrack(abc.ABC):
     key_times: np.ndarray
 
     @abc.abstractmethod
-    def with_derivative(self, times):
+    def with_derivative(self, times: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """(F, 4, 4) float64 transforms at ``times`` and their time derivatives (per unit time),
         column-vector convention."""
 
-    def at(self, times):
+    def at(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, 4, 4) float64 transforms at ``times``."""
         return self.with_derivative(times)[0]
 
@@ -508,21 +517,22 @@ class Deformer(abc.ABC):
     shapes. Loaders subclass it; :meth:`dqskin.Scene.skin` uses it when ``blend_shapes``."""
 
     @abc.abstractmethod
-    def points_at(self, times):
+    def points_at(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, V, 3) float32 rest points at ``times``, mesh space."""
 
     @abc.abstractmethod
-    def point_velocities_at(self, times):
+    def point_velocities_at(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, V, 3) float64 ``d points / dt`` per unit time, the derivative of the interpolant
         :meth:`points_at` evaluates (at a key: of the interval starting there)."""
 
-    def normals_at(self, times):
+    def normals_at(self, times: npt.ArrayLike) -> np.ndarray | None:
         """(F, N, 3) float32 rest normals at ``times`` (not normalized), or None when the normals
         do not change."""
         return None
 
 
-def segment_rates(key_times, values_at, times):
+def segment_rates(key_times: npt.ArrayLike, values_at: Callable[[int], npt.ArrayLike],
+                  times: npt.ArrayLike) -> list[np.ndarray]:
     """Derivative of the linear interpolant through keyed values, as :class:`Deformer` needs.
 
     Parameters

@@ -1,6 +1,6 @@
 """The ``dqskin`` command line: ``skin``, ``info``, ``compare`` and ``demo``.
 
-All argument parsing lives here; each command calls the library (:func:`dqskin.bake.bake`,
+All argument parsing lives here; each command calls the library (:func:`dqskin.baking.bake`,
 :func:`dqskin.report.compare.run_compare`). Errors in the input print one line naming the file,
 prim or field and exit with status 2; no traceback. Existing outputs are never overwritten without
 ``--force``; outputs are atomic.
@@ -32,7 +32,7 @@ def _clip(text):
 
 def cmd_skin(args):
     from . import formats
-    from .bake import bake, output_kind
+    from .baking import bake, output_kind
     from .times import select_times
     output_kind(args.out)
     scene = formats.load(args.input, clip=_clip(args.clip))
@@ -49,8 +49,10 @@ def cmd_info(args):
     scene = formats.load(args.input, clip=_clip(args.clip))
     print(f"{scene.path}")
     t = np.asarray(scene.times)
-    unit = "s" if scene.time_codes_per_second == 1.0 else f"time codes @ {scene.time_codes_per_second:g}/s"
-    print(f"  time range: {t[0]:g} .. {t[-1]:g} ({len(t)} samples, {unit}); up axis {scene.up_axis}, "
+    tcps = scene.time_codes_per_second
+    unit = "s" if tcps == 1.0 else f"time codes @ {tcps:g}/s"
+    print(f"  time range: {t[0]:g} .. {t[-1]:g} ({len(t)} samples, {unit}); "
+          f"up axis {scene.up_axis}, "
           f"{scene.meters_per_unit:g} m/unit")
     if scene.clips:
         print(f"  clips: {', '.join(scene.clips)} (loaded: {scene.clip})")
@@ -74,7 +76,8 @@ def cmd_info(args):
         sums = w.sum(1)
         nnz = (w > 0).sum(1)
         print(f"  mesh {m.name!r}: {len(m.points)} points, {len(m.faces)} triangles, skeleton "
-              f"{m.skeleton}, method {m.skinning_method}, {m.joint_indices.shape[1]} influence slots")
+              f"{m.skeleton}, method {m.skinning_method}, "
+              f"{m.joint_indices.shape[1]} influence slots")
         print(f"    influences per point: min {nnz.min()}, mean {nnz.mean():.2f}, max {nnz.max()}; "
               f"weight sums: min {sums.min():.4f}, max {sums.max():.4f}")
         if np.any(np.abs(sums - 1) > 1e-3):
@@ -90,7 +93,7 @@ def cmd_info(args):
 
 def cmd_demo(args):
     from . import formats
-    from .bake import bake
+    from .baking import bake
     from .report.compare import run_compare
     asset = Path(args.asset) if args.asset else default_asset()
     if not asset.is_file():

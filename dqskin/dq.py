@@ -49,7 +49,8 @@ References
 import numpy as np
 
 from . import dual, quat
-from .quat import _as_float, _concat, _unit_or_x
+from .linalg import nonzero_norm2, unit_or_x
+from .shapes import as_float, concat
 
 __all__ = [
     "identity",
@@ -87,14 +88,14 @@ __all__ = [
 
 def _dq(x, name):
     """``x`` as a floating ``(..., 8)`` array; ``ValueError`` naming ``name`` otherwise."""
-    return _as_float(x, name, 8)
+    return as_float(x, name, 8)
 
 
 def _scale(dq, s):
     """Product of ``dq`` and the dual number ``s = (s0, s1)``: ``s0 r + eps (s0 d + s1 r)``."""
     r, d = dq[..., :4], dq[..., 4:]
     s0, s1 = s[0][..., None], s[1][..., None]
-    return _concat(s0 * r, s0 * d + s1 * r)
+    return concat(s0 * r, s0 * d + s1 * r)
 
 
 def identity(shape=(), dtype=np.float64):
@@ -136,7 +137,7 @@ def mul(a, b):
     b = _dq(b, "b")
     ra, da = a[..., :4], a[..., 4:]
     rb, db = b[..., :4], b[..., 4:]
-    return _concat(quat.mul(ra, rb), quat.mul(ra, db) + quat.mul(da, rb))
+    return concat(quat.mul(ra, rb), quat.mul(ra, db) + quat.mul(da, rb))
 
 
 def conjugate_quat(dq):
@@ -154,7 +155,7 @@ def conjugate_quat(dq):
     (..., 8) array
     """
     dq = _dq(dq, "dq")
-    return _concat(quat.conjugate(dq[..., :4]), quat.conjugate(dq[..., 4:]))
+    return concat(quat.conjugate(dq[..., :4]), quat.conjugate(dq[..., 4:]))
 
 
 def conjugate_dual(dq):
@@ -169,7 +170,7 @@ def conjugate_dual(dq):
     (..., 8) array
     """
     dq = _dq(dq, "dq")
-    return _concat(dq[..., :4], -dq[..., 4:])
+    return concat(dq[..., :4], -dq[..., 4:])
 
 
 def conjugate_both(dq):
@@ -186,7 +187,7 @@ def conjugate_both(dq):
     (..., 8) array
     """
     dq = _dq(dq, "dq")
-    return _concat(quat.conjugate(dq[..., :4]), -quat.conjugate(dq[..., 4:]))
+    return concat(quat.conjugate(dq[..., :4]), -quat.conjugate(dq[..., 4:]))
 
 
 def norm(dq):
@@ -211,7 +212,7 @@ def norm(dq):
     """
     dq = _dq(dq, "dq")
     r, d = dq[..., :4], dq[..., 4:]
-    norm2 = quat._nonzero_norm2(r, "real part of dq")
+    norm2 = nonzero_norm2(r, "real part of dq")
     return dual.sqrt((norm2, 2 * quat.dot(r, d)))
 
 
@@ -265,7 +266,7 @@ def inverse(dq):
     """
     dq = _dq(dq, "dq")
     r_inv = quat.inverse(dq[..., :4])
-    return _concat(r_inv, -quat.mul(quat.mul(r_inv, dq[..., 4:]), r_inv))
+    return concat(r_inv, -quat.mul(quat.mul(r_inv, dq[..., 4:]), r_inv))
 
 
 def inverse_unit(dq):
@@ -321,7 +322,7 @@ def from_rotation(q):
         If any ``q`` is zero.
     """
     q = quat.normalize(q)
-    return _concat(q, np.zeros_like(q))
+    return concat(q, np.zeros_like(q))
 
 
 def from_translation(t):
@@ -336,10 +337,10 @@ def from_translation(t):
     -------
     (..., 8) array
     """
-    t = _as_float(t, "t", 3)
+    t = as_float(t, "t", 3)
     r = np.zeros(t.shape[:-1] + (4,), dtype=t.dtype)
     r[..., 0] = 1
-    return _concat(r, _concat(np.zeros_like(t[..., :1]), 0.5 * t))
+    return concat(r, concat(np.zeros_like(t[..., :1]), 0.5 * t))
 
 
 def from_rt(q, t):
@@ -365,9 +366,9 @@ def from_rt(q, t):
         If any ``q`` is zero.
     """
     q = quat.normalize(q)
-    t = _as_float(t, "t", 3)
-    t_quat = _concat(np.zeros_like(t[..., :1]), t)
-    return _concat(q, 0.5 * quat.mul(t_quat, q))
+    t = as_float(t, "t", 3)
+    t_quat = concat(np.zeros_like(t[..., :1]), t)
+    return concat(q, 0.5 * quat.mul(t_quat, q))
 
 
 def to_rt(dq):
@@ -398,7 +399,7 @@ def to_rt(dq):
     """
     dq = _dq(dq, "dq")
     r, d = dq[..., :4], dq[..., 4:]
-    norm2 = quat._nonzero_norm2(r, "real part of dq")
+    norm2 = nonzero_norm2(r, "real part of dq")
     t = 2 * quat.mul(d, quat.conjugate(r))[..., 1:] / norm2[..., None]
     return r / np.sqrt(norm2)[..., None], t
 
@@ -418,7 +419,7 @@ def from_matrix(m):
     -------
     (..., 8) array
     """
-    m = _as_float(m, "m")
+    m = as_float(m, "m")
     if m.ndim < 2 or m.shape[-2:] != (4, 4):
         raise ValueError(f"m must have shape (..., 4, 4), got shape {m.shape}")
     return from_rt(quat.from_matrix(m[..., :3, :3]), m[..., :3, 3])
@@ -472,7 +473,7 @@ def transform_point(dq, p):
         If any real part is zero.
     """
     q, t = to_rt(dq)
-    return quat.rotate(q, _as_float(p, "p", 3)) + t
+    return quat.rotate(q, as_float(p, "p", 3)) + t
 
 
 def transform_vector(dq, v):
@@ -494,7 +495,7 @@ def transform_vector(dq, v):
         If any real part is zero.
     """
     dq = _dq(dq, "dq")
-    return quat.rotate(dq[..., :4], _as_float(v, "v", 3))
+    return quat.rotate(dq[..., :4], as_float(v, "v", 3))
 
 
 def _screw_axis(c, u, s, dv):
@@ -504,7 +505,7 @@ def _screw_axis(c, u, s, dv):
     at the singular points.
     """
     sign = np.where(c < 0, -1, 1).astype(u.dtype)[..., None]
-    fallback = _unit_or_x(sign * dv)
+    fallback = unit_or_x(sign * dv)
     safe_s = np.where(s > 0, s, 1)[..., None]
     return np.where(s[..., None] > 0, u / safe_s, fallback)
 
@@ -583,15 +584,15 @@ def from_screw(theta, d, l, m):
     (..., 8) array
         All arguments broadcast against each other's batch shapes.
     """
-    l = _as_float(l, "l", 3)
-    m = _as_float(m, "m", 3)
+    l = as_float(l, "l", 3)
+    m = as_float(m, "m", 3)
     dtype = np.result_type(l, m)
-    half = 0.5 * _as_float(theta, "theta", dtype=dtype)[..., None]
-    d = _as_float(d, "d", dtype=dtype)[..., None]
+    half = 0.5 * as_float(theta, "theta", dtype=dtype)[..., None]
+    d = as_float(d, "d", dtype=dtype)[..., None]
     sin, cos = np.sin(half), np.cos(half)
-    real = _concat(cos, sin * l)
-    dual_part = _concat(-0.5 * d * sin, sin * m + 0.5 * d * cos * l)
-    return _concat(real, dual_part)
+    real = concat(cos, sin * l)
+    dual_part = concat(-0.5 * d * sin, sin * m + 0.5 * d * cos * l)
+    return concat(real, dual_part)
 
 
 def power(dq, t):
@@ -619,7 +620,7 @@ def power(dq, t):
         If any real part is zero.
     """
     dq = _dq(dq, "dq")
-    t = _as_float(t, "t", dtype=dq.dtype)
+    t = as_float(t, "t", dtype=dq.dtype)
     theta, d, l, m = to_screw(dq)
     return from_screw(t * theta, t * d, l, m)
 
@@ -655,7 +656,7 @@ def sclerp(a, b, t):
     a = normalize(_dq(a, "a"))
     b = normalize(_dq(b, "b"))
     b = np.where(dot(a, b)[..., None] < 0, -b, b)
-    t = _as_float(t, "t", dtype=np.result_type(a, b))
+    t = as_float(t, "t", dtype=np.result_type(a, b))
     return mul(a, power(mul(conjugate_quat(a), b), t))
 
 
@@ -687,7 +688,7 @@ def nlerp(a, b, t):
     a = normalize(_dq(a, "a"))
     b = normalize(_dq(b, "b"))
     b = np.where(dot(a, b)[..., None] < 0, -b, b)
-    t = _as_float(t, "t", dtype=np.result_type(a, b))[..., None]
+    t = as_float(t, "t", dtype=np.result_type(a, b))[..., None]
     return normalize(a + (b - a) * t)
 
 
@@ -724,7 +725,7 @@ def dlb(dqs, weights):
     dqs = _dq(dqs, "dqs")
     if dqs.ndim < 2:
         raise ValueError(f"dqs must have shape (..., K, 8), got shape {dqs.shape}")
-    weights = _as_float(weights, "weights", dtype=dqs.dtype)
+    weights = as_float(weights, "weights", dtype=dqs.dtype)
     if weights.ndim == 0 or weights.shape[-1] not in (1, dqs.shape[-2]):
         raise ValueError(
             f"weights must have shape (..., {dqs.shape[-2]}), got shape {weights.shape}"
@@ -759,14 +760,14 @@ def exp(xi):
     xi = _dq(xi, "xi")
     w_half, v_half = xi[..., 1:4], xi[..., 5:8]
     theta = np.linalg.norm(w_half, axis=-1, keepdims=True)
-    a = _unit_or_x(w_half)
+    a = unit_or_x(w_half)
     v1 = np.sum(v_half * a, axis=-1, keepdims=True)
     v_perp = v_half - v1 * a
     sin, cos = np.sin(theta), np.cos(theta)
-    real = _concat(cos, sin * a)
-    dual_part = _concat(-v1 * sin, v1 * cos * a + np.sinc(theta / np.pi) * v_perp)
+    real = concat(cos, sin * a)
+    dual_part = concat(-v1 * sin, v1 * cos * a + np.sinc(theta / np.pi) * v_perp)
     scalar = dual.apply(np.exp, np.exp, (xi[..., 0], xi[..., 4]))
-    return _scale(_concat(real, dual_part), scalar)
+    return _scale(concat(real, dual_part), scalar)
 
 
 def log(dq):
@@ -813,7 +814,7 @@ def log(dq):
     ratio = np.where(s > 0, phi / np.where(s > 0, s, 1), 1)
     dual_vec = (c * y1 - s * x) * a + ratio * (y - y1 * a)
     scalar = dual.apply(np.log, np.reciprocal, norm(dq))
-    return _concat(_concat(scalar[0][..., None], phi * a), _concat(scalar[1][..., None], dual_vec))
+    return concat(concat(scalar[0][..., None], phi * a), concat(scalar[1][..., None], dual_vec))
 
 
 def exp_twist(omega, v):
@@ -837,10 +838,10 @@ def exp_twist(omega, v):
     (..., 8) array
         Unit dual quaternions.
     """
-    omega = _as_float(omega, "omega", 3)
-    v = _as_float(v, "v", 3)
+    omega = as_float(omega, "omega", 3)
+    v = as_float(v, "v", 3)
     zero = np.zeros_like(omega[..., :1])
-    return exp(_concat(zero, 0.5 * omega, zero, 0.5 * v))
+    return exp(concat(zero, 0.5 * omega, zero, 0.5 * v))
 
 
 def lie_difference(a, b):
@@ -931,7 +932,7 @@ def wrench(torque, force):
     (..., 8) array
         ``(0, 2 torque, 0, 2 force)``.
     """
-    torque = _as_float(torque, "torque", 3)
-    force = _as_float(force, "force", 3)
+    torque = as_float(torque, "torque", 3)
+    force = as_float(force, "force", 3)
     zero = np.zeros_like(torque[..., :1])
-    return _concat(zero, 2 * torque, zero, 2 * force)
+    return concat(zero, 2 * torque, zero, 2 * force)

@@ -79,7 +79,7 @@ class Influences:
         self._lock = threading.Lock()
 
     def check_joint_count(self, joint_count):
-        """ValueError when skinning transforms for ``joint_count`` joints cannot cover the indices."""
+        """ValueError when ``joint_count`` skinning transforms cannot cover the indices."""
         if joint_count < self.joint_count_min:
             raise ValueError(f"joint_indices: index {self.joint_count_min - 1} out of range for "
                              f"{joint_count} skinning transforms")

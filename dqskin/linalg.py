@@ -1,9 +1,10 @@
-"""Small float64 3×3 pieces shared by the NumPy kinematics: cross-product matrices and the polar
-split. Their float32 device counterparts are in :mod:`dqskin.kernels.dqmath`."""
+"""Small float64 pieces shared by the NumPy algebra and kinematics: cross-product matrices, the
+polar split, safe normalization. Their float32 device counterparts are in
+:mod:`dqskin.kernels.dqmath`."""
 
 import numpy as np
 
-__all__ = ["hat", "polar", "vee"]
+__all__ = ["hat", "nonzero_norm2", "polar", "unit_or_x", "vee"]
 
 
 def hat(w):
@@ -31,3 +32,19 @@ def polar(a):
     r = u @ vt
     r = np.where((np.linalg.det(r) < 0)[..., None, None], -r, r)
     return r, np.swapaxes(r, -1, -2) @ a
+
+
+def nonzero_norm2(q, name):
+    """Squared norm of ``q`` (shape ``(...)``); raise ``ValueError`` if any is zero."""
+    n2 = np.sum(q * q, axis=-1)
+    if np.any(n2 == 0):
+        raise ValueError(f"{name} has a zero-norm quaternion, which has no inverse or direction")
+    return n2
+
+
+def unit_or_x(v):
+    """Normalize 3-vectors ``v`` (..., 3); zero vectors become the x axis ``(1, 0, 0)``."""
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    x_axis = np.zeros_like(v)
+    x_axis[..., 0] = 1
+    return np.where(n > 0, v / np.where(n > 0, n, 1), x_axis)

@@ -17,10 +17,10 @@ import numpy as np
 import warp as wp
 
 from ._warp import resolve_device
+from .influences import check_influences
 from .kernels import metrics as K
 from .shapes import frames_of
 from .skeleton import check_parents
-from .skinning import check_influences
 from .topology import check_faces
 
 __all__ = ["METRICS", "JointSections", "bone_segments", "dominant_pair_regions", "edge_strain",

@@ -12,32 +12,32 @@ as ``Ȧ = Ẇ·B⁻¹``, and skinned points by the chain rule through LBS or DQS
 (:func:`skinned_velocities`, Warp kernels in :mod:`dqskin.kernels.velocity`).
 
 Derivatives are per unit of the animation's time (USD time codes, glTF seconds) unless stated;
-:meth:`dqskin.Scene.skin` (``velocities=True``) converts to per second. At a key time the derivative is the one of the
-interval starting there (of the last interval at the last key).
+:meth:`dqskin.Scene.skin` (``velocities=True``) converts to per second. At a key time the
+derivative is the one of the interval starting there (of the last interval at the last key).
 
-References
-----------
-[K] B. Kenwright, "Dual-Quaternions: From Classical Mechanics to Computer Graphics and Beyond",
-    2012 (shared/references/000_e688072581e8ee3b.txt).
-[MS] S. Montgomery-Smith and C. Shy, "An Introduction to Using Dual Quaternions to Study
-    Kinematics", 2023 (shared/references/003_d8d7d9932a992693.txt).
+References: [K] and [MS] as in :mod:`dqskin.animation`.
 """
 
+from typing import Literal
+
 import numpy as np
+import numpy.typing as npt
 
 from . import dq
-from .animation import _motion, _times, sample_with_derivative
+from ._warp import Device
+from .animation import Animation, Interpolation, _motion, _times, sample_with_derivative
 from .influences import check_influences
 from .linalg import vee
 from .shapes import frames_of
-from .skeleton import check_parents
-from .skinning import Skinner
+from .skeleton import Skeleton, check_parents
+from .skinning import Method, Skinner
 
 __all__ = ["forward_kinematics_derivative", "joint_twists", "skinned_velocities",
            "skinning_transforms_with_derivative"]
 
 
-def forward_kinematics_derivative(parents, local, local_dot):
+def forward_kinematics_derivative(parents: npt.ArrayLike, local: npt.ArrayLike,
+                                  local_dot: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """World transforms and their derivatives by the product rule, float64.
 
     ``Wⱼ = Wₚ·Lⱼ`` and ``Ẇⱼ = Ẇₚ·Lⱼ + Wₚ·L̇ⱼ`` (roots: ``Wⱼ = Lⱼ``), exact also with scale or shear.
@@ -74,7 +74,9 @@ def forward_kinematics_derivative(parents, local, local_dot):
     return world, world_dot
 
 
-def joint_twists(animation, times, interp="trs", *, frame="local", parents=None):
+def joint_twists(animation: Animation, times: npt.ArrayLike, interp: Interpolation = "trs", *,
+                 frame: Literal["local", "world"] = "local",
+                 parents: npt.ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Angular and linear velocity of every joint, from the interpolant's analytic derivative.
 
     Parameters
@@ -113,7 +115,9 @@ def joint_twists(animation, times, interp="trs", *, frame="local", parents=None)
     return omega, world_dot[..., :3, 3].copy()
 
 
-def skinning_transforms_with_derivative(skeleton, animation, times, interp="trs"):
+def skinning_transforms_with_derivative(skeleton: Skeleton, animation: Animation | None,
+                                        times: npt.ArrayLike, interp: Interpolation = "trs"
+                                        ) -> tuple[np.ndarray, np.ndarray]:
     """Bind-relative skinning transforms ``W·B⁻¹`` and their derivatives ``Ẇ·B⁻¹``, float64.
 
     Parameters
@@ -146,9 +150,13 @@ def skinning_transforms_with_derivative(skeleton, animation, times, interp="trs"
 # skinned point velocities
 
 
-def skinned_velocities(points, joint_indices, joint_weights, skinning_transforms,
-                       skinning_transform_derivatives, method="lbs", *, geom_bind_transform=None,
-                       point_velocities=None, blend_weights=None, device=None):
+def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
+                       joint_weights: npt.ArrayLike, skinning_transforms: npt.ArrayLike,
+                       skinning_transform_derivatives: npt.ArrayLike, method: Method = "lbs", *,
+                       geom_bind_transform: npt.ArrayLike | None = None,
+                       point_velocities: npt.ArrayLike | None = None,
+                       blend_weights: npt.ArrayLike | None = None,
+                       device: Device = None) -> np.ndarray:
     """Velocities of LBS- or DQS-skinned points, by the chain rule (Warp, one thread per vertex).
 
     Same skinning semantics as :func:`dqskin.skin_points` (UsdSkel): weights used as given, DQS

@@ -18,6 +18,9 @@ References
 
 import numpy as np
 
+from .linalg import nonzero_norm2, unit_or_x
+from .shapes import as_float, concat
+
 __all__ = [
     "identity",
     "mul",
@@ -37,43 +40,12 @@ __all__ = [
 ]
 
 
-def _as_float(x, name, size=None, dtype=None):
-    """Return ``x`` as a floating array, checking that its last axis has ``size``.
-
-    ``dtype`` forces the result dtype (used for scalar parameters); otherwise a
-    floating dtype is kept and anything else becomes float64. Shared with
-    :mod:`dqskin.dq`, which checks ``(..., 8)`` arrays the same way.
-    """
-    x = np.asarray(x)
-    if dtype is not None:
-        x = x.astype(dtype, copy=False)
-    elif not np.issubdtype(x.dtype, np.floating):
-        x = x.astype(np.float64)
-    if size is not None and (x.ndim == 0 or x.shape[-1] != size):
-        raise ValueError(f"{name} must have shape (..., {size}), got shape {x.shape}")
-    return x
 
 
-def _nonzero_norm2(q, name):
-    """Squared norm of ``q`` (shape ``(...)``); raise ``ValueError`` if any is zero."""
-    n2 = np.sum(q * q, axis=-1)
-    if np.any(n2 == 0):
-        raise ValueError(f"{name} has a zero-norm quaternion, which has no inverse or direction")
-    return n2
 
 
-def _concat(*parts):
-    """Concatenate ``(..., n_i)`` arrays along the last axis, broadcasting batch shapes."""
-    batch = np.broadcast_shapes(*(p.shape[:-1] for p in parts))
-    return np.concatenate([np.broadcast_to(p, batch + p.shape[-1:]) for p in parts], axis=-1)
 
 
-def _unit_or_x(v):
-    """Normalize 3-vectors ``v`` (..., 3); zero vectors become the x axis ``(1, 0, 0)``."""
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    x_axis = np.zeros_like(v)
-    x_axis[..., 0] = 1
-    return np.where(n > 0, v / np.where(n > 0, n, 1), x_axis)
 
 
 def identity(shape=(), dtype=np.float64):
@@ -110,8 +82,8 @@ def mul(a, b):
     -------
     (..., 4) array
     """
-    a = _as_float(a, "a", 4)
-    b = _as_float(b, "b", 4)
+    a = as_float(a, "a", 4)
+    b = as_float(b, "b", 4)
     aw, ax, ay, az = (a[..., k] for k in range(4))
     bw, bx, by, bz = (b[..., k] for k in range(4))
     return np.stack(
@@ -136,7 +108,7 @@ def conjugate(q):
     -------
     (..., 4) array
     """
-    q = _as_float(q, "q", 4)
+    q = as_float(q, "q", 4)
     return np.concatenate([q[..., :1], -q[..., 1:]], axis=-1)
 
 
@@ -156,8 +128,8 @@ def inverse(q):
     ValueError
         If any ``q`` is zero.
     """
-    q = _as_float(q, "q", 4)
-    return conjugate(q) / _nonzero_norm2(q, "q")[..., None]
+    q = as_float(q, "q", 4)
+    return conjugate(q) / nonzero_norm2(q, "q")[..., None]
 
 
 def dot(a, b):
@@ -171,8 +143,8 @@ def dot(a, b):
     -------
     (...) array
     """
-    a = _as_float(a, "a", 4)
-    b = _as_float(b, "b", 4)
+    a = as_float(a, "a", 4)
+    b = as_float(b, "b", 4)
     return np.sum(a * b, axis=-1)
 
 
@@ -187,7 +159,7 @@ def norm(q):
     -------
     (...) array
     """
-    q = _as_float(q, "q", 4)
+    q = as_float(q, "q", 4)
     return np.sqrt(np.sum(q * q, axis=-1))
 
 
@@ -207,8 +179,8 @@ def normalize(q):
     ValueError
         If any ``q`` is zero (it has no direction).
     """
-    q = _as_float(q, "q", 4)
-    return q / np.sqrt(_nonzero_norm2(q, "q"))[..., None]
+    q = as_float(q, "q", 4)
+    return q / np.sqrt(nonzero_norm2(q, "q"))[..., None]
 
 
 def rotate(q, v):
@@ -231,13 +203,13 @@ def rotate(q, v):
     ValueError
         If any ``q`` is zero.
     """
-    q = _as_float(q, "q", 4)
-    v = _as_float(v, "v", 3)
+    q = as_float(q, "q", 4)
+    v = as_float(v, "v", 3)
     u = q[..., 1:]
     w = q[..., :1]
     # q v q* = |q|^2 v + 2 (w u x v + u x (u x v)), from expanding eq. 5.
     uv = np.cross(u, v)
-    scale = 2 / _nonzero_norm2(q, "q")[..., None]
+    scale = 2 / nonzero_norm2(q, "q")[..., None]
     return v + scale * (w * uv + np.cross(u, uv))
 
 
@@ -261,13 +233,13 @@ def from_axis_angle(axis, angle):
     ValueError
         If any axis is the zero vector.
     """
-    axis = _as_float(axis, "axis", 3)
-    angle = _as_float(angle, "angle", dtype=axis.dtype)
+    axis = as_float(axis, "axis", 3)
+    angle = as_float(angle, "angle", dtype=axis.dtype)
     n = np.linalg.norm(axis, axis=-1)
     if np.any(n == 0):
         raise ValueError("axis has a zero vector, which defines no rotation axis")
     half = 0.5 * angle[..., None]
-    return _concat(np.cos(half), np.sin(half) * axis / n[..., None])
+    return concat(np.cos(half), np.sin(half) * axis / n[..., None])
 
 
 def to_axis_angle(q):
@@ -289,11 +261,11 @@ def to_axis_angle(q):
     angle : (...) array
         Rotation angle [rad] in ``[0, pi]``.
     """
-    q = _as_float(q, "q", 4)
+    q = as_float(q, "q", 4)
     q = np.where(q[..., :1] < 0, -q, q)
     u = q[..., 1:]
     s = np.linalg.norm(u, axis=-1)
-    return _unit_or_x(u), 2 * np.arctan2(s, q[..., 0])
+    return unit_or_x(u), 2 * np.arctan2(s, q[..., 0])
 
 
 def from_matrix(m):
@@ -316,7 +288,7 @@ def from_matrix(m):
     -------
     (..., 4) array, ``(w, x, y, z)``
     """
-    m = _as_float(m, "m")
+    m = as_float(m, "m")
     if m.ndim < 2 or m.shape[-2:] not in ((3, 3), (4, 4)):
         raise ValueError(f"m must have shape (..., 3, 3) or (..., 4, 4), got shape {m.shape}")
     m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
@@ -360,8 +332,8 @@ def to_matrix(q):
     ValueError
         If any ``q`` is zero.
     """
-    q = _as_float(q, "q", 4)
-    s = 2 / _nonzero_norm2(q, "q")
+    q = as_float(q, "q", 4)
+    s = 2 / nonzero_norm2(q, "q")
     w, x, y, z = (q[..., k] for k in range(4))
     rows = [
         [1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
@@ -385,7 +357,7 @@ def exp(q):
     -------
     (..., 4) array
     """
-    q = _as_float(q, "q", 4)
+    q = as_float(q, "q", 4)
     u = q[..., 1:]
     theta = np.linalg.norm(u, axis=-1, keepdims=True)
     # sin(theta)/theta via np.sinc, exact at theta = 0.
@@ -413,12 +385,12 @@ def log(q):
     ValueError
         If any ``q`` is zero.
     """
-    q = _as_float(q, "q", 4)
-    n2 = _nonzero_norm2(q, "q")
+    q = as_float(q, "q", 4)
+    n2 = nonzero_norm2(q, "q")
     u = q[..., 1:]
     s = np.linalg.norm(u, axis=-1, keepdims=True)
     theta = np.arctan2(s, q[..., :1])
-    return _concat(0.5 * np.log(n2)[..., None], theta * _unit_or_x(u))
+    return concat(0.5 * np.log(n2)[..., None], theta * unit_or_x(u))
 
 
 def slerp(q0, q1, t):
@@ -447,10 +419,10 @@ def slerp(q0, q1, t):
     ValueError
         If any input quaternion is zero.
     """
-    q0 = normalize(_as_float(q0, "q0", 4))
-    q1 = normalize(_as_float(q1, "q1", 4))
+    q0 = normalize(as_float(q0, "q0", 4))
+    q1 = normalize(as_float(q1, "q1", 4))
     q1 = np.where(dot(q0, q1)[..., None] < 0, -q1, q1)
-    t = _as_float(t, "t", dtype=np.result_type(q0, q1))[..., None]
+    t = as_float(t, "t", dtype=np.result_type(q0, q1))[..., None]
     # Angle between the unit 4-vectors, accurate also for nearly equal inputs.
     omega = 2 * np.arctan2(norm(q0 - q1), norm(q0 + q1))[..., None]
     sin_omega = np.sin(omega)

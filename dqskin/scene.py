@@ -5,16 +5,19 @@ same engine for every format: animation → local transforms → forward kinemat
 quaternions) → skinning transforms → per-vertex skinning → output space.
 """
 
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 
-from ._warp import resolve_device
-from .animation import Deformer, TransformTrack, sample
+from ._warp import Device, resolve_device
+from .animation import Deformer, Interpolation, TransformTrack, sample
 from .motion import skinning_transforms_with_derivative
 from .skeleton import Skeleton
-from .skinning import Skinner
+from .skinning import Method, Skinner
 
 __all__ = ["DEFAULT_BLEND", "Mesh", "Scene", "SkinnedFrames"]
 
@@ -78,7 +81,8 @@ class Mesh:
     def __post_init__(self):
         # read-only arrays: a Skinner uploaded from them stays valid (replace a mesh, then call
         # Scene.invalidate, to change one)
-        for name in ("points", "faces", "joint_indices", "joint_weights", "normals", "blend_weights"):
+        for name in ("points", "faces", "joint_indices", "joint_weights", "normals",
+                     "blend_weights"):
             a = getattr(self, name)
             if isinstance(a, np.ndarray):
                 a.flags.writeable = False
@@ -136,12 +140,12 @@ class Scene:
                 raise ValueError(f"{self.path}: mesh {m.name!r}: skeleton {m.skeleton} out of "
                                  f"range for {len(self.skeletons)} skeletons")
 
-    def invalidate(self, name=None):
+    def invalidate(self, name: str | None = None) -> None:
         """Drop the uploaded skinner of mesh ``name`` (every mesh when None)."""
         for key in [k for k in self._skinners if name is None or k[0] == name]:
             del self._skinners[key]
 
-    def skinner(self, mesh, device=None):
+    def skinner(self, mesh: Mesh, device: Device = None) -> Skinner:
         """The :class:`dqskin.Skinner` of ``mesh`` on ``device``, uploaded once and reused."""
         key = (mesh.name, str(resolve_device(device)))
         sk = self._skinners.get(key)
@@ -152,14 +156,15 @@ class Scene:
             self._skinners[key] = sk
         return sk
 
-    def mesh(self, name):
+    def mesh(self, name: str) -> Mesh:
         """The mesh called ``name`` (KeyError naming the known meshes)."""
         for m in self.meshes:
             if m.name == name:
                 return m
         raise KeyError(f"{self.path}: no mesh {name!r}; meshes: {[m.name for m in self.meshes]}")
 
-    def local_transforms(self, times, skeleton=0, *, interp="trs"):
+    def local_transforms(self, times: npt.ArrayLike, skeleton: int = 0, *,
+                         interp: Interpolation = "trs") -> np.ndarray:
         """(F, J, 4, 4) float64 local joint transforms of one skeleton at ``times``.
 
         ``interp`` is :data:`dqskin.motion.INTERPOLATIONS`: "trs" is the asset's own sampler
@@ -174,13 +179,16 @@ class Scene:
             return anim.local_transforms(t)
         return sample(anim, t, interp)
 
-    def skinning_transforms(self, times, skeleton=0, *, device=None, interp="trs"):
+    def skinning_transforms(self, times: npt.ArrayLike, skeleton: int = 0, *, device: Device = None,
+                            interp: Interpolation = "trs") -> np.ndarray:
         """(F, J, 4, 4) float32 bind-relative transforms of one skeleton at ``times``."""
         return self.skeletons[skeleton].skinning_transforms(
             self.local_transforms(times, skeleton, interp=interp), device=device)
 
-    def skin(self, times=None, method=None, *, device=None, normals=False, velocities=False,
-             interp="trs", space="output", blend_shapes=True):
+    def skin(self, times: npt.ArrayLike | None = None, method: Method | None = None, *,
+             device: Device = None, normals: bool = False, velocities: bool = False,
+             interp: Interpolation = "trs", space: Literal["output", "skeleton"] = "output",
+             blend_shapes: bool = True) -> "SkinnedFrames":
         """Skin every mesh at ``times``: the one per-mesh loop of the engine.
 
         Parameters
@@ -238,7 +246,8 @@ class Scene:
                                                              rest, deformer, track)
         return result
 
-    def skin_chunks(self, times, chunk, **skin_args):
+    def skin_chunks(self, times: npt.ArrayLike, chunk: int,
+                    **skin_args) -> Iterator[tuple[slice, "SkinnedFrames"]]:
         """Yield ``(slice, SkinnedFrames)`` for consecutive chunks of ``chunk`` frames, so memory
         stays bounded; ``skin_args`` go to :meth:`skin`.
 

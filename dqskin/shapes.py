@@ -3,7 +3,7 @@ engine works with, with errors naming the argument."""
 
 import numpy as np
 
-__all__ = ["as_array", "frames_of"]
+__all__ = ["as_array", "as_float", "concat", "frames_of"]
 
 
 def as_array(name, x, dtype, tail):
@@ -57,3 +57,26 @@ def frames_of(name, a, frames=None, count=None, *, dtype=np.float64, finite=Fals
     if finite and not np.all(np.isfinite(x)):
         raise ValueError(f"{name}: NaN or infinite values")
     return x, batched
+
+
+def as_float(x, name, size=None, dtype=None):
+    """Return ``x`` as a floating array, checking that its last axis has ``size``.
+
+    ``dtype`` forces the result dtype (used for scalar parameters); otherwise a
+    floating dtype is kept and anything else becomes float64 (the algebra modules
+    :mod:`dqskin.quat`, :mod:`dqskin.dq` check ``(..., 4)`` and ``(..., 8)`` arrays with it).
+    """
+    x = np.asarray(x)
+    if dtype is not None:
+        x = x.astype(dtype, copy=False)
+    elif not np.issubdtype(x.dtype, np.floating):
+        x = x.astype(np.float64)
+    if size is not None and (x.ndim == 0 or x.shape[-1] != size):
+        raise ValueError(f"{name} must have shape (..., {size}), got shape {x.shape}")
+    return x
+
+
+def concat(*parts):
+    """Concatenate ``(..., n_i)`` arrays along the last axis, broadcasting batch shapes."""
+    batch = np.broadcast_shapes(*(p.shape[:-1] for p in parts))
+    return np.concatenate([np.broadcast_to(p, batch + p.shape[-1:]) for p in parts], axis=-1)

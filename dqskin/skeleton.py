@@ -1,13 +1,20 @@
 """Skeletons: joint hierarchy, bind and rest transforms, forward kinematics on the device."""
 
+from collections.abc import Sequence
+
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
-from ._warp import resolve_device
+from ._warp import Device, resolve_device
 from .kernels import fk as FK
 from .kernels.dqmath import vec8
 
-__all__ = ["Skeleton", "check_parents", "forward_kinematics"]
+__all__ = ["LocalTransforms", "Skeleton", "check_parents", "forward_kinematics"]
+
+LocalTransforms = npt.ArrayLike | tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike | None]
+"""Parent-relative joint poses: (..., J, 4, 4) matrices, or (translations (..., J, 3), rotations
+(..., J, 4) ``(w, x, y, z)``, scales (..., J, 3) or None)."""
 
 
 def check_parents(parents, where="parents"):
@@ -70,8 +77,10 @@ class Skeleton:
         e.g. which skeleton axis points up when rendering.
     """
 
-    def __init__(self, joint_names, parents, bind_transforms=None, rest_transforms=None, *, name="",
-                 world_transform=None):
+    def __init__(self, joint_names: Sequence[str], parents: npt.ArrayLike,
+                 bind_transforms: npt.ArrayLike | None = None,
+                 rest_transforms: npt.ArrayLike | None = None, *, name: str = "",
+                 world_transform: npt.ArrayLike | None = None) -> None:
         self.name = name
         self.joint_names = [str(n) for n in joint_names]
         self.parents = check_parents(parents, f"{name or 'skeleton'}: parents")
@@ -109,7 +118,8 @@ class Skeleton:
                 raise ValueError(f"{self.name or 'skeleton'}: singular bind transform") from None
         return self._inverse_bind
 
-    def forward_kinematics(self, local_transforms=None, *, device=None, return_dq=False):
+    def forward_kinematics(self, local_transforms: LocalTransforms | None = None, *,
+                           device: Device = None, return_dq: bool = False):
         """World (skeleton-space) joint transforms from local ones.
 
         Parameters
@@ -129,7 +139,8 @@ class Skeleton:
         local = self.rest_transforms if local_transforms is None else local_transforms
         return forward_kinematics(self.parents, local, device=device, return_dq=return_dq)
 
-    def skinning_transforms(self, local_transforms=None, *, device=None, as_warp=False):
+    def skinning_transforms(self, local_transforms: LocalTransforms | None = None, *,
+                            device: Device = None, as_warp: bool = False):
         """Bind-relative skinning transforms ``world ∘ inverse(bind)``.
 
         Parameters
@@ -166,7 +177,8 @@ def _local_arrays(local_transforms, J, device):
         batch = rot.shape[:-2]
         B = int(np.prod(batch, dtype=np.int64))
         tr = np.asarray(tr, dtype=np.float32)
-        sc = np.ones(rot.shape[:-1] + (3,), np.float32) if sc is None else np.asarray(sc, np.float32)
+        sc = (np.ones(rot.shape[:-1] + (3,), np.float32) if sc is None else
+              np.asarray(sc, np.float32))
         for name, a in (("translations", tr), ("scales", sc)):
             if a.shape != batch + (J, 3):
                 raise ValueError(f"{name}: expected {batch + (J, 3)}, got {a.shape}")
@@ -201,7 +213,8 @@ def _forward_kinematics(parents, local_transforms, device, outputs=None):
     return world, batch
 
 
-def forward_kinematics(parents, local_transforms, *, device=None, return_dq=False):
+def forward_kinematics(parents: npt.ArrayLike, local_transforms: LocalTransforms, *,
+                       device: Device = None, return_dq: bool = False):
     """Forward kinematics for one hierarchy over any batch of poses, in one launch.
 
     The hierarchy is concatenated as dual quaternions; scale and shear ride along as a residual

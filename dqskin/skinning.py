@@ -8,21 +8,31 @@ bind (skeleton) space before skinning. Results are float32 in skeleton space. Sa
 """
 
 import threading
+from typing import Literal, get_args
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
-from ._warp import resolve_device
+from ._warp import Device, resolve_device
 from .influences import Influences, check_influences
 from .kernels import skin as K
 from .kernels import velocity as KV
 from .kernels.dqmath import mat34, vec8
 from .shapes import as_array, frames_of
 
-__all__ = ["METHODS", "Skinner", "check_influences", "skin_points", "skin_normals"]
+__all__ = ["METHODS", "Method", "Skinner", "VectorKind", "check_influences", "skin_points",
+           "skin_normals"]
 
-METHODS = {"lbs": K.LBS, "dqs": K.DQS, "blend": K.BLEND}
+Method = Literal["lbs", "dqs", "blend"]
 """Skinning methods: linear blend, dual quaternion, per-vertex blend of the two."""
+
+METHODS = dict(zip(get_args(Method), (K.LBS, K.DQS, K.BLEND)))
+"""Each :data:`Method` and its kernel code."""
+
+VectorKind = Literal["normal", "tangent"]
+"""How directions transform: normals by the inverse transpose, tangents by the matrix."""
+
 
 
 def _method_code(method):
@@ -60,8 +70,9 @@ class Skinner:
         Warp device; CUDA when present, else CPU.
     """
 
-    def __init__(self, points, joint_indices, joint_weights, *, geom_bind_transform=None,
-                 blend_weights=None, device=None):
+    def __init__(self, points: npt.ArrayLike, joint_indices: npt.ArrayLike,
+                 joint_weights: npt.ArrayLike, *, geom_bind_transform: npt.ArrayLike | None = None,
+                 blend_weights: npt.ArrayLike | None = None, device: Device = None) -> None:
         self.device = resolve_device(device)
         pts = as_array("points", points, np.float64, (3,))
         if pts.ndim != 2:
@@ -76,14 +87,15 @@ class Skinner:
         self._lock = threading.Lock()
         d = self.device
         self._points = self._upload(pts[None])
-        self._indices, self._weights = self.influences.on(d)
         if blend_weights is None:
-            self._blend = wp.zeros(0, dtype=wp.float32, device=d)
+            blend = wp.zeros(0, dtype=wp.float32, device=d)
         else:
             b = np.asarray(blend_weights, dtype=np.float32).reshape(-1)
             if b.shape != (self.vertex_count,) or not np.all((b >= 0) & (b <= 1)):
                 raise ValueError(f"blend_weights: expected ({self.vertex_count},) values in [0, 1]")
-            self._blend = wp.array(b, dtype=wp.float32, device=d)
+            blend = wp.array(b, dtype=wp.float32, device=d)
+        indices, weights = self.influences.on(d)
+        self._inf = K.influences(indices=indices, weights=weights, blend=blend)
 
     def _upload(self, pts, linear=False):
         """(Fp, N, 3) mesh-space rows → bind space on the device (``linear``: directions)."""
@@ -93,27 +105,31 @@ class Skinner:
 
     def _check_method(self, method):
         code = _method_code(method)
-        if code == K.BLEND and self._blend.shape[0] == 0:
+        if code == K.BLEND and self._inf.blend.shape[0] == 0:
             raise ValueError('method "blend" needs blend_weights')
         return code
 
     _BUFFERS = {
-        "points": dict(affines=mat34, dqs=vec8, residuals=wp.mat33),
+        "joints": dict(affines=mat34, dqs=vec8, residuals=wp.mat33),
         "vectors": dict(linears=wp.mat33, rotations=wp.quat, normal_linears=wp.mat33,
                         normal_residuals=wp.mat33, normal_rotations=wp.quat),
-        "derivatives": dict(affine_derivatives=mat34, dq_derivatives=vec8,
-                            residual_derivatives=wp.mat33),
+        "rates": dict(affines=mat34, dqs=vec8, residuals=wp.mat33),
     }
 
     def _buffers(self, kind, frames, joints):
-        """Per-(frame, joint) work arrays, allocated once per shape and reused across calls."""
+        """Per-(frame, joint) work arrays, allocated once per shape and reused across calls: a
+        :class:`~dqskin.kernels.skin.Joints` ("joints"), a
+        :class:`~dqskin.kernels.velocity.JointRates` ("rates") or a dict ("vectors")."""
         key = (kind, frames, joints)
         buf = self._cache.get(key)
         if buf is None:
             buf = {k: wp.empty((frames, joints), dtype=t, device=self.device)
                    for k, t in self._BUFFERS[kind].items()}
-            if kind == "points":
-                buf["has_residual"] = wp.zeros(frames, dtype=wp.int32, device=self.device)
+            if kind == "joints":
+                buf = K.joints(has_residual=wp.zeros(frames, dtype=wp.int32, device=self.device),
+                               **buf)
+            elif kind == "rates":
+                buf = KV.joint_rates(**buf)
             self._cache[key] = buf
         return buf
 
@@ -133,13 +149,14 @@ class Skinner:
         x, batched = self._upload_transforms("skinning_transforms", skinning_transforms)
         frames, joints = x.shape
         self.influences.check_joint_count(joints)
-        prep = dict(self._buffers("points", frames, joints))
+        prep = {"joints": self._buffers("joints", frames, joints)}
         if kind == "derivatives":
             xd, _ = self._upload_transforms("skinning_transform_derivatives", derivatives)
             if xd.shape != x.shape:
-                raise ValueError(f"skinning_transforms {x.shape} and skinning_transform_derivatives "
-                                 f"{xd.shape} must have the same shape")
-            prep.update(self._buffers("derivatives", frames, joints))
+                raise ValueError(f"skinning_transforms {x.shape} and "
+                                 f"skinning_transform_derivatives {xd.shape} must have the same "
+                                 "shape")
+            prep["rates"] = self._buffers("rates", frames, joints)
             KV.prepare(xforms=x, xform_derivatives=xd, device=self.device, **prep)
             return prep, frames, batched
         K.prepare_points(xforms=x, device=self.device, **prep)
@@ -162,15 +179,16 @@ class Skinner:
             return
         xf = as_array("output_transforms", output_transforms, np.float64, (4, 4)).reshape(-1, 4, 4)
         if xf.shape[0] not in (1, frames):
-            raise ValueError(f"output_transforms: expected (4, 4) or ({frames}, 4, 4), got {xf.shape}")
+            raise ValueError(f"output_transforms: expected (4, 4) or ({frames}, 4, 4), got "
+                             f"{xf.shape}")
         xf = np.broadcast_to(xf, (frames, 4, 4))
         if normals:
             lin = np.linalg.inv(xf[:, :3, :3]).transpose(0, 2, 1)
             xf = np.zeros((frames, 4, 4))
             xf[:, :3, :3] = lin
             xf[:, 3, 3] = 1.0
-        K.transform_frames(xforms=wp.array(xf.astype(np.float32), dtype=wp.mat44, device=self.device),
-                           normalize=normals, values=out, device=self.device)
+        xforms = wp.array(xf.astype(np.float32), dtype=wp.mat44, device=self.device)
+        K.transform_frames(xforms=xforms, normalize=normals, values=out, device=self.device)
 
     @staticmethod
     def _result(out, batched, as_warp):
@@ -179,8 +197,9 @@ class Skinner:
         res = out.numpy()
         return res if batched else res[0]
 
-    def skin(self, skinning_transforms, method="dqs", *, points=None, output_transforms=None,
-             as_warp=False):
+    def skin(self, skinning_transforms: npt.ArrayLike | wp.array, method: Method = "dqs", *,
+             points: npt.ArrayLike | None = None, output_transforms: npt.ArrayLike | None = None,
+             as_warp: bool = False) -> np.ndarray | wp.array:
         """Skin the points for one or many frames.
 
         Parameters
@@ -207,14 +226,17 @@ class Skinner:
             prep, frames, batched = self._prepare(skinning_transforms)
             src = self._rest("points", points, frames)
             out = wp.empty((frames, self.vertex_count), dtype=wp.vec3, device=self.device)
-            rigid = code == K.DQS and not prep["has_residual"].numpy().any()
-            K.skin_points(method=code, points=src, indices=self._indices, weights=self._weights,
-                          blend=self._blend, rigid=rigid, out=out, device=self.device, **prep)
+            rigid = code == K.DQS and not prep["joints"].has_residual.numpy().any()
+            K.skin_points(method=code, points=src, influences=self._inf, joints=prep["joints"],
+                          rigid=rigid, out=out, device=self.device)
             self._output(out, output_transforms, frames, normals=False)
             return self._result(out, batched, as_warp)
 
-    def skin_vectors(self, skinning_transforms, vectors, method="dqs", *, kind="normal",
-                     vector_vertex=None, output_transforms=None, as_warp=False):
+    def skin_vectors(self, skinning_transforms: npt.ArrayLike | wp.array, vectors: npt.ArrayLike,
+                     method: Method = "dqs", *, kind: VectorKind = "normal",
+                     vector_vertex: npt.ArrayLike | None = None,
+                     output_transforms: npt.ArrayLike | None = None,
+                     as_warp: bool = False) -> np.ndarray | wp.array:
         """Skin normals or tangents; results are unit length.
 
         Parameters
@@ -235,7 +257,7 @@ class Skinner:
         -------
         (N, 3) or (F, N, 3) float32, skeleton space.
         """
-        if kind not in ("normal", "tangent"):
+        if kind not in get_args(VectorKind):
             raise ValueError(f'kind must be "normal" or "tangent", got {kind!r}')
         with self._lock:
             code = self._check_method(method)
@@ -260,13 +282,13 @@ class Skinner:
                 lin, rot, res = (prep["normal_linears"], prep["normal_rotations"],
                                  prep["normal_residuals"])
             else:
-                lin, rot, res = prep["linears"], prep["rotations"], prep["residuals"]
+                lin, rot, res = prep["linears"], prep["rotations"], prep["joints"].residuals
             out = wp.empty((frames, n), dtype=wp.vec3, device=d)
             K.skin_vectors(method=code, vectors=src,
                            vector_vertex=wp.array(vv.astype(np.int32), dtype=wp.int32, device=d),
-                           indices=self._indices, weights=self._weights, blend=self._blend,
+                           influences=self._inf,
                            linears=lin, rotations=rot, residuals=res,
-                           has_residual=prep["has_residual"], out=out, device=d)
+                           has_residual=prep["joints"].has_residual, out=out, device=d)
             if output_transforms is not None:
                 xf = np.array(np.broadcast_to(as_array("output_transforms", output_transforms,
                                                        np.float64, (4, 4)), (frames, 4, 4)))
@@ -276,8 +298,11 @@ class Skinner:
                     self._output(out, np.eye(4), frames, normals=True)
             return self._result(out, batched, as_warp)
 
-    def skin_velocities(self, skinning_transforms, skinning_transform_derivatives, method="dqs",
-                        *, points=None, point_velocities=None, as_warp=False):
+    def skin_velocities(self, skinning_transforms: npt.ArrayLike | wp.array,
+                        skinning_transform_derivatives: npt.ArrayLike | wp.array,
+                        method: Method = "dqs", *, points: npt.ArrayLike | None = None,
+                        point_velocities: npt.ArrayLike | None = None,
+                        as_warp: bool = False) -> np.ndarray | wp.array:
         """Velocities of the skinned points, by the chain rule (:mod:`dqskin.kernels.velocity`).
 
         Parameters
@@ -304,14 +329,15 @@ class Skinner:
                    if point_velocities is None else
                    self._rest("point_velocities", point_velocities, frames, linear=True))
             out = wp.empty((frames, self.vertex_count), dtype=wp.vec3, device=self.device)
-            KV.velocities(method=code, points=src, point_velocities=vel, indices=self._indices,
-                          weights=self._weights, blend=self._blend, out=out, device=self.device,
-                          **prep)
+            KV.velocities(method=code, points=src, point_velocities=vel, influences=self._inf,
+                          out=out, device=self.device, **prep)
             return self._result(out, batched, as_warp)
 
 
-def skin_points(points, joint_indices, joint_weights, skinning_transforms, method="dqs", *,
-                geom_bind_transform=None, blend_weights=None, device=None):
+def skin_points(points: npt.ArrayLike, joint_indices: npt.ArrayLike, joint_weights: npt.ArrayLike,
+                skinning_transforms: npt.ArrayLike, method: Method = "dqs", *,
+                geom_bind_transform: npt.ArrayLike | None = None,
+                blend_weights: npt.ArrayLike | None = None, device: Device = None) -> np.ndarray:
     """Skin points with LBS, DQS or a per-vertex blend (one call; see :class:`Skinner`).
 
     Parameters
@@ -338,8 +364,11 @@ def skin_points(points, joint_indices, joint_weights, skinning_transforms, metho
     return sk.skin(skinning_transforms, method)
 
 
-def skin_normals(normals, joint_indices, joint_weights, skinning_transforms, method="dqs", *,
-                 geom_bind_transform=None, blend_weights=None, normal_vertex=None, device=None):
+def skin_normals(normals: npt.ArrayLike, joint_indices: npt.ArrayLike,
+                 joint_weights: npt.ArrayLike, skinning_transforms: npt.ArrayLike,
+                 method: Method = "dqs", *, geom_bind_transform: npt.ArrayLike | None = None,
+                 blend_weights: npt.ArrayLike | None = None,
+                 normal_vertex: npt.ArrayLike | None = None, device: Device = None) -> np.ndarray:
     """Skin normals consistently with :func:`skin_points` (inverse-transpose for LBS and scale).
 
     Parameters

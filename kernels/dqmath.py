@@ -6,10 +6,10 @@ by ``t``). Warp's ``wp.quat`` is ``(x, y, z, w)``; the conversion happens only h
 :func:`dq_real` / :func:`dq_dual` / :func:`dq_from_rt`.
 
 Public ``@wp.func`` API (tested against :mod:`dqskin.dq` in ``tests/test_dqmath.py``): product
-:func:`dq_mul`, :func:`dq_conjugate`, :func:`dq_normalize`, :func:`dq_transform_point`,
+:func:`dq_mul`, :func:`dq_conjugate`, :func:`dq_transform_point`,
 :func:`dq_transform_vector`, :func:`dq_from_rt` / :func:`dq_translation`,
-:func:`dq_from_transform` / :func:`dq_to_transform`, :func:`dq_from_matrix` /
-:func:`dq_to_matrix`, and the antipodal blend :func:`dq_blend_add`.
+:func:`dq_from_transform` / :func:`dq_to_transform`, :func:`dq_to_matrix`, and the antipodal
+blend :func:`dq_blend_add`.
 
 References: Kenwright, "Dual-Quaternions: From Classical Mechanics to Computer Graphics and Beyond"
 (product, transform, DLB); Montgomery-Smith & Shy, eq. 14 (normalization).
@@ -113,20 +113,6 @@ def dq_conjugate(a: vec8):
 
 
 @wp.func
-def dq_normalize(a: vec8):
-    """Unit dual quaternion nearest ``a`` (Montgomery-Smith & Shy eq. 14).
-
-    ``r' = r/|r|``, ``d' = d/|r| − (r'·d/|r|)·r'``: unit real part and Plücker condition
-    ``r'·d' = 0``.
-    """
-    inv = 1.0 / wp.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2] + a[3] * a[3])
-    b = a * inv
-    k = b[0] * b[4] + b[1] * b[5] + b[2] * b[6] + b[3] * b[7]
-    return vec8(b[0], b[1], b[2], b[3], b[4] - k * b[0], b[5] - k * b[1], b[6] - k * b[2],
-                b[7] - k * b[3])
-
-
-@wp.func
 def dq_transform_vector(a: vec8, v: wp.vec3):
     """Rotate direction ``v`` by unit dual quaternion ``a`` (no translation)."""
     return wp.quat_rotate(dq_real(a), v)
@@ -202,12 +188,6 @@ def dq_to_matrix(a: vec8):
 
 
 @wp.func
-def dq_from_matrix(m: wp.mat44):
-    """Dual quaternion of a rigid 4×4 matrix (column-vector convention, rotation orthonormal)."""
-    return dq_from_rt(quat_from_rotation(mat44_linear(m)), wp.vec3(m[0, 3], m[1, 3], m[2, 3]))
-
-
-@wp.func
 def mat44_linear(m: wp.mat44):
     """Upper-left 3×3 (linear part) of a 4×4 matrix."""
     return wp.mat33(m[0, 0], m[0, 1], m[0, 2],
@@ -219,16 +199,18 @@ def mat44_linear(m: wp.mat44):
 def is_rotation(a: wp.mat33):
     """True when ``a`` is orthonormal with det +1 (to ~1e-6)."""
     e = wp.transpose(a) * a - wp.identity(n=3, dtype=float)
-    err = wp.abs(e[0, 0]) + wp.abs(e[1, 1]) + wp.abs(e[2, 2]) + wp.abs(e[0, 1]) + wp.abs(e[0, 2]) + wp.abs(e[1, 2])
+    err = (wp.abs(e[0, 0]) + wp.abs(e[1, 1]) + wp.abs(e[2, 2]) + wp.abs(e[0, 1]) + wp.abs(e[0, 2])
+           + wp.abs(e[1, 2]))
     return err < 1.0e-6 and wp.determinant(a) > 0.0
 
 
 @wp.func
 def polar_rotation(a: wp.mat33):
-    """Rotation factor ``R`` of the polar decomposition ``A = R·S``, det(R) = +1 (as ``GfMatrix4d::Factor``).
+    """Rotation factor ``R`` of the polar decomposition ``A = R·S``, det(R) = +1 (as
+    ``GfMatrix4d::Factor``).
 
-    Orthonormal input returns itself; otherwise ``R = U·Vᵀ`` from the SVD, negated when ``det A < 0``
-    (Gf negates all three scales of a reflection, leaving a proper rotation).
+    Orthonormal input returns itself; otherwise ``R = U·Vᵀ`` from the SVD, negated when
+    ``det A < 0`` (Gf negates all three scales of a reflection, leaving a proper rotation).
     """
     if is_rotation(a):
         return a

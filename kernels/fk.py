@@ -18,9 +18,17 @@ Kernels run one thread per (frame, skeleton), walking that skeleton's joints par
 
 import warp as wp
 
-
-from .dqmath import (dq_from_rt, dq_mul, dq_to_matrix, is_identity33, is_rotation, mat44_linear,
-                     polar_rotation, quat_from_rotation, vec8)
+from .dqmath import (
+    dq_from_rt,
+    dq_mul,
+    dq_to_matrix,
+    is_identity33,
+    is_rotation,
+    mat44_linear,
+    polar_rotation,
+    quat_from_rotation,
+    vec8,
+)
 from .grid import launch, launch_rows
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
@@ -54,55 +62,66 @@ def fk_joint(f: int, j: int, p: int, q: wp.quat, t: wp.vec3, res: wp.mat33, rigi
     world[f, j] = x
 
 
-@wp.kernel
-def forward_kinematics_kernel(
-    parents: wp.array(dtype=wp.int32),
-    skeleton_start: wp.array(dtype=wp.int32),
-    local: wp.array2d(dtype=wp.mat44),
-    frame_offset: int,
-    # outputs
-    world_dq: wp.array2d(dtype=vec8),
-    world_residual: wp.array2d(dtype=wp.mat33),
-    world: wp.array2d(dtype=wp.mat44),
-):
-    """FK from local 4×4 matrices (F, J), polar-split per joint."""
-    i, s = wp.tid()
-    f = i + frame_offset
-    for j in range(skeleton_start[s], skeleton_start[s + 1]):
-        m = local[f, j]
-        a = mat44_linear(m)
-        r = a
-        res = wp.identity(n=3, dtype=float)
-        rigid = is_rotation(a)
-        if not rigid:
-            r = polar_rotation(a)
-            res = wp.transpose(r) * a
-        fk_joint(f, j, parents[j], quat_from_rotation(r), wp.vec3(m[0, 3], m[1, 3], m[2, 3]), res,
-                 rigid, world_dq, world_residual, world)
+@wp.struct
+class LocalPoses:
+    """Parent-relative joint poses (F, J): 4×4 ``matrices``, or ``translations``, unit
+    ``rotations`` ``(w, x, y, z)`` and ``scales`` (``M = T·R·S``); the other kind stays unset."""
+
+    matrices: wp.array2d(dtype=wp.mat44)
+    translations: wp.array2d(dtype=wp.vec3)
+    rotations: wp.array2d(dtype=wp.vec4)
+    scales: wp.array2d(dtype=wp.vec3)
 
 
-@wp.kernel
-def forward_kinematics_trs_kernel(
-    parents: wp.array(dtype=wp.int32),
-    skeleton_start: wp.array(dtype=wp.int32),
-    translations: wp.array2d(dtype=wp.vec3),
-    rotations: wp.array2d(dtype=wp.vec4),
-    scales: wp.array2d(dtype=wp.vec3),
-    frame_offset: int,
-    # outputs
-    world_dq: wp.array2d(dtype=vec8),
-    world_residual: wp.array2d(dtype=wp.mat33),
-    world: wp.array2d(dtype=wp.mat44),
-):
-    """FK from local TRS (F, J): rotations are unit quaternions ``(w, x, y, z)``; ``M = T·R·S``."""
-    i, s = wp.tid()
-    f = i + frame_offset
-    for j in range(skeleton_start[s], skeleton_start[s + 1]):
-        r = rotations[f, j]
-        sc = scales[f, j]
-        rigid = sc[0] == 1.0 and sc[1] == 1.0 and sc[2] == 1.0
-        fk_joint(f, j, parents[j], wp.normalize(wp.quat(r[1], r[2], r[3], r[0])), translations[f, j],
-                 wp.diag(sc), rigid, world_dq, world_residual, world)
+@wp.func
+def split_matrix(m: wp.mat44):
+    """``(rotation, translation, residual, rigid)`` of a local 4×4 matrix (polar split)."""
+    a = mat44_linear(m)
+    r = a
+    res = wp.identity(n=3, dtype=float)
+    rigid = is_rotation(a)
+    if not rigid:
+        r = polar_rotation(a)
+        res = wp.transpose(r) * a
+    return quat_from_rotation(r), wp.vec3(m[0, 3], m[1, 3], m[2, 3]), res, rigid
+
+
+@wp.func
+def split_trs(t: wp.vec3, r: wp.vec4, sc: wp.vec3):
+    """``(rotation, translation, residual, rigid)`` of a TRS pose (``r`` is ``(w, x, y, z)``)."""
+    rigid = sc[0] == 1.0 and sc[1] == 1.0 and sc[2] == 1.0
+    return wp.normalize(wp.quat(r[1], r[2], r[3], r[0])), t, wp.diag(sc), rigid
+
+
+def _forward_kinematics_kernel(trs, name):
+    """FK from :class:`LocalPoses` of one kind, resolved at compile time."""
+
+    def kernel(
+        parents: wp.array(dtype=wp.int32),
+        skeleton_start: wp.array(dtype=wp.int32),
+        poses: LocalPoses,
+        frame_offset: int,
+        # outputs
+        world_dq: wp.array2d(dtype=vec8),
+        world_residual: wp.array2d(dtype=wp.mat33),
+        world: wp.array2d(dtype=wp.mat44),
+    ):
+        i, s = wp.tid()
+        f = i + frame_offset
+        for j in range(skeleton_start[s], skeleton_start[s + 1]):
+            if wp.static(trs):
+                q, t, res, rigid = split_trs(poses.translations[f, j], poses.rotations[f, j],
+                                             poses.scales[f, j])
+            else:
+                q, t, res, rigid = split_matrix(poses.matrices[f, j])
+            fk_joint(f, j, parents[j], q, t, res, rigid, world_dq, world_residual, world)
+
+    kernel.__doc__ = f"FK over a (frame, skeleton) grid from local {'TRS' if trs else 'matrices'}."
+    return wp.kernel(kernel, name=name)
+
+
+forward_kinematics_kernel = _forward_kinematics_kernel(False, "forward_kinematics_kernel")
+forward_kinematics_trs_kernel = _forward_kinematics_kernel(True, "forward_kinematics_trs_kernel")
 
 
 @wp.kernel
@@ -123,9 +142,13 @@ def forward_kinematics(*, parents, skeleton_start, local, world_dq, world_residu
     ``(translations, rotations, scales)`` tuple of (F, J) arrays; fills the three (F, J) outputs.
     One thread per (frame, skeleton); on the CPU, frames are split across the cores."""
     trs = isinstance(local, tuple)
-    frames = (local[0] if trs else local).shape[0]
+    poses = LocalPoses()
+    if trs:
+        poses.translations, poses.rotations, poses.scales = local
+    else:
+        poses.matrices = local
     kernel = forward_kinematics_trs_kernel if trs else forward_kinematics_kernel
-    launch_rows(kernel, frames, [parents, skeleton_start] + (list(local) if trs else [local]),
+    launch_rows(kernel, (local[0] if trs else local).shape[0], [parents, skeleton_start, poses],
                 [world_dq, world_residual, world], device, min_chunk=64,
                 inner=(skeleton_start.shape[0] - 1,))
 

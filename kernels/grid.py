@@ -1,4 +1,5 @@
-"""How the kernel modules launch: one call on CUDA, chunks of the grid from a thread pool on the CPU.
+"""How the kernel modules launch: one call on CUDA, chunks of the grid from a thread pool on the
+CPU.
 
 Warp runs a CPU launch on one thread but releases the GIL, so chunks launched from Python threads
 use every core. The launchers beside each kernel (``skin.skin_points``, ``fk.forward_kinematics``,
@@ -7,7 +8,8 @@ use every core. The launchers beside each kernel (``skin.skin_points``, ``fk.for
 
 Grids over frames are (frame block, row): a thread handles one row (vertex, vector) for
 :data:`FRAME_BLOCK` frames, so its influences are read once per block and the block's joints stay
-in cache. Kernels on such a grid take ``frame_block, block_offset, row_offset`` after their inputs.
+in cache. Kernels on such a grid take a :class:`FrameBlocks` after their inputs and loop over
+:func:`block_frames`.
 """
 
 import os
@@ -16,11 +18,33 @@ from concurrent.futures import ThreadPoolExecutor
 
 import warp as wp
 
-__all__ = ["FRAME_BLOCK", "cpu_threads", "launch", "launch_blocks", "launch_rows"]
+__all__ = ["FRAME_BLOCK", "FrameBlocks", "block_frames", "cpu_threads", "launch", "launch_blocks",
+           "launch_rows"]
 
 FRAME_BLOCK = 16
 """Frames one thread handles on a (frame block, row) grid: the joints of 16 frames stay in L1
 while every vertex of the block is skinned, and influences are read once per block."""
+
+
+
+@wp.struct
+class FrameBlocks:
+    """The part of a (frame block, row) grid one launch covers (:func:`launch_blocks` fills it)."""
+
+    frame_block: int
+    """Frames per thread."""
+    block_offset: int
+    """First frame block of the launch."""
+    row_offset: int
+    """First row of the launch."""
+
+
+@wp.func
+def block_frames(blocks: FrameBlocks, block: int, frame_count: int):
+    """``(first frame, end frame, row offset)`` of grid block ``block`` of a launch."""
+    first = (block + blocks.block_offset) * blocks.frame_block
+    return first, wp.min(first + blocks.frame_block, frame_count), blocks.row_offset
+
 
 _pool = None
 _pool_lock = threading.Lock()
@@ -49,7 +73,7 @@ def launch(kernel, dim, inputs, outputs, device):
 def launch_blocks(kernel, rows, frames, inputs, outputs, device, min_work=32768):
     """Launch ``kernel`` over ``ceil(frames / FRAME_BLOCK)`` frame blocks × ``rows``.
 
-    ``kernel`` takes ``inputs``, then ``frame_block, block_offset, row_offset``, then ``outputs``.
+    ``kernel`` takes ``inputs``, then a :class:`FrameBlocks`, then ``outputs``.
     On CUDA one launch covers the grid. On the CPU, above ``min_work`` row-frames, the grid is
     split along its longer axis into one piece per core, launched from a thread pool.
     """
@@ -58,8 +82,9 @@ def launch_blocks(kernel, rows, frames, inputs, outputs, device, min_work=32768)
     blocks = -(-frames // FRAME_BLOCK)
 
     def run(block_offset, block_count, row_offset, row_count):
-        wp.launch(kernel, dim=(block_count, row_count),
-                  inputs=list(inputs) + [FRAME_BLOCK, block_offset, row_offset],
+        part = FrameBlocks()
+        part.frame_block, part.block_offset, part.row_offset = FRAME_BLOCK, block_offset, row_offset
+        wp.launch(kernel, dim=(block_count, row_count), inputs=list(inputs) + [part],
                   outputs=outputs, device=device)
 
     threads = cpu_threads() if wp.get_device(device).is_cpu else 1

@@ -15,22 +15,35 @@ Semantics follow UsdSkel (``UsdSkelSkinPointsLBS/DQS``):
 Normals use the inverse transpose of each linear part; tangents the linear part itself; both are
 normalized after blending.
 
-Influence layout (:class:`dqskin.Skinner` builds it on upload): ``indices`` (V, C) ``wp.vec4i`` and
-``weights`` (V, C) ``wp.vec4`` -- ``K`` influences in ``C = ceil(K/4)`` groups of four, sorted by
-descending weight and zero-padded, so slot 0 is the antipodality pivot (the largest weight, first
-on ties, as UsdSkel). Grids are (frame block, vertex): a thread skins one vertex for a block of
-frames, so influences are read once per block and the block's joints stay in cache.
+Influence layout (:class:`Influences`, built once per mesh by
+:class:`dqskin.influences.Influences`): ``indices`` (V, C) ``wp.vec4i`` and ``weights`` (V, C)
+``wp.vec4`` -- ``K`` influences in ``C = ceil(K/4)`` groups of four, sorted by descending weight
+and zero-padded, so slot 0 is the antipodality pivot (the largest weight, first on ties, as
+UsdSkel). Per-(frame, joint) data is a :class:`Joints` (from :func:`prepare_points`). Every kernel
+that blends influences -- here and in :mod:`dqskin.kernels.velocity` -- goes through the
+``@wp.func`` blends below. Grids are (frame block, vertex): a thread skins one vertex for a block
+of frames, so influences are read once per block and the block's joints stay in cache.
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
 """
 
+from typing import Any
+
 import warp as wp
 
-
-from .dqmath import (RESIDUAL_TOLERANCE, dq_blend_add, dq_from_rt, dq_sign, is_identity33,
-                     mat44_linear, orthonormalize_columns, polar_rotation, quat_from_rotation,
-                     vec8)
-from .dqmath import mat34
-from .grid import launch, launch_blocks
+from .dqmath import (
+    RESIDUAL_TOLERANCE,
+    dq_blend_add,
+    dq_from_rt,
+    dq_sign,
+    is_identity33,
+    mat34,
+    mat44_linear,
+    orthonormalize_columns,
+    polar_rotation,
+    quat_from_rotation,
+    vec8,
+)
+from .grid import FrameBlocks, block_frames, launch, launch_blocks
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
@@ -38,6 +51,32 @@ wp.set_module_options({"enable_backward": False})  # forward-only kernels
 LBS = wp.constant(0)
 DQS = wp.constant(1)
 BLEND = wp.constant(2)
+
+
+@wp.struct
+class Influences:
+    """A mesh's influences in the kernels' layout (see the module docstring)."""
+
+    indices: wp.array2d(dtype=wp.vec4i)
+    """(V, C) joint indices, four per group, largest weight first."""
+    weights: wp.array2d(dtype=wp.vec4)
+    """(V, C) weights, same layout."""
+    blend: wp.array(dtype=float)
+    """(V,) DQS fraction of ``method=BLEND``; empty otherwise."""
+
+
+@wp.struct
+class Joints:
+    """Per (frame, joint) data of the skinning transforms, from :func:`prepare_points_kernel`."""
+
+    affines: wp.array2d(dtype=mat34)
+    """(F, J) top rows of the 4×4 transforms (LBS)."""
+    dqs: wp.array2d(dtype=vec8)
+    """(F, J) unit dual quaternions of their polar rotation and translation (DQS)."""
+    residuals: wp.array2d(dtype=wp.mat33)
+    """(F, J) scale/shear residuals ``S = Rᵀ·A``."""
+    has_residual: wp.array(dtype=wp.int32)
+    """(F,) nonzero on frames where some ``S ≠ I``."""
 
 
 @wp.kernel
@@ -93,67 +132,45 @@ def prepare_vectors_kernel(
 
 
 @wp.func
-def lbs_matrix(v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
-               weights: wp.array2d(dtype=wp.vec4), affines: wp.array2d(dtype=mat34)):
-    """``Σ wᵢ·Aᵢ``: the vertex's 3×4 matrices blended (also their derivatives, for velocities)."""
-    acc = mat34()
-    for c in range(indices.shape[1]):
-        iv = indices[v, c]
-        wv = weights[v, c]
+def blend_joints(inf: Influences, v: int, f: int, values: wp.array2d(dtype=Any)):
+    """``Σ wᵢ·Xᵢ`` of the vertex's per-joint values (F, J): 3×4 affines (LBS) and their
+    derivatives, 3×3 residuals ``S`` (DQS) and linear parts (directions)."""
+    acc = values[f, inf.indices[v, 0][0]] * 0.0
+    for c in range(inf.indices.shape[1]):
+        iv = inf.indices[v, c]
+        wv = inf.weights[v, c]
         for k in range(4):
-            acc += affines[f, iv[k]] * wv[k]
+            acc += values[f, iv[k]] * wv[k]
     return acc
 
 
 @wp.func
-def lbs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
-              weights: wp.array2d(dtype=wp.vec4), affines: wp.array2d(dtype=mat34)):
-    """``Σ wᵢ·Aᵢ·[p, 1]``, blending the 3×4 matrices first."""
-    return lbs_matrix(v, f, indices, weights, affines) * wp.vec4(p[0], p[1], p[2], 1.0)
-
-
-@wp.func
-def dqs_blend(v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
-              weights: wp.array2d(dtype=wp.vec4), dqs: wp.array2d(dtype=vec8)):
+def dqs_blend(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8)):
     """Sign-aligned weighted sum of the vertex's dual quaternions (pivot: slot 0)."""
-    pv = dqs[f, indices[v, 0][0]]
+    pv = dqs[f, inf.indices[v, 0][0]]
     b = vec8()
-    for c in range(indices.shape[1]):
-        iv = indices[v, c]
-        wv = weights[v, c]
+    for c in range(inf.indices.shape[1]):
+        iv = inf.indices[v, c]
+        wv = inf.weights[v, c]
         for k in range(4):
             b = dq_blend_add(b, dqs[f, iv[k]], wv[k], pv)
     return b
 
 
 @wp.func
-def dqs_blend_derivative(v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
-                         weights: wp.array2d(dtype=wp.vec4), dqs: wp.array2d(dtype=vec8),
+def dqs_blend_derivative(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8),
                          dq_derivatives: wp.array2d(dtype=vec8)):
     """``Σ sᵢ·wᵢ·η̇ᵢ``: the derivative of :func:`dqs_blend`, whose signs ``sᵢ`` (against the
     pivot, slot 0) are locally constant."""
-    pv = dqs[f, indices[v, 0][0]]
+    pv = dqs[f, inf.indices[v, 0][0]]
     acc = vec8()
-    for c in range(indices.shape[1]):
-        iv = indices[v, c]
-        wv = weights[v, c]
+    for c in range(inf.indices.shape[1]):
+        iv = inf.indices[v, c]
+        wv = inf.weights[v, c]
         for k in range(4):
             j = iv[k]
             acc += dq_derivatives[f, j] * (wv[k] * dq_sign(dqs[f, j], pv))
     return acc
-
-
-@wp.func
-def residual_blend(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
-                   weights: wp.array2d(dtype=wp.vec4), residuals: wp.array2d(dtype=wp.mat33)):
-    """``Σ wᵢ·Sᵢ·p``: the point blended through the joints' scale/shear residuals."""
-    x = wp.vec3()
-    for c in range(indices.shape[1]):
-        iv = indices[v, c]
-        wv = weights[v, c]
-        for k in range(4):
-            x += (residuals[f, iv[k]] * p) * wv[k]
-    return x
 
 
 @wp.func
@@ -169,163 +186,96 @@ def dqs_apply(b: vec8, x: wp.vec3):
 
 
 @wp.func
-def dqs_point(p: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
-              weights: wp.array2d(dtype=wp.vec4), dqs: wp.array2d(dtype=vec8),
-              residuals: wp.array2d(dtype=wp.mat33), use_residual: bool):
-    """DQS of one point: the sign-aligned DQ blend applied to the point, or, on frames with
-    scale/shear, to the point blended through the residuals first."""
-    b = dqs_blend(v, f, indices, weights, dqs)
-    if use_residual:
-        return dqs_apply(b, residual_blend(p, v, f, indices, weights, residuals))
-    return dqs_apply(b, p)
-
-
-@wp.kernel
-def skin_lbs_kernel(
-    points: wp.array2d(dtype=wp.vec3),
-    indices: wp.array2d(dtype=wp.vec4i),
-    weights: wp.array2d(dtype=wp.vec4),
-    affines: wp.array2d(dtype=mat34),
-    frame_block: int,
-    block_offset: int,
-    vertex_offset: int,
-    # outputs
-    out: wp.array2d(dtype=wp.vec3),
-):
-    """LBS over a (frame block, vertex) grid; each thread skins one vertex for ``frame_block``
-    frames. ``points`` (Fp, V) bind space, Fp 1 or F; ``affines`` (F, J); ``out`` (F, V)."""
-    b, i = wp.tid()
-    v = i + vertex_offset
-    last = points.shape[0] - 1
-    f0 = (b + block_offset) * frame_block
-    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
-        out[f, v] = lbs_point(points[wp.min(f, last), v], v, f, indices, weights, affines)
-
-
-@wp.kernel
-def skin_dqs_kernel(
-    points: wp.array2d(dtype=wp.vec3),
-    indices: wp.array2d(dtype=wp.vec4i),
-    weights: wp.array2d(dtype=wp.vec4),
-    dqs: wp.array2d(dtype=vec8),
-    residuals: wp.array2d(dtype=wp.mat33),
-    has_residual: wp.array(dtype=wp.int32),
-    frame_block: int,
-    block_offset: int,
-    vertex_offset: int,
-    # outputs
-    out: wp.array2d(dtype=wp.vec3),
-):
-    """DQS over a (frame block, vertex) grid (arrays as :func:`skin_lbs_kernel`)."""
-    b, i = wp.tid()
-    v = i + vertex_offset
-    last = points.shape[0] - 1
-    f0 = (b + block_offset) * frame_block
-    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
-        out[f, v] = dqs_point(points[wp.min(f, last), v], v, f, indices, weights, dqs, residuals,
-                              has_residual[f] != 0)
-
-
-@wp.kernel
-def skin_dqs_rigid_kernel(
-    points: wp.array2d(dtype=wp.vec3),
-    indices: wp.array2d(dtype=wp.vec4i),
-    weights: wp.array2d(dtype=wp.vec4),
-    dqs: wp.array2d(dtype=vec8),
-    frame_block: int,
-    block_offset: int,
-    vertex_offset: int,
-    # outputs
-    out: wp.array2d(dtype=wp.vec3),
-):
-    """DQS for launches where no joint has scale or shear (no residual code: ~18% faster on the
-    CPU than :func:`skin_dqs_kernel`, which the skinner uses otherwise)."""
-    b, i = wp.tid()
-    v = i + vertex_offset
-    last = points.shape[0] - 1
-    f0 = (b + block_offset) * frame_block
-    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
-        out[f, v] = dqs_apply(dqs_blend(v, f, indices, weights, dqs), points[wp.min(f, last), v])
-
-
-@wp.kernel
-def skin_blend_kernel(
-    points: wp.array2d(dtype=wp.vec3),
-    indices: wp.array2d(dtype=wp.vec4i),
-    weights: wp.array2d(dtype=wp.vec4),
-    blend: wp.array(dtype=float),
-    affines: wp.array2d(dtype=mat34),
-    dqs: wp.array2d(dtype=vec8),
-    residuals: wp.array2d(dtype=wp.mat33),
-    has_residual: wp.array(dtype=wp.int32),
-    frame_block: int,
-    block_offset: int,
-    vertex_offset: int,
-    # outputs
-    out: wp.array2d(dtype=wp.vec3),
-):
-    """Per-vertex mix ``(1 − b)·LBS + b·DQS`` with ``b = blend[v]``, over a (frame block,
-    vertex) grid."""
-    blk, i = wp.tid()
-    v = i + vertex_offset
-    last = points.shape[0] - 1
-    b = blend[v]
-    f0 = (blk + block_offset) * frame_block
-    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
-        p = points[wp.min(f, last), v]
-        out[f, v] = (lbs_point(p, v, f, indices, weights, affines) * (1.0 - b)
-                     + dqs_point(p, v, f, indices, weights, dqs, residuals,
-                                 has_residual[f] != 0) * b)
+def by_method(inf: Influences, v: int, method: int, lbs: wp.vec3, dqs: wp.vec3):
+    """The result of ``method``: ``lbs``, ``dqs`` or their per-vertex blend
+    ``(1 − b)·lbs + b·dqs``, ``b = inf.blend[v]``."""
+    if method == LBS:
+        return lbs
+    if method == DQS:
+        return dqs
+    b = inf.blend[v]
+    return lbs * (1.0 - b) + dqs * b
 
 
 @wp.func
-def dqs_vector(x: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
-               weights: wp.array2d(dtype=wp.vec4), rotations: wp.array2d(dtype=wp.quat),
+def skin_point(p: wp.vec3, inf: Influences, v: int, f: int, joints: Joints, method: int,
+               residual: bool):
+    """One point skinned with ``method`` (``residual``: the frame may have scale/shear)."""
+    if method == LBS:
+        return blend_joints(inf, v, f, joints.affines) * wp.vec4(p[0], p[1], p[2], 1.0)
+    x = p
+    if residual:
+        if joints.has_residual[f] != 0:
+            x = blend_joints(inf, v, f, joints.residuals) * p
+    dqs = dqs_apply(dqs_blend(inf, v, f, joints.dqs), x)
+    lbs = wp.vec3()
+    if method == BLEND:
+        lbs = blend_joints(inf, v, f, joints.affines) * wp.vec4(p[0], p[1], p[2], 1.0)
+    return by_method(inf, v, method, lbs, dqs)
+
+
+def _skin_points_kernel(method, residual, name):
+    """The (frame block, vertex) kernel of one method, its branches resolved at compile time
+    (``residual=False``: no scale/shear code, ~18% faster on the CPU for rigid launches)."""
+
+    def kernel(
+        points: wp.array2d(dtype=wp.vec3),
+        inf: Influences,
+        joints: Joints,
+        blocks: FrameBlocks,
+        # outputs
+        out: wp.array2d(dtype=wp.vec3),
+    ):
+        b, i = wp.tid()
+        first, end, row = block_frames(blocks, b, out.shape[0])
+        v = i + row
+        last = points.shape[0] - 1
+        for f in range(first, end):
+            out[f, v] = skin_point(points[wp.min(f, last), v], inf, v, f, joints,
+                                   wp.static(method), wp.static(residual))
+
+    kernel.__doc__ = (f"Skin ``points`` (Fp, V) bind space, Fp 1 or F, into ``out`` (F, V) with "
+                      f"method {method} over a (frame block, vertex) grid.")
+    return wp.kernel(kernel, name=name)
+
+
+skin_lbs_kernel = _skin_points_kernel(LBS, False, "skin_lbs_kernel")
+skin_dqs_kernel = _skin_points_kernel(DQS, True, "skin_dqs_kernel")
+skin_dqs_rigid_kernel = _skin_points_kernel(DQS, False, "skin_dqs_rigid_kernel")
+skin_blend_kernel = _skin_points_kernel(BLEND, True, "skin_blend_kernel")
+
+
+@wp.func
+def dqs_vector(x: wp.vec3, inf: Influences, v: int, f: int, rotations: wp.array2d(dtype=wp.quat),
                residuals: wp.array2d(dtype=wp.mat33), use_residual: bool):
     """Rotation-only DQS of a direction (sign-aligned quaternion blend), unit length."""
-    pivot = rotations[f, indices[v, 0][0]]
+    pivot = rotations[f, inf.indices[v, 0][0]]
     r = wp.quat(0.0, 0.0, 0.0, 0.0)
-    for c in range(indices.shape[1]):
-        iv = indices[v, c]
-        wv = weights[v, c]
+    for c in range(inf.indices.shape[1]):
+        iv = inf.indices[v, c]
+        wv = inf.weights[v, c]
         for k in range(4):
             q = rotations[f, iv[k]]
             r += q * (wv[k] * wp.sign(wp.dot(q, pivot)))
     scaled = x
     if use_residual:
-        scaled = residual_blend(x, v, f, indices, weights, residuals)
+        scaled = blend_joints(inf, v, f, residuals) * x
     if wp.length(r) < 1.0e-10:
         return wp.normalize(scaled)
     return wp.normalize(wp.quat_rotate(wp.normalize(r), scaled))
-
-
-@wp.func
-def lbs_vector(x: wp.vec3, v: int, f: int, indices: wp.array2d(dtype=wp.vec4i),
-               weights: wp.array2d(dtype=wp.vec4), linears: wp.array2d(dtype=wp.mat33)):
-    acc = wp.mat33()
-    for c in range(indices.shape[1]):
-        iv = indices[v, c]
-        wv = weights[v, c]
-        for k in range(4):
-            acc += linears[f, iv[k]] * wv[k]
-    return wp.normalize(acc * x)
 
 
 @wp.kernel
 def skin_vectors_kernel(
     vectors: wp.array2d(dtype=wp.vec3),
     vector_vertex: wp.array(dtype=wp.int32),
-    indices: wp.array2d(dtype=wp.vec4i),
-    weights: wp.array2d(dtype=wp.vec4),
-    blend: wp.array(dtype=float),
+    inf: Influences,
     linears: wp.array2d(dtype=wp.mat33),
     rotations: wp.array2d(dtype=wp.quat),
     residuals: wp.array2d(dtype=wp.mat33),
     has_residual: wp.array(dtype=wp.int32),
     method: int,
-    frame_block: int,
-    block_offset: int,
-    offset: int,
+    blocks: FrameBlocks,
     # outputs
     out: wp.array2d(dtype=wp.vec3),
 ):
@@ -337,23 +287,19 @@ def skin_vectors_kernel(
     matrices themselves and their polar rotations.
     """
     blk, i = wp.tid()
-    n = i + offset
+    first, end, row = block_frames(blocks, blk, out.shape[0])
+    n = i + row
     v = vector_vertex[n]
     last = vectors.shape[0] - 1
-    f0 = (blk + block_offset) * frame_block
-    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
+    for f in range(first, end):
         x = vectors[wp.min(f, last), n]
-        if method == LBS:
-            out[f, n] = lbs_vector(x, v, f, indices, weights, linears)
-        elif method == DQS:
-            out[f, n] = dqs_vector(x, v, f, indices, weights, rotations, residuals,
-                                   has_residual[f] != 0)
-        else:
-            b = blend[v]
-            out[f, n] = wp.normalize(
-                lbs_vector(x, v, f, indices, weights, linears) * (1.0 - b)
-                + dqs_vector(x, v, f, indices, weights, rotations, residuals,
-                             has_residual[f] != 0) * b)
+        lbs = wp.vec3()
+        dqs = wp.vec3()
+        if method != DQS:
+            lbs = wp.normalize(blend_joints(inf, v, f, linears) * x)
+        if method != LBS:
+            dqs = dqs_vector(x, inf, v, f, rotations, residuals, has_residual[f] != 0)
+        out[f, n] = wp.normalize(by_method(inf, v, method, lbs, dqs))
 
 
 @wp.kernel
@@ -376,12 +322,25 @@ def transform_frames_kernel(
 # launchers: keyword arguments, chunked over the CPU cores by dqskin.kernels.grid
 
 
-def prepare_points(*, xforms, affines, dqs, residuals, has_residual, device):
-    """Per (frame, joint) data of :func:`skin_points` from ``xforms`` (F, J) ``wp.mat44``: zeroes
-    ``has_residual`` (F,) and fills the (F, J) ``affines``, ``dqs`` and ``residuals``."""
-    has_residual.zero_()
-    launch(prepare_points_kernel, xforms.shape, [xforms], [affines, dqs, residuals, has_residual],
-           device)
+def influences(*, indices, weights, blend):
+    """The :class:`Influences` struct of a mesh's device arrays."""
+    s = Influences()
+    s.indices, s.weights, s.blend = indices, weights, blend
+    return s
+
+
+def joints(*, affines, dqs, residuals, has_residual):
+    """The :class:`Joints` struct of (F, J) work arrays."""
+    s = Joints()
+    s.affines, s.dqs, s.residuals, s.has_residual = affines, dqs, residuals, has_residual
+    return s
+
+
+def prepare_points(*, xforms, joints, device):
+    """Fill ``joints`` (a :class:`Joints` of (F, J) arrays) from ``xforms`` (F, J) ``wp.mat44``."""
+    joints.has_residual.zero_()
+    launch(prepare_points_kernel, xforms.shape, [xforms],
+           [joints.affines, joints.dqs, joints.residuals, joints.has_residual], device)
 
 
 def prepare_vectors(*, xforms, linears, rotations, normal_linears, normal_residuals,
@@ -391,29 +350,21 @@ def prepare_vectors(*, xforms, linears, rotations, normal_linears, normal_residu
            [linears, rotations, normal_linears, normal_residuals, normal_rotations], device)
 
 
-def skin_points(*, method, points, indices, weights, blend, affines, dqs, residuals, has_residual,
-                rigid, out, device):
+def skin_points(*, method, points, influences, joints, rigid, out, device):
     """Skin ``points`` (Fp, V) into ``out`` (F, V) with ``method`` (:data:`LBS`, :data:`DQS`,
     :data:`BLEND`). ``rigid`` (no frame has a residual) selects the DQS kernel without the
-    residual code; the other arrays are :func:`prepare_points`' and the influence layout."""
-    head = [points, indices, weights]
-    if method == LBS:
-        kernel, inputs = skin_lbs_kernel, head + [affines]
-    elif method == DQS and rigid:
-        kernel, inputs = skin_dqs_rigid_kernel, head + [dqs]
-    elif method == DQS:
-        kernel, inputs = skin_dqs_kernel, head + [dqs, residuals, has_residual]
-    else:
-        kernel, inputs = skin_blend_kernel, head + [blend, affines, dqs, residuals, has_residual]
-    launch_blocks(kernel, out.shape[1], out.shape[0], inputs, [out], device)
+    residual code."""
+    kernel = {LBS: skin_lbs_kernel, BLEND: skin_blend_kernel}.get(
+        method, skin_dqs_rigid_kernel if rigid else skin_dqs_kernel)
+    launch_blocks(kernel, out.shape[1], out.shape[0], [points, influences, joints], [out], device)
 
 
-def skin_vectors(*, method, vectors, vector_vertex, indices, weights, blend, linears, rotations,
-                 residuals, has_residual, out, device):
+def skin_vectors(*, method, vectors, vector_vertex, influences, linears, rotations, residuals,
+                 has_residual, out, device):
     """Skin directions ``vectors`` (Fp, N) into ``out`` (F, N), normalized (see
     :func:`skin_vectors_kernel` for which per-joint arrays normals and tangents take)."""
     launch_blocks(skin_vectors_kernel, out.shape[1], out.shape[0],
-                  [vectors, vector_vertex, indices, weights, blend, linears, rotations, residuals,
+                  [vectors, vector_vertex, influences, linears, rotations, residuals,
                    has_residual, int(method)], [out], device)
 
 

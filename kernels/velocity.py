@@ -20,11 +20,28 @@ skinning) and its derivative ``Rᵀ·Ȧ = [ω]×·S + Ṡ``: the skew part gives
 
 import warp as wp
 
-from .dqmath import (RESIDUAL_TOLERANCE, dq_from_rt, is_identity33, mat34, mat44_linear,
-                     polar_rotation, quat_from_rotation, vec8)
-from .grid import launch, launch_blocks
-from .skin import (DQS, LBS, dqs_blend, dqs_blend_derivative, lbs_matrix, prepare_points,
-                   residual_blend)
+from .dqmath import (
+    RESIDUAL_TOLERANCE,
+    dq_from_rt,
+    is_identity33,
+    mat34,
+    mat44_linear,
+    polar_rotation,
+    quat_from_rotation,
+    vec8,
+)
+from .grid import FrameBlocks, block_frames, launch, launch_blocks
+from .skin import (
+    DQS,
+    LBS,
+    Influences,
+    Joints,
+    blend_joints,
+    by_method,
+    dqs_blend,
+    dqs_blend_derivative,
+    prepare_points,
+)
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
@@ -100,83 +117,80 @@ def dqs_apply_derivative(b: vec8, b_dot: vec8, x: wp.vec3, x_dot: wp.vec3):
     return x_dot + (2.0 / n2) * g_dot - (2.0 * n2_dot / (n2 * n2)) * g
 
 
+@wp.struct
+class JointRates:
+    """Time derivatives of a :class:`~dqskin.kernels.skin.Joints`, from
+    :func:`prepare_derivatives_kernel`."""
+
+    affines: wp.array2d(dtype=mat34)
+    """(F, J) ``Ȧ`` (top rows)."""
+    dqs: wp.array2d(dtype=vec8)
+    """(F, J) ``η̇``."""
+    residuals: wp.array2d(dtype=wp.mat33)
+    """(F, J) ``Ṡ``."""
+
+
 @wp.kernel
 def velocity_kernel(
     points: wp.array2d(dtype=wp.vec3),
     point_velocities: wp.array2d(dtype=wp.vec3),
-    indices: wp.array2d(dtype=wp.vec4i),
-    weights: wp.array2d(dtype=wp.vec4),
-    blend: wp.array(dtype=float),
-    affines: wp.array2d(dtype=mat34),
-    affine_derivatives: wp.array2d(dtype=mat34),
-    dqs: wp.array2d(dtype=vec8),
-    dq_derivatives: wp.array2d(dtype=vec8),
-    residuals: wp.array2d(dtype=wp.mat33),
-    residual_derivatives: wp.array2d(dtype=wp.mat33),
-    has_residual: wp.array(dtype=wp.int32),
+    inf: Influences,
+    joints: Joints,
+    rates: JointRates,
     method: int,
-    frame_block: int,
-    block_offset: int,
-    vertex_offset: int,
+    blocks: FrameBlocks,
     # outputs
     out: wp.array2d(dtype=wp.vec3),
 ):
     """Velocities of skinned points over a (frame block, vertex) grid. ``points``,
-    ``point_velocities`` (Fp, V) bind space, Fp 1 or F; per-joint arrays (F, J); ``out`` (F, V)
-    skeleton space per unit time."""
+    ``point_velocities`` (Fp, V) bind space, Fp 1 or F; ``out`` (F, V) skeleton space per unit
+    time."""
     blk, i = wp.tid()
-    v = i + vertex_offset
+    first, end, row = block_frames(blocks, blk, out.shape[0])
+    v = i + row
     last_p = points.shape[0] - 1
     last_v = point_velocities.shape[0] - 1
-    f0 = (blk + block_offset) * frame_block
-    for f in range(f0, wp.min(f0 + frame_block, out.shape[0])):
+    for f in range(first, end):
         p = points[wp.min(f, last_p), v]
         pd = point_velocities[wp.min(f, last_v), v]
         lbs = wp.vec3()
         dqs_v = wp.vec3()
         if method != DQS:
-            lbs = (lbs_matrix(v, f, indices, weights, affine_derivatives)
-                   * wp.vec4(p[0], p[1], p[2], 1.0)
-                   + lbs_matrix(v, f, indices, weights, affines) * wp.vec4(pd[0], pd[1], pd[2], 0.0))
+            lbs = (blend_joints(inf, v, f, rates.affines) * wp.vec4(p[0], p[1], p[2], 1.0)
+                   + blend_joints(inf, v, f, joints.affines) * wp.vec4(pd[0], pd[1], pd[2], 0.0))
         if method != LBS:
             x = p
             xd = pd
-            if has_residual[f] != 0:
-                x = residual_blend(p, v, f, indices, weights, residuals)
-                xd = (residual_blend(p, v, f, indices, weights, residual_derivatives)
-                      + residual_blend(pd, v, f, indices, weights, residuals))
-            dqs_v = dqs_apply_derivative(dqs_blend(v, f, indices, weights, dqs),
-                                         dqs_blend_derivative(v, f, indices, weights, dqs,
-                                                              dq_derivatives), x, xd)
-        if method == LBS:
-            out[f, v] = lbs
-        elif method == DQS:
-            out[f, v] = dqs_v
-        else:
-            b = blend[v]
-            out[f, v] = lbs * (1.0 - b) + dqs_v * b
+            if joints.has_residual[f] != 0:
+                s = blend_joints(inf, v, f, joints.residuals)
+                x = s * p
+                xd = blend_joints(inf, v, f, rates.residuals) * p + s * pd
+            dqs_v = dqs_apply_derivative(dqs_blend(inf, v, f, joints.dqs),
+                                         dqs_blend_derivative(inf, v, f, joints.dqs, rates.dqs),
+                                         x, xd)
+        out[f, v] = by_method(inf, v, method, lbs, dqs_v)
 
 
 # ---------------------------------------------------------------------------------------------
 # launchers
 
 
-def prepare(*, xforms, xform_derivatives, affines, affine_derivatives, dqs, dq_derivatives,
-            residuals, residual_derivatives, has_residual, device):
-    """Per (frame, joint) data of :func:`velocities` from the (F, J) ``wp.mat44`` transforms and
-    their derivatives."""
-    prepare_points(xforms=xforms, affines=affines, dqs=dqs, residuals=residuals,
-                   has_residual=has_residual, device=device)
+def joint_rates(*, affines, dqs, residuals):
+    """The :class:`JointRates` struct of (F, J) work arrays."""
+    r = JointRates()
+    r.affines, r.dqs, r.residuals = affines, dqs, residuals
+    return r
+
+
+def prepare(*, xforms, xform_derivatives, joints, rates, device):
+    """Fill ``joints`` and ``rates`` from the (F, J) ``wp.mat44`` transforms and derivatives."""
+    prepare_points(xforms=xforms, joints=joints, device=device)
     launch(prepare_derivatives_kernel, xforms.shape, [xforms, xform_derivatives],
-           [affine_derivatives, dq_derivatives, residual_derivatives, has_residual], device)
+           [rates.affines, rates.dqs, rates.residuals, joints.has_residual], device)
 
 
-def velocities(*, method, points, point_velocities, indices, weights, blend, affines,
-               affine_derivatives, dqs, dq_derivatives, residuals, residual_derivatives,
-               has_residual, out, device):
-    """Velocities of ``points`` skinned with ``method`` into ``out`` (F, V) (arrays from
-    :func:`prepare` and the influence layout)."""
+def velocities(*, method, points, point_velocities, influences, joints, rates, out, device):
+    """Velocities of ``points`` skinned with ``method`` into ``out`` (F, V)."""
     launch_blocks(velocity_kernel, out.shape[1], out.shape[0],
-                  [points, point_velocities, indices, weights, blend, affines, affine_derivatives,
-                   dqs, dq_derivatives, residuals, residual_derivatives, has_residual, int(method)],
-                  [out], device)
+                  [points, point_velocities, influences, joints, rates, int(method)], [out],
+                  device)

@@ -1,4 +1,7 @@
-"""Shared fixtures: the real-asset folder and the Warp devices every device-agnostic test runs on."""
+"""Shared fixtures: the real-asset folder and the Warp devices.
+
+Every device-agnostic test runs on those devices.
+"""
 
 import os
 from pathlib import Path

@@ -1,4 +1,7 @@
-"""The ``dqskin`` CLI end to end: outputs, and every bad-input case with its message and exit code."""
+"""The ``dqskin`` CLI end to end.
+
+Outputs, and every bad-input case with its message and exit code.
+"""
 
 import hashlib
 import subprocess
@@ -8,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+# Backslash-newlines inside GOOD only wrap long source lines; the text has no break there.
 GOOD = """#usda 1.0
 (
     defaultPrim = "Root"
@@ -26,14 +30,17 @@ def SkelRoot "Root" (
     )
     {
         uniform token[] joints = JOINTS
-        uniform matrix4d[] bindTransforms = [((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,0,0,1)), ((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,1,0,1))]
-        uniform matrix4d[] restTransforms = [((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,0,0,1)), ((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,1,0,1))]
+        uniform matrix4d[] bindTransforms = [((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,0,0,1)), \
+((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,1,0,1))]
+        uniform matrix4d[] restTransforms = [((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,0,0,1)), \
+((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,1,0,1))]
         rel skel:animationSource = </Root/Skel/Anim>
         def SkelAnimation "Anim"
         {
             uniform token[] joints = ["a", "a/b"]
             float3[] translations = [(0,0,0), (0,1,0)]
-            quatf[] rotations.timeSamples = {0: [(1,0,0,0), (1,0,0,0)], 2: [(1,0,0,0), (0.70710678,0.70710678,0,0)]}
+            quatf[] rotations.timeSamples = {0: [(1,0,0,0), (1,0,0,0)], \
+2: [(1,0,0,0), (0.70710678,0.70710678,0,0)]}
             half3[] scales = [(1,1,1), (1,1,1)]
         }
     }
@@ -191,7 +198,7 @@ def test_bad_arguments(tmp_path):
 
 
 def test_velocities_round_trip_in_units_per_second(tmp_path):
-    """Velocities in the cache equal the time derivative of the cached points × timeCodesPerSecond."""
+    """Velocities in the cache equal d(cached points)/dt × timeCodesPerSecond."""
     from pxr import Usd, UsdGeom
     asset = Path(__file__).resolve().parents[1] / "assets" / "twist_cylinder.usda"
     out = tmp_path / "twist.usdc"

@@ -25,8 +25,8 @@ from PIL import Image
 import dqskin
 from dqskin.cli import build_parser
 from dqskin.report.compare import SECTION_SLICES, run_compare
-from dqskin.times import parse_frames
 from dqskin.report.render import VIEWS
+from dqskin.times import parse_frames
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
 TWIST = ASSETS / "twist_cylinder.usda"

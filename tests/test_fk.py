@@ -27,7 +27,8 @@ def chain_product(parents, local):
     """float64 reference: world[j] = world[parent[j]] @ local[j]."""
     world = np.empty_like(local)
     for j, p in enumerate(parents):
-        world[..., j, :, :] = local[..., j, :, :] if p < 0 else world[..., p, :, :] @ local[..., j, :, :]
+        world[..., j, :, :] = (local[..., j, :, :] if p < 0
+                               else world[..., p, :, :] @ local[..., j, :, :])
     return world
 
 
@@ -54,7 +55,8 @@ def test_fk_dual_quaternions_are_the_rigid_part(device):
     r, d = dq[..., :4].astype(np.float64), dq[..., 4:].astype(np.float64)
     np.testing.assert_allclose(np.linalg.norm(r, axis=-1), 1.0, atol=1e-5)
     np.testing.assert_allclose(np.sum(r * d, -1), 0.0, atol=1e-5)  # Plücker condition
-    R = Rotation.from_quat(r[..., [1, 2, 3, 0]].reshape(-1, 4)).as_matrix().reshape(r.shape[:-1] + (3, 3))
+    R = (Rotation.from_quat(r[..., [1, 2, 3, 0]].reshape(-1, 4)).as_matrix()
+         .reshape(r.shape[:-1] + (3, 3)))
     # t = 2·d·r*  (vector part)
     rw, rv = r[..., :1], -r[..., 1:]
     dw, dv = d[..., :1], d[..., 1:]

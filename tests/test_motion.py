@@ -318,7 +318,9 @@ def test_spline_low_jerk():
 
 
 def test_gltf_trs_matches_key_values(shared_assets):
-    from dqskin.formats.gltf import load_gltf  # must exist: fail, not skip, if the loader is missing
+    from dqskin.formats.gltf import (
+        load_gltf,  # must exist: fail, not skip, if the loader is missing
+    )
 
     path = shared_assets / CESIUM
     scene = load_gltf(path)
@@ -444,7 +446,9 @@ def test_world_joint_twists_match_finite_differences():
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_cesium_man_velocities_match_finite_differences(shared_assets, method):
-    from dqskin.formats.gltf import load_gltf  # must exist: fail, not skip, if the loader is missing
+    from dqskin.formats.gltf import (
+        load_gltf,  # must exist: fail, not skip, if the loader is missing
+    )
 
     scene = load_gltf(shared_assets / CESIUM)
     kt = scene.animations[0].key_times
@@ -469,8 +473,8 @@ def test_cesium_man_velocities_match_finite_differences(shared_assets, method):
     h = 1e-5
 
     def skinned(tt):
-        return SKIN[method](pts, m.joint_indices, m.joint_weights.astype(np.float64),
-                            fk(sk.parents, animation.sample(scene.animations[0], tt, "spline")) @ bind)
+        pose = fk(sk.parents, animation.sample(scene.animations[0], tt, "spline"))
+        return SKIN[method](pts, m.joint_indices, m.joint_weights.astype(np.float64), pose @ bind)
 
     fd = (skinned(t + h) - skinned(t - h)) / (2 * h)
     err = np.linalg.norm(vel - fd, axis=-1)

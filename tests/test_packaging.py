@@ -1,4 +1,7 @@
-"""A non-editable install ships the kernels as ``dqskin.kernels`` and imports from outside the repo."""
+"""A non-editable install ships the kernels as ``dqskin.kernels``.
+
+It also imports from outside the repo.
+"""
 
 import shutil
 import subprocess
@@ -31,8 +34,8 @@ def test_wheel_ships_kernels_and_imports_outside_the_repo(tmp_path):
     assert install.returncode == 0, install.stderr
     deps = sysconfig.get_paths()["purelib"]
     code = ("import dqskin, dqskin.kernels.skin, numpy as np; print(dqskin.__file__); "
-            "print(dqskin.skin_points(np.zeros((2, 3)), [[0], [0]], [[1.0], [1.0]], np.eye(4)[None],"
-            " device='cpu').shape)")
+            "print(dqskin.skin_points(np.zeros((2, 3)), [[0], [0]], [[1.0], [1.0]], "
+            "np.eye(4)[None], device='cpu').shape)")
     run = subprocess.run([sys.executable, "-I", "-c", f"import sys; sys.path[:0] = "
                           f"[{str(site)!r}, {deps!r}]; {code}"], cwd=tmp_path,
                          capture_output=True, text=True, timeout=300)

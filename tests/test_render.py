@@ -8,8 +8,16 @@ import trimesh
 from PIL import Image
 from scipy.spatial import ConvexHull
 
-from dqskin.report.render import (Camera, MeshRenderer, Shading, add_colorbar, colormap_lut, render,
-                           save_png, side_by_side)
+from dqskin.report.render import (
+    Camera,
+    MeshRenderer,
+    Shading,
+    add_colorbar,
+    colormap_lut,
+    render,
+    save_png,
+    side_by_side,
+)
 
 
 def _sphere(radius=1.0, subdivisions=4, pole=None):

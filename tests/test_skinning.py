@@ -1,4 +1,7 @@
-"""Skinning kernels against UsdSkel's C++ (SkinPoints / SkinNormals), float64 NumPy and closed forms."""
+"""Skinning kernels against references.
+
+UsdSkel's C++ (SkinPoints / SkinNormals), float64 NumPy and closed forms.
+"""
 
 import numpy as np
 import pytest
@@ -7,6 +10,7 @@ from pxr import Gf, UsdSkel, Vt
 from scipy.spatial.transform import Rotation
 
 import dqskin
+from dqskin.kernels import grid
 from dqskin.kernels import skin as K
 from dqskin.kernels.dqmath import vec8
 
@@ -46,7 +50,8 @@ def usd_skin_normals(method, G, M, idx, w, normals):
     inv_t = np.linalg.inv(M[:, :3, :3]).transpose(0, 2, 1)
     g = np.linalg.inv(G[:3, :3]).T
     ok = UsdSkel.SkinNormals(TOKENS[method], Gf.Matrix3d(g.T.tolist()),
-                             Vt.Matrix3dArray.FromNumpy(np.ascontiguousarray(inv_t.transpose(0, 2, 1))),
+                             Vt.Matrix3dArray.FromNumpy(
+                                 np.ascontiguousarray(inv_t.transpose(0, 2, 1))),
                              Vt.IntArray.FromNumpy(idx.ravel()), Vt.FloatArray.FromNumpy(w.ravel()),
                              idx.shape[1], vn)
     assert ok
@@ -96,8 +101,10 @@ def numpy_dqs(points, idx, w, M):
     def qmul(a, b):
         aw, ax, ay, az = np.moveaxis(a, -1, 0)
         bw, bx, by, bz = np.moveaxis(b, -1, 0)
-        return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                         aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
+        return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                         aw * bx + ax * bw + ay * bz - az * by,
+                         aw * by - ax * bz + ay * bw + az * bx,
+                         aw * bz + ax * by - ay * bx + az * bw], -1)
 
     d = 0.5 * qmul(np.concatenate([np.zeros((len(t), 1)), t], 1), q)
     qr, qd = q[idx], d[idx]  # (V, K, 4)
@@ -158,15 +165,23 @@ def test_twist_keeps_radius_with_dqs_and_collapses_with_lbs(device, theta):
     lbs = dqskin.skin_points(ring, idx, w, M, "lbs", device=device)
     np.testing.assert_allclose(np.linalg.norm(dqs[:, 1:], axis=1), 1.0, atol=1e-5)
     # closed form for LBS with w = ½: r = √(1 − 2w(1−w)(1−cos θ)) = |cos(θ/2)|
-    np.testing.assert_allclose(np.linalg.norm(lbs[:, 1:], axis=1), abs(np.cos(theta / 2)), atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(lbs[:, 1:], axis=1), abs(np.cos(theta / 2)),
+                               atol=1e-5)
+
+
+def _one_frame_blocks():
+    blocks = grid.FrameBlocks()
+    blocks.frame_block, blocks.block_offset, blocks.row_offset = 1, 0, 0
+    return blocks
 
 
 def _launch_dqs(prep, sk):
-    out = wp.empty((prep["dqs"].shape[0], sk.vertex_count), dtype=wp.vec3, device=sk.device)
+    """The general DQS kernel (residual path compiled in), one frame per thread block."""
+    j = prep["joints"]
+    out = wp.empty((j.dqs.shape[0], sk.vertex_count), dtype=wp.vec3, device=sk.device)
     wp.launch(K.skin_dqs_kernel, dim=(out.shape[0], sk.vertex_count),
-              inputs=[sk._points, sk._indices, sk._weights, prep["dqs"], prep["residuals"],
-                      prep["has_residual"], 1, 0, 0],
-              outputs=[out], device=sk.device)
+              inputs=[sk._points, sk._inf, j, _one_frame_blocks()], outputs=[out],
+              device=sk.device)
     return out.numpy()
 
 
@@ -176,10 +191,10 @@ def test_flipping_joint_dq_sign_changes_nothing(device):
     sk = dqskin.Skinner(points, idx, w, device=device)
     prep, _, _ = sk._prepare(M)
     ref = _launch_dqs(prep, sk)
-    dq = prep["dqs"].numpy()
+    dq = prep["joints"].dqs.numpy()
     flip = rng.random(dq.shape[:2]) < 0.5
     dq[flip] *= -1
-    prep["dqs"] = wp.array(dq, dtype=vec8, device=device)
+    prep["joints"].dqs = wp.array(dq, dtype=vec8, device=device)
     assert flip.any()
     np.testing.assert_allclose(_launch_dqs(prep, sk), ref, atol=1e-5)
 
@@ -265,14 +280,14 @@ def test_inputs_not_modified():
         np.testing.assert_array_equal(a, c)
 
 
-@pytest.mark.parametrize("V,F", [(50, 2000), (300, 370), (40000, 3)], ids=["frames", "mixed", "rows"])
+@pytest.mark.parametrize("V,F", [(50, 2000), (300, 370), (40000, 3)],
+                         ids=["frames", "mixed", "rows"])
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_frame_blocks_and_threads_cover_the_grid(device, monkeypatch, V, F, method):
     """Every (frame, vertex) is skinned once whichever way the grid is split: many frames and few
     vertices (split by frame blocks, a partial last block), few frames and many vertices (split
     by vertices), with 3 worker threads."""
     monkeypatch.setenv("DQSKIN_THREADS", "3")
-    from dqskin.kernels import grid
     calls = []
     real = grid._pool_map
     monkeypatch.setattr(grid, "_pool_map", lambda tasks: (calls.append(len(tasks)), real(tasks)))
@@ -294,7 +309,8 @@ def test_rigid_fast_path_is_taken_and_equals_the_general_kernel(device, monkeypa
     sk = dqskin.Skinner(points, idx, w, device=device)
     launched = []
     real = wp.launch
-    monkeypatch.setattr(wp, "launch", lambda k, *a, **kw: (launched.append(k.key), real(k, *a, **kw)))
+    monkeypatch.setattr(wp, "launch",
+                        lambda k, *a, **kw: (launched.append(k.key), real(k, *a, **kw)))
     fast = sk.skin(M, "dqs")
     assert any("skin_dqs_rigid_kernel" in name for name in launched)
     monkeypatch.setattr(wp, "launch", real)

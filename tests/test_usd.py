@@ -81,8 +81,10 @@ def usdskel_skin(stage, cache, path, t, method, normals=None, normal_vertex=None
 
 
 def usd_rest_normals(stage, path):
-    """Rest normals straight from the file, independent of our loader: ``(normals, normal_vertex)``
-    with ``normal_vertex`` the face-vertex map for faceVarying (None for vertex), or (None, None)."""
+    """Rest normals straight from the file, independent of our loader.
+
+    Returns ``(normals, normal_vertex)`` with ``normal_vertex`` the face-vertex map for
+    faceVarying (None for vertex), or (None, None)."""
     prim = stage.GetPrimAtPath(path)
     pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
     if pv and pv.HasAuthoredValue():

@@ -141,7 +141,8 @@ def bench_fk(devices, rows, skeletons=1000):
                 Vt.Vec3hArray.FromNumpy(scale[s].astype(np.float16))) for s in range(skeletons)]
     fns = {}
     for dev in devices:
-        fns[f"dqskin {dev} matrices"] = lambda dev=dev: forward_kinematics(parents, local, device=dev)
+        fns[f"dqskin {dev} matrices"] = lambda dev=dev: forward_kinematics(
+            parents, local, device=dev)
         fns[f"dqskin {dev} TRS"] = lambda dev=dev: forward_kinematics(
             parents, (trans, q_wxyz, scale), device=dev)
     fns["NumPy matrices"] = numpy_fk
@@ -166,7 +167,8 @@ def print_tables(rows):
 
 
 def print_skin_table(skin):
-    print(f"\nSkinning: {INFLUENCES} influences, {JOINTS} joints, float32 (Mpts/s, higher is better)")
+    print(f"\nSkinning: {INFLUENCES} influences, {JOINTS} joints, float32 "
+          "(Mpts/s, higher is better)")
     impls = list(dict.fromkeys(r["impl"] for r in skin))
     head = f"| {'vertices':>9} | method | " + " | ".join(f"{i:>17}" for i in impls)
     print(head + " | ×UsdSkel par. | DQS/LBS time |")

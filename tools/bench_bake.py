@@ -134,8 +134,9 @@ def bench_bake(rows, frames=(1000, 2000, 4000), asset=DEFAULT_ASSET):
             res = {}
             for which in ("usdskel", "dqskin", "dqskin+normals"):
                 dst = tmp / f"{which}_{n}.usdc"
-                proc = subprocess.run([sys.executable, __file__, "--child", which, str(src), str(dst)],
-                                      capture_output=True, text=True)
+                proc = subprocess.run(
+                    [sys.executable, __file__, "--child", which, str(src), str(dst)],
+                    capture_output=True, text=True)
                 if proc.returncode:
                     raise RuntimeError(f"{which} bake failed:\n{proc.stderr[-2000:]}")
                 res[which] = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -158,17 +159,19 @@ def print_bake(rows):
     bake = [r for r in rows if r["kind"] == "bake"]
     if not bake:
         return
-    print("\nEnd-to-end bake to .usdc (open + skin every frame + write points, normals, extent), LBS;"
-          "\nseconds exclude the one-off module imports, shown apart")
-    print("| frames | impl | seconds | M point-frames/s | imports s | peak RSS MB | max |Δp| vs UsdSkel |")
+    print("\nEnd-to-end bake to .usdc (open + skin every frame + write points, normals, "
+          "extent), LBS;\nseconds exclude the one-off module imports, shown apart")
+    print("| frames | impl | seconds | M point-frames/s | imports s | peak RSS MB "
+          "| max |Δp| vs UsdSkel |")
     print("|---|---|---|---|---|---|---|")
     for r in bake:
-        print(f"| {r['frames']} | {r['impl']} | {r['seconds']:.2f} | {r['mpoint_frames_per_s']:.1f} "
+        print(f"| {r['frames']} | {r['impl']} | {r['seconds']:.2f} "
+              f"| {r['mpoint_frames_per_s']:.1f} "
               f"| {r['import_seconds']:.2f} | {r['peak_mb']:.0f} | {r['max_point_diff']:.2e} |")
     for n in dict.fromkeys(r["frames"] for r in bake):
         sel = {r["impl"]: r for r in bake if r["frames"] == n}
-        print(f"  {n} frames: dqskin / UsdSkel throughput = "
-              f"{sel['dqskin']['mpoint_frames_per_s'] / sel['usdskel']['mpoint_frames_per_s']:.2f}×")
+        ratio = sel["dqskin"]["mpoint_frames_per_s"] / sel["usdskel"]["mpoint_frames_per_s"]
+        print(f"  {n} frames: dqskin / UsdSkel throughput = {ratio:.2f}×")
 
 
 if __name__ == "__main__":

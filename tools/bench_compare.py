@@ -50,7 +50,8 @@ def main(out_dir):
     meshes = [subdivide(subdivide(m)) if m.name.endswith("Body") else subdivide(m)
               for m in scene.meshes]
     scene = replace(scene, meshes=meshes)
-    print("vertices", sum(len(m.points) for m in meshes), "faces", sum(len(m.faces) for m in meshes))
+    print("vertices", sum(len(m.points) for m in meshes),
+          "faces", sum(len(m.faces) for m in meshes))
     t = time.perf_counter()
     r = run_compare(scene, out_dir, force=True)
     print(f"run_compare: {time.perf_counter() - t:.1f} s",

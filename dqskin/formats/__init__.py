@@ -7,9 +7,12 @@ frame; also :func:`load_mesh` for plain geometry). Every writer goes through
 :func:`.atomic.atomic_path`.
 """
 
+import os
 from pathlib import Path
+from types import ModuleType
 
-from . import gltf, mesh_files, npz, usd, usd_cache
+from ..scene import Scene
+from . import gltf, usd
 from .atomic import atomic_path
 from .mesh_files import load_mesh
 
@@ -21,13 +24,13 @@ CHARACTER_SUFFIXES = tuple(_LOADERS)
 """Suffixes :func:`load` reads."""
 
 
-def format_of(path):
+def format_of(path: str | os.PathLike) -> ModuleType | None:
     """The format module that reads ``path`` (:mod:`.usd` or :mod:`.gltf`), by suffix, or None."""
     suffix = Path(path).suffix.lower()
     return usd if suffix in usd.SUFFIXES else gltf if suffix in gltf.SUFFIXES else None
 
 
-def load(path, *, clip=None):
+def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     """Read a skinned character.
 
     Parameters

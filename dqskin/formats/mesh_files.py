@@ -1,6 +1,7 @@
 """Plain mesh files through trimesh: read geometry (:func:`load_mesh`), write one file per frame
 (:func:`write_frames`)."""
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,7 @@ SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb")
 """Mesh files trimesh reads and writes (one frame per file)."""
 
 
-def load_mesh(path):
+def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Geometry of a plain mesh file: ``(points (V, 3) float32, faces (T, 3) int32)``."""
     import trimesh
     p = Path(path)

@@ -41,10 +41,10 @@ import numpy as np
 from pxr import Tf, Usd, UsdGeom, UsdSkel, Vt
 
 from ..animation import Animation, Deformer, TransformTrack, segment_rates
-from .usd_xform import XformChain, read_local_to_world
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
 from ..skinning import skin_points
+from .usd_xform import XformChain, read_local_to_world
 
 __all__ = ["SKINNING_METHODS", "SUFFIXES", "load", "RigidPrim", "UsdSkelAnimation",
            "load_rigid_prims", "load_usd", "rigid_transforms"]
@@ -724,7 +724,8 @@ def load(path, *, clip=None):
     """:func:`load_usd` with the signature every format's loader has (USD has one animation per
     skeleton, so ``clip`` must be None)."""
     if clip is not None:
-        raise ValueError(f"{path}: --clip applies to glTF files; USD has one animation per skeleton")
+        raise ValueError(f"{path}: --clip applies to glTF files; USD has one animation per "
+                         "skeleton")
     return load_usd(path)
 
 

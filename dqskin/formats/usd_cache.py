@@ -15,6 +15,7 @@ import os
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
+from ..shapes import frames_of
 from .atomic import atomic_path
 from .usd import load_rigid_prims, rigid_transforms
 
@@ -26,16 +27,10 @@ CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
 _SKEL_API = "SkelBindingAPI"
 
 
-def _frames(name, what, a, frames, count=None):
-    """Check ``a`` is ``(frames, count, 3)`` finite; float32."""
-    x = np.asarray(a, dtype=np.float32)
-    if x.ndim != 3 or x.shape[0] != frames or x.shape[2] != 3 or (
-            count is not None and x.shape[1] != count):
-        want = f"({frames}, {'N' if count is None else count}, 3)"
-        raise ValueError(f"{what}[{name!r}]: expected shape {want}, got {x.shape}")
-    if not np.all(np.isfinite(x)):
-        raise ValueError(f"{what}[{name!r}]: NaN or infinite values")
-    return x
+def _frames(name, what, a, frames, count):
+    """``a`` as finite float32 ``(frames, count, 3)``; ValueError naming ``what[name]``."""
+    return frames_of(f"{what}[{name!r}]", a, frames, count, dtype=np.float32, finite=True,
+                     broadcast=False)[0]
 
 
 def _same_file(a, b):

@@ -35,13 +35,12 @@ from pathlib import Path
 import numpy as np
 
 from .. import metrics as M
-from ..metrics import METRICS, worst
-from ..times import default_frames
 from ..formats import atomic_path, load
-from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
-from ..scene import Scene
-from ..scene import DEFAULT_BLEND
+from ..metrics import METRICS, worst
+from ..scene import DEFAULT_BLEND, Scene
 from ..skinning import METHODS
+from ..times import default_frames
+from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
 
 __all__ = ["BLEND_WEIGHT", "SECTION_SLICES", "SWEEP_RIGS", "run_compare", "skeleton_up_axis",
            "summary_lines", "sweeps"]

@@ -19,8 +19,8 @@ import warp as wp
 
 from .._warp import resolve_device
 from ..formats import atomic_path
-from ..topology import check_faces, incidence
 from ..kernels import render as K
+from ..topology import check_faces, incidence
 
 __all__ = ["VIEWS", "Camera", "MeshRenderer", "Shading", "add_colorbar", "colormap_lut",
            "render", "save_png", "side_by_side"]

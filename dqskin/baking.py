@@ -10,8 +10,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
+from ._warp import Device
+from .animation import Interpolation
 from .formats import format_of, gltf, mesh_files, npz, usd, usd_cache
+from .scene import Scene
+from .skinning import Method
 
 __all__ = ["OUTPUT_SUFFIXES", "bake", "check_output", "output_kind"]
 
@@ -19,7 +24,7 @@ OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXE
 """Suffixes :func:`bake` writes (mesh files take a per-frame pattern like ``f_{:04d}.obj``)."""
 
 
-def output_kind(out):
+def output_kind(out: str | Path) -> str:
     """"usd", "npz" or "frames" for an output path; ValueError for anything else."""
     suffix = Path(str(out)).suffix.lower()
     if suffix in usd_cache.CACHE_EXTENSIONS:
@@ -34,7 +39,7 @@ def output_kind(out):
                      f"({' '.join(mesh_files.SUFFIXES)})")
 
 
-def check_output(out, inputs, force):
+def check_output(out: str | Path, inputs: list, force: bool) -> Path:
     """``out`` as a Path; ValueError if it is one of ``inputs``, FileExistsError if it exists
     and not ``force``."""
     out = Path(out)
@@ -46,8 +51,10 @@ def check_output(out, inputs, force):
     return out
 
 
-def bake(scene, out, times=None, *, method=None, interp="trs", device=None, chunk=256,
-         normals=True, velocities=True, force=False, progress=False):
+def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
+         method: Method | None = None, interp: Interpolation = "trs", device: Device = None,
+         chunk: int = 256, normals: bool = True, velocities: bool = True, force: bool = False,
+         progress: bool = False) -> str:
     """Skin ``scene`` at ``times`` and write ``out``.
 
     Parameters
