@@ -99,23 +99,10 @@ def _scale(dq, s):
 
 
 def identity(shape=(), dtype=np.float64):
-    """Identity dual quaternions ``[1, 0, 0, 0][0, 0, 0, 0]`` ([K] eq. 24).
-
-    Parameters
-    ----------
-    shape : int or tuple of int
-        Batch shape.
-    dtype : numpy dtype
-        Floating dtype of the result.
-
-    Returns
-    -------
-    (*shape, 8) array of ``dtype``
-    """
-    shape = (shape,) if np.ndim(shape) == 0 else tuple(shape)
-    dq = np.zeros((*shape, 8), dtype=dtype)
-    dq[..., 0] = 1
-    return dq
+    """Identity dual quaternions ``[1, 0, 0, 0][0, 0, 0, 0]`` ([K] eq. 24): ``(*shape, 8)`` of
+    ``dtype``, the real part :func:`dqskin.quat.identity` (``shape``: int or tuple; batch shape)."""
+    r = quat.identity(shape, dtype)
+    return concat(r, np.zeros_like(r))
 
 
 def mul(a, b):

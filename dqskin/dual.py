@@ -19,13 +19,7 @@ __all__ = ["add", "mul", "div", "sqrt", "apply"]
 def add(x, y):
     """Sum ``(a + eps b) + (c + eps d) = (a + c) + eps (b + d)`` ([K] eq. 19).
 
-    Parameters
-    ----------
-    x, y : (real, dual) pairs of array_like
-
-    Returns
-    -------
-    (real, dual) tuple of arrays
+    ``x``, ``y``: (real, dual) pairs of array_like; returns a (real, dual) tuple of arrays.
     """
     return (np.add(x[0], y[0]), np.add(x[1], y[1]))
 
@@ -33,13 +27,7 @@ def add(x, y):
 def mul(x, y):
     """Product ``(a + eps b)(c + eps d) = a c + eps (a d + b c)`` ([K] eq. 20).
 
-    Parameters
-    ----------
-    x, y : (real, dual) pairs of array_like
-
-    Returns
-    -------
-    (real, dual) tuple of arrays
+    ``x``, ``y``: (real, dual) pairs of array_like; returns a (real, dual) tuple of arrays.
     """
     a, b = x
     c, d = y

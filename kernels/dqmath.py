@@ -176,14 +176,11 @@ def quat_from_rotation(m: wp.mat33):
 @wp.func
 def dq_to_matrix(a: vec8):
     """4×4 rigid matrix (column-vector convention) of unit dual quaternion ``a``."""
-    w = a[0]
-    x = a[1]
-    y = a[2]
-    z = a[3]
+    r = wp.quat_to_matrix(dq_real(a))
     t = dq_translation(a)
-    return wp.mat44(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y), t[0],
-                    2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x), t[1],
-                    2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y), t[2],
+    return wp.mat44(r[0, 0], r[0, 1], r[0, 2], t[0],
+                    r[1, 0], r[1, 1], r[1, 2], t[1],
+                    r[2, 0], r[2, 1], r[2, 2], t[2],
                     0.0, 0.0, 0.0, 1.0)
 
 

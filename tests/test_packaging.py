@@ -1,8 +1,8 @@
-"""A non-editable install ships the kernels as ``dqskin.kernels``.
+"""A non-editable install ships the kernels as ``dqskin.kernels`` and the bundled rigs as
+``dqskin.assets``: it imports, skins and runs ``dqskin demo`` (sweeps included) from outside the
+repo."""
 
-It also imports from outside the repo.
-"""
-
+import json
 import shutil
 import subprocess
 import sys
@@ -24,9 +24,13 @@ def test_wheel_ships_kernels_and_imports_outside_the_repo(tmp_path):
     assert build.returncode == 0, build.stderr
     (wheel,) = (tmp_path / "dist").glob("dqskin-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
-    for module in ("dqmath", "fk", "skin", "velocity", "metrics", "render"):
+    for module in ("dqmath", "fk", "grid", "skin", "velocity", "metrics", "render"):
         assert f"dqskin/kernels/{module}.py" in names
-    assert not any(n.startswith(("kernels/", "tests/", "tools/")) for n in names)
+    for rig in ("humanoid", "twist_cylinder", "bending_arm"):
+        assert f"dqskin/assets/{rig}.usda" in names
+    for module in ("formats/usd", "formats/gltf", "report/compare", "report/html"):
+        assert f"dqskin/{module}.py" in names
+    assert not any(n.startswith(("kernels/", "assets/", "tests/", "tools/")) for n in names)
     site = tmp_path / "site"
     install = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q",
                               "--target", str(site), str(wheel)], capture_output=True, text=True,
@@ -36,9 +40,17 @@ def test_wheel_ships_kernels_and_imports_outside_the_repo(tmp_path):
     code = ("import dqskin, dqskin.kernels.skin, numpy as np; print(dqskin.__file__); "
             "print(dqskin.skin_points(np.zeros((2, 3)), [[0], [0]], [[1.0], [1.0]], "
             "np.eye(4)[None], device='cpu').shape)")
-    run = subprocess.run([sys.executable, "-I", "-c", f"import sys; sys.path[:0] = "
-                          f"[{str(site)!r}, {deps!r}]; {code}"], cwd=tmp_path,
+    prefix = f"import sys; sys.path[:0] = [{str(site)!r}, {deps!r}]; "
+    run = subprocess.run([sys.executable, "-I", "-c", prefix + code], cwd=tmp_path,
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     lines = run.stdout.split()
     assert lines[0].startswith(str(site)) and "(2, 3)" in run.stdout
+    demo = subprocess.run([sys.executable, "-I", "-c", prefix + "from dqskin.cli import main; "
+                           "sys.exit(main(['demo', '--out', 'demo', '--device', 'cpu']))"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert demo.returncode == 0, demo.stderr
+    metrics = json.loads((tmp_path / "demo" / "report" / "metrics.json").read_text())
+    assert metrics["asset"].startswith(str(site))  # the packaged rig, not the checkout's
+    assert set(metrics["sweeps"]) >= {"twist", "bend"}, metrics["sweeps"]
+    assert (tmp_path / "demo" / "humanoid_dqs.usdc").stat().st_size > 0
