@@ -66,7 +66,8 @@ from . import dq, quat
 from .linalg import hat, polar
 
 __all__ = ["INTERPOLATIONS", "Animation", "Deformer", "Interpolation", "KeyedAnimation",
-           "TransformTrack", "ramp", "sample", "sample_with_derivative", "segment_rates"]
+           "TransformTrack", "check_times", "ramp", "sample", "sample_with_derivative",
+           "segment_rates"]
 
 Interpolation = Literal["trs", "sclerp", "dlb", "spline", "catmull-rom"]
 """Pose interpolation between keys (see the module docstring)."""
@@ -109,7 +110,7 @@ class Animation(abc.ABC):
         """
 
 
-def _times(times, name="times"):
+def check_times(times, name="times"):
     t = np.atleast_1d(np.asarray(times, dtype=np.float64))
     if t.ndim != 1 or not np.all(np.isfinite(t)):
         raise ValueError(f"{name}: expected a 1-D array of finite times, got shape {t.shape}")
@@ -166,7 +167,7 @@ def ramp(times: npt.ArrayLike, key_times: npt.ArrayLike) -> tuple[np.ndarray, np
     -------
     s, s_dot : (F,) float64
     """
-    t = _times(times)
+    t = check_times(times)
     k = np.asarray(key_times, dtype=np.float64)
     if k.ndim != 1 or k.shape[0] < 3:
         raise ValueError(f"key_times: ramp needs at least 3 keys, got shape {k.shape}")
@@ -236,13 +237,15 @@ class _Keys:
         self.eta = dq.from_rt(q, self.t)
         self._cache = {}
 
-    def segments(self, t):
-        """Interval index ``i``, parameter ``u`` in [0, 1] and ``du/dt`` (0 outside the keys)."""
+    def segments(self, t, side="right"):
+        """Interval index ``i``, parameter ``u`` in [0, 1] and ``du/dt`` (0 outside the keys).
+        At a key, ``side`` picks the interval: "right" the one starting there, "left" the one
+        ending there."""
         kt = self.times
         if kt.shape[0] == 1:
             z = np.zeros(t.shape)
             return np.zeros(t.shape, dtype=np.int64), z, z
-        i = np.clip(np.searchsorted(kt, t, side="right") - 1, 0, kt.shape[0] - 2)
+        i = np.clip(np.searchsorted(kt, t, side=side) - 1, 0, kt.shape[0] - 2)
         dt = kt[i + 1] - kt[i]
         u = np.clip((t - kt[i]) / dt, 0.0, 1.0)
         du = np.where((t >= kt[0]) & (t <= kt[-1]), 1.0 / dt, 0.0)
@@ -253,28 +256,28 @@ class _Keys:
             self._cache[name] = build()
         return self._cache[name]
 
-    def residual_at(self, t):
+    def residual_at(self, t, side="right"):
         """(F, J, 3, 3) residuals and derivatives, linear between keys."""
         if self.times.shape[0] == 1:
             s = np.broadcast_to(self.residual, (t.shape[0],) + self.residual.shape[1:])
             return s, np.zeros_like(s)
-        i, u, du = self.segments(t)
+        i, u, du = self.segments(t, side)
         s0, s1 = self.residual[i], self.residual[i + 1]
         uu = u[:, None, None, None]
         return (1 - uu) * s0 + uu * s1, (s1 - s0) * du[:, None, None, None]
 
-    def dual_quaternions(self, t, interp):
+    def dual_quaternions(self, t, interp, side="right"):
         """(F, J, 8) interpolated unit DQs ``η`` and their derivatives ``η̇``."""
         if self.times.shape[0] == 1:
             eta = np.broadcast_to(self.eta, (t.shape[0],) + self.eta.shape[1:])
             return eta, np.zeros_like(eta)
-        return getattr(self, "_" + interp.replace("-", "_"))(t)
+        return getattr(self, "_" + interp.replace("-", "_"))(t, side)
 
-    def _trs(self, t):
+    def _trs(self, t, side="right"):
         """Rotation slerp, translation lerp: ``q = qₖ·exp(u·Lₖ)``, ``Lₖ = log(qₖ*·qₖ₊₁)``."""
         log = self._cached("rot_log", lambda: quat.log(
             quat.mul(quat.conjugate(self.q[:-1]), self.q[1:])) * np.array([0.0, 1, 1, 1]))
-        i, u, du = self.segments(t)
+        i, u, du = self.segments(t, side)
         lk = log[i]
         q = quat.mul(self.q[i], quat.exp(u[:, None, None] * lk))
         q_dot = quat.mul(q, lk) * du[:, None, None]
@@ -285,21 +288,21 @@ class _Keys:
         dual_dot = 0.5 * (quat.mul(_pure(tr_dot), q) + quat.mul(_pure(tr), q_dot))
         return eta, np.concatenate([q_dot, dual_dot], -1)
 
-    def _sclerp(self, t):
+    def _sclerp(self, t, side="right"):
         """``ηₖ·exp(u·ξₖ)``, ``ξₖ = log(ηₖ*·ηₖ₊₁)``; ``η̇ = η·ξₖ/Δt`` ([MS] eq. 25, 41)."""
         xi = self._cached("screw_log", lambda: dq.log(dq.mul(
             dq.conjugate_quat(self.eta[:-1]), self.eta[1:])) * np.array([0.0, 1, 1, 1, 0, 1, 1, 1]))
-        i, u, du = self.segments(t)
+        i, u, du = self.segments(t, side)
         eta = dq.mul(self.eta[i], dq.exp(u[:, None, None] * xi[i]))
         return eta, dq.mul(eta, xi[i]) * du[:, None, None]
 
-    def _dlb(self, t):
-        i, u, du = self.segments(t)
+    def _dlb(self, t, side="right"):
+        i, u, du = self.segments(t, side)
         a, b = self.eta[i], self.eta[i + 1]
         uu = u[:, None, None]
         return _normalize_with_derivative((1 - uu) * a + uu * b, (b - a) * du[:, None, None])
 
-    def _catmull_rom(self, t):
+    def _catmull_rom(self, t, side="right"):
         """Cubic Hermite per component with Catmull-Rom tangents, normalized."""
         kt, p = self.times, self.eta
 
@@ -311,7 +314,7 @@ class _Keys:
             return m
 
         m = self._cached("catmull_rom", tangents)
-        i, u, du = self.segments(t)
+        i, u, du = self.segments(t, side)
         h = (kt[i + 1] - kt[i])[:, None, None]
         uu = u[:, None, None]
         u2, u3 = uu * uu, uu * uu * uu
@@ -332,7 +335,7 @@ class _Keys:
         knots[-1] = 0.5 * (kt[-2] + kt[-1])
         return kt, knots, p, _natural_spline(knots, p)
 
-    def _spline(self, t):
+    def _spline(self, t, side="right"):
         """[MS] eq. 31–34: ``η(t) = normalize(γ(s(t)))``, ``γ`` the natural cubic spline."""
         kt, knots, p, m = self._cached("spline", self._spline_data)
         s, s_dot = ramp(t, kt)
@@ -348,10 +351,21 @@ class _Keys:
     def local(self, t, interp, derivative=True):
         """(F, J, 4, 4) local transforms, their derivatives, and the DQs ``η``, ``η̇``.
 
-        Without ``derivative`` only the transforms are computed (the rest is None).
+        Without ``derivative`` only the transforms are computed (the rest is None). At an interior
+        key, where piecewise interpolants have a kink, the derivatives are the mean of both sides
+        (what a renderer's shutter interval around the key sees).
         """
-        eta, eta_dot = self.dual_quaternions(t, interp)
-        s, s_dot = self.residual_at(t)
+        m, m_dot, eta, eta_dot = self._local(t, interp, derivative, "right")
+        at_key = np.isin(t, self.times[1:-1]) if derivative else np.zeros(0, bool)
+        if at_key.any():
+            _, m_dot_l, _, eta_dot_l = self._local(t[at_key], interp, True, "left")
+            m_dot[at_key] = 0.5 * (m_dot[at_key] + m_dot_l)
+            eta_dot[at_key] = 0.5 * (eta_dot[at_key] + eta_dot_l)
+        return m, m_dot, eta, eta_dot
+
+    def _local(self, t, interp, derivative, side):
+        eta, eta_dot = self.dual_quaternions(t, interp, side)
+        s, s_dot = self.residual_at(t, side)
         q, tr = dq.to_rt(eta)
         rot = quat.to_matrix(q)
         m = np.zeros(eta.shape[:-1] + (4, 4))
@@ -393,7 +407,7 @@ class KeyedAnimation(Animation):
 
     def local_transforms(self, times):
         """(F, J, 4, 4) float64 parent-relative transforms at ``times`` ("trs" interpolation)."""
-        return self._keys.local(_times(times), "trs", derivative=False)[0]
+        return self._keys.local(check_times(times), "trs", derivative=False)[0]
 
 
 def _name(animation):
@@ -420,7 +434,7 @@ def _keys_of(animation):
 def _motion(animation, times, interp):
     """Local transforms, derivatives, DQs and DQ derivatives of ``animation`` at ``times``."""
     _check_interp(interp)
-    t = _times(times)
+    t = check_times(times)
     local, local_dot, eta, eta_dot = _keys_of(animation).local(t, interp)
     if interp == "trs" and not isinstance(animation, KeyedAnimation):
         name = _name(animation)
@@ -462,7 +476,7 @@ def sample(animation: Animation, times: npt.ArrayLike,
         Parent-relative transforms, column-vector convention.
     """
     _check_interp(interp)
-    t = _times(times)
+    t = check_times(times)
     if interp == "trs":
         return np.asarray(animation.local_transforms(t), dtype=np.float64)
     return _keys_of(animation).local(t, interp, derivative=False)[0]
@@ -523,7 +537,7 @@ class Deformer(abc.ABC):
     @abc.abstractmethod
     def point_velocities_at(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, V, 3) float64 ``d points / dt`` per unit time, the derivative of the interpolant
-        :meth:`points_at` evaluates (at a key: of the interval starting there)."""
+        :meth:`points_at` evaluates (at an interior key: the mean of both sides)."""
 
     def normals_at(self, times: npt.ArrayLike) -> np.ndarray | None:
         """(F, N, 3) float32 rest normals at ``times`` (not normalized), or None when the normals
@@ -547,19 +561,26 @@ def segment_rates(key_times: npt.ArrayLike, values_at: Callable[[int], npt.Array
     -------
     list of F arrays
         ``(value[k+1] − value[k]) / (t[k+1] − t[k])`` of the interval ``[t[k], t[k+1])`` holding
-        each time (the last interval at the last key), zero outside the keys or with one key.
+        each time (the last interval at the last key; at an interior key, where the interpolant
+        has a kink, the mean of both sides), zero outside the keys or with one key.
     """
     kt = np.asarray(key_times, dtype=np.float64)
-    t = _times(times)
-    out, cache = [], {}
+    t = check_times(times)
+    cache = {}
+
+    def rate(k):
+        if k not in cache:
+            lo, hi = (np.asarray(values_at(i), np.float64) for i in (k, k + 1))
+            cache[k] = (hi - lo) / (kt[k + 1] - kt[k])
+        return cache[k]
+
+    out = []
     for ti in t:
         if kt.shape[0] < 2 or ti < kt[0] or ti > kt[-1]:
             out.append(None)
             continue
         k = int(np.clip(np.searchsorted(kt, ti, side="right") - 1, 0, kt.shape[0] - 2))
-        if k not in cache:
-            lo, hi = (np.asarray(values_at(i), np.float64) for i in (k, k + 1))
-            cache[k] = (hi - lo) / (kt[k + 1] - kt[k])
-        out.append(cache[k])
+        inner_key = 0 < k and ti == kt[k]
+        out.append(0.5 * (rate(k - 1) + rate(k)) if inner_key else rate(k))
     shape = next((r.shape for r in out if r is not None), np.shape(values_at(0)))
     return [np.zeros(shape) if r is None else r for r in out]

@@ -6,6 +6,8 @@ import threading
 import numpy as np
 import warp as wp
 
+from .shapes import as_real
+
 __all__ = ["Influences", "check_influences"]
 
 
@@ -16,8 +18,8 @@ def check_influences(joint_indices, joint_weights, vertex_count=None, joint_coun
     ``joint_weights`` for mismatched shapes, non-integer or out-of-range indices (``0 <= index <
     joint_count`` when given), and NaN, infinite or negative weights.
     """
-    idx = np.asarray(joint_indices)
-    wts = np.asarray(joint_weights, dtype=np.float32)
+    idx = as_real("joint_indices", joint_indices)
+    wts = as_real("joint_weights", joint_weights, np.float32)
     if idx.ndim == 1:
         idx, wts = idx[:, None], wts[:, None]
     if idx.ndim != 2 or wts.shape != idx.shape or (vertex_count is not None
@@ -44,7 +46,9 @@ class Influences:
 
     Each vertex's ``K`` influences are sorted by descending weight (stable: first on ties), so slot
     0 is the antipodality pivot of DQS (the largest weight, as UsdSkel), and zero-padded to
-    ``C = ceil(K / 4)`` groups of four.
+    ``C = max(1, ceil(K / 4))`` groups of four. ``K = 0`` (no influences) is allowed: LBS gives
+    the origin, DQS leaves points where they are (a zero blend), as UsdSkel does; ``V = 0`` gives
+    empty results.
 
     Parameters
     ----------
@@ -70,10 +74,11 @@ class Influences:
         self.vertex_count, self.influence_count = idx.shape
         order = np.argsort(-wts, axis=1, kind="stable")
         idx, wts = np.take_along_axis(idx, order, 1), np.take_along_axis(wts, order, 1)
-        pad = -idx.shape[1] % 4
+        groups = max(1, -(-idx.shape[1] // 4))  # K = 0: one group of zero weights
+        pad = 4 * groups - idx.shape[1]
         V = self.vertex_count
-        self.indices = np.pad(idx, ((0, 0), (0, pad))).astype(np.int32).reshape(V, -1, 4)
-        self.weights = np.pad(wts, ((0, 0), (0, pad))).reshape(V, -1, 4)
+        self.indices = np.pad(idx, ((0, 0), (0, pad))).astype(np.int32).reshape(V, groups, 4)
+        self.weights = np.pad(wts, ((0, 0), (0, pad))).reshape(V, groups, 4)
         self.joint_count_min = int(idx.max()) + 1 if idx.size else 0
         self._device_arrays = {}
         self._lock = threading.Lock()

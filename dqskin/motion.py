@@ -12,8 +12,10 @@ as ``Ȧ = Ẇ·B⁻¹``, and skinned points by the chain rule through LBS or DQS
 (:func:`skinned_velocities`, Warp kernels in :mod:`dqskin.kernels.velocity`).
 
 Derivatives are per unit of the animation's time (USD time codes, glTF seconds) unless stated;
-:meth:`dqskin.Scene.skin` (``velocities=True``) converts to per second. At a key time the
-derivative is the one of the interval starting there (of the last interval at the last key).
+:meth:`dqskin.Scene.skin` (``velocities=True``) converts to per second. At an interior key,
+where piecewise interpolants have a kink, the derivative is the mean of both sides: the velocity
+a renderer's shutter interval around the key sees (UsdSkel and glTF caches are sampled exactly at
+keys).
 
 References: [K] and [MS] as in :mod:`dqskin.animation`.
 """
@@ -25,7 +27,7 @@ import numpy.typing as npt
 
 from . import dq
 from ._warp import Device
-from .animation import Animation, Interpolation, _motion, _times, sample_with_derivative
+from .animation import Animation, Interpolation, _motion, check_times, sample_with_derivative
 from .influences import check_influences
 from .linalg import vee
 from .shapes import frames_of
@@ -134,7 +136,7 @@ def skinning_transforms_with_derivative(skeleton: Skeleton, animation: Animation
     xforms, xforms_dot : (F, J, 4, 4) float64
         Column-vector convention; derivatives per unit of the animation's time.
     """
-    t = _times(times)
+    t = check_times(times)
     if animation is None:
         rest = skeleton.rest_transforms
         local = np.broadcast_to(rest, (t.shape[0],) + rest.shape)

@@ -14,10 +14,11 @@ import numpy as np
 import numpy.typing as npt
 
 from ._warp import Device, resolve_device
-from .animation import Deformer, Interpolation, TransformTrack, sample
+from .animation import Deformer, Interpolation, TransformTrack, check_times, sample
 from .motion import skinning_transforms_with_derivative
 from .skeleton import Skeleton
 from .skinning import Method, Skinner
+from .validation import check_transforms
 
 __all__ = ["DEFAULT_BLEND", "Mesh", "Scene", "SkinnedFrames"]
 
@@ -169,15 +170,17 @@ class Scene:
 
         ``interp`` is :data:`dqskin.motion.INTERPOLATIONS`: "trs" is the asset's own sampler
         (what glTF and USD players show); the others interpolate the keys with dual quaternions.
+        ValueError naming the skeleton, time and joint when a transform is NaN, infinite or
+        beyond float32 range.
         """
         skel: Skeleton = self.skeletons[skeleton]
         anim = self.animations[skeleton]
-        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        t = check_times(times)
         if anim is None:
             return np.broadcast_to(skel.rest_transforms, (t.shape[0],) + skel.rest_transforms.shape)
-        if interp == "trs":
-            return anim.local_transforms(t)
-        return sample(anim, t, interp)
+        local = anim.local_transforms(t) if interp == "trs" else sample(anim, t, interp)
+        return check_transforms(f"{self.path}: {skel.name or 'skeleton'}: joint transforms", local,
+                                skel.joint_names, t)
 
     def skinning_transforms(self, times: npt.ArrayLike, skeleton: int = 0, *, device: Device = None,
                             interp: Interpolation = "trs") -> np.ndarray:
@@ -218,7 +221,7 @@ class Scene:
         """
         if space not in ("output", "skeleton"):
             raise ValueError(f'space must be "output" or "skeleton", got {space!r}')
-        t = self.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
+        t = self.times if times is None else check_times(times)
         result = SkinnedFrames(t)
         xforms, rates = {}, {}
         for m in self.meshes:
@@ -254,7 +257,7 @@ class Scene:
         The next chunk is skinned on a worker thread while the caller consumes the current one
         (Warp launches and NumPy release the GIL, so the two overlap).
         """
-        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        t = check_times(times)
         if int(chunk) < 1:
             raise ValueError(f"--chunk {chunk}: must be at least 1")
         slices = [slice(lo, min(lo + chunk, len(t))) for lo in range(0, len(t), chunk)]

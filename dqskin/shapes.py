@@ -3,7 +3,24 @@ engine works with, with errors naming the argument."""
 
 import numpy as np
 
-__all__ = ["as_array", "as_float", "concat", "frames_of"]
+__all__ = ["as_array", "as_float", "as_real", "concat", "frames_of"]
+
+
+def as_real(name, x, dtype=None):
+    """``x`` as a real numeric array (of ``dtype`` when given): ValueError naming ``name`` for
+    complex values (never silently truncated to their real part) and for non-numbers."""
+    try:
+        a = np.asarray(x)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: not an array of numbers ({exc})") from None
+    if np.iscomplexobj(a):
+        raise ValueError(f"{name}: complex values are not supported")
+    if a.dtype.kind not in "biuf":
+        try:
+            a = a.astype(np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: expected numbers, got {a.dtype} values") from None
+    return a if dtype is None else a.astype(dtype, copy=False)
 
 
 def as_array(name, x, dtype, tail):
@@ -11,7 +28,7 @@ def as_array(name, x, dtype, tail):
 
     Raises ValueError naming ``name`` with the expected ``(..., tail)`` shape otherwise.
     """
-    a = np.asarray(x, dtype=dtype)
+    a = as_real(name, x, dtype)
     n = len(tail)
     if a.ndim < n or any(t is not None and a.shape[a.ndim - n + i] != t
                          for i, t in enumerate(tail)):
@@ -43,7 +60,7 @@ def frames_of(name, a, frames=None, count=None, *, dtype=np.float64, finite=Fals
     -------
     (Fp, N, 3) array of ``dtype``, and whether ``a`` had a frame axis.
     """
-    x = np.asarray(a, dtype=dtype)
+    x = as_real(name, a, dtype)
     batched = x.ndim == 3
     if x.ndim == 2:
         x = x[None]

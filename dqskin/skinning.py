@@ -20,6 +20,7 @@ from .kernels import skin as K
 from .kernels import velocity as KV
 from .kernels.dqmath import mat34, vec8
 from .shapes import as_array, frames_of
+from .validation import check_transforms
 
 __all__ = ["METHODS", "Method", "Skinner", "VectorKind", "check_influences", "skin_points",
            "skin_normals"]
@@ -77,11 +78,14 @@ class Skinner:
         pts = as_array("points", points, np.float64, (3,))
         if pts.ndim != 2:
             raise ValueError(f"points: expected (V, 3), got {pts.shape}")
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("points: NaN or infinite coordinates")
         self.influences = Influences(joint_indices, joint_weights, vertex_count=pts.shape[0])
         self.vertex_count = self.influences.vertex_count
         self.influence_count = self.influences.influence_count
-        g = np.eye(4) if geom_bind_transform is None else as_array(
-            "geom_bind_transform", geom_bind_transform, np.float64, (4, 4)).reshape(4, 4)
+        g = np.eye(4) if geom_bind_transform is None else check_transforms(
+            "geom_bind_transform", as_array("geom_bind_transform", geom_bind_transform, np.float64,
+                                            (4, 4)).reshape(1, 4, 4))[0]
         self.geom_bind_transform = g
         self._cache = {}
         self._lock = threading.Lock()
@@ -140,8 +144,10 @@ class Skinner:
             if x.dtype != wp.mat44 or x.ndim != 2 or x.device != d:
                 raise ValueError(f"{name}: a Warp array must be 2-D (F, J) of wp.mat44 on {d}, got "
                                  f"{x.ndim}-D {x.dtype} on {x.device}")
+            check_transforms(name, x.numpy())  # (F, J, 4, 4): small next to the points
             return x, True
         xs, batched = _transforms(name, skinning_transforms)
+        check_transforms(name, xs)
         return wp.array(xs.astype(np.float32), dtype=wp.mat44, device=d), batched
 
     def _prepare(self, skinning_transforms, kind="points", derivatives=None):
@@ -170,14 +176,15 @@ class Skinner:
         """Uploaded rest points, or ``points`` (V, 3) / (F, V, 3) replacing them."""
         if points is None:
             return self._points
-        p, _ = frames_of(name, points, frames, self.vertex_count)
+        p, _ = frames_of(name, points, frames, self.vertex_count, finite=True)
         return self._upload(p, linear)
 
     def _output(self, out, output_transforms, frames, normals):
         """Apply per-frame output transforms (F, 4, 4) to ``out`` (F, N) in place, on the device."""
         if output_transforms is None:
             return
-        xf = as_array("output_transforms", output_transforms, np.float64, (4, 4)).reshape(-1, 4, 4)
+        xf = check_transforms("output_transforms", as_array(
+            "output_transforms", output_transforms, np.float64, (4, 4)).reshape(-1, 1, 4, 4))[:, 0]
         if xf.shape[0] not in (1, frames):
             raise ValueError(f"output_transforms: expected (4, 4) or ({frames}, 4, 4), got "
                              f"{xf.shape}")
@@ -262,7 +269,7 @@ class Skinner:
         with self._lock:
             code = self._check_method(method)
             prep, frames, batched = self._prepare(skinning_transforms, "vectors")
-            vec, _ = frames_of("vectors", vectors, frames)
+            vec, _ = frames_of("vectors", vectors, frames, finite=True)
             n = vec.shape[1]
             if vector_vertex is None:
                 if n != self.vertex_count:

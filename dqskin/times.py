@@ -9,7 +9,17 @@ from decimal import Decimal, InvalidOperation
 
 import numpy as np
 
-__all__ = ["default_frames", "frame_numbers", "parse_frames", "select_times"]
+__all__ = ["MAX_FRAMES", "default_frames", "frame_numbers", "parse_frames", "select_times"]
+
+MAX_FRAMES = 100_000
+"""Default limit on the number of times one command skins (``--max-frames`` raises it): a
+selection above it is refused before anything is allocated."""
+
+
+def _check_count(count, what, max_frames):
+    if count > max_frames:
+        raise ValueError(f"{what} selects {count:,} frames, more than the limit of {max_frames:,}; "
+                         "pass --max-frames to raise it")
 
 
 def _decimal(text):
@@ -19,13 +29,15 @@ def _decimal(text):
     return d
 
 
-def _range(start, end, step):
-    """Decimal ``start, start + step, …`` up to ``end`` (inclusive within 1e-6 step), as floats."""
+def _range(start, end, step, what="--frames", max_frames=MAX_FRAMES):
+    """Decimal ``start, start + step, …`` up to ``end`` (inclusive within 1e-6 step), as floats;
+    counted before anything is allocated."""
     count = int((end - start) / step + Decimal("1e-6")) + 1
+    _check_count(count, what, max_frames)
     return np.array([float(start + k * step) for k in range(count)], dtype=np.float64)
 
 
-def parse_frames(text, default_step=1.0):
+def parse_frames(text, default_step=1.0, max_frames=MAX_FRAMES):
     """``--frames`` text → times.
 
     Parameters
@@ -34,6 +46,8 @@ def parse_frames(text, default_step=1.0):
         ``START:END[:STEP]`` (END inclusive) or a comma-separated list ``T1,T2,...``.
     default_step : float
         STEP when the range gives none (``--fps`` sets it).
+    max_frames : int
+        Refuse selections of more frames (``--max-frames``).
 
     Returns
     -------
@@ -52,6 +66,7 @@ def parse_frames(text, default_step=1.0):
     except InvalidOperation:
         raise ValueError(message) from None
     if not ranged:
+        _check_count(len(parts), f"--frames {text!r}", max_frames)
         return np.array([float(p) for p in parts], dtype=np.float64)
     if len(parts) not in (2, 3):
         raise ValueError(message)
@@ -59,10 +74,11 @@ def parse_frames(text, default_step=1.0):
     step = parts[2] if len(parts) == 3 else Decimal(repr(float(default_step)))
     if not step > 0 or not end >= start:
         raise ValueError(f"--frames {text!r}: need END >= START and STEP > 0")
-    return _range(start, end, step)
+    return _range(start, end, step, f"--frames {text!r}", max_frames)
 
 
-def select_times(times, time_codes_per_second, frames=None, fps=None, substeps=1):
+def select_times(times, time_codes_per_second, frames=None, fps=None, substeps=1,
+                 max_frames=MAX_FRAMES):
     """Sample times: the asset's own, an explicit ``--frames`` selection, or ``--fps`` resampling
     (which also sets the default STEP of ``--frames``); ``substeps`` samples per interval
     (motion-blur sub-frames).
@@ -77,6 +93,8 @@ def select_times(times, time_codes_per_second, frames=None, fps=None, substeps=1
         ``--frames`` text (:func:`parse_frames`).
     fps : float, optional
     substeps : int
+    max_frames : int
+        Refuse selections of more frames, sub-frames included (``--max-frames``).
 
     Returns
     -------
@@ -87,17 +105,19 @@ def select_times(times, time_codes_per_second, frames=None, fps=None, substeps=1
         raise ValueError(f"--fps {fps}: must be a positive number")
     step = 1.0 if fps is None else time_codes_per_second / fps
     if frames is not None:
-        t = parse_frames(frames, step)
+        t = parse_frames(frames, step, max_frames)
     elif fps is not None:
         t = _range(Decimal(repr(float(t[0]))), Decimal(repr(float(t[-1]))),
-                   Decimal(repr(float(step))))
+                   Decimal(repr(float(step))), f"--fps {fps:g}", max_frames)
     if t.size == 0:
         raise ValueError("--frames: no frames selected")
     if substeps < 1:
         raise ValueError(f"--substeps {substeps}: must be at least 1")
+    _check_count(max(t.size - 1, 0) * substeps + 1, f"--substeps {substeps}", max_frames)
     if substeps > 1 and t.size > 1:
-        u = np.arange(substeps) / substeps
-        t = np.append((t[:-1, None] + np.diff(t)[:, None] * u).ravel(), t[-1])
+        d = [Decimal(repr(float(x))) for x in t]
+        t = np.array([float(a + (b - a) * k / substeps) for a, b in zip(d[:-1], d[1:])
+                      for k in range(substeps)] + [float(d[-1])], dtype=np.float64)
     return t
 
 

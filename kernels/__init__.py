@@ -1,8 +1,9 @@
 """Warp kernels of dqskin, installed as ``dqskin.kernels``.
 
 ``dqmath``: dual-quaternion algebra as ``@wp.func`` (usable in any kernel); ``fk``: forward
-kinematics; ``skin``: per-vertex skinning; ``velocity``: skinned-point velocities; ``metrics``:
-artifact measures; ``render``: ray casting. Each module also holds the thin functions that launch
-its kernels where that is all they need; the public Python API that launches them lives in
-:mod:`dqskin` (``skinning``, ``skeleton``, ``motion``, ``metrics``, ``render``).
+kinematics; ``skin``: per-vertex skinning (the influence layout and the blends every kernel
+shares); ``velocity``: skinned-point velocities; ``metrics``: artifact measures; ``render``: ray
+casting. Each module exposes keyword-argument launchers beside its kernels, built on ``grid``
+(one launch on CUDA, chunks on a CPU thread pool); nothing outside this package calls
+``wp.launch``. The public Python API over them lives in :mod:`dqskin`.
 """

@@ -26,6 +26,10 @@ vec8 = wp.types.vector(length=8, dtype=wp.float32)
 mat34 = wp.types.matrix(shape=(3, 4), dtype=wp.float32)
 """The top three rows of a 4×4 affine transform."""
 
+FACTOR_EPSILON = wp.constant(1.0e-10)
+"""``|det A|`` below which ``GfMatrix4d::Factor`` fails: UsdSkel's DQS then gives the joint a zero
+dual quaternion (it adds nothing to the blend) and no scale; so do the kernels."""
+
 RESIDUAL_TOLERANCE = wp.constant(1.0e-6)
 """A scale/shear residual ``S`` within this of the identity (every entry) counts as rigid, as in
 UsdSkel's DQS. The one definition for the kernels and the host."""
@@ -207,14 +211,20 @@ def polar_rotation(a: wp.mat33):
     ``GfMatrix4d::Factor``).
 
     Orthonormal input returns itself; otherwise ``R = U·Vᵀ`` from the SVD, negated when
-    ``det A < 0`` (Gf negates all three scales of a reflection, leaving a proper rotation).
+    ``det A < 0`` (Gf negates all three scales of a reflection, leaving a proper rotation). ``A``
+    is divided by its largest entry first (``R`` does not change), so scales near the float32
+    limits neither overflow nor underflow in the SVD.
     """
     if is_rotation(a):
         return a
+    big = float(0.0)
+    for i in range(3):
+        for k in range(3):
+            big = wp.max(big, wp.abs(a[i, k]))
     u = wp.mat33()
     sigma = wp.vec3()
     v = wp.mat33()
-    wp.svd3(a, u, sigma, v)
+    wp.svd3(a * (1.0 / wp.max(big, 1.0e-30)), u, sigma, v)
     # svd3 keeps U, V proper rotations and may return a negative singular value: restore the sign
     sgn = wp.vec3(wp.sign(sigma[0]), wp.sign(sigma[1]), wp.sign(sigma[2]))
     r = u * wp.diag(sgn) * wp.transpose(v)

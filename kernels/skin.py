@@ -31,6 +31,7 @@ from typing import Any
 import warp as wp
 
 from .dqmath import (
+    FACTOR_EPSILON,
     RESIDUAL_TOLERANCE,
     dq_blend_add,
     dq_from_rt,
@@ -90,17 +91,23 @@ def prepare_points_kernel(
 ):
     """Per (frame, joint): 3×4 affine for LBS; polar split ``A = R·S`` into a unit dual
     quaternion and the residual ``S`` for DQS. ``has_residual`` must be
-    zeroed before the launch; it is set for frames where some ``S ≠ I`` (1e-6, as UsdSkel)."""
+    zeroed before the launch; it is set for frames where some ``S ≠ I`` (1e-6, as UsdSkel).
+    A (near-)singular ``A`` (``|det A| <`` :data:`FACTOR_EPSILON`) gets a zero dual quaternion
+    and ``S = I``, as UsdSkel's DQS."""
     f, j = wp.tid()
     m = xforms[f, j]
+    affines[f, j] = mat34(m[0, 0], m[0, 1], m[0, 2], m[0, 3],
+                          m[1, 0], m[1, 1], m[1, 2], m[1, 3],
+                          m[2, 0], m[2, 1], m[2, 2], m[2, 3])
     a = mat44_linear(m)
+    if wp.abs(wp.determinant(a)) < FACTOR_EPSILON:
+        dqs[f, j] = vec8()
+        residuals[f, j] = wp.identity(n=3, dtype=float)
+        return
     r = polar_rotation(a)
     s = wp.transpose(r) * a
     q = quat_from_rotation(r)
     dqs[f, j] = dq_from_rt(q, wp.vec3(m[0, 3], m[1, 3], m[2, 3]))
-    affines[f, j] = mat34(m[0, 0], m[0, 1], m[0, 2], m[0, 3],
-                          m[1, 0], m[1, 1], m[1, 2], m[1, 3],
-                          m[2, 0], m[2, 1], m[2, 2], m[2, 3])
     residuals[f, j] = s
     if not is_identity33(s, RESIDUAL_TOLERANCE):
         wp.atomic_max(has_residual, f, 1)

@@ -21,6 +21,7 @@ skinning) and its derivative ``Rᵀ·Ȧ = [ω]×·S + Ṡ``: the skew part gives
 import warp as wp
 
 from .dqmath import (
+    FACTOR_EPSILON,
     RESIDUAL_TOLERANCE,
     dq_from_rt,
     is_identity33,
@@ -68,7 +69,14 @@ def prepare_derivatives_kernel(
     f, j = wp.tid()
     m = xforms[f, j]
     md = xform_derivatives[f, j]
+    affine_derivatives[f, j] = mat34(md[0, 0], md[0, 1], md[0, 2], md[0, 3],
+                                     md[1, 0], md[1, 1], md[1, 2], md[1, 3],
+                                     md[2, 0], md[2, 1], md[2, 2], md[2, 3])
     a = mat44_linear(m)
+    if wp.abs(wp.determinant(a)) < FACTOR_EPSILON:  # a zero DQ in the blend, as skinning
+        dq_derivatives[f, j] = vec8()
+        residual_derivatives[f, j] = wp.mat33()
+        return
     r = polar_rotation(a)
     s = wp.transpose(r) * a
     x = wp.transpose(r) * mat44_linear(md)
@@ -85,9 +93,6 @@ def prepare_derivatives_kernel(
     e_t = dq_from_rt(q, t_dot)
     dq_derivatives[f, j] = vec8(e[0], e[1], e[2], e[3], e[4] + e_t[4], e[5] + e_t[5],
                                 e[6] + e_t[6], e[7] + e_t[7])
-    affine_derivatives[f, j] = mat34(md[0, 0], md[0, 1], md[0, 2], md[0, 3],
-                                     md[1, 0], md[1, 1], md[1, 2], md[1, 3],
-                                     md[2, 0], md[2, 1], md[2, 2], md[2, 3])
     residual_derivatives[f, j] = s_dot
     if not is_identity33(s_dot + wp.identity(n=3, dtype=float), RESIDUAL_TOLERANCE):
         wp.atomic_max(has_residual, f, 1)

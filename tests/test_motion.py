@@ -198,7 +198,8 @@ def test_sclerp_constant_screw_and_exp_log():
         step = np.linalg.inv(m[:-1]) @ m[1:]  # body-frame increment over equal time steps
         np.testing.assert_allclose(step, np.broadcast_to(step[0], step.shape), atol=1e-12)
         # constant twist equal to the key-to-key relative rotation spread over the interval
-        omega, v = motion.joint_twists(anim, t, "sclerp")
+        # (inside it: at an interior key the twist is the mean of both sides)
+        omega, v = motion.joint_twists(anim, t[1:], "sclerp")
         rel = np.linalg.inv(local[k]) @ local[k + 1]
         rotvec = Rotation.from_matrix(rel[:, :3, :3]).as_rotvec()
         want = np.broadcast_to(rotvec / (kt[k + 1] - kt[k]), omega.shape)
@@ -442,6 +443,29 @@ def test_world_joint_twists_match_finite_differences():
                                    (lp[..., :3, 3] - lm[..., :3, 3]) / (2 * h), atol=1e-6)
         body = np.swapaxes(l0[..., :3, :3], -1, -2) @ (lp[..., :3, :3] - lm[..., :3, :3]) / (2 * h)
         np.testing.assert_allclose(om_l, axial(body), atol=1e-6)
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_velocities_at_keys_are_the_mean_of_both_sides(shared_assets, method):
+    """Caches are sampled exactly at keys, where linear keyframes have a kink; a renderer's shutter
+    spans both sides, so the velocity authored there is the central one: it matches the central
+    difference of the skinned points (one-sided derivatives were off by ~20% of the peak speed)."""
+    from dqskin.formats.gltf import load_gltf
+
+    scene = load_gltf(shared_assets / CESIUM)
+    kt = scene.animations[0].key_times
+    t = kt[3:-3:5]  # interior keys
+    vel = scene.skin(t, method, velocities=True).velocities
+    h = 1e-4
+    plus, minus = scene.skin(t + h, method).points, scene.skin(t - h, method).points
+    for m in scene.meshes:
+        fd = (plus[m.name].astype(np.float64) - minus[m.name]) / (2 * h)
+        speed = np.linalg.norm(fd, axis=-1).max()
+        assert speed > 0.1
+        err = np.linalg.norm(vel[m.name] - fd, axis=-1).max()
+        assert err <= 2e-2 * speed, err / speed
+    one_sided = scene.skin(t + 1e-9, method, velocities=True).velocities
+    assert max(np.abs(one_sided[m.name] - vel[m.name]).max() for m in scene.meshes) > 0.05 * speed
 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])

@@ -60,7 +60,7 @@ def import_usdskel():
 
 def import_dqskin():
     import importlib
-    for name in ("dqskin.cli", "dqskin.usd", "dqskin.usd_cache"):
+    for name in ("dqskin.cli", "dqskin.formats.usd", "dqskin.formats.usd_cache"):
         importlib.import_module(name)
 
 

@@ -7,8 +7,8 @@ from its value (rotations in degrees, ``rotateXYZ`` rotating about X first), a p
 transform is the product of its ops in ``xformOpOrder`` (the first op outermost; ``!invert!`` ops
 inverted), and local-to-world the product over the ancestors up to a ``!resetXformStack!``. Within
 an interval every value is linear (or a slerp) in time, so each op's derivative is exact and the
-chain is differentiated by the product rule. At a sample time the derivative is that of the interval
-starting there (of the last interval at the last sample), as for joints.
+chain is differentiated by the product rule. At an interior sample time, where the interpolant has
+a kink, the derivative is the mean of both sides, as for joints.
 """
 
 import numpy as np
@@ -49,12 +49,21 @@ class _Op:
         self.name = op.GetOpName()
 
     def sample(self, t):
-        """Value (F, n) and its time derivative (F, n) at times ``t``."""
+        """Value (F, n) and its time derivative (F, n) at times ``t`` (at an interior sample, the
+        mean of the two one-sided derivatives)."""
         kt, v = self.times, self.values
         if kt.shape[0] == 1:
-            return np.broadcast_to(v[0], (t.shape[0],) + v.shape[1:]), np.zeros((t.shape[0],)
-                                                                                 + v.shape[1:])
-        k = np.clip(np.searchsorted(kt, t, side="right") - 1, 0, kt.shape[0] - 2)
+            return (np.broadcast_to(v[0], (t.shape[0],) + v.shape[1:]),
+                    np.zeros((t.shape[0],) + v.shape[1:]))
+        value, rate = self._segment(t, "right")
+        at_key = np.isin(t, kt[1:-1])
+        if at_key.any():
+            rate[at_key] = 0.5 * (rate[at_key] + self._segment(t[at_key], "left")[1])
+        return value, rate
+
+    def _segment(self, t, side):
+        kt, v = self.times, self.values
+        k = np.clip(np.searchsorted(kt, t, side=side) - 1, 0, kt.shape[0] - 2)
         dt = kt[k + 1] - kt[k]
         u = np.clip((t - kt[k]) / dt, 0.0, 1.0)[:, None]
         inside = ((t >= kt[0]) & (t <= kt[-1]))[:, None]

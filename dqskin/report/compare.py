@@ -42,8 +42,8 @@ from ..skinning import METHODS
 from ..times import default_frames
 from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
 
-__all__ = ["BLEND_WEIGHT", "SECTION_SLICES", "SWEEP_RIGS", "run_compare", "skeleton_up_axis",
-           "summary_lines", "sweeps"]
+__all__ = ["BLEND_WEIGHT", "MAX_RAYS", "SECTION_SLICES", "SWEEP_RIGS", "run_compare",
+           "skeleton_up_axis", "summary_lines", "sweeps"]
 
 BLEND_WEIGHT = DEFAULT_BLEND
 """DQS fraction of every vertex for ``method="blend"`` (0 = LBS, 1 = DQS)."""
@@ -64,6 +64,10 @@ each cross-section shrinks by ``k² = 1 − 2w(1−w)(1−cos θ)``, whose mean 
 same, but the Jacobian's rank-one part (the blend changing along the bone) adds back
 ``(1 − cos θ)x²/(2a²)`` on the half-width-``a`` ramp, a sixth over the ramp, hence ``d = 6``. DQS
 keeps 1 in both (rigid rotation of each section)."""
+
+MAX_RAYS = 8192
+"""Default limit on rays per image side (``width × supersample``; ``--max-rays`` raises it): an
+8192² super-sampled image is already 768 MB of colour samples."""
 
 _LABELS = {"lbs": "LBS", "dqs": "DQS", "blend": f"Blend ({BLEND_WEIGHT:g} DQS)"}
 _FRAME_FILE = re.compile(r"^(?:(?:%s)_\d{3}|closeup)\.png$" % "|".join(VIEWS))
@@ -406,7 +410,7 @@ def skeleton_up_axis(scene):
 
 def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, views=VIEWS,
                 device=None, width=512, supersample=2, progress=True, force=False,
-                sweeps_dir="default", up_axis=None, clip=None):
+                sweeps_dir="default", up_axis=None, clip=None, max_rays=MAX_RAYS):
     """Compare skinning methods on an asset and write ``report.html``, ``metrics.json`` and
     ``frames/*.png`` in ``out_dir``.
 
@@ -440,6 +444,8 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         Up axis of the skeleton space for the cameras; default :func:`skeleton_up_axis`.
     clip : str or int, optional
         glTF animation to load.
+    max_rays : int
+        Refuse ``width × supersample`` above this, before rendering anything.
 
     Returns
     -------
@@ -452,6 +458,11 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     for name, v, low in (("width", width, 16), ("supersample", supersample, 1)):
         if isinstance(v, bool) or int(v) != v or v < low:
             raise ValueError(f"{name}: expected an integer >= {low}, got {v!r}")
+    if width * supersample > max_rays:
+        rays = width * supersample
+        raise ValueError(f"--width {width} × --supersample {supersample} casts {rays:,} rays per "
+                         f"image side, more than the limit of {max_rays:,}; pass --max-rays to "
+                         "raise it")
     scene = input_path if isinstance(input_path, Scene) else load(input_path, clip=clip)
     up = skeleton_up_axis(scene) if up_axis is None else up_axis
     if up not in ("Y", "Z"):
