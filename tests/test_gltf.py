@@ -7,8 +7,15 @@ from the spec's formula), STEP and CUBICSPLINE (hand-written Hermite) code, and 
 """
 
 import base64
+import copy
 import functools
+import json
 import math
+import re
+import signal
+import struct
+import warnings
+from contextlib import contextmanager
 from urllib.parse import unquote
 
 import numpy as np
@@ -594,3 +601,486 @@ def test_bad_files(tmp_path):
         (tmp_path / name).write_bytes(content)
         with pytest.raises(ValueError, match=name.replace(".", r"\.") + ": "):
             load_gltf(tmp_path / name)
+
+
+# --------------------------------------------------------------------------------------------
+# Hostile input: only ValueError("file: field: ..."), no silent garbage, no warnings, no hang
+# --------------------------------------------------------------------------------------------
+
+
+def read_glb(path):
+    """(JSON document, BIN chunk or None) of a GLB file as the builders write it."""
+    data = path.read_bytes()
+    size = struct.unpack_from("<I", data, 12)[0]
+    rest = data[20 + size:]
+    blob = rest[8:8 + struct.unpack_from("<I", rest)[0]] if rest else None
+    return json.loads(data[20:20 + size]), blob
+
+
+def glb_chunk(kind, payload):
+    """One GLB chunk: length, type, payload padded to 4 bytes (spaces for JSON, else zeros)."""
+    payload += (b" " if kind == b"JSON" else b"\0") * (-len(payload) % 4)
+    return struct.pack("<I", len(payload)) + kind + payload
+
+
+def glb_container(chunks, version=2):
+    body = b"".join(chunks)
+    return struct.pack("<4sII", b"glTF", version, 12 + len(body)) + body
+
+
+def glb_bytes(doc, blob=None, *, version=2, chunks=()):
+    """A GLB file: the JSON chunk, the BIN chunk when ``blob`` is given, then ``chunks``."""
+    first = [glb_chunk(b"JSON", json.dumps(doc).encode())]
+    first += [] if blob is None else [glb_chunk(b"BIN\0", blob)]
+    return glb_container(first + [glb_chunk(kind, payload) for kind, payload in chunks], version)
+
+
+def static_parts(tmp_path):
+    """write_static's valid file as (JSON document, BIN chunk)."""
+    path, _ = write_static(tmp_path / "source.glb")
+    return read_glb(path)
+
+
+def acc(doc, attribute):
+    """The accessor object of ``attribute`` (or "indices", "ibm") of write_static's mesh."""
+    prim = doc["meshes"][0]["primitives"][0]
+    index = {"indices": prim.get("indices"), "ibm": doc["skins"][0].get("inverseBindMatrices")}
+    return doc["accessors"][index.get(attribute, prim["attributes"].get(attribute))]
+
+
+def view(doc, attribute):
+    return doc["bufferViews"][acc(doc, attribute)["bufferView"]]
+
+
+def sparse(values_of, count):
+    """Mutation: a sparse block on POSITION with ``count`` entries, values from another view."""
+    def mutate(d):
+        acc(d, "POSITION")["sparse"] = {
+            "count": count, "indices": {"bufferView": acc(d, "indices")["bufferView"],
+                                        "componentType": USHORT},
+            "values": {"bufferView": acc(d, values_of)["bufferView"]}}
+    return mutate
+
+
+# (mutation of write_static's JSON, message after "bad.glb: "). write_static: 5 POSITION
+# (VEC3 FLOAT, 60 bytes), TEXCOORD_0 (VEC2 USHORT, 20 bytes), 6 USHORT indices, 2 joints.
+LAYOUT = {
+    "stride smaller than element": (
+        lambda d: view(d, "WEIGHTS_0").update(byteStride=4),
+        r"accessors\[\d+\]\.bufferView: bufferViews\[\d+\]\.byteStride 4 is smaller than one "
+        r"VEC4 of FLOAT element \(16 bytes\)"),
+    "stride not a multiple of the component": (
+        lambda d: view(d, "POSITION").update(byteStride=14),
+        r"accessors\[\d+\]\.bufferView: bufferViews\[\d+\]\.byteStride 14 is not a multiple of "
+        r"the 4-byte components of VEC3 of FLOAT"),
+    "stride runs past the view": (
+        lambda d: view(d, "POSITION").update(byteStride=16),
+        r"accessors\[\d+\]\.count: 5 elements \(VEC3 of FLOAT, 12 bytes every 16\) from "
+        r"byteOffset 0 need 76 bytes; bufferViews\[\d+\] has 60"),
+    "offset past the view": (
+        lambda d: acc(d, "POSITION").update(byteOffset=64),
+        r"accessors\[\d+\]\.byteOffset: 64 is past the end of bufferViews\[\d+\] \(60 bytes\)"),
+    "huge offset": (
+        lambda d: acc(d, "POSITION").update(byteOffset=2**64),
+        r"accessors\[\d+\]\.byteOffset: 18446744073709551616 is past the end"),
+    "misaligned offset": (
+        lambda d: acc(d, "POSITION").update(byteOffset=2),
+        r"accessors\[\d+\]\.byteOffset: 2 puts the data at byte \d+ of buffers\[0\], not a "
+        r"multiple of the 4-byte components of VEC3 of FLOAT"),
+    "count past the view": (
+        lambda d: acc(d, "POSITION").update(count=6),
+        r"accessors\[\d+\]\.count: 6 elements .* need 72 bytes; bufferViews\[\d+\] has 60"),
+    "view past the buffer": (
+        lambda d: view(d, "POSITION").update(byteLength=10**6),
+        r"bufferViews\[\d+\]: byteOffset \d+ \+ byteLength 1000000 = \d+ runs past the end of "
+        r"buffers\[0\] \(byteLength \d+\)"),
+    "buffer shorter than byteLength": (
+        lambda d: d["buffers"][0].update(byteLength=d["buffers"][0]["byteLength"] + 64),
+        r"buffers\[0\]: \d+ bytes of data, byteLength is \d+"),
+    "negative count": (
+        lambda d: acc(d, "POSITION").update(count=-1),
+        r"accessors\[\d+\]\.count: expected an integer >= 1, got -1"),
+    "zero count": (
+        lambda d: acc(d, "WEIGHTS_0").update(count=0),
+        r"accessors\[\d+\]\.count: expected an integer >= 1, got 0"),
+    "fractional count": (
+        lambda d: acc(d, "POSITION").update(count=2.5),
+        r"accessors\[\d+\]\.count: expected an integer, got 2\.5"),
+    "string offset": (
+        lambda d: acc(d, "POSITION").update(byteOffset="8"),
+        r'accessors\[\d+\]\.byteOffset: expected an integer, got "8"'),
+    "negative stride": (
+        lambda d: view(d, "POSITION").update(byteStride=-16),
+        r"bufferViews\[\d+\]\.byteStride: expected an integer >= 0, got -16"),
+    "boolean stride": (
+        lambda d: view(d, "POSITION").update(byteStride=True),
+        r"bufferViews\[\d+\]\.byteStride: expected an integer, got true"),
+    "bufferView out of range": (
+        lambda d: acc(d, "POSITION").update(bufferView=99),
+        r"accessors\[\d+\]\.bufferView: 99 is out of range \(bufferViews has 6 entries\)"),
+    "unknown componentType": (
+        lambda d: acc(d, "POSITION").update(componentType=5124),
+        r"accessors\[\d+\]\.componentType: expected one of \[5120, .*\], got 5124"),
+    "sparse count above count": (
+        sparse("TEXCOORD_0", 9),
+        r"accessors\[\d+\]\.sparse\.count: 9 is more than the accessor's count 5"),
+    "sparse values past their view": (
+        sparse("TEXCOORD_0", 5),
+        r"accessors\[\d+\]\.sparse\.count: 5 elements \(VEC3 of FLOAT, 12 bytes every 12\) "
+        r"from byteOffset 0 need 60 bytes; bufferViews\[\d+\] has 20"),
+    "zeros too large to allocate": (
+        lambda d: acc(d, "POSITION").update(bufferView=None, count=10**9),
+        r"accessors\[\d+\]\.count: 1000000000 elements without a bufferView \(zeros\) exceed"),
+}
+
+
+@pytest.mark.parametrize("case", LAYOUT)
+def test_accessor_layout_rejected(tmp_path, case):
+    """Accessor byte ranges are checked against the spec before any data is read."""
+    mutate, message = LAYOUT[case]
+    doc, blob = static_parts(tmp_path)
+    mutate(doc)
+    path = tmp_path / "bad.glb"
+    path.write_bytes(glb_bytes(doc, blob))
+    with pytest.raises(ValueError, match=rf"^bad\.glb: {message}"):
+        load_gltf(path)
+
+
+def test_valid_strides_still_read(tmp_path):
+    """Interleaved data (POSITION and TEXCOORD_0 every 16 bytes, explicit byteStride) reads as
+    the tightly packed original does: the layout checks reject only what the spec forbids."""
+    doc, blob = static_parts(tmp_path)
+    want = load_gltf(tmp_path / "source.glb").meshes[0]
+    pos, uv = acc(doc, "POSITION"), acc(doc, "TEXCOORD_0")
+    p = np.frombuffer(blob, "<f4", 15, view(doc, "POSITION").get("byteOffset", 0))
+    t = np.frombuffer(blob, "<u2", 10, view(doc, "TEXCOORD_0").get("byteOffset", 0))
+    rows = np.zeros((5, 16), np.uint8)
+    rows[:, :12] = p.reshape(5, 3).copy().view(np.uint8)
+    rows[:, 12:] = t.reshape(5, 2).copy().view(np.uint8)
+    start = len(blob)
+    blob += rows.tobytes()
+    doc["bufferViews"].append({"buffer": 0, "byteOffset": start, "byteLength": 80,
+                               "byteStride": 16})
+    doc["buffers"][0]["byteLength"] = len(blob)
+    pos.update(bufferView=len(doc["bufferViews"]) - 1, byteOffset=0)
+    uv.update(bufferView=len(doc["bufferViews"]) - 1, byteOffset=12)
+    view(doc, "WEIGHTS_0")["byteStride"] = 16  # explicit, equal to the element size
+    path = tmp_path / "interleaved.glb"
+    path.write_bytes(glb_bytes(doc, blob))
+    got = load_gltf(path).meshes[0]
+    np.testing.assert_array_equal(got.points, want.points)
+    np.testing.assert_array_equal(got.uvs, want.uvs)
+    np.testing.assert_array_equal(got.joint_weights, want.joint_weights)
+
+
+def test_valid_sparse_accessor_read(tmp_path):
+    """Sparse substitution still reads (indices and values tightly packed, as glTF asks)."""
+    doc, blob = static_parts(tmp_path)
+    want = load_gltf(tmp_path / "source.glb").meshes[0].points.copy()
+    values = np.array([[9, 8, 7], [-1, -2, -3]], np.float32)
+    want[[1, 3]] = values
+    for data in (np.array([1, 3, 0, 0], np.uint16), values):  # indices padded to 4 bytes
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(blob),
+                                   "byteLength": data.nbytes})
+        blob += data.tobytes()
+    doc["buffers"][0]["byteLength"] = len(blob)
+    n = len(doc["bufferViews"])
+    acc(doc, "POSITION")["sparse"] = {"count": 2, "values": {"bufferView": n - 1},
+                                      "indices": {"bufferView": n - 2, "componentType": USHORT}}
+    path = tmp_path / "sparse.glb"
+    path.write_bytes(glb_bytes(doc, blob))
+    np.testing.assert_array_equal(load_gltf(path).meshes[0].points, want)
+
+
+def add_animation(channel_sampler):
+    def mutate(d):
+        d["animations"] = [{"channels": [{"sampler": channel_sampler,
+                                          "target": {"node": 0, "path": "rotation"}}],
+                            "samplers": []}]
+    return mutate
+
+
+def drop(key):
+    def mutate(obj):
+        del obj[key]
+    return mutate
+
+
+# (mutation of write_static's JSON, message after "bad.glb: ")
+STRUCTURE = {
+    "top level array": (lambda d: [d], r"top level: expected an object, got an array of 1"),
+    "nodes a string": (lambda d: d.update(nodes="abc"), r'nodes: expected an array, got "abc"'),
+    "accessors an object": (lambda d: d.update(accessors={}),
+                            r"accessors: expected an array, got an object"),
+    "bufferViews a number": (lambda d: d.update(bufferViews=5),
+                             r"bufferViews: expected an array, got 5"),
+    "buffers a boolean": (lambda d: d.update(buffers=True), r"buffers: expected an array"),
+    "meshes of numbers": (lambda d: d.update(meshes=[1]),
+                          r"meshes\[0\]: expected an object, got 1"),
+    "skins a string": (lambda d: d.update(skins="x"), r"skins: expected an array"),
+    "animations a string": (lambda d: d.update(animations="x"), r"animations: expected an array"),
+    "children a string": (lambda d: d["nodes"][0].update(children="12"),
+                          r'nodes\[0\]\.children: expected an array, got "12"'),
+    "children of floats": (lambda d: d["nodes"][0].update(children=[1.5]),
+                           r"nodes\[0\]\.children\[0\]: expected an integer, got 1\.5"),
+    "child out of range": (lambda d: d["nodes"][0].update(children=[7]),
+                           r"nodes\[0\]\.children\[0\]: 7 is out of range \(nodes has 3 entries\)"),
+    "node cycle": (lambda d: d["nodes"][1].update(children=[0]), r"nodes\[0\]: cycle"),
+    "matrix of 15": (lambda d: d["nodes"][1].update(matrix=[1.0] * 15),
+                     r"nodes\[1\]\.matrix: expected an array of 16 numbers, got an array of 15"),
+    "translation of strings": (lambda d: d["nodes"][0].update(translation=[0, "a", 0]),
+                               r'nodes\[0\]\.translation\[1\]: expected a finite number, got "a"'),
+    "rotation underflows": (lambda d: d["nodes"][0].update(rotation=[1e-300, 0, 0, 0]),
+                            r"nodes\[0\]\.rotation: zero quaternion"),
+    "name a number": (lambda d: d["nodes"][2].update(name=5),
+                      r"nodes\[2\]\.name: expected a string, got 5"),
+    "primitives a string": (lambda d: d["meshes"][0].update(primitives="x"),
+                            r'meshes\[0\]\.primitives: expected an array, got "x"'),
+    "attributes an array": (lambda d: d["meshes"][0]["primitives"][0].update(attributes=[]),
+                            r"meshes\[0\]\.primitives\[0\]\.attributes: expected an object"),
+    "attribute a string": (
+        lambda d: d["meshes"][0]["primitives"][0]["attributes"].update(POSITION="1"),
+        r'meshes\[0\]\.primitives\[0\]\.attributes\.POSITION: expected an integer, got "1"'),
+    "attributes missing": (lambda d: drop("attributes")(d["meshes"][0]["primitives"][0]),
+                           r"meshes\[0\]\.primitives\[0\]\.attributes: missing"),
+    "joints a string": (lambda d: d["skins"][0].update(joints="01"),
+                        r'skins\[0\]\.joints: expected an array, got "01"'),
+    "joints missing": (lambda d: drop("joints")(d["skins"][0]), r"skins\[0\]\.joints: missing"),
+    "asset missing": (drop("asset"), r"asset: missing"),
+    "version a number": (lambda d: d["asset"].update(version=2),
+                         r"asset\.version: expected a string, got 2"),
+    "extensionsRequired a string": (lambda d: d.update(extensionsRequired="KHR_x"),
+                                    r"extensionsRequired: expected an array"),
+    "sampler out of range": (add_animation(3), r"animations\[0\]\.channels\[0\]\.sampler: 3 is "
+                             r"out of range \(samplers has 0 entries\)"),
+}
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+@pytest.mark.parametrize("case", STRUCTURE)
+def test_document_structure_rejected(tmp_path, case, suffix):
+    """Wrong JSON types, missing required members and bad references name the field."""
+    mutate, message = STRUCTURE[case]
+    doc, blob = static_parts(tmp_path)
+    result = mutate(doc)
+    doc = result if isinstance(result, list) else doc
+    path = tmp_path / f"bad{suffix}"
+    if suffix == ".glb":
+        path.write_bytes(glb_bytes(doc, blob))
+    else:
+        if isinstance(doc, dict) and isinstance(doc.get("buffers"), list):
+            doc["buffers"][0]["uri"] = "data:;base64," + base64.b64encode(blob).decode()
+        path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=rf"^bad\{suffix}: {message}"):
+        load_gltf(path)
+
+
+def test_long_node_chain(tmp_path):
+    """The parent and cycle checks walk long chains: a 500-node chain above the root loads (all
+    of it joins the skeleton), and a cycle closed at its far end is found."""
+    doc, blob = static_parts(tmp_path)
+    n = len(doc["nodes"])
+    doc["nodes"] += [{"children": [n + k + 1]} for k in range(499)] + [{"children": [0]}]
+    path = tmp_path / "chain.glb"
+    path.write_bytes(glb_bytes(doc, blob))
+    assert load_gltf(path).skeletons[0].joint_count == 502
+    doc["nodes"][0]["children"].append(n)
+    path.write_bytes(glb_bytes(doc, blob))
+    with pytest.raises(ValueError, match=r"^chain\.glb: nodes\[\d+\]: cycle in the node hierarchy"):
+        load_gltf(path)
+
+
+def test_repeated_node_names_load(tmp_path):
+    """glTF allows repeated node names: joints named alike get "#{node}" appended."""
+    doc, blob = static_parts(tmp_path)
+    doc["nodes"][1]["name"] = "root"
+    path = tmp_path / "names.glb"
+    path.write_bytes(glb_bytes(doc, blob))
+    assert load_gltf(path).skeletons[0].joint_names == ["root#0", "root#1"]
+
+
+def write_external(tmp_path, uri):
+    """write_static's mesh as ``asset/static.gltf`` whose buffer is ``uri``; the data is at
+    ``asset/data.bin``, ``asset/sub dir/data 1.bin`` and, outside the folder, ``outside.bin``."""
+    doc, blob = static_parts(tmp_path)
+    folder = tmp_path / "asset"
+    (folder / "sub dir").mkdir(parents=True)
+    for file in (folder / "data.bin", folder / "sub dir" / "data 1.bin", tmp_path / "outside.bin"):
+        file.write_bytes(blob)
+    doc["buffers"] = [{"uri": uri(tmp_path) if callable(uri) else uri, "byteLength": len(blob)}]
+    path = folder / "static.gltf"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+@pytest.mark.parametrize("uri", [
+    "../outside.bin", "%2E%2E/outside.bin", "sub%20dir/../../outside.bin", "/etc/passwd",
+    lambda tmp: str(tmp / "outside.bin"), lambda tmp: (tmp / "outside.bin").as_uri(),
+    "file:../outside.bin",
+], ids=["dotdot", "encoded dotdot", "via subfolder", "absolute", "absolute outside",
+        "file uri", "relative file uri"])
+def test_buffer_uri_outside_folder_refused(tmp_path, uri):
+    """Buffers outside the asset's folder are never opened, even where the file exists."""
+    path = write_external(tmp_path, uri)
+    with pytest.raises(ValueError, match=r"^static\.gltf: buffers\[0\]\.uri: '.*' resolves "
+                                         r"outside the asset's folder"):
+        load_gltf(path)
+
+
+@pytest.mark.parametrize("uri, message", [
+    ("http://example.com/data.bin", "is neither a relative file path nor a data: URI"),
+    ("//server/share/data.bin", "is neither a relative file path nor a data: URI"),
+    ("missing.bin", r"cannot be read \(No such file or directory\)"),
+    ("sub%20dir", "is not a regular file"),
+])
+def test_buffer_uri_unusable(tmp_path, uri, message):
+    path = write_external(tmp_path, uri)
+    with pytest.raises(ValueError, match=rf"^static\.gltf: buffers\[0\]\.uri: '[^']*' {message}"):
+        load_gltf(path)
+
+
+@pytest.mark.parametrize("uri", ["data.bin", "sub%20dir/data%201.bin", "./sub%20dir/../data.bin",
+                                 lambda tmp: (tmp / "asset" / "data.bin").as_uri()])
+def test_buffer_uri_inside_folder_read(tmp_path, uri):
+    path = write_external(tmp_path, uri)
+    np.testing.assert_array_equal(load_gltf(path).meshes[0].points,
+                                  load_gltf(tmp_path / "source.glb").meshes[0].points)
+
+
+def test_glb_container_checked_without_warnings(tmp_path):
+    """pygltflib's UserWarnings never reach the user: unknown chunks are ignored silently (as
+    the GLB spec asks) and a wrong container version is a ValueError."""
+    doc, blob = static_parts(tmp_path)
+    json_chunk, bin_chunk = glb_chunk(b"JSON", json.dumps(doc).encode()), glb_chunk(b"BIN\0", blob)
+    long_bin = struct.pack("<I", len(blob) + 100) + bin_chunk[4:]
+    cases = {"extra.glb": glb_bytes(doc, blob, chunks=[(b"XTRA", b"1234")]),
+             "version1.glb": glb_bytes(doc, blob, version=1),
+             "bin-first.glb": glb_container([bin_chunk, json_chunk]),
+             "two-bins.glb": glb_container([json_chunk, bin_chunk, bin_chunk]),
+             "truncated.glb": glb_bytes(doc, blob)[:-4],
+             "long-chunk.glb": glb_container([json_chunk, long_bin]),
+             "short.glb": b"glTF\2\0\0\0"}
+    expect = {"version1.glb": r"GLB header: container version 1; only version 2",
+              "bin-first.glb": r"GLB chunk 0: the first chunk must be the JSON chunk",
+              "two-bins.glb": r"GLB chunk 2: one BIN chunk is allowed",
+              "truncated.glb": r"GLB header: declares \d+ bytes but the file has \d+",
+              "long-chunk.glb": r"GLB chunk 1: \d+ bytes from byte \d+ run past the end",
+              "short.glb": r"GLB header: the file has 8 bytes"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name, data in cases.items():
+            (tmp_path / name).write_bytes(data)
+            if name in expect:
+                with pytest.raises(ValueError, match=rf"^{re.escape(name)}: {expect[name]}"):
+                    load_gltf(tmp_path / name)
+        np.testing.assert_array_equal(load_gltf(tmp_path / "extra.glb").meshes[0].points,
+                                      load_gltf(tmp_path / "source.glb").meshes[0].points)
+
+
+class FuzzTimeout(BaseException):
+    """Raised by the alarm; not an Exception, so no ``except Exception`` in the loader hides it."""
+
+
+@contextmanager
+def time_limit(seconds):
+    """Raise FuzzTimeout after ``seconds`` of wall time (where SIGALRM exists)."""
+    if not hasattr(signal, "SIGALRM"):
+        yield
+        return
+
+    def fire(signum, frame):
+        raise FuzzTimeout(f"no result after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, fire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+FUZZ_KINDS = ("truncate", "json bytes", "bin bytes", "accessor field", "any value")
+FUZZ_PER_ASSET = 30
+FUZZ_VALUES = [-1, 0, 1, 3, 5, 2**31 - 1, 2**32, 2**64, 10**30, 1.5, -0.0, 1e308, float("inf"),
+               float("nan"), "8", None, [], {}, True, [1, 2]]
+
+
+def json_members(value):
+    """Every (container, key) of a decoded JSON tree."""
+    out, stack = [], [value]
+    while stack:
+        node = stack.pop()
+        items = (node.items() if isinstance(node, dict) else
+                 enumerate(node) if isinstance(node, list) else ())
+        for key, child in items:
+            out.append((node, key))
+            stack.append(child)
+    return out
+
+
+def fuzz_mutation(rng, data, doc, blob, kind):
+    """One mutated file: bytes of ``data`` changed, or a member of its JSON ``doc`` replaced."""
+    glb = data[:4] == b"glTF"
+    if kind == "truncate":
+        return data[:int(rng.integers(0, len(data)))]
+    if kind in ("json bytes", "bin bytes"):
+        json_end = 20 + struct.unpack_from("<I", data, 12)[0] if glb else len(data)
+        lo, hi = (json_end + 8, len(data)) if kind == "bin bytes" and blob else (
+            20 if glb else 0, json_end)
+        out = bytearray(data)
+        for pos in rng.integers(lo, hi, size=int(rng.integers(1, 9))):
+            out[pos] ^= int(rng.integers(1, 256))
+        return bytes(out)
+    d = copy.deepcopy(doc)
+    value = FUZZ_VALUES[int(rng.integers(len(FUZZ_VALUES)))]
+    if kind == "accessor field":
+        a = d["accessors"][int(rng.integers(len(d["accessors"])))]
+        field = ("count", "byteOffset", "byteStride")[int(rng.integers(3))]
+        owner = d["bufferViews"][a["bufferView"]] if field == "byteStride" and "bufferView" in a \
+            else a
+        owner[field] = value
+    else:
+        members = json_members(d)
+        node, key = members[int(rng.integers(len(members)))]
+        node[key] = value
+    return glb_bytes(d, blob) if glb else json.dumps(d).encode()
+
+
+def fuzz_outcome(path):
+    """None when load_gltf loads ``path`` or raises a one-line ValueError naming it, within 5 s
+    and without warnings; else what went wrong."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            with time_limit(5.0):
+                load_gltf(path)
+        except ValueError as e:
+            if not str(e).startswith(f"{path.name}: ") or "\n" in str(e):
+                return f"badly worded ValueError {e!r}"
+        except (Exception, FuzzTimeout) as e:
+            return f"{type(e).__name__}: {e}"
+    if caught:
+        return f"warning {caught[0].category.__name__}: {caught[0].message}"
+    return None
+
+
+def test_fuzz_shared_assets(shared_assets, tmp_path):
+    """Seeded mutations of every shared glTF asset (truncation, flipped JSON or BIN bytes, bad
+    accessor count/byteOffset/byteStride, any JSON member replaced): each file loads or raises a
+    ValueError naming it; nothing else, no warning, no hang."""
+    assets = sorted(p for p in shared_assets.rglob("*") if p.suffix.lower() in (".glb", ".gltf"))
+    assert assets
+    failures = []
+    for a, asset in enumerate(assets):
+        data = asset.read_bytes()
+        doc, blob = read_glb(asset) if data[:4] == b"glTF" else (json.loads(data), None)
+        rng = np.random.default_rng(2024 + a)
+        for k in range(FUZZ_PER_ASSET):
+            kind = FUZZ_KINDS[k % len(FUZZ_KINDS)]
+            path = tmp_path / f"{asset.stem}-{k}{asset.suffix}"
+            path.write_bytes(fuzz_mutation(rng, data, doc, blob, kind))
+            problem = fuzz_outcome(path)
+            if problem:
+                failures.append(f"{asset.name} mutation {k} ({kind}): {problem}")
+    assert not failures, "\n".join(failures)

@@ -12,12 +12,26 @@ Each skin becomes a :class:`~dqskin.skeleton.Skeleton` over its joints plus ever
 joints and the rest world transform for the added ancestors (no vertex references them), so
 ``Skeleton.skinning_transforms`` is exactly the glTF joint matrix. Morph targets and ``weights``
 channels are ignored (meshes keep their base shape).
+
+Files are untrusted input. Before anything is read, the GLB container is checked chunk by chunk,
+every JSON member the loader uses is type-checked against the glTF 2.0 schema (references
+included), and every accessor's byte range (offset, stride, count, alignment) is checked against
+its bufferView and buffer. External buffers must stay inside the asset's folder (``data:`` URIs
+are fine). Whatever is wrong surfaces as one ``ValueError`` "file: glTF field: what is wrong";
+pygltflib only ever sees the checked members, with its warnings silenced.
 """
 
 import base64
 import binascii
+import json
+import math
 import os
-from urllib.parse import unquote
+import re
+import stat
+import struct
+import warnings
+from collections import Counter
+from urllib.parse import unquote, urlsplit
 
 import numpy as np
 import pygltflib
@@ -44,6 +58,13 @@ _PATH_SIZES = {"translation": 3, "rotation": 4, "scale": 3}
 _UNSUPPORTED_EXTENSIONS = ("KHR_draco_mesh_compression", "EXT_meshopt_compression")
 _INTEGERS = (5121, 5123, 5125)
 _FLOAT_OR_NORMALIZED = (5126, 5121, 5123)
+_COMPONENT_NAMES = {5120: "BYTE", 5121: "UNSIGNED_BYTE", 5122: "SHORT", 5123: "UNSIGNED_SHORT",
+                    5125: "UNSIGNED_INT", 5126: "FLOAT"}
+_ACCESSOR_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_MAX_ZERO_COMPONENTS = 1 << 24
+"""Components an accessor without a bufferView (all zeros) may ask this loader to allocate."""
+_GLB_JSON, _GLB_BIN = 0x4E4F534A, 0x004E4942
+_READ_ATTRIBUTES = re.compile(r"POSITION|NORMAL|TEXCOORD_0|(JOINTS|WEIGHTS)_[0-9]+")
 
 
 def _trs_matrices(t, r, s):
@@ -151,6 +172,338 @@ class GltfAnimation(Animation):
         return m
 
 
+# -- validation of untrusted files ---------------------------------------------------------------
+# Checks raise _Invalid("field: what is wrong"); _Reader prefixes the file name. Each schema
+# check is a function (value, field, sizes) -> the value the loader keeps, where ``sizes`` gives
+# the length of every array a reference may point into.
+
+
+class _Invalid(Exception):
+    """A glTF file fails validation; the message is ``"field: what is wrong"``."""
+
+
+def _shown(value):
+    """A decoded JSON value as messages show it: scalars verbatim (cut when long), else its kind."""
+    if isinstance(value, dict):
+        return "an object"
+    if isinstance(value, list):
+        return f"an array of {len(value)}"
+    text = json.dumps(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _member(field, name):
+    return f"{field}.{name}" if field else name
+
+
+def _integer(minimum=0):
+    """Check: an integer ``>= minimum`` (integral numbers such as ``2.0`` count; booleans don't)."""
+    def check(value, field, sizes):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise _Invalid(f"{field}: expected an integer, got {_shown(value)}")
+        if value < minimum:
+            raise _Invalid(f"{field}: expected an integer >= {minimum}, got {value}")
+        return value
+    return check
+
+
+def _ref(array):
+    """Check: an index into the document's (or the animation's) ``array``."""
+    def check(value, field, sizes):
+        index = _integer()(value, field, sizes)
+        if index >= sizes[array]:
+            raise _Invalid(f"{field}: {index} is out of range ({array} has {sizes[array]} "
+                           "entries)")
+        return index
+    return check
+
+
+def _one_of(allowed):
+    """Check: one of the ``allowed`` constants (returned as spelled there: ``5126.0`` → 5126)."""
+    def check(value, field, sizes):
+        if isinstance(value, bool) or value not in allowed:
+            raise _Invalid(f"{field}: expected one of {list(allowed)}, got {_shown(value)}")
+        return allowed[allowed.index(value)]
+    return check
+
+
+def _string(value, field, sizes):
+    if not isinstance(value, str):
+        raise _Invalid(f"{field}: expected a string, got {_shown(value)}")
+    return value
+
+
+def _boolean(value, field, sizes):
+    if not isinstance(value, bool):
+        raise _Invalid(f"{field}: expected true or false, got {_shown(value)}")
+    return value
+
+
+def _numbers(n):
+    """Check: an array of ``n`` finite numbers, returned as floats."""
+    def check(value, field, sizes):
+        if not isinstance(value, list) or len(value) != n:
+            raise _Invalid(f"{field}: expected an array of {n} numbers, got {_shown(value)}")
+        out = []
+        for k, x in enumerate(value):
+            try:
+                f = float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else None
+            except OverflowError:  # an integer beyond float range
+                f = None
+            if f is None or not math.isfinite(f):
+                raise _Invalid(f"{field}[{k}]: expected a finite number, got {_shown(x)}")
+            out.append(f)
+        return out
+    return check
+
+
+def _array(item):
+    def check(value, field, sizes):
+        if not isinstance(value, list):
+            raise _Invalid(f"{field}: expected an array, got {_shown(value)}")
+        return [item(v, f"{field}[{k}]", sizes) for k, v in enumerate(value)]
+    return check
+
+
+def _object(fields, required=()):
+    """Check an object's ``fields`` (absent or null: left out); other members are dropped."""
+    def check(value, field, sizes):
+        if not isinstance(value, dict):
+            raise _Invalid(f"{field or 'top level'}: expected an object, got {_shown(value)}")
+        for name in required:
+            if value.get(name) is None:
+                raise _Invalid(f"{_member(field, name)}: missing (required by glTF 2.0)")
+        return {name: sub(value[name], _member(field, name), sizes)
+                for name, sub in fields.items() if value.get(name) is not None}
+    return check
+
+
+def _attributes(value, field, sizes):
+    """Check a primitive's attributes (accessor indices); keep those the loader reads."""
+    if not isinstance(value, dict):
+        raise _Invalid(f"{field}: expected an object, got {_shown(value)}")
+    accessor = _ref("accessors")
+    checked = {name: accessor(index, f"{field}.{name}", sizes) for name, index in value.items()}
+    return {name: index for name, index in checked.items() if _READ_ATTRIBUTES.fullmatch(name)}
+
+
+_SIZE, _POSITIVE = _integer(0), _integer(1)
+_SKIN = _object({"joints": _array(_ref("nodes")), "inverseBindMatrices": _ref("accessors"),
+                 "name": _string}, required=("joints",))
+_NODE = _object({"children": _array(_ref("nodes")), "mesh": _ref("meshes"), "skin": _ref("skins"),
+                 "matrix": _numbers(16), "translation": _numbers(3), "rotation": _numbers(4),
+                 "scale": _numbers(3), "name": _string})
+_PRIMITIVE = _object({"attributes": _attributes, "indices": _ref("accessors"), "mode": _SIZE},
+                     required=("attributes",))
+_MESH = _object({"primitives": _array(_PRIMITIVE), "name": _string}, required=("primitives",))
+_SPARSE = _object({
+    "count": _POSITIVE,
+    "indices": _object({"bufferView": _ref("bufferViews"), "byteOffset": _SIZE,
+                        "componentType": _one_of(_INTEGERS)},
+                       required=("bufferView", "componentType")),
+    "values": _object({"bufferView": _ref("bufferViews"), "byteOffset": _SIZE},
+                      required=("bufferView",))}, required=("count", "indices", "values"))
+_ACCESSOR = _object({"bufferView": _ref("bufferViews"), "byteOffset": _SIZE,
+                     "componentType": _one_of(tuple(_COMPONENT_DTYPES)), "normalized": _boolean,
+                     "count": _POSITIVE, "type": _one_of(tuple(_ACCESSOR_WIDTHS)),
+                     "sparse": _SPARSE}, required=("componentType", "count", "type"))
+_BUFFER_VIEW = _object({"buffer": _ref("buffers"), "byteOffset": _SIZE, "byteLength": _POSITIVE,
+                        "byteStride": _SIZE}, required=("buffer", "byteLength"))
+_BUFFER = _object({"uri": _string, "byteLength": _POSITIVE}, required=("byteLength",))
+_CHANNEL = _object({"sampler": _ref("samplers"),
+                    "target": _object({"node": _ref("nodes"), "path": _string},
+                                      required=("path",))}, required=("sampler", "target"))
+_SAMPLER = _object({"input": _ref("accessors"), "output": _ref("accessors"),
+                    "interpolation": _string}, required=("input", "output"))
+_ANIMATION = _object({"channels": _array(_CHANNEL), "samplers": _array(_SAMPLER),
+                      "name": _string}, required=("channels", "samplers"))
+
+
+def _animation(value, field, sizes):
+    """An animation's channels index its own samplers."""
+    samplers = value.get("samplers") if isinstance(value, dict) else None
+    own = dict(sizes, samplers=len(samplers) if isinstance(samplers, list) else 0)
+    return _ANIMATION(value, field, own)
+
+
+_ARRAYS = {"nodes": _NODE, "skins": _SKIN, "meshes": _MESH, "accessors": _ACCESSOR,
+           "bufferViews": _BUFFER_VIEW, "buffers": _BUFFER, "animations": _animation}
+_DOCUMENT = _object({"asset": _object({"version": _string}, required=("version",)),
+                     "extensionsRequired": _array(_string),
+                     **{name: _array(item) for name, item in _ARRAYS.items()}},
+                    required=("asset",))
+
+
+def _element_size(kind, component_type):
+    """Bytes of one accessor element (matrix columns of 1- and 2-byte components are 4-aligned)."""
+    size = np.dtype(_COMPONENT_DTYPES[component_type]).itemsize
+    if kind in ("MAT2", "MAT3") and size < 4:
+        rows = 2 if kind == "MAT2" else 3
+        return rows * (-(-rows * size // 4) * 4)
+    return _ACCESSOR_WIDTHS[kind] * size
+
+
+def _check_view_ranges(doc):
+    """Every bufferView lies inside its buffer's byteLength."""
+    buffers = doc.get("buffers", [])
+    for i, view in enumerate(doc.get("bufferViews", [])):
+        start = view.get("byteOffset", 0)
+        end, size = start + view["byteLength"], buffers[view["buffer"]]["byteLength"]
+        if end > size:
+            raise _Invalid(f"bufferViews[{i}]: byteOffset {start} + byteLength "
+                           f"{view['byteLength']} = {end} runs past the end of "
+                           f"buffers[{view['buffer']}] (byteLength {size})")
+
+
+def _check_span(field, count_field, views, index, offset, count, layout, strided):
+    """``count`` elements from ``offset`` in ``bufferViews[index]`` are aligned and inside it.
+
+    Parameters
+    ----------
+    field : str
+        The object holding ``bufferView`` and ``byteOffset`` (an accessor, a sparse part).
+    count_field : str
+        The field giving ``count``.
+    views : list of dict
+        The checked bufferViews.
+    index, offset, count : int
+    layout : tuple of (str, int, int)
+        Element description for messages ("VEC4 of FLOAT"), element size, component size.
+    strided : bool
+        The bufferView's byteStride applies (accessor data; sparse data is tightly packed).
+    """
+    what, size, component = layout
+    view = views[index]
+    start = view.get("byteOffset", 0) + offset
+    if start % component:
+        raise _Invalid(f"{field}.byteOffset: {offset} puts the data at byte {start} of "
+                       f"buffers[{view['buffer']}], not a multiple of the {component}-byte "
+                       f"components of {what}")
+    stride = (view.get("byteStride") or size) if strided else size
+    if stride < size:
+        raise _Invalid(f"{field}.bufferView: bufferViews[{index}].byteStride {stride} is smaller "
+                       f"than one {what} element ({size} bytes)")
+    if stride % component:
+        raise _Invalid(f"{field}.bufferView: bufferViews[{index}].byteStride {stride} is not a "
+                       f"multiple of the {component}-byte components of {what}")
+    length = view["byteLength"]
+    if offset >= length:
+        raise _Invalid(f"{field}.byteOffset: {offset} is past the end of bufferViews[{index}] "
+                       f"({length} bytes)")
+    need = offset + stride * (count - 1) + size
+    if need > length:
+        raise _Invalid(f"{count_field}: {count} elements ({what}, {size} bytes every {stride}) "
+                       f"from byteOffset {offset} need {need} bytes; bufferViews[{index}] has "
+                       f"{length}")
+
+
+def _check_accessor_ranges(doc):
+    """Every accessor's data (and sparse data) is aligned and inside its bufferView."""
+    views = doc.get("bufferViews", [])
+    for i, acc in enumerate(doc.get("accessors", [])):
+        field, count = f"accessors[{i}]", acc["count"]
+        component = np.dtype(_COMPONENT_DTYPES[acc["componentType"]]).itemsize
+        layout = (f"{acc['type']} of {_COMPONENT_NAMES[acc['componentType']]}",
+                  _element_size(acc["type"], acc["componentType"]), component)
+        if "bufferView" in acc:
+            _check_span(field, f"{field}.count", views, acc["bufferView"],
+                        acc.get("byteOffset", 0), count, layout, strided=True)
+        elif count * _ACCESSOR_WIDTHS[acc["type"]] > _MAX_ZERO_COMPONENTS:
+            raise _Invalid(f"{field}.count: {count} elements without a bufferView (zeros) exceed "
+                           f"the {_MAX_ZERO_COMPONENTS} components this loader allocates")
+        sparse = acc.get("sparse")
+        if sparse is None:
+            continue
+        if sparse["count"] > count:
+            raise _Invalid(f"{field}.sparse.count: {sparse['count']} is more than the accessor's "
+                           f"count {count}")
+        indices, values = sparse["indices"], sparse["values"]
+        isize = np.dtype(_COMPONENT_DTYPES[indices["componentType"]]).itemsize
+        _check_span(f"{field}.sparse.indices", f"{field}.sparse.count", views,
+                    indices["bufferView"], indices.get("byteOffset", 0), sparse["count"],
+                    (_COMPONENT_NAMES[indices["componentType"]], isize, isize), strided=False)
+        _check_span(f"{field}.sparse.values", f"{field}.sparse.count", views,
+                    values["bufferView"], values.get("byteOffset", 0), sparse["count"], layout,
+                    strided=False)
+
+
+def _checked_document(raw):
+    """The members of a parsed glTF document that the loader reads, checked against glTF 2.0.
+
+    Parameters
+    ----------
+    raw : object
+        ``json.loads`` of the glTF JSON.
+
+    Returns
+    -------
+    dict
+        Only the checked members (unknown and unused ones dropped, nulls left out), every
+        reference in range and every accessor's bytes inside its bufferView and buffer.
+
+    Raises
+    ------
+    _Invalid
+    """
+    if not isinstance(raw, dict):
+        raise _Invalid(f"top level: expected an object, got {_shown(raw)}")
+    sizes = {}
+    for name in _ARRAYS:  # arrays first, so that no reference blames a broken array
+        items = raw.get(name)
+        if items is not None and not isinstance(items, list):
+            raise _Invalid(f"{name}: expected an array, got {_shown(items)}")
+        sizes[name] = len(items or ())
+    doc = _DOCUMENT(raw, "", sizes)
+    _check_view_ranges(doc)
+    _check_accessor_ranges(doc)
+    return doc
+
+
+def _glb_chunks(data):
+    """(JSON chunk, BIN chunk or None) of a GLB container, checked chunk by chunk."""
+    if len(data) < 12:
+        raise _Invalid(f"GLB header: the file has {len(data)} bytes, fewer than the 12-byte header")
+    version, length = struct.unpack_from("<II", data, 4)
+    if version != 2:
+        raise _Invalid(f"GLB header: container version {version}; only version 2 (glTF 2.0) is "
+                       "supported")
+    if length > len(data):
+        raise _Invalid(f"GLB header: declares {length} bytes but the file has {len(data)} "
+                       "(truncated?)")
+    chunks, offset = [], 12
+    while offset < length:
+        if offset + 8 > length:
+            raise _Invalid(f"GLB chunk {len(chunks)}: its 8-byte header at byte {offset} runs "
+                           f"past the end ({length} bytes)")
+        size, kind = struct.unpack_from("<II", data, offset)
+        start, offset = offset + 8, offset + 8 + size
+        if offset > length:
+            raise _Invalid(f"GLB chunk {len(chunks)}: {size} bytes from byte {start} run past the "
+                           f"end ({length} bytes)")
+        chunks.append((kind, data[start:offset]))
+    if not chunks or chunks[0][0] != _GLB_JSON:
+        raise _Invalid("GLB chunk 0: the first chunk must be the JSON chunk")
+    bins = [k for k, (kind, _) in enumerate(chunks) if kind == _GLB_BIN]
+    if bins not in ([], [1]):
+        raise _Invalid(f"GLB chunk {bins[-1]}: one BIN chunk is allowed, right after the JSON "
+                       "chunk")  # other chunk types are ignored, as the GLB spec asks
+    return chunks[0][1], chunks[1][1] if bins else None
+
+
+def _parse_json(text):
+    """``json.loads`` of UTF-8 bytes, every failure as :class:`_Invalid`."""
+    try:
+        return json.loads(text.rstrip(b"\0").decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise _Invalid(f"JSON: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    except RecursionError:
+        raise _Invalid("JSON: nested too deeply") from None
+    except ValueError as e:
+        raise _Invalid(f"JSON: not valid JSON ({e})") from None
+
+
 class _Reader:
     """Checked access to one glTF document: accessors, nodes, skins, meshes, clips."""
 
@@ -160,53 +513,42 @@ class _Reader:
         try:
             with open(self.path, "rb") as f:
                 data = f.read()
-        except OSError as e:
-            raise self.error(f"cannot read file ({e.strerror})") from None
+        except (OSError, ValueError) as e:  # ValueError: a NUL in the path
+            raise self.error(f"cannot read file ({getattr(e, 'strerror', None) or e})") from None
         try:
-            if data[:4] == b"glTF":
-                doc = pygltflib.GLTF2.load_from_bytes(data)
-            else:
-                doc = pygltflib.GLTF2.gltf_from_json(data.decode("utf-8"))
-        except Exception as e:  # pygltflib raises anything from struct, json, dataclasses
-            raise self.error(f"not a valid glTF or GLB file ({type(e).__name__}: {e})") from None
-        if not isinstance(doc, pygltflib.GLTF2):
-            raise self.error("not a valid GLB file (no JSON chunk)")
-        self.doc = doc
-        self._check_structure()
-        version = str(getattr(doc.asset, "version", "") or "")
+            text, blob = _glb_chunks(data) if data[:4] == b"glTF" else (data, None)
+            checked = _checked_document(_parse_json(text))
+        except _Invalid as e:
+            raise self.error(str(e)) from None
+        self.doc = self._document(checked, blob)
+        version = self.doc.asset.version
         if not version.startswith("2."):
             raise self.error(f"asset.version {version!r}: only glTF 2.x is supported")
-        for ext in doc.extensionsRequired or ():
+        for ext in self.doc.extensionsRequired or ():
             if ext in _UNSUPPORTED_EXTENSIONS:
                 raise self.error(f"extensionsRequired: {ext} is not supported")
         self._buffers = {}
         self.parents = self._parents()
 
-    def _check_structure(self):
-        """Arrays the loader walks hold objects; ``null`` arrays become empty ones."""
-        gl = pygltflib
-        top = (("nodes", gl.Node), ("accessors", gl.Accessor), ("bufferViews", gl.BufferView),
-               ("buffers", gl.Buffer), ("meshes", gl.Mesh), ("skins", gl.Skin),
-               ("animations", gl.Animation))
-        todo = [(self.doc, name, name, cls) for name, cls in top]
-        while todo:
-            owner, attr, where, cls = todo.pop()
-            items = getattr(owner, attr, None)
-            if items is None:
-                setattr(owner, attr, items := [])
-            if not isinstance(items, list):
-                raise self.error(f"{where}: expected an array")
-            for k, item in enumerate(items):
-                if not isinstance(item, cls):
-                    raise self.error(f"{where}[{k}]: expected an object")
-                if cls is gl.Mesh:
-                    todo.append((item, "primitives", f"{where}[{k}].primitives", gl.Primitive))
-                elif cls is gl.Animation:
-                    todo += [(item, "channels", f"{where}[{k}].channels", gl.AnimationChannel),
-                             (item, "samplers", f"{where}[{k}].samplers", gl.AnimationSampler)]
+    def _document(self, checked, blob):
+        """pygltflib's objects for the checked members, its warnings kept from the user.
+
+        Everything pygltflib warns about in the file (GLB container version, odd chunks, bad
+        members) was checked before, so on this input its warnings carry nothing to report.
+        """
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                doc = pygltflib.GLTF2.from_json(json.dumps(checked), infer_missing=True)
+            except Exception as e:  # not expected on checked members; still the file's fault
+                raise self.error(f"pygltflib cannot decode the document ({type(e).__name__}: "
+                                 f"{e})") from None
+        doc.set_binary_blob(blob)
+        return doc
 
     def error(self, message):
-        return ValueError(f"{self.name}: {message}")
+        """``ValueError("file: message")``, on one line."""
+        return ValueError(f"{self.name}: {message}".replace("\n", " "))
 
     def item(self, kind, items, index, where):
         if not isinstance(index, int) or not 0 <= index < len(items):
@@ -215,56 +557,83 @@ class _Reader:
 
     # -- binary data -------------------------------------------------------------------------
 
-    def _buffer(self, index, where):
-        if index in self._buffers:
-            return self._buffers[index]
-        buf = self.item("buffer", self.doc.buffers, index, where)
-        uri = buf.uri
+    def _buffer(self, index):
+        """Bytes of ``buffers[index]``, at least byteLength of them (read once)."""
+        if index not in self._buffers:
+            buf = self.doc.buffers[index]
+            data = self._buffer_bytes(index, buf.uri)
+            if len(data) < buf.byteLength:
+                raise self.error(f"buffers[{index}]: {len(data)} bytes of data, byteLength is "
+                                 f"{buf.byteLength}")
+            self._buffers[index] = data
+        return self._buffers[index]
+
+    def _buffer_bytes(self, index, uri):
         if uri is None:
             data = self.doc.binary_blob()
             if data is None or index != 0:
                 raise self.error(f"buffers[{index}]: no uri and no GLB binary chunk")
-        elif uri.startswith("data:"):
+            return data
+        field = f"buffers[{index}].uri"
+        if uri.startswith("data:"):
             head, _, payload = uri.partition(",")
             if not head.endswith(";base64"):
-                raise self.error(f"buffers[{index}].uri: data URI is not base64")
+                raise self.error(f"{field}: data URI is not base64")
             try:
-                data = base64.b64decode(payload, validate=True)
-            except binascii.Error as e:
-                raise self.error(f"buffers[{index}].uri: bad base64 ({e})") from None
-        else:
-            file = os.path.join(os.path.dirname(self.path), unquote(uri))
-            try:
+                return base64.b64decode(payload, validate=True)
+            except (binascii.Error, ValueError) as e:
+                raise self.error(f"{field}: bad base64 ({e})") from None
+        return self._read_external(field, uri)
+
+    def _external_path(self, field, uri):
+        """Local file a buffer's ``uri`` names, refused when it leaves the asset's folder.
+
+        Relative paths (percent-encoded, as glTF asks) and ``file:`` URIs are resolved lexically
+        against the folder of the glTF file, as a viewer resolves URLs; ``..``, absolute paths
+        and ``file:`` URIs leading elsewhere are refused, and other schemes are not fetched.
+        """
+        try:
+            parts = urlsplit(uri)
+        except ValueError:
+            parts = None
+        if (parts is None or parts.scheme.lower() not in ("", "file")
+                or parts.netloc not in ("", "localhost")):
+            raise self.error(f"{field}: {uri!r} is neither a relative file path nor a data: URI")
+        folder = os.path.abspath(os.path.dirname(self.path))
+        file = os.path.normpath(os.path.join(folder, unquote(parts.path if parts.scheme else uri)))
+        try:
+            inside = os.path.commonpath([folder, file]) == folder
+        except ValueError:  # another drive
+            inside = False
+        if not inside:
+            raise self.error(f"{field}: {uri!r} resolves outside the asset's folder; buffers must "
+                             "be files next to the glTF file or in folders below it")
+        return file
+
+    def _read_external(self, field, uri):
+        file = self._external_path(field, uri)
+        try:
+            regular = stat.S_ISREG(os.stat(file).st_mode)
+            if regular:
                 with open(file, "rb") as f:
-                    data = f.read()
-            except OSError as e:
-                raise self.error(f"buffers[{index}].uri: cannot read {uri!r} "
-                                 f"({e.strerror})") from None
-        if buf.byteLength is None or len(data) < buf.byteLength:
-            raise self.error(f"buffers[{index}]: {len(data)} bytes, byteLength is {buf.byteLength}")
-        self._buffers[index] = data
-        return data
+                    return f.read()
+        except (OSError, ValueError) as e:  # ValueError: a NUL in the name
+            raise self.error(f"{field}: {uri!r} cannot be read "
+                             f"({getattr(e, 'strerror', None) or e})") from None
+        raise self.error(f"{field}: {uri!r} is not a regular file")
 
-    def _view(self, index, where):
-        view = self.item("bufferView", self.doc.bufferViews, index, where)
-        data = self._buffer(view.buffer, f"bufferViews[{index}]")
-        start, length = view.byteOffset or 0, view.byteLength or 0
-        if start + length > len(data):
-            raise self.error(f"bufferViews[{index}]: bytes [{start}, {start + length}) past the "
-                             f"end of buffer {view.buffer} ({len(data)} bytes)")
-        return memoryview(data)[start:start + length], view.byteStride
+    def _elements(self, view_index, offset, count, width, dtype, strided=True):
+        """(count, width) elements of ``dtype`` at ``offset`` in a bufferView, copied.
 
-    def _strided(self, view_index, offset, count, width, dtype, where, stride=None):
-        data, view_stride = self._view(view_index, where)
+        The byte range was checked against the bufferView and buffer on load; ``strided``
+        applies the bufferView's byteStride (sparse data is tightly packed).
+        """
+        view = self.doc.bufferViews[view_index]
+        data = self._buffer(view.buffer)
         size = width * dtype.itemsize
-        stride = stride or view_stride or size
-        need = offset + stride * (count - 1) + size if count else 0
-        if need > len(data):
-            raise self.error(f"{where}: needs {need} bytes, bufferView {view_index} has "
-                             f"{len(data)}")
-        if not count:
-            return np.zeros((0, width), dtype)
-        return np.ndarray((count, width), dtype, buffer=data, offset=offset,
+        stride = (view.byteStride or size) if strided else size
+        start = (view.byteOffset or 0) + offset
+        return np.ndarray((count, width), dtype, buffer=data, offset=start,
                           strides=(stride, dtype.itemsize)).copy()
 
     def accessor(self, index, where, types, components, *, as_float=True):
@@ -275,24 +644,19 @@ class _Reader:
             raise self.error(f"{where}: type {acc.type}, expected {' or '.join(types)}")
         if acc.componentType not in components:
             raise self.error(f"{where}: componentType {acc.componentType} not allowed here")
-        if not isinstance(acc.count, int) or acc.count < 0:
-            raise self.error(f"{where}: bad count {acc.count!r}")
         width, dtype = _TYPE_SIZES[acc.type], np.dtype(_COMPONENT_DTYPES[acc.componentType])
         if acc.bufferView is None:
             out = np.zeros((acc.count, width), dtype)
         else:
-            out = self._strided(acc.bufferView, acc.byteOffset or 0, acc.count, width, dtype, where)
-        if acc.sparse is not None and acc.sparse.count:
-            sp = acc.sparse
-            if sp.indices.componentType not in _INTEGERS:
-                raise self.error(f"{where}: sparse.indices.componentType "
-                                 f"{sp.indices.componentType} is not an unsigned integer")
-            idx = self._strided(sp.indices.bufferView, sp.indices.byteOffset or 0, sp.count, 1,
-                                np.dtype(_COMPONENT_DTYPES[sp.indices.componentType]),
-                                f"{where} sparse.indices")[:, 0]
-            vals = self._strided(sp.values.bufferView, sp.values.byteOffset or 0, sp.count, width,
-                                 dtype, f"{where} sparse.values", stride=width * dtype.itemsize)
-            if idx.size and idx.max() >= acc.count:
+            out = self._elements(acc.bufferView, acc.byteOffset or 0, acc.count, width, dtype)
+        sp = acc.sparse
+        if sp is not None:
+            idx = self._elements(sp.indices.bufferView, sp.indices.byteOffset or 0, sp.count, 1,
+                                 np.dtype(_COMPONENT_DTYPES[sp.indices.componentType]),
+                                 strided=False)[:, 0]
+            vals = self._elements(sp.values.bufferView, sp.values.byteOffset or 0, sp.count,
+                                  width, dtype, strided=False)
+            if idx.max() >= acc.count:
                 raise self.error(f"{where}: sparse index {int(idx.max())} >= count {acc.count}")
             out[idx.astype(np.int64)] = vals
         if not as_float:
@@ -307,21 +671,27 @@ class _Reader:
     # -- scene graph ---------------------------------------------------------------------------
 
     def _parents(self):
+        """(N,) parent node of every node, -1 for roots; one parent each, no cycles (O(N))."""
         nodes = self.doc.nodes
-        parents = np.full(len(nodes), -1, dtype=np.int64)
+        parents = [-1] * len(nodes)
         for i, node in enumerate(nodes):
             for c in node.children or ():
                 self.item("node", nodes, c, f"nodes[{i}].children")
                 if parents[c] >= 0:
                     raise self.error(f"nodes[{c}] is a child of both nodes {parents[c]} and {i}")
                 parents[c] = i
+        state = [0] * len(nodes)  # 0: not seen, 1: on the current walk up, 2: reaches a root
         for i in range(len(nodes)):
-            cur, steps = i, 0
-            while cur >= 0:
-                cur, steps = parents[cur], steps + 1
-                if steps > len(nodes):
-                    raise self.error(f"nodes[{i}]: cycle in the node hierarchy")
-        return parents
+            walk, cur = [], i
+            while cur >= 0 and state[cur] == 0:
+                state[cur] = 1
+                walk.append(cur)
+                cur = parents[cur]
+            if cur >= 0 and state[cur] == 1:
+                raise self.error(f"nodes[{i}]: cycle in the node hierarchy")
+            for n in walk:
+                state[n] = 2
+        return np.array(parents, dtype=np.int64)
 
     def node_name(self, index):
         return self.doc.nodes[index].name or f"node{index}"
@@ -344,13 +714,17 @@ class _Reader:
                 raise self.error(f"{where}.{field}: expected {len(default)} finite numbers")
             parts.append(v)
         t, r, s = parts
-        if not np.any(r):
+        if not np.sum(r * r) > 0:  # zero, or so small that its squared norm underflows
             raise self.error(f"{where}.rotation: zero quaternion")
         return t, r[[3, 0, 1, 2]], s, None
 
     def node_local(self, index):
         t, r, s, m = self.node_trs(index)
-        return m if m is not None else _trs_matrices(t, r, s)
+        m = m if m is not None else _trs_matrices(t, r, s)
+        if not np.all(np.isfinite(m)):
+            raise self.error(f"nodes[{index}]: translation, rotation or scale out of range "
+                             "(the transform overflows)")
+        return m
 
     def rest_pose(self, nodes):
         """Static ((J, 3) t, (J, 4) r (w, x, y, z), (J, 3) s) and {k: matrix} of ``nodes``."""
@@ -410,8 +784,19 @@ class _Reader:
                 bind[index[node]] = np.linalg.inv(ibm[slot])
             except np.linalg.LinAlgError:
                 raise self.error(f"{where}.inverseBindMatrices[{slot}]: singular matrix") from None
-        skel = Skeleton([self.node_name(n) for n in order], parents, bind, local,
-                        name=skin.name or f"skin{skin_index}")
+            if not np.all(np.isfinite(bind[index[node]])):
+                raise self.error(f"{where}.inverseBindMatrices[{slot}]: singular matrix")
+        overflow = np.nonzero(~np.all(np.isfinite(bind), axis=(1, 2)))[0]
+        if overflow.size:
+            raise self.error(f"{where}: the rest world transform of nodes[{order[overflow[0]]}] "
+                             "overflows (translations or scales out of range)")
+        names = [self.node_name(n) for n in order]
+        repeated = Counter(names)  # glTF allows repeated node names; joint names are unique
+        names = [m if repeated[m] == 1 else f"{m}#{n}" for m, n in zip(names, order)]
+        try:
+            skel = Skeleton(names, parents, bind, local, name=skin.name or f"skin{skin_index}")
+        except ValueError as e:  # what Skeleton rejects (singular binds, float32 overflow)
+            raise self.error(f"{where}: {e}") from None
         return skel, order, np.array([index[n] for n in joints], dtype=np.int32)
 
     # -- meshes --------------------------------------------------------------------------------
@@ -589,7 +974,9 @@ def load_gltf(path, *, clip=None):
     Returns
     -------
     Scene
-        ``skeletons[i]`` is ``skins[i]``: its joints plus their ancestor nodes, parents first;
+        ``skeletons[i]`` is ``skins[i]``: its joints plus their ancestor nodes, parents first,
+        named after the nodes (``"node{i}"`` when unnamed; ``"#{i}"`` appended to names repeated
+        within the skeleton);
         ``animations[i]`` a :class:`GltfAnimation` of the clip (None without animations).
         One :class:`~dqskin.scene.Mesh` per primitive of every node with a mesh and a skin,
         named after the node (``"node{i}"`` when unnamed; ``"#{i}"`` appended to repeated
@@ -604,10 +991,19 @@ def load_gltf(path, *, clip=None):
     Raises
     ------
     ValueError
-        Naming the file and the glTF field: unreadable, corrupt or not glTF 2.x; no skinned
-        mesh; joint index out of range; negative or NaN weights; accessor count mismatch;
-        non-triangle primitives; unknown clip (the message lists the clips).
+        The only exception a bad file raises, on one line naming the file and the glTF field:
+        unreadable, corrupt GLB container or JSON, not glTF 2.x; a member of the wrong type,
+        missing or out of range; accessor data misaligned, overlapping (byteStride smaller than
+        an element) or past its bufferView or buffer; a buffer URI outside the asset's folder or
+        unreadable; no skinned mesh; joint index out of range; negative or NaN weights; accessor
+        count mismatch; non-triangle primitives; unknown clip (the message lists the clips).
     """
+    with np.errstate(all="ignore"):  # overflow is checked where it matters, as ValueError
+        return _load(path, clip)
+
+
+def _load(path, clip):
+    """:func:`load_gltf` without its floating-point error state."""
     r = _Reader(path)
     doc = r.doc
     if not doc.skins:
@@ -626,21 +1022,25 @@ def load_gltf(path, *, clip=None):
 
     meshes = []
     base_names = [r.node_name(i) for i in skinned]
+    repeated = Counter(base_names)
     for node_index, base in zip(skinned, base_names):
         node = doc.nodes[node_index]
         r.item("mesh", doc.meshes, node.mesh, f"nodes[{node_index}].mesh")
         r.item("skin", doc.skins, node.skin, f"nodes[{node_index}].skin")
-        name = base if base_names.count(base) == 1 else f"{base}#{node_index}"
+        name = base if repeated[base] == 1 else f"{base}#{node_index}"
         prims = doc.meshes[node.mesh].primitives
         if not prims:
             raise r.error(f"meshes[{node.mesh}].primitives: empty")
         for k in range(len(prims)):
             points, faces, ji, jw, normals, uvs = r.primitive(node.mesh, k, node.skin,
                                                               slot_maps[node.skin])
-            meshes.append(Mesh(name=name if len(prims) == 1 else f"{name}/primitive{k}",
-                               points=points, faces=faces, joint_indices=ji.astype(np.int32),
-                               joint_weights=jw, skeleton=node.skin, skinning_method="lbs",
-                               normals=normals, uvs=uvs))
+            try:
+                meshes.append(Mesh(name=name if len(prims) == 1 else f"{name}/primitive{k}",
+                                   points=points, faces=faces, joint_indices=ji.astype(np.int32),
+                                   joint_weights=jw, skeleton=node.skin, skinning_method="lbs",
+                                   normals=normals, uvs=uvs))
+            except ValueError as e:
+                raise r.error(f"mesh {node.mesh} primitive {k}: {e}") from None
 
     names = r.clip_names()
     if clip_index is None:
