@@ -7,19 +7,18 @@ __all__ = ["as_array", "as_float", "as_real", "concat", "frames_of"]
 
 
 def as_real(name, x, dtype=None):
-    """``x`` as a real numeric array (of ``dtype`` when given): ValueError naming ``name`` for
-    complex values (never silently truncated to their real part) and for non-numbers."""
+    """``x`` as a real-valued (bool, integer or float) array, of ``dtype`` when given; ValueError
+    naming ``name`` for anything else (strings, complex numbers -- never silently truncated to
+    their real part --, ragged nesting, objects)."""
     try:
         a = np.asarray(x)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: not an array of numbers ({exc})") from None
-    if np.iscomplexobj(a):
-        raise ValueError(f"{name}: complex values are not supported")
+        if a.dtype.kind == "O":
+            a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ValueError(f"{name}: not an array of numbers ({' '.join(str(exc).split())})") \
+            from None
     if a.dtype.kind not in "biuf":
-        try:
-            a = a.astype(np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(f"{name}: expected numbers, got {a.dtype} values") from None
+        raise ValueError(f"{name}: expected real numbers, got {a.dtype} values")
     return a if dtype is None else a.astype(dtype, copy=False)
 
 

@@ -9,6 +9,8 @@ import warp as wp
 from ._warp import Device, resolve_device
 from .kernels import fk as FK
 from .kernels.dqmath import vec8
+from .shapes import as_real
+from .validation import FLOAT32_MAX, check_finite, location
 
 __all__ = ["LocalTransforms", "Skeleton", "check_parents", "forward_kinematics"]
 
@@ -20,9 +22,12 @@ LocalTransforms = npt.ArrayLike | tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayL
 def check_parents(parents, where="parents"):
     """Validate a joint hierarchy: (J,) ints in [-1, J), parents before children, no cycles.
 
-    Returns the parents as int32; raises ValueError naming ``where`` and the offending joint.
+    Returns the parents as int32; raises ValueError naming ``where`` and the offending joint. An
+    empty sequence is an empty hierarchy (callers that need joints say so).
     """
-    p = np.asarray(parents)
+    p = as_real(where, parents)
+    if p.ndim == 1 and p.size == 0:
+        return p.astype(np.int32)
     if p.ndim != 1 or not np.issubdtype(p.dtype, np.integer):
         raise ValueError(f"{where}: expected a 1-D integer array, got shape {p.shape} {p.dtype}")
     j = np.arange(p.shape[0])
@@ -45,13 +50,101 @@ def check_parents(parents, where="parents"):
     return p.astype(np.int32)
 
 
-def _check_matrices(name, m, count):
-    a = np.asarray(m, dtype=np.float64)
+def _joint_label(j, joint_names=None):
+    """``'name'`` (quoted) when names are known, else the joint index."""
+    return repr(joint_names[j]) if joint_names is not None else str(j)
+
+
+def _joint_list(mask, joint_names=None, limit=5):
+    """"joint 'a'" / "joints 'a', 'b' and 3 more" for the True entries of a (J,) mask."""
+    bad = [int(j) for j in np.nonzero(mask)[0]]
+    text = ", ".join(_joint_label(j, joint_names) for j in bad[:limit])
+    more = f" and {len(bad) - limit} more" if len(bad) > limit else ""
+    return f"joint{'s' if len(bad) > 1 else ''} {text}{more}"
+
+
+def _check_quaternions(rot, lead, joint_names=None):
+    """Raise ValueError for a rotation the device cannot normalize: zero, or a squared norm outside
+    float32's normal range (the kernels normalize in float32)."""
+    n2 = np.sum(np.square(rot.astype(np.float32).astype(np.float64)), axis=-1)
+    bad = ~((n2 >= np.finfo(np.float32).tiny) & (n2 <= FLOAT32_MAX))
+    if bad.any():
+        index = np.argwhere(bad)[0]
+        where = location(index, lead, joint_names)
+        if n2[tuple(index)] == 0:
+            raise ValueError(f"rotations: zero quaternion at {where}")
+        raise ValueError(f"rotations: quaternion of norm {float(np.sqrt(n2[tuple(index)])):.3g} "
+                         f"at {where} cannot be normalized in float32")
+
+
+def _check_matrices(name, m, count, joint_names=None):
+    """(count, 4, 4) float64, finite and within float32 range, else ValueError naming ``name``
+    and the joints."""
+    a = as_real(name, m).astype(np.float64)
     if a.shape != (count, 4, 4):
         raise ValueError(f"{name}: expected ({count}, 4, 4), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name}: NaN or infinite entries")
+    bad = ~np.isfinite(a).all(axis=(1, 2))
+    if bad.any():
+        raise ValueError(f"{name}: NaN or infinite entries at {_joint_list(bad, joint_names)}")
+    bad = (np.abs(a) > FLOAT32_MAX).any(axis=(1, 2))
+    if bad.any():
+        raise ValueError(f"{name}: entries beyond float32 range (|x| > {FLOAT32_MAX:.4g}) at "
+                         f"{_joint_list(bad, joint_names)}")
     return a
+
+
+def _names(label, joint_names):
+    """Joint names as a list of str."""
+    try:
+        return [str(n) for n in joint_names]
+    except TypeError:
+        raise ValueError(f"{label}: joint_names: expected a sequence of names, got "
+                         f"{type(joint_names).__name__}") from None
+
+
+def _check_unique(label, names):
+    """ValueError naming every joint name that occurs more than once."""
+    seen, dups = set(), []
+    for n in names:
+        if n in seen and n not in dups:
+            dups.append(n)
+        seen.add(n)
+    if dups:
+        plural = "s" if len(dups) > 1 else ""
+        raise ValueError(f"{label}: joint_names: duplicate joint name{plural} "
+                         f"{', '.join(map(repr, dups))}")
+
+
+def _world_transform(label, m):
+    """(4, 4) float64 finite skeleton → world transform (identity for None)."""
+    if m is None:
+        return np.eye(4)
+    a = as_real(f"{label}: world_transform", m).astype(np.float64)
+    if a.shape != (4, 4):
+        raise ValueError(f"{label}: world_transform: expected (4, 4), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{label}: world_transform: NaN or infinite entries")
+    return a
+
+
+def _invert_bind(label, bind, joint_names):
+    """(J, 4, 4) inverses of finite bind transforms; ValueError naming the joints whose bind
+    transform is singular: condition number beyond ``1/eps`` (float64), or an inverse that float32
+    cannot hold."""
+    with np.errstate(all="ignore"):
+        cond = np.linalg.cond(bind)
+    singular = ~(cond < 1.0 / np.finfo(np.float64).eps)
+    inv = np.tile(np.eye(4), (bind.shape[0], 1, 1))
+    if not singular.all():
+        try:
+            inv[~singular] = np.linalg.inv(bind[~singular])
+        except np.linalg.LinAlgError:
+            singular[:] = True
+    singular |= ~(np.abs(inv) <= FLOAT32_MAX).all(axis=(1, 2))
+    if singular.any():
+        raise ValueError(f"{label}: bind_transforms: singular bind transform at "
+                         f"{_joint_list(singular, joint_names)}")
+    return inv
 
 
 class Skeleton:
@@ -60,11 +153,13 @@ class Skeleton:
     Parameters
     ----------
     joint_names : sequence of str, length J
+        Unique names; a skeleton has at least one joint (no influence could refer to an empty
+        one).
     parents : (J,) int
         Parent of each joint, ``-1`` for roots; parents come before children.
     bind_transforms : (J, 4, 4) float, optional
         World-space (skeleton-space) bind pose of each joint, column-vector convention. Identity
-        by default.
+        by default. Finite, within float32 and invertible (skinning uses the inverses).
     rest_transforms : (J, 4, 4) float, optional
         Local (parent-relative) rest pose, used where no animation drives a joint. Defaults to the
         local transforms implied by ``bind_transforms``.
@@ -75,6 +170,13 @@ class Skeleton:
         Skeleton space → world space (USD: the Skeleton prim's local-to-world at the default
         time; identity for glTF, whose skeleton space is the world). Used for orientation only,
         e.g. which skeleton axis points up when rendering.
+
+    Raises
+    ------
+    ValueError
+        No joints, duplicate joint names, an invalid hierarchy, transforms of the wrong shape,
+        NaN, infinite or beyond float32, or singular bind transforms; the message names the
+        skeleton, the argument and the joints.
     """
 
     def __init__(self, joint_names: Sequence[str], parents: npt.ArrayLike,
@@ -82,27 +184,30 @@ class Skeleton:
                  rest_transforms: npt.ArrayLike | None = None, *, name: str = "",
                  world_transform: npt.ArrayLike | None = None) -> None:
         self.name = name
-        self.joint_names = [str(n) for n in joint_names]
-        self.parents = check_parents(parents, f"{name or 'skeleton'}: parents")
+        label = name or "skeleton"
+        self.joint_names = _names(label, joint_names)
+        self.parents = check_parents(parents, f"{label}: parents")
         J = self.joint_count
         if len(self.joint_names) != J:
-            raise ValueError(f"{name or 'skeleton'}: {len(self.joint_names)} joint names for "
-                             f"{J} parents")
+            raise ValueError(f"{label}: {len(self.joint_names)} joint names for {J} parents")
+        if J == 0:
+            raise ValueError(f"{label}: no joints (a skeleton needs at least one joint)")
+        _check_unique(label, self.joint_names)
         self.bind_transforms = (np.tile(np.eye(4), (J, 1, 1)) if bind_transforms is None else
-                                _check_matrices(f"{name or 'skeleton'}: bind_transforms",
-                                                bind_transforms, J))
+                                _check_matrices(f"{label}: bind_transforms", bind_transforms, J,
+                                                self.joint_names))
+        self._inverse_bind = _invert_bind(label, self.bind_transforms, self.joint_names)
         if rest_transforms is None:
             rest = self.bind_transforms.copy()
             has_parent = self.parents >= 0
-            rest[has_parent] = (np.linalg.inv(self.bind_transforms[self.parents[has_parent]])
+            rest[has_parent] = (self._inverse_bind[self.parents[has_parent]]
                                 @ self.bind_transforms[has_parent])
-            self.rest_transforms = rest
+            self.rest_transforms = _check_matrices(f"{label}: rest_transforms (from the bind "
+                                                   "transforms)", rest, J, self.joint_names)
         else:
-            self.rest_transforms = _check_matrices(f"{name or 'skeleton'}: rest_transforms",
-                                                   rest_transforms, J)
-        self._inverse_bind = None
-        self.world_transform = (np.eye(4) if world_transform is None else
-                                np.asarray(world_transform, dtype=np.float64).reshape(4, 4))
+            self.rest_transforms = _check_matrices(f"{label}: rest_transforms", rest_transforms,
+                                                   J, self.joint_names)
+        self.world_transform = _world_transform(label, world_transform)
 
     @property
     def joint_count(self):
@@ -110,12 +215,11 @@ class Skeleton:
 
     @property
     def inverse_bind_transforms(self):
-        """(J, 4, 4) float64 inverses of the bind transforms."""
+        """(J, 4, 4) float64 inverses of the bind transforms (ValueError naming the joints whose
+        bind transform is singular)."""
         if self._inverse_bind is None:
-            try:
-                self._inverse_bind = np.linalg.inv(self.bind_transforms)
-            except np.linalg.LinAlgError:
-                raise ValueError(f"{self.name or 'skeleton'}: singular bind transform") from None
+            self._inverse_bind = _invert_bind(self.name or "skeleton", self.bind_transforms,
+                                              self.joint_names)
         return self._inverse_bind
 
     def forward_kinematics(self, local_transforms: LocalTransforms | None = None, *,
@@ -135,9 +239,19 @@ class Skeleton:
         world : (..., J, 4, 4) float32
         dq : (..., J, 8) float32, only with ``return_dq`` -- ``(rw, rx, ry, rz, dw, dx, dy, dz)``
         residual : (..., J, 3, 3) float32, only with ``return_dq`` -- ``world = [R·S | t]``
+
+        Raises
+        ------
+        ValueError
+            Local transforms of the wrong shape, NaN, infinite or beyond float32, or zero
+            quaternions; the message names the argument, the frame and the joint, e.g.
+            ``rotations: NaN at frame 3, joint 'Hips'``.
         """
         local = self.rest_transforms if local_transforms is None else local_transforms
-        return forward_kinematics(self.parents, local, device=device, return_dq=return_dq)
+        extra = []
+        world, batch = _forward_kinematics(self.parents, local, resolve_device(device), extra,
+                                           self.joint_names)
+        return _results(world, batch, extra if return_dq else None)
 
     def skinning_transforms(self, local_transforms: LocalTransforms | None = None, *,
                             device: Device = None, as_warp: bool = False):
@@ -154,52 +268,78 @@ class Skeleton:
         Returns
         -------
         (..., J, 4, 4) float32, or a Warp array with ``as_warp``.
+
+        Raises
+        ------
+        ValueError
+            Local transforms of the wrong shape, NaN, infinite or beyond float32 (naming the
+            argument, frame and joint), zero quaternions; a singular bind transform.
         """
         local = self.rest_transforms if local_transforms is None else local_transforms
         d = resolve_device(device)
-        world, batch = _forward_kinematics(self.parents, local, d)
-        inv = wp.array(self.inverse_bind_transforms.astype(np.float32), dtype=wp.mat44, device=d)
+        inverse_bind = self.inverse_bind_transforms.astype(np.float32)
+        world, batch = _forward_kinematics(self.parents, local, d, joint_names=self.joint_names)
+        inv = wp.array(inverse_bind, dtype=wp.mat44, device=d)
         out = wp.empty(world.shape, dtype=wp.mat44, device=d)
         FK.bind_relative(world=world, inverse_bind=inv, skinning=out, device=d)
         return out if as_warp else out.numpy().reshape(*batch, self.joint_count, 4, 4)
 
 
-def _local_arrays(local_transforms, J, device):
-    """Upload local poses: (..., J, 4, 4) matrices, or a (translations, rotations, scales) tuple of
-    (..., J, 3), (..., J, 4) ``(w, x, y, z)``, (..., J, 3) or None. Returns (arrays, batch)."""
-    if isinstance(local_transforms, (tuple, list)):
-        if len(local_transforms) != 3:
-            raise ValueError("local_transforms: a TRS pose is (translations, rotations, scales)")
-        tr, rot, sc = local_transforms
-        rot = np.asarray(rot, dtype=np.float32)
-        if rot.ndim < 2 or rot.shape[-2:] != (J, 4):
-            raise ValueError(f"rotations: expected (..., {J}, 4) (w, x, y, z), got {rot.shape}")
-        batch = rot.shape[:-2]
-        B = int(np.prod(batch, dtype=np.int64))
-        tr = np.asarray(tr, dtype=np.float32)
-        sc = (np.ones(rot.shape[:-1] + (3,), np.float32) if sc is None else
-              np.asarray(sc, np.float32))
-        for name, a in (("translations", tr), ("scales", sc)):
-            if a.shape != batch + (J, 3):
-                raise ValueError(f"{name}: expected {batch + (J, 3)}, got {a.shape}")
-        arrays = tuple(wp.array(np.ascontiguousarray(a.reshape(B, J, -1)), dtype=t, device=device)
-                       for a, t in ((tr, wp.vec3), (rot, wp.vec4), (sc, wp.vec3)))
-        return arrays, batch
-    loc = np.asarray(local_transforms, dtype=np.float32)
+def _trs_arrays(pose, J, joint_names=None):
+    """Checked float32 (translations, rotations, scales) of a TRS pose, and its batch shape."""
+    if len(pose) != 3:
+        raise ValueError("local_transforms: a TRS pose is (translations, rotations, scales)")
+    tr, rot, sc = pose
+    rot = as_real("rotations", rot)
+    if rot.ndim < 2 or rot.shape[-2:] != (J, 4):
+        raise ValueError(f"rotations: expected (..., {J}, 4) (w, x, y, z), got {rot.shape}")
+    batch = rot.shape[:-2]
+    tr = as_real("translations", tr)
+    sc = np.ones(batch + (J, 3), np.float32) if sc is None else as_real("scales", sc)
+    for name, a in (("translations", tr), ("scales", sc)):
+        if a.shape != batch + (J, 3):
+            raise ValueError(f"{name}: expected {batch + (J, 3)}, got {a.shape}")
+    for name, a in (("translations", tr), ("rotations", rot), ("scales", sc)):
+        check_finite(name, a, len(batch), joint_names)
+    _check_quaternions(rot, len(batch), joint_names)
+    return tuple(a.astype(np.float32) for a in (tr, rot, sc)), batch
+
+
+def _matrix_array(local_transforms, J, joint_names=None):
+    """Checked float32 (..., J, 4, 4) local matrices, and their batch shape."""
+    loc = as_real("local_transforms", local_transforms)
     if loc.ndim < 3 or loc.shape[-3:] != (J, 4, 4):
         raise ValueError(f"local_transforms: expected (..., {J}, 4, 4), got {loc.shape}")
     batch = loc.shape[:-3]
+    check_finite("local_transforms", loc, len(batch), joint_names)
+    return loc.astype(np.float32), batch
+
+
+def _local_arrays(local_transforms, J, device, joint_names=None):
+    """Check and upload local poses: (..., J, 4, 4) matrices, or a (translations, rotations,
+    scales) tuple of (..., J, 3), (..., J, 4) ``(w, x, y, z)``, (..., J, 3) or None. Returns
+    (arrays, batch). Every value is checked on the host first (finite, within float32, non-zero
+    quaternions): ValueError naming the argument, frame and joint."""
+    if isinstance(local_transforms, (tuple, list)):
+        host, batch = _trs_arrays(local_transforms, J, joint_names)
+        B = int(np.prod(batch, dtype=np.int64))
+        arrays = tuple(wp.array(np.ascontiguousarray(a.reshape(B, J, -1)), dtype=t, device=device)
+                       for a, t in zip(host, (wp.vec3, wp.vec4, wp.vec3)))
+        return arrays, batch
+    loc, batch = _matrix_array(local_transforms, J, joint_names)
     B = int(np.prod(batch, dtype=np.int64))
     return wp.array(np.ascontiguousarray(loc.reshape(B, J, 4, 4)), dtype=wp.mat44,
                     device=device), batch
 
 
-def _forward_kinematics(parents, local_transforms, device, outputs=None):
+def _forward_kinematics(parents, local_transforms, device, outputs=None, joint_names=None):
     """Launch FK; returns the (B, J) world ``wp.mat44`` array and the batch shape."""
     par = check_parents(parents)
     J = par.shape[0]
+    if J == 0:
+        raise ValueError("parents: no joints")
     d = device
-    local, batch = _local_arrays(local_transforms, J, d)
+    local, batch = _local_arrays(local_transforms, J, d, joint_names)
     B = int(np.prod(batch, dtype=np.int64))
     world_dq = wp.empty((B, J), dtype=vec8, device=d)
     residual = wp.empty((B, J), dtype=wp.mat33, device=d)
@@ -211,6 +351,15 @@ def _forward_kinematics(parents, local_transforms, device, outputs=None):
     if outputs is not None:
         outputs.extend([world_dq, residual])
     return world, batch
+
+
+def _results(world, batch, extra=None):
+    """World matrices (and, given ``extra``, dual quaternions and residuals) as NumPy arrays."""
+    J = world.shape[1]
+    w = world.numpy().reshape(*batch, J, 4, 4)
+    if extra is None:
+        return w
+    return w, extra[0].numpy().reshape(*batch, J, 8), extra[1].numpy().reshape(*batch, J, 3, 3)
 
 
 def forward_kinematics(parents: npt.ArrayLike, local_transforms: LocalTransforms, *,
@@ -234,11 +383,14 @@ def forward_kinematics(parents: npt.ArrayLike, local_transforms: LocalTransforms
     -------
     world : (..., J, 4, 4) float32
     dq, residual : (..., J, 8), (..., J, 3, 3) float32 with ``return_dq``.
+
+    Raises
+    ------
+    ValueError
+        Invalid hierarchy; local transforms of the wrong shape, NaN, infinite or beyond float32,
+        or zero quaternions: the message names the argument (``local_transforms``,
+        ``translations``, ``rotations``, ``scales``), the frame (batch index) and the joint index.
     """
     extra = []
     world, batch = _forward_kinematics(parents, local_transforms, resolve_device(device), extra)
-    J = world.shape[1]
-    w = world.numpy().reshape(*batch, J, 4, 4)
-    if not return_dq:
-        return w
-    return w, extra[0].numpy().reshape(*batch, J, 8), extra[1].numpy().reshape(*batch, J, 3, 3)
+    return _results(world, batch, extra if return_dq else None)

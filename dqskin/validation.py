@@ -12,38 +12,55 @@ exactly what ``dqskin skin`` (every writer) and the Python API refuse.
 
 import numpy as np
 
-__all__ = ["FLOAT32_MAX", "check_scene", "check_skinned", "check_transforms", "scene_problems"]
+from .shapes import as_real
+
+__all__ = ["FLOAT32_MAX", "check_finite", "check_scene", "check_skinned", "check_transforms",
+           "location", "scene_problems"]
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 """Largest magnitude a value may have to survive the device's float32."""
 
 
-def _where(index, joint_names=None, times=None):
-    """"frame F, joint 'name'" (or "time T, ...") for a flat (frame, joint) index."""
-    f, j = (int(i) for i in index[-2:])
-    joint = repr(joint_names[j]) if joint_names is not None and j < len(joint_names) else str(j)
-    frame = f"time {float(times[f]):g}" if times is not None else f"frame {f}"
-    return f"{frame}, joint {joint}"
+def location(index, lead, joint_names=None, times=None):
+    """"frame 3, joint 'Hips'" for an index into a (*batch, J, ...) array with ``lead`` batch
+    axes ("time 12" with ``times``); a multi-axis batch index is written as a tuple, none is
+    left out."""
+    frame = tuple(int(i) for i in index[:lead])
+    j = int(index[lead])
+    joint = f"joint {joint_names[j]!r}" if joint_names is not None else f"joint {j}"
+    if not frame:
+        return joint
+    if times is not None and len(frame) == 1:
+        return f"time {float(times[frame[0]]):g}, {joint}"
+    return f"frame {frame[0] if len(frame) == 1 else frame}, {joint}"
+
+
+def check_finite(name, a, lead, joint_names=None, times=None):
+    """Raise ValueError unless every value of ``a`` (``lead`` batch axes, then joints, then
+    components) is finite and fits float32, the device precision.
+
+    The message names ``name``, the first offending frame (its batch index, or its time when
+    ``times`` is given) and joint (by name when ``joint_names`` is given) and what is wrong, e.g.
+    ``rotations: NaN at frame 3, joint 'Hips'``.
+    """
+    finite = np.isfinite(a)
+    if not finite.all():
+        index = np.argwhere(~finite)[0]
+        what = "NaN" if np.isnan(a[tuple(index)]) else "infinite value"
+        raise ValueError(f"{name}: {what} at {location(index, lead, joint_names, times)}")
+    if a.dtype.itemsize > 4 and a.size and np.abs(a).max() > FLOAT32_MAX:
+        index = np.argwhere(np.abs(a) > FLOAT32_MAX)[0]
+        raise ValueError(f"{name}: {float(a[tuple(index)]):.6g} at "
+                         f"{location(index, lead, joint_names, times)} overflows float32 "
+                         f"(|x| > {FLOAT32_MAX:.4g})")
 
 
 def check_transforms(name, transforms, joint_names=None, times=None):
-    """Raise ValueError unless every entry of ``transforms`` (..., J, 4, 4) is finite and within
-    float32 range; the message names ``name``, the first bad frame (flattened leading axes; its
-    time when ``times`` is given) and joint (by name when ``joint_names`` is given). Returns the
-    transforms as float64."""
-    x = np.asarray(transforms)
-    if np.iscomplexobj(x):
-        raise ValueError(f"{name}: complex values are not transforms")
-    x = np.asarray(x, dtype=np.float64)
-    lead = x.reshape((-1,) + x.shape[-3:]) if x.ndim >= 3 else x.reshape(1, -1, 4, 4)
-    finite = np.isfinite(lead).all(axis=(-2, -1))
-    if not finite.all():
-        where = _where(np.argwhere(~finite)[0], joint_names, times)
-        raise ValueError(f"{name}: NaN or infinite entry at {where}")
-    big = (np.abs(lead) > FLOAT32_MAX).any(axis=(-2, -1))
-    if big.any():
-        where = _where(np.argwhere(big)[0], joint_names, times)
-        raise ValueError(f"{name}: entry beyond float32 range (|x| > {FLOAT32_MAX:.3g}) at {where}")
+    """Raise ValueError unless every entry of ``transforms`` (..., J, 4, 4) is real, finite and
+    within float32 range (:func:`check_finite`, the leading axes are frames); returns them as
+    float64."""
+    x = as_real(name, transforms, np.float64)
+    check_finite(name, x, max(x.ndim - 3, 0), joint_names, times)
     return x
 
 

@@ -118,3 +118,121 @@ def test_fk_from_trs_matches_matrices(device, scaled):
     world = forward_kinematics(parents, (t, q_wxyz, s), device=device)
     ref = chain_product(parents, M)
     assert np.abs(world - ref).max() / np.abs(ref).max() <= 1e-5
+
+
+# -- hostile input: every fault is a one-line ValueError naming argument, frame and joint --------
+
+NAMES = ["Hips", "Spine", "Head"]
+CHAIN = [-1, 0, 1]
+
+
+def _raises(call, message):
+    """``call()`` raises exactly ValueError (not a subclass such as LinAlgError) on one line
+    containing ``message``."""
+    with pytest.raises(ValueError) as err:
+        call()
+    assert type(err.value) is ValueError, repr(err.value)
+    assert "\n" not in str(err.value) and message in str(err.value), str(err.value)
+
+
+def _trs(frames=5):
+    t = np.zeros((frames, 3, 3))
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (frames, 3, 1))
+    return t, q, np.ones((frames, 3, 3))
+
+
+@pytest.mark.parametrize("what,value,message", [
+    ("rotations", np.nan, "rotations: NaN at frame 3, joint 'Hips'"),
+    ("translations", np.inf, "translations: infinite value at frame 3, joint 'Hips'"),
+    ("scales", -np.inf, "scales: infinite value at frame 3, joint 'Hips'"),
+    ("translations", 1e39, "translations: 1e+39 at frame 3, joint 'Hips' overflows float32"),
+])
+def test_trs_pose_non_finite_raises(what, value, message):
+    """A NaN quaternion used to become the identity on the device; now the host refuses it."""
+    skel = Skeleton(NAMES, CHAIN)
+    t, q, s = _trs()
+    {"translations": t, "rotations": q, "scales": s}[what][3, 0, 0] = value
+    _raises(lambda: skel.forward_kinematics((t, q, s)), message)
+    _raises(lambda: skel.skinning_transforms((t, q, s)), message)
+    _raises(lambda: forward_kinematics(CHAIN, (t, q, s)), message.replace("'Hips'", "0"))
+
+
+def test_zero_quaternion_raises():
+    t, q, s = _trs()
+    q[2, 1] = 0.0
+    skel = Skeleton(NAMES, CHAIN)
+    _raises(lambda: skel.forward_kinematics((t, q, None)),
+            "rotations: zero quaternion at frame 2, joint 'Spine'")
+    q[2, 1] = [1e-30, 0, 0, 0]  # squared norm underflows float32: the device cannot normalize
+    _raises(lambda: skel.forward_kinematics((t, q, None)), "at frame 2, joint 'Spine' cannot be")
+
+
+@pytest.mark.parametrize("value,message", [
+    (np.nan, "local_transforms: NaN at frame 1, joint 'Head'"),
+    (np.inf, "local_transforms: infinite value at frame 1, joint 'Head'"),
+    (-4e38, "local_transforms: -4e+38 at frame 1, joint 'Head' overflows float32"),
+])
+def test_local_matrix_non_finite_raises(value, message):
+    """NaN/inf in a local matrix used to make the child's world transform the identity."""
+    local = np.tile(np.eye(4), (2, 3, 1, 1))
+    local[1, 2, 0, 3] = value
+    skel = Skeleton(NAMES, CHAIN)
+    _raises(lambda: skel.forward_kinematics(local), message)
+    _raises(lambda: skel.skinning_transforms(local, as_warp=True), message)
+    _raises(lambda: forward_kinematics(CHAIN, local), message.replace("'Head'", "2"))
+
+
+def test_batch_index_and_unbatched_pose_in_messages():
+    local = np.tile(np.eye(4), (2, 3, 3, 1, 1))
+    local[1, 2, 0, 1, 1] = np.nan
+    _raises(lambda: Skeleton(NAMES, CHAIN).forward_kinematics(local),
+            "local_transforms: NaN at frame (1, 2), joint 'Hips'")
+    t, q, _ = _trs(1)
+    q[0, 2] = np.nan
+    _raises(lambda: forward_kinematics(CHAIN, (t[0], q[0], None)), "rotations: NaN at joint 2")
+
+
+def test_non_numeric_local_transforms_raise():
+    _raises(lambda: forward_kinematics(CHAIN, np.full((3, 4, 4), "a")),
+            "local_transforms: expected real numbers")
+    _raises(lambda: forward_kinematics(CHAIN, [np.zeros((3, 3))] * 2), "a TRS pose is")
+    _raises(lambda: forward_kinematics(CHAIN, np.full((3, 4, 4), 1j)), "expected real numbers")
+    _raises(lambda: forward_kinematics([], np.zeros((0, 4, 4))), "parents: no joints")
+
+
+def test_skeleton_needs_joints():
+    _raises(lambda: Skeleton([], []), "skeleton: no joints (a skeleton needs at least one joint)")
+    _raises(lambda: Skeleton([], [], name="/Rig"), "/Rig: no joints")
+    _raises(lambda: Skeleton(None, [-1]), "joint_names: expected a sequence")
+
+
+def test_duplicate_joint_names_raise():
+    _raises(lambda: Skeleton(["a", "b", "a"], [-1, 0, 1], name="/Rig"),
+            "/Rig: joint_names: duplicate joint name 'a'")
+    _raises(lambda: Skeleton(["a", "b", "a", "b"], [-1, 0, 1, 2]),
+            "duplicate joint names 'a', 'b'")
+
+
+@pytest.mark.parametrize("rest", [False, True], ids=["derived-rest", "given-rest"])
+def test_singular_bind_transforms_raise(rest):
+    """np.linalg.inv used to raise a bare LinAlgError ('Singular matrix')."""
+    bind = np.tile(np.eye(4), (3, 1, 1))
+    bind[1, :3, :3] = 0.0
+    bind[2, :3, :3] = np.diag([1.0, 1e-20, 1.0])  # numerically singular
+    local = np.tile(np.eye(4), (3, 1, 1)) if rest else None
+    _raises(lambda: Skeleton(NAMES, CHAIN, bind, local, name="/Rig"),
+            "/Rig: bind_transforms: singular bind transform at joints 'Spine', 'Head'")
+
+
+def test_non_finite_bind_rest_and_world_raise():
+    bad = np.tile(np.eye(4), (3, 1, 1))
+    bad[2, 1, 1] = np.nan
+    _raises(lambda: Skeleton(NAMES, CHAIN, bad), "bind_transforms: NaN or infinite entries at "
+                                                 "joint 'Head'")
+    _raises(lambda: Skeleton(NAMES, CHAIN, None, bad), "rest_transforms: NaN or infinite entries "
+                                                       "at joint 'Head'")
+    bad[2, 1, 1] = 1e39
+    _raises(lambda: Skeleton(NAMES, CHAIN, bad), "beyond float32 range")
+    _raises(lambda: Skeleton(NAMES, CHAIN, world_transform=np.full((4, 4), np.inf)),
+            "world_transform: NaN or infinite entries")
+    _raises(lambda: Skeleton(NAMES, CHAIN, {"not": "matrices"}), "bind_transforms")

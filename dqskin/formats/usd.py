@@ -33,8 +33,13 @@ influences) have no points for a :class:`Scene`; :func:`load_rigid_prims` return
 ``UsdSkel.BakeSkinning`` bakes them into ``xformOp:transform``.
 """
 
+import contextlib
+import io
 import os
 import re
+import sys
+import tempfile
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,8 +55,7 @@ __all__ = ["SKINNING_METHODS", "SUFFIXES", "load", "RigidPrim", "UsdSkelAnimatio
            "load_rigid_prims", "load_usd", "rigid_transforms"]
 
 SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
-"""USD files :func:`load` reads."""
-"""File extensions :func:`load_usd` reads."""
+"""File extensions :func:`load_usd` (and :func:`load`) reads."""
 
 SKINNING_METHODS = {"classicLinear": "lbs", "dualQuaternion": "dqs"}
 """``primvars:skel:skinningMethod`` tokens → dqskin method names."""
@@ -64,6 +68,200 @@ def _tf_message(exc):
             text = block.split(" : '", 1)[1].rstrip().rstrip("'")
             return " ".join(text.split())
     return " ".join(str(exc).split())
+
+
+_TRAP = getattr(Tf, "DiagnosticTrap", None)
+"""``Tf.DiagnosticTrap`` where this USD has it (else file descriptor 2 is set aside while USD
+runs)."""
+
+MAX_FRAMES = 10_000_000
+"""Most time codes a stage's ``startTimeCode..endTimeCode`` may span."""
+
+ANIMATION_ARRAYS = {"translations": "joints", "rotations": "joints", "scales": "joints",
+                    "blendShapeWeights": "blendShapes"}
+"""``SkelAnimation`` array attributes → the token attribute whose length they must have."""
+
+
+class _SharedRedirect:
+    """A process-wide redirection of stderr shared by every thread inside it: the first to enter
+    sets it up, the last to leave undoes it (so overlapping uses from threads never leave stderr
+    redirected).
+
+    Parameters
+    ----------
+    setup : callable
+        Sets the redirection up; returns ``(read, undo)``: ``read(start)`` gives the text written
+        since offset ``start`` and ``read()`` the current offset; ``undo()`` restores.
+    """
+
+    def __init__(self, setup):
+        self._setup = setup
+        self._lock = threading.Lock()
+        self._depth = 0
+        self._state = None
+
+    @contextlib.contextmanager
+    def __call__(self):
+        with self._lock:
+            if self._depth == 0:
+                self._state = self._setup()
+            self._depth += 1
+            read = self._state[0]
+        try:
+            yield read
+        finally:
+            with self._lock:
+                self._depth -= 1
+                if self._depth == 0:
+                    self._state[1]()
+                    self._state = None
+
+
+def _python_stderr_to_buffer():
+    """``sys.stderr`` → a buffer (pxr's Python bindings print some conversion failures there)."""
+    saved, buffer = sys.stderr, io.StringIO()
+    sys.stderr = buffer
+
+    def read(start=None):
+        text = buffer.getvalue()
+        return len(text) if start is None else text[start:]
+
+    def undo():
+        sys.stderr = saved
+
+    return read, undo
+
+
+def _fd_stderr_to_file():
+    """File descriptor 2 → a temporary file (what USD's C++ prints there)."""
+    nothing = (lambda start=None: 0 if start is None else ""), (lambda: None)
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (AttributeError, OSError, ValueError):  # no usable stderr: nothing to keep quiet
+        return nothing
+    try:
+        tmp = tempfile.TemporaryFile()
+        os.dup2(tmp.fileno(), 2)
+    except OSError:
+        os.close(saved)
+        return nothing
+
+    def read(start=None):
+        size = os.fstat(tmp.fileno()).st_size
+        if start is None:
+            return size
+        return os.pread(tmp.fileno(), max(0, size - start), start).decode(errors="replace")
+
+    def undo():
+        os.dup2(saved, 2)
+        os.close(saved)
+        tmp.close()
+
+    return read, undo
+
+
+_PYTHON_STDERR = _SharedRedirect(_python_stderr_to_buffer)
+_FD_STDERR = _SharedRedirect(_fd_stderr_to_file)
+
+
+@contextlib.contextmanager
+def _usd_diagnostics(process_stderr=False):
+    """Keep USD's diagnostics off the terminal.
+
+    Inside, USD's C++ diagnostics (Tf warnings, status messages) on this thread are trapped
+    (``Tf.DiagnosticTrap``) and dropped at the end. With ``process_stderr``, for the synchronous
+    loading, the process's stderr is set aside too, file descriptor 2 and ``sys.stderr`` (the
+    redirection is process-wide, shared by overlapping users): that catches what the trap cannot,
+    Tf diagnostics of USD's worker threads, what USD's lowest layer prints with ``fprintf`` (e.g.
+    ``failed call to posix_madvise`` on a corrupt crate file) and what pxr's Python bindings print
+    to ``sys.stderr``. With an older USD without the trap, file descriptor 2 is always set aside.
+    USD's errors still raise (``Tf.ErrorException``).
+
+    Yields
+    ------
+    callable
+        Returns the texts of the warnings caught so far inside this context, one line each, for
+        the ValueErrors that the ones that matter become.
+    """
+    with contextlib.ExitStack() as stack:
+        if process_stderr or _TRAP is None:
+            read = stack.enter_context(_FD_STDERR())
+        if process_stderr:
+            stack.enter_context(_PYTHON_STDERR())
+        if _TRAP is None:
+            start = read()
+            yield lambda: [ln.split(" -- ", 1)[-1] for ln in read(start).splitlines()
+                           if ln.startswith("Warning")]
+            return
+        trap = stack.enter_context(_TRAP())
+        try:
+            yield lambda: [" ".join(w.commentary.split()) for w in trap.GetWarnings()]
+        finally:
+            trap.Clear()  # dropped, not reposted to the terminal
+
+
+def _one_line(exc):
+    """An exception's message on one line."""
+    return " ".join(str(exc).split())
+
+
+_USD_NAMES = {"joint_names": "joints", "bind_transforms": "bindTransforms",
+              "rest_transforms": "restTransforms", "world_transform": "local-to-world transform"}
+"""Skeleton argument names → what they are called in a USD file (for messages)."""
+
+
+def _usd_names(key, message):
+    """A :class:`Skeleton` message about prim ``key`` with USD's names for its fields."""
+    for ours, usd in _USD_NAMES.items():
+        message = message.replace(f"{key}: {ours}", f"{key}: {usd}", 1)
+    return message
+
+
+def _first(texts):
+    """`` (USD: first text)`` to append to a message, or "" when there is none."""
+    return f" (USD: {texts[0]})" if texts else ""
+
+
+def _at_time(time):
+    """`` at time 2`` for a time sample, "" for the default value (None)."""
+    return "" if time is None else f" at time {time:g}"
+
+
+def _authored_values(attr):
+    """``(time, value)`` of every time sample of ``attr``, else ``[(None, default)]``; empty
+    when nothing is authored (time samples win over the default at every numeric time)."""
+    if not attr or not attr.HasAuthoredValue():
+        return []
+    samples = attr.GetTimeSamples()
+    if samples:
+        query = Usd.AttributeQuery(attr)  # value resolution once, not per sample
+        return [(float(t), query.Get(t)) for t in samples]
+    return [(None, attr.Get(Usd.TimeCode.Default()))]
+
+
+def _duplicates(names):
+    """The names that occur more than once, in first-seen order."""
+    seen, dups = set(), []
+    for n in names:
+        if n in seen and n not in dups:
+            dups.append(n)
+        seen.add(n)
+    return dups
+
+
+def _missing_primvar(prim, name, pv):
+    """Why the skinning query's ``primvars:skel:<name>`` of ``prim`` has no usable value."""
+    full = f"primvars:skel:{name}"
+    if pv:
+        return (f"{full} has only time samples (joint influences are read at the default time, "
+                "so they need a default value)")
+    attr = prim.GetAttribute(full)
+    if not attr or not attr.IsAuthored():
+        return f"{full} is missing (a skinned prim needs jointIndices and jointWeights)"
+    if not attr.HasAuthoredValue():
+        return f"{full} is authored without a value"
+    return f"{full} is not usable as a joint influence primvar (type {attr.GetTypeName()})"
 
 
 def _matrices(gf_matrices):
@@ -94,6 +292,8 @@ class UsdSkelAnimation(Animation):
         A valid query whose skeleton has an animation source.
     stage : Usd.Stage
         Kept alive as long as the animation is.
+    path : str, optional
+        The file, for messages (default: the stage's root layer).
 
     Attributes
     ----------
@@ -101,20 +301,27 @@ class UsdSkelAnimation(Animation):
         Time codes of the joint-transform and blend-shape-weight samples.
     name : str
         The ``SkelAnimation`` prim path.
+    path : str
+        The file (the stage's root layer).
     blend_shape_names : list of str
         The animation's ``blendShapes`` tokens (order of :meth:`blend_shape_weights`).
     """
 
-    def __init__(self, skel_query, stage):
+    def __init__(self, skel_query, stage, path=None):
         self._stage = stage
         self._query = skel_query
         self._anim = skel_query.GetAnimQuery()
+        layer = stage.GetRootLayer()
+        self.path = os.fspath(path) if path is not None else (layer.realPath or layer.identifier)
         self.name = str(self._anim.GetPrim().GetPath())
         self.joint_count = len(skel_query.GetJointOrder())
         self.blend_shape_names = [str(n) for n in self._anim.GetBlendShapeOrder()]
         keys = set(self._anim.GetJointTransformTimeSamples())
         keys.update(self._anim.GetBlendShapeWeightTimeSamples())
         self.key_times = np.array(sorted(keys), dtype=np.float64)
+
+    def _fail(self, what):
+        raise ValueError(f"{self.path}: {self.name}: {what}")
 
     def local_transforms(self, times):
         """Parent-relative joint transforms, skeleton joint order.
@@ -127,14 +334,23 @@ class UsdSkelAnimation(Animation):
         Returns
         -------
         (F, J, 4, 4) float64, column-vector convention.
+
+        Raises
+        ------
+        ValueError
+            UsdSkel cannot compose the animation at a time (it would warn and fall back to the
+            rest pose); the message names the file, the ``SkelAnimation`` and the time.
         """
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         out = np.empty((t.shape[0], self.joint_count, 4, 4))
-        for i, ti in enumerate(t):
-            xf = self._query.ComputeJointLocalTransforms(Usd.TimeCode(float(ti)))
-            if xf is None or len(xf) != self.joint_count:
-                raise ValueError(f"{self.name}: cannot compute joint transforms at time {ti}")
-            out[i] = _matrices(xf)
+        with _usd_diagnostics() as warnings:
+            for i, ti in enumerate(t):
+                xf = self._query.ComputeJointLocalTransforms(Usd.TimeCode(float(ti)))
+                trapped = warnings()  # only this time's: an earlier warning has raised
+                if xf is None or len(xf) != self.joint_count or trapped:
+                    self._fail(f"cannot compute joint transforms at time {ti:g}"
+                               f"{_first(trapped)}")
+                out[i] = _matrices(xf)
         return out
 
     def blend_shape_weight_rates(self, times):
@@ -149,12 +365,23 @@ class UsdSkelAnimation(Animation):
                                       times))
 
     def blend_shape_weights(self, times):
-        """``(F, S)`` float32 weights of :attr:`blend_shape_names` at ``times`` (0 when unset)."""
+        """``(F, S)`` float32 weights of :attr:`blend_shape_names` at ``times`` (0 when unset).
+
+        Raises
+        ------
+        ValueError
+            ``blendShapeWeights`` does not have one weight per ``blendShapes`` token.
+        """
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         out = np.zeros((t.shape[0], len(self.blend_shape_names)), dtype=np.float32)
-        for i, ti in enumerate(t):
-            w = self._anim.ComputeBlendShapeWeights(Usd.TimeCode(float(ti)))
-            if w is not None and len(w) == out.shape[1]:
+        with _usd_diagnostics():
+            for i, ti in enumerate(t):
+                w = self._anim.ComputeBlendShapeWeights(Usd.TimeCode(float(ti)))
+                if w is None or len(w) == 0:
+                    continue
+                if len(w) != out.shape[1]:
+                    self._fail(f"blendShapeWeights has {len(w)} weights for {out.shape[1]} "
+                               f"blendShapes at time {ti:g}")
                 out[i] = np.asarray(w, dtype=np.float32)
         return out
 
@@ -188,17 +415,36 @@ class RigidPrim:
 
 
 class _Loader:
-    """One file's loading state; every error names the file and the prim."""
+    """One file's loading state; every error names the file and the prim.
+
+    :meth:`load` runs with USD's diagnostics trapped (:func:`_usd_diagnostics`): nothing USD says
+    reaches the terminal; what matters becomes a ValueError.
+    """
 
     def __init__(self, path):
         self.path = os.fspath(path)
-        self.stage = self._open()
+        self.stage = None
+        self.warnings = lambda: []  # texts of the USD warnings trapped so far (set by load)
         self.skeleton_index = {}  # skeleton prim path -> index into skeletons
         self.skeletons, self.animations = [], []
         self.meshes, self.rigid = [], []
 
     def fail(self, where, what):
         raise ValueError(f"{self.path}: {where}: {what}")
+
+    @contextlib.contextmanager
+    def at(self, where):
+        """Make every exception inside a ValueError naming the file and ``where``: USD's
+        (``Tf.ErrorException``, ``RuntimeError``) and NumPy's on malformed values; ours already
+        name the file."""
+        try:
+            yield
+        except ValueError as exc:
+            if str(exc).startswith(self.path):
+                raise
+            raise ValueError(f"{self.path}: {where}: {_one_line(exc)}") from None
+        except RuntimeError as exc:  # Tf.ErrorException and pxr's Python-side errors
+            raise ValueError(f"{self.path}: {where}: USD error: {_tf_message(exc)}") from None
 
     def _open(self):
         if not os.path.isfile(self.path):
@@ -212,50 +458,141 @@ class _Loader:
         except Tf.ErrorException as exc:
             raise ValueError(f"{self.path}: cannot open as USD: {_tf_message(exc)}") from None
         if stage is None:
-            raise ValueError(f"{self.path}: cannot open as USD")
+            raise ValueError(f"{self.path}: cannot open as USD{_first(self.warnings())}")
         return stage
+
+    def value(self, where, attr, vt_type, type_name):
+        """The default value of ``attr`` (None when it has none); ValueError naming ``where``
+        and the attribute unless it is a ``vt_type`` (USD reports the schema's type for a schema
+        attribute, whatever was authored, so the value is what is checked)."""
+        if not attr or not attr.HasAuthoredValue():
+            return None
+        value = attr.Get(Usd.TimeCode.Default())
+        if value is not None and not isinstance(value, vt_type):
+            self.fail(where, f"{attr.GetName()} has a value of type {type(value).__name__}, "
+                             f"expected {type_name}")
+        return value
+
+    def tokens(self, where, attr):
+        """A ``token[]`` attribute's default value as a list of str ([] when unauthored)."""
+        value = self.value(where, attr, Vt.TokenArray, "token[]")
+        return [] if value is None else [str(t) for t in value]
 
     # -- skeletons -------------------------------------------------------------------------
 
     def skeleton(self, cache, skel):
         """Index of ``skel`` (a UsdSkel.Skeleton) in the scene, loading it the first time."""
         key = str(skel.GetPrim().GetPath())
-        if key in self.skeleton_index:
-            return self.skeleton_index[key]
-        joints = skel.GetJointsAttr().Get() or []
-        ok, reason = UsdSkel.Topology(joints).Validate()
-        if not ok:
-            self.fail(key, f"invalid joint topology: {reason}")
+        if key not in self.skeleton_index:
+            with self.at(key):
+                skeleton, animation = self.load_skeleton(cache, skel, key)
+            self.skeleton_index[key] = len(self.skeletons)
+            self.skeletons.append(skeleton)
+            self.animations.append(animation)
+        return self.skeleton_index[key]
+
+    def load_skeleton(self, cache, skel, key):
+        """``(Skeleton, UsdSkelAnimation or None)`` of one Skeleton prim."""
+        joints = self.joints(key, skel)
         query = cache.GetSkelQuery(skel)
         if not query:
             self.fail(key, "UsdSkel cannot build a skeleton query (check joints, bindTransforms "
-                           "and restTransforms sizes)")
-        J = len(joints)
-        bind = skel.GetBindTransformsAttr().Get()
-        if J and (bind is None or len(bind) != J):
-            self.fail(key, f"bindTransforms has {0 if bind is None else len(bind)} matrices for "
-                           f"{J} joints")
-        rest = query.ComputeJointLocalTransforms(Usd.TimeCode.Default(), True)
+                           f"and restTransforms sizes){_first(self.warnings())}")
+        bind, rest = self.bind_and_rest(key, skel, query, len(joints))
         world = _matrices(UsdGeom.Imageable(skel.GetPrim())
                           .ComputeLocalToWorldTransform(Usd.TimeCode.Default()))[0]
         try:
-            skeleton = Skeleton([str(j) for j in joints], query.GetTopology().GetParentIndices(),
-                                _matrices(bind) if J else None,
-                                _matrices(rest) if rest is not None and len(rest) == J else None,
-                                name=key, world_transform=world)
+            skeleton = Skeleton(joints, np.asarray(query.GetTopology().GetParentIndices()), bind,
+                                rest, name=key, world_transform=world)
         except ValueError as exc:
-            raise ValueError(f"{self.path}: {exc}") from None
-        anim = query.GetAnimQuery()
-        self.skeleton_index[key] = len(self.skeletons)
-        self.skeletons.append(skeleton)
-        self.animations.append(UsdSkelAnimation(query, self.stage) if anim else None)
-        return self.skeleton_index[key]
+            raise ValueError(f"{self.path}: {_usd_names(key, str(exc))}") from None
+        return skeleton, self.animation(query)
+
+    def joints(self, key, skel):
+        """The Skeleton's ``joints``: at least one, unique, a valid topology."""
+        joints = self.tokens(key, skel.GetJointsAttr())
+        if not joints:
+            self.fail(key, "joints is empty or missing (a Skeleton needs at least one joint)")
+        dups = _duplicates(joints)
+        if dups:
+            self.fail(key, f"joints has duplicate joint name{'s' if len(dups) > 1 else ''} "
+                           f"{', '.join(map(repr, dups))}")
+        ok, reason = UsdSkel.Topology(joints).Validate()
+        if not ok:
+            self.fail(key, f"invalid joint topology: {reason}")
+        return joints
+
+    def bind_and_rest(self, key, skel, query, J):
+        """``(J, 4, 4)`` bind transforms and rest transforms (None: derived from the bind)."""
+        M4 = (Vt.Matrix4dArray, "matrix4d[]")
+        bind = self.value(key, skel.GetBindTransformsAttr(), *M4)
+        if bind is None or len(bind) != J:
+            self.fail(key, f"bindTransforms has {0 if bind is None else len(bind)} matrices for "
+                           f"{J} joints")
+        authored_rest = self.value(key, skel.GetRestTransformsAttr(), *M4)
+        if authored_rest is not None and len(authored_rest) != J:
+            self.fail(key, f"restTransforms has {len(authored_rest)} matrices for {J} joints")
+        rest = query.ComputeJointLocalTransforms(Usd.TimeCode.Default(), True)
+        return _matrices(bind), (_matrices(rest) if rest is not None and len(rest) == J else None)
+
+    # -- animations ------------------------------------------------------------------------
+
+    def animation(self, query):
+        """The skeleton's :class:`UsdSkelAnimation`, or None without one. Its arrays are checked
+        at every time sample, then UsdSkel composes the first key time, to see that it can (it
+        warns and falls back to the rest pose when, say, a sparse animation meets a skeleton
+        without restTransforms)."""
+        if not query.GetAnimQuery():
+            return None
+        prim = query.GetAnimQuery().GetPrim()
+        where = str(prim.GetPath())
+        with self.at(where):
+            names = {key: self.tokens(where, prim.GetAttribute(key))
+                     for key in ("joints", "blendShapes")}
+            for key, tokens in names.items():
+                dups = _duplicates(tokens)
+                if dups:
+                    self.fail(where, f"{key} has duplicate names {', '.join(map(repr, dups))}")
+            for attr, key in ANIMATION_ARRAYS.items():
+                self.check_animation_array(where, attr, _authored_values(prim.GetAttribute(attr)),
+                                           names[key], key)
+            anim = UsdSkelAnimation(query, self.stage, self.path)
+            anim.local_transforms(anim.key_times[:1] if anim.key_times.size else [0.0])
+        return anim
+
+    def check_animation_array(self, where, attr, samples, names, key):
+        """Every ``(time, value)`` of a ``SkelAnimation`` array (its default value, or each time
+        sample): one finite entry per name of ``key`` (``joints`` or ``blendShapes``), no zero
+        rotation. Checked all at once: an animation may have thousands of samples."""
+        times, arrays = [], []
+        for time, value in samples:
+            if value is None:  # a blocked time sample
+                continue
+            try:
+                a = np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError):
+                self.fail(where, f"{attr}{_at_time(time)} is not an array of numbers")
+            if a.ndim == 0 or a.shape[0] != len(names):
+                self.fail(where, f"{attr} has {a.shape[0] if a.ndim else 'no array of'} values "
+                                 f"for {len(names)} {key}{_at_time(time)}")
+            times.append(time)
+            arrays.append(a.reshape(len(names), -1))
+        if not arrays or not names:
+            return
+        values = np.stack(arrays)  # (samples, names, components)
+        finite = np.isfinite(values).all(axis=2)
+        ok = finite & np.any(values != 0, axis=2) if attr == "rotations" else finite
+        if not ok.all():
+            s, n = (int(i) for i in np.argwhere(~ok)[0])
+            what = "NaN or infinite values" if not finite[s, n] else "a zero quaternion"
+            self.fail(where, f"{attr} has {what} for {key[:-1]} {names[n]!r}{_at_time(times[s])}")
 
     # -- skinned prims ---------------------------------------------------------------------
 
     def check_influences(self, where, q):
-        """Check jointIndices/jointWeights agree in interpolation, element size and count."""
-        ipv, wpv = q.GetJointIndicesPrimvar(), q.GetJointWeightsPrimvar()
+        """Check jointIndices/jointWeights have values and agree in interpolation, element size
+        and count."""
+        ipv, wpv = self.influence_primvars(where, q)
         interp = (ipv.GetInterpolation(), wpv.GetInterpolation())
         if interp[0] != interp[1]:
             self.fail(where, f"jointIndices interpolation {interp[0]!r} != jointWeights "
@@ -279,6 +616,17 @@ class _Loader:
         if n_idx % size[0]:
             self.fail(where, f"{n_idx} joint influences is not a multiple of elementSize "
                              f"{size[0]}")
+
+    def influence_primvars(self, where, q):
+        """The skinning query's ``jointIndices`` and ``jointWeights`` primvars, which must both
+        have a default value (UsdSkel leaves a primvar without one invalid)."""
+        out = []
+        for name, pv in (("jointIndices", q.GetJointIndicesPrimvar()),
+                         ("jointWeights", q.GetJointWeightsPrimvar())):
+            if not pv or pv.Get(Usd.TimeCode.Default()) is None:
+                self.fail(where, _missing_primvar(q.GetPrim(), name, pv))
+            out.append(pv)
+        return out
 
     def influences(self, where, q, point_count, skeleton):
         """``(V, K)`` int32 joint indices in skeleton order and float32 weights."""
@@ -391,7 +739,6 @@ class _Loader:
         """A skinned point-based prim → :class:`Mesh`."""
         prim = q.GetPrim()
         where = str(prim.GetPath())
-        self.check_influences(where, q)
         method = self.method(where, q)
         points_attr = UsdGeom.PointBased(prim).GetPointsAttr()
         rest = _rest_value(points_attr)
@@ -429,7 +776,6 @@ class _Loader:
         """A skinned prim without points (Sphere, Cube, ...): moved as a whole by UsdSkel."""
         prim = q.GetPrim()
         where = str(prim.GetPath())
-        self.check_influences(where, q)
         if not q.IsRigidlyDeformed():
             self.fail(where, "vertex joint influences on a prim without points")
         method = self.method(where, q)
@@ -444,41 +790,78 @@ class _Loader:
     # -- the whole file --------------------------------------------------------------------
 
     def load(self):
+        """The file as a :class:`Scene` (USD's diagnostics trapped throughout)."""
+        with _usd_diagnostics(process_stderr=True) as self.warnings:
+            self.stage = self._open()
+            return self.load_stage()
+
+    def load_stage(self):
         predicate = Usd.TraverseInstanceProxies()
-        roots = [UsdSkel.Root(p) for p in self.stage.Traverse(predicate) if p.IsA(UsdSkel.Root)]
+        with self.at("/"):
+            roots = [UsdSkel.Root(p) for p in self.stage.Traverse(predicate)
+                     if p.IsA(UsdSkel.Root)]
         if not roots:
             raise ValueError(f"{self.path}: no SkelRoot prim")
         cache = UsdSkel.Cache()
         seen = set()
         for root in roots:
-            cache.Populate(root, predicate)
-            for binding in cache.ComputeSkelBindings(root, predicate):
-                skel = binding.GetSkeleton()
-                targets = [q for q in binding.GetSkinningTargets()
-                           if str(q.GetPrim().GetPath()) not in seen]
-                if not skel or not targets:
-                    continue
-                skel_index = self.skeleton(cache, skel)
-                for q in targets:
-                    seen.add(str(q.GetPrim().GetPath()))
-                    if UsdGeom.PointBased(q.GetPrim()):
-                        self.load_prim(q, skel_index, skel.GetPrim())
-                    else:
-                        self.load_rigid(q, skel_index, skel.GetPrim())
+            with self.at(str(root.GetPrim().GetPath())):
+                cache.Populate(root, predicate)
+                bindings = cache.ComputeSkelBindings(root, predicate)
+            for binding in bindings:
+                self.load_binding(cache, binding, seen)
         if not self.meshes:
             raise ValueError(f"{self.path}: no skinned point-based prim under "
                              f"{', '.join(str(r.GetPrim().GetPath()) for r in roots)}")
+        tcps, up_axis, meters_per_unit = self.stage_metadata()
         return Scene(path=self.path, meshes=self.meshes, skeletons=self.skeletons,
                      animations=self.animations, times=self.times(),
-                     time_codes_per_second=float(self.stage.GetTimeCodesPerSecond()),
-                     up_axis=str(UsdGeom.GetStageUpAxis(self.stage)),
-                     meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(self.stage)))
+                     time_codes_per_second=tcps, up_axis=up_axis,
+                     meters_per_unit=meters_per_unit)
+
+    def load_binding(self, cache, binding, seen):
+        """The skinned prims of one UsdSkel binding not loaded yet (their skeleton too)."""
+        skel = binding.GetSkeleton()
+        targets = [q for q in binding.GetSkinningTargets()
+                   if str(q.GetPrim().GetPath()) not in seen]
+        if not skel or not targets:
+            return
+        for q in targets:
+            where = str(q.GetPrim().GetPath())
+            seen.add(where)
+            with self.at(where):
+                self.check_influences(where, q)
+            skel_index = self.skeleton(cache, skel)
+            with self.at(where):
+                if UsdGeom.PointBased(q.GetPrim()):
+                    self.load_prim(q, skel_index, skel.GetPrim())
+                else:
+                    self.load_rigid(q, skel_index, skel.GetPrim())
+
+    def stage_metadata(self):
+        """``(timeCodesPerSecond, upAxis, metersPerUnit)``: positive, 'Y' or 'Z', positive."""
+        tcps = float(self.stage.GetTimeCodesPerSecond())
+        mpu = float(UsdGeom.GetStageMetersPerUnit(self.stage))
+        up = str(UsdGeom.GetStageUpAxis(self.stage))
+        for name, value in (("timeCodesPerSecond", tcps), ("metersPerUnit", mpu)):
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{self.path}: layer metadata {name} {value:g}: must be a "
+                                 "positive number")
+        if up not in ("Y", "Z"):
+            raise ValueError(f"{self.path}: layer metadata upAxis {up!r}: must be 'Y' or 'Z'")
+        return tcps, up, mpu
 
     def times(self):
         """The stage's start..end time codes, else every sample that drives the skinning."""
         st = self.stage
         if st.HasAuthoredTimeCodeRange():
             start, end = st.GetStartTimeCode(), st.GetEndTimeCode()
+            if not (np.isfinite(start) and np.isfinite(end)):
+                raise ValueError(f"{self.path}: layer metadata startTimeCode {start:g} .. "
+                                 f"endTimeCode {end:g}: must be finite")
+            if end - start >= MAX_FRAMES:
+                raise ValueError(f"{self.path}: layer metadata startTimeCode {start:g} .. "
+                                 f"endTimeCode {end:g} spans more than {MAX_FRAMES} time codes")
             return np.arange(start, max(start, end) + 0.5, 1.0, dtype=np.float64)
         keys = set()
         for anim in self.animations:
@@ -495,9 +878,15 @@ def _output_transforms(loader, where, skel_prim, gprim):
     track = XformChain(read_local_to_world(skel_prim), read_local_to_world(gprim),
                        name=f"{loader.path}: {where}")
     try:
-        m = track.at(track.key_times)
+        with np.errstate(all="ignore"):  # non-finite results are refused just below
+            m = track.at(track.key_times)
     except ValueError as exc:
         loader.fail(where, str(exc).split(": ")[-1])
+    bad = ~np.isfinite(m).all(axis=(1, 2))
+    if bad.any():
+        loader.fail(where, f"the transforms of {where} and its skeleton (xform ops of them and "
+                           f"their ancestors) are NaN or infinite at time "
+                           f"{track.key_times[int(np.argmax(bad))]:g}")
     if np.allclose(m, np.eye(4), rtol=0, atol=1e-12) and track.key_times.shape[0] == 1:
         return None
     return track
@@ -580,6 +969,8 @@ class _RestDeformer(Deformer):
             count = idx.size if idx.size else V
             if off.shape[0] != count:
                 loader.fail(name, f"{off.shape[0]} offsets for {count} points")
+            if not np.all(np.isfinite(off)):
+                loader.fail(name, "offsets has NaN or infinite values")
             if idx.size and (idx.min() < 0 or idx.max() >= V):
                 loader.fail(name, f"pointIndices out of range for the {V} points of {where}")
             inbetween = bsq.GetInbetween(s)
@@ -590,8 +981,18 @@ class _RestDeformer(Deformer):
             if nrm is not None and nrm.shape[0] != count:
                 loader.fail(name, f"{nrm.shape[0]} normalOffsets for {count} points")
             self.sub_shapes.append((idx if idx.size else None, off, nrm))
+        self.check_knots(loader, bsq)
         self.query = bsq
         self.animation = anim
+
+    def check_knots(self, loader, bsq):
+        """Every blend shape's sub-shape weights (0, inbetweens, 1) finite and distinct."""
+        for shape, (_, weights) in enumerate(self.knots):
+            w = np.asarray(weights, dtype=np.float64)
+            if not (np.all(np.isfinite(w)) and np.all(np.diff(w) > 0)):
+                name = str(bsq.GetBlendShape(shape).GetPrim().GetPath())
+                loader.fail(name, f"inbetween weights {w.tolist()} (with 0 and 1 for the rest "
+                                  "and the primary shape) must be finite and distinct")
 
     def _add_knot(self, shape, sub, weight):
         while len(self.knots) <= shape:
@@ -711,11 +1112,22 @@ def load_usd(path):
     Raises
     ------
     ValueError
-        Missing, unreadable or non-USD file; no ``SkelRoot`` or no skinned point-based prim;
-        invalid joint topology or bind transforms; joint influences with mismatched
-        interpolation, element size or count, out-of-range indices, NaN or negative weights;
-        invalid face topology; normals whose count fits no interpolation. The message names the
-        file and the prim.
+        The only exception it raises, on one line naming the file and the prim (and the
+        attribute, joint or time where it applies): missing, unreadable or non-USD file; no
+        ``SkelRoot`` or no skinned point-based prim; a Skeleton without joints, with duplicate
+        joint names, an invalid joint topology, bind/rest transforms of the wrong count,
+        non-finite or singular; a ``SkelAnimation`` whose translations, rotations, scales or
+        blendShapeWeights (default value or any time sample) do not have one finite value per
+        joint / blend shape, or that UsdSkel cannot compose; missing ``jointIndices`` or
+        ``jointWeights``, or ones with mismatched interpolation, element size or count,
+        out-of-range indices, NaN or negative weights; invalid face topology; normals whose count
+        fits no interpolation; invalid stage metadata (time range, ``timeCodesPerSecond``,
+        ``upAxis``, ``metersPerUnit``).
+
+    Notes
+    -----
+    USD's own diagnostics (the C++ warnings it would print to stderr) are trapped while the file
+    is read and dropped; those that mean the file cannot be used become the ValueError.
     """
     return _Loader(path).load()
 
