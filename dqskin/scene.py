@@ -104,8 +104,6 @@ class Scene:
     path : str
     meshes : list of Mesh
     skeletons : list of Skeleton
-    animations : list of (Animation or None)
-        One per skeleton; None poses the skeleton at rest.
     times : (T,) float64
         The asset's sample times (USD time codes, glTF seconds); ``[0.]`` for static assets.
     time_codes_per_second : float
@@ -115,15 +113,15 @@ class Scene:
     clips : list of str
         Animation clip names available (glTF); the loaded one is ``clip``.
 
-    Each mesh's ``skeleton`` indexes ``skeletons`` and ``animations`` alike (checked on
-    construction). Skinners are uploaded once per mesh and device (:meth:`skinner`); after
-    replacing a mesh, call :meth:`invalidate`.
+    Each mesh's ``skeleton`` indexes ``skeletons`` (checked on construction); each skeleton carries
+    the animation that drives it (``Skeleton.animation``; :attr:`animations` lists them). Skinners
+    are uploaded once per mesh and device (:meth:`skinner`); after replacing a mesh, call
+    :meth:`invalidate`.
     """
 
     path: str
     meshes: list
     skeletons: list
-    animations: list
     times: np.ndarray
     time_codes_per_second: float = 1.0
     up_axis: str = "Y"
@@ -133,13 +131,16 @@ class Scene:
     _skinners: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self):
-        if len(self.animations) != len(self.skeletons):
-            raise ValueError(f"{self.path}: {len(self.animations)} animations for "
-                             f"{len(self.skeletons)} skeletons (one per skeleton, None for rest)")
         for m in self.meshes:
             if not 0 <= m.skeleton < len(self.skeletons):
                 raise ValueError(f"{self.path}: mesh {m.name!r}: skeleton {m.skeleton} out of "
                                  f"range for {len(self.skeletons)} skeletons")
+
+    @property
+    def animations(self) -> list:
+        """The animation (or None: rest pose) of each skeleton, in ``skeletons`` order (a new
+        list: set ``Skeleton.animation`` to change one)."""
+        return [s.animation for s in self.skeletons]
 
     def invalidate(self, name: str | None = None) -> None:
         """Drop the uploaded skinner of mesh ``name`` (every mesh when None)."""
@@ -174,7 +175,7 @@ class Scene:
         beyond float32 range.
         """
         skel: Skeleton = self.skeletons[skeleton]
-        anim = self.animations[skeleton]
+        anim = skel.animation
         t = check_times(times)
         if anim is None:
             return np.broadcast_to(skel.rest_transforms, (t.shape[0],) + skel.rest_transforms.shape)
@@ -230,7 +231,7 @@ class Scene:
                 xforms[s] = self.skinning_transforms(t, s, device=device, interp=interp)
                 if velocities:
                     rates[s] = skinning_transforms_with_derivative(
-                        self.skeletons[s], self.animations[s], t, interp)[1]
+                        self.skeletons[s], self.skeletons[s].animation, t, interp)[1]
             meth = method or m.skinning_method
             sk = self.skinner(m, device)
             deformer = m.deformer if blend_shapes else None

@@ -1,5 +1,6 @@
 """Skeletons: joint hierarchy, bind and rest transforms, forward kinematics on the device."""
 
+import copy
 from collections.abc import Sequence
 
 import numpy as np
@@ -170,6 +171,9 @@ class Skeleton:
         Skeleton space → world space (USD: the Skeleton prim's local-to-world at the default
         time; identity for glTF, whose skeleton space is the world). Used for orientation only,
         e.g. which skeleton axis points up when rendering.
+    animation : dqskin.animation.Animation, optional
+        What drives the joints (USD: the bound SkelAnimation; glTF: the loaded clip); None holds
+        the skeleton in its rest pose.
 
     Raises
     ------
@@ -182,8 +186,9 @@ class Skeleton:
     def __init__(self, joint_names: Sequence[str], parents: npt.ArrayLike,
                  bind_transforms: npt.ArrayLike | None = None,
                  rest_transforms: npt.ArrayLike | None = None, *, name: str = "",
-                 world_transform: npt.ArrayLike | None = None) -> None:
+                 world_transform: npt.ArrayLike | None = None, animation=None) -> None:
         self.name = name
+        self.animation = animation
         label = name or "skeleton"
         self.joint_names = _names(label, joint_names)
         self.parents = check_parents(parents, f"{label}: parents")
@@ -208,6 +213,12 @@ class Skeleton:
             self.rest_transforms = _check_matrices(f"{label}: rest_transforms", rest_transforms,
                                                    J, self.joint_names)
         self.world_transform = _world_transform(label, world_transform)
+
+    def with_animation(self, animation):
+        """A copy of this skeleton (sharing its arrays) driven by ``animation``."""
+        other = copy.copy(self)
+        other.animation = animation
+        return other
 
     @property
     def joint_count(self):

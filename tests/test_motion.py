@@ -510,17 +510,18 @@ def test_scene_velocities_per_second():
     from dqskin.scene import Mesh, Scene
     from dqskin.skeleton import Skeleton
 
-    skel = Skeleton(["a", "b"], [-1, 0], bind_transforms=bind)
+    skel = Skeleton(["a", "b"], [-1, 0], bind_transforms=bind,
+                    animation=animation.KeyedAnimation(kt * 24, local))
     mesh = Mesh("m", pts.astype(np.float32), np.zeros((0, 3), np.int32), idx.astype(np.int32),
                 w.astype(np.float32), geom_bind_transform=geom, skinning_method="dqs")
-    scene = Scene("rig", [mesh], [skel], [animation.KeyedAnimation(kt * 24, local)], kt * 24,
-                  time_codes_per_second=24.0)
+    scene = Scene("rig", [mesh], [skel], kt * 24, time_codes_per_second=24.0)
     t = inside(kt, 2) * 24
     per_code = motion.skinned_velocities(pts, idx, w, *motion.skinning_transforms_with_derivative(
         skel, scene.animations[0], t), "dqs", geom_bind_transform=geom)
     got = scene.skin(t, velocities=True).velocities["m"]
     np.testing.assert_allclose(got, 24.0 * per_code, rtol=1e-5, atol=1e-5 * np.abs(got).max())
-    still = Scene("rest", [mesh], [skel], [None], np.zeros(1))
+    still = Scene("rest", [mesh], [Skeleton(["a", "b"], [-1, 0], bind_transforms=bind)],
+                  np.zeros(1))
     assert np.all(still.skin(velocities=True).velocities["m"] == 0)
 
 

@@ -739,8 +739,10 @@ class _Reader:
                 matrices[k] = m
         return (t, r, s), matrices
 
-    def skeleton(self, skin_index):
-        """Skeleton of one skin and the map skin joint slot → skeleton joint index."""
+    def skeleton(self, skin_index, clip=None):
+        """Skeleton of one skin, driven by ``clip`` (``(channels, key_times)`` of
+        :meth:`channels`, or None for the rest pose), and the map skin joint slot → skeleton
+        joint index."""
         skin = self.doc.skins[skin_index]
         where = f"skins[{skin_index}]"
         joints = list(skin.joints or ())
@@ -794,10 +796,18 @@ class _Reader:
         repeated = Counter(names)  # glTF allows repeated node names; joint names are unique
         names = [m if repeated[m] == 1 else f"{m}#{n}" for m, n in zip(names, order)]
         try:
-            skel = Skeleton(names, parents, bind, local, name=skin.name or f"skin{skin_index}")
+            skel = Skeleton(names, parents, bind, local, name=skin.name or f"skin{skin_index}",
+                            animation=None if clip is None else self.animation(order, *clip))
         except ValueError as e:  # what Skeleton rejects (singular binds, float32 overflow)
             raise self.error(f"{where}: {e}") from None
         return skel, order, np.array([index[n] for n in joints], dtype=np.int32)
+
+    def animation(self, order, channels, key_times):
+        """The :class:`GltfAnimation` of the channels that drive the nodes of ``order``."""
+        index = {n: k for k, n in enumerate(order)}
+        mine = [(index[node], path, keys, values, interp)
+                for node, path, keys, values, interp in channels if node in index]
+        return GltfAnimation(key_times, *self.rest_pose(order), mine)
 
     # -- meshes --------------------------------------------------------------------------------
 
@@ -1012,12 +1022,12 @@ def _load(path, clip):
     if not skinned:
         raise r.error("no skinned mesh (no node has both mesh and skin)")
     clip_index = r.choose_clip(clip)
+    channels = None if clip_index is None else r.channels(clip_index)
 
-    skeletons, node_orders, slot_maps = [], [], []
+    skeletons, slot_maps = [], []
     for s in range(len(doc.skins)):
-        skel, order, slots = r.skeleton(s)
+        skel, _, slots = r.skeleton(s, channels)
         skeletons.append(skel)
-        node_orders.append(order)
         slot_maps.append(slots)
 
     meshes = []
@@ -1043,16 +1053,7 @@ def _load(path, clip):
                 raise r.error(f"mesh {node.mesh} primitive {k}: {e}") from None
 
     names = r.clip_names()
-    if clip_index is None:
-        animations, times = [None] * len(skeletons), np.zeros(1)
-    else:
-        channels, times = r.channels(clip_index)
-        animations = []
-        for order in node_orders:
-            index = {n: k for k, n in enumerate(order)}
-            mine = [(index[node], path, keys, values, interp)
-                    for node, path, keys, values, interp in channels if node in index]
-            animations.append(GltfAnimation(times, *r.rest_pose(order), mine))
-    return Scene(path=os.fspath(path), meshes=meshes, skeletons=skeletons, animations=animations,
-                 times=times, time_codes_per_second=1.0, up_axis="Y", meters_per_unit=1.0,
-                 clips=names, clip=None if clip_index is None else names[clip_index])
+    times = np.zeros(1) if channels is None else channels[1]
+    return Scene(path=os.fspath(path), meshes=meshes, skeletons=skeletons, times=times,
+                 time_codes_per_second=1.0, up_axis="Y", meters_per_unit=1.0, clips=names,
+                 clip=None if clip_index is None else names[clip_index])

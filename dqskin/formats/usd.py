@@ -506,7 +506,8 @@ class _Loader:
                                 rest, name=key, world_transform=world)
         except ValueError as exc:
             raise ValueError(f"{self.path}: {_usd_names(key, str(exc))}") from None
-        return skeleton, self.animation(query)
+        animation = self.animation(query)  # after the skeleton's own checks
+        return skeleton.with_animation(animation), animation
 
     def joints(self, key, skel):
         """The Skeleton's ``joints``: at least one, unique, a valid topology."""
@@ -815,7 +816,7 @@ class _Loader:
                              f"{', '.join(str(r.GetPrim().GetPath()) for r in roots)}")
         tcps, up_axis, meters_per_unit = self.stage_metadata()
         return Scene(path=self.path, meshes=self.meshes, skeletons=self.skeletons,
-                     animations=self.animations, times=self.times(),
+                     times=self.times(),
                      time_codes_per_second=tcps, up_axis=up_axis,
                      meters_per_unit=meters_per_unit)
 
