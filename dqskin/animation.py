@@ -95,6 +95,10 @@ class Animation(abc.ABC):
     """
 
     key_times: np.ndarray
+    linear_trs: bool = True
+    """Whether :meth:`local_transforms` interpolates linearly in TRS between ``key_times``
+    (slerp, lerp: glTF LINEAR, USD); "trs" velocities need it (a glTF STEP or CUBICSPLINE clip
+    sets it False)."""
 
     @abc.abstractmethod
     def local_transforms(self, times: npt.ArrayLike) -> np.ndarray:
@@ -436,6 +440,10 @@ def _motion(animation, times, interp):
     _check_interp(interp)
     t = check_times(times)
     local, local_dot, eta, eta_dot = _keys_of(animation).local(t, interp)
+    if interp == "trs" and not getattr(animation, "linear_trs", True):
+        raise ValueError(f"{_name(animation)}: not linear TRS between its key_times (STEP or "
+                         "CUBICSPLINE keys), so 'trs' velocities are unknown; use "
+                         "interp='sclerp', 'dlb', 'spline' or 'catmull-rom'")
     if interp == "trs" and not isinstance(animation, KeyedAnimation):
         name = _name(animation)
         player = np.asarray(animation.local_transforms(t), dtype=np.float64)
@@ -463,7 +471,7 @@ def sample(animation: Animation, times: npt.ArrayLike,
 
     Parameters
     ----------
-    animation : dqskin.scene.Animation
+    animation : Animation
         Needs ``key_times`` and ``local_transforms``.
     times : (F,) float
         In the animation's time unit; clamped to the key range.

@@ -1,8 +1,6 @@
 """Per-vertex joint influences: validated once and laid out once for every kernel that blends them
 (skinning, velocities), as UsdSkel sorts influences once in ``UsdSkelSortInfluences``."""
 
-import threading
-
 import numpy as np
 import warp as wp
 
@@ -80,22 +78,17 @@ class Influences:
         self.indices = np.pad(idx, ((0, 0), (0, pad))).astype(np.int32).reshape(V, groups, 4)
         self.weights = np.pad(wts, ((0, 0), (0, pad))).reshape(V, groups, 4)
         self.joint_count_min = int(idx.max()) + 1 if idx.size else 0
-        self._device_arrays = {}
-        self._lock = threading.Lock()
 
     def check_joint_count(self, joint_count):
-        """ValueError when ``joint_count`` skinning transforms cannot cover the indices."""
+        """ValueError when ``joint_count`` skinning transforms cannot cover the indices (the
+        zero-weight padding points at joint 0, so points need at least one joint)."""
         if joint_count < self.joint_count_min:
             raise ValueError(f"joint_indices: index {self.joint_count_min - 1} out of range for "
                              f"{joint_count} skinning transforms")
+        if joint_count == 0 and self.vertex_count:
+            raise ValueError("skinning_transforms: no joints to skin the points with")
 
-    def on(self, device):
-        """``(indices (V, C) wp.vec4i, weights (V, C) wp.vec4)`` on ``device``, uploaded once."""
-        key = str(device)
-        with self._lock:
-            arrays = self._device_arrays.get(key)
-            if arrays is None:
-                arrays = (wp.array(self.indices, dtype=wp.vec4i, device=device),
-                          wp.array(self.weights, dtype=wp.vec4, device=device))
-                self._device_arrays[key] = arrays
-        return arrays
+    def upload(self, device):
+        """``{"indices": (V, C) wp.vec4i, "weights": (V, C) wp.vec4}`` on ``device``."""
+        return {"indices": wp.array(self.indices, dtype=wp.vec4i, device=device),
+                "weights": wp.array(self.weights, dtype=wp.vec4, device=device)}

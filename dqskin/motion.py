@@ -30,7 +30,7 @@ from ._warp import Device
 from .animation import Animation, Interpolation, _motion, check_times, sample_with_derivative
 from .influences import check_influences
 from .linalg import vee
-from .shapes import frames_of
+from .shapes import as_real, frames_of
 from .skeleton import Skeleton, check_parents
 from .skinning import Method, Skinner
 
@@ -125,7 +125,7 @@ def skinning_transforms_with_derivative(skeleton: Skeleton, animation: Animation
     Parameters
     ----------
     skeleton : dqskin.skeleton.Skeleton
-    animation : dqskin.scene.Animation or None
+    animation : dqskin.animation.Animation or None
         None holds the skeleton at rest (zero derivative).
     times : (F,) float
     interp : str
@@ -190,8 +190,8 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
     (V, 3) or (F, V, 3) float32
         ``d/dt`` of the skinned points, skeleton space, per unit of time of the derivatives.
     """
-    x = np.asarray(skinning_transforms, dtype=np.float64)
-    x_dot = np.asarray(skinning_transform_derivatives, dtype=np.float64)
+    x = as_real("skinning_transforms", skinning_transforms, np.float64)
+    x_dot = as_real("skinning_transform_derivatives", skinning_transform_derivatives, np.float64)
     if x.ndim not in (3, 4) or x.shape[-2:] != (4, 4) or x_dot.shape != x.shape:
         raise ValueError(f"skinning_transforms {x.shape} and skinning_transform_derivatives "
                          f"{x_dot.shape} must both be (J, 4, 4) or (F, J, 4, 4)")

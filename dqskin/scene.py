@@ -1,8 +1,8 @@
 """The loaded scene: skinned meshes, their skeletons and animations, skinned per frame on a device.
 
-Loaders (:mod:`dqskin.usd`, :mod:`dqskin.gltf`) fill these containers; :meth:`Scene.skin` runs the
-same engine for every format: animation → local transforms → forward kinematics (dual
-quaternions) → skinning transforms → per-vertex skinning → output space.
+Loaders (:mod:`dqskin.formats.usd`, :mod:`dqskin.formats.gltf`) fill these containers;
+:meth:`Scene.skin` runs the same engine for every format: animation → local transforms → forward
+kinematics (dual quaternions) → skinning transforms → per-vertex skinning → output space.
 """
 
 from collections.abc import Iterator
@@ -86,7 +86,9 @@ class Mesh:
                      "blend_weights"):
             a = getattr(self, name)
             if isinstance(a, np.ndarray):
+                a = a.view()  # the caller's array stays writable
                 a.flags.writeable = False
+                setattr(self, name, a)
 
     def blend_or_default(self):
         """(V,) float32 blend weights, ½ where none were given."""
@@ -169,7 +171,7 @@ class Scene:
                          interp: Interpolation = "trs") -> np.ndarray:
         """(F, J, 4, 4) float64 local joint transforms of one skeleton at ``times``.
 
-        ``interp`` is :data:`dqskin.motion.INTERPOLATIONS`: "trs" is the asset's own sampler
+        ``interp`` is :data:`dqskin.animation.INTERPOLATIONS`: "trs" is the asset's own sampler
         (what glTF and USD players show); the others interpolate the keys with dual quaternions.
         ValueError naming the skeleton, time and joint when a transform is NaN, infinite or
         beyond float32 range.
@@ -237,7 +239,9 @@ class Scene:
             deformer = m.deformer if blend_shapes else None
             rest = None if deformer is None else deformer.points_at(t)
             track = m.output_transforms if space == "output" else None
-            out = None if track is None else track.at(t)
+            out = rate = None
+            if track is not None:
+                out, rate = track.with_derivative(t) if velocities else (track.at(t), None)
             result.points[m.name] = sk.skin(xforms[s], meth, points=rest, output_transforms=out)
             if normals and m.normals is not None:
                 rn = None if deformer is None else deformer.normals_at(t)
@@ -247,7 +251,7 @@ class Scene:
                                                          output_transforms=out)
             if velocities:
                 result.velocities[m.name] = self._velocities(sk, t, meth, xforms[s], rates[s],
-                                                             rest, deformer, track)
+                                                             rest, deformer, out, rate)
         return result
 
     def skin_chunks(self, times: npt.ArrayLike, chunk: int,
@@ -270,14 +274,14 @@ class Scene:
                     fut = ex.submit(self.skin, t[slices[k + 1]], **skin_args)
                 yield sl, res
 
-    def _velocities(self, skinner, t, method, xforms, rates, rest, deformer, track):
+    def _velocities(self, skinner, t, method, xforms, rates, rest, deformer, out, out_rate):
         """(F, V, 3) float32 velocities per second of one mesh, the chain rule through every
         time-varying input: joints, the deformer's rest points, the output transform."""
         rest_dot = None if deformer is None else deformer.point_velocities_at(t)
         v = skinner.skin_velocities(xforms, rates, method, points=rest,
                                     point_velocities=rest_dot).astype(np.float64)
-        if track is not None:
-            o, o_dot = track.with_derivative(t)
+        if out is not None:
+            o, o_dot = out, out_rate
             v = np.einsum("fij,fvj->fvi", o[:, :3, :3], v)
             if np.any(o_dot):
                 p = skinner.skin(xforms, method, points=rest)

@@ -15,15 +15,14 @@ import numpy.typing as npt
 import warp as wp
 
 from ._warp import Device, resolve_device
-from .influences import Influences, check_influences
+from .influences import Influences
 from .kernels import skin as K
 from .kernels import velocity as KV
 from .kernels.dqmath import mat34, vec8
 from .shapes import as_array, frames_of
 from .validation import check_transforms
 
-__all__ = ["METHODS", "Method", "Skinner", "VectorKind", "check_influences", "skin_points",
-           "skin_normals"]
+__all__ = ["METHODS", "Method", "Skinner", "VectorKind", "skin_points", "skin_normals"]
 
 Method = Literal["lbs", "dqs", "blend"]
 """Skinning methods: linear blend, dual quaternion, per-vertex blend of the two."""
@@ -98,8 +97,7 @@ class Skinner:
             if b.shape != (self.vertex_count,) or not np.all((b >= 0) & (b <= 1)):
                 raise ValueError(f"blend_weights: expected ({self.vertex_count},) values in [0, 1]")
             blend = wp.array(b, dtype=wp.float32, device=d)
-        indices, weights = self.influences.on(d)
-        self._inf = K.influences(indices=indices, weights=weights, blend=blend)
+        self._inf = K.influences(blend=blend, **self.influences.upload(d))
 
     def _upload(self, pts, linear=False):
         """(Fp, N, 3) mesh-space rows → bind space on the device (``linear``: directions)."""
@@ -144,8 +142,7 @@ class Skinner:
             if x.dtype != wp.mat44 or x.ndim != 2 or x.device != d:
                 raise ValueError(f"{name}: a Warp array must be 2-D (F, J) of wp.mat44 on {d}, got "
                                  f"{x.ndim}-D {x.dtype} on {x.device}")
-            check_transforms(name, x.numpy())  # (F, J, 4, 4): small next to the points
-            return x, True
+            return x, True  # used in place, unchecked: a non-finite entry gives NaN in every method
         xs, batched = _transforms(name, skinning_transforms)
         check_transforms(name, xs)
         return wp.array(xs.astype(np.float32), dtype=wp.mat44, device=d), batched
@@ -190,7 +187,10 @@ class Skinner:
                              f"{xf.shape}")
         xf = np.broadcast_to(xf, (frames, 4, 4))
         if normals:
-            lin = np.linalg.inv(xf[:, :3, :3]).transpose(0, 2, 1)
+            try:
+                lin = np.linalg.inv(xf[:, :3, :3]).transpose(0, 2, 1)
+            except np.linalg.LinAlgError:
+                raise ValueError("output_transforms: singular, normals cannot follow") from None
             xf = np.zeros((frames, 4, 4))
             xf[:, :3, :3] = lin
             xf[:, 3, 3] = 1.0
@@ -282,7 +282,10 @@ class Skinner:
                     raise ValueError(f"vector_vertex: expected ({n},) indices into "
                                      f"{self.vertex_count} points")
             g = self.geom_bind_transform[:3, :3]
-            gm = np.linalg.inv(g).T if kind == "normal" else g
+            try:
+                gm = np.linalg.inv(g).T if kind == "normal" else g
+            except np.linalg.LinAlgError:
+                raise ValueError("geom_bind_transform: singular, normals cannot follow") from None
             d = self.device
             src = wp.array((vec @ gm.T).astype(np.float32), dtype=wp.vec3, device=d)
             if kind == "normal":

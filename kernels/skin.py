@@ -93,13 +93,18 @@ def prepare_points_kernel(
     quaternion and the residual ``S`` for DQS. ``has_residual`` must be
     zeroed before the launch; it is set for frames where some ``S ≠ I`` (1e-6, as UsdSkel).
     A (near-)singular ``A`` (``|det A| <`` :data:`FACTOR_EPSILON`) gets a zero dual quaternion
-    and ``S = I``, as UsdSkel's DQS."""
+    and ``S = I``, as UsdSkel's DQS; a non-finite one NaN, so it propagates in every method."""
     f, j = wp.tid()
     m = xforms[f, j]
     affines[f, j] = mat34(m[0, 0], m[0, 1], m[0, 2], m[0, 3],
                           m[1, 0], m[1, 1], m[1, 2], m[1, 3],
                           m[2, 0], m[2, 1], m[2, 2], m[2, 3])
     a = mat44_linear(m)
+    if not wp.isfinite(m):  # device input is not checked on the host: NaN in every method
+        dqs[f, j] = vec8(wp.nan, wp.nan, wp.nan, wp.nan, wp.nan, wp.nan, wp.nan, wp.nan)
+        residuals[f, j] = a
+        wp.atomic_max(has_residual, f, 1)
+        return
     if wp.abs(wp.determinant(a)) < FACTOR_EPSILON:
         dqs[f, j] = vec8()
         residuals[f, j] = wp.identity(n=3, dtype=float)
@@ -130,6 +135,12 @@ def prepare_vectors_kernel(
     f, j = wp.tid()
     a = mat44_linear(xforms[f, j])
     linears[f, j] = a
+    if wp.abs(wp.determinant(a)) < FACTOR_EPSILON:  # no inverse: adds nothing, as for points
+        rotations[f, j] = wp.quat(0.0, 0.0, 0.0, 0.0)
+        normal_linears[f, j] = wp.mat33()
+        normal_residuals[f, j] = wp.identity(n=3, dtype=float)
+        normal_rotations[f, j] = wp.quat(0.0, 0.0, 0.0, 0.0)
+        return
     rotations[f, j] = quat_from_rotation(polar_rotation(a))
     n = wp.transpose(wp.inverse(a))
     rn = orthonormalize_columns(n)

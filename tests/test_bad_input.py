@@ -142,3 +142,44 @@ def test_compare_refuses_huge_renders_before_writing(tmp_path):
         with pytest.raises(ValueError, match=r"--max-rays"):
             run_compare(default_asset(), out, progress=False, sweeps_dir=None, **kwargs)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs", "blend"])
+def test_device_arrays_are_used_unchecked_and_nan_propagates_alike(method, device):
+    """Warp arrays are used in place (no host copy to check them): a NaN joint gives NaN points
+    under every method, never plausible finite ones."""
+    import warp as wp
+
+    points, idx, w, xf = rig(4)
+    xf[2, 0, 1] = np.nan
+    sk = dqskin.Skinner(points, idx, w, blend_weights=np.full(len(points), 0.5), device=device)
+    arr = wp.array(xf[None].astype(np.float32), dtype=wp.mat44, device=device)
+    out = sk.skin(arr, method)[0]
+    uses_2 = (idx == 2).any(axis=1)
+    assert uses_2.any() and (~uses_2).any()
+    assert np.isnan(out[uses_2]).any(axis=1).all()
+    if method == "lbs":  # DQS may take the residual path for every point of the frame
+        assert np.isfinite(out[~uses_2]).all()
+
+
+def test_points_need_a_joint_and_singular_normals_stay_finite(device):
+    pts = np.zeros((2, 3))
+    with pytest.raises(ValueError, match="no joints"):
+        dqskin.skin_points(pts, np.zeros((2, 0), int), np.zeros((2, 0)), np.zeros((0, 4, 4)),
+                           "lbs", device=device)
+    xf = np.tile(np.eye(4), (2, 1, 1))
+    xf[1, :3, :3] = 0.0
+    normals = np.tile([0.0, 0.0, 1.0], (2, 1))
+    for method in ("lbs", "dqs"):
+        out = dqskin.skin_normals(normals, [[0, 1], [1, 0]], [[0.5, 0.5], [1.0, 0.0]], xf,
+                                  method, device=device)
+        assert np.isfinite(out).all(), method
+
+
+def test_mesh_arrays_are_frozen_without_freezing_the_callers():
+    pts = np.zeros((3, 3), np.float32)
+    mesh = dqskin.Mesh("m", pts, np.zeros((0, 3), np.int32), np.zeros((3, 1), np.int32),
+                       np.ones((3, 1), np.float32))
+    assert pts.flags.writeable and not mesh.points.flags.writeable
+    with pytest.raises(ValueError):
+        mesh.points[0, 0] = 1.0

@@ -148,6 +148,7 @@ class GltfAnimation(Animation):
         self._rest = rest_trs
         self._matrix_nodes = matrix_nodes
         self._channels = channels
+        self.linear_trs = all(c[4] == "LINEAR" for c in channels)
 
     def local_transforms(self, times):
         """Parent-relative node transforms at ``times``.

@@ -1182,7 +1182,7 @@ def rigid_transforms(scene, prim, times, method=None, *, device=None, interp="tr
     method : {"lbs", "dqs", "blend"} or None
         None uses the prim's own ``skinning_method``; "blend" mixes half and half.
     interp : str
-        Joint interpolation (:data:`dqskin.motion.INTERPOLATIONS`), as for the meshes.
+        Joint interpolation (:data:`dqskin.animation.INTERPOLATIONS`), as for the meshes.
 
     Returns
     -------

@@ -1,7 +1,7 @@
 """The HTML report of ``dqskin compare``: one self-contained file (CSS inline, every image a
-``data:image/png;base64`` URI, no script, no network reference) built from the metrics dictionary
-of :func:`dqskin.compare.run_compare` and the panels it rendered. Plots are drawn with Matplotlib's
-Agg canvas (no pyplot, no display).
+``data:image/png;base64`` URI, no script, no network reference) built from the metrics dictionary of
+:func:`dqskin.report.compare.run_compare` and the panels it rendered. Plots are drawn with
+Matplotlib's Agg canvas (no pyplot, no display).
 """
 
 import base64
