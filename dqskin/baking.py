@@ -3,7 +3,8 @@
 :func:`bake` skins a scene chunk by chunk (:meth:`dqskin.Scene.skin_chunks`, so memory stays
 bounded) and hands each chunk to the writer the output's suffix selects: a USD point cache
 (:mod:`dqskin.formats.usd_cache`), one ``.npz`` (:mod:`dqskin.formats.npz`) or one mesh file per
-frame (:mod:`dqskin.formats.mesh_files`). Every output is written atomically.
+frame (:mod:`dqskin.formats.mesh_files`). Every output is written atomically
+(:mod:`dqskin.formats.atomic`) and checked first (:mod:`dqskin.validation`).
 """
 
 import sys
@@ -15,8 +16,10 @@ import numpy.typing as npt
 from ._warp import Device
 from .animation import Interpolation
 from .formats import format_of, gltf, mesh_files, npz, usd, usd_cache
+from .formats.atomic import atomic_path, check_interrupted, check_parent
 from .scene import Scene
 from .skinning import Method
+from .validation import check_scene, check_skinned
 
 __all__ = ["OUTPUT_SUFFIXES", "bake", "check_output", "output_kind"]
 
@@ -41,14 +44,19 @@ def output_kind(out: str | Path) -> str:
 
 def check_output(out: str | Path, inputs: list, force: bool) -> Path:
     """``out`` as a Path; ValueError if it is one of ``inputs``, FileExistsError if it exists
-    and not ``force``."""
+    and not ``force``, NotADirectoryError if a folder above it is a file."""
     out = Path(out)
     for src in inputs:
         if out.resolve() == Path(src).resolve():
             raise ValueError(f"{out}: refusing to overwrite the input")
+    check_parent(out)
     if out.exists() and not force:
         raise FileExistsError(f"{out}: exists (use --force to overwrite)")
     return out
+
+
+def _plural(n, word, plural=None):
+    return f"{n} {word if n == 1 else plural or word + 's'}"
 
 
 def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
@@ -57,13 +65,21 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
          progress: bool = False) -> str:
     """Skin ``scene`` at ``times`` and write ``out``.
 
+    Nothing is written unless every joint transform is usable
+    (:func:`dqskin.validation.check_scene`), and every skinned chunk is checked
+    (:func:`dqskin.validation.check_skinned`: no NaN or infinite result in any format). The
+    output appears only when complete (:mod:`dqskin.formats.atomic`); without ``force`` its name
+    is claimed exclusively, so of two runs writing the same file the one finishing second fails.
+
     Parameters
     ----------
     scene : dqskin.Scene
     out : str or Path
         ``.usd/.usda/.usdc`` (USD input only: a point cache of the source stage with points,
         extent, and normals and velocities as asked), ``.npz`` (points and faces), or a per-frame
-        pattern ``dir/f_{:04d}.obj`` (``.obj .ply .stl .off .glb``; all meshes in one file).
+        pattern ``dir/f_{:04d}.obj`` (``.obj .ply .stl .off .glb``; all meshes in one file; a
+        name without ``{}`` only for one frame; ``.obj/.ply/.glb`` also get skinned normals and
+        UVs, see :mod:`dqskin.formats.mesh_files`). Per-frame files are committed together.
     times : (F,) float, optional
         Default ``scene.times``.
     method : {"lbs", "dqs", "blend"} or None
@@ -72,12 +88,15 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
         Joint interpolation (:data:`dqskin.animation.INTERPOLATIONS`).
     chunk : int
         Frames skinned at a time.
-    normals, velocities : bool
-        Skin normals and write velocities (units per second) into USD caches.
+    normals : bool
+        Skin normals into USD caches and ``.obj/.ply/.glb`` files.
+    velocities : bool
+        Write velocities (units per second) into USD caches.
     force : bool
-        Overwrite existing outputs (never the input).
+        Overwrite existing outputs (never the input); the last writer wins.
     progress : bool
-        A tqdm bar over frames on stderr (for three chunks or more).
+        A tqdm bar over frames on stderr (for three chunks or more, and only when stderr is a
+        terminal).
 
     Returns
     -------
@@ -90,37 +109,69 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
         raise ValueError(f"--chunk {chunk}: must be at least 1")
     names = [m.name for m in scene.meshes]
     args = dict(method=method, device=device, interp=interp)
+    src = scene.path
+    counts = f"{_plural(len(names), 'mesh', 'meshes')} × {_plural(len(t), 'frame')}"
     if kind == "usd":
-        if format_of(scene.path) is not usd:
+        if format_of(src) is not usd:
             raise ValueError(f"--out {out}: a USD point cache copies the input stage, so it needs "
                              "a USD input; for glTF write .npz or per-frame .obj/.ply/.glb files")
-        check_output(out, [scene.path], force)
+        check_output(out, [src], force)
+        check_scene(scene, t)
         wrote_velocities = False
-        with usd_cache.UsdCacheWriter(scene, out, **args) as writer:
+        with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args) as writer:
             for sl, res in _chunks(scene, t, chunk, progress, normals=normals,
                                    velocities=velocities, **args):
+                check_skinned(src, res)
                 writer.write(t[sl], res.points, res.normals, res.velocities)
                 wrote_velocities |= bool(res.velocities)
-        return (f"wrote {out}: {len(names)} meshes × {len(t)} frames "
+        return (f"wrote {out}: {counts} "
                 f"({method or 'asset method'}{', velocities' if wrote_velocities else ''})")
     if kind == "npz":
-        check_output(out, [scene.path], force)
-        pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32) for m in scene.meshes}
-        for sl, res in _chunks(scene, t, chunk, progress, **args):
-            for name in names:
-                pts[name][sl] = res.points[name]
-        npz.write_npz(out, t, names, [pts[n] for n in names], [m.faces for m in scene.meshes])
-        return f"wrote {out}: {len(names)} meshes × {len(t)} frames"
+        check_output(out, [src], force)
+        check_scene(scene, t)
+        with atomic_path(out, overwrite=force) as tmp:  # claimed for the whole run
+            pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32)
+                   for m in scene.meshes}
+            for sl, res in _chunks(scene, t, chunk, progress, **args):
+                check_skinned(src, res)
+                for name in names:
+                    pts[name][sl] = res.points[name]
+            npz.save_npz(tmp, t, names, [pts[n] for n in names], [m.faces for m in scene.meshes])
+        return f"wrote {out}: {counts}"
+    suffix = Path(str(out)).suffix.lower()
     numbers = _frame_numbers(scene, t)
     paths = mesh_files.frame_paths(str(out), numbers)
     for p in paths:
-        check_output(p, [scene.path], force)
-    offsets = np.cumsum([0] + [len(m.points) for m in scene.meshes])
-    faces = np.concatenate([m.faces + o for m, o in zip(scene.meshes, offsets)])
-    for sl, res in _chunks(scene, t, chunk, progress, **args):
-        stacked = np.concatenate([res.points[n] for n in names], axis=1)
-        mesh_files.write_frames(str(out), numbers[sl], stacked, faces, force=force)
-    return f"wrote {len(paths)} files {paths[0]} … {paths[-1]}"
+        check_output(p, [src], force)
+    gltf_input = format_of(src) is gltf
+    layout = mesh_files.MeshLayout(
+        scene.meshes, suffix, normals=normals, uv_top_left=gltf_input,
+        uv_interpolation=None if gltf_input else _usd_uv_interpolation(src))
+    check_scene(scene, t)
+    with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=force) as writer:
+        for sl, res in _chunks(scene, t, chunk, progress, normals=layout.normals, **args):
+            check_skinned(src, res)
+            points, nrm = layout.frames(res.points, res.normals)
+            writer.write(numbers[sl], points, nrm)
+    extras = [w for w, on in (("normals", layout.normals), ("UVs", layout.uvs is not None)) if on]
+    span = f"{paths[0]}" if len(paths) == 1 else f"{paths[0]} … {paths[-1]}"
+    return (f"wrote {_plural(len(paths), 'file')} {span}: {counts}"
+            + (f" ({', '.join(extras)})" if extras else ""))
+
+
+def _usd_uv_interpolation(path):
+    """``mesh name → interpolation of its primvars:st`` from the USD stage at ``path``, opened
+    on first use (only asked when UV counts leave the mapping ambiguous)."""
+    stage = []
+
+    def lookup(name):
+        from pxr import Usd, UsdGeom
+        if not stage:
+            stage.append(Usd.Stage.Open(str(path)))
+        prim = stage[0].GetPrimAtPath(name) if stage[0] else None
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("st") if prim else None
+        return str(pv.GetInterpolation()) if pv else None
+    return lookup
 
 
 def _frame_numbers(scene, times):
@@ -129,12 +180,15 @@ def _frame_numbers(scene, times):
 
 
 def _chunks(scene, times, chunk, progress, **skin_args):
-    """:meth:`Scene.skin_chunks` with a progress bar over frames."""
+    """:meth:`Scene.skin_chunks` with a progress bar over frames (only on a terminal)."""
     from tqdm import tqdm
 
     bar = tqdm(total=len(times), unit="frame", desc="skinning", file=sys.stderr,
-               disable=not progress or len(times) <= 2 * chunk)
-    for sl, res in scene.skin_chunks(times, chunk, **skin_args):
-        yield sl, res
-        bar.update(sl.stop - sl.start)
-    bar.close()
+               disable=not progress or len(times) <= 2 * chunk or not sys.stderr.isatty())
+    try:
+        for sl, res in scene.skin_chunks(times, chunk, **skin_args):
+            check_interrupted()  # in case a library swallowed it
+            yield sl, res
+            bar.update(sl.stop - sl.start)
+    finally:
+        bar.close()

@@ -1,28 +1,120 @@
 """The ``dqskin`` command line: ``skin``, ``info``, ``compare`` and ``demo``.
 
 All argument parsing lives here; each command calls the library (:func:`dqskin.baking.bake`,
-:func:`dqskin.report.compare.run_compare`). Errors in the input print one line naming the file,
-prim or field and exit with status 2; no traceback. Existing outputs are never overwritten without
-``--force``; outputs are atomic.
+:func:`dqskin.report.compare.run_compare`). The process's promises, one place each:
+
+* Exit status: 0 done, 2 bad input or refused (one line ``dqskin: error: ...`` naming the file,
+  prim or field; no traceback), 130 on SIGINT (Ctrl-C) and 143 on SIGTERM (one line
+  ``dqskin: interrupted``).
+* Signals: :func:`main` installs the handlers before anything else it does; the first SIGINT or
+  SIGTERM raises :class:`Interrupted` in the main thread, so every ``with`` block unwinds and
+  :mod:`dqskin.formats.atomic` removes its temporary files (its commit and clean-up steps finish
+  first; further signals during clean-up are ignored). An interrupted run leaves no output and no
+  temporary file.
+* Outputs: atomic, never over an existing file without ``--force`` nor over the input; without
+  ``--force`` the name is claimed exclusively (:mod:`dqskin.formats.atomic`), so of two runs
+  writing the same output the one that finishes second fails.
+* Output: only dqskin's own lines. Warp's start-up messages (including its CUDA-driver notice,
+  printed by native code), library warnings and log records are silenced unless ``--verbose``;
+  progress bars only on a terminal.
 """
 
-import argparse
+import signal
 import sys
-from importlib.resources import files
 from pathlib import Path
 
-import numpy as np
+# (nothing heavy above: main installs its signal handlers before importing anything else)
 
-from .animation import INTERPOLATIONS
-from .skinning import METHODS
-
-__all__ = ["build_parser", "main"]
+__all__ = ["Interrupted", "build_parser", "install_signal_handlers", "main"]
 
 EXIT_INPUT = 2
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+_signalled = []  # the signal numbers received while main runs (only the first one acts)
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM, raised in the main thread; ``exit_code`` is ``128 + signum``."""
+
+    def __init__(self, signum):
+        super().__init__(signum)
+        self.signum = int(signum)
+        self.exit_code = 128 + self.signum
+
+
+def _on_signal(signum, frame):
+    if _signalled:
+        return  # the first signal interrupts; clean-up then runs to its end
+    _signalled.append(signum)
+    exc = Interrupted(signum)
+    atomic = sys.modules.get("dqskin.formats.atomic")
+    if atomic is not None:
+        atomic.interrupt(exc)  # raises now, or when the current commit/clean-up step ends
+        return
+    raise exc
+
+
+def install_signal_handlers():
+    """Route SIGINT and SIGTERM to :class:`Interrupted`; returns the previous handlers (None
+    outside the main thread, where Python cannot set them)."""
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return {s: signal.signal(s, _on_signal) for s in SIGNALS}
+
+
+def _quiet_libraries(verbose):
+    """Silence library chatter unless ``verbose``: Python warnings, log records, and Warp (its
+    banner, module-load timings, and the CUDA-driver notice its native init prints to fd 2)."""
+    import logging
+    import warnings
+    if not verbose:
+        warnings.simplefilter("ignore")
+        logging.disable(logging.CRITICAL)
+    import warp as wp
+    wp.config.quiet = not verbose
+    if not verbose:
+        wp.config.log_level = wp.LOG_ERROR
+    _init_warp(wp, verbose)
+
+
+def _init_warp(wp, verbose):
+    """``wp.init()``; without ``verbose`` what its native code writes to stderr is captured and
+    shown only if it fails."""
+    if verbose:
+        wp.init()
+        return
+    import os
+    import tempfile
+    sys.stderr.flush()
+    with tempfile.TemporaryFile() as capture:
+        saved = os.dup(2)
+        try:
+            os.dup2(capture.fileno(), 2)
+            try:
+                wp.init()
+            finally:
+                os.dup2(saved, 2)
+        except Exception:
+            capture.seek(0)
+            sys.stderr.write(capture.read().decode(errors="replace"))
+            raise
+        finally:
+            os.close(saved)
+
+
+def _regular_file(path):
+    """ValueError unless ``path`` is a regular file (a folder, ``/dev/null`` or a FIFO is not)."""
+    p = Path(path)
+    if not p.exists():
+        raise ValueError(f"{p}: no such file")
+    if not p.is_file():
+        raise ValueError(f"{p}: not a regular file")
+    return p
 
 
 def default_asset():
     """The bundled humanoid rig (package data ``dqskin.assets``, made by tools/make_assets.py)."""
+    from importlib.resources import files
     return files("dqskin.assets") / "humanoid.usda"
 
 
@@ -35,7 +127,9 @@ def cmd_skin(args):
     from .baking import bake, output_kind
     from .times import select_times
     output_kind(args.out)
-    scene = formats.load(args.input, clip=_clip(args.clip))
+    _checkpoint()
+    scene = formats.load(_regular_file(args.input), clip=_clip(args.clip))
+    _checkpoint()
     times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
                          args.substeps)
     print(bake(scene, args.out, times, method=args.method, interp=args.interp,
@@ -45,8 +139,11 @@ def cmd_skin(args):
 
 
 def cmd_info(args):
+    import numpy as np
+
     from . import formats
-    scene = formats.load(args.input, clip=_clip(args.clip))
+    from .validation import scene_problems
+    scene = formats.load(_regular_file(args.input), clip=_clip(args.clip))
     print(f"{scene.path}")
     t = np.asarray(scene.times)
     tcps = scene.time_codes_per_second
@@ -85,6 +182,7 @@ def cmd_info(args):
                             "summing to 1")
         if np.any(nnz == 0):
             problems.append(f"{m.name}: {(nnz == 0).sum()} points without influences")
+    problems += scene_problems(scene, device=args.device)  # what skin would refuse
     print("  problems: " + ("none" if not problems else ""))
     for p in problems:
         print(f"    - {p}")
@@ -95,8 +193,8 @@ def cmd_demo(args):
     from . import formats
     from .baking import bake
     from .report.compare import run_compare
-    asset = Path(args.asset) if args.asset else default_asset()
-    if not asset.is_file():
+    asset = _regular_file(args.asset) if args.asset else default_asset()
+    if not Path(asset).is_file():
         raise ValueError(f"{asset}: demo asset not found")
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -125,6 +223,7 @@ def cmd_compare(args):
     """``dqskin compare``: :func:`dqskin.report.compare.run_compare`, then a summary."""
     from .report.compare import run_compare, summary_lines
     from .times import parse_frames
+    _regular_file(args.input)
     result = run_compare(
         args.input, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],
         frames=None if args.frames is None else parse_frames(args.frames),
@@ -141,6 +240,7 @@ def cmd_compare(args):
 
 def _add_compare_arguments(parser):
     from .report.render import VIEWS
+    from .skinning import METHODS
     parser.add_argument("input", help="character file (.usd/.usda/.usdc/.usdz, .gltf/.glb)")
     parser.add_argument("--out", required=True, help="output folder: report.html, metrics.json, "
                         "frames/*.png")
@@ -165,13 +265,23 @@ def _add_compare_arguments(parser):
 
 
 def build_parser():
+    import argparse
+
+    from .animation import INTERPOLATIONS
+    from .skinning import METHODS
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
+                        help="show library warnings and Warp's messages")
     ap = argparse.ArgumentParser(prog="dqskin", description="Dual-quaternion and linear-blend "
                                  "skinning on NVIDIA Warp")
+    ap.add_argument("--verbose", action="store_true",  # (its own action: a subcommand's
+                    help="show library warnings and Warp's messages")  # default stays SUPPRESS)
     sub = ap.add_subparsers(dest="command", required=True)
-    s = sub.add_parser("skin", help="skin every frame and write a cache")
+    s = sub.add_parser("skin", help="skin every frame and write a cache", parents=[common])
     s.add_argument("input")
     s.add_argument("--out", required=True, help=".usd/.usda/.usdc cache, .npz, or a per-frame "
-                   "pattern like out/frame_{:04d}.obj")
+                   "pattern like out/frame_{:04d}.obj (.obj/.ply/.glb with normals and UVs, "
+                   ".stl/.off geometry only; a name without {} for one frame only)")
     s.add_argument("--method", choices=list(METHODS), default=None,
                    help="default: what the asset asks for (LBS for glTF)")
     s.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
@@ -186,21 +296,25 @@ def build_parser():
     s.add_argument("--no-velocities", dest="velocities", action="store_false",
                    help="don't write per-point velocities (units/s) to USD caches")
     s.add_argument("--no-normals", dest="normals", action="store_false",
-                   help="don't skin normals into USD caches (they keep their rest values)")
+                   help="don't skin normals into USD caches (they keep their rest values) nor "
+                   "write them to .obj/.ply/.glb files")
     s.add_argument("--clip", help="glTF animation name or index")
     s.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     s.add_argument("--chunk", type=int, default=256, help="frames per chunk (bounds memory)")
     s.add_argument("--force", action="store_true", help="overwrite existing outputs")
     s.set_defaults(run=cmd_skin)
-    i = sub.add_parser("info", help="skeleton tree, meshes, influences, time range, problems")
+    i = sub.add_parser("info", help="skeleton tree, meshes, influences, time range, problems",
+                       parents=[common])
     i.add_argument("input")
     i.add_argument("--clip")
+    i.add_argument("--device", help="cpu or cuda for the skinning check (default: cuda when "
+                   "present)")
     i.set_defaults(run=cmd_info)
     c = sub.add_parser("compare", help="offscreen LBS-vs-DQS report: report.html, metrics.json, "
-                       "frames/*.png")
+                       "frames/*.png", parents=[common])
     _add_compare_arguments(c)
     c.set_defaults(run=cmd_compare)
-    d = sub.add_parser("demo", help="run the main job on the bundled humanoid")
+    d = sub.add_parser("demo", help="run the main job on the bundled humanoid", parents=[common])
     d.add_argument("--asset", help="default: the bundled humanoid")
     d.add_argument("--out", default="out/demo")
     d.add_argument("--device")
@@ -209,16 +323,99 @@ def build_parser():
 
 
 def main(argv=None):
-    import warp as wp
-    wp.config.quiet = True
-    wp.config.log_level = wp.LOG_ERROR  # no init banner or per-module load timings on stdout
+    """Run the command line; returns the exit status (see the module docstring).
+
+    Called without ``argv`` (the process's entry point) it keeps its signal handlers until the
+    process exits and, unless ``--verbose``, holds what native code (Warp, USD) writes to stderr,
+    showing it only if dqskin itself crashes; with ``argv`` (from Python) it restores the previous
+    handlers when it returns and leaves stderr alone.
+    """
+    previous = release = None
+    crashed = False
+    try:
+        previous = install_signal_handlers()  # first: Ctrl-C in start-up is an interrupt too
+        del _signalled[:]  # (a new run, when called from Python again)
+        atomic = sys.modules.get("dqskin.formats.atomic")
+        if atomic is not None:
+            atomic.reset_interrupt()
+        if argv is None and "--verbose" not in sys.argv[1:]:
+            release = _hold_native_stderr()
+        import logging
+        import warnings
+        with warnings.catch_warnings():
+            disabled = logging.root.manager.disable
+            try:
+                return _run(argv)
+            finally:
+                logging.disable(disabled)
+    except KeyboardInterrupt as exc:  # Interrupted, or SIGINT outside the main thread
+        print("dqskin: interrupted", file=sys.stderr)
+        return getattr(exc, "exit_code", 128 + signal.SIGINT)
+    except Exception:
+        crashed = True  # a bug: the traceback follows, with what native code said
+        raise
+    finally:
+        if release is not None:
+            release(replay=crashed)
+        if previous is not None and argv is not None:
+            for s, h in previous.items():
+                signal.signal(s, h)
+
+
+def _checkpoint():
+    """Raise :class:`Interrupted` if a signal came while a library swallowed the exception (USD
+    runs Python module loads from C++ and reports their errors as warnings)."""
+    if _signalled:
+        raise Interrupted(_signalled[0])
+
+
+def _hold_native_stderr():
+    """Point file descriptor 2 at a temporary file, ``sys.stderr`` staying on the real stderr;
+    returns ``release(replay)`` (None when stderr cannot be redirected)."""
+    import os
+    import tempfile
+    try:
+        sys.stderr.flush()
+        capture = tempfile.TemporaryFile()
+        saved = os.dup(2)
+    except (AttributeError, OSError, ValueError):
+        return None
+    stream = open(os.dup(saved), "w", buffering=1, errors="backslashreplace",
+                  encoding=getattr(sys.stderr, "encoding", None) or "utf-8")
+    os.dup2(capture.fileno(), 2)
+    previous, sys.stderr = sys.stderr, stream
+
+    def release(replay=False):
+        import contextlib
+        with contextlib.suppress(OSError, ValueError):
+            stream.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
+        sys.stderr = previous
+        stream.close()
+        if replay:
+            capture.seek(0)
+            text = capture.read().decode(errors="replace")
+            if text:
+                previous.write(text)
+                previous.flush()
+        capture.close()
+    return release
+
+
+def _run(argv):
     args = build_parser().parse_args(argv)
     try:
-        return args.run(args)
+        _quiet_libraries(args.verbose)
+        _checkpoint()
+        code = args.run(args)
     except (ValueError, FileExistsError, KeyError, OSError) as exc:
+        _checkpoint()  # an error caused by an interrupt some library turned into another type
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"dqskin: error: {msg}", file=sys.stderr)
-        return EXIT_INPUT
+        code = EXIT_INPUT
+    _checkpoint()  # nothing was committed after a swallowed interrupt (formats.atomic)
+    return code
 
 
 if __name__ == "__main__":

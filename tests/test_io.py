@@ -41,3 +41,123 @@ def test_atomic_path_keeps_old_file_on_error(tmp_path):
     with atomic_path(tmp_path / "sub" / "new.txt") as tmp:
         tmp.write_text("new")
     assert (tmp_path / "sub" / "new.txt").read_text() == "new"
+
+
+def test_atomic_path_exclusive_claim(tmp_path):
+    """overwrite=False: of two writers of one new file, the one committing second fails and
+    leaves the first one's file; its temporary file is removed."""
+    target = tmp_path / "out.txt"
+    first, second = atomic_path(target, overwrite=False), atomic_path(target, overwrite=False)
+    first.open().write_text("first")
+    second.open().write_text("second")
+    first.commit()
+    with pytest.raises(FileExistsError, match="out.txt: exists"):
+        second.commit()
+    assert target.read_text() == "first"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+    with atomic_path(target) as tmp:  # overwrite=True (default): the last writer wins
+        tmp.write_text("third")
+    assert target.read_text() == "third"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+
+
+def test_atomic_group_is_all_or_nothing(tmp_path):
+    from dqskin.formats.atomic import atomic_group
+    (tmp_path / "b.txt").write_text("other run")
+    group = atomic_group(overwrite=False)
+    for name in ("a.txt", "b.txt", "c.txt"):
+        group.add(tmp_path / name).write_text(name)
+    with pytest.raises(FileExistsError, match="b.txt"):
+        group.commit()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.txt"]  # a.txt taken back
+    assert (tmp_path / "b.txt").read_text() == "other run"
+    with pytest.raises(RuntimeError):
+        with atomic_group() as group:
+            group.add(tmp_path / "d.txt").write_text("d")
+            raise RuntimeError("boom")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.txt"]
+
+
+def test_atomic_errors_name_the_target(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(NotADirectoryError, match="file is not a directory"):
+        with atomic_path(blocker / "sub" / "out.txt"):
+            pass
+    long_name = tmp_path / ("n" * 250)  # legal; its temporary sibling is 10 characters longer
+    with pytest.raises(OSError) as info:
+        with atomic_path(long_name):
+            pass
+    assert str(info.value).startswith(f"{long_name}: cannot write")
+    target = tmp_path / "out.bin"
+    with pytest.raises(OSError) as info:
+        with atomic_path(target) as tmp:
+            raise OSError(28, "No space left on device", str(tmp))
+    assert str(info.value) == f"{target}: cannot write (No space left on device)"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_interrupt_waits_for_the_critical_step(tmp_path):
+    """An interrupt during a commit is raised after it; then nothing commits any more."""
+    from dqskin.formats import atomic
+
+    class Stop(KeyboardInterrupt):
+        pass
+
+    try:
+        with pytest.raises(Stop):
+            with atomic.critical():
+                atomic.interrupt(Stop())  # as a signal handler would, mid-step
+                (tmp_path / "a.txt").write_text("a")  # the step still runs to its end
+        assert (tmp_path / "a.txt").read_text() == "a"
+        with pytest.raises(Stop):
+            with atomic.atomic_path(tmp_path / "b.txt") as tmp:
+                tmp.write_text("b")
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
+    finally:
+        atomic.reset_interrupt()
+
+
+def test_frame_writer_rules(tmp_path):
+    from dqskin.formats.mesh_files import FrameWriter, frame_paths, write_frames
+    with pytest.raises(ValueError, match=r"3 frames but 1 file"):
+        frame_paths(str(tmp_path / "x.obj"), [0, 1, 2])
+    assert frame_paths(str(tmp_path / "x.obj"), [7]) == [tmp_path / "x.obj"]
+    pts = np.zeros((2, 3, 3))
+    pts[:, 1, 0] = pts[:, 2, 1] = 1
+    tri = [[0, 1, 2]]
+    with pytest.raises(ValueError, match="cannot hold UVs"):
+        FrameWriter(str(tmp_path / "f_{}.stl"), tri, uvs=np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="no faces"):
+        write_frames(str(tmp_path / "f_{}.stl"), [0, 1], pts, np.zeros((0, 3), int))
+    paths = write_frames(str(tmp_path / "f_{}.obj"), [0, 1], pts, tri,
+                         normals=np.tile([0.0, 0.0, 1.0], (2, 3, 1)), uvs=np.eye(3)[:, :2])
+    text = paths[1].read_text()
+    assert text.count("\nvn ") == 3 and text.count("\nvt ") == 3 and "mtllib" not in text
+    with pytest.raises(FileExistsError):
+        write_frames(str(tmp_path / "f_{}.obj"), [0, 1], pts, tri)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f_0.obj", "f_1.obj"]
+
+
+def test_mesh_layout_mixes_meshes_with_and_without_normals_and_uvs():
+    """One file for two meshes: the one without rest normals gets area-weighted normals of its
+    skinned triangles, the one without UVs gets (0, 0); glTF UVs are flipped to bottom-left."""
+    from dqskin import Mesh
+    from dqskin.formats.mesh_files import MeshLayout
+    quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32)
+    faces = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+    one = np.ones((4, 1), np.float32)
+    a = Mesh("a", quad, faces, np.zeros((4, 1), np.int32), one,
+             normals=np.tile(np.float32([0, 2, 0]), (4, 1)),
+             uvs=np.float32([[0, 0], [1, 0], [1, 0.25], [0, 1]]))
+    b = Mesh("b", quad + 5, faces, np.zeros((4, 1), np.int32), one)
+    layout = MeshLayout([a, b], ".ply", uv_top_left=True)
+    assert layout.normals and layout.faces.tolist() == [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]
+    np.testing.assert_allclose(layout.uvs, [[0, 1], [1, 1], [1, 0.75], [0, 0]] + [[0, 0]] * 4)
+    pts = {"a": quad[None], "b": (quad + 5)[None]}
+    pos, nrm = layout.frames(pts, {"a": np.tile(np.float32([0, 2, 0]), (1, 4, 1))})
+    assert pos.shape == nrm.shape == (1, 8, 3)
+    np.testing.assert_allclose(nrm[0, :4], [[0, 1, 0]] * 4)  # skinned, normalized
+    np.testing.assert_allclose(nrm[0, 4:], [[0, 0, 1]] * 4)  # from b's triangles
+    assert MeshLayout([a, b], ".stl").uvs is None and not MeshLayout([a, b], ".off").normals
+    assert not MeshLayout([a, b], ".obj", normals=False).normals

@@ -8,7 +8,7 @@ import pytest
 from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 
 from dqskin.formats.usd import load_usd
-from dqskin.formats.usd_cache import write_usd_cache
+from dqskin.formats.usd_cache import UsdCacheWriter, write_usd_cache
 
 BAKE = "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning"
 RIGID = ["/Root/Cube", "/Root/Cylinder", "/Root/Sphere"]
@@ -240,3 +240,23 @@ def test_usdz_source_keeps_uvs_materials_and_topology(shared_assets, tmp_path, d
     assert material and material.GetPath() == UsdShade.MaterialBindingAPI(
         a).ComputeBoundMaterial()[0].GetPath()
     np.testing.assert_array_equal(b.GetAttribute("points").Get(24.0), points[name][1])
+
+
+def test_exclusive_writer_and_temporary_file(shared_assets, tmp_path):
+    """overwrite=False: a cache finished by someone else meanwhile is kept, ours dropped; the
+    writer's temporary file exists while it writes and never after."""
+    scene = load_usd(shared_assets / BAKE / "lbs.usda")
+    out = tmp_path / "cache.usdc"
+    points, _, _ = random_frames(scene, [4.0])
+    with pytest.raises(FileExistsError, match="cache.usdc: exists"):
+        with UsdCacheWriter(scene, out, overwrite=False) as writer:
+            assert [p.name.startswith(".cache.") for p in tmp_path.iterdir()] == [True]
+            writer.write([4.0], points)
+            out.write_bytes(b"finished by another run")
+    assert os.listdir(tmp_path) == ["cache.usdc"] and out.read_bytes().startswith(b"finished")
+    with pytest.raises(ValueError, match="NaN"):
+        with UsdCacheWriter(scene, tmp_path / "other.usdc") as writer:
+            writer.write([4.0], {k: np.full_like(v, np.nan) for k, v in points.items()})
+    assert os.listdir(tmp_path) == ["cache.usdc"]
+    with pytest.raises(NotADirectoryError, match="is not a directory"):
+        write_usd_cache(scene, out / "x.usdc", [4.0], points)

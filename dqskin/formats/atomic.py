@@ -1,11 +1,72 @@
 """The one output-writing path: every file dqskin writes appears under its final name only when
-complete (written to a temporary file beside it, then renamed)."""
+complete, and a failed or interrupted write leaves nothing behind.
 
+* :class:`atomic_path`: a temporary file beside the target (``.NAME.XXXXXXXX.SUFFIX``, same folder
+  so the final rename is atomic), moved onto the target by :meth:`~atomic_path.commit`; removed by
+  :meth:`~atomic_path.discard` (or the ``with`` block's exception). Errors name the target, never
+  the temporary file.
+* Exclusive claim (``overwrite=False``): the temporary file is put in place with ``os.link``,
+  which fails if the target exists. Of two runs writing the same new file, the one that finishes
+  second gets :class:`FileExistsError` instead of silently replacing the other's finished file,
+  whichever started first; nothing to go stale (no lock files). With ``overwrite=True``
+  (``--force``) the last writer wins through ``os.replace``: never a partial file.
+* :class:`atomic_group`: several files (one per frame) committed together at the end, so a set is
+  all there or not at all.
+* Interrupts: a signal handler (the CLI's, :mod:`dqskin.cli`) calls :func:`interrupt` with the
+  exception to raise. Inside :func:`critical` blocks (claiming, committing and removing temporary
+  files) the exception is deferred to the end of the block, so those steps are never cut in
+  half; once an interrupt happened nothing claims or commits a file any more
+  (:func:`check_interrupted`), even if some library swallowed the exception.
+"""
+
+import contextlib
+import errno
 import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_path"]
+__all__ = ["atomic_group", "atomic_path", "check_interrupted", "check_parent", "critical",
+           "interrupt", "reset_interrupt"]
+
+_state = {"depth": 0, "pending": None, "interrupted": None}
+
+
+def interrupt(exc: BaseException) -> None:
+    """Record an interrupt and raise ``exc`` now, or at the end of the current :func:`critical`
+    block. For signal handlers (main thread)."""
+    _state["interrupted"] = exc
+    if _state["depth"]:
+        _state["pending"] = exc
+        return
+    raise exc
+
+
+def reset_interrupt() -> None:
+    """Forget a recorded interrupt (a new run in the same process)."""
+    _state.update(pending=None, interrupted=None)
+
+
+def check_interrupted() -> None:
+    """Raise the interrupt :func:`interrupt` was given, if any (some libraries, trimesh's
+    exporters among them, catch ``BaseException`` and so swallow it): writers call this between
+    steps, and nothing claims or commits a file after an interrupt."""
+    exc = _state["interrupted"]
+    if exc is not None:
+        raise exc
+
+
+@contextlib.contextmanager
+def critical():
+    """A block an interrupt does not cut: the exception :func:`interrupt` is given is raised when
+    the outermost block ends."""
+    _state["depth"] += 1
+    try:
+        yield
+    finally:
+        _state["depth"] -= 1
+        if _state["depth"] == 0 and _state["pending"] is not None:
+            exc, _state["pending"] = _state["pending"], None
+            raise exc
 
 
 def _umask():
@@ -22,28 +83,189 @@ def _umask():
     return mask
 
 
-class atomic_path:
-    """Context manager yielding a temporary path beside ``path``, moved onto it on success.
+def check_parent(path: str | os.PathLike) -> Path:
+    """``path`` as a Path; NotADirectoryError when a folder above it exists but is not a folder
+    (``--out in.glb/x.usdc``). Missing folders are fine (writers create them)."""
+    path = Path(path)
+    for anc in path.parents:
+        if anc.exists():
+            if not anc.is_dir():
+                raise NotADirectoryError(f"{path}: {anc} is not a directory")
+            break
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a directory")
+    return path
 
-    The temporary file keeps the extension so format-sniffing writers (USD, trimesh) work; on an
-    exception it is removed and ``path`` is left as it was.
+
+def _cannot_write(path, exc):
+    """``exc`` (an OSError about the temporary file) as an OSError naming ``path``."""
+    reason = exc.strerror or str(exc)
+    return type(exc)(f"{path}: cannot write ({reason})") if isinstance(exc, OSError) else exc
+
+
+class atomic_path:
+    """A temporary path beside ``path``, moved onto it when complete.
+
+    As a context manager: yields the temporary path, commits on success, removes it on an
+    exception (``path`` is then left as it was). Or call :meth:`open`, :meth:`commit` and
+    :meth:`discard` yourself (a writer holding its claim over many steps).
+
+    The temporary file keeps the extension, so format-sniffing writers (USD, trimesh) work.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    overwrite : bool
+        True: replace an existing ``path`` (the last writer wins). False: exclusive; commit raises
+        FileExistsError if ``path`` exists by then (created by another run meanwhile).
     """
 
-    def __init__(self, path):
+    def __init__(self, path, *, overwrite=True):
         self.path = Path(path)
+        self.overwrite = overwrite
+        self.tmp = None
+
+    def open(self) -> Path:
+        """Create the temporary file (and missing folders); returns its path."""
+        if self.tmp is not None:
+            return self.tmp
+        check_interrupted()
+        path = check_parent(self.path)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise type(exc)(f"{path}: cannot create folder {path.parent} "
+                            f"({exc.strerror or exc})") from None
+        try:
+            with critical():  # an interrupt here is raised after self.tmp is known
+                try:
+                    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix,
+                                               dir=path.parent)
+                except OSError as exc:
+                    raise _cannot_write(path, exc) from None
+                os.close(fd)
+                self.tmp = Path(tmp)
+        except BaseException:
+            self.discard()
+            raise
+        return self.tmp
+
+    def commit(self) -> Path:
+        """Move the temporary file onto ``path`` (exclusively unless ``overwrite``)."""
+        if self.tmp is None:
+            raise RuntimeError(f"{self.path}: nothing to commit (open() first)")
+        with critical():
+            tmp, path = self.tmp, self.path
+            try:
+                check_interrupted()  # nothing commits after an interrupt
+                os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual file mode
+                if self.overwrite:
+                    os.replace(tmp, path)
+                else:
+                    _link_exclusive(tmp, path)
+            except FileExistsError:
+                self.discard()
+                raise FileExistsError(f"{path}: exists (written by another run meanwhile?); use "
+                                      "--force to overwrite") from None
+            except OSError as exc:
+                self.discard()
+                raise _cannot_write(path, exc) from None
+            except BaseException:
+                self.discard()
+                raise
+            self.tmp = None
+        return path
+
+    def discard(self) -> None:
+        """Remove the temporary file (if any)."""
+        with critical():
+            if self.tmp is not None:
+                with contextlib.suppress(OSError):
+                    self.tmp.unlink()
+                self.tmp = None
 
     def __enter__(self):
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=self.path.suffix,
-                                   dir=self.path.parent)
-        os.close(fd)
-        self.tmp = Path(tmp)
-        return self.tmp
+        return self.open()
 
     def __exit__(self, exc_type, exc, tb):
         if exc_type is None:
-            os.chmod(self.tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual file mode
-            os.replace(self.tmp, self.path)
+            self.commit()
+            return False
+        tmp = self.tmp
+        self.discard()
+        if (isinstance(exc, OSError) and exc.errno is not None and tmp is not None
+                and exc.filename in (None, str(tmp))):
+            raise _cannot_write(self.path, exc) from None
+        return False
+
+
+def _link_exclusive(tmp, path):
+    """Put ``tmp`` at ``path`` unless ``path`` exists (FileExistsError); ``tmp`` is gone after."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK,
+                             errno.ENOSYS):
+            raise
+        # no hard links here (FAT, some network file systems): claim the name, then replace it
+        # (the claimed name is an empty file for the length of one rename)
+        os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+        os.replace(tmp, path)
+        return
+    with contextlib.suppress(OSError):
+        os.unlink(tmp)
+
+
+class atomic_group:
+    """Several files that appear together: :meth:`add` one temporary path per file, write them,
+    then :meth:`commit` puts all in place (or, with the context manager, an exception removes
+    them all).
+
+    With ``overwrite=False`` a file that exists by commit time (another run) fails the commit and
+    the files this group already put in place are taken back, so the set never mixes two runs.
+    """
+
+    def __init__(self, *, overwrite=True):
+        self.overwrite = overwrite
+        self.members = []
+
+    def add(self, path) -> Path:
+        """Claim ``path``: returns the temporary path to write it to."""
+        member = atomic_path(path, overwrite=self.overwrite)
+        self.members.append(member)
+        return member.open()
+
+    def commit(self) -> list:
+        """Put every file in place; returns their paths."""
+        done = []
+        with critical():
+            try:
+                for m in self.members:
+                    done.append(m.commit())
+            except BaseException:
+                if not self.overwrite:  # ours alone: created exclusively by this group
+                    for p in done:
+                        with contextlib.suppress(OSError):
+                            p.unlink()
+                self.discard()
+                raise
+        self.members = []
+        return done
+
+    def discard(self) -> None:
+        with critical():
+            for m in self.members:
+                m.discard()
+            self.members = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.commit()
         else:
-            self.tmp.unlink(missing_ok=True)
+            self.discard()
         return False

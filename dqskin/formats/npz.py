@@ -4,12 +4,21 @@ import numpy as np
 
 from .atomic import atomic_path
 
-__all__ = ["SUFFIXES", "write_npz"]
+__all__ = ["SUFFIXES", "save_npz", "write_npz"]
 
 SUFFIXES = (".npz",)
 
 
-def write_npz(path, times, names, points, faces):
+def save_npz(path, times, names, points, faces):
+    """Write the archive to ``path`` as is (not atomic: :func:`write_npz`, or a path from
+    :class:`dqskin.formats.atomic.atomic_path`)."""
+    with open(path, "wb") as fh:
+        np.savez(fh, times=np.asarray(times, np.float64), names=np.array(list(names)),
+                 **{f"points_{i}": p for i, p in enumerate(points)},
+                 **{f"faces_{i}": f for i, f in enumerate(faces)})
+
+
+def write_npz(path, times, names, points, faces, *, overwrite=True):
     """Write ``times``, ``names`` and per mesh ``i`` (in ``names`` order) ``points_i`` and
     ``faces_i``, atomically.
 
@@ -20,9 +29,9 @@ def write_npz(path, times, names, points, faces):
     names : sequence of str, length M
     points : sequence of (F, V_i, 3) float32, length M
     faces : sequence of (T_i, 3) int32, length M
+    overwrite : bool
+        Replace an existing ``path``; False fails (FileExistsError) if it exists when the file is
+        complete (:class:`~dqskin.formats.atomic.atomic_path`).
     """
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, times=np.asarray(times, np.float64), names=np.array(list(names)),
-                     **{f"points_{i}": p for i, p in enumerate(points)},
-                     **{f"faces_{i}": f for i, f in enumerate(faces)})
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        save_npz(tmp, times, names, points, faces)

@@ -16,7 +16,7 @@ import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
 from ..shapes import frames_of
-from .atomic import atomic_path
+from .atomic import atomic_path, check_parent
 from .usd import load_rigid_prims, rigid_transforms
 
 __all__ = ["CACHE_EXTENSIONS", "UsdCacheWriter", "write_usd_cache"]
@@ -120,7 +120,7 @@ class UsdCacheWriter:
     Parameters
     ----------
     scene : Scene
-        What :func:`dqskin.usd.load_usd` returned; its metadata (``time_codes_per_second``,
+        What :func:`dqskin.formats.usd.load_usd` returned; its metadata (``time_codes_per_second``,
         ``up_axis``, ``meters_per_unit``) is written and its meshes' rest data checks the shapes.
     out_path : str or os.PathLike
         ``.usda``, ``.usdc`` or ``.usd``. Written atomically (temporary file in the same folder,
@@ -134,13 +134,20 @@ class UsdCacheWriter:
     device : str, optional
         Warp device for those transforms.
     interp : str
-        Joint interpolation for those transforms (:data:`dqskin.motion.INTERPOLATIONS`); pass
+        Joint interpolation for those transforms (:data:`dqskin.animation.INTERPOLATIONS`); pass
         the one that produced the points.
+    overwrite : bool
+        Replace an existing ``out_path`` (the last writer wins). False claims it exclusively:
+        :meth:`close` raises FileExistsError if it exists by then (another run finished first).
+
+    As a context manager the writer claims its temporary file on entry (``.NAME.XXXXXXXX.usdc``
+    beside ``out_path``) and removes it on an exception or interrupt.
     """
 
     def __init__(self, scene, out_path, *, source_path=None, method=None, device=None,
-                 interp="trs"):
+                 interp="trs", overwrite=True):
         out = os.fspath(out_path)
+        check_parent(out)
         src = os.fspath(scene.path if source_path is None else source_path)
         ext = os.path.splitext(out)[1].lower()
         if ext not in CACHE_EXTENSIONS:
@@ -164,13 +171,17 @@ class UsdCacheWriter:
         _remove_skel_binding(self.layer)
         self._attrs = {}
         self._t_min, self._t_max = np.inf, -np.inf
+        self._claim = atomic_path(out, overwrite=overwrite)
 
     def __enter__(self):
+        self._claim.open()
         return self
 
     def __exit__(self, exc_type, exc, tb):
         if exc_type is None:
             self.close()
+        else:
+            self._claim.discard()
         return False
 
     def _attr(self, name, what):
@@ -283,26 +294,37 @@ class UsdCacheWriter:
 
     def close(self):
         """Set the stage metadata and write the file atomically. Returns ``out_path``."""
-        if not np.isfinite(self._t_min):
-            raise ValueError(f"{self.out}: no frames were written")
-        layer, scene = self.layer, self.scene
-        with Sdf.ChangeBlock():
-            layer.timeCodesPerSecond = float(scene.time_codes_per_second)
-            layer.framesPerSecond = float(scene.time_codes_per_second)
-            layer.startTimeCode, layer.endTimeCode = float(self._t_min), float(self._t_max)
-            root = layer.pseudoRoot
-            root.SetInfo(UsdGeom.Tokens.upAxis, str(scene.up_axis))
-            root.SetInfo(UsdGeom.Tokens.metersPerUnit, float(scene.meters_per_unit))
-            layer.documentation = f"dqskin point cache of {self.src}"
-        with atomic_path(self.out) as tmp:
+        claim = self._claim
+        try:
+            if not np.isfinite(self._t_min):
+                raise ValueError(f"{self.out}: no frames were written")
+            layer, scene = self.layer, self.scene
+            with Sdf.ChangeBlock():
+                layer.timeCodesPerSecond = float(scene.time_codes_per_second)
+                layer.framesPerSecond = float(scene.time_codes_per_second)
+                layer.startTimeCode, layer.endTimeCode = float(self._t_min), float(self._t_max)
+                root = layer.pseudoRoot
+                root.SetInfo(UsdGeom.Tokens.upAxis, str(scene.up_axis))
+                root.SetInfo(UsdGeom.Tokens.metersPerUnit, float(scene.meters_per_unit))
+                layer.documentation = f"dqskin point cache of {self.src}"
+            tmp = claim.open()
             args = {"format": "usdc"} if self.ext == ".usd" else {}
-            if not layer.Export(str(tmp), args=args):
+            try:
+                ok = layer.Export(str(tmp), args=args)
+            except Tf.ErrorException as exc:
+                raise ValueError(f"{self.out}: USD could not write the cache "
+                                 f"({str(exc).replace(str(tmp), self.out)})") from None
+            if not ok:
                 raise ValueError(f"{self.out}: USD could not write the cache")
+        except BaseException:
+            claim.discard()
+            raise
+        claim.commit()
         return self.out
 
 
 def write_usd_cache(scene, out_path, times, points, normals=None, *, velocities=None,
-                    source_path=None, method=None, device=None, interp="trs"):
+                    source_path=None, method=None, device=None, interp="trs", overwrite=True):
     """Write skinned points (and normals, velocities) for all ``times`` as a new USD stage.
 
     One :class:`UsdCacheWriter` chunk; see it for the parameters.
@@ -319,6 +341,6 @@ def write_usd_cache(scene, out_path, times, points, normals=None, *, velocities=
         whose shape disagrees with ``times`` and the mesh.
     """
     with UsdCacheWriter(scene, out_path, source_path=source_path, method=method, device=device,
-                        interp=interp) as writer:
+                        interp=interp, overwrite=overwrite) as writer:
         writer.write(times, points, normals, velocities)
     return writer.out
