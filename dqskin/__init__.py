@@ -6,14 +6,29 @@ column-vector convention ``p' = M @ [p, 1]``; joints ordered parents first, ``pa
 for roots; float32 on the device.
 """
 
-from . import dq, dual, quat
-from .animation import Animation, KeyedAnimation
-from .baking import bake
-from .formats import load, load_mesh
-from .scene import Mesh, Scene, SkinnedFrames
-from .skeleton import Skeleton, forward_kinematics
-from .skinning import METHODS, Skinner, skin_normals, skin_points
+import importlib
 
-__all__ = ["METHODS", "Animation", "KeyedAnimation", "Mesh", "Scene", "Skeleton", "Skinner",
-           "SkinnedFrames", "bake", "dq", "dual", "forward_kinematics", "load", "load_mesh", "quat",
-           "skin_normals", "skin_points"]
+# Public name → the module that defines it. Imported on first use (PEP 562), so that
+# ``python -m dqskin.cli`` can install its signal handlers before Warp and USD load.
+_EXPORTS = {
+    "METHODS": "skinning", "Skinner": "skinning", "skin_normals": "skinning",
+    "skin_points": "skinning", "Animation": "animation", "KeyedAnimation": "animation",
+    "bake": "baking", "load": "formats", "load_mesh": "formats", "Mesh": "scene",
+    "Scene": "scene", "SkinnedFrames": "scene", "Skeleton": "skeleton",
+    "forward_kinematics": "skeleton", "dq": None, "dual": None, "quat": None,
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'dqskin' has no attribute {name!r}")
+    module = importlib.import_module(f".{_EXPORTS[name] or name}", __name__)
+    value = module if _EXPORTS[name] is None else getattr(module, name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))

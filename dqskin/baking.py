@@ -19,7 +19,7 @@ from .formats import format_of, gltf, mesh_files, npz, usd, usd_cache
 from .formats.atomic import atomic_path, check_interrupted, check_parent
 from .scene import Scene
 from .skinning import Method
-from .validation import check_scene, check_skinned
+from .validation import check_skinned
 
 __all__ = ["OUTPUT_SUFFIXES", "bake", "check_output", "output_kind"]
 
@@ -65,11 +65,12 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
          progress: bool = False) -> str:
     """Skin ``scene`` at ``times`` and write ``out``.
 
-    Nothing is written unless every joint transform is usable
-    (:func:`dqskin.validation.check_scene`), and every skinned chunk is checked
-    (:func:`dqskin.validation.check_skinned`: no NaN or infinite result in any format). The
-    output appears only when complete (:mod:`dqskin.formats.atomic`); without ``force`` its name
-    is claimed exclusively, so of two runs writing the same file the one finishing second fails.
+    Every chunk's joint transforms are checked as they are sampled
+    (:meth:`dqskin.Scene.local_transforms`) and every skinned chunk before it is written
+    (:func:`dqskin.validation.check_skinned`: no NaN or infinite result in any format); a refusal
+    leaves nothing behind, because the output appears only when complete
+    (:mod:`dqskin.formats.atomic`); without ``force`` its name is claimed exclusively, so of two
+    runs writing the same file the one finishing second fails.
 
     Parameters
     ----------
@@ -116,7 +117,6 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
             raise ValueError(f"--out {out}: a USD point cache copies the input stage, so it needs "
                              "a USD input; for glTF write .npz or per-frame .obj/.ply/.glb files")
         check_output(out, [src], force)
-        check_scene(scene, t)
         wrote_velocities = False
         with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args) as writer:
             for sl, res in _chunks(scene, t, chunk, progress, normals=normals,
@@ -128,7 +128,6 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
                 f"({method or 'asset method'}{', velocities' if wrote_velocities else ''})")
     if kind == "npz":
         check_output(out, [src], force)
-        check_scene(scene, t)
         with atomic_path(out, overwrite=force) as tmp:  # claimed for the whole run
             pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32)
                    for m in scene.meshes}
@@ -147,7 +146,6 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
     layout = mesh_files.MeshLayout(
         scene.meshes, suffix, normals=normals, uv_top_left=gltf_input,
         uv_interpolation=None if gltf_input else _usd_uv_interpolation(src))
-    check_scene(scene, t)
     with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=force) as writer:
         for sl, res in _chunks(scene, t, chunk, progress, normals=layout.normals, **args):
             check_skinned(src, res)

@@ -232,8 +232,11 @@ class Scene:
             if s not in xforms:
                 xforms[s] = self.skinning_transforms(t, s, device=device, interp=interp)
                 if velocities:
-                    rates[s] = skinning_transforms_with_derivative(
-                        self.skeletons[s], self.skeletons[s].animation, t, interp)[1]
+                    try:
+                        rates[s] = skinning_transforms_with_derivative(
+                            self.skeletons[s], self.skeletons[s].animation, t, interp)[1]
+                    except ValueError as exc:
+                        raise ValueError(f"{self.path}: {exc}") from None
             meth = method or m.skinning_method
             sk = self.skinner(m, device)
             deformer = m.deformer if blend_shapes else None

@@ -5,17 +5,17 @@ exactly what ``dqskin skin`` (every writer) and the Python API refuse.
   (the device precision); the error names the argument, frame and joint.
 * :func:`check_skinned`: skinned results (points, normals, velocities) must be finite; the error
   names the mesh, what and the time.
-* :func:`scene_problems`: every problem of a loaded scene at its times, as lines (``info``);
-  :func:`check_scene` raises the first (``skin`` checks the transforms before writing anything,
-  then every skinned chunk with :func:`check_skinned`).
+* :func:`scene_problems`: every problem of a loaded scene at its times, as lines (``info``).
+  ``skin`` meets the same checks chunk by chunk: joint transforms as
+  :meth:`dqskin.Scene.local_transforms` samples them, results with :func:`check_skinned`.
 """
 
 import numpy as np
 
 from .shapes import as_real
 
-__all__ = ["FLOAT32_MAX", "check_finite", "check_scene", "check_skinned", "check_transforms",
-           "location", "scene_problems"]
+__all__ = ["FLOAT32_MAX", "check_finite", "check_skinned", "check_transforms", "location",
+           "scene_problems"]
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 """Largest magnitude a value may have to survive the device's float32."""
@@ -97,13 +97,3 @@ def scene_problems(scene, times=None, *, skin=True, device=None):
         except ValueError as exc:
             problems.append(str(exc))
     return problems
-
-
-def check_scene(scene, times=None, *, skin=False, device=None):
-    """Raise the first of :func:`scene_problems` as a ValueError (nothing when there is none).
-    Writers check the joint transforms up front (``skin=False``) and each skinned chunk with
-    :func:`check_skinned` as it comes."""
-    problems = scene_problems(scene, times, skin=skin, device=device)
-    if problems:
-        raise ValueError(problems[0] if len(problems) == 1 else
-                         f"{problems[0]} (and {len(problems) - 1} more problems; see dqskin info)")
