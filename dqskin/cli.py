@@ -131,7 +131,7 @@ def cmd_skin(args):
     scene = formats.load(_regular_file(args.input), clip=_clip(args.clip))
     _checkpoint()
     times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
-                         args.substeps)
+                         args.substeps, max_frames=args.max_frames)
     print(bake(scene, args.out, times, method=args.method, interp=args.interp,
                device=args.device, chunk=args.chunk, normals=args.normals,
                velocities=args.velocities, force=args.force, progress=True))
@@ -226,11 +226,12 @@ def cmd_compare(args):
     _regular_file(args.input)
     result = run_compare(
         args.input, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],
-        frames=None if args.frames is None else parse_frames(args.frames),
+        frames=None if args.frames is None else parse_frames(args.frames,
+                                                             max_frames=args.max_frames),
         views=[v.strip() for v in args.views.split(",") if v.strip()], device=args.device,
         width=args.width, supersample=args.supersample, progress=not args.quiet,
         force=args.force, sweeps_dir=None if args.no_sweeps else "default",
-        up_axis=args.up_axis, clip=_clip(args.clip))
+        up_axis=args.up_axis, clip=_clip(args.clip), max_rays=args.max_rays)
     print(f"wrote {Path(args.out) / 'report.html'} ({len(result['frames'])} frames × "
           f"{len(result['methods'])} methods × {len(result['views'])} views, "
           f"{result['timing_s']['total']:.1f} s)")
@@ -239,8 +240,10 @@ def cmd_compare(args):
 
 
 def _add_compare_arguments(parser):
+    from .report.compare import MAX_RAYS
     from .report.render import VIEWS
     from .skinning import METHODS
+    from .times import MAX_FRAMES
     parser.add_argument("input", help="character file (.usd/.usda/.usdc/.usdz, .gltf/.glb)")
     parser.add_argument("--out", required=True, help="output folder: report.html, metrics.json, "
                         "frames/*.png")
@@ -254,6 +257,10 @@ def _add_compare_arguments(parser):
                         "pixels, shaped to each view (default: 512)")
     parser.add_argument("--supersample", type=int, default=2, help="anti-aliasing rays per pixel "
                         "along each axis (default: 2)")
+    parser.add_argument("--max-rays", type=int, default=MAX_RAYS, help="refuse WIDTH × "
+                        f"SUPERSAMPLE above this (default: {MAX_RAYS})")
+    parser.add_argument("--max-frames", type=int, default=MAX_FRAMES, help="refuse --frames "
+                        f"selecting more frames (default: {MAX_FRAMES})")
     parser.add_argument("--up-axis", choices=["Y", "Z"], help="skeleton-space up axis for the "
                         "cameras (default: the asset's)")
     parser.add_argument("--no-sweeps", action="store_true", help="leave out the twist/bend "
@@ -269,6 +276,7 @@ def build_parser():
 
     from .animation import INTERPOLATIONS
     from .skinning import METHODS
+    from .times import MAX_FRAMES
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
                         help="show library warnings and Warp's messages")
@@ -301,6 +309,8 @@ def build_parser():
     s.add_argument("--clip", help="glTF animation name or index")
     s.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     s.add_argument("--chunk", type=int, default=256, help="frames per chunk (bounds memory)")
+    s.add_argument("--max-frames", type=int, default=MAX_FRAMES, help="refuse --frames, --fps "
+                   f"or --substeps selecting more frames (default: {MAX_FRAMES})")
     s.add_argument("--force", action="store_true", help="overwrite existing outputs")
     s.set_defaults(run=cmd_skin)
     i = sub.add_parser("info", help="skeleton tree, meshes, influences, time range, problems",

@@ -43,12 +43,17 @@ def check_finite(name, a, lead, joint_names=None, times=None):
     ``times`` is given) and joint (by name when ``joint_names`` is given) and what is wrong, e.g.
     ``rotations: NaN at frame 3, joint 'Hips'``.
     """
+    if a.size == 0:
+        return
+    hi, lo = np.max(a), np.min(a)  # two passes, no temporaries; NaN propagates
+    if np.isfinite(hi) and np.isfinite(lo) and max(hi, -lo) <= FLOAT32_MAX:
+        return  # the common case
     finite = np.isfinite(a)
     if not finite.all():
         index = np.argwhere(~finite)[0]
         what = "NaN" if np.isnan(a[tuple(index)]) else "infinite value"
         raise ValueError(f"{name}: {what} at {location(index, lead, joint_names, times)}")
-    if a.dtype.itemsize > 4 and a.size and np.abs(a).max() > FLOAT32_MAX:
+    if a.dtype.itemsize > 4:
         index = np.argwhere(np.abs(a) > FLOAT32_MAX)[0]
         raise ValueError(f"{name}: {float(a[tuple(index)]):.6g} at "
                          f"{location(index, lead, joint_names, times)} overflows float32 "

@@ -183,3 +183,27 @@ def test_mesh_arrays_are_frozen_without_freezing_the_callers():
     assert pts.flags.writeable and not mesh.points.flags.writeable
     with pytest.raises(ValueError):
         mesh.points[0, 0] = 1.0
+
+
+def test_cli_limits_name_the_flag_and_write_nothing(tmp_path, capsys):
+    from dqskin.cli import main
+
+    asset = str(default_asset())
+    cases = ((["skin", asset, "--out", str(tmp_path / "a" / "x.npz"), "--frames", "0:1e9"],
+              "--max-frames"),
+             (["skin", asset, "--out", str(tmp_path / "a" / "x.npz"), "--substeps", "1000000"],
+              "--max-frames"),
+             (["compare", asset, "--out", str(tmp_path / "a"), "--width", "100000"], "--max-rays"),
+             (["compare", asset, "--out", str(tmp_path / "a"), "--supersample", "64"],
+              "--max-rays"))
+    for argv, flag in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and flag in err[0], err
+    assert not (tmp_path / "a").exists()
+    out = tmp_path / "b" / "x.npz"
+    assert main(["skin", asset, "--out", str(out), "--frames", "0:4:0.5", "--max-frames", "9",
+                 "--device", "cpu"]) == 0
+    assert out.is_file()
+    assert main(["skin", asset, "--out", str(tmp_path / "c.npz"), "--frames", "0:4:0.5",
+                 "--max-frames", "8"]) == 2
