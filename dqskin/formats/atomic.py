@@ -25,8 +25,8 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_group", "atomic_path", "check_interrupted", "check_parent", "critical",
-           "interrupt", "reset_interrupt"]
+__all__ = ["CommitOnSuccess", "atomic_group", "atomic_path", "check_interrupted", "check_parent",
+           "critical", "interrupt", "reset_interrupt"]
 
 _state = {"depth": 0, "pending": None, "interrupted": None}
 
@@ -218,7 +218,22 @@ def _link_exclusive(tmp, path):
         os.unlink(tmp)
 
 
-class atomic_group:
+class CommitOnSuccess:
+    """Context-manager protocol of the multi-file writers: ``commit()`` when the block ends
+    normally, ``discard()`` on any exception (interrupts included)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.commit()
+        else:
+            self.discard()
+        return False
+
+
+class atomic_group(CommitOnSuccess):
     """Several files that appear together: :meth:`add` one temporary path per file, write them,
     then :meth:`commit` puts all in place (or, with the context manager, an exception removes
     them all).
@@ -260,12 +275,3 @@ class atomic_group:
                 m.discard()
             self.members = []
 
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is None:
-            self.commit()
-        else:
-            self.discard()
-        return False

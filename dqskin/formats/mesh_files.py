@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_group
+from .atomic import CommitOnSuccess, atomic_group
 
 __all__ = ["FACES_REQUIRED", "SUFFIXES", "WITH_ATTRIBUTES", "FrameWriter", "MeshLayout",
            "frame_paths", "load_mesh", "write_frames"]
@@ -266,7 +266,7 @@ def _vertex_normals(points, faces):
     return out.reshape(F, V, 3).astype(np.float32)
 
 
-class FrameWriter:
+class FrameWriter(CommitOnSuccess):
     """One mesh file per frame, committed together: all frames appear at the end, or none.
 
     Parameters
@@ -339,16 +339,6 @@ class FrameWriter:
 
     def discard(self):
         self.group.discard()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is None:
-            self.commit()
-        else:
-            self.discard()
-        return False
 
 
 def write_frames(pattern, frame_numbers, points, faces, *, force=False, normals=None, uvs=None):
