@@ -59,6 +59,15 @@ def install_signal_handlers():
     import threading
     if threading.current_thread() is not threading.main_thread():
         return None
+    hook = sys.unraisablehook
+
+    def unraisable(info):
+        # A signal landing in a finalizer (a Warp array's __del__) cannot raise there; the
+        # interrupt is recorded and raised again at the next check, so say nothing now.
+        if not isinstance(info.exc_value, Interrupted):
+            hook(info)
+
+    sys.unraisablehook = unraisable
     return {s: signal.signal(s, _on_signal) for s in SIGNALS}
 
 
@@ -414,8 +423,8 @@ def _hold_native_stderr():
 
 
 def _run(argv):
-    args = build_parser().parse_args(argv)
     try:
+        args = build_parser().parse_args(argv)  # imports NumPy: an interrupt may land in there
         _quiet_libraries(args.verbose)
         _checkpoint()
         code = args.run(args)
@@ -424,6 +433,9 @@ def _run(argv):
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"dqskin: error: {msg}", file=sys.stderr)
         code = EXIT_INPUT
+    except Exception:
+        _checkpoint()  # e.g. NumPy's ImportError when Ctrl-C lands inside its C-level import
+        raise
     _checkpoint()  # nothing was committed after a swallowed interrupt (formats.atomic)
     return code
 
