@@ -1,6 +1,6 @@
 """A non-editable install ships the kernels as ``dqskin.kernels`` and the bundled rigs as
-``dqskin.assets``: it imports, skins and runs ``dqskin demo`` (sweeps included) from outside the
-repo."""
+``dqskin.assets``: installed into a fresh virtual environment outside the checkout, it imports,
+skins and runs ``dqskin demo`` (sweeps included)."""
 
 import json
 import shutil
@@ -31,24 +31,30 @@ def test_wheel_ships_kernels_and_imports_outside_the_repo(tmp_path):
     for module in ("formats/usd", "formats/gltf", "report/compare", "report/html"):
         assert f"dqskin/{module}.py" in names
     assert not any(n.startswith(("kernels/", "assets/", "tests/", "tools/")) for n in names)
-    site = tmp_path / "site"
-    install = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q",
-                              "--target", str(site), str(wheel)], capture_output=True, text=True,
+    # a fresh virtual environment outside the checkout; its dependencies (not dqskin) come from
+    # the test environment's site-packages through a .pth line
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True,
+                   timeout=300)
+    py = venv / "bin" / "python"
+    site = Path(subprocess.run([str(py), "-c", "import sysconfig; "
+                                "print(sysconfig.get_paths()['purelib'])"], capture_output=True,
+                               text=True, check=True).stdout.strip())
+    (site / "dqskin_test_deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    install = subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install",
+                              "--no-deps", "-q", str(wheel)], capture_output=True, text=True,
                              timeout=600)
     assert install.returncode == 0, install.stderr
-    deps = sysconfig.get_paths()["purelib"]
     code = ("import dqskin, dqskin.kernels.skin, numpy as np; print(dqskin.__file__); "
             "print(dqskin.skin_points(np.zeros((2, 3)), [[0], [0]], [[1.0], [1.0]], "
             "np.eye(4)[None], device='cpu').shape)")
-    prefix = f"import sys; sys.path[:0] = [{str(site)!r}, {deps!r}]; "
-    run = subprocess.run([sys.executable, "-I", "-c", prefix + code], cwd=tmp_path,
-                         capture_output=True, text=True, timeout=300)
+    run = subprocess.run([str(py), "-c", code], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=300)
     assert run.returncode == 0, run.stderr
     lines = run.stdout.split()
     assert lines[0].startswith(str(site)) and "(2, 3)" in run.stdout
-    demo = subprocess.run([sys.executable, "-I", "-c", prefix + "from dqskin.cli import main; "
-                           "sys.exit(main(['demo', '--out', 'demo', '--device', 'cpu']))"],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    demo = subprocess.run([str(venv / "bin" / "dqskin"), "demo", "--out", "demo", "--device",
+                           "cpu"], cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert demo.returncode == 0, demo.stderr
     metrics = json.loads((tmp_path / "demo" / "report" / "metrics.json").read_text())
     assert metrics["asset"].startswith(str(site))  # the packaged rig, not the checkout's
