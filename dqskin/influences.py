@@ -61,6 +61,8 @@ class Influences:
     ----------
     indices : (V, C, 4) int32
     weights : (V, C, 4) float32
+    order : (V, K) int
+        The sort: slot ``k`` of a vertex holds its input influence ``order[v, k]``.
     vertex_count, influence_count : int
         V and K.
     joint_count_min : int
@@ -71,6 +73,7 @@ class Influences:
         idx, wts = check_influences(joint_indices, joint_weights, vertex_count)
         self.vertex_count, self.influence_count = idx.shape
         order = np.argsort(-wts, axis=1, kind="stable")
+        self.order = order
         idx, wts = np.take_along_axis(idx, order, 1), np.take_along_axis(wts, order, 1)
         groups = max(1, -(-idx.shape[1] // 4))  # K = 0: one group of zero weights
         pad = 4 * groups - idx.shape[1]

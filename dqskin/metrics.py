@@ -17,7 +17,7 @@ import numpy as np
 import warp as wp
 
 from ._warp import resolve_device
-from .influences import check_influences
+from .influences import Influences
 from .kernels import metrics as K
 from .shapes import frames_of
 from .skeleton import check_parents
@@ -201,11 +201,6 @@ def vertex_distance(points, reference_points, *, device=None):
     return _result(dist.numpy(), batched)
 
 
-def _influences(joint_indices, joint_weights):
-    idx, _ = check_influences(joint_indices, joint_weights)
-    return idx, np.asarray(joint_weights, dtype=np.float64).reshape(idx.shape)
-
-
 def _parents(parents, count):
     """:func:`dqskin.skeleton.check_parents`, plus the joint count when ``count >= 0``."""
     par = check_parents(parents).astype(np.int64)
@@ -291,16 +286,16 @@ def dominant_pair_regions(joint_indices, joint_weights, parents, *, min_weight=0
     (V,) int32
         The child joint ``j`` of the pair (index into ``parents``), or -1.
     """
-    idx, w = _influences(joint_indices, joint_weights)
+    inf = Influences(joint_indices, joint_weights)  # the kernels' layout: largest weight first
+    idx = inf.indices.reshape(inf.vertex_count, -1)
+    w = np.asarray(joint_weights, dtype=np.float64).reshape(inf.order.shape)
     par = _parents(parents, -1)
     regions = np.full(idx.shape[0], -1, dtype=np.int32)
-    if idx.shape[1] < 2 or idx.shape[0] == 0:
+    if inf.influence_count < 2 or inf.vertex_count == 0:
         return regions
-    if idx.min() < 0 or idx.max() >= par.shape[0]:
+    if inf.joint_count_min > par.shape[0]:
         raise ValueError(f"joint_indices: index out of range [0, {par.shape[0]})")
-    order = np.argsort(-w, axis=1, kind="stable")[:, :2]
-    rows = np.arange(idx.shape[0])[:, None]
-    (a, b), wb = idx[rows, order].T, w[rows, order][:, 1]
+    (a, b), wb = idx[:, :2].T, np.take_along_axis(w, inf.order[:, 1:2], 1)[:, 0]
     strong = wb >= min_weight
     regions[strong & (par[a] == b)] = a[strong & (par[a] == b)]
     regions[strong & (par[b] == a)] = b[strong & (par[b] == a)]
