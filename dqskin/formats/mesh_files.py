@@ -253,17 +253,26 @@ class MeshLayout:
 
 
 def _vertex_normals(points, faces):
-    """(F, V, 3) area-weighted vertex normals of triangles ``faces`` over ``points`` (F, V, 3)."""
+    """(F, V, 3) unit area-weighted vertex normals of triangles ``faces`` over ``points``
+    (F, V, 3): the renderer's kernel (:func:`dqskin.kernels.render.vertex_normals`), per frame."""
+    import warp as wp
+
+    from ..kernels import render as KR
+    from ..topology import incidence
     F, V = points.shape[:2]
-    if not len(faces):
-        return np.zeros((F, V, 3), np.float32)
-    a, b, c = (points[:, faces[:, k]].astype(np.float64) for k in range(3))
-    fn = np.cross(b - a, c - a)  # (F, T, 3), length = 2 × area
-    slot = (np.arange(F)[:, None, None] * V + faces[None]).reshape(F, -1)  # (F, 3T)
-    slot = np.broadcast_to(slot, (F, 3 * len(faces))).ravel()
-    w = np.repeat(fn, 3, axis=1).reshape(-1, 3)  # each face normal to its three corners
-    out = np.stack([np.bincount(slot, w[:, k], minlength=F * V) for k in range(3)], axis=1)
-    return out.reshape(F, V, 3).astype(np.float32)
+    out = np.zeros((F, V, 3), np.float32)
+    if not len(faces) or not V:
+        return out
+    offsets, vf = incidence(np.asarray(faces, np.int32), V)
+    arrays = {"faces": wp.array(np.asarray(faces, np.int32).ravel(), dtype=wp.int32, device="cpu"),
+              "vf_offsets": wp.array(offsets, dtype=wp.int32, device="cpu"),
+              "vf_faces": wp.array(vf, dtype=wp.int32, device="cpu")}
+    normals = wp.empty(V, dtype=wp.vec3, device="cpu")
+    for k in range(F):
+        KR.vertex_normals(points=wp.array(points[k], dtype=wp.vec3, device="cpu"), out=normals,
+                          device="cpu", **arrays)
+        out[k] = normals.numpy()
+    return out
 
 
 class FrameWriter(CommitOnSuccess):
