@@ -81,8 +81,9 @@ def as_float(x, name, size=None, dtype=None):
     ``dtype`` forces the result dtype (used for scalar parameters); otherwise a
     floating dtype is kept and anything else becomes float64 (the algebra modules
     :mod:`dqskin.quat`, :mod:`dqskin.dq` check ``(..., 4)`` and ``(..., 8)`` arrays with it).
+    Complex or non-numeric input is a ValueError (:func:`as_real`), never truncated.
     """
-    x = np.asarray(x)
+    x = as_real(name, x)
     if dtype is not None:
         x = x.astype(dtype, copy=False)
     elif not np.issubdtype(x.dtype, np.floating):

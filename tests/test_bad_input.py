@@ -207,3 +207,12 @@ def test_cli_limits_name_the_flag_and_write_nothing(tmp_path, capsys):
     assert out.is_file()
     assert main(["skin", asset, "--out", str(tmp_path / "c.npz"), "--frames", "0:4:0.5",
                  "--max-frames", "8"]) == 2
+
+
+def test_algebra_refuses_complex_input():
+    from dqskin import dq, quat
+
+    with pytest.raises(ValueError, match="complex"):
+        quat.normalize(np.array([1.0 + 1j, 0, 0, 0]))
+    with pytest.raises(ValueError, match="complex"):
+        dq.normalize(np.ones(8) * (1 + 0j))
