@@ -1,7 +1,8 @@
 """File formats: what dqskin reads and writes, one module per format.
 
 Each format module owns its suffixes (``SUFFIXES``) and its loader; :func:`load` dispatches on
-them. Characters: :mod:`.usd` (UsdSkel) and :mod:`.gltf` (glTF 2.0 skins). Outputs:
+them. Characters: :mod:`.usd` (UsdSkel) and :mod:`.gltf` (glTF 2.0 skins); motion capture:
+:mod:`.bvh` (a skeleton and its animation, no mesh). Outputs:
 :mod:`.usd_cache` (USD point caches), :mod:`.npz`, :mod:`.mesh_files` (one trimesh file per
 frame; also :func:`load_mesh` for plain geometry). Every writer goes through
 :func:`.atomic.atomic_path`.
@@ -12,13 +13,14 @@ from pathlib import Path
 from types import ModuleType
 
 from ..scene import Scene
-from . import gltf, usd
+from . import bvh, gltf, usd
 from .atomic import atomic_path
 from .mesh_files import load_mesh
 
 __all__ = ["CHARACTER_SUFFIXES", "atomic_path", "format_of", "load", "load_mesh"]
 
-_LOADERS = {**{s: usd.load for s in usd.SUFFIXES}, **{s: gltf.load for s in gltf.SUFFIXES}}
+_LOADERS = {**{s: usd.load for s in usd.SUFFIXES}, **{s: gltf.load for s in gltf.SUFFIXES},
+            **{s: bvh.load for s in bvh.SUFFIXES}}
 
 CHARACTER_SUFFIXES = tuple(_LOADERS)
 """Suffixes :func:`load` reads."""
@@ -36,7 +38,8 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     Parameters
     ----------
     path : str or Path
-        ``.usd/.usda/.usdc/.usdz`` (UsdSkel) or ``.gltf/.glb`` (glTF 2.0 skins).
+        ``.usd/.usda/.usdc/.usdz`` (UsdSkel), ``.gltf/.glb`` (glTF 2.0 skins) or ``.bvh`` (a
+        skeleton and its motion, no meshes; times are frame numbers).
     clip : str or int, optional
         glTF animation to load (name or index); the first by default.
 
