@@ -1,5 +1,6 @@
 """Skinning-artifact metrics per mesh and per frame: volume, edge strain, vertex distance, and the
-candy-wrapper / bulge measures near joints.
+candy-wrapper / bulge measures near joints (rings of equal weight share, measured in their own
+frame) with each joint's bend and twist.
 
 Shapes: ``points`` are ``(V, 3)`` or ``(F, V, 3)`` (F frames); results carry the frame axis only
 when the input does. Reference arrays (``rest_points``, ``reference_points``, ...) are ``(V, 3)``
@@ -7,25 +8,26 @@ when the input does. Reference arrays (``rest_points``, ``reference_points``, ..
 the outward side (counter-clockwise seen from outside). Compare quantities in one space: skinned
 points are in skeleton (bind) space, so pass rest points through the geom-bind transform first.
 Per-element work runs in Warp kernels (:mod:`dqskin.kernels.metrics`) on ``device`` (CUDA when
-present, else CPU) in float32; sums and ratios are taken in float64.
+present, else CPU) in float32; sums, ring moments and ratios are taken in float64 NumPy.
 """
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
+from . import quat
 from ._warp import resolve_device
 from .influences import Influences
 from .kernels import metrics as K
+from .linalg import polar
 from .shapes import frames_of
 from .skeleton import check_parents
 from .topology import check_faces
 
-__all__ = ["METRICS", "JointSections", "bone_segments", "dominant_pair_regions", "edge_strain",
-           "joint_axes", "joint_sections", "mesh_edges", "vertex_distance", "volume",
-           "volume_ratio", "worst"]
+__all__ = ["METRICS", "RING_WIDTH", "RingSections", "bone_directions", "dominant_pair_regions",
+           "edge_strain", "joint_bend_twist", "joint_rings", "mesh_edges", "ring_sections",
+           "vertex_distance", "volume", "volume_ratio", "worst"]
 
 
 def _vec3s(a, device):
@@ -209,67 +211,6 @@ def _parents(parents, count):
     return par
 
 
-def bone_segments(joint_positions, parents):
-    """Axis segment of the bone ending at each joint: ``(parent position, joint position)``.
-
-    Parameters
-    ----------
-    joint_positions : (J, 3) or (F, J, 3) float
-        E.g. the translation column of world (or bind) transforms, ``xf[..., :3, 3]``.
-    parents : (J,) int
-        Parent joint, ``-1`` for roots (whose segment degenerates to the joint itself).
-
-    Returns
-    -------
-    (J, 2, 3) or (F, J, 2, 3) float64
-        Rows ``(head, tail)``; ``tail`` is the joint, the axis runs head → tail.
-    """
-    pos = np.asarray(joint_positions, dtype=np.float64)
-    par = _parents(parents, -1)
-    if pos.ndim not in (2, 3) or pos.shape[-1] != 3 or pos.shape[-2] != par.shape[0]:
-        raise ValueError(f"joint_positions: expected ({par.shape[0]}, 3) or (F, {par.shape[0]}, "
-                         f"3) for {par.shape[0]} parents, got {pos.shape}")
-    head = pos[..., np.where(par >= 0, par, np.arange(par.shape[0])), :]
-    return np.stack([head, pos], axis=-2)
-
-
-def joint_axes(bind_positions, parents, skinning_transforms):
-    """Axes of :func:`joint_sections` for every joint of a skeleton.
-
-    Joint ``j``'s rest axis is its parent bone, ``(bind position of the parent, bind position of
-    j)`` (:func:`bone_segments`). Posed, the parent side is that segment moved by the parent's
-    skinning transform (the posed parent bone) and the child side the same segment moved by
-    ``j``'s own skinning transform. A twist about the bone leaves both on the bone line; a bend
-    turns the child side with the flesh it carries. Roots get degenerate axes (NaN measures).
-
-    Parameters
-    ----------
-    bind_positions : (J, 3) float
-        Bind-space joint positions (translation of the world bind transforms).
-    parents : (J,) int
-    skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float
-        Bind-relative joint transforms, column-vector convention.
-
-    Returns
-    -------
-    rest_segments : (J, 2, 3) float64
-    segments, child_segments : (J, 2, 3) or (F, J, 2, 3) float64
-    """
-    pos = np.asarray(bind_positions, dtype=np.float64)
-    rest = bone_segments(pos, parents)
-    par = _parents(parents, pos.shape[0])
-    x = np.asarray(skinning_transforms, dtype=np.float64)
-    if x.ndim not in (3, 4) or x.shape[-3:] != (par.shape[0], 4, 4):
-        raise ValueError(f"skinning_transforms: expected ({par.shape[0]}, 4, 4) or (F, "
-                         f"{par.shape[0]}, 4, 4), got {x.shape}")
-
-    def moved(m):
-        return np.einsum("...jab,jkb->...jka", m[..., :3, :3], rest) + m[..., None, :3, 3]
-
-    parent_x = x[..., np.where(par >= 0, par, np.arange(par.shape[0])), :, :]
-    return rest, moved(parent_x), moved(x)
-
-
 def dominant_pair_regions(joint_indices, joint_weights, parents, *, min_weight=0.05):
     """Assign vertices to the joint they bend around: the vertex's two largest weights belong to a
     joint ``j`` and its parent, and the smaller of the two is at least ``min_weight``.
@@ -283,176 +224,251 @@ def dominant_pair_regions(joint_indices, joint_weights, parents, *, min_weight=0
 
     Returns
     -------
-    (V,) int32
+    regions : (V,) int32
         The child joint ``j`` of the pair (index into ``parents``), or -1.
+    fraction : (V,) float64
+        The child's share of the pair, ``w_j / (w_j + w_parent)`` in (0, 1); NaN outside the
+        regions.
     """
     inf = Influences(joint_indices, joint_weights)  # the kernels' layout: largest weight first
     idx = inf.indices.reshape(inf.vertex_count, -1)
     w = np.asarray(joint_weights, dtype=np.float64).reshape(inf.order.shape)
     par = _parents(parents, -1)
     regions = np.full(idx.shape[0], -1, dtype=np.int32)
+    fraction = np.full(idx.shape[0], np.nan)
     if inf.influence_count < 2 or inf.vertex_count == 0:
-        return regions
+        return regions, fraction
     if inf.joint_count_min > par.shape[0]:
         raise ValueError(f"joint_indices: index out of range [0, {par.shape[0]})")
-    (a, b), wb = idx[:, :2].T, np.take_along_axis(w, inf.order[:, 1:2], 1)[:, 0]
+    (a, b) = idx[:, :2].T
+    wa, wb = np.take_along_axis(w, inf.order[:, :2], 1).T
     strong = wb >= min_weight
-    regions[strong & (par[a] == b)] = a[strong & (par[a] == b)]
-    regions[strong & (par[b] == a)] = b[strong & (par[b] == a)]
-    return regions
+    a_child = strong & (par[a] == b)
+    b_child = strong & (par[b] == a)
+    regions[a_child], fraction[a_child] = a[a_child], (wa / (wa + wb))[a_child]
+    regions[b_child], fraction[b_child] = b[b_child], (wb / (wa + wb))[b_child]
+    return regions, fraction
+
+
+RING_WIDTH = 1 / 32
+"""Width, in the child's weight share, of the rings of :func:`joint_rings`; ring ``k`` holds the
+shares within ``RING_WIDTH / 2`` of ``k · RING_WIDTH`` (so the share ½ is a ring centre)."""
+
+
+def joint_rings(joint_indices, joint_weights, parents, *, ring_width=RING_WIDTH, min_weight=0.05):
+    """Cut each joint's region into rings of equal weight share: the level sets of the blend.
+
+    A vertex belongs to joint ``j`` when its two largest weights are ``j`` and ``j``'s parent
+    (:func:`dominant_pair_regions`); its ring is its child share ``w_j / (w_j + w_parent)``
+    rounded to a multiple of ``ring_width``. Vertices of one ring get (nearly) the same blend of
+    the same two transforms, so a method that keeps the flesh intact moves each ring rigidly,
+    however far the joint bends.
+
+    Parameters
+    ----------
+    joint_indices, joint_weights : (V, K)
+    parents : (J,) int
+    ring_width : float
+        In (0, 1]; ``1 / ring_width`` should be an even integer, so ½ is a ring centre.
+    min_weight : float
+
+    Returns
+    -------
+    rings : (V,) int32
+        ``j · R + k`` for ring ``k`` of joint ``j``, ``R = round(1 / ring_width) + 1`` rings per
+        joint, or -1 outside every region.
+    ring_share : (R,) float64
+        The child share at the centre of each ring, ``k · ring_width``.
+    """
+    if not 0 < ring_width <= 1:
+        raise ValueError(f"ring_width: expected a share in (0, 1], got {ring_width!r}")
+    count = int(round(1 / ring_width)) + 1
+    regions, share = dominant_pair_regions(joint_indices, joint_weights, parents,
+                                           min_weight=min_weight)
+    rings = np.full(regions.shape, -1, dtype=np.int32)
+    inside = regions >= 0
+    k = np.clip(np.floor(share[inside] / ring_width + 0.5), 0, count - 1).astype(np.int32)
+    rings[inside] = regions[inside] * count + k
+    return rings, np.arange(count) * float(ring_width)
 
 
 @dataclass
-class JointSections:
-    """Cross-section measures of the regions around joints (see :func:`joint_sections`).
+class RingSections:
+    """Section and bulge measures of vertex rings (see :func:`ring_sections`).
 
     Attributes
     ----------
-    min_section_ratio : (F, B) float64
-        Smallest slice ratio: 1 intact, 0 fully collapsed (candy wrapper). NaN for empty regions.
-    max_bulge_ratio : (F, B) float64
-        Largest per-vertex radial ratio (posed / rest distance to the axis): > 1 bulges.
-    slice_ratio : (F, B, S) float64
-        Mean posed radial distance / mean rest radial distance of the vertices in each slice; NaN
-        for empty slices.
-    slice_axial : (B, S) float64
-        Rest axial coordinate of each slice centre, from the joint (segment tail) along the axis.
+    section_ratio : (F, N) float64
+        Per ring: √(posed section area / rest section area), the ratio of equivalent radii.
+        1 intact, 0 collapsed to a line or point (candy wrapper). NaN for rings with too few
+        vertices or a degenerate rest section.
+    bulge_ratio : (F, N) float64
+        Per ring: the largest per-vertex ratio of posed to rest distance from the ring's centroid
+        (> 1 bulges out); NaN as ``section_ratio``.
     vertex_ratio : (F, V) float64
-        Per-vertex posed / rest radial distance; NaN outside the regions or near the axis.
+        Per-vertex posed / rest distance from its ring's centroid; NaN outside valid rings and
+        for vertices nearer the centroid than ``min_radius`` × the ring's RMS radius.
     """
 
-    min_section_ratio: np.ndarray
-    max_bulge_ratio: np.ndarray
-    slice_ratio: np.ndarray
-    slice_axial: np.ndarray
+    section_ratio: np.ndarray
+    bulge_ratio: np.ndarray
     vertex_ratio: np.ndarray
 
 
-def _segments(name, seg, frames, count):
-    s = np.asarray(seg, dtype=np.float64)
-    s = s[None] if s.ndim == 3 else s
-    if s.ndim != 4 or s.shape[0] not in (1, frames) or s.shape[1:] != (count, 2, 3):
-        raise ValueError(f"{name}: expected ({count}, 2, 3) or ({frames}, {count}, 2, 3), got "
-                         f"{np.shape(seg)}")
-    if not np.all(np.isfinite(s)):
-        raise ValueError(f"{name}: NaN or infinite coordinate")
-    return np.broadcast_to(s, (frames,) + s.shape[1:])
+def _ring_moments(points, rings, members, count):
+    """Centroids (F, N, 3), covariances (F, N, 3, 3) and counts (N,) of ``points`` (F, V, 3)
+    over the ring ids ``rings[members]`` (float64 sums)."""
+    ids = rings[members].astype(np.int64)
+    n = np.bincount(ids, minlength=count).astype(np.float64)
+    safe = np.maximum(n, 1.0)
+    frames = points.shape[0]
+    p = points[:, members].astype(np.float64)
+    centroid = np.stack([np.stack([np.bincount(ids, weights=p[f, :, a], minlength=count)
+                                   for a in range(3)], -1) for f in range(frames)]) / safe[:, None]
+    d = p - centroid[:, ids]
+    cov = np.empty((frames, count, 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            s = np.stack([np.bincount(ids, weights=d[f, :, a] * d[f, :, b], minlength=count)
+                          for f in range(frames)]) / safe
+            cov[:, :, a, b] = cov[:, :, b, a] = s
+    return centroid, cov, n, d
 
 
-def joint_sections(rest_points, points, rest_segments, segments, regions, *, child_segments=None,
-                   slices=16, min_radius=0.25, device=None):
-    """Candy-wrapper collapse and bulging of the flesh around joints.
+def ring_sections(rest_points, points, rings, ring_count, *, min_vertices=4, min_radius=0.25):
+    """Cross-section and bulge of vertex rings (e.g. :func:`joint_rings`), measured in each
+    ring's own frame: both measures are invariant to any rigid motion of the ring.
 
-    Each region ``b`` (usually a joint, vertices from :func:`dominant_pair_regions`) has an axis:
-    the line through its segment ``(head, tail)`` (usually the parent bone, parent joint → joint;
-    see :func:`joint_axes`), at rest and per posed frame. Every member vertex gets cylindrical
-    coordinates about its region's axis: the axial coordinate ``s`` (from the tail, along
-    head → tail) and the radial distance ``ρ``, at rest and posed. Members beyond the joint
-    (rest ``s > 0``) use ``child_segments`` as their posed axis when given (the rest axis carried by
-    the joint itself), so bending does not count as bulging. The members are cut by their *rest*
-    ``s`` into ``slices`` equal slices spanning their rest range, so a slice holds the same
-    vertices in every frame.
+    For each ring, the covariance of its vertices about their centroid has eigenvalues
+    ``λ1 ≥ λ2 ≥ λ3``; ``√(λ1 λ2)`` is proportional to the area of the ring's best-fit ellipse
+    (its cross-section). Then
 
-    * slice ratio = mean posed ``ρ`` / mean rest ``ρ`` over the slice's vertices;
-    * ``min_section_ratio`` = smallest slice ratio (for a twist by θ with linear weights under
-      LBS, ``√(1 − 2w(1−w)(1−cos θ))`` at the slice of weight ``w``; DQS keeps 1);
-    * ``max_bulge_ratio`` = largest per-vertex ``ρ_posed / ρ_rest`` over the members whose rest
-      ``ρ`` is at least ``min_radius`` × the region's mean rest ``ρ``.
-
-    Without ``child_segments`` the single straight axis suits twists (candy wrapper) only; with
-    them, bends are measured on each side in the frame of the bone that carries the flesh. Right
-    at a strongly bent joint the two frames disagree and the measures are indicative.
+    * ``section_ratio = (√(λ1 λ2)_posed / √(λ1 λ2)_rest)^½``: for a circular ring of weight
+      share ``w`` under LBS, ``k = √(1 − 2w(1−w)(1 − cos θ))`` in a twist by θ (both axes shrink
+      by ``k``) and ``√k`` in a bend by θ (one axis shrinks by ``k``); 1 for any rigid motion, so
+      1 for DQS in both;
+    * ``bulge_ratio`` = the largest ``|p − c|_posed / |p − c|_rest`` over the ring's vertices at
+      least ``min_radius`` × its RMS radius from the centroid ``c``: ≤ 1 for LBS on a circular
+      ring in a twist or a bend, 1 for DQS.
 
     Parameters
     ----------
     rest_points : (V, 3) float
     points : (V, 3) or (F, V, 3) float
-        Posed points, same space as the posed segments.
-    rest_segments : (B, 2, 3) float
-    segments : (B, 2, 3) or (F, B, 2, 3) float
-        Posed segments. A zero-length segment makes its region's measures NaN.
-    regions : (V,) int
-        Region of each vertex in [0, B), or -1 for none.
-    child_segments : (B, 2, 3) or (F, B, 2, 3) float, optional
-        Posed axis of the members with rest ``s > 0``; ``segments`` by default.
-    slices : int
+        Posed points, any space (the measures ignore rigid motions).
+    rings : (V,) int
+        Ring of each vertex in [0, ring_count), or -1 for none.
+    ring_count : int
+    min_vertices : int
+        Rings with fewer vertices get NaN (3 points always lie on a plane).
     min_radius : float
-        Fraction of the region's mean rest radius below which vertices are left out of the
-        per-vertex ratios (near the axis the ratio is ill-conditioned).
 
     Returns
     -------
-    JointSections
+    RingSections
         Arrays with a leading frame axis (F = 1 for (V, 3) points).
     """
-    d = resolve_device(device)
     pts, _ = frames_of("points", points, finite=True)
     frames, count = pts.shape[:2]
     rest, _ = frames_of("rest_points", rest_points, 1, count, finite=True)
-    reg = np.asarray(regions)
-    if reg.shape != (count,) or not np.issubdtype(reg.dtype, np.integer):
-        raise ValueError(f"regions: expected ({count},) integers, got {reg.dtype} {reg.shape}")
-    rseg0 = np.asarray(rest_segments, dtype=np.float64)
-    if rseg0.ndim != 3 or rseg0.shape[1:] != (2, 3):
-        raise ValueError(f"rest_segments: expected (B, 2, 3), got {rseg0.shape}")
-    nb = rseg0.shape[0]
-    rseg = _segments("rest_segments", rseg0, 1, nb)
-    pseg = _segments("segments", segments, frames, nb)
-    if reg.size and (reg.min() < -1 or reg.max() >= nb):
-        raise ValueError(f"regions: value out of range [-1, {nb})")
-    if int(slices) != slices or slices < 1:
-        raise ValueError(f"slices: expected a positive integer, got {slices!r}")
-    reg_w = wp.array(reg.astype(np.int32), dtype=wp.int32, device=d)
-
-    def cylindrical(p, seg):
-        axial, radial = (_floats((p.shape[0], count), d) for _ in range(2))
-        K.axis_coordinates(points=_vec3s(p, d), regions=reg_w, origins=_vec3s(seg[:, :, 1], d),
-                           directions=_vec3s(seg[:, :, 1] - seg[:, :, 0], d), axial=axial,
-                           radial=radial, device=d)
-        return axial.numpy().astype(np.float64), radial.numpy().astype(np.float64)
-
-    s0, rho0 = (a[0] for a in cylindrical(rest, rseg))
-    _, rho = cylindrical(pts, pseg)
-    if child_segments is not None:
-        _, rho_child = cylindrical(pts, _segments("child_segments", child_segments, frames, nb))
-        rho = np.where(s0 > 0, rho_child, rho)
-    members = np.flatnonzero(np.isfinite(rho0))
-    mreg = reg[members].astype(np.int64)
-    sm = s0[members]
-    lo = np.full(nb, np.inf)
-    hi = np.full(nb, -np.inf)
-    np.minimum.at(lo, mreg, sm)
-    np.maximum.at(hi, mreg, sm)
-    span = np.where(hi > lo, hi - lo, 1.0)
-    bins = np.clip(np.floor((sm - lo[mreg]) / span[mreg] * slices), 0, slices - 1).astype(np.int64)
-    key = mreg * slices + bins
-    size = nb * slices
-    n = np.bincount(key, minlength=size)
-    rest_mean = np.bincount(key, weights=rho0[members], minlength=size)
-    posed_mean = np.stack([np.bincount(key, weights=rho[f, members], minlength=size)
-                           for f in range(frames)])
+    r = np.asarray(rings)
+    if r.shape != (count,) or not np.issubdtype(r.dtype, np.integer):
+        raise ValueError(f"rings: expected ({count},) integers, got {r.dtype} {r.shape}")
+    if int(ring_count) != ring_count or ring_count < 0:
+        raise ValueError(f"ring_count: expected a count >= 0, got {ring_count!r}")
+    if r.size and (r.min() < -1 or r.max() >= ring_count):
+        raise ValueError(f"rings: value out of range [-1, {ring_count})")
+    members = np.flatnonzero(r >= 0)
+    _, cov0, n, d0 = _ring_moments(rest, r, members, ring_count)
+    _, cov, _, d = _ring_moments(pts, r, members, ring_count)
+    lam0 = np.linalg.eigvalsh(cov0[0])  # ascending
+    lam = np.maximum(np.linalg.eigvalsh(cov), 0.0)
+    area0 = np.sqrt(np.maximum(lam0[:, 2] * lam0[:, 1], 0.0))
+    valid = (n >= min_vertices) & (lam0[:, 1] > 1e-8 * lam0[:, 2]) & (lam0[:, 2] > 0)
+    section = np.full((frames, ring_count), np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
-        slice_ratio = np.where((n > 0) & (rest_mean > 0), posed_mean / rest_mean, np.nan)
-        region_mean = (np.bincount(mreg, weights=rho0[members], minlength=nb)
-                       / np.bincount(mreg, minlength=nb))
-    slice_ratio = slice_ratio.reshape(frames, nb, slices)
-    far = members[rho0[members] >= min_radius * region_mean[mreg]]
+        section[:, valid] = np.sqrt(np.sqrt(lam[:, valid, 2] * lam[:, valid, 1])
+                                    / area0[valid])
+    ids = r[members]
+    rho0 = np.linalg.norm(d0[0], axis=-1)
+    rms0 = np.sqrt(np.bincount(ids, weights=rho0 ** 2, minlength=ring_count)
+                   / np.maximum(n, 1))
+    far = valid[ids] & (rho0 >= min_radius * rms0[ids]) & (rho0 > 0)
     vertex_ratio = np.full((frames, count), np.nan)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        vertex_ratio[:, far] = rho[:, far] / rho0[far]
-    bulge = np.full((frames, nb), -np.inf)
+    ratio = np.linalg.norm(d[:, far], axis=-1) / rho0[far]
+    vertex_ratio[:, members[far]] = ratio
+    bulge = np.full((frames, ring_count), -np.inf)
     for f in range(frames):
-        np.fmax.at(bulge[f], reg[far], vertex_ratio[f, far])
+        np.maximum.at(bulge[f], ids[far], ratio[f])
     bulge[~np.isfinite(bulge)] = np.nan
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: empty or degenerate
-        min_section = np.nanmin(slice_ratio, axis=2)
-    width = np.where(np.isfinite(lo), span / slices, np.nan)
-    slice_axial = np.where(np.isfinite(lo), lo, np.nan)[:, None] + (
-        np.arange(slices) + 0.5)[None] * width[:, None]
-    return JointSections(min_section_ratio=min_section, max_bulge_ratio=bulge,
-                         slice_ratio=slice_ratio, slice_axial=slice_axial,
-                         vertex_ratio=vertex_ratio)
+    return RingSections(section_ratio=section, bulge_ratio=bulge, vertex_ratio=vertex_ratio)
+
+
+def bone_directions(bind_positions, parents):
+    """Unit bind-space direction of the bone each joint drives: toward the mean of its
+    children's positions, or along its parent bone for a leaf (zero for a lone root).
+
+    Parameters
+    ----------
+    bind_positions : (J, 3) float
+    parents : (J,) int
+
+    Returns
+    -------
+    (J, 3) float64
+    """
+    pos = np.asarray(bind_positions, dtype=np.float64)
+    par = _parents(parents, pos.shape[0] if pos.ndim == 2 else -1)
+    if pos.ndim != 2 or pos.shape[1] != 3:
+        raise ValueError(f"bind_positions: expected ({par.shape[0]}, 3), got {pos.shape}")
+    child_sum = np.zeros_like(pos)
+    children = np.zeros(pos.shape[0])
+    has = par >= 0
+    np.add.at(child_sum, par[has], pos[has])
+    np.add.at(children, par[has], 1)
+    d = np.where(children[:, None] > 0, child_sum / np.maximum(children, 1)[:, None] - pos, 0.0)
+    leaf = (children == 0) & has
+    d[leaf] = pos[leaf] - pos[par[leaf]]
+    norm = np.linalg.norm(d, axis=1, keepdims=True)
+    return np.divide(d, norm, out=np.zeros_like(d), where=norm > 0)
+
+
+def joint_bend_twist(skinning_transforms, bind_positions, parents):
+    """Bend and twist of each joint relative to its parent, in degrees.
+
+    The relative rotation ``R = R_parent⁻¹ R_joint`` of the skinning transforms' rotations (their
+    polar factors; identity in the bind pose) is split into a twist about the joint's bone
+    (:func:`bone_directions`) and a swing: ``R = swing · twist``. The bend is the swing angle.
+
+    Parameters
+    ----------
+    skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float
+    bind_positions : (J, 3) float
+    parents : (J,) int
+
+    Returns
+    -------
+    bend, twist : (J,) or (F, J) float64
+        Degrees in [0, 180]; NaN for roots.
+    """
+    x = np.asarray(skinning_transforms, dtype=np.float64)
+    par = _parents(parents, -1)
+    if x.ndim not in (3, 4) or x.shape[-3:] != (par.shape[0], 4, 4):
+        raise ValueError(f"skinning_transforms: expected ({par.shape[0]}, 4, 4) or (F, "
+                         f"{par.shape[0]}, 4, 4), got {x.shape}")
+    axis = bone_directions(bind_positions, par)
+    rot, _ = polar(x[..., :3, :3])
+    parent_rot = rot[..., np.where(par >= 0, par, np.arange(par.shape[0])), :, :]
+    q = quat.from_matrix(np.swapaxes(parent_rot, -1, -2) @ rot)  # w ≥ 0
+    w, v = q[..., 0], q[..., 1:]
+    along = np.einsum("...ja,ja->...j", v, axis)
+    twist = 2 * np.degrees(np.arctan2(np.abs(along), w))
+    bend = 2 * np.degrees(np.arctan2(np.linalg.norm(v - along[..., None] * axis, axis=-1),
+                                     np.hypot(w, along)))
+    root = par < 0
+    bend[..., root] = np.nan
+    twist[..., root] = np.nan
+    return bend, twist
 
 
 METRICS = ("volume_ratio", "min_section_ratio", "max_bulge_ratio")

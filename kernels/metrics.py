@@ -83,38 +83,6 @@ def distance_kernel(
     distances[f, v] = wp.length(points[f, v] - reference[ref_frame(f, reference.shape[0]), v])
 
 
-@wp.kernel
-def axis_coordinates_kernel(
-    points: wp.array2d(dtype=wp.vec3),
-    regions: wp.array(dtype=wp.int32),
-    origins: wp.array2d(dtype=wp.vec3),
-    directions: wp.array2d(dtype=wp.vec3),
-    row_offset: int,
-    # outputs
-    axial: wp.array2d(dtype=float),
-    radial: wp.array2d(dtype=float),
-):
-    """Cylindrical coordinates about the vertex's region axis (line through ``origins[f, r]``
-    along ``directions[f, r]``): signed axial coordinate and radial distance. NaN when the vertex
-    has no region (``-1``) or the axis direction has zero length."""
-    f, v = frame_item(wp.tid() + row_offset, axial.shape[1])
-    r = regions[v]
-    if r < 0:
-        axial[f, v] = nan()
-        radial[f, v] = nan()
-        return
-    d = directions[f, r]
-    if wp.length(d) == 0.0:
-        axial[f, v] = nan()
-        radial[f, v] = nan()
-        return
-    u = wp.normalize(d)
-    p = points[f, v] - origins[f, r]
-    s = wp.dot(p, u)
-    axial[f, v] = s
-    radial[f, v] = wp.length(p - s * u)
-
-
 # ---------------------------------------------------------------------------------------------
 # launchers: keyword arguments, chunked over the CPU cores by dqskin.kernels.grid
 
@@ -142,9 +110,3 @@ def distances(*, points, reference, out, device):
     ``out`` (F, V)."""
     _launch_items(distance_kernel, [points, reference], [out], device)
 
-
-def axis_coordinates(*, points, regions, origins, directions, axial, radial, device):
-    """Cylindrical coordinates of ``points`` (F, V) about the axes ``origins``, ``directions``
-    (F, B) of their ``regions`` (V,) int32 (-1: none), into ``axial`` and ``radial`` (F, V)."""
-    _launch_items(axis_coordinates_kernel, [points, regions, origins, directions],
-                  [axial, radial], device)

@@ -24,7 +24,7 @@ from PIL import Image
 
 import dqskin
 from dqskin.cli import build_parser
-from dqskin.report.compare import SECTION_SLICES, run_compare
+from dqskin.report.compare import run_compare
 from dqskin.report.render import VIEWS
 from dqskin.times import parse_frames
 
@@ -99,13 +99,12 @@ def _twist_oracle_volume(theta):
                                process=False).volume / rest for m, q in posed.items()}
 
 
-def _section_bounds(theta):
-    """LBS min section ratio: every slice mean is ≥ the smallest ring factor |cos(θ/2)| (at
-    w = ½, a ring of the rig); the slice holding that ring spans ≤ 1/SECTION_SLICES of the ramp
-    in w, so its mean is ≤ k(½ + 1/SECTION_SLICES) = √(cos²(θ/2) + 2 d²(1 − cos θ))."""
-    d = 1 / SECTION_SLICES
-    low = abs(np.cos(theta / 2))
-    return low - 1e-5, np.sqrt(low ** 2 + 2 * d ** 2 * (1 - np.cos(theta))) + 1e-5
+def _lbs_ring_section(theta, rig):
+    """LBS min section ratio: the ring of share w = ½ (a ring of both rigs, alone in its ring of
+    width 1/32) shrinks to k = |cos(θ/2)| in a twist (both axes) and to √k in a bend (one axis);
+    every other ring shrinks less (float32 skinning: ~1e-6)."""
+    k = abs(np.cos(theta / 2))
+    return k if rig == "twist" else np.sqrt(k)
 
 
 def _reject_nan(name):
@@ -151,8 +150,8 @@ def test_twist_metrics_match_closed_forms(twist):
     theta = np.radians(DEG_PER_FRAME["twist"] * np.array(FRAMES))
     lbs, dqs = result["meshes"][MESH]["lbs"], result["meshes"][MESH]["dqs"]
     for k, th in enumerate(theta):
-        low, high = _section_bounds(th)
-        assert low <= lbs["min_section_ratio"][k] <= high
+        assert lbs["min_section_ratio"][k] == pytest.approx(_lbs_ring_section(th, "twist"),
+                                                           abs=1e-3)
         assert dqs["min_section_ratio"][k] == pytest.approx(1.0, abs=1e-4)
         assert lbs["volume_ratio"][k] == pytest.approx(
             1 - FRACTION["twist"] * (1 - np.cos(th)) / 3, abs=_volume_tolerance(th, "lbs"))
@@ -163,7 +162,9 @@ def test_twist_metrics_match_closed_forms(twist):
         # Neither method pushes a ring outward: LBS rings only shrink, DQS rings keep radius 1.
         assert lbs["max_bulge_ratio"][k] <= 1 + 1e-5
         assert dqs["max_bulge_ratio"][k] == pytest.approx(1.0, abs=1e-4)
-    assert result["meshes"][MESH]["lbs"]["min_section_ratio"][-1] < 2 / SECTION_SLICES  # ≈ 0
+    # The joint's twist beside the value: 90° at frame 12, bend 0.
+    assert lbs["min_section_twist_deg"][1] == pytest.approx(90.0, abs=1e-3)
+    assert lbs["min_section_bend_deg"][1] == pytest.approx(0.0, abs=1e-3)
     # Largest LBS↔DQS distance per frame: |(1 − w) + w·e^{iθ} − e^{iψ(w)}| over the ring weights
     # (cap vertices have w ∈ {0, 1}: distance 0).
     w = np.arange(33)[None] / 32
@@ -222,8 +223,8 @@ def test_sweeps_reproduce_the_classic_curves(twist):
     np.testing.assert_allclose(twist_rig["angle_deg"], 7.5 * np.arange(25), atol=1e-3)
     np.testing.assert_allclose(bend["angle_deg"], 5.0 * np.arange(31), atol=1e-3)
     for k, th in enumerate(np.radians(twist_rig["angle_deg"])):
-        low, high = _section_bounds(th)
-        assert low <= twist_rig["lbs"]["min_section_ratio"][k] <= high
+        assert twist_rig["lbs"]["min_section_ratio"][k] == pytest.approx(
+            _lbs_ring_section(th, "twist"), abs=1e-3)
         assert twist_rig["dqs"]["min_section_ratio"][k] == pytest.approx(1.0, abs=1e-4)
         assert twist_rig["lbs"]["volume_ratio"][k] == pytest.approx(
             1 - FRACTION["twist"] * (1 - np.cos(th)) / 3, abs=_volume_tolerance(th, "lbs"))
@@ -232,6 +233,14 @@ def test_sweeps_reproduce_the_classic_curves(twist):
     np.testing.assert_allclose(twist_rig["reference"]["lbs_min_section_ratio"],
                                np.abs(np.cos(np.radians(7.5 * np.arange(25)) / 2)), atol=1e-6)
     theta = np.radians(bend["angle_deg"])
+    # Bend: rings measured in their own frame, so the closed forms hold at any angle.
+    np.testing.assert_allclose(bend["lbs"]["min_section_ratio"],
+                               [_lbs_ring_section(th, "bend") for th in theta], atol=1e-4)
+    np.testing.assert_allclose(bend["reference"]["lbs_min_section_ratio"],
+                               np.sqrt(np.abs(np.cos(theta / 2))), atol=1e-9)
+    np.testing.assert_allclose(bend["dqs"]["min_section_ratio"], 1.0, atol=1e-4)
+    np.testing.assert_allclose(bend["dqs"]["max_bulge_ratio"], 1.0, atol=1e-4)
+    assert np.all(np.array(bend["lbs"]["max_bulge_ratio"]) <= 1 + 1e-4)
     lbs = np.array(bend["lbs"]["volume_ratio"])
     # Exact polyhedron (float64 oracle), then the continuum curve 1 − f(1 − cos θ)/6 (derived in
     # dqskin.compare.SWEEP_RIGS): the meshed deficit stays within O(Δw²) of it, Δw = 1/16 (the

@@ -1,6 +1,7 @@
-"""Artifact metrics against closed forms: a twisted capped cylinder skinned with LBS and DQS
-(radius factor, volume ratio, section ratio), icosphere volume, closedness, scaled and moved
-meshes for strain and distances."""
+"""Artifact metrics against closed forms: a twisted and a bent capped cylinder skinned with LBS
+and DQS (radius factor, volume ratio, ring section ratio k and √k), a synthetic bulge, the
+bend/twist split, icosphere volume, closedness, scaled and moved meshes for strain and
+distances."""
 
 import numpy as np
 import pytest
@@ -97,84 +98,100 @@ def test_twisted_cylinder(method, theta, device):
              / trimesh.Trimesh(points, faces, process=False).volume)
     assert ratio == pytest.approx(exact, rel=2e-6)
 
-    # Candy wrapper: the members are the ramp's interior rings (both weights non-zero), one slice
-    # per ring, so each slice ratio is that ring's radius factor.
-    regions = M.dominant_pair_regions(idx, wts, [-1, 0], min_weight=1e-9)
-    np.testing.assert_array_equal(regions, np.where((w > 0) & (w < 1), 1, -1))
-    rest_seg = M.bone_segments(np.array([[0.0, 0, 0], [LENGTH / 2, 0, 0]]), [-1, 0])
-    ring_w = np.unique(np.round(w[regions == 1], 12))
-    sec = M.joint_sections(points, posed[None], rest_seg, rest_seg[None], regions,
-                           slices=len(ring_w), device=device)
-    expected_slices = (_lbs_radius_factor(ring_w, theta) if method == "lbs"
-                       else np.ones_like(ring_w))
-    np.testing.assert_allclose(sec.slice_ratio[0, 1], expected_slices, atol=1e-5)
-    # Closed form of the minimum: √((1 + cos θ)/2) = |cos(θ/2)| at w = ½ (0.7071 at 90°, 0 at 180°).
-    assert 0.5 in np.round(ring_w, 9)
-    assert sec.min_section_ratio[0, 1] == pytest.approx(
-        abs(np.cos(theta / 2)) if method == "lbs" else 1.0, abs=1e-5)
-    assert np.isnan(sec.min_section_ratio[0, 0])  # the root has no members
-    # LBS only shrinks rings, so the largest vertex ratio is the outermost member ring's factor.
-    assert sec.max_bulge_ratio[0, 1] == pytest.approx(expected_slices.max(), abs=1e-5)
-    # Slice centres, measured from the joint along the bone, sit on their rings.
-    ring_x = np.unique(np.round(points[regions == 1, 0], 12)) - LENGTH / 2
-    np.testing.assert_allclose(sec.slice_axial[1], ring_x, atol=0.5 * LENGTH / (RINGS - 1))
+    # Candy wrapper: the ring of weight share w is a circle shrunk by k(w) under LBS (both axes
+    # of its section), kept by DQS. One ring of the mesh per ring width (0.01 here).
+    rings, share = M.joint_rings(idx, wts, [-1, 0], ring_width=0.01, min_weight=1e-9)
+    members = (w > 0) & (w < 1)
+    np.testing.assert_array_equal(rings >= 0, members)
+    np.testing.assert_allclose(share[rings[members] - len(share)], w[members], atol=1e-9)
+    sec = M.ring_sections(points, posed, rings, 2 * len(share))
+    inner = share[(share > 0) & (share < 1)]
+    expected = _lbs_radius_factor(inner, theta) if method == "lbs" else np.ones_like(inner)
+    got = sec.section_ratio[0, len(share):][(share > 0) & (share < 1)]
+    np.testing.assert_allclose(got, expected, atol=2e-5)
+    assert np.all(np.isnan(sec.section_ratio[0, :len(share)]))  # the root has no members
+    # Closed form of the minimum: |cos(θ/2)| at w = ½ (0.7071 at 90°, 0 at 180°).
+    assert np.nanmin(got) == pytest.approx(
+        abs(np.cos(theta / 2)) if method == "lbs" else 1.0, abs=2e-5)
+    # LBS only shrinks rings about their centre: every vertex ratio is its ring's factor.
+    np.testing.assert_allclose(sec.vertex_ratio[0, members],
+                               expected[np.searchsorted(inner, w[members] - 1e-9)], atol=2e-5)
+    assert np.nanmax(sec.bulge_ratio) <= 1 + 2e-5
 
 
-def test_section_bulge_closed_form():
-    # Synthetic bulge: scale each rest ring about the axis by s(x) = 1 + 0.3·sin(π(x−a)/(b−a))
-    # over the region [a, b]; slices and the vertex maximum must reproduce s.
-    points, _ = _cylinder()
-    a, b = 0.6, 1.4
-    x = points[:, 0]
-    regions = np.where((x >= a - 1e-9) & (x <= b + 1e-9) & (np.arange(len(x)) < RINGS * SEGMENTS),
-                       0, -1)
-    s = 1 + 0.3 * np.sin(np.pi * (x - a) / (b - a))
-    posed = points.copy()
-    posed[:, 1:] *= np.where(regions == 0, s, 1.0)[:, None]
-    seg = np.array([[[0.0, 0, 0], [1.0, 0, 0]]])
-    rings = np.unique(np.round(x[regions == 0], 9))
-    sec = M.joint_sections(points, posed, seg, seg, regions, slices=len(rings), device="cpu")
-    s_ring = 1 + 0.3 * np.sin(np.pi * (rings - a) / (b - a))
-    np.testing.assert_allclose(sec.slice_ratio[0, 0], s_ring, atol=1e-6)
-    assert sec.max_bulge_ratio[0, 0] == pytest.approx(1.3, abs=1e-6)
-    assert sec.min_section_ratio[0, 0] == pytest.approx(1.0, abs=1e-6)
-    np.testing.assert_allclose(sec.vertex_ratio[0, regions == 0], s[regions == 0], atol=1e-6)
-    assert np.all(np.isnan(sec.vertex_ratio[0, regions < 0]))
-    # A degenerate posed axis makes the region undefined, not a number.
-    bad = M.joint_sections(points, posed, seg, np.zeros((1, 2, 3)), regions, device="cpu")
-    assert np.isnan(bad.min_section_ratio[0, 0]) and np.isnan(bad.max_bulge_ratio[0, 0])
+def _lbs_bend_oracle(points, w, rotation, pivot):
+    """Float64 LBS of a two-joint bend from its equation: (1 − w)p + w(R(p − c) + c)."""
+    return (1 - w)[:, None] * points + w[:, None] * ((points - pivot) @ rotation.T + pivot)
 
 
-def test_sections_follow_a_rigid_bend():
-    # Rigid pieces (weights 0 | 1 with the step just past the joint), child bent 90° about z
-    # through the joint. On each side the flesh keeps its distance to the bone carrying it.
-    points, _ = _cylinder()
+@pytest.mark.parametrize("degrees", [45, 90, 150])
+def test_ring_sections_in_a_bend(degrees):
+    # Bend about z through the joint. A circular ring of share w: LBS shrinks its section along the
+    # bend plane by k = √(1 − 2w(1−w)(1 − cos θ)) and keeps it along z: section ratio √k; DQS
+    # turns each ring rigidly: 1 — at any angle, which is what slicing along a bone could not give.
+    theta = np.radians(degrees)
+    points, faces, idx, wts, w, _ = _twist_setup(theta)
     joint = np.array([LENGTH / 2, 0.0, 0.0])
-    on_ring = np.arange(len(points)) < RINGS * SEGMENTS
-    w = (points[:, 0] > joint[0] + 1e-9).astype(float)
-    bend = trimesh.transformations.rotation_matrix(np.pi / 2, [0, 0, 1], point=joint)
+    bend = trimesh.transformations.rotation_matrix(theta, [0, 0, 1], point=joint)
     xforms = np.stack([np.eye(4), bend])
-    posed = dqskin.skin_points(points, np.tile([0, 1], (len(points), 1)),
-                               np.stack([1 - w, w], 1), xforms, "lbs", device="cpu")
-    regions = np.where(on_ring & (np.abs(points[:, 0] - joint[0]) <= 0.3 + 1e-9), 1, -1)
-    bind = np.array([[0.0, 0, 0], joint])
-    rest_seg, parent_side, child_side = M.joint_axes(bind, [-1, 0], xforms)
-    np.testing.assert_allclose(parent_side[1], rest_seg[1], atol=1e-12)
-    np.testing.assert_allclose(child_side[1], [joint - [0, LENGTH / 2, 0], joint], atol=1e-12)
-    rings = np.unique(np.round(points[regions == 1, 0], 9))
-    sec = M.joint_sections(points, posed, rest_seg, parent_side, regions,
-                           child_segments=child_side, slices=len(rings), device="cpu")
-    np.testing.assert_allclose(sec.slice_ratio[0, 1], 1.0, atol=1e-5)
-    assert sec.max_bulge_ratio[0, 1] == pytest.approx(1.0, abs=1e-5)
-    # One straight axis instead: a child ring at axial distance a, turned 90° about z, lies at
-    # √(a² + r² sin²φ) from the parent bone's line.
-    single = M.joint_sections(points, posed, rest_seg, parent_side, regions, slices=len(rings),
-                              device="cpu")
-    phi = 2 * np.pi * np.arange(SEGMENTS) / SEGMENTS
-    a = rings - joint[0]
-    expected = np.where(a > 0, np.sqrt(a[:, None] ** 2 + (RADIUS * np.sin(phi)) ** 2).mean(1)
-                        / RADIUS, 1.0)
-    np.testing.assert_allclose(single.slice_ratio[0, 1], expected, rtol=1e-5)
+    rings, share = M.joint_rings(idx, wts, [-1, 0], ring_width=0.01, min_weight=1e-9)
+    inner = (share > 0) & (share < 1)
+    k = _lbs_radius_factor(share[inner], theta)
+    lbs = _lbs_bend_oracle(points, w, bend[:3, :3], joint)
+    for method, expected in (("lbs", np.sqrt(k)), ("dqs", np.ones_like(k))):
+        posed = dqskin.skin_points(points, idx, wts, xforms, method, device="cpu")
+        if method == "lbs":
+            np.testing.assert_allclose(posed, lbs, atol=1e-5)
+        sec = M.ring_sections(points, posed, rings, 2 * len(share))
+        np.testing.assert_allclose(sec.section_ratio[0, len(share):][inner], expected, atol=2e-5)
+        # Bulge: LBS keeps the ring's extent along z (ratio 1 there) and shrinks it elsewhere.
+        assert np.nanmax(sec.bulge_ratio) == pytest.approx(1.0, abs=2e-5)
+    bend_deg, twist_deg = M.joint_bend_twist(xforms, np.array([[0.0, 0, 0], joint]), [-1, 0])
+    assert np.isnan(bend_deg[0]) and bend_deg[1] == pytest.approx(degrees, abs=1e-6)
+    assert twist_deg[1] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_ring_bulge_closed_form():
+    # Synthetic bulge: scale one ring about its centre by 1.3 along y only; the section ratio is
+    # √1.3 (one axis of the ellipse), the bulge 1.3 (the vertices on the y axis), rigid motions of
+    # the whole set change nothing.
+    points, _ = _cylinder()
+    on = np.arange(len(points)) < SEGMENTS
+    rings = np.where(on, 0, -1)
+    posed = points.copy()
+    posed[on, 1] *= 1.3
+    rot = trimesh.transformations.random_rotation_matrix(np.random.default_rng(3).random(3))
+    moved = posed @ rot[:3, :3].T + [4.0, -2.0, 1.0]
+    for p in (posed, moved):
+        sec = M.ring_sections(points, np.stack([points, p]), rings, 1)
+        np.testing.assert_allclose(sec.section_ratio[:, 0], [1.0, np.sqrt(1.3)], atol=1e-6)
+        np.testing.assert_allclose(sec.bulge_ratio[:, 0], [1.0, 1.3], atol=1e-6)
+        phi = 2 * np.pi * np.arange(SEGMENTS) / SEGMENTS
+        np.testing.assert_allclose(sec.vertex_ratio[1, on],
+                                   np.hypot(1.3 * np.cos(phi), np.sin(phi)), atol=1e-6)
+        assert np.all(np.isnan(sec.vertex_ratio[:, ~on]))
+    # Too few vertices or a degenerate (collinear) rest ring: undefined, not a number.
+    few = M.ring_sections(points, points, np.where(np.arange(len(points)) < 3, 0, -1), 1)
+    assert np.isnan(few.section_ratio[0, 0]) and np.isnan(few.bulge_ratio[0, 0])
+    line = np.zeros((6, 3))
+    line[:, 0] = np.arange(6)
+    assert np.isnan(M.ring_sections(line, line, np.zeros(6, int), 1).section_ratio[0, 0])
+
+
+def test_bend_twist_split():
+    # Joint 2 turned by R = swing · twist about its bone (+y, toward joint 3): angles recovered
+    # independently of how the parent chain moves.
+    pos = np.array([[0.0, 0, 0], [0, 1, 0], [0, 2, 0], [0, 3, 0]])
+    parents = [-1, 0, 1, 2]
+    tw = trimesh.transformations.rotation_matrix(np.radians(70), [0, 1, 0], point=pos[2])
+    sw = trimesh.transformations.rotation_matrix(np.radians(40), [1, 0, 1], point=pos[2])
+    carry = trimesh.transformations.rotation_matrix(1.1, [0.3, -0.2, 0.9], point=[1, 2, 3])
+    x = np.stack([carry, carry, carry @ sw @ tw, carry @ sw @ tw])
+    bend, twist = M.joint_bend_twist(np.stack([x, np.tile(np.eye(4), (4, 1, 1))]), pos, parents)
+    np.testing.assert_allclose(bend[0, 1:], [0, 40, 0], atol=1e-6)
+    np.testing.assert_allclose(twist[0, 1:], [0, 70, 0], atol=1e-6)
+    np.testing.assert_allclose(bend[1, 1:], 0, atol=1e-6)
+    np.testing.assert_allclose(M.bone_directions(pos, parents), np.tile([0, 1.0, 0], (4, 1)))
 
 
 def test_icosphere_volume(device):
@@ -240,20 +257,25 @@ def test_edge_strain_and_distance(device):
 def test_helpers_and_validation():
     parents = [-1, 0, 1, 1]
     pos = np.array([[0.0, 0, 0], [0, 1, 0], [0, 2, 0], [1, 1, 0]])
-    seg = M.bone_segments(pos, parents)
-    np.testing.assert_array_equal(seg[2], [pos[1], pos[2]])
-    np.testing.assert_array_equal(seg[0], [pos[0], pos[0]])
-    assert M.bone_segments(np.stack([pos, pos]), parents).shape == (2, 4, 2, 3)
     idx = np.array([[1, 2, 0], [2, 1, 0], [0, 3, 1], [1, 0, 3], [2, 3, 0]])
     wts = np.array([[0.6, 0.4, 0], [0.9, 0.02, 0.08], [0.1, 0.5, 0.4], [0.5, 0.3, 0.2],
                     [0.5, 0.5, 0]])
     # rows: (1,2) pair → 2; 2-vs-1 too weak; (3,1) → 3; (1,0) → 1; (2,3) siblings → -1
-    np.testing.assert_array_equal(M.dominant_pair_regions(idx, wts, parents), [2, -1, 3, 1, -1])
+    regions, share = M.dominant_pair_regions(idx, wts, parents)
+    np.testing.assert_array_equal(regions, [2, -1, 3, 1, -1])
+    np.testing.assert_allclose(share, [0.4, np.nan, 0.5 / 0.9, 0.5 / 0.8, np.nan])
+    rings, centres = M.joint_rings(idx, wts, parents, ring_width=0.25)
+    np.testing.assert_array_equal(centres, [0, 0.25, 0.5, 0.75, 1])
+    np.testing.assert_array_equal(rings, [2 * 5 + 2, -1, 3 * 5 + 2, 1 * 5 + 3, -1])
     with pytest.raises(ValueError, match="parents"):
-        M.bone_segments(pos, [-1, 2, 0, 1])
+        M.joint_bend_twist(np.tile(np.eye(4), (4, 1, 1)), pos, [-1, 2, 0, 1])
+    with pytest.raises(ValueError, match="ring_width"):
+        M.joint_rings(idx, wts, parents, ring_width=0)
     with pytest.raises(ValueError, match="faces"):
         M.volume(pos, np.zeros((0, 3), int))
     with pytest.raises(ValueError, match="rest_points"):
         M.edge_strain(np.zeros((2, 4, 3)), np.zeros((3, 4, 3)), [[0, 1]])
-    with pytest.raises(ValueError, match="regions"):
-        M.joint_sections(pos, pos, seg, seg, np.zeros(3, int))
+    with pytest.raises(ValueError, match="rings"):
+        M.ring_sections(pos, pos, np.zeros(3, int), 1)
+    with pytest.raises(ValueError, match="rings"):
+        M.ring_sections(pos, pos, np.full(4, 2), 1)

@@ -8,10 +8,15 @@ and frame (see :mod:`dqskin.metrics`):
 
 * ``volume_ratio``: enclosed volume / rest volume (closed meshes only; otherwise None and a
   reason);
-* ``min_section_ratio``: smallest cross-section ratio around any joint (1 intact, 0 candy
-  wrapper), over the vertices each joint bends (:func:`~dqskin.metrics.dominant_pair_regions`),
-  with the axes of :func:`~dqskin.metrics.joint_axes`;
-* ``max_bulge_ratio``: largest per-vertex radial ratio around any joint (> 1 bulges).
+* ``min_section_ratio``: smallest cross-section ratio of any joint ring (1 intact, 0 candy
+  wrapper): each joint's region is cut into rings of equal weight share
+  (:func:`~dqskin.metrics.joint_rings`) and every ring is measured in its own frame
+  (:func:`~dqskin.metrics.ring_sections`), so a rigidly bent limb scores 1 at any angle;
+* ``max_bulge_ratio``: largest per-vertex ratio of distance from the ring's centroid, posed over
+  rest, in any ring (> 1 bulges).
+
+Each joint value comes with the joint's bend and twist relative to its parent at that frame
+(:func:`~dqskin.metrics.joint_bend_twist`).
 
 The ``blend`` method mixes the two with a DQS fraction of :data:`BLEND_WEIGHT` on every vertex.
 
@@ -42,15 +47,11 @@ from ..skinning import METHODS
 from ..times import default_frames
 from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
 
-__all__ = ["BLEND_WEIGHT", "MAX_RAYS", "SECTION_SLICES", "SWEEP_RIGS", "run_compare",
-           "skeleton_up_axis", "summary_lines", "sweeps"]
+__all__ = ["BLEND_WEIGHT", "MAX_RAYS", "SWEEP_RIGS", "run_compare", "skeleton_up_axis",
+           "summary_lines", "sweeps"]
 
 BLEND_WEIGHT = DEFAULT_BLEND
 """DQS fraction of every vertex for ``method="blend"`` (0 = LBS, 1 = DQS)."""
-
-SECTION_SLICES = 16
-"""Slices per joint region of :func:`dqskin.metrics.joint_sections` (``min_section_ratio``)."""
-
 
 SWEEP_RIGS = {
     "twist": ("twist_cylinder.usda", 0.5, 3.0),
@@ -69,7 +70,7 @@ MAX_RAYS = 8192
 """Default limit on rays per image side (``width × supersample``; ``--max-rays`` raises it): an
 8192² super-sampled image is already 768 MB of colour samples."""
 
-_LABELS = {"lbs": "LBS", "dqs": "DQS", "blend": f"Blend ({BLEND_WEIGHT:g} DQS)"}
+_LABELS = {"lbs": "LBS", "dqs": "DQS", "blend": f"Blend ({BLEND_WEIGHT:g} DQS)", "cor": "CoR"}
 _FRAME_FILE = re.compile(r"^(?:(?:%s)_\d{3}|closeup)\.png$" % "|".join(VIEWS))
 _HEAT_SHADING = Shading(ambient=0.55, diffuse=0.45, rim=0.0)
 _HEAT_COLORMAP = "viridis"
@@ -95,8 +96,8 @@ class _SkinnedMesh:
     skeleton: int
     faces: np.ndarray  # (T, 3) int32
     rest: np.ndarray  # (V, 3) float64
-    joint_indices: np.ndarray
-    joint_weights: np.ndarray
+    rings: np.ndarray  # (V,) int32, see metrics.joint_rings
+    ring_share: np.ndarray  # (R,) float64
     posed: dict = field(default_factory=dict)  # method → (F, V, 3) float32
 
 
@@ -116,20 +117,22 @@ def _renderable(scene):
     return keep, skipped
 
 
-def _skin(scene, times, methods, device):
+def _skin(scene, times, methods, device, sign_reference="largest_weight"):
     """Skin every renderable mesh in skeleton space with each method, bind points (no blend
     shapes), through the scene's one loop (meshes without faces are skipped)."""
     renderable, skipped = _renderable(scene)
     xforms = {s: scene.skinning_transforms(times, s, device=device)
               for s in sorted({m.skeleton for m in renderable})}
-    posed = {meth: scene.skin(times, meth, device=device, space="skeleton",
-                              blend_shapes=False).points for meth in methods}
+    posed = {meth: scene.skin(times, meth, device=device, space="skeleton", blend_shapes=False,
+                              sign_reference=sign_reference).points for meth in methods}
     meshes = []
     for m in renderable:
         g = np.asarray(m.geom_bind_transform, dtype=np.float64)
         rest = np.asarray(m.points, dtype=np.float64) @ g[:3, :3].T + g[:3, 3]
-        sm = _SkinnedMesh(m.name, m.skeleton, np.asarray(m.faces, dtype=np.int32), rest,
-                          np.asarray(m.joint_indices), np.asarray(m.joint_weights))
+        rings, share = M.joint_rings(m.joint_indices, m.joint_weights,
+                                     scene.skeletons[m.skeleton].parents)
+        sm = _SkinnedMesh(m.name, m.skeleton, np.asarray(m.faces, dtype=np.int32), rest, rings,
+                          share)
         sm.posed = {meth: posed[meth][m.name] for meth in methods}
         meshes.append(sm)
     return meshes, skipped, xforms
@@ -147,31 +150,43 @@ def _nan_reduce(a, fn):
     return out, arg
 
 
-def _measure(mesh, skeleton, xforms, method, device):
-    """Per-frame metrics of one mesh and method: dict of (F,) float64 arrays (NaN undefined)."""
+def _per_joint(a, joints, reduce):
+    """(F, J·R) ring values → (F, J) per joint (NaN where a joint has no valid ring)."""
+    a = a.reshape(a.shape[0], joints, -1)
+    out = np.full(a.shape[:2], np.nan)
+    ok = np.isfinite(a).any(axis=2)
+    out[ok] = reduce(np.where(np.isfinite(a), a, np.nan)[ok], axis=1)
+    return out
+
+
+def _measure(mesh, skeleton, method, device):
+    """Per-frame metrics of one mesh and method: dict of (F,) float64 arrays (NaN undefined) and
+    the (F,) int joints they belong to (-1 none)."""
     posed = mesh.posed[method]
     ratio, reason = M.volume_ratio(posed, mesh.rest, mesh.faces, device=device)
-    bind = skeleton.bind_transforms[:, :3, 3]
-    regions = M.dominant_pair_regions(mesh.joint_indices, mesh.joint_weights, skeleton.parents)
-    rest_seg, parent_side, child_side = M.joint_axes(bind, skeleton.parents, xforms)
-    sec = M.joint_sections(mesh.rest, posed, rest_seg, parent_side, regions,
-                           child_segments=child_side, slices=SECTION_SLICES, device=device)
-    section, section_joint = _nan_reduce(sec.min_section_ratio, np.argmin)
-    bulge, bulge_joint = _nan_reduce(sec.max_bulge_ratio, np.argmax)
+    joints = len(skeleton.parents)
+    sec = M.ring_sections(mesh.rest, posed, mesh.rings, joints * len(mesh.ring_share))
+    section, section_joint = _nan_reduce(_per_joint(sec.section_ratio, joints, np.nanmin),
+                                         np.argmin)
+    bulge, bulge_joint = _nan_reduce(_per_joint(sec.bulge_ratio, joints, np.nanmax), np.argmax)
     return {"volume_ratio": None if ratio is None else np.asarray(ratio, dtype=np.float64),
             "volume_ratio_reason": reason,
             "min_section_ratio": section, "min_section_joint": section_joint,
-            "max_bulge_ratio": bulge, "max_bulge_joint": bulge_joint,
-            "regions": regions}
+            "max_bulge_ratio": bulge, "max_bulge_joint": bulge_joint}
+
+
+def _json_float(v):
+    return float(v) if np.isfinite(v) else None
 
 
 def _json_floats(a):
     return [float(v) if np.isfinite(v) else None for v in np.asarray(a, dtype=np.float64)]
 
 
-def _summary(measures, meshes, skeletons, times, methods, tie=1e-3):
-    """Worst frame and value of each metric per method over all meshes, and the winner: the
-    method of least severity (see :func:`worst`), or ``"tie"`` within ``tie``."""
+def _summary(measures, meshes, skeletons, angles, times, methods, tie=1e-3):
+    """Worst frame and value of each metric per method over all meshes (with the joint's bend
+    and twist there, from ``angles``: skeleton → (bend, twist) (F, J) degrees), and the winner:
+    the method of least severity (see :func:`worst`), or ``"tie"`` within ``tie``."""
     out = {}
     for metric in METRICS:
         by_method = {}
@@ -183,14 +198,18 @@ def _summary(measures, meshes, skeletons, times, methods, tie=1e-3):
                     continue
                 w = worst(metric, values)
                 if w is not None and (best is None or w[1] > best[0]):
-                    joint = None
+                    joint, bend, twist = None, None, None
                     if metric != "volume_ratio":
                         j = measures[mesh.name][meth][metric.replace("_ratio", "_joint")][w[0]]
-                        joint = skeletons[mesh.skeleton].joint_names[j] if j >= 0 else None
-                    best = (w[1], mesh.name, int(w[0]), float(values[w[0]]), joint)
+                        if j >= 0:
+                            joint = skeletons[mesh.skeleton].joint_names[j]
+                            bend, twist = (_json_float(a[w[0], j])
+                                           for a in angles[mesh.skeleton])
+                    best = (w[1], mesh.name, int(w[0]), float(values[w[0]]), joint, bend, twist)
             by_method[meth] = None if best is None else {
                 "value": best[3], "severity": best[0], "frame": best[2],
-                "time": float(times[best[2]]), "mesh": best[1], "joint": best[4]}
+                "time": float(times[best[2]]), "mesh": best[1], "joint": best[4],
+                "bend_deg": best[5], "twist_deg": best[6]}
         scored = {m: r["severity"] for m, r in by_method.items() if r is not None}
         winner = None
         if scored:
@@ -220,7 +239,7 @@ def _closeup_target(measures, meshes, skeletons, xforms, methods):
     center = x[j, :3, :3] @ bind[j] + x[j, :3, 3]
     parent = skel.parents[j]
     bone = center - (x[parent, :3, :3] @ bind[parent] + x[parent, :3, 3]) if parent >= 0 else None
-    members = mesh.rest[measures[mesh.name][meth]["regions"] == j]
+    members = mesh.rest[mesh.rings // len(mesh.ring_share) == j]
     radius = 1.4 * float(np.linalg.norm(members - bind[j], axis=1).max()) if len(members) else 0
     if not radius > 0:
         radius = 0.25 * float(np.linalg.norm(np.ptp(mesh.rest, axis=0)))
@@ -330,8 +349,8 @@ def sweeps(assets_dir, *, device=None):
     -------
     dict
         ``name → {"asset", "joint", "fraction", "angle_deg": [...], "lbs"/"dqs": {metric:
-        [...]}, "reference": {"lbs_volume_ratio": [...], "lbs_min_section_ratio": [...] (twist
-        only)}, "formulas": {...}}`` (JSON-safe; see :data:`SWEEP_RIGS` for the references), or
+        [...]}, "reference": {"lbs_volume_ratio": [...], "lbs_min_section_ratio": [...]},
+        "formulas": {...}}`` (JSON-safe; see :data:`SWEEP_RIGS` for the references), or
         ``{"skipped": reason}`` when a rig file is missing.
     """
     out = {}
@@ -351,16 +370,18 @@ def sweeps(assets_dir, *, device=None):
         entry = {"asset": file, "joint": skel.joint_names[joint], "fraction": fraction,
                  "angle_deg": _json_floats(np.degrees(theta))}
         for meth in ("lbs", "dqs"):
-            m = _measure(mesh, skel, xforms[mesh.skeleton], meth, device)
+            m = _measure(mesh, skel, meth, device)
             entry[meth] = {k: (None if m[k] is None else _json_floats(m[k])) for k in METRICS}
         entry["reference"] = {"lbs_volume_ratio": _json_floats(
             1 - fraction * (1 - np.cos(theta)) / divisor)}
         entry["formulas"] = {"lbs_volume_ratio": f"1 − {fraction:g}(1 − cos θ)/{divisor:g}"}
-        if name == "twist":
-            w = 0.5  # the ramp's middle, where LBS collapses most
-            entry["reference"]["lbs_min_section_ratio"] = _json_floats(
-                np.sqrt(1 - 2 * w * (1 - w) * (1 - np.cos(theta))))
-            entry["formulas"]["lbs_min_section_ratio"] = "√(1 − 2w(1−w)(1 − cos θ)), w = ½"
+        # the ring of share ½ (the ramp's middle) collapses most: k in a twist, √k in a bend
+        k = np.sqrt(np.maximum(1 - 0.5 * (1 - np.cos(theta)), 0.0))
+        entry["reference"]["lbs_min_section_ratio"] = _json_floats(
+            k if name == "twist" else np.sqrt(k))
+        entry["formulas"]["lbs_min_section_ratio"] = (
+            "k = √(1 − 2w(1−w)(1 − cos θ)), w = ½" if name == "twist"
+            else "√k, k = √(1 − 2w(1−w)(1 − cos θ)), w = ½")
         out[name] = entry
     return out
 
@@ -410,7 +431,8 @@ def skeleton_up_axis(scene):
 
 def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, views=VIEWS,
                 device=None, width=512, supersample=2, progress=True, force=False,
-                sweeps_dir="default", up_axis=None, clip=None, max_rays=MAX_RAYS):
+                sweeps_dir="default", up_axis=None, clip=None, max_rays=MAX_RAYS,
+                sign_reference="largest_weight"):
     """Compare skinning methods on an asset and write ``report.html``, ``metrics.json`` and
     ``frames/*.png`` in ``out_dir``.
 
@@ -422,7 +444,7 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         Created if needed. An earlier ``report.html``, ``metrics.json`` or panel in ``frames/``
         raises FileExistsError unless ``force``; ``force`` also removes the earlier panels
         (files named as this function names them; nothing else).
-    methods : sequence of {"lbs", "dqs", "blend"}
+    methods : sequence of {"lbs", "dqs", "blend", "cor"}
         The heat map of the per-vertex LBS↔DQS distance needs both ``lbs`` and ``dqs``.
     frames : sequence of float, optional
         Times in the asset's unit; default :func:`default_frames` of the asset's times.
@@ -446,6 +468,8 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         glTF animation to load.
     max_rays : int
         Refuse ``width × supersample`` above this, before rendering anything.
+    sign_reference : {"largest_weight", "running_sum"}
+        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
 
     Returns
     -------
@@ -476,11 +500,13 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     _renderable(scene)
     out, frames_dir = _prepare_out(out_dir, force)
 
-    meshes, skipped, xforms = _skin(scene, times, methods, device)
+    meshes, skipped, xforms = _skin(scene, times, methods, device, sign_reference)
     t_skin = time.perf_counter()
     skeletons = scene.skeletons
-    measures = {m.name: {meth: _measure(m, skeletons[m.skeleton], xforms[m.skeleton], meth,
-                                        device) for meth in methods} for m in meshes}
+    measures = {m.name: {meth: _measure(m, skeletons[m.skeleton], meth, device)
+                         for meth in methods} for m in meshes}
+    angles = {s: M.joint_bend_twist(x, skeletons[s].bind_transforms[:, :3, 3],
+                                    skeletons[s].parents) for s, x in xforms.items()}
     heat = "lbs" in methods and "dqs" in methods
     distance, dist_json = None, None
     if heat:
@@ -490,7 +516,7 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         dist_json = {m.name: {"max": _json_floats(d.max(axis=1)),
                               "mean": _json_floats(d.mean(axis=1))}
                      for m, d in zip(meshes, per_mesh)}
-    summary = _summary(measures, meshes, skeletons, times, methods)
+    summary = _summary(measures, meshes, skeletons, angles, times, methods)
     closeup = _closeup_target(measures, meshes, skeletons, xforms, methods)
     t_metrics = time.perf_counter()
 
@@ -507,14 +533,19 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     def mesh_json(m, meth):
         r = measures[m.name][meth]
         names = skeletons[m.skeleton].joint_names
-        return {"volume_ratio": None if r["volume_ratio"] is None else _json_floats(
-                    r["volume_ratio"]),
-                "volume_ratio_reason": r["volume_ratio_reason"],
-                "min_section_ratio": _json_floats(r["min_section_ratio"]),
-                "min_section_joint": [names[j] if j >= 0 else None
-                                      for j in r["min_section_joint"]],
-                "max_bulge_ratio": _json_floats(r["max_bulge_ratio"]),
-                "max_bulge_joint": [names[j] if j >= 0 else None for j in r["max_bulge_joint"]]}
+        bend, twist = angles[m.skeleton]
+        out = {"volume_ratio": None if r["volume_ratio"] is None else _json_floats(
+                   r["volume_ratio"]),
+               "volume_ratio_reason": r["volume_ratio_reason"]}
+        for metric, key in (("min_section_ratio", "min_section"), ("max_bulge_ratio", "max_bulge")):
+            js = r[f"{key}_joint"]
+            out[metric] = _json_floats(r[metric])
+            out[f"{key}_joint"] = [names[j] if j >= 0 else None for j in js]
+            out[f"{key}_bend_deg"] = [_json_float(bend[f, j]) if j >= 0 else None
+                                      for f, j in enumerate(js)]
+            out[f"{key}_twist_deg"] = [_json_float(twist[f, j]) if j >= 0 else None
+                                       for f, j in enumerate(js)]
+        return out
 
     def rel(path):
         return path.relative_to(out).as_posix()
@@ -528,7 +559,7 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         "up_axis": up,
         "views": list(views),
         "space": "skeleton",
-        "section_slices": SECTION_SLICES,
+        "ring_width": M.RING_WIDTH,
         "meshes": {m.name: {meth: mesh_json(m, meth) for meth in methods} for m in meshes},
         "skipped_meshes": skipped,
         "lbs_dqs_distance": dist_json,

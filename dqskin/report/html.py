@@ -22,8 +22,22 @@ METRIC_TITLES = {
 }
 """Display names of the per-frame metrics."""
 
-_COLORS = {"lbs": "#d62728", "dqs": "#1f77b4", "blend": "#9467bd"}
-_NAMES = {"lbs": "LBS", "dqs": "DQS", "blend": "Blend"}
+_COLORS = {"lbs": "#d62728", "dqs": "#1f77b4", "blend": "#9467bd", "cor": "#2ca02c"}
+_NAMES = {"lbs": "LBS", "dqs": "DQS", "blend": "Blend", "cor": "CoR"}
+_PALETTE = ("#ff7f0e", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf")
+
+
+def method_label(method):
+    """Display name of a skinning method (its upper-cased key when it has none)."""
+    return _NAMES.get(method, str(method).upper())
+
+
+def method_color(method):
+    """Plot colour of a skinning method: fixed for the known ones, else from a palette."""
+    if method in _COLORS:
+        return _COLORS[method]
+    return _PALETTE[sum(map(ord, str(method))) % len(_PALETTE)]
+
 _MAX_WORST_FRAMES = 4
 
 _CSS = """
@@ -111,8 +125,8 @@ def frame_plot_png(metrics):
             ax.set_title("|LBS − DQS| vertex distance")
         else:
             for meth in metrics["methods"]:
-                ax.plot(t, _scene_series(metrics, metric, meth), "o-", color=_COLORS[meth],
-                        label=_NAMES[meth])
+                ax.plot(t, _scene_series(metrics, metric, meth), "o-", color=method_color(meth),
+                        label=method_label(meth))
             ax.axhline(1.0, color="0.6", lw=0.8, ls=":")
             ax.set_title(METRIC_TITLES[metric])
         ax.set_xlabel("time")
@@ -143,8 +157,8 @@ def sweep_plot_png(sweeps):
             for meth in ("lbs", "dqs"):
                 v = rig[meth][metric]
                 if v is not None:
-                    ax.plot(theta, _array(v), "-", marker=".", color=_COLORS[meth],
-                            label=f"{_NAMES[meth]} measured")
+                    ax.plot(theta, _array(v), "-", marker=".", color=method_color(meth),
+                            label=f"{method_label(meth)} measured")
             ref = rig["reference"].get(f"lbs_{metric}")
             if ref is not None:
                 ax.plot(theta, _array(ref), "--", color="k", lw=1.2,
@@ -159,7 +173,7 @@ def sweep_plot_png(sweeps):
 
 def _summary_table(metrics):
     methods = metrics["methods"]
-    head = "".join(f"<th>{_NAMES[m]} worst</th>" for m in methods)
+    head = "".join(f"<th>{method_label(m)} worst</th>" for m in methods)
     rows = []
     for metric, s in metrics["summary"].items():
         cells = []
@@ -169,11 +183,13 @@ def _summary_table(metrics):
                 cells.append("<td>—</td>")
                 continue
             where = f"t = {r['time']:g}, {r['mesh']}" + (f", {r['joint']}" if r["joint"] else "")
+            if r.get("bend_deg") is not None:
+                where += f" (bend {r['bend_deg']:.0f}°, twist {r['twist_deg']:.0f}°)"
             win = ' class="win"' if s["winner"] == m else ""
             cells.append(f"<td{win}><b>{r['value']:.4f}</b><br><span class=note>"
                          f"{_esc(where)}</span></td>")
         winner = s["winner"]
-        winner = "—" if winner is None else ("tie" if winner == "tie" else _NAMES[winner])
+        winner = "—" if winner is None else ("tie" if winner == "tie" else method_label(winner))
         rows.append(f"<tr><th class=l>{METRIC_TITLES[metric]}</th>{''.join(cells)}"
                     f"<td class=l>{_esc(winner)}</td></tr>")
     return (f"<table><tr><th class=l>metric</th>{head}<th class=l>best</th></tr>"
@@ -182,7 +198,7 @@ def _summary_table(metrics):
 
 def _mesh_table(metrics):
     methods = metrics["methods"]
-    head = "".join(f"<th>{METRIC_TITLES[k]}<br>{_NAMES[m]}</th>" for k in METRIC_TITLES
+    head = "".join(f"<th>{METRIC_TITLES[k]}<br>{method_label(m)}</th>" for k in METRIC_TITLES
                    for m in methods)
     rows = []
     for name, per in metrics["meshes"].items():
@@ -212,7 +228,7 @@ def _worst_frames(metrics):
         ranked = sorted(((r["severity"], m, r) for m, r in s["by_method"].items()
                          if r is not None), key=lambda x: -x[0])
         for _, method, r in ranked[:1]:
-            picks.append((r["frame"], f"worst {METRIC_TITLES[metric]} ({_NAMES[method]} "
+            picks.append((r["frame"], f"worst {METRIC_TITLES[metric]} ({method_label(method)} "
                           f"{r['value']:.3f})"))
     dist = metrics.get("lbs_dqs_distance")
     if dist:
@@ -239,7 +255,7 @@ def build_html(metrics, out_dir):
              f"<tr><th class=l>asset</th><td>{_esc(m['asset'])}</td></tr>"
              f"<tr><th class=l>meshes</th><td>{len(m['meshes'])} rendered together: "
              f"{render['vertices']} vertices, {render['faces']} triangles</td></tr>"
-             f"<tr><th class=l>methods</th><td>{', '.join(_NAMES[x] for x in m['methods'])}"
+             f"<tr><th class=l>methods</th><td>{', '.join(method_label(x) for x in m['methods'])}"
              + (f" (blend: DQS fraction {m['blend_weight']:g} on every vertex)"
                 if m.get("blend_weight") is not None else "") + "</td></tr>"
              f"<tr><th class=l>frames</th><td>{len(t)} times: "
@@ -267,7 +283,7 @@ def build_html(metrics, out_dir):
     if c and m["images"].get("closeup"):
         png = (out / m["images"]["closeup"]).read_bytes()
         parts.append(f"<h2>Close-up: worst joint</h2><p>{_esc(c['joint'])} of {_esc(c['mesh'])} "
-                     f"at t = {t[c['frame']]:g}: {_NAMES[c['method']]} min section ratio "
+                     f"at t = {t[c['frame']]:g}: {method_label(c['method'])} min section ratio "
                      f"{c['value']:.4f} ({_esc(c['view'])} view).</p>"
                      + _img(png, f"close-up of {c['joint']}"))
 
@@ -301,23 +317,31 @@ def build_html(metrics, out_dir):
         if png is not None:
             parts.append("<p class=note>Every frame of each rig, skinned with LBS and DQS; the "
                          "angle is the rotation of the animated joint. Dashed: continuum LBS "
-                         "closed forms for a linear weight ramp of width f·L (twist section at "
-                         "w = ½: √(1 − 2w(1−w)(1 − cos θ)) = |cos(θ/2)|; volume 1 − f(1 − cos θ)/3 "
-                         "for the twist, 1 − f(1 − cos θ)/6 for the bend). DQS keeps every measure "
-                         "at 1 in a twist. In a strong bend the section and bulge measures are "
-                         "indicative only: right at the joint the parent and child bone frames "
-                         "disagree, for either method.</p>" + _img(png, "twist and bend sweeps"))
+                         "closed forms for a linear weight ramp of width f·L (section of the ring "
+                         "w = ½: k = √(1 − 2w(1−w)(1 − cos θ)) = |cos(θ/2)| in the twist, √k in "
+                         "the bend; volume 1 − f(1 − cos θ)/3 for the twist, 1 − f(1 − cos θ)/6 "
+                         "for the bend). DQS moves every ring rigidly: section and bulge stay at "
+                         "1 in both rigs.</p>" + _img(png, "twist and bend sweeps"))
     parts.append(
         "<h2>Definitions</h2><ul class=note>"
         "<li>All measures in skeleton space; blend shapes are not applied.</li>"
         "<li><b>volume ratio</b>: enclosed volume over rest volume (closed meshes only).</li>"
-        "<li><b>min section ratio</b>: around each joint, the vertices whose two largest "
-        f"weights are the joint and its parent are cut into {m['section_slices']} slices "
-        "along the bone; a slice's "
-        "ratio is its mean posed distance to the bone axis over its mean rest distance; the "
-        "smallest slice over all joints is reported (1 intact, 0 candy-wrapper collapse).</li>"
-        "<li><b>max bulge ratio</b>: the largest per-vertex posed/rest distance to the bone "
-        "axis in those regions (&gt; 1 bulges).</li></ul>"
+        "<li><b>joint region and rings</b>: a joint's region is the vertices whose two largest "
+        "weights are the joint and its parent; each is put in a <i>ring</i> by its share of "
+        "the pair, w = w<sub>joint</sub> / (w<sub>joint</sub> + w<sub>parent</sub>), rounded to "
+        f"a multiple of {m['ring_width']:g}. The vertices of a ring get the same blend, so a "
+        "method that keeps the flesh intact moves each ring rigidly, at any bend.</li>"
+        "<li><b>min section ratio</b>: each ring is measured in its own frame: the covariance "
+        "of its vertices about their centroid has eigenvalues λ1 ≥ λ2 ≥ λ3, and √(λ1λ2) is "
+        "proportional to the ring's cross-section area. The ratio is (posed area / rest "
+        "area)<sup>½</sup> (an equivalent-radius ratio): 1 intact at any bend angle, 0 "
+        "collapsed (candy wrapper). Under LBS a circular ring of share w shrinks to "
+        "k = √(1 − 2w(1−w)(1 − cos θ)) in a twist by θ and to √k in a bend by θ. The smallest "
+        "ring over all joints is reported, with that joint's bend and twist relative to its "
+        "parent (swing-twist split about the joint's bone).</li>"
+        "<li><b>max bulge ratio</b>: the largest per-vertex distance from its ring's centroid, "
+        "posed over rest (vertices at least ¼ of the ring's RMS radius from it), over all rings "
+        "(&gt; 1 bulges out; LBS and DQS keep ≤ 1 on a circular two-joint ring).</li></ul>"
         f"<p class=note>Timing: skinning {m['timing_s']['skin']:.2f} s, metrics "
         f"{m['timing_s']['metrics']:.2f} s, rendering {m['timing_s']['render']:.2f} s, sweeps "
         f"{m['timing_s']['sweeps']:.2f} s.</p></body></html>")
