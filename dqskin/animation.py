@@ -535,8 +535,9 @@ class TransformTrack(abc.ABC):
 
 
 class Deformer(abc.ABC):
-    """Rest points (and normals) that change over time before skinning: time-sampled points, blend
-    shapes. Loaders subclass it; :meth:`dqskin.Scene.skin` uses it when ``blend_shapes``."""
+    """Rest points (and normals, tangents) that change over time before skinning: time-sampled
+    points, USD blend shapes, glTF morph targets. Loaders subclass it; :meth:`dqskin.Scene.skin`
+    uses it when ``blend_shapes``."""
 
     @abc.abstractmethod
     def points_at(self, times: npt.ArrayLike) -> np.ndarray:
@@ -550,6 +551,11 @@ class Deformer(abc.ABC):
     def normals_at(self, times: npt.ArrayLike) -> np.ndarray | None:
         """(F, N, 3) float32 rest normals at ``times`` (not normalized), or None when the normals
         do not change."""
+        return None
+
+    def tangents_at(self, times: npt.ArrayLike) -> np.ndarray | None:
+        """(F, V, 3) float32 rest tangent directions at ``times`` (not normalized), or None when
+        the tangents do not change."""
         return None
 
 

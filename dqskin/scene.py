@@ -49,12 +49,15 @@ class Mesh:
     normals : (N, 3) float32 or None
         Rest normals in mesh space; ``normal_vertex`` (N,) int32 maps each to its vertex when
         they are face-varying (None when per-vertex).
+    tangents : (V, 4) float32 or None
+        Rest tangents in mesh space, per vertex: direction ``(x, y, z)`` and handedness ``w``
+        (±1, glTF's bitangent sign).
     output_transforms : dqskin.animation.TransformTrack or None
         Skeleton space → the space results are reported in (USD: the prim's local space; glTF:
         world), keyed over time. Identity when None.
     deformer : dqskin.animation.Deformer or None
-        Rest points (and normals) changing over time before skinning: blend shapes,
-        time-sampled points.
+        Rest points (and normals, tangents) changing over time before skinning: blend shapes,
+        glTF morph targets, time-sampled points.
     face_vertex_counts, face_vertex_indices : int32 arrays or None
         Original polygon topology (kept by writers).
     uvs : (U, 2) float32 or None
@@ -78,12 +81,13 @@ class Mesh:
     face_vertex_indices: np.ndarray | None = None
     uvs: np.ndarray | None = None
     blend_weights: np.ndarray | None = None
+    tangents: np.ndarray | None = None
 
     def __post_init__(self):
         # read-only arrays: a Skinner uploaded from them stays valid (replace a mesh, then call
         # Scene.invalidate, to change one)
         for name in ("points", "faces", "joint_indices", "joint_weights", "normals",
-                     "blend_weights"):
+                     "blend_weights", "tangents"):
             a = getattr(self, name)
             if isinstance(a, np.ndarray):
                 a = a.view()  # the caller's array stays writable
@@ -194,7 +198,7 @@ class Scene:
     def skin(self, times: npt.ArrayLike | None = None, method: Method | None = None, *,
              device: Device = None, normals: bool = False, velocities: bool = False,
              interp: Interpolation = "trs", space: Literal["output", "skeleton"] = "output",
-             blend_shapes: bool = True) -> "SkinnedFrames":
+             blend_shapes: bool = True, tangents: bool = False) -> "SkinnedFrames":
         """Skin every mesh at ``times``: the one per-mesh loop of the engine.
 
         Parameters
@@ -215,8 +219,11 @@ class Scene:
             "output": each mesh's output space (``output_transforms``: USD prim space, glTF
             world); "skeleton": skeleton (bind) space.
         blend_shapes : bool
-            Apply each mesh's ``deformer`` (blend shapes, animated points); False skins the bind
-            points, isolating skinning.
+            Apply each mesh's ``deformer`` (blend shapes, glTF morph targets, animated points);
+            False skins the bind points, isolating skinning.
+        tangents : bool
+            Also skin the rest tangents (meshes with ``tangents``; directions only, the
+            handedness stays ``mesh.tangents[:, 3]``).
 
         Returns
         -------
@@ -252,6 +259,11 @@ class Scene:
                 result.normals[m.name] = sk.skin_vectors(xforms[s], rn, meth, kind="normal",
                                                          vector_vertex=m.normal_vertex,
                                                          output_transforms=out)
+            if tangents and m.tangents is not None:
+                rt = None if deformer is None else deformer.tangents_at(t)
+                rt = m.tangents[:, :3] if rt is None else rt
+                result.tangents[m.name] = sk.skin_vectors(xforms[s], rt, meth, kind="tangent",
+                                                          output_transforms=out)
             if velocities:
                 result.velocities[m.name] = self._velocities(sk, t, meth, xforms[s], rates[s],
                                                              rest, deformer, out, rate)
@@ -304,9 +316,12 @@ class SkinnedFrames:
         Unit normals (meshes with normals, when asked).
     velocities : dict name → (F, V, 3) float32
         Length units per second (when asked).
+    tangents : dict name → (F, V, 3) float32
+        Unit tangent directions (meshes with tangents, when asked).
     """
 
     times: np.ndarray
     points: dict = field(default_factory=dict)
     normals: dict = field(default_factory=dict)
     velocities: dict = field(default_factory=dict)
+    tangents: dict = field(default_factory=dict)

@@ -10,8 +10,15 @@ transform is ignored, and ::
 Each skin becomes a :class:`~dqskin.skeleton.Skeleton` over its joints plus every ancestor node
 (the scene-graph path up to the root, ordered parents first), with ``bind = inverse(IBM)`` for the
 joints and the rest world transform for the added ancestors (no vertex references them), so
-``Skeleton.skinning_transforms`` is exactly the glTF joint matrix. Morph targets and ``weights``
-channels are ignored (meshes keep their base shape).
+``Skeleton.skinning_transforms`` is exactly the glTF joint matrix.
+
+Morph targets (POSITION, NORMAL, TANGENT) are applied before skinning, as glTF 2.0 §3.7.2.2 says,
+by a :class:`GltfMorph` deformer per primitive (``Mesh.deformer``, used by
+:meth:`~dqskin.scene.Scene.skin` like USD blend shapes): the clip's ``weights`` channel on the
+node (LINEAR, STEP or CUBICSPLINE), else the node's or the mesh's default ``weights``. A mesh node
+with morph targets but no skin is loaded too, as a skeleton of its own: the node and its
+ancestors, every vertex bound to the node with an identity inverse bind matrix, so its points
+follow the node's animated world transform as a glTF viewer draws them.
 
 Files are untrusted input. Before anything is read, the GLB container is checked chunk by chunk,
 every JSON member the loader uses is type-checked against the glTF 2.0 schema (references
@@ -37,11 +44,11 @@ import numpy as np
 import pygltflib
 
 from .. import quat
-from ..animation import Animation
+from ..animation import Animation, Deformer, check_times
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
 
-__all__ = ["SUFFIXES", "GltfAnimation", "load", "load_gltf"]
+__all__ = ["SUFFIXES", "GltfAnimation", "GltfMorph", "load", "load_gltf"]
 
 SUFFIXES = (".gltf", ".glb")
 """glTF files :func:`load` reads."""
@@ -64,7 +71,10 @@ _ACCESSOR_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MA
 _MAX_ZERO_COMPONENTS = 1 << 24
 """Components an accessor without a bufferView (all zeros) may ask this loader to allocate."""
 _GLB_JSON, _GLB_BIN = 0x4E4F534A, 0x004E4942
-_READ_ATTRIBUTES = re.compile(r"POSITION|NORMAL|TEXCOORD_0|(JOINTS|WEIGHTS)_[0-9]+")
+_READ_ATTRIBUTES = re.compile(r"POSITION|NORMAL|TANGENT|TEXCOORD_0|(JOINTS|WEIGHTS)_[0-9]+")
+_MORPH_ATTRIBUTES = ("POSITION", "NORMAL", "TANGENT")
+"""Morph-target attributes glTF 2.0 defines (others, e.g. TEXCOORD_n of extensions, are ignored)."""
+_WEIGHT_COMPONENTS = (5126, 5120, 5121, 5122, 5123)  # float, or normalized integers
 
 
 def _trs_matrices(t, r, s):
@@ -127,6 +137,34 @@ def _sample(times, keys, values, interpolation, rotation):
     return p
 
 
+def _sample_rate(times, keys, values, interpolation):
+    """Time derivative of :func:`_sample` (not for rotations): (F, n) float64.
+
+    LINEAR: the slope of the key interval; CUBICSPLINE: the Hermite polynomial's derivative; STEP:
+    zero. At a key the mean of the two sides (one-sided at the first and last key: the clamped
+    side is constant); zero outside the key range or with a single key.
+    """
+    cubic = interpolation == "CUBICSPLINE"
+    v = values[1::3] if cubic else values
+    n = keys.shape[0]
+    out = np.zeros((times.shape[0], v.shape[1]))
+    if interpolation == "STEP" or n == 1:
+        return out
+    for side in ("left", "right"):  # away from keys both sides pick the same interval
+        i = np.clip(np.searchsorted(keys, times, side=side) - 1, 0, n - 2)
+        dt = (keys[i + 1] - keys[i])[:, None]
+        if not cubic:
+            out += 0.5 * (v[i + 1] - v[i]) / dt
+            continue
+        a, b = values[0::3], values[2::3]
+        u = np.clip((times[:, None] - keys[i][:, None]) / dt, 0.0, 1.0)
+        u2 = u * u
+        out += 0.5 * ((6 * u2 - 6 * u) * v[i] / dt + (3 * u2 - 4 * u + 1) * b[i]
+                      + (6 * u - 6 * u2) * v[i + 1] / dt + (3 * u2 - 2 * u) * a[i + 1])
+    out[(times < keys[0]) | (times > keys[-1])] = 0.0
+    return out
+
+
 class GltfAnimation(Animation):
     """One glTF animation clip driving the nodes of one skeleton.
 
@@ -171,6 +209,95 @@ class GltfAnimation(Animation):
         for joint, matrix in self._matrix_nodes.items():
             m[:, joint] = matrix
         return m
+
+
+class GltfMorph(Deformer):
+    """The morph targets of one glTF primitive, applied before skinning (glTF 2.0 §3.7.2.2)::
+
+        points(t)   = POSITION + Σᵢ wᵢ(t) · targets[i].POSITION
+        normals(t)  = NORMAL   + Σᵢ wᵢ(t) · targets[i].NORMAL     (renormalized by the skinner)
+        tangents(t) = TANGENT.xyz + Σᵢ wᵢ(t) · targets[i].TANGENT (TANGENT.w, the handedness, kept)
+
+    ``w(t)`` is the clip's ``weights`` channel on the mesh's node, sampled as glTF says (LINEAR,
+    STEP, CUBICSPLINE; clamped outside its keys), or the default weights (the node's
+    ``weights``, else the mesh's, else zeros) when the clip does not animate them. Velocities are
+    exact: ``Σᵢ ẇᵢ(t) · targets[i].POSITION`` with the sampler's own derivative.
+
+    Parameters
+    ----------
+    points : (V, 3) float32
+        Base POSITION, mesh space.
+    normals : (V, 3) float32 or None
+    tangents : (V, 4) float32 or None
+        Base TANGENT ``(x, y, z, w)``.
+    offsets : dict str → (T, V, 3) float64
+        Per attribute ("POSITION", "NORMAL", "TANGENT") the offsets of the T targets (zeros
+        where a target lacks the attribute); attributes no target has are absent.
+    default_weights : (T,) float64
+    channel : (keys (K,), values (K or 3K, T), interpolation) or None
+        The ``weights`` sampler; CUBICSPLINE values are (in-tangent, value, out-tangent) per key.
+
+    Attributes
+    ----------
+    target_count : int
+    """
+
+    def __init__(self, points, normals, tangents, offsets, default_weights, channel=None):
+        self.points = np.asarray(points, dtype=np.float32)
+        self.normals = normals
+        self.tangents = tangents
+        self.offsets = offsets
+        self.default_weights = np.asarray(default_weights, dtype=np.float64)
+        self.channel = channel
+        self.target_count = self.default_weights.shape[0]
+
+    def weights(self, times):
+        """(F, T) float64 morph weights at ``times`` (seconds)."""
+        t = check_times(times)
+        if self.channel is None:
+            return np.broadcast_to(self.default_weights, (t.shape[0], self.target_count))
+        keys, values, interpolation = self.channel
+        return _sample(t, keys, values, interpolation, rotation=False)
+
+    def weight_rates(self, times):
+        """(F, T) float64 ``d weights / dt`` per second (see :func:`_sample_rate`)."""
+        t = check_times(times)
+        if self.channel is None:
+            return np.zeros((t.shape[0], self.target_count))
+        return _sample_rate(t, *self.channel)
+
+    def _morph(self, base, attribute, weights):
+        """(F, V, 3) float32 ``base + Σ wᵢ·offsetᵢ`` of one attribute."""
+        out = np.broadcast_to(np.asarray(base, np.float64), (weights.shape[0],) + base.shape)
+        offsets = self.offsets.get(attribute)
+        if offsets is not None:
+            out = out + np.einsum("ft,tvc->fvc", weights, offsets)
+        return out.astype(np.float32)
+
+    def points_at(self, times):
+        """(F, V, 3) float32 morphed points, mesh space."""
+        return self._morph(self.points, "POSITION", self.weights(times))
+
+    def point_velocities_at(self, times):
+        """(F, V, 3) float64 ``d points / dt`` per second."""
+        rates = self.weight_rates(times)
+        offsets = self.offsets.get("POSITION")
+        if offsets is None:
+            return np.zeros((rates.shape[0],) + self.points.shape)
+        return np.einsum("ft,tvc->fvc", rates, offsets)
+
+    def normals_at(self, times):
+        """(F, V, 3) float32 morphed normals (not normalized), or None without NORMAL targets."""
+        if self.normals is None or "NORMAL" not in self.offsets:
+            return None
+        return self._morph(self.normals, "NORMAL", self.weights(times))
+
+    def tangents_at(self, times):
+        """(F, V, 3) float32 morphed tangent directions (not normalized), or None without TANGENT
+        targets."""
+        if self.tangents is None or "TANGENT" not in self.offsets:
+            return None
+        return self._morph(self.tangents[:, :3], "TANGENT", self.weights(times))
 
 
 # -- validation of untrusted files ---------------------------------------------------------------
@@ -242,11 +369,12 @@ def _boolean(value, field, sizes):
     return value
 
 
-def _numbers(n):
-    """Check: an array of ``n`` finite numbers, returned as floats."""
+def _numbers(n=None):
+    """Check: an array of ``n`` (any number when None) finite numbers, returned as floats."""
     def check(value, field, sizes):
-        if not isinstance(value, list) or len(value) != n:
-            raise _Invalid(f"{field}: expected an array of {n} numbers, got {_shown(value)}")
+        if not isinstance(value, list) or (n is not None and len(value) != n):
+            raise _Invalid(f"{field}: expected an array of {'' if n is None else f'{n} '}numbers, "
+                           f"got {_shown(value)}")
         out = []
         for k, x in enumerate(value):
             try:
@@ -290,15 +418,25 @@ def _attributes(value, field, sizes):
     return {name: index for name, index in checked.items() if _READ_ATTRIBUTES.fullmatch(name)}
 
 
+def _target(value, field, sizes):
+    """Check a morph target (attribute → accessor index); keep POSITION, NORMAL, TANGENT."""
+    if not isinstance(value, dict):
+        raise _Invalid(f"{field}: expected an object, got {_shown(value)}")
+    accessor = _ref("accessors")
+    checked = {name: accessor(index, f"{field}.{name}", sizes) for name, index in value.items()}
+    return {name: index for name, index in checked.items() if name in _MORPH_ATTRIBUTES}
+
+
 _SIZE, _POSITIVE = _integer(0), _integer(1)
 _SKIN = _object({"joints": _array(_ref("nodes")), "inverseBindMatrices": _ref("accessors"),
                  "name": _string}, required=("joints",))
 _NODE = _object({"children": _array(_ref("nodes")), "mesh": _ref("meshes"), "skin": _ref("skins"),
                  "matrix": _numbers(16), "translation": _numbers(3), "rotation": _numbers(4),
-                 "scale": _numbers(3), "name": _string})
-_PRIMITIVE = _object({"attributes": _attributes, "indices": _ref("accessors"), "mode": _SIZE},
-                     required=("attributes",))
-_MESH = _object({"primitives": _array(_PRIMITIVE), "name": _string}, required=("primitives",))
+                 "scale": _numbers(3), "weights": _numbers(), "name": _string})
+_PRIMITIVE = _object({"attributes": _attributes, "indices": _ref("accessors"), "mode": _SIZE,
+                      "targets": _array(_target)}, required=("attributes",))
+_MESH = _object({"primitives": _array(_PRIMITIVE), "weights": _numbers(), "name": _string},
+                required=("primitives",))
 _SPARSE = _object({
     "count": _POSITIVE,
     "indices": _object({"bufferView": _ref("bufferViews"), "byteOffset": _SIZE,
@@ -522,6 +660,7 @@ class _Reader:
         except _Invalid as e:
             raise self.error(str(e)) from None
         self.doc = self._document(checked, blob)
+        self.checked = checked  # the members pygltflib drops (node weights) are read from here
         version = self.doc.asset.version
         if not version.startswith("2."):
             raise self.error(f"asset.version {version!r}: only glTF 2.x is supported")
@@ -762,6 +901,13 @@ class _Reader:
                 raise self.error(f"{where}.inverseBindMatrices: {a.shape[0]} matrices for "
                                  f"{len(joints)} joints")
             ibm = a.reshape(-1, 4, 4).transpose(0, 2, 1)  # column-major in glTF
+        return self.node_skeleton(joints, ibm, where, skin.name or f"skin{skin_index}", clip)
+
+    def node_skeleton(self, joints, ibm, where, name, clip):
+        """Skeleton over the nodes ``joints`` (binds ``inverse(ibm)``) and their ancestors, and
+        the map joint slot → skeleton joint index (see :meth:`skeleton`). An unskinned mesh node
+        is ``joints=[node]`` with ``ibm`` identity: its points then follow the node's world
+        transform, as glTF renders a mesh without a skin."""
         members = set()
         for j in joints:
             while j >= 0 and j not in members:
@@ -797,7 +943,7 @@ class _Reader:
         repeated = Counter(names)  # glTF allows repeated node names; joint names are unique
         names = [m if repeated[m] == 1 else f"{m}#{n}" for m, n in zip(names, order)]
         try:
-            skel = Skeleton(names, parents, bind, local, name=skin.name or f"skin{skin_index}",
+            skel = Skeleton(names, parents, bind, local, name=name,
                             animation=None if clip is None else self.animation(order, *clip))
         except ValueError as e:  # what Skeleton rejects (singular binds, float32 overflow)
             raise self.error(f"{where}: {e}") from None
@@ -813,7 +959,9 @@ class _Reader:
     # -- meshes --------------------------------------------------------------------------------
 
     def primitive(self, mesh_index, prim_index, skin_index, slot_to_joint):
-        """(points, faces, joint_indices, joint_weights, normals, uvs) of one primitive."""
+        """:class:`Mesh` fields of one primitive: points, faces, joint_indices, joint_weights,
+        normals, tangents, uvs. ``skin_index`` None: an unskinned mesh, every vertex bound to
+        the single joint ``slot_to_joint[0]`` (JOINTS_n/WEIGHTS_n not read)."""
         prim = self.doc.meshes[mesh_index].primitives[prim_index]
         where = f"mesh {mesh_index} primitive {prim_index}"
         attrs = prim.attributes
@@ -832,8 +980,8 @@ class _Reader:
                 raise self.error(f"{where} {name}: {a.shape[0]} elements for {V} POSITION vertices")
             return a
 
-        sets = []
-        while True:
+        sets = [] if skin_index is not None else [(np.zeros((V, 1), np.int64), np.ones((V, 1)))]
+        while skin_index is not None:
             n = len(sets)
             joints = attribute(f"JOINTS_{n}", ("VEC4",), _INTEGERS, as_float=False)
             weights = attribute(f"WEIGHTS_{n}", ("VEC4",), _FLOAT_OR_NORMALIZED)
@@ -860,11 +1008,58 @@ class _Reader:
 
         faces = self.faces(prim, where, V)
         normals = attribute("NORMAL", ("VEC3",), (5126, 5120, 5122))
+        tangents = attribute("TANGENT", ("VEC4",), (5126, 5120, 5122))
         uvs = attribute("TEXCOORD_0", ("VEC2",), (5126, 5121, 5123, 5120, 5122))
-        return (points.astype(np.float32), faces, slot_to_joint[joints],
-                weights.astype(np.float32),
-                None if normals is None else normals.astype(np.float32),
-                None if uvs is None else uvs.astype(np.float32))
+        return dict(points=points.astype(np.float32), faces=faces,
+                    joint_indices=slot_to_joint[joints].astype(np.int32),
+                    joint_weights=weights.astype(np.float32),
+                    normals=None if normals is None else normals.astype(np.float32),
+                    tangents=None if tangents is None else tangents.astype(np.float32),
+                    uvs=None if uvs is None else uvs.astype(np.float32))
+
+    # -- morph targets -------------------------------------------------------------------------
+
+    def target_count(self, mesh_index):
+        """Number of morph targets of ``meshes[mesh_index]`` (the same in every primitive)."""
+        prims = self.checked["meshes"][mesh_index]["primitives"]
+        counts = sorted({len(p.get("targets", ())) for p in prims})
+        if len(counts) > 1:
+            raise self.error(f"meshes[{mesh_index}].primitives: {counts} morph targets; glTF "
+                             "requires the same number in every primitive")
+        return counts[0] if counts else 0
+
+    def default_weights(self, node_index, mesh_index, count):
+        """(T,) float64 morph weights without animation: the node's, else the mesh's, else 0."""
+        for field, obj in ((f"nodes[{node_index}].weights", self.checked["nodes"][node_index]),
+                           (f"meshes[{mesh_index}].weights", self.checked["meshes"][mesh_index])):
+            w = obj.get("weights")
+            if w is not None:
+                if len(w) != count:
+                    raise self.error(f"{field}: {len(w)} weights for {count} morph targets")
+                return np.asarray(w, dtype=np.float64)
+        return np.zeros(count)
+
+    def morph_offsets(self, mesh_index, prim_index, vertex_count):
+        """{attribute: (T, V, 3) float64 offsets} of one primitive's morph targets, for the
+        attributes (POSITION, NORMAL, TANGENT) some target has; zeros where a target lacks it."""
+        targets = self.checked["meshes"][mesh_index]["primitives"][prim_index].get("targets", [])
+        where = f"mesh {mesh_index} primitive {prim_index}"
+        out = {}
+        for name in _MORPH_ATTRIBUTES:
+            if not any(name in t for t in targets):
+                continue
+            offsets = np.zeros((len(targets), vertex_count, 3))
+            for k, target in enumerate(targets):
+                if name not in target:
+                    continue
+                a = self.accessor(target[name], f"{where} targets[{k}].{name}", ("VEC3",),
+                                  (5126, 5120, 5122))
+                if a.shape[0] != vertex_count:
+                    raise self.error(f"{where} targets[{k}].{name}: {a.shape[0]} elements for "
+                                     f"{vertex_count} POSITION vertices")
+                offsets[k] = a
+            out[name] = offsets
+        return out
 
     def faces(self, prim, where, vertex_count):
         mode = 4 if prim.mode is None else prim.mode
@@ -907,35 +1102,46 @@ class _Reader:
         raise self.error(f"no animation clip {clip!r}; available clips: {names}")
 
     def channels(self, anim_index):
-        """TRS channels [(node, path, keys, values, interpolation)] and the clip's key times.
+        """TRS channels [(node, path, keys, values, interpolation)], the clip's key times and its
+        morph-weight channels {node: (keys, values (K or 3K, T), interpolation)}.
 
-        Rotation values are ``(w, x, y, z)``; ``weights`` (morph) channels only add key times.
+        Rotation values are ``(w, x, y, z)``; channels of other paths only add key times.
         """
         anim = self.doc.animations[anim_index]
         where = f"animations[{anim_index}]"
-        cache, out, times = {}, [], []
+        cache, out, times, weights = {}, [], [], {}
         for c, ch in enumerate(anim.channels):
             target = ch.target
             if target is None or target.node is None:
                 continue  # extension targets (KHR_animation_pointer)
             node = target.node
             self.item("node", self.doc.nodes, node, f"{where}.channels[{c}].target")
-            path = target.path if target.path in _PATH_SIZES else None  # morph weights: keys only
-            if path is not None and self.doc.nodes[node].matrix is not None:
+            path = target.path if target.path in _PATH_SIZES or target.path == "weights" else None
+            if path in _PATH_SIZES and self.doc.nodes[node].matrix is not None:
                 raise self.error(f"{where}.channels[{c}]: animates node {node}, which has a matrix "
                                  "(glTF requires TRS on animated nodes)")
-            key = (ch.sampler, path)
+            count = 0
+            if path == "weights":
+                mesh = self.doc.nodes[node].mesh
+                count = 0 if mesh is None else self.target_count(mesh)
+                if count == 0:
+                    raise self.error(f"{where}.channels[{c}]: animates the morph weights of "
+                                     f"nodes[{node}], which has no mesh with morph targets")
+            key = (ch.sampler, path, count)
             if key not in cache:
-                cache[key] = self.sampler(anim_index, ch.sampler, path)
+                cache[key] = self.sampler(anim_index, ch.sampler, path, count)
             keys, values, interpolation = cache[key]
             times.append(keys)
-            if path is not None:
+            if path == "weights":
+                weights[node] = (keys, values, interpolation)
+            elif path is not None:
                 out.append((node, path, keys, values, interpolation))
         key_times = np.unique(np.concatenate(times)) if times else np.zeros(1)
-        return out, key_times
+        return out, key_times, weights
 
-    def sampler(self, anim_index, sampler_index, path):
-        """(keys (K,), values or None when ``path`` is None, interpolation) of one sampler."""
+    def sampler(self, anim_index, sampler_index, path, targets=0):
+        """(keys (K,), values or None when ``path`` is None, interpolation) of one sampler;
+        ``"weights"`` values are (K or 3K, ``targets``)."""
         anim = self.doc.animations[anim_index]
         sam = self.item("sampler", anim.samplers, sampler_index, f"animations[{anim_index}]")
         where = f"animations[{anim_index}].samplers[{sampler_index}]"
@@ -950,11 +1156,18 @@ class _Reader:
             raise self.error(f"{where}.input: key times are not strictly increasing")
         if path is None:
             return keys, None, interpolation
+        per_key = 3 if interpolation == "CUBICSPLINE" else 1
+        if path == "weights":
+            values = self.accessor(sam.output, f"{where}.output", ("SCALAR",), _WEIGHT_COMPONENTS)
+            if values.shape[0] != per_key * keys.size * targets:
+                raise self.error(f"{where}.output: {values.shape[0]} values for {keys.size} "
+                                 f"{interpolation} keys of {targets} morph weights (expected "
+                                 f"{per_key * keys.size * targets})")
+            return keys, values.reshape(-1, targets), interpolation
         n = _PATH_SIZES[path]
         types = ("VEC4",) if n == 4 else ("VEC3",)
         components = (5126, 5120, 5121, 5122, 5123) if n == 4 else (5126,)
         values = self.accessor(sam.output, f"{where}.output", types, components)
-        per_key = 3 if interpolation == "CUBICSPLINE" else 1
         if values.shape[0] != per_key * keys.size:
             raise self.error(f"{where}.output: {values.shape[0]} values for {keys.size} "
                              f"{interpolation} keys (expected {per_key * keys.size})")
@@ -989,11 +1202,15 @@ def load_gltf(path, *, clip=None):
         named after the nodes (``"node{i}"`` when unnamed; ``"#{i}"`` appended to names repeated
         within the skeleton);
         ``animations[i]`` a :class:`GltfAnimation` of the clip (None without animations).
-        One :class:`~dqskin.scene.Mesh` per primitive of every node with a mesh and a skin,
-        named after the node (``"node{i}"`` when unnamed; ``"#{i}"`` appended to repeated
-        names), ``"{name}/primitive{k}"`` when the mesh has several primitives. Mesh points,
-        normals and uvs (TEXCOORD_0, glTF's top-left origin) as stored, float32; results of
-        :meth:`Scene.skin` are world space (``output_transforms`` None, geom-bind identity).
+        Then, for every unskinned node whose mesh has morph targets, one more skeleton: the
+        node and its ancestors, named after the node, binding the node with an identity matrix.
+        One :class:`~dqskin.scene.Mesh` per primitive of every node with a mesh and a skin or
+        morph targets, named after the node (``"node{i}"`` when unnamed; ``"#{i}"`` appended to
+        repeated names), ``"{name}/primitive{k}"`` when the mesh has several primitives. Mesh
+        points, normals, tangents (TANGENT, ``(x, y, z, w)``) and uvs (TEXCOORD_0, glTF's
+        top-left origin) as stored, float32 (the base shape: morph targets are the mesh's
+        ``deformer``, a :class:`GltfMorph`); results of :meth:`Scene.skin` are world space
+        (``output_transforms`` None, geom-bind identity).
         Weights: JOINTS_n/WEIGHTS_n sets concatenated (K = 4·sets), normalized integers
         dequantized, each row divided by its sum; an all-zero row gets weight 1 on its first
         influence (as three.js). ``times`` are the clip's key times in seconds (``[0.]``
@@ -1006,8 +1223,11 @@ def load_gltf(path, *, clip=None):
         unreadable, corrupt GLB container or JSON, not glTF 2.x; a member of the wrong type,
         missing or out of range; accessor data misaligned, overlapping (byteStride smaller than
         an element) or past its bufferView or buffer; a buffer URI outside the asset's folder or
-        unreadable; no skinned mesh; joint index out of range; negative or NaN weights; accessor
-        count mismatch; non-triangle primitives; unknown clip (the message lists the clips).
+        unreadable; no skinned or morphing mesh; joint index out of range; negative or NaN
+        weights; accessor count mismatch (morph targets included); primitives of one mesh with
+        different numbers of morph targets; default or animated morph weights not one per target;
+        a ``weights`` channel on a node without morph targets; non-triangle primitives; unknown
+        clip (the message lists the clips).
     """
     with np.errstate(all="ignore"):  # overflow is checked where it matters, as ValueError
         return _load(path, clip)
@@ -1017,13 +1237,16 @@ def _load(path, clip):
     """:func:`load_gltf` without its floating-point error state."""
     r = _Reader(path)
     doc = r.doc
-    if not doc.skins:
-        raise r.error("no skin (skins is empty)")
-    skinned = [i for i, n in enumerate(doc.nodes) if n.mesh is not None and n.skin is not None]
-    if not skinned:
-        raise r.error("no skinned mesh (no node has both mesh and skin)")
+    targets = [r.target_count(m) for m in range(len(doc.meshes))]
+    loaded = [i for i, n in enumerate(doc.nodes)
+              if n.mesh is not None and (n.skin is not None or targets[n.mesh])]
+    if not loaded:
+        raise r.error("no skinned mesh (no node has both mesh and skin) and no mesh with morph "
+                      "targets")
     clip_index = r.choose_clip(clip)
-    channels = None if clip_index is None else r.channels(clip_index)
+    channels = weight_channels = None
+    if clip_index is not None:
+        *channels, weight_channels = r.channels(clip_index)
 
     skeletons, slot_maps = [], []
     for s in range(len(doc.skins)):
@@ -1032,24 +1255,35 @@ def _load(path, clip):
         slot_maps.append(slots)
 
     meshes = []
-    base_names = [r.node_name(i) for i in skinned]
+    base_names = [r.node_name(i) for i in loaded]
     repeated = Counter(base_names)
-    for node_index, base in zip(skinned, base_names):
+    for node_index, base in zip(loaded, base_names):
         node = doc.nodes[node_index]
-        r.item("mesh", doc.meshes, node.mesh, f"nodes[{node_index}].mesh")
-        r.item("skin", doc.skins, node.skin, f"nodes[{node_index}].skin")
         name = base if repeated[base] == 1 else f"{base}#{node_index}"
+        skeleton = node.skin
+        if skeleton is None:  # unskinned morphing mesh: rigid on its node, a skeleton of its own
+            skel, _, slots = r.node_skeleton([node_index], np.eye(4)[None],
+                                             f"nodes[{node_index}]", name, channels)
+            skeleton = len(skeletons)
+            skeletons.append(skel)
+            slot_maps.append(slots)
         prims = doc.meshes[node.mesh].primitives
         if not prims:
             raise r.error(f"meshes[{node.mesh}].primitives: empty")
+        count = targets[node.mesh]
+        default = r.default_weights(node_index, node.mesh, count) if count else None
+        channel = (weight_channels or {}).get(node_index)
         for k in range(len(prims)):
-            points, faces, ji, jw, normals, uvs = r.primitive(node.mesh, k, node.skin,
-                                                              slot_maps[node.skin])
+            fields = r.primitive(node.mesh, k, node.skin, slot_maps[skeleton])
+            deformer = None
+            if count:
+                deformer = GltfMorph(fields["points"], fields["normals"], fields["tangents"],
+                                     r.morph_offsets(node.mesh, k, len(fields["points"])),
+                                     default, channel)
             try:
                 meshes.append(Mesh(name=name if len(prims) == 1 else f"{name}/primitive{k}",
-                                   points=points, faces=faces, joint_indices=ji.astype(np.int32),
-                                   joint_weights=jw, skeleton=node.skin, skinning_method="lbs",
-                                   normals=normals, uvs=uvs))
+                                   skeleton=skeleton, skinning_method="lbs", deformer=deformer,
+                                   **fields))
             except ValueError as e:
                 raise r.error(f"mesh {node.mesh} primitive {k}: {e}") from None
 
