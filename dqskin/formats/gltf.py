@@ -266,13 +266,23 @@ class GltfMorph(Deformer):
             return np.zeros((t.shape[0], self.target_count))
         return _sample_rate(t, *self.channel)
 
+    def _combine(self, weights, attribute):
+        """(F, V, 3) float64 ``Σ wᵢ·offsetᵢ`` of one attribute (one matrix product over the
+        targets whose weight is not zero at every time), or None when nothing moves."""
+        offsets = self.offsets.get(attribute)
+        if offsets is None:
+            return None
+        used = np.nonzero(np.any(weights != 0, axis=0))[0]
+        if used.size == 0:
+            return None
+        flat = offsets[used].reshape(used.size, -1)
+        return (weights[:, used] @ flat).reshape((weights.shape[0],) + offsets.shape[1:])
+
     def _morph(self, base, attribute, weights):
         """(F, V, 3) float32 ``base + Σ wᵢ·offsetᵢ`` of one attribute."""
         out = np.broadcast_to(np.asarray(base, np.float64), (weights.shape[0],) + base.shape)
-        offsets = self.offsets.get(attribute)
-        if offsets is not None:
-            out = out + np.einsum("ft,tvc->fvc", weights, offsets)
-        return out.astype(np.float32)
+        delta = self._combine(weights, attribute)
+        return (out if delta is None else out + delta).astype(np.float32)
 
     def points_at(self, times):
         """(F, V, 3) float32 morphed points, mesh space."""
@@ -281,10 +291,8 @@ class GltfMorph(Deformer):
     def point_velocities_at(self, times):
         """(F, V, 3) float64 ``d points / dt`` per second."""
         rates = self.weight_rates(times)
-        offsets = self.offsets.get("POSITION")
-        if offsets is None:
-            return np.zeros((rates.shape[0],) + self.points.shape)
-        return np.einsum("ft,tvc->fvc", rates, offsets)
+        delta = self._combine(rates, "POSITION")
+        return np.zeros((rates.shape[0],) + self.points.shape) if delta is None else delta
 
     def normals_at(self, times):
         """(F, V, 3) float32 morphed normals (not normalized), or None without NORMAL targets."""
