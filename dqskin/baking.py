@@ -18,7 +18,7 @@ from .animation import Interpolation
 from .formats import format_of, gltf, mesh_files, npz, usd, usd_cache
 from .formats.atomic import atomic_path, check_interrupted, check_parent
 from .scene import Scene
-from .skinning import Method
+from .skinning import Method, SignReference
 from .validation import check_skinned
 
 __all__ = ["OUTPUT_SUFFIXES", "bake", "check_output", "output_kind"]
@@ -62,7 +62,7 @@ def _plural(n, word, plural=None):
 def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
          method: Method | None = None, interp: Interpolation = "trs", device: Device = None,
          chunk: int = 256, normals: bool = True, velocities: bool = True, force: bool = False,
-         progress: bool = False) -> str:
+         progress: bool = False, sign_reference: SignReference = "largest_weight") -> str:
     """Skin ``scene`` at ``times`` and write ``out``.
 
     Every chunk's joint transforms are checked as they are sampled
@@ -83,12 +83,15 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
         UVs, see :mod:`dqskin.formats.mesh_files`). Per-frame files are committed together.
     times : (F,) float, optional
         Default ``scene.times``.
-    method : {"lbs", "dqs", "blend"} or None
+    method : {"lbs", "dqs", "blend", "cor"} or None
         None: each mesh's own.
     interp : str
         Joint interpolation (:data:`dqskin.animation.INTERPOLATIONS`).
     chunk : int
         Frames skinned at a time.
+    sign_reference : {"largest_weight", "running_sum"}
+        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`) for the skinned
+        meshes (not yet for rigidly bound prims, which keep the default).
     normals : bool
         Skin normals into USD caches and ``.obj/.ply/.glb`` files.
     velocities : bool
@@ -110,6 +113,7 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
         raise ValueError(f"--chunk {chunk}: must be at least 1")
     names = [m.name for m in scene.meshes]
     args = dict(method=method, device=device, interp=interp)
+    sign = dict(sign_reference=sign_reference)  # (the meshes only: rigid prims use the default)
     src = scene.path
     counts = f"{_plural(len(names), 'mesh', 'meshes')} × {_plural(len(t), 'frame')}"
     if kind == "usd":
@@ -120,7 +124,7 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
         wrote_velocities = False
         with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args) as writer:
             for sl, res in _chunks(scene, t, chunk, progress, normals=normals,
-                                   velocities=velocities, **args):
+                                   velocities=velocities, **args, **sign):
                 check_skinned(src, res)
                 writer.write(t[sl], res.points, res.normals, res.velocities)
                 wrote_velocities |= bool(res.velocities)
@@ -131,7 +135,7 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
         with atomic_path(out, overwrite=force) as tmp:  # claimed for the whole run
             pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32)
                    for m in scene.meshes}
-            for sl, res in _chunks(scene, t, chunk, progress, **args):
+            for sl, res in _chunks(scene, t, chunk, progress, **args, **sign):
                 check_skinned(src, res)
                 for name in names:
                     pts[name][sl] = res.points[name]
@@ -147,7 +151,8 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
         scene.meshes, suffix, normals=normals, uv_top_left=gltf_input,
         uv_interpolation=None if gltf_input else _usd_uv_interpolation(src))
     with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=force) as writer:
-        for sl, res in _chunks(scene, t, chunk, progress, normals=layout.normals, **args):
+        for sl, res in _chunks(scene, t, chunk, progress, normals=layout.normals, **args,
+                               **sign):
             check_skinned(src, res)
             points, nrm = layout.frames(res.points, res.normals)
             writer.write(numbers[sl], points, nrm)

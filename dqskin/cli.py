@@ -143,7 +143,8 @@ def cmd_skin(args):
                          args.substeps, max_frames=args.max_frames)
     print(bake(scene, args.out, times, method=args.method, interp=args.interp,
                device=args.device, chunk=args.chunk, normals=args.normals,
-               velocities=args.velocities, force=args.force, progress=True))
+               velocities=args.velocities, force=args.force, progress=True,
+               sign_reference=args.sign_reference))
     return 0
 
 
@@ -240,12 +241,20 @@ def cmd_compare(args):
         views=[v.strip() for v in args.views.split(",") if v.strip()], device=args.device,
         width=args.width, supersample=args.supersample, progress=not args.quiet,
         force=args.force, sweeps_dir=None if args.no_sweeps else "default",
-        up_axis=args.up_axis, clip=_clip(args.clip), max_rays=args.max_rays)
+        up_axis=args.up_axis, clip=_clip(args.clip), max_rays=args.max_rays,
+        sign_reference=args.sign_reference)
     print(f"wrote {Path(args.out) / 'report.html'} ({len(result['frames'])} frames × "
           f"{len(result['methods'])} methods × {len(result['views'])} views, "
           f"{result['timing_s']['total']:.1f} s)")
     print("\n".join(summary_lines(result)))
     return 0
+
+
+def _add_sign_reference(parser):
+    from .skinning import SIGN_REFERENCES
+    parser.add_argument("--sign-reference", choices=SIGN_REFERENCES, default=SIGN_REFERENCES[0],
+                        help="DQS sign rule: largest_weight = UsdSkel's (default), running_sum = "
+                        "Blender's Preserve Volume")
 
 
 def _add_compare_arguments(parser):
@@ -275,6 +284,7 @@ def _add_compare_arguments(parser):
     parser.add_argument("--no-sweeps", action="store_true", help="leave out the twist/bend "
                         "sweeps on the procedural rigs")
     parser.add_argument("--clip", help="glTF animation name or index")
+    _add_sign_reference(parser)
     parser.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--force", action="store_true", help="overwrite an existing report")
@@ -300,7 +310,9 @@ def build_parser():
                    "pattern like out/frame_{:04d}.obj (.obj/.ply/.glb with normals and UVs, "
                    ".stl/.off geometry only; a name without {} for one frame only)")
     s.add_argument("--method", choices=list(METHODS), default=None,
-                   help="default: what the asset asks for (LBS for glTF)")
+                   help="default: what the asset asks for (LBS for glTF); cor = optimized "
+                   "centers of rotation (precomputed per mesh, cached in ~/.cache/dqskin)")
+    _add_sign_reference(s)
     s.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
                    "asset's time unit (USD time codes, glTF seconds)")
     s.add_argument("--fps", type=float, help="resample the clip at this many frames per second "

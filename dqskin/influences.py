@@ -74,13 +74,22 @@ class Influences:
         self.vertex_count, self.influence_count = idx.shape
         order = np.argsort(-wts, axis=1, kind="stable")
         self.order = order
-        idx, wts = np.take_along_axis(idx, order, 1), np.take_along_axis(wts, order, 1)
+        self._input = idx, wts
+        self.indices, self.weights = self._groups(np.take_along_axis(idx, order, 1),
+                                                  np.take_along_axis(wts, order, 1))
+        self.joint_count_min = int(idx.max()) + 1 if idx.size else 0
+
+    @property
+    def given(self):
+        """``(indices (V, K) int64, weights (V, K) float32)`` as given (validated, unsorted)."""
+        return self._input
+
+    def _groups(self, idx, wts):
         groups = max(1, -(-idx.shape[1] // 4))  # K = 0: one group of zero weights
         pad = 4 * groups - idx.shape[1]
         V = self.vertex_count
-        self.indices = np.pad(idx, ((0, 0), (0, pad))).astype(np.int32).reshape(V, groups, 4)
-        self.weights = np.pad(wts, ((0, 0), (0, pad))).reshape(V, groups, 4)
-        self.joint_count_min = int(idx.max()) + 1 if idx.size else 0
+        return (np.pad(idx, ((0, 0), (0, pad))).astype(np.int32).reshape(V, groups, 4),
+                np.pad(wts, ((0, 0), (0, pad))).reshape(V, groups, 4))
 
     def check_joint_count(self, joint_count):
         """ValueError when ``joint_count`` skinning transforms cannot cover the indices (the
@@ -91,7 +100,17 @@ class Influences:
         if joint_count == 0 and self.vertex_count:
             raise ValueError("skinning_transforms: no joints to skin the points with")
 
-    def upload(self, device):
-        """``{"indices": (V, C) wp.vec4i, "weights": (V, C) wp.vec4}`` on ``device``."""
-        return {"indices": wp.array(self.indices, dtype=wp.vec4i, device=device),
-                "weights": wp.array(self.weights, dtype=wp.vec4, device=device)}
+    def upload(self, device, order="weight"):
+        """``{"indices": (V, C) wp.vec4i, "weights": (V, C) wp.vec4}`` on ``device``.
+
+        ``order="weight"``: the sorted layout above; ``"input"``: the influences in the order they
+        were given, zero-padded the same way (for the running-sum sign rule, which depends on the
+        order)."""
+        if order == "weight":
+            idx, wts = self.indices, self.weights
+        elif order == "input":
+            idx, wts = self._groups(*self._input)
+        else:
+            raise ValueError(f'order must be "weight" or "input", got {order!r}')
+        return {"indices": wp.array(idx, dtype=wp.vec4i, device=device),
+                "weights": wp.array(wts, dtype=wp.vec4, device=device)}

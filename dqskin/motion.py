@@ -32,7 +32,7 @@ from .influences import check_influences
 from .linalg import vee
 from .shapes import as_real, frames_of
 from .skeleton import Skeleton, check_parents
-from .skinning import Method, Skinner
+from .skinning import Method, SignReference, Skinner
 
 __all__ = ["forward_kinematics_derivative", "joint_twists", "skinned_velocities",
            "skinning_transforms_with_derivative"]
@@ -158,8 +158,10 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
                        geom_bind_transform: npt.ArrayLike | None = None,
                        point_velocities: npt.ArrayLike | None = None,
                        blend_weights: npt.ArrayLike | None = None,
+                       faces: npt.ArrayLike | None = None,
+                       sign_reference: SignReference = "largest_weight",
                        device: Device = None) -> np.ndarray:
-    """Velocities of LBS- or DQS-skinned points, by the chain rule (Warp, one thread per vertex).
+    """Velocities of skinned points, by the chain rule (Warp, one thread per vertex).
 
     Same skinning semantics as :func:`dqskin.skin_points` (UsdSkel): weights used as given, DQS
     with sign alignment to the largest-weight influence and the residual (scale/shear) path
@@ -175,13 +177,17 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
         Bind-relative transforms ``A`` (world ∘ inverse bind), column-vector convention.
     skinning_transform_derivatives : same shape
         ``dA/dt``.
-    method : {"lbs", "dqs", "blend"}
+    method : {"lbs", "dqs", "blend", "cor"}
     geom_bind_transform : (4, 4) float, optional
         Mesh space → bind space (constant).
     point_velocities : (V, 3) or (F, V, 3) float, optional
         ``d points / dt`` in mesh space (e.g. from blend shapes); zero by default.
     blend_weights : (V,) float, optional
         DQS fraction per vertex, required for ``"blend"``.
+    faces : (T, 3) int, optional
+        Triangles, required for ``"cor"`` (centers from the first frame's points).
+    sign_reference : {"largest_weight", "running_sum"}
+        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
     device : str, optional
         Warp device.
 
@@ -199,6 +205,6 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
     idx, wts = check_influences(joint_indices, joint_weights, joint_count=x.shape[-3])
     pts, _ = frames_of("points", points, frames, idx.shape[0])
     sk = Skinner(pts[0], idx, wts, geom_bind_transform=geom_bind_transform,
-                 blend_weights=blend_weights, device=device)
+                 blend_weights=blend_weights, faces=faces, device=device)
     return sk.skin_velocities(x, x_dot, method, points=pts if pts.shape[0] > 1 else None,
-                              point_velocities=point_velocities)
+                              point_velocities=point_velocities, sign_reference=sign_reference)

@@ -17,7 +17,7 @@ from ._warp import Device, resolve_device
 from .animation import Deformer, Interpolation, TransformTrack, check_times, sample
 from .motion import skinning_transforms_with_derivative
 from .skeleton import Skeleton
-from .skinning import Method, Skinner
+from .skinning import Method, SignReference, Skinner
 from .validation import check_transforms
 
 __all__ = ["DEFAULT_BLEND", "Mesh", "Scene", "SkinnedFrames"]
@@ -160,7 +160,8 @@ class Scene:
         if sk is None:
             sk = Skinner(mesh.points, mesh.joint_indices, mesh.joint_weights,
                          geom_bind_transform=mesh.geom_bind_transform,
-                         blend_weights=mesh.blend_or_default(), device=device)
+                         blend_weights=mesh.blend_or_default(), faces=mesh.faces,
+                         device=device)
             self._skinners[key] = sk
         return sk
 
@@ -198,15 +199,17 @@ class Scene:
     def skin(self, times: npt.ArrayLike | None = None, method: Method | None = None, *,
              device: Device = None, normals: bool = False, velocities: bool = False,
              interp: Interpolation = "trs", space: Literal["output", "skeleton"] = "output",
-             blend_shapes: bool = True, tangents: bool = False) -> "SkinnedFrames":
+             blend_shapes: bool = True, tangents: bool = False,
+             sign_reference: SignReference = "largest_weight") -> "SkinnedFrames":
         """Skin every mesh at ``times``: the one per-mesh loop of the engine.
 
         Parameters
         ----------
         times : (F,) float, optional
             Scene time unit; default ``self.times``.
-        method : {"lbs", "dqs", "blend"} or None
-            None uses each mesh's own ``skinning_method``.
+        method : {"lbs", "dqs", "blend", "cor"} or None
+            None uses each mesh's own ``skinning_method``. "cor" computes each mesh's centers of
+            rotation from its faces on first use (:mod:`dqskin.cor`, cached on disk).
         normals : bool
             Also skin the rest normals (meshes without normals are left out of ``normals``).
         velocities : bool
@@ -224,6 +227,8 @@ class Scene:
         tangents : bool
             Also skin the rest tangents (meshes with ``tangents``; directions only, the
             handedness stays ``mesh.tangents[:, 3]``).
+        sign_reference : {"largest_weight", "running_sum"}
+            Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
 
         Returns
         -------
@@ -252,21 +257,23 @@ class Scene:
             out = rate = None
             if track is not None:
                 out, rate = track.with_derivative(t) if velocities else (track.at(t), None)
-            result.points[m.name] = sk.skin(xforms[s], meth, points=rest, output_transforms=out)
+            sign = {"sign_reference": sign_reference}
+            result.points[m.name] = sk.skin(xforms[s], meth, points=rest, output_transforms=out,
+                                            **sign)
             if normals and m.normals is not None:
                 rn = None if deformer is None else deformer.normals_at(t)
                 rn = m.normals if rn is None else rn
                 result.normals[m.name] = sk.skin_vectors(xforms[s], rn, meth, kind="normal",
                                                          vector_vertex=m.normal_vertex,
-                                                         output_transforms=out)
+                                                         output_transforms=out, **sign)
             if tangents and m.tangents is not None:
                 rt = None if deformer is None else deformer.tangents_at(t)
                 rt = m.tangents[:, :3] if rt is None else rt
                 result.tangents[m.name] = sk.skin_vectors(xforms[s], rt, meth, kind="tangent",
-                                                          output_transforms=out)
+                                                          output_transforms=out, **sign)
             if velocities:
                 result.velocities[m.name] = self._velocities(sk, t, meth, xforms[s], rates[s],
-                                                             rest, deformer, out, rate)
+                                                             rest, deformer, out, rate, sign)
         return result
 
     def skin_chunks(self, times: npt.ArrayLike, chunk: int,
@@ -289,17 +296,17 @@ class Scene:
                     fut = ex.submit(self.skin, t[slices[k + 1]], **skin_args)
                 yield sl, res
 
-    def _velocities(self, skinner, t, method, xforms, rates, rest, deformer, out, out_rate):
+    def _velocities(self, skinner, t, method, xforms, rates, rest, deformer, out, out_rate, sign):
         """(F, V, 3) float32 velocities per second of one mesh, the chain rule through every
         time-varying input: joints, the deformer's rest points, the output transform."""
         rest_dot = None if deformer is None else deformer.point_velocities_at(t)
         v = skinner.skin_velocities(xforms, rates, method, points=rest,
-                                    point_velocities=rest_dot).astype(np.float64)
+                                    point_velocities=rest_dot, **sign).astype(np.float64)
         if out is not None:
             o, o_dot = out, out_rate
             v = np.einsum("fij,fvj->fvi", o[:, :3, :3], v)
             if np.any(o_dot):
-                p = skinner.skin(xforms, method, points=rest)
+                p = skinner.skin(xforms, method, points=rest, **sign)
                 v += np.einsum("fij,fvj->fvi", o_dot[:, :3, :3], p) + o_dot[:, None, :3, 3]
         return (v * float(self.time_codes_per_second)).astype(np.float32)
 

@@ -15,6 +15,7 @@ import numpy.typing as npt
 import warp as wp
 
 from ._warp import Device, resolve_device
+from .cor import SIGMA, check_faces, rotation_centers
 from .influences import Influences
 from .kernels import skin as K
 from .kernels import velocity as KV
@@ -22,17 +23,34 @@ from .kernels.dqmath import mat34, vec8
 from .shapes import as_array, frames_of
 from .validation import check_transforms
 
-__all__ = ["METHODS", "Method", "Skinner", "VectorKind", "skin_points", "skin_normals"]
+__all__ = ["METHODS", "Method", "SIGN_REFERENCES", "SignReference", "Skinner", "VectorKind",
+           "skin_points", "skin_normals"]
 
-Method = Literal["lbs", "dqs", "blend"]
-"""Skinning methods: linear blend, dual quaternion, per-vertex blend of the two."""
+Method = Literal["lbs", "dqs", "blend", "cor"]
+"""Skinning methods: linear blend, dual quaternion, per-vertex blend of the two, optimized centers
+of rotation (:mod:`dqskin.cor`; needs the mesh's faces)."""
 
-METHODS = dict(zip(get_args(Method), (K.LBS, K.DQS, K.BLEND)))
+METHODS = dict(zip(get_args(Method), (K.LBS, K.DQS, K.BLEND, K.COR)))
 """Each :data:`Method` and its kernel code."""
+
+SignReference = Literal["largest_weight", "running_sum"]
+"""How DQS (and the rotation blends of "blend" and "cor") pick each joint quaternion's sign:
+against the vertex's largest-weight joint (UsdSkel; first on ties), or against the running sum of
+the blend so far, influences in their input order, a zero sum flipping nothing (Blender's
+Preserve Volume)."""
+
+SIGN_REFERENCES = get_args(SignReference)
 
 VectorKind = Literal["normal", "tangent"]
 """How directions transform: normals by the inverse transpose, tangents by the matrix."""
 
+
+
+def _check_sign_reference(sign_reference):
+    if sign_reference not in SIGN_REFERENCES:
+        raise ValueError(f"sign_reference must be one of {list(SIGN_REFERENCES)}, got "
+                         f"{sign_reference!r}")
+    return sign_reference
 
 
 def _method_code(method):
@@ -66,13 +84,20 @@ class Skinner:
         Mesh space → bind space, column-vector convention. Identity by default.
     blend_weights : (V,) float, optional
         Per-vertex DQS fraction for ``method="blend"`` (0 = LBS, 1 = DQS).
+    faces : (T, 3) int, optional
+        Triangles, required for ``method="cor"``: its centers of rotation
+        (:func:`dqskin.cor.rotation_centers`, bind space) are computed on its first use, from the
+        rest points (not from ``points`` passed per call), and cached on disk.
+    cor_sigma : float
+        Similarity width of the centers (:data:`dqskin.cor.SIGMA`).
     device : str, optional
         Warp device; CUDA when present, else CPU.
     """
 
     def __init__(self, points: npt.ArrayLike, joint_indices: npt.ArrayLike,
                  joint_weights: npt.ArrayLike, *, geom_bind_transform: npt.ArrayLike | None = None,
-                 blend_weights: npt.ArrayLike | None = None, device: Device = None) -> None:
+                 blend_weights: npt.ArrayLike | None = None, faces: npt.ArrayLike | None = None,
+                 cor_sigma: float = SIGMA, device: Device = None) -> None:
         self.device = resolve_device(device)
         pts = as_array("points", points, np.float64, (3,))
         if pts.ndim != 2:
@@ -90,14 +115,50 @@ class Skinner:
         self._lock = threading.Lock()
         d = self.device
         self._points = self._upload(pts[None])
+        self._rest_bind = pts @ g[:3, :3].T + g[:3, 3]
+        self.faces = None if faces is None else check_faces(faces, self.vertex_count)
+        self.cor_sigma = float(cor_sigma)
+        self._centers = None
         if blend_weights is None:
-            blend = wp.zeros(0, dtype=wp.float32, device=d)
+            self._blend = wp.zeros(0, dtype=wp.float32, device=d)
         else:
             b = np.asarray(blend_weights, dtype=np.float32).reshape(-1)
             if b.shape != (self.vertex_count,) or not np.all((b >= 0) & (b <= 1)):
                 raise ValueError(f"blend_weights: expected ({self.vertex_count},) values in [0, 1]")
-            blend = wp.array(b, dtype=wp.float32, device=d)
-        self._inf = K.influences(blend=blend, **self.influences.upload(d))
+            self._blend = wp.array(b, dtype=wp.float32, device=d)
+        self._no_centers = wp.zeros(0, dtype=wp.vec4, device=d)
+        self._layouts = {"weight": self.influences.upload(d)}
+        self._inf = K.influences(blend=self._blend, centers=self._no_centers,
+                                 **self._layouts["weight"])  # the default: UsdSkel's rule
+
+    def rotation_centers(self) -> np.ndarray:
+        """(V, 3) float64 centers of rotation of ``method="cor"`` in bind space, NaN for vertices
+        without one (skinned as DQS); computed once (or read from the disk cache)."""
+        if self.faces is None:
+            raise ValueError('method "cor" needs faces (the mesh triangles): pass faces=')
+        if self._centers is None:
+            c = rotation_centers(self._rest_bind, self.faces, *self.influences.given,
+                                 sigma=self.cor_sigma, device=self.device)
+            c4 = np.zeros((self.vertex_count, 4), np.float32)
+            ok = ~np.isnan(c[:, 0])
+            c4[ok, :3], c4[ok, 3] = c[ok], 1.0
+            self._centers = c, wp.array(c4, dtype=wp.vec4, device=self.device)
+        return self._centers[0]
+
+    def _influences(self, code, sign_reference):
+        """The kernels' :class:`~dqskin.kernels.skin.Influences` for a method code and sign rule."""
+        running = _check_sign_reference(sign_reference) == "running_sum"
+        if not running and code != K.COR:
+            return self._inf
+        order = "input" if running else "weight"
+        if order not in self._layouts:
+            self._layouts[order] = self.influences.upload(self.device, order)
+        centers = self._no_centers
+        if code == K.COR:
+            self.rotation_centers()
+            centers = self._centers[1]
+        return K.influences(blend=self._blend, centers=centers, running_sum=running,
+                            **self._layouts[order])
 
     def _upload(self, pts, linear=False):
         """(Fp, N, 3) mesh-space rows → bind space on the device (``linear``: directions)."""
@@ -105,10 +166,12 @@ class Skinner:
         x = pts @ g[:3, :3].T if linear else pts @ g[:3, :3].T + g[:3, 3]
         return wp.array(x.astype(np.float32), dtype=wp.vec3, device=self.device)
 
-    def _check_method(self, method):
+    def _check_method(self, method, points=True):
         code = _method_code(method)
-        if code == K.BLEND and self._inf.blend.shape[0] == 0:
+        if code == K.BLEND and self._blend.shape[0] == 0:
             raise ValueError('method "blend" needs blend_weights')
+        if code == K.COR and points and self.faces is None:
+            raise ValueError('method "cor" needs faces (the mesh triangles): pass faces=')
         return code
 
     _BUFFERS = {
@@ -206,6 +269,7 @@ class Skinner:
 
     def skin(self, skinning_transforms: npt.ArrayLike | wp.array, method: Method = "dqs", *,
              points: npt.ArrayLike | None = None, output_transforms: npt.ArrayLike | None = None,
+             sign_reference: SignReference = "largest_weight",
              as_warp: bool = False) -> np.ndarray | wp.array:
         """Skin the points for one or many frames.
 
@@ -214,11 +278,13 @@ class Skinner:
         skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float, or wp.array2d of wp.mat44 (F, J)
             Bind-relative joint transforms, column-vector convention. A Warp array on this
             skinner's device is used in place (no copy).
-        method : {"dqs", "lbs", "blend"}
+        method : {"dqs", "lbs", "blend", "cor"}
         points : (V, 3) or (F, V, 3) float, optional
             Rest points replacing the uploaded ones (e.g. after blend shapes), mesh space.
         output_transforms : (4, 4) or (F, 4, 4) float, optional
             Applied to the skinned points on the device (e.g. skeleton space → prim space).
+        sign_reference : {"largest_weight", "running_sum"}
+            Sign rule of the rotation blends (:data:`SignReference`); LBS ignores it.
         as_warp : bool
             Return the device array ``wp.array2d(dtype=wp.vec3)`` of shape (F, V) without a copy.
 
@@ -230,11 +296,12 @@ class Skinner:
         """
         with self._lock:  # the per-shape work buffers are shared between calls
             code = self._check_method(method)
+            inf = self._influences(code, sign_reference)
             prep, frames, batched = self._prepare(skinning_transforms)
             src = self._rest("points", points, frames)
             out = wp.empty((frames, self.vertex_count), dtype=wp.vec3, device=self.device)
-            rigid = code == K.DQS and not prep["joints"].has_residual.numpy().any()
-            K.skin_points(method=code, points=src, influences=self._inf, joints=prep["joints"],
+            rigid = code in (K.DQS, K.COR) and not prep["joints"].has_residual.numpy().any()
+            K.skin_points(method=code, points=src, influences=inf, joints=prep["joints"],
                           rigid=rigid, out=out, device=self.device)
             self._output(out, output_transforms, frames, normals=False)
             return self._result(out, batched, as_warp)
@@ -243,8 +310,10 @@ class Skinner:
                      method: Method = "dqs", *, kind: VectorKind = "normal",
                      vector_vertex: npt.ArrayLike | None = None,
                      output_transforms: npt.ArrayLike | None = None,
+                     sign_reference: SignReference = "largest_weight",
                      as_warp: bool = False) -> np.ndarray | wp.array:
-        """Skin normals or tangents; results are unit length.
+        """Skin normals or tangents; results are unit length. ``method="cor"`` turns directions
+        as DQS does (the same rotation; its centers only move points).
 
         Parameters
         ----------
@@ -259,6 +328,7 @@ class Skinner:
         output_transforms : (4, 4) or (F, 4, 4) float, optional
             Point transforms applied after skinning (normals get their inverse transpose and are
             renormalized; tangents their linear part).
+        sign_reference : {"largest_weight", "running_sum"}
 
         Returns
         -------
@@ -267,7 +337,8 @@ class Skinner:
         if kind not in get_args(VectorKind):
             raise ValueError(f'kind must be "normal" or "tangent", got {kind!r}')
         with self._lock:
-            code = self._check_method(method)
+            code = self._check_method(method, points=False)
+            inf = self._influences(K.DQS if code == K.COR else code, sign_reference)
             prep, frames, batched = self._prepare(skinning_transforms, "vectors")
             vec, _ = frames_of("vectors", vectors, frames, finite=True)
             n = vec.shape[1]
@@ -296,7 +367,7 @@ class Skinner:
             out = wp.empty((frames, n), dtype=wp.vec3, device=d)
             K.skin_vectors(method=code, vectors=src,
                            vector_vertex=wp.array(vv.astype(np.int32), dtype=wp.int32, device=d),
-                           influences=self._inf,
+                           influences=inf,
                            linears=lin, rotations=rot, residuals=res,
                            has_residual=prep["joints"].has_residual, out=out, device=d)
             if output_transforms is not None:
@@ -312,6 +383,7 @@ class Skinner:
                         skinning_transform_derivatives: npt.ArrayLike | wp.array,
                         method: Method = "dqs", *, points: npt.ArrayLike | None = None,
                         point_velocities: npt.ArrayLike | None = None,
+                        sign_reference: SignReference = "largest_weight",
                         as_warp: bool = False) -> np.ndarray | wp.array:
         """Velocities of the skinned points, by the chain rule (:mod:`dqskin.kernels.velocity`).
 
@@ -319,11 +391,12 @@ class Skinner:
         ----------
         skinning_transforms, skinning_transform_derivatives : (J, 4, 4) or (F, J, 4, 4) float
             Bind-relative transforms ``A`` and ``dA/dt``, column-vector convention.
-        method : {"dqs", "lbs", "blend"}
+        method : {"dqs", "lbs", "blend", "cor"}
         points : (V, 3) or (F, V, 3) float, optional
             Rest points replacing the uploaded ones, mesh space.
         point_velocities : (V, 3) or (F, V, 3) float, optional
             ``d points / dt`` in mesh space (e.g. from blend shapes); zero by default.
+        sign_reference : {"largest_weight", "running_sum"}
 
         Returns
         -------
@@ -332,6 +405,7 @@ class Skinner:
         """
         with self._lock:
             code = self._check_method(method)
+            inf = self._influences(code, sign_reference)
             prep, frames, batched = self._prepare(skinning_transforms, "derivatives",
                                                   skinning_transform_derivatives)
             src = self._rest("points", points, frames)
@@ -339,7 +413,7 @@ class Skinner:
                    if point_velocities is None else
                    self._rest("point_velocities", point_velocities, frames, linear=True))
             out = wp.empty((frames, self.vertex_count), dtype=wp.vec3, device=self.device)
-            KV.velocities(method=code, points=src, point_velocities=vel, influences=self._inf,
+            KV.velocities(method=code, points=src, point_velocities=vel, influences=inf,
                           out=out, device=self.device, **prep)
             return self._result(out, batched, as_warp)
 
@@ -347,8 +421,11 @@ class Skinner:
 def skin_points(points: npt.ArrayLike, joint_indices: npt.ArrayLike, joint_weights: npt.ArrayLike,
                 skinning_transforms: npt.ArrayLike, method: Method = "dqs", *,
                 geom_bind_transform: npt.ArrayLike | None = None,
-                blend_weights: npt.ArrayLike | None = None, device: Device = None) -> np.ndarray:
-    """Skin points with LBS, DQS or a per-vertex blend (one call; see :class:`Skinner`).
+                blend_weights: npt.ArrayLike | None = None, faces: npt.ArrayLike | None = None,
+                sign_reference: SignReference = "largest_weight",
+                device: Device = None) -> np.ndarray:
+    """Skin points with LBS, DQS, a per-vertex blend or optimized centers of rotation (one call;
+    see :class:`Skinner`).
 
     Parameters
     ----------
@@ -358,10 +435,14 @@ def skin_points(points: npt.ArrayLike, joint_indices: npt.ArrayLike, joint_weigh
     joint_weights : (V, K) float
     skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float
         Bind-relative joint transforms (world ∘ inverse bind), column-vector convention.
-    method : {"dqs", "lbs", "blend"}
+    method : {"dqs", "lbs", "blend", "cor"}
     geom_bind_transform : (4, 4) float, optional
     blend_weights : (V,) float, optional
         DQS fraction per vertex, required for ``"blend"``.
+    faces : (T, 3) int, optional
+        Triangles, required for ``"cor"``.
+    sign_reference : {"largest_weight", "running_sum"}
+        Sign rule of the rotation blends (:data:`SignReference`).
     device : str, optional
 
     Returns
@@ -370,15 +451,17 @@ def skin_points(points: npt.ArrayLike, joint_indices: npt.ArrayLike, joint_weigh
         Skinned points in skeleton space.
     """
     sk = Skinner(points, joint_indices, joint_weights, geom_bind_transform=geom_bind_transform,
-                 blend_weights=blend_weights, device=device)
-    return sk.skin(skinning_transforms, method)
+                 blend_weights=blend_weights, faces=faces, device=device)
+    return sk.skin(skinning_transforms, method, sign_reference=sign_reference)
 
 
 def skin_normals(normals: npt.ArrayLike, joint_indices: npt.ArrayLike,
                  joint_weights: npt.ArrayLike, skinning_transforms: npt.ArrayLike,
                  method: Method = "dqs", *, geom_bind_transform: npt.ArrayLike | None = None,
                  blend_weights: npt.ArrayLike | None = None,
-                 normal_vertex: npt.ArrayLike | None = None, device: Device = None) -> np.ndarray:
+                 normal_vertex: npt.ArrayLike | None = None,
+                 sign_reference: SignReference = "largest_weight",
+                 device: Device = None) -> np.ndarray:
     """Skin normals consistently with :func:`skin_points` (inverse-transpose for LBS and scale).
 
     Parameters
@@ -389,6 +472,8 @@ def skin_normals(normals: npt.ArrayLike, joint_indices: npt.ArrayLike,
     skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float
     normal_vertex : (N,) int, optional
         Vertex of each normal (faceVarying normals).
+    sign_reference : {"largest_weight", "running_sum"}
+        Sign rule of the rotation blends (:data:`SignReference`).
 
     Returns
     -------
@@ -400,4 +485,4 @@ def skin_normals(normals: npt.ArrayLike, joint_indices: npt.ArrayLike,
                  geom_bind_transform=geom_bind_transform, blend_weights=blend_weights,
                  device=device)
     return sk.skin_vectors(skinning_transforms, normals, method, kind="normal",
-                           vector_vertex=normal_vertex)
+                           vector_vertex=normal_vertex, sign_reference=sign_reference)

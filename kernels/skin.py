@@ -52,6 +52,7 @@ wp.set_module_options({"enable_backward": False})  # forward-only kernels
 LBS = wp.constant(0)
 DQS = wp.constant(1)
 BLEND = wp.constant(2)
+COR = wp.constant(3)
 
 
 @wp.struct
@@ -64,6 +65,12 @@ class Influences:
     """(V, C) weights, same layout."""
     blend: wp.array(dtype=float)
     """(V,) DQS fraction of ``method=BLEND``; empty otherwise."""
+    centers: wp.array(dtype=wp.vec4)
+    """(V,) centers of rotation of ``method=COR`` (bind space, ``w = 1``; ``w = 0``: none, the
+    vertex falls back to DQS); empty otherwise."""
+    running_sum: int
+    """Sign reference of the rotation blends: 0 the pivot in slot 0 (largest weight, UsdSkel);
+    nonzero the running sum of the blend so far, the slots in their input order (Blender)."""
 
 
 @wp.struct
@@ -164,13 +171,16 @@ def blend_joints(inf: Influences, v: int, f: int, values: wp.array2d(dtype=Any))
 
 @wp.func
 def dqs_blend(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8)):
-    """Sign-aligned weighted sum of the vertex's dual quaternions (pivot: slot 0)."""
+    """Sign-aligned weighted sum of the vertex's dual quaternions (pivot: slot 0, or the running
+    sum with ``inf.running_sum``; a zero sum flips nothing)."""
     pv = dqs[f, inf.indices[v, 0][0]]
     b = vec8()
     for c in range(inf.indices.shape[1]):
         iv = inf.indices[v, c]
         wv = inf.weights[v, c]
         for k in range(4):
+            if inf.running_sum != 0:
+                pv = b
             b = dq_blend_add(b, dqs[f, iv[k]], wv[k], pv)
     return b
 
@@ -178,16 +188,21 @@ def dqs_blend(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8)):
 @wp.func
 def dqs_blend_derivative(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8),
                          dq_derivatives: wp.array2d(dtype=vec8)):
-    """``Σ sᵢ·wᵢ·η̇ᵢ``: the derivative of :func:`dqs_blend`, whose signs ``sᵢ`` (against the
-    pivot, slot 0) are locally constant."""
+    """``Σ sᵢ·wᵢ·η̇ᵢ``: the derivative of :func:`dqs_blend`, whose signs ``sᵢ`` (the same rule)
+    are locally constant."""
     pv = dqs[f, inf.indices[v, 0][0]]
+    b = vec8()
     acc = vec8()
     for c in range(inf.indices.shape[1]):
         iv = inf.indices[v, c]
         wv = inf.weights[v, c]
         for k in range(4):
+            if inf.running_sum != 0:
+                pv = b
             j = iv[k]
-            acc += dq_derivatives[f, j] * (wv[k] * dq_sign(dqs[f, j], pv))
+            sw = wv[k] * dq_sign(dqs[f, j], pv)
+            b += dqs[f, j] * sw
+            acc += dq_derivatives[f, j] * sw
     return acc
 
 
@@ -204,12 +219,18 @@ def dqs_apply(b: vec8, x: wp.vec3):
 
 
 @wp.func
+def rotation_only(b: vec8):
+    """The real part of a blend, dual part zeroed: :func:`dqs_apply` then only rotates."""
+    return vec8(b[0], b[1], b[2], b[3], 0.0, 0.0, 0.0, 0.0)
+
+
+@wp.func
 def by_method(inf: Influences, v: int, method: int, lbs: wp.vec3, dqs: wp.vec3):
-    """The result of ``method``: ``lbs``, ``dqs`` or their per-vertex blend
-    ``(1 − b)·lbs + b·dqs``, ``b = inf.blend[v]``."""
+    """The result of ``method``: ``lbs``, ``dqs`` (also for COR, whose directions rotate as DQS's)
+    or their per-vertex blend ``(1 − b)·lbs + b·dqs``, ``b = inf.blend[v]``."""
     if method == LBS:
         return lbs
-    if method == DQS:
+    if method == DQS or method == COR:
         return dqs
     b = inf.blend[v]
     return lbs * (1.0 - b) + dqs * b
@@ -221,6 +242,16 @@ def skin_point(p: wp.vec3, inf: Influences, v: int, f: int, joints: Joints, meth
     """One point skinned with ``method`` (``residual``: the frame may have scale/shear)."""
     if method == LBS:
         return blend_joints(inf, v, f, joints.affines) * wp.vec4(p[0], p[1], p[2], 1.0)
+    if method == COR:
+        c4 = inf.centers[v]
+        if c4[3] != 0.0:
+            c = wp.vec3(c4[0], c4[1], c4[2])
+            y = p - c
+            if residual:
+                if joints.has_residual[f] != 0:
+                    y = blend_joints(inf, v, f, joints.residuals) * y
+            lc = blend_joints(inf, v, f, joints.affines) * wp.vec4(c[0], c[1], c[2], 1.0)
+            return dqs_apply(rotation_only(dqs_blend(inf, v, f, joints.dqs)), y) + lc
     x = p
     if residual:
         if joints.has_residual[f] != 0:
@@ -261,18 +292,23 @@ skin_lbs_kernel = _skin_points_kernel(LBS, False, "skin_lbs_kernel")
 skin_dqs_kernel = _skin_points_kernel(DQS, True, "skin_dqs_kernel")
 skin_dqs_rigid_kernel = _skin_points_kernel(DQS, False, "skin_dqs_rigid_kernel")
 skin_blend_kernel = _skin_points_kernel(BLEND, True, "skin_blend_kernel")
+skin_cor_kernel = _skin_points_kernel(COR, True, "skin_cor_kernel")
+skin_cor_rigid_kernel = _skin_points_kernel(COR, False, "skin_cor_rigid_kernel")
 
 
 @wp.func
 def dqs_vector(x: wp.vec3, inf: Influences, v: int, f: int, rotations: wp.array2d(dtype=wp.quat),
                residuals: wp.array2d(dtype=wp.mat33), use_residual: bool):
-    """Rotation-only DQS of a direction (sign-aligned quaternion blend), unit length."""
+    """Rotation-only DQS of a direction (sign-aligned quaternion blend, the sign rule of
+    :func:`dqs_blend`), unit length."""
     pivot = rotations[f, inf.indices[v, 0][0]]
     r = wp.quat(0.0, 0.0, 0.0, 0.0)
     for c in range(inf.indices.shape[1]):
         iv = inf.indices[v, c]
         wv = inf.weights[v, c]
         for k in range(4):
+            if inf.running_sum != 0:
+                pivot = r
             q = rotations[f, iv[k]]
             r += q * (wv[k] * wp.sign(wp.dot(q, pivot)))
     scaled = x
@@ -313,7 +349,7 @@ def skin_vectors_kernel(
         x = vectors[wp.min(f, last), n]
         lbs = wp.vec3()
         dqs = wp.vec3()
-        if method != DQS:
+        if method == LBS or method == BLEND:
             lbs = wp.normalize(blend_joints(inf, v, f, linears) * x)
         if method != LBS:
             dqs = dqs_vector(x, inf, v, f, rotations, residuals, has_residual[f] != 0)
@@ -340,10 +376,11 @@ def transform_frames_kernel(
 # launchers: keyword arguments, chunked over the CPU cores by dqskin.kernels.grid
 
 
-def influences(*, indices, weights, blend):
+def influences(*, indices, weights, blend, centers, running_sum=False):
     """The :class:`Influences` struct of a mesh's device arrays."""
     s = Influences()
-    s.indices, s.weights, s.blend = indices, weights, blend
+    s.indices, s.weights, s.blend, s.centers = indices, weights, blend, centers
+    s.running_sum = int(bool(running_sum))
     return s
 
 
@@ -370,9 +407,10 @@ def prepare_vectors(*, xforms, linears, rotations, normal_linears, normal_residu
 
 def skin_points(*, method, points, influences, joints, rigid, out, device):
     """Skin ``points`` (Fp, V) into ``out`` (F, V) with ``method`` (:data:`LBS`, :data:`DQS`,
-    :data:`BLEND`). ``rigid`` (no frame has a residual) selects the DQS kernel without the
-    residual code."""
-    kernel = {LBS: skin_lbs_kernel, BLEND: skin_blend_kernel}.get(
+    :data:`BLEND`, :data:`COR`). ``rigid`` (no frame has a residual) selects the DQS or COR
+    kernel without the residual code."""
+    kernel = {LBS: skin_lbs_kernel, BLEND: skin_blend_kernel,
+              COR: skin_cor_rigid_kernel if rigid else skin_cor_kernel}.get(
         method, skin_dqs_rigid_kernel if rigid else skin_dqs_kernel)
     launch_blocks(kernel, out.shape[1], out.shape[0], [points, influences, joints], [out], device)
 

@@ -12,6 +12,9 @@ derivatives of the skinning transforms ``Ȧ`` and of the rest points ``ṗ``:
   ``ṗ' = ẋ + 2·ġ/|r|² − 2·g·(2·r·ṙ)/|r|⁴`` with ``ḃ = Σ sᵢ·wᵢ·η̇ᵢ`` and
   ``ẋ = Σ wᵢ·(Ṡᵢ·p + Sᵢ·ṗ)`` (``ẋ = ṗ`` without a residual).
 * blend: ``(1 − b)·LBS' + b·DQS'``.
+* COR (center ``c``): ``p' = R(r)·y + Σ wᵢ·Aᵢ·[c, 1]``, ``y = p − c`` (through the residuals on
+  frames with one), ``R(r)`` the rotation of the blend's real part: ``ṗ' = Ṙ·y + R·ẏ +
+  Σ wᵢ·Ȧᵢ·[c, 1]`` (:func:`cor_velocity`); vertices without a center as DQS.
 
 The joints' ``η̇`` and ``Ṡ`` come from the polar split ``A = R·S`` (:func:`polar_rotation`, as
 skinning) and its derivative ``Rᵀ·Ȧ = [ω]×·S + Ṡ``: the skew part gives
@@ -33,7 +36,8 @@ from .dqmath import (
 )
 from .grid import FrameBlocks, block_frames, launch, launch_blocks
 from .skin import (
-    DQS,
+    BLEND,
+    COR,
     LBS,
     Influences,
     Joints,
@@ -42,6 +46,7 @@ from .skin import (
     dqs_blend,
     dqs_blend_derivative,
     prepare_points,
+    rotation_only,
 )
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
@@ -135,6 +140,24 @@ class JointRates:
     """(F, J) ``Ṡ``."""
 
 
+@wp.func
+def cor_velocity(inf: Influences, v: int, f: int, joints: Joints, rates: JointRates, c: wp.vec3,
+                 p: wp.vec3, pd: wp.vec3):
+    """``d/dt`` of the COR point ``R(r)·y + Σ wᵢ·Aᵢ·[c, 1]`` (``y = p − c``, or ``Σ wᵢ·Sᵢ·(p − c)``
+    on frames with a residual; the center ``c`` is constant): ``Ṙ·y + R·ẏ + Σ wᵢ·Ȧᵢ·[c, 1]``, the
+    rotation's part through :func:`dqs_apply_derivative` with zero dual parts."""
+    y = p - c
+    yd = pd
+    if joints.has_residual[f] != 0:
+        s = blend_joints(inf, v, f, joints.residuals)
+        y = s * (p - c)
+        yd = blend_joints(inf, v, f, rates.residuals) * (p - c) + s * pd
+    rot = dqs_apply_derivative(rotation_only(dqs_blend(inf, v, f, joints.dqs)),
+                               rotation_only(dqs_blend_derivative(inf, v, f, joints.dqs,
+                                                                  rates.dqs)), y, yd)
+    return rot + blend_joints(inf, v, f, rates.affines) * wp.vec4(c[0], c[1], c[2], 1.0)
+
+
 @wp.kernel
 def velocity_kernel(
     points: wp.array2d(dtype=wp.vec3),
@@ -160,7 +183,13 @@ def velocity_kernel(
         pd = point_velocities[wp.min(f, last_v), v]
         lbs = wp.vec3()
         dqs_v = wp.vec3()
-        if method != DQS:
+        if method == COR:
+            c4 = inf.centers[v]
+            if c4[3] != 0.0:
+                out[f, v] = cor_velocity(inf, v, f, joints, rates,
+                                         wp.vec3(c4[0], c4[1], c4[2]), p, pd)
+                continue
+        if method == LBS or method == BLEND:
             lbs = (blend_joints(inf, v, f, rates.affines) * wp.vec4(p[0], p[1], p[2], 1.0)
                    + blend_joints(inf, v, f, joints.affines) * wp.vec4(pd[0], pd[1], pd[2], 0.0))
         if method != LBS:

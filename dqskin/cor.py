@@ -1,0 +1,237 @@
+"""Optimized centers of rotation (Le & Hodgins, "Real-time Skeletal Skinning with Optimized Centers
+of Rotation", ACM TOG 35(4), SIGGRAPH 2016), precomputed once per mesh and cached on disk.
+
+Each vertex ``v`` gets a center ``p*ᵥ``: the average of the triangle centroids ``cₜ``, weighted by
+area ``aₜ`` times the similarity ``s(wᵥ, wₜ)`` of the vertex's skinning weights to the triangle's
+(the mean of its corners'), ``σ`` = :data:`SIGMA` (the paper's value); see
+:mod:`dqskin.kernels.cor` for the formula. ``method="cor"`` then skins ``v`` by the rotation of the
+normalized, sign-aligned quaternion blend ``R`` and the LBS image of its center:
+``v' = R·(v − p*) + Σ wⱼ·Aⱼ·[p*, 1]``.
+
+Acceleration (exact, no approximation): the similarity is a sum of one term per joint pair that
+both weight vectors share, so triangles are listed per joint pair, entries of one pair with equal
+weights are merged (area and moment summed), triangles weighting fewer than two joints drop out,
+and vertices with equal weight vectors (which have equal centers) are computed once. The cost is
+the number of (vertex weight vector, pair, triangle entry) triples, not vertices × triangles.
+
+A vertex no triangle is similar to (one-hot weights, or no face sharing two of its joints) has no
+center (NaN); ``method="cor"`` skins it as DQS -- for one-hot weights both are the joint's own
+rigid motion.
+
+Cache: ``$DQSKIN_CACHE_DIR`` (default ``$XDG_CACHE_HOME/dqskin``, else ``~/.cache/dqskin``),
+``cor/<sha256>.npy``, keyed by the points (bind space, float64), faces, influences, σ and
+:data:`ALGORITHM_VERSION`; any change to one of them is a different file. Files are written
+atomically; an unreadable one is recomputed; a cache that cannot be written is skipped.
+"""
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from ._warp import Device, resolve_device
+from .influences import check_influences
+from .kernels import cor as KC
+from .shapes import as_real
+
+__all__ = ["ALGORITHM_VERSION", "SIGMA", "cache_dir", "check_faces", "rotation_centers"]
+
+SIGMA = 0.1
+"""Width of the similarity kernel (Le & Hodgins' value)."""
+
+ALGORITHM_VERSION = 1
+"""Part of the cache key: bump when the computed centers change."""
+
+
+def cache_dir() -> Path:
+    """Where centers are cached: ``$DQSKIN_CACHE_DIR``, else ``$XDG_CACHE_HOME/dqskin``, else
+    ``~/.cache/dqskin`` (the files go in its ``cor/`` folder)."""
+    root = os.environ.get("DQSKIN_CACHE_DIR")
+    if root:
+        return Path(root)
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".cache") / "dqskin"
+
+
+def check_faces(faces, vertex_count):
+    """(T, 3) int64 triangles; ValueError naming ``faces`` for a bad shape, type or index."""
+    f = as_real("faces", faces)
+    if f.size == 0:
+        return np.zeros((0, 3), np.int64)
+    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(f"faces: expected (T, 3) integer triangles, got {f.shape} {f.dtype}")
+    if f.min() < 0 or f.max() >= vertex_count:
+        raise ValueError(f"faces: vertex index out of range for {vertex_count} points")
+    return f.astype(np.int64)
+
+
+def _cache_key(points, faces, idx, wts, sigma):
+    h = hashlib.sha256(f"dqskin-cor-v{ALGORITHM_VERSION}:{float(sigma)!r}:".encode())
+    for a in (points.astype("<f8"), faces.astype("<i8"), idx.astype("<i8"), wts.astype("<f4")):
+        h.update(str(a.shape).encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def _cache_load(path, vertex_count):
+    try:
+        c = np.load(path, allow_pickle=False)
+    except (OSError, ValueError):
+        return None
+    return c if c.shape == (vertex_count, 3) and c.dtype == np.float64 else None
+
+
+def _cache_store(path, centers):
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npy", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.save(fh, centers)
+            os.replace(tmp, path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+    except OSError:
+        pass  # a read-only or full cache costs a recomputation next time, nothing more
+
+
+def _sparse_rows(rows, cols, vals, row_count, col_count):
+    """Sum duplicates and drop zeros: (row, col, value) sorted by (row, col)."""
+    keep = vals > 0
+    key = rows[keep] * col_count + cols[keep]
+    uniq, inv = np.unique(key, return_inverse=True)
+    sums = np.bincount(inv, weights=vals[keep], minlength=uniq.size)
+    nz = sums > 0
+    uniq, sums = uniq[nz], sums[nz]
+    return uniq // col_count, uniq % col_count, sums
+
+
+def _pairs(rows, cols, vals, row_count):
+    """Every pair ``a < b`` of entries within a row (entries sorted by (row, col)): arrays of
+    (row, col_a, col_b, val_a, val_b)."""
+    counts = np.bincount(rows, minlength=row_count)
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    out = [[] for _ in range(5)]
+    m = int(counts.max()) if counts.size else 0
+    for a in range(m):
+        for b in range(a + 1, m):
+            r = np.nonzero(counts > b)[0]
+            ia, ib = start[r] + a, start[r] + b
+            for lst, x in zip(out, (r, cols[ia], cols[ib], vals[ia], vals[ib])):
+                lst.append(x)
+    empty = (np.zeros(0, np.int64),) * 3 + (np.zeros(0),) * 2
+    return tuple(np.concatenate(x) if x else e for x, e in zip(out, empty))
+
+
+def _compute(points, faces, idx, wts, sigma, device):
+    V = points.shape[0]
+    J = int(idx.max()) + 1 if idx.size else 1
+    K = idx.shape[1]
+    # sparse vertex weights and their distinct vectors
+    vr, vc, vw = _sparse_rows(np.repeat(np.arange(V), K), idx.reshape(-1),
+                              wts.reshape(-1).astype(np.float64), V, J)
+    counts = np.bincount(vr, minlength=V)
+    m = int(counts.max()) if counts.size else 0
+    slot = np.arange(vr.size) - np.concatenate([[0], np.cumsum(counts)[:-1]])[vr]
+    dense = np.full((V, 2 * max(m, 1)), -1.0)
+    dense[vr, slot] = vc
+    dense[vr, m + slot] = vw
+    uniq, inverse = np.unique(dense, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    U = uniq.shape[0]
+    # triangles: area, centroid and mean weights, as pair entries
+    T = faces.shape[0]
+    tri = points[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    moment = area[:, None] * tri.mean(axis=1)
+    tr, tc, tw = _sparse_rows(np.repeat(np.arange(T), 3 * K), idx[faces].reshape(-1),
+                              wts[faces].reshape(-1).astype(np.float64) / 3.0, T, J)
+    pt, pj, pk, pwj, pwk = _pairs(tr, tc, tw, T)
+    keep = area[pt] > 0
+    pt, pj, pk, pwj, pwk = pt[keep], pj[keep], pk[keep], pwj[keep], pwk[keep]
+    pkey = pj * J + pk
+    # merge entries of one pair with equal weights
+    order = np.lexsort((pwk, pwj, pkey))
+    pkey, pwj, pwk, pt = pkey[order], pwj[order], pwk[order], pt[order]
+    new = np.ones(pkey.size, bool)
+    new[1:] = (pkey[1:] != pkey[:-1]) | (pwj[1:] != pwj[:-1]) | (pwk[1:] != pwk[:-1])
+    group = np.cumsum(new) - 1
+    ekey, ewj, ewk = pkey[new], pwj[new], pwk[new]
+    earea = np.bincount(group, weights=area[pt], minlength=ekey.size)
+    emom = np.stack([np.bincount(group, weights=moment[pt, i], minlength=ekey.size)
+                     for i in range(3)], axis=1)
+    keys, kstart = np.unique(ekey, return_index=True)
+    kend = np.append(kstart[1:], ekey.size)
+    # rows: (distinct weight vector, joint pair it has and some triangle shares)
+    ur = np.repeat(np.arange(U), m)
+    ok = uniq[:, :m].reshape(-1) >= 0 if m else np.zeros(0, bool)
+    ur, uc = ur[ok], uniq[:, :m].reshape(-1)[ok].astype(np.int64)
+    uw = uniq[:, m:].reshape(-1)[ok] if m else np.zeros(0)
+    rr, rj, rk, rwj, rwk = _pairs(ur, uc, uw, U)
+    pos = np.searchsorted(keys, rj * J + rk)
+    pos = np.minimum(pos, max(keys.size - 1, 0))
+    hit = (keys.size > 0) & (keys[pos] == rj * J + rk) if keys.size else np.zeros(rr.size, bool)
+    o = np.argsort(rr[hit], kind="stable")  # rows grouped by weight vector
+    rr, pos, rwj, rwk = rr[hit][o], pos[hit][o], rwj[hit][o], rwk[hit][o]
+    row_offsets = np.concatenate([[0], np.cumsum(np.bincount(rr, minlength=U))]).astype(np.int32)
+    d = device
+    out = wp.empty(U, dtype=wp.vec4d, device=d)
+    KC.centers(row_offsets=wp.array(row_offsets, dtype=wp.int32, device=d),
+               row_entries=wp.array(np.stack([kstart[pos], kend[pos]], 1).astype(np.int32),
+                                    dtype=wp.vec2i, device=d),
+               row_weights=wp.array(np.stack([rwj, rwk], 1), dtype=wp.vec2d, device=d),
+               entry_weights=wp.array(np.stack([ewj, ewk], 1), dtype=wp.vec2d, device=d),
+               entry_areas=wp.array(earea, dtype=wp.float64, device=d),
+               entry_moments=wp.array(emom, dtype=wp.vec3d, device=d),
+               sigma=sigma, out=out, device=d)
+    c = out.numpy()
+    res = np.where(c[:, 3:] > 0, c[:, :3], np.nan)
+    return res[inverse]
+
+
+def rotation_centers(points, faces, joint_indices, joint_weights, *, sigma: float = SIGMA,
+                     cache: bool = True, device: Device = None) -> np.ndarray:
+    """Optimized centers of rotation of a mesh's vertices (see the module docstring).
+
+    Parameters
+    ----------
+    points : (V, 3) float
+        Rest points, in the space the centers are wanted in (the skinner passes bind space).
+    faces : (T, 3) int
+        Triangles.
+    joint_indices, joint_weights : (V, K) int, (V, K) float
+        Influences (as :class:`dqskin.Skinner`); repeated joints of a vertex are summed.
+    sigma : float
+        Similarity width, :data:`SIGMA` by default.
+    cache : bool
+        Read and write the on-disk cache (:func:`cache_dir`).
+    device : str, optional
+        Warp device of the computation.
+
+    Returns
+    -------
+    (V, 3) float64
+        Centers, same space as ``points``; NaN rows for vertices without one.
+    """
+    pts = as_real("points", points, np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points: expected (V, 3), got {pts.shape}")
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("points: NaN or infinite coordinates")
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise ValueError(f"sigma: expected a positive number, got {sigma!r}")
+    idx, wts = check_influences(joint_indices, joint_weights, pts.shape[0])
+    tris = check_faces(faces, pts.shape[0])
+    path = cache_dir() / "cor" / f"{_cache_key(pts, tris, idx, wts, sigma)}.npy"
+    if cache:
+        hit = _cache_load(path, pts.shape[0])
+        if hit is not None:
+            return hit
+    res = _compute(pts, tris, idx, wts, float(sigma), resolve_device(device))
+    if cache:
+        _cache_store(path, res)
+    return res

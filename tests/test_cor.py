@@ -1,0 +1,348 @@
+"""``method="cor"``: optimized centers of rotation (Le & Hodgins 2016).
+
+The centers are checked against a brute-force float64 evaluation of the paper's formula (every
+vertex against every triangle, the similarity summed over all joint pairs), and the skinned points
+against ``R·(v − p*) + Σ wⱼ·Aⱼ·[p*, 1]`` with ``R`` from SciPy quaternions, on a chain of four
+joints (bent at every joint: a twist alone cannot tell a wrong center on the axis from the right
+one). Then the procedural rigs (candy wrapper, bend), rigid vertices, velocities (central
+differences of the reference), normals, the disk cache, Scene.skin, the CLI and compare.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from test_sign_reference import (
+    RULES,
+    dqs_reference,
+    rotate,
+    rotation_blend,
+    run_cli,
+    usdskel_transforms,
+    write_usd_rig,
+)
+
+import dqskin
+from dqskin import cor
+from dqskin.motion import skinned_velocities
+from dqskin.skinning import Skinner
+
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
+
+
+@pytest.fixture(autouse=True)
+def cache_dir(tmp_path, monkeypatch):
+    """Every test gets its own center cache (also the CLI it runs)."""
+    path = tmp_path / "cache"
+    monkeypatch.setenv("DQSKIN_CACHE_DIR", str(path))
+    return path
+
+
+# ---------------------------------------------------------------------------------------------
+# float64 reference, from the paper
+
+
+def dense(idx, wts, J):
+    W = np.zeros((len(idx), J))
+    np.add.at(W, (np.arange(len(idx))[:, None], idx), wts)
+    return W
+
+
+def centers_reference(points, faces, idx, wts, sigma=0.1):
+    """``p*ᵢ = Σₜ s(wᵢ, wₜ)·aₜ·cₜ / Σₜ s(wᵢ, wₜ)·aₜ``, brute force; NaN where the sum is 0."""
+    J = int(idx.max()) + 1
+    W = dense(idx, np.asarray(wts, np.float64), J)
+    tri = points[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    Wt = W[faces].mean(axis=1)
+    wv = W[:, None, :, None] * W[:, None, None, :]
+    wt = Wt[None, :, :, None] * Wt[None, :, None, :]
+    diff = W[:, None, :, None] * Wt[None, :, None, :] - W[:, None, None, :] * Wt[None, :, :, None]
+    terms = wv * wt * np.exp(-diff ** 2 / sigma ** 2)
+    terms[..., np.arange(J), np.arange(J)] = 0.0  # j ≠ k
+    s = terms.sum(axis=(2, 3)) * area[None]
+    den = s.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = (s @ tri.mean(axis=1)) / den[:, None]
+    c[den <= 0] = np.nan
+    return c
+
+
+def cor_reference(points, idx, wts, xforms, centers, rule="largest_weight"):
+    """(F, V, 3): ``R·(v − p*) + Σ wⱼ·Aⱼ·[p*, 1]``; DQS where there is no center."""
+    r, _ = rotation_blend(xforms, idx, wts, rule)
+    c = np.where(np.isnan(centers), 0.0, centers)
+    ch = np.c_[c, np.ones(len(c))]
+    lbs_c = np.einsum("vk,fvkij,vj->fvi", wts, xforms[:, idx, :3, :], ch)
+    out = rotate(r, (points - c)[None]) + lbs_c
+    none = np.isnan(centers[:, 0])
+    out[:, none] = dqs_reference(points, idx, wts, xforms, rule)[:, none]
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# a chain of four joints along x
+
+
+JOINT_X = np.array([0.0, 1.5, 3.0, 4.5])
+BONE_MID = np.array([0.75, 2.25, 3.75, 5.25])
+
+
+def chain_mesh(around=12, rings=31, length=6.0, radius=0.5, seed=0):
+    """Open tube along +x; weights ``max(0, 1 − |x − mⱼ|/1.6)`` around each bone's middle, with
+    ±10% per-vertex noise: one-hot near both ends, three joints around x = 2.2, two elsewhere."""
+    x = np.linspace(0, length, rings)
+    a = np.linspace(0, 2 * np.pi, around, endpoint=False)
+    X, A = np.meshgrid(x, a, indexing="ij")
+    pts = np.stack([X, radius * np.cos(A), radius * np.sin(A)], -1).reshape(-1, 3)
+    faces = []
+    for i in range(rings - 1):
+        for j in range(around):
+            p, q = i * around + j, i * around + (j + 1) % around
+            faces += [[p, q, q + around], [p, q + around, p + around]]
+    w = np.maximum(0.0, 1.0 - np.abs(pts[:, :1] - BONE_MID[None]) / 1.6)
+    w *= 1 + 0.1 * np.random.default_rng(seed).random(w.shape) * (w > 0)
+    w = (w / w.sum(1, keepdims=True)).astype(np.float32).astype(np.float64)
+    idx = np.tile(np.arange(4), (len(pts), 1))
+    return pts, np.array(faces), idx, w
+
+
+def chain_pose(rng, frames=3, max_angle=np.radians(110)):
+    """(F, 4, 4, 4) skinning transforms of random bends/twists at every joint of the chain."""
+    out = np.zeros((frames, 4, 4, 4))
+    for f in range(frames):
+        world = np.eye(4)
+        for j in range(4):
+            local = np.eye(4)
+            axis = rng.normal(size=3)
+            local[:3, :3] = Rotation.from_rotvec(axis / np.linalg.norm(axis) * rng.uniform(
+                0.3, 1.0) * max_angle).as_matrix()
+            local[0, 3] = JOINT_X[j] - (JOINT_X[j - 1] if j else 0.0)
+            world = world @ local
+            inv_bind = np.eye(4)
+            inv_bind[0, 3] = -JOINT_X[j]
+            out[f, j] = world @ inv_bind
+    return out
+
+
+def test_centers_match_reference_on_a_chain():
+    pts, faces, idx, w = chain_mesh()
+    want = centers_reference(pts, faces, idx, w)
+    got = cor.rotation_centers(pts, faces, idx, w, cache=False)
+    np.testing.assert_array_equal(np.isnan(got[:, 0]), np.isnan(want[:, 0]))
+    np.testing.assert_allclose(got, want, atol=1e-9)
+    # one-hot vertices have none; the rest have a center near the bone axis, not at themselves
+    one_hot = (w > 0).sum(1) == 1
+    assert np.all(np.isnan(got[one_hot, 0])) and not np.any(np.isnan(got[~one_hot, 0]))
+    assert np.abs(got[~one_hot, 1:]).max() < 0.05
+    assert ((w > 0).sum(1) == 3).any()
+
+
+def test_centers_match_reference_on_a_random_soup():
+    rng = np.random.default_rng(1)
+    V, J, K = 80, 6, 4
+    pts = rng.normal(size=(V, 3))
+    faces = np.stack([rng.choice(V, 3, replace=False) for _ in range(200)])
+    idx = np.stack([rng.permutation(J)[:K] for _ in range(V)])
+    idx[:5, 1] = idx[:5, 0]  # a repeated joint sums
+    w = rng.random((V, K)).astype(np.float32)
+    w[rng.random((V, K)) < 0.3] = 0
+    for sigma in (0.1, 0.3):
+        want = centers_reference(pts, faces, idx, w.astype(np.float64), sigma)
+        got = cor.rotation_centers(pts, faces, idx, w, sigma=sigma, cache=False)
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+        np.testing.assert_allclose(got, want, atol=1e-9)
+
+
+@pytest.mark.parametrize("rule", RULES)
+def test_points_match_reference_on_a_chain(device, rule):
+    pts, faces, idx, w = chain_mesh()
+    xf = chain_pose(np.random.default_rng(2))
+    sk = Skinner(pts, idx, w, faces=faces, device=device)
+    got = sk.skin(xf, "cor", sign_reference=rule)
+    want = cor_reference(pts, idx, w, xf, centers_reference(pts, faces, idx, w), rule)
+    np.testing.assert_allclose(got, want, atol=5e-5)
+    # the centers matter: the result is neither DQS nor LBS, nor CoR about the vertex itself
+    dqs = dqs_reference(pts, idx, w, xf, rule)
+    assert np.abs(got - dqs).max() > 0.05
+    wrong = cor_reference(pts, idx, w, xf, pts.copy(), rule)  # p* = v: LBS
+    assert np.abs(got - wrong).max() > 0.05
+
+
+def test_one_hot_vertices_move_rigidly(device):
+    pts, faces, idx, w = chain_mesh()
+    xf = chain_pose(np.random.default_rng(3))
+    got = dqskin.skin_points(pts, idx, w, xf, "cor", faces=faces, device=device)
+    one_hot = (w > 0).sum(1) == 1
+    j = np.argmax(w, axis=1)
+    rigid = np.einsum("fvij,vj->fvi", xf[:, j, :3, :], np.c_[pts, np.ones(len(pts))])
+    np.testing.assert_allclose(got[:, one_hot], rigid[:, one_hot], atol=2e-5)
+
+
+def test_scale_residual_and_normals(device):
+    pts, faces, idx, w = chain_mesh()
+    xf = chain_pose(np.random.default_rng(4), frames=1)
+    sk = Skinner(pts, idx, w, faces=faces, device=device)
+    # normals turn as DQS's (the same rotation)
+    n = np.c_[np.zeros(len(pts)), pts[:, 1:]] / 0.5
+    np.testing.assert_allclose(sk.skin_vectors(xf, n, "cor"), sk.skin_vectors(xf, n, "dqs"),
+                               atol=1e-6)
+    # a uniform scale s about the origin on every joint scales the rigid result: s·(R(v−p*)) +
+    # Σ wⱼ·s·Aⱼ·[p*, 1]
+    scaled = xf.copy()
+    scaled[:, :, :3, :] *= 1.5
+    np.testing.assert_allclose(sk.skin(scaled, "cor"), 1.5 * sk.skin(xf, "cor"), atol=1e-4)
+
+
+def test_velocities_match_central_differences(device):
+    pts, faces, idx, w = chain_mesh(rings=16)
+    rng = np.random.default_rng(5)
+    poses = chain_pose(rng, frames=2)
+    omega = rng.normal(size=(2, 4, 3)) * 0.5
+
+    def at(t):
+        x = poses.copy()
+        x[..., :3, :] = np.einsum("fjab,fjbc->fjac", Rotation.from_rotvec(
+            (t * omega).reshape(-1, 3)).as_matrix().reshape(2, 4, 3, 3), poses[..., :3, :])
+        return x
+    centers = centers_reference(pts, faces, idx, w)
+    h = 1e-5
+    for rule in RULES:
+        got = skinned_velocities(pts, idx, w, at(0.0), (at(h) - at(-h)) / (2 * h), "cor",
+                                 faces=faces, sign_reference=rule, device=device)
+        want = (cor_reference(pts, idx, w, at(h), centers, rule)
+                - cor_reference(pts, idx, w, at(-h), centers, rule)) / (2 * h)
+        np.testing.assert_allclose(got, want, atol=2e-3 * np.abs(want).max(), err_msg=rule)
+
+
+# ---------------------------------------------------------------------------------------------
+# the procedural rigs
+
+
+def side_rings(mesh, lo=1.0, hi=3.0):
+    """Vertex masks of the side rings with ``lo <= x <= hi`` (both rigs run along +x)."""
+    p = np.asarray(mesh.points, np.float64)
+    r = np.linalg.norm(p[:, 1:], axis=1)
+    side = np.abs(r - r.max()) < 1e-4
+    xs = np.unique(np.round(p[side, 0], 5))
+    return [side & (np.abs(p[:, 0] - x) < 1e-5) for x in xs[(xs >= lo) & (xs <= hi)]]
+
+
+def ring_area(q):
+    """Area of a closed ring of points (in order around), projected on its best-fit plane."""
+    c = q - q.mean(0)
+    basis = np.linalg.svd(c)[2][:2]
+    u = c @ basis.T
+    u = u[np.argsort(np.arctan2(u[:, 1], u[:, 0]))]
+    return 0.5 * abs(np.sum(u[:, 0] * np.roll(u[:, 1], -1) - np.roll(u[:, 0], -1) * u[:, 1]))
+
+
+def distance_to_bones(x, joint, forearm):
+    """Distance from ``x`` to the bent skeleton: 0 ≤ s ≤ 2 on +x, and from ``joint`` along
+    ``forearm`` for 2 units."""
+    def seg(a, d):
+        s = np.clip((x - a) @ d, 0, 2.0)
+        return np.linalg.norm(x - a - s * d)
+    return min(seg(np.zeros(3), np.array([1.0, 0, 0])), seg(joint, forearm))
+
+
+def test_twist_180_keeps_sections():
+    scene = dqskin.load(ASSETS / "twist_cylinder.usda")
+    mesh = scene.meshes[0]
+    t = scene.times[-1:]  # 180°
+    rings = side_rings(mesh)
+    rest = [ring_area(np.asarray(mesh.points, np.float64)[r]) for r in rings]
+    ratio = {}
+    for meth in ("lbs", "cor"):
+        q = scene.skin(t, meth, space="skeleton").points[mesh.name][0].astype(np.float64)
+        ratio[meth] = min(ring_area(q[r]) / a for r, a in zip(rings, rest))
+    assert ratio["lbs"] < 0.05  # the candy wrapper ...
+    assert ratio["cor"] >= 0.95  # ... is gone
+
+
+def test_bend_neither_collapses_nor_swings_off_axis():
+    scene = dqskin.load(ASSETS / "bending_arm.usda")
+    mesh = scene.meshes[0]
+    frames = scene.times[[18, 22, 27]]  # 90°, 110°, 135°
+    xf = scene.skinning_transforms(frames)
+    rings = side_rings(mesh)
+    pts = np.asarray(mesh.points, np.float64)
+    rest = [ring_area(pts[r]) for r in rings]
+    res = {m: scene.skin(frames, m, space="skeleton").points[mesh.name].astype(np.float64)
+           for m in ("lbs", "dqs", "cor")}
+    for f in range(len(frames)):
+        a = xf[f, 1].astype(np.float64)
+        joint, forearm = a[:3, :3] @ [2.0, 0, 0] + a[:3, 3], a[:3, :3] @ [1.0, 0, 0]
+        section, off = {}, {}
+        for m, q in res.items():
+            section[m] = min(ring_area(q[f, r]) / s for r, s in zip(rings, rest))
+            off[m] = max(distance_to_bones(q[f, r].mean(0), joint, forearm) for r in rings)
+        assert section["lbs"] < 0.75 and section["cor"] >= 0.95, section  # LBS collapses
+        assert off["dqs"] > 1.3 * off["lbs"], off  # DQS swings its sections off the bones
+        assert off["cor"] <= 1.1 * off["lbs"] + 1e-3, off  # CoR keeps them on
+
+
+# ---------------------------------------------------------------------------------------------
+# cache, errors, scene, CLI, compare
+
+
+def test_cache_reused_and_invalidated(cache_dir):
+    pts, faces, idx, w = chain_mesh(rings=11)
+    first = cor.rotation_centers(pts, faces, idx, w)
+    files = list((cache_dir / "cor").glob("*.npy"))
+    assert len(files) == 1
+    # a second run reads the file (planted values come back) ...
+    planted = np.full_like(first, 7.0)
+    np.save(files[0], planted)
+    np.testing.assert_array_equal(cor.rotation_centers(pts, faces, idx, w), planted)
+    # ... and anything that changes the centers is another key
+    moved = pts + [0.0, 0.0, 1e-3]
+    np.testing.assert_allclose(cor.rotation_centers(moved, faces, idx, w),
+                               first + [0.0, 0.0, 1e-3], atol=1e-9)
+    cor.rotation_centers(pts, faces[:-2], idx, w)
+    cor.rotation_centers(pts, faces, idx, w, sigma=0.2)
+    w2 = w.copy()
+    w2[5] = w2[5][::-1]
+    cor.rotation_centers(pts, faces, idx, w2)
+    assert len(list((cache_dir / "cor").glob("*.npy"))) == 5
+    # a corrupt file is recomputed and replaced
+    files[0].write_bytes(b"not a numpy file")
+    np.testing.assert_array_equal(np.isnan(cor.rotation_centers(pts, faces, idx, w)),
+                                  np.isnan(first))
+    assert not list((cache_dir / "cor").glob(".tmp-*"))
+
+
+def test_errors():
+    pts, faces, idx, w = chain_mesh(rings=5)
+    xf = chain_pose(np.random.default_rng(0), frames=1)
+    with pytest.raises(ValueError, match='"cor" needs faces'):
+        dqskin.skin_points(pts, idx, w, xf, "cor")
+    with pytest.raises(ValueError, match="faces: vertex index out of range"):
+        Skinner(pts, idx, w, faces=faces + len(pts))
+    with pytest.raises(ValueError, match=r"faces: expected \(T, 3\)"):
+        Skinner(pts, idx, w, faces=faces[:, :2])
+    with pytest.raises(ValueError, match="sigma"):
+        cor.rotation_centers(pts, faces, idx, w, sigma=0.0)
+
+
+def test_scene_cli_and_compare(tmp_path):
+    pts, faces, idx, w = chain_mesh(rings=16)
+    path = tmp_path / "chain.usda"
+    write_usd_rig(path, np.random.default_rng(6), J=4, frames=2, points=pts, faces=faces,
+                  idx=idx.astype(np.int32), wts=w.astype(np.float32))
+    xf = usdskel_transforms(path, [0, 1])
+    want = cor_reference(pts, idx, w, xf, centers_reference(pts, faces, idx, w))
+    scene = dqskin.load(path)
+    np.testing.assert_allclose(scene.skin(method="cor").points["/Rig/Mesh"], want, atol=5e-5)
+    out = tmp_path / "cor.npz"
+    rc, text = run_cli("skin", path, "--out", out, "--method", "cor")
+    assert rc == 0, text
+    np.testing.assert_allclose(np.load(out)["points_0"], want, atol=5e-5)
+    rc, text = run_cli("compare", path, "--out", tmp_path / "report", "--methods", "lbs,cor",
+                       "--frames", "1", "--views", "front", "--width", "32", "--supersample",
+                       "1", "--no-sweeps", "--quiet")
+    assert rc == 0, text
+    metrics = json.loads((tmp_path / "report" / "metrics.json").read_text())
+    assert metrics["methods"] == ["lbs", "cor"]
