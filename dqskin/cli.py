@@ -1,4 +1,4 @@
-"""The ``dqskin`` command line: ``skin``, ``info``, ``compare`` and ``demo``.
+"""The ``dqskin`` command line: ``skin``, ``info``, ``compare``, ``flatten`` and ``demo``.
 
 All argument parsing lives here; each command calls the library (:func:`dqskin.baking.bake`,
 :func:`dqskin.report.compare.run_compare`). The process's promises, one place each:
@@ -132,19 +132,75 @@ def _clip(text):
 
 
 def cmd_skin(args):
-    from . import formats
     from .baking import bake, output_kind
     from .times import select_times
     output_kind(args.out)
     _checkpoint()
-    scene = formats.load(_regular_file(args.input), clip=_clip(args.clip))
+    scene = _load_input(args, cache_out=args.out)
     _checkpoint()
     times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
                          args.substeps, max_frames=args.max_frames)
     print(bake(scene, args.out, times, method=args.method, interp=args.interp,
                device=args.device, chunk=args.chunk, normals=args.normals,
-               velocities=args.velocities, force=args.force, progress=True,
+               velocities=args.velocities, force=args.force, progress=True, clips=args.clips,
+               workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                sign_reference=args.sign_reference))
+    return 0
+
+
+def cmd_flatten(args):
+    from .formats.usd_clips import flatten
+    src = _regular_file(args.input)
+    print(f"wrote {flatten(src, args.out, overwrite=args.force)}")
+    return 0
+
+
+def _rigging(args):
+    """Whether ``--skeleton``, ``--weights`` or ``--scale`` were given."""
+    return any(getattr(args, k, None) is not None for k in ("skeleton", "weights", "scale"))
+
+
+def _load_input(args, cache_out=None):
+    """The scene of ``skin``/``compare``/``rig``: the character file, or with ``--skeleton`` a
+    plain mesh bound to a BVH (:func:`dqskin.rigging.rig_mesh`); ``--weights`` replaces the
+    influences (:func:`dqskin.rigging.replace_weights`). ``cache_out``: the cache ``skin`` will
+    write (a USD cache needs a USD input: a rig first)."""
+    from . import formats
+    from .rigging import replace_weights, rig_mesh
+    weights = args.weights
+    if weights is not None and weights != "auto":
+        weights = _regular_file(weights)
+    src = _regular_file(args.input)
+    if args.skeleton is not None:
+        if formats.format_of(src) is not None and src.suffix.lower() != ".glb":
+            raise ValueError(f"{src}: --skeleton binds a plain mesh (.obj/.ply/.stl/.off/.glb) "
+                             "to a BVH; a character file has its own skeleton (use --weights "
+                             "auto to replace its weights)")
+        if cache_out is not None and Path(cache_out).suffix.lower() in (".usd", ".usda", ".usdc"):
+            raise ValueError(f"--out {cache_out}: a USD point cache copies a USD input stage; "
+                             f"write the rig first (dqskin rig {src.name} --skeleton "
+                             f"{Path(args.skeleton).name} --out rig.usda), then skin it, or "
+                             "write .npz or per-frame .obj/.ply/.glb files")
+        return rig_mesh(src, _regular_file(args.skeleton), weights=weights or "auto",
+                        scale=args.scale, max_influences=args.max_influences, device=args.device)
+    if args.scale is not None:
+        raise ValueError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")
+    scene = formats.load(src, clip=_clip(args.clip))
+    if weights is not None:
+        scene = replace_weights(scene, weights, max_influences=args.max_influences,
+                                device=args.device)
+    return scene
+
+
+def cmd_rig(args):
+    """``dqskin rig``: bind (or re-weight) and write a UsdSkel rig."""
+    from .baking import check_output
+    from .formats.usd_rig import write_rig
+    inputs = [args.input] + ([args.skeleton] if args.skeleton else [])
+    check_output(args.out, inputs, args.force)
+    scene = _load_input(args)
+    _checkpoint()
+    print(write_rig(scene, args.out, force=args.force))
     return 0
 
 
@@ -233,16 +289,16 @@ def cmd_compare(args):
     """``dqskin compare``: :func:`dqskin.report.compare.run_compare`, then a summary."""
     from .report.compare import run_compare, summary_lines
     from .times import parse_frames
-    _regular_file(args.input)
+    source = _load_input(args) if _rigging(args) else _regular_file(args.input)
     result = run_compare(
-        args.input, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],
+        source, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],
         frames=None if args.frames is None else parse_frames(args.frames,
                                                              max_frames=args.max_frames),
         views=[v.strip() for v in args.views.split(",") if v.strip()], device=args.device,
         width=args.width, supersample=args.supersample, progress=not args.quiet,
         force=args.force, sweeps_dir=None if args.no_sweeps else "default",
         up_axis=args.up_axis, clip=_clip(args.clip), max_rays=args.max_rays,
-        sign_reference=args.sign_reference)
+        sign_reference=args.sign_reference, viewer_frames=args.viewer_frames)
     print(f"wrote {Path(args.out) / 'report.html'} ({len(result['frames'])} frames × "
           f"{len(result['methods'])} methods × {len(result['views'])} views, "
           f"{result['timing_s']['total']:.1f} s)")
@@ -260,6 +316,7 @@ def _add_sign_reference(parser):
 def _add_compare_arguments(parser):
     from .report.compare import MAX_RAYS
     from .report.render import VIEWS
+    from .report.viewer import VIEWER_FRAMES
     from .skinning import METHODS
     from .times import MAX_FRAMES
     parser.add_argument("input", help="character file (.usd/.usda/.usdc/.usdz, .gltf/.glb)")
@@ -283,11 +340,28 @@ def _add_compare_arguments(parser):
                         "cameras (default: the asset's)")
     parser.add_argument("--no-sweeps", action="store_true", help="leave out the twist/bend "
                         "sweeps on the procedural rigs")
+    parser.add_argument("--viewer-frames", type=int, default=VIEWER_FRAMES, help="frames of the "
+                        "animated viewer in report.html, evenly spaced over the clip plus the "
+                        f"compared ones; 0: no viewer (default: {VIEWER_FRAMES})")
     parser.add_argument("--clip", help="glTF animation name or index")
     _add_sign_reference(parser)
     parser.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--force", action="store_true", help="overwrite an existing report")
+
+
+def _add_rigging_arguments(parser):
+    parser.add_argument("--skeleton", help="a .bvh: INPUT is then a plain "
+                        "mesh (.obj/.ply/.stl/.off/.glb) in the BVH's rest pose (every channel "
+                        "zero), bound to its skeleton and animated by its motion")
+    parser.add_argument("--weights", help="auto: bone-heat automatic weights (the default with "
+                        "--skeleton; on a skinned glTF/USD input they replace the artist's), or "
+                        "FILE.npz with joint_indices (V, K), joint_weights (V, K) and joint_names "
+                        "(J,)")
+    parser.add_argument("--scale", type=float, help="multiply the BVH's lengths by this to match "
+                        "the mesh's unit (e.g. 0.0254: inches to metres)")
+    parser.add_argument("--max-influences", type=int, default=8, help="influences per point of "
+                        "automatic weights (default: 8)")
 
 
 def build_parser():
@@ -329,10 +403,22 @@ def build_parser():
                    "write them to .obj/.ply/.glb files")
     s.add_argument("--clip", help="glTF animation name or index")
     s.add_argument("--device", help="cpu or cuda (default: cuda when present)")
-    s.add_argument("--chunk", type=int, default=256, help="frames per chunk (bounds memory)")
+    s.add_argument("--chunk", type=int, help="frames per chunk (bounds memory; default 256) or "
+                   "per clip layer with --clips (default 128)")
+    s.add_argument("--clips", action=argparse.BooleanOptionalAction, default=None,
+                   help="USD caches as value clips: OUT plus one layer per chunk in OUT's .clips "
+                   "folder (default: when the samples exceed 512 MiB, or with --workers, "
+                   "--scheduler or --resume)")
+    s.add_argument("--workers", type=int, help="bake the clip chunks on a local Dask cluster of "
+                   "N worker processes (default: in this process)")
+    s.add_argument("--scheduler", help="bake the clip chunks on a running Dask cluster "
+                   "(tcp://HOST:PORT; its workers must see INPUT and OUT at the same paths)")
+    s.add_argument("--resume", action="store_true", help="complete an interrupted clip bake: "
+                   "keep the clip layers that verify, bake the rest")
     s.add_argument("--max-frames", type=int, default=MAX_FRAMES, help="refuse --frames, --fps "
                    f"or --substeps selecting more frames (default: {MAX_FRAMES})")
     s.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    _add_rigging_arguments(s)
     s.set_defaults(run=cmd_skin)
     i = sub.add_parser("info", help="skeleton tree, meshes, influences, time range, problems",
                        parents=[common])
@@ -344,7 +430,23 @@ def build_parser():
     c = sub.add_parser("compare", help="offscreen LBS-vs-DQS report: report.html, metrics.json, "
                        "frames/*.png", parents=[common])
     _add_compare_arguments(c)
+    _add_rigging_arguments(c)
     c.set_defaults(run=cmd_compare)
+    r = sub.add_parser("rig", help="bind a mesh to a BVH skeleton (or re-weight a character) "
+                       "and write a UsdSkel rig", parents=[common])
+    r.add_argument("input", help="mesh in the BVH's rest pose (with --skeleton), or a character")
+    r.add_argument("--out", required=True, help=".usda/.usd/.usdc UsdSkel rig")
+    _add_rigging_arguments(r)
+    r.add_argument("--clip", help="glTF animation name or index")
+    r.add_argument("--device", help="cpu or cuda (default: cuda when present)")
+    r.add_argument("--force", action="store_true", help="overwrite an existing output")
+    r.set_defaults(run=cmd_rig)
+    f = sub.add_parser("flatten", help="write a value-clip cache (or any stage) as one layer",
+                       parents=[common])
+    f.add_argument("input")
+    f.add_argument("--out", required=True, help=".usd/.usdc/.usda")
+    f.add_argument("--force", action="store_true", help="overwrite an existing output")
+    f.set_defaults(run=cmd_flatten)
     d = sub.add_parser("demo", help="run the main job on the bundled humanoid", parents=[common])
     d.add_argument("--asset", help="default: the bundled humanoid")
     d.add_argument("--out", default="out/demo")

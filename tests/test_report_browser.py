@@ -1,22 +1,32 @@
 """The compare report in a real browser: headless Chromium renders it from disk with no network,
-every embedded image decodes, nothing fails to load, and the page is not blank.
+every embedded image decodes, nothing fails to load, and the page is not blank; the animated
+viewer (software WebGL) draws a non-blank canvas, decodes exactly the skinned points, advances
+frames, toggles the heat map and logs no error.
 
 Needs the Debian packages ``chromium`` and ``chromium-driver`` and the ``selenium`` Python package:
 missing ones fail the test under CI (``CI=true``) and skip it elsewhere. The full-page screenshot
-is kept at ``$DQSKIN_SCREENSHOT`` (default ``<tmp>/report_screenshot.png``) for a person to look at.
+is kept at ``$DQSKIN_SCREENSHOT`` (default ``<tmp>/report_screenshot.png``) for a person to look at,
+the viewer's at ``<tmp>/viewer_screenshot.png`` (``$DQSKIN_VIEWER_SCREENSHOT``).
 """
 
+import base64
+import io
+import json
 import os
+import re
 import shutil
 import subprocess
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
+import dqskin
 from dqskin.report.compare import run_compare
+from dqskin.report.viewer import decode
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
 IN_CI = os.environ.get("CI", "").lower() == "true"
@@ -46,9 +56,33 @@ def report(tmp_path_factory):
 
 
 def _flags(profile):
+    # --enable-unsafe-swiftshader: WebGL on the CPU (SwiftShader) without a GPU
     return ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
             "--disable-background-networking", "--disable-component-update", "--disable-sync",
-            "--disable-dev-shm-usage", f"--user-data-dir={profile}"]
+            "--disable-dev-shm-usage", "--enable-unsafe-swiftshader", f"--user-data-dir={profile}"]
+
+
+def _problems(log):
+    """Console entries that are errors or warnings, less SwiftShader's performance notes on
+    reading pixels back (the test's own canvas reads)."""
+    return [e for e in log if e["level"] in ("SEVERE", "WARNING")
+            and "GL Driver Message (OpenGL, Performance" not in e["message"]]
+
+
+def _driver(tmp_path, size="1400,3000"):
+    chromium, chromedriver = _tool("chromium"), _tool("chromedriver")
+    try:
+        from selenium import webdriver
+        from selenium.webdriver.chrome.service import Service
+    except ImportError:
+        _require(False, "selenium")
+    options = webdriver.ChromeOptions()
+    options.binary_location = chromium
+    for flag in _flags(tmp_path / "profile"):
+        options.add_argument(flag)
+    options.add_argument(f"--window-size={size}")
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    return webdriver.Chrome(service=Service(chromedriver), options=options)
 
 
 def test_screenshot(report, tmp_path):
@@ -70,19 +104,7 @@ def test_screenshot(report, tmp_path):
 
 
 def test_images_decode_and_nothing_fails(report, tmp_path):
-    chromium, chromedriver = _tool("chromium"), _tool("chromedriver")
-    try:
-        from selenium import webdriver
-        from selenium.webdriver.chrome.service import Service
-    except ImportError:
-        _require(False, "selenium")
-    options = webdriver.ChromeOptions()
-    options.binary_location = chromium
-    for flag in _flags(tmp_path / "profile"):
-        options.add_argument(flag)
-    options.add_argument("--window-size=1400,3000")
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(service=Service(chromedriver), options=options)
+    driver = _driver(tmp_path)
     try:
         driver.set_page_load_timeout(60)
         driver.get(report.as_uri())
@@ -101,8 +123,108 @@ def test_images_decode_and_nothing_fails(report, tmp_path):
         fetched = driver.execute_script(
             "return performance.getEntriesByType('resource').map(e => e.name)")
         assert [u for u in fetched if not u.startswith("data:")] == []
-        errors = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "WARNING")]
-        assert errors == []
+        assert _problems(driver.get_log("browser")) == []
         assert "Skinning comparison" in driver.title + driver.page_source
+    finally:
+        driver.quit()
+
+
+def _canvas(driver):
+    """The viewer's canvas as an (H, W, 3) float array (its drawing buffer is preserved)."""
+    url = driver.execute_script("return window.dqskinViewer.canvas.toDataURL('image/png')")
+    png = base64.b64decode(url.split(",", 1)[1])
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.float64)
+
+
+def _wait(driver, script, timeout=60):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = driver.execute_script(script)
+        if value:
+            return value
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for: {script}")
+
+
+def _embedded(report):
+    text = report.read_text(encoding="utf-8")
+    config = json.loads(re.search(r'id="dqv-config">(.*?)</script>', text, re.S).group(1))
+    blob = base64.b64decode(re.search(r'id="dqv-data">(.*?)</script>', text, re.S).group(1))
+    return config, blob
+
+
+def test_viewer_plays_in_webgl(report, tmp_path):
+    driver = _driver(tmp_path, "1400,1000")
+    try:
+        driver.set_page_load_timeout(60)
+        driver.get(report.as_uri())
+        state = _wait(driver, "const v = window.dqskinViewer; "
+                              "return v && (v.ready || v.error) && [v.ready, v.error]")
+        assert state == [True, None]
+        api = "window.dqskinViewer"
+        config, blob = _embedded(report)
+        frames = driver.execute_script(f"return {api}.frameCount")
+        assert frames == len(config["times"]) == 25  # every frame of the twist rig
+
+        # The browser decodes what was skinned: the scene skinned independently of the report
+        # (skeleton space, bind points), within half a quantization step.
+        scene = dqskin.load(ASSETS / "twist_cylinder.usda")
+        meta = config["meta"]
+        driver.execute_script(f"{api}.setFrame(20)")
+        for m, method in enumerate(meta["methods"]):
+            skinned = scene.skin([config["times"][20]], method, device="cpu", space="skeleton",
+                                 blend_shapes=False).points[scene.meshes[0].name][0]
+            shown = np.array(driver.execute_script(f"return {api}.positions({m})")).reshape(-1, 3)
+            np.testing.assert_allclose(shown, skinned, atol=0.51 * meta["step"] + 1e-6)
+        np.testing.assert_allclose(decode(meta, blob)["heat"].max(), meta["heat_max"])
+
+        # Non-blank: many pixels differ from the background, in each method's colour.
+        driver.execute_script(f"{api}.setFrame(0)")
+        time.sleep(0.3)
+        first = _canvas(driver)
+        background = np.array([250.0, 250.0, 250.0])
+        ink = np.abs(first - background).max(axis=2) > 24
+        assert ink.mean() > 0.03
+        for color in config["colors"]:  # lit, so compare hues: the dominant channel matches
+            rgb = np.array([int(color[i:i + 2], 16) for i in (1, 3, 5)], dtype=np.float64)
+            hue = first[ink] / np.maximum(first[ink].sum(axis=1, keepdims=True), 1)
+            target = rgb / rgb.sum()
+            assert (np.abs(hue - target).max(axis=1) < 0.08).mean() > 0.05, color
+
+        # Frames advance: playback moves the frame index, and the twisted frame looks different.
+        driver.execute_script(f"{api}.setPlaying(true)")
+        _wait(driver, f"return {api}.frame() !== 0", timeout=20)
+        driver.execute_script(f"{api}.setFrame({frames - 1})")
+        time.sleep(0.3)
+        assert driver.execute_script(f"return {api}.frame()") == frames - 1
+        last = _canvas(driver)
+        assert np.abs(last - first).max(axis=2).mean() > 1.0
+
+        # The heat map toggles: colours change to the colour map and back.
+        driver.execute_script(f"{api}.setHeat(true)")
+        time.sleep(0.3)
+        assert driver.execute_script(f"return {api}.heat()") is True
+        heat = _canvas(driver)
+        assert np.abs(heat - last).max(axis=2).mean() > 1.0
+        driver.execute_script(f"{api}.setHeat(false)")
+        time.sleep(0.3)
+        np.testing.assert_allclose(_canvas(driver), last, atol=2)
+
+        # The worst frame is one click away.
+        button = driver.find_element("css selector", "#dqv-worst button")
+        button.click()
+        assert driver.execute_script(f"return {api}.frame()") == driver.execute_script(
+            f"return {api}.worstFrame(0)")
+
+        driver.execute_script(f"{api}.setHeat(true); {api}.setRest(true)")
+        driver.execute_script("document.getElementById('dqskin-viewer').scrollIntoView()")
+        time.sleep(0.3)
+        shot = tmp_path / "viewer.png"
+        driver.save_screenshot(str(shot))
+        keep = Path(os.environ.get("DQSKIN_VIEWER_SCREENSHOT",
+                                   Path(tempfile.gettempdir()) / "viewer_screenshot.png"))
+        shutil.copyfile(shot, keep)
+        print(f"viewer screenshot: {keep}")
+        assert _problems(driver.get_log("browser")) == []
     finally:
         driver.quit()

@@ -33,6 +33,7 @@ import json
 import re
 import sys
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from importlib.resources import files
 from pathlib import Path
@@ -45,7 +46,9 @@ from ..metrics import METRICS, worst
 from ..scene import DEFAULT_BLEND, Scene
 from ..skinning import METHODS
 from ..times import default_frames
+from .html import build_html, method_label
 from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
+from .viewer import VIEWER_FRAMES, encode, viewer_times
 
 __all__ = ["BLEND_WEIGHT", "MAX_RAYS", "SWEEP_RIGS", "run_compare", "skeleton_up_axis",
            "summary_lines", "sweeps"]
@@ -70,7 +73,13 @@ MAX_RAYS = 8192
 """Default limit on rays per image side (``width × supersample``; ``--max-rays`` raises it): an
 8192² super-sampled image is already 768 MB of colour samples."""
 
-_LABELS = {"lbs": "LBS", "dqs": "DQS", "blend": f"Blend ({BLEND_WEIGHT:g} DQS)", "cor": "CoR"}
+
+
+def _label(method):
+    """A method's label in images and text (the blend with its DQS fraction)."""
+    return f"Blend ({BLEND_WEIGHT:g} DQS)" if method == "blend" else method_label(method)
+
+
 _FRAME_FILE = re.compile(r"^(?:(?:%s)_\d{3}|closeup)\.png$" % "|".join(VIEWS))
 _HEAT_SHADING = Shading(ambient=0.55, diffuse=0.45, rim=0.0)
 _HEAT_COLORMAP = "viridis"
@@ -270,12 +279,24 @@ def _aspect(camera, lo, hi, limits=(0.5, 2.0)):
     return float(np.clip(extent[0] / max(extent[1], 1e-9), *limits))
 
 
-def _render(meshes, times, methods, views, up_axis, width, supersample, frames_dir, closeup,
-            distance, progress, device):
-    """Render every panel to ``frames_dir``; returns {view: [paths per frame]} and the close-up."""
+def _combined(meshes, methods):
+    """All meshes as one: faces with offset indices, and each method's (F, V, 3) points."""
     offsets = np.cumsum([0] + [len(m.rest) for m in meshes])
     faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets[:-1])])
     posed = {meth: np.concatenate([m.posed[meth] for m in meshes], axis=1) for meth in methods}
+    return faces, posed
+
+
+def _render_count(times, methods, views, heat, closeup):
+    """Images :func:`_render` makes (the progress bar's share of rendering)."""
+    per_frame = len(methods) + bool(heat)
+    return len(times) * len(views) * per_frame + per_frame * bool(closeup)
+
+
+def _render(meshes, times, methods, views, up_axis, width, supersample, frames_dir, closeup,
+            distance, bar, device):
+    """Render every panel to ``frames_dir``; returns {view: [paths per frame]} and the close-up."""
+    faces, posed = _combined(meshes, methods)
     lo = np.min([p.min(axis=(0, 1)) for p in posed.values()], axis=0).astype(np.float64)
     hi = np.max([p.max(axis=(0, 1)) for p in posed.values()], axis=0).astype(np.float64)
     cameras, sizes = {}, {}
@@ -289,11 +310,7 @@ def _render(meshes, times, methods, views, up_axis, width, supersample, frames_d
     heat_range = (0.0, dmax if dmax > 0 else 1.0)
     renderers = {meth: MeshRenderer(posed[meth][0], faces, device=device) for meth in methods}
     heat_renderer = renderers["dqs"] if heat else None
-    from tqdm import tqdm
-
-    total = len(times) * len(views) * (len(methods) + heat) + (len(methods) + heat) * bool(closeup)
-    bar = tqdm(total=total, desc="render", unit="image", disable=not progress, file=sys.stderr)
-    labels = [_LABELS[m] for m in methods] + (["|LBS - DQS|"] if heat else [])
+    labels = [_label(m) for m in methods] + (["|LBS - DQS|"] if heat else [])
 
     def panel(f, cams, dims):
         images = {v: [] for v in cams}
@@ -324,7 +341,6 @@ def _render(meshes, times, methods, views, up_axis, width, supersample, frames_d
         closeup["view"] = view
         img = panel(closeup["frame"], {view: cam}, {view: {"width": width, "height": width}})[view]
         closeup_path = save_png(frames_dir / "closeup.png", img)
-    bar.close()
     return paths, closeup_path, dmax
 
 
@@ -432,7 +448,7 @@ def skeleton_up_axis(scene):
 def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, views=VIEWS,
                 device=None, width=512, supersample=2, progress=True, force=False,
                 sweeps_dir="default", up_axis=None, clip=None, max_rays=MAX_RAYS,
-                sign_reference="largest_weight"):
+                sign_reference="largest_weight", viewer_frames=VIEWER_FRAMES):
     """Compare skinning methods on an asset and write ``report.html``, ``metrics.json`` and
     ``frames/*.png`` in ``out_dir``.
 
@@ -457,7 +473,7 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     supersample : int
         Anti-aliasing rays per pixel along each axis.
     progress : bool
-        tqdm progress bar on stderr while rendering.
+        One tqdm progress bar on stderr for the whole comparison.
     sweeps_dir : str, Path or None
         Folder of the procedural rigs for the angle sweeps (:func:`sweeps`); ``"default"`` is
         the repository's ``assets/`` folder, None leaves the sweeps out. A missing folder or rig
@@ -470,6 +486,9 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         Refuse ``width × supersample`` above this, before rendering anything.
     sign_reference : {"largest_weight", "running_sum"}
         Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
+    viewer_frames : int
+        Frames of the animated viewer (:func:`dqskin.report.viewer.viewer_times`: evenly spaced
+        over the clip, plus the compared frames); 0 leaves the viewer out.
 
     Returns
     -------
@@ -479,7 +498,8 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     t0 = time.perf_counter()
     methods = _choice_list("methods", methods, tuple(METHODS))
     views = _choice_list("views", views, VIEWS)
-    for name, v, low in (("width", width, 16), ("supersample", supersample, 1)):
+    for name, v, low in (("width", width, 16), ("supersample", supersample, 1),
+                         ("viewer_frames", viewer_frames, 0)):
         if isinstance(v, bool) or int(v) != v or v < low:
             raise ValueError(f"{name}: expected an integer >= {low}, got {v!r}")
     if width * supersample > max_rays:
@@ -500,14 +520,58 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     _renderable(scene)
     out, frames_dir = _prepare_out(out_dir, force)
 
-    meshes, skipped, xforms = _skin(scene, times, methods, device, sign_reference)
+    all_times = viewer_times(scene.times, times, viewer_frames) if viewer_frames else times
+    heat = "lbs" in methods and "dqs" in methods
+    steps = (2 * len(methods) + _render_count(times, methods, views, heat, True)
+             + bool(viewer_frames) + 2 * (sweeps_dir is not None) + 1)
+    with _progress_bar(steps, progress) as bar:
+        result = _compare(scene, out, frames_dir, times, all_times, methods, views, up, width,
+                          supersample, sweeps_dir, sign_reference, bool(viewer_frames), heat, bar,
+                          device, t0)
+    return result
+
+
+def _progress_bar(total, enabled):
+    """One tqdm bar on stderr for the whole comparison (a do-nothing context when disabled)."""
+    if not enabled:
+        return nullcontext(_NoBar())
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="compare", unit="step", file=sys.stderr, leave=False,
+                dynamic_ncols=True)
+
+
+class _NoBar:
+    def update(self, n=1):
+        pass
+
+    def set_postfix_str(self, text):
+        pass
+
+
+def _compare(scene, out, frames_dir, times, all_times, methods, views, up, width, supersample,
+             sweeps_dir, sign_reference, viewer, heat, bar, device, t0):
+    """The body of :func:`run_compare` once its arguments are checked; ``bar`` counts steps."""
+    bar.set_postfix_str("skinning")
+    meshes, skipped, xforms = _skin(scene, all_times, methods, device, sign_reference)
+    bar.update(len(methods))
+    pick = np.searchsorted(all_times, times)  # the compared frames among the viewer's
+    viewer_posed = _combined(meshes, methods) if viewer else None
+    for m in meshes:
+        m.posed = {meth: p[pick] for meth, p in m.posed.items()}
+    xforms = {s: x[pick] for s, x in xforms.items()}
     t_skin = time.perf_counter()
+    bar.set_postfix_str("metrics")
     skeletons = scene.skeletons
-    measures = {m.name: {meth: _measure(m, skeletons[m.skeleton], meth, device)
-                         for meth in methods} for m in meshes}
+    measures = {}
+    for m in meshes:
+        measures[m.name] = {}
+    for meth in methods:
+        for m in meshes:
+            measures[m.name][meth] = _measure(m, skeletons[m.skeleton], meth, device)
+        bar.update()
     angles = {s: M.joint_bend_twist(x, skeletons[s].bind_transforms[:, :3, 3],
                                     skeletons[s].parents) for s, x in xforms.items()}
-    heat = "lbs" in methods and "dqs" in methods
     distance, dist_json = None, None
     if heat:
         per_mesh = [M.vertex_distance(m.posed["lbs"], m.posed["dqs"], device=device)
@@ -520,15 +584,29 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     closeup = _closeup_target(measures, meshes, skeletons, xforms, methods)
     t_metrics = time.perf_counter()
 
+    bar.set_postfix_str("rendering")
     panels, closeup_path, dmax = _render(meshes, times, methods, views, up, width, supersample,
-                                         frames_dir, closeup, distance, progress, device)
+                                         frames_dir, closeup, distance, bar, device)
+    if closeup is None:
+        bar.update(len(methods) + heat)
     t_render = time.perf_counter()
+
+    viewer_data = None
+    if viewer:
+        bar.set_postfix_str("viewer data")
+        faces, posed = viewer_posed
+        rest = np.concatenate([m.rest for m in meshes])
+        viewer_data = (all_times, encode(posed, rest, faces))
+        bar.update()
+    t_viewer = time.perf_counter()
 
     sweep_data = None
     if sweeps_dir is not None:
         folder = _default_assets() if sweeps_dir == "default" else Path(sweeps_dir)
+        bar.set_postfix_str("sweeps")
         sweep_data = (sweeps(folder, device=device) if folder.is_dir()
                       else {"skipped": f"{folder}: rig folder not found"})
+        bar.update(2)
 
     def mesh_json(m, meth):
         r = measures[m.name][meth]
@@ -574,12 +652,18 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
                    "vertices": int(sum(len(m.rest) for m in meshes)),
                    "faces": int(sum(len(m.faces) for m in meshes))},
     }
+    if viewer_data is not None:
+        meta, blob = viewer_data[1]
+        result["viewer"] = {"frames": _json_floats(viewer_data[0]),
+                            "vertices": meta["vertices"], "data_bytes": len(blob),
+                            "heat_max": meta["heat_max"]}
     t_sweeps = time.perf_counter()
     result["timing_s"] = {"skin": t_skin - t0, "metrics": t_metrics - t_skin,
-                          "render": t_render - t_metrics, "sweeps": t_sweeps - t_render}
-    from .html import build_html
-
-    page = build_html(result, out)
+                          "render": t_render - t_metrics, "viewer": t_viewer - t_render,
+                          "sweeps": t_sweeps - t_viewer}
+    bar.set_postfix_str("report")
+    page = build_html(result, out, viewer=viewer_data)
+    bar.update()
     result["timing_s"]["report"] = time.perf_counter() - t_sweeps
     result["timing_s"]["total"] = time.perf_counter() - t0
     with atomic_path(out / "metrics.json") as tmp:
@@ -595,7 +679,7 @@ def summary_lines(result):
     method and the best method."""
     lines = []
     for metric, s in result["summary"].items():
-        worst_values = ", ".join(f"{_LABELS[m]} {r['value']:.3f} @ t={r['time']:g}"
+        worst_values = ", ".join(f"{_label(m)} {r['value']:.3f} @ t={r['time']:g}"
                                  for m, r in s["by_method"].items() if r is not None)
         if worst_values:
             lines.append(f"  {metric}: {worst_values}; best: {s['winner']}")

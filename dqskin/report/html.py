@@ -1,7 +1,7 @@
 """The HTML report of ``dqskin compare``: one self-contained file (CSS inline, every image a
-``data:image/png;base64`` URI, no script, no network reference) built from the metrics dictionary of
-:func:`dqskin.report.compare.run_compare` and the panels it rendered. Plots are drawn with
-Matplotlib's Agg canvas (no pyplot, no display).
+``data:image/png;base64`` URI, the animated viewer's scripts and data inline, no network
+reference) built from the metrics dictionary of :func:`dqskin.report.compare.run_compare` and the
+panels it rendered. Plots are drawn with Matplotlib's Agg canvas (no pyplot, no display).
 """
 
 import base64
@@ -13,7 +13,8 @@ import numpy as np
 
 from ..metrics import worst
 
-__all__ = ["METRIC_TITLES", "build_html", "frame_plot_png", "sweep_plot_png"]
+__all__ = ["METRIC_TITLES", "build_html", "frame_plot_png", "method_color", "method_label",
+           "sweep_plot_png"]
 
 METRIC_TITLES = {
     "volume_ratio": "volume ratio",
@@ -241,15 +242,45 @@ def _worst_frames(metrics):
     return sorted(frames.items())[:_MAX_WORST_FRAMES]
 
 
-def build_html(metrics, out_dir):
-    """The report as one HTML string, images read from ``out_dir`` (paths in ``metrics``)."""
+def _viewer_section(m, viewer):
+    """The animated viewer (:mod:`.viewer`) for ``viewer = (times, (meta, blob))``."""
+    from .render import colormap_lut
+    from .viewer import viewer_html
+
+    times, (meta, blob) = viewer
+    methods = m["methods"]
+    labels = [f"Blend ({m['blend_weight']:g} DQS)" if x == "blend" else method_label(x)
+              for x in methods]
+    heat_label = (f"|{labels[0]} − {labels[1]}|" if len(methods) == 2
+                  else "largest distance between any two methods")
+    worst_frames = [{"time": m["frames"][f], "why": "; ".join(why)}
+                    for f, why in _worst_frames(m)]
+    settings = {"times": [float(x) for x in times], "labels": labels,
+                "colors": [method_color(x) for x in methods], "up_axis": m["up_axis"],
+                "fps": m["time_codes_per_second"], "worst": worst_frames,
+                "heat_label": heat_label,
+                "colormap": np.round(colormap_lut("viridis", 256), 4).tolist()}
+    return ("<h2>Animated viewer</h2><p class=note>Every method plays in sync, "
+            f"{len(times)} frames (the compared ones among them); drag to orbit, right-drag to "
+            "pan, wheel to zoom. Heat map: per-vertex " + _esc(heat_label) + " over the same "
+            "colour range in every frame. Rest pose: the bind pose as a grey ghost. Positions "
+            f"are quantized to {meta['step']:.3g} units.</p>" + viewer_html(meta, blob, settings))
+
+
+def build_html(metrics, out_dir, *, viewer=None):
+    """The report as one HTML string, images read from ``out_dir`` (paths in ``metrics``).
+
+    ``viewer``: ``(times, (meta, blob))`` of :func:`dqskin.report.viewer.encode` for the
+    animated viewer, or None to leave it out (the page then has no script)."""
+    from .viewer import VIEWER_CSS
+
     out = Path(out_dir)
     m = metrics
     t = m["frames"]
     render = m["render"]
     parts = [f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
              f"<title>dqskin compare: {_esc(Path(m['asset']).name)}</title>"
-             f"<style>{_CSS}</style></head><body>",
+             f"<style>{_CSS}{VIEWER_CSS if viewer else ''}</style></head><body>",
              f"<h1>Skinning comparison: {_esc(Path(m['asset']).name)}</h1>",
              "<table class=meta>"
              f"<tr><th class=l>asset</th><td>{_esc(m['asset'])}</td></tr>"
@@ -274,6 +305,8 @@ def build_html(metrics, out_dir):
                  "where it happens, and the method whose worst is mildest (ties within "
                  "0.001).</p>" + _summary_table(m))
     parts.append("<h3>Per mesh (worst over frames)</h3>" + _mesh_table(m))
+    if viewer is not None:
+        parts.append(_viewer_section(m, viewer))
 
     parts.append("<h2>Per-frame metrics</h2><p class=note>Scene-wide worst per frame: the "
                  "smallest section ratio, the largest bulge, the volume ratio furthest from "
@@ -343,7 +376,8 @@ def build_html(metrics, out_dir):
         "posed over rest (vertices at least ¼ of the ring's RMS radius from it), over all rings "
         "(&gt; 1 bulges out; LBS and DQS keep ≤ 1 on a circular two-joint ring).</li></ul>"
         f"<p class=note>Timing: skinning {m['timing_s']['skin']:.2f} s, metrics "
-        f"{m['timing_s']['metrics']:.2f} s, rendering {m['timing_s']['render']:.2f} s, sweeps "
-        f"{m['timing_s']['sweeps']:.2f} s.</p></body></html>")
+        f"{m['timing_s']['metrics']:.2f} s, rendering {m['timing_s']['render']:.2f} s, viewer "
+        f"data {m['timing_s']['viewer']:.2f} s, sweeps {m['timing_s']['sweeps']:.2f} s.</p>"
+        "</body></html>")
     return "\n".join(parts)
 
