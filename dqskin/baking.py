@@ -2,8 +2,9 @@
 
 :func:`bake` skins a scene chunk by chunk (:meth:`dqskin.Scene.skin_chunks`, so memory stays
 bounded) and hands each chunk to the writer the output's suffix selects: a USD point cache
-(:mod:`dqskin.formats.usd_cache`), one ``.npz`` (:mod:`dqskin.formats.npz`) or one mesh file per
-frame (:mod:`dqskin.formats.mesh_files`). Every output is written atomically
+(:mod:`dqskin.formats.usd_cache`) or value clips (:mod:`dqskin.formats.usd_clips`, chunks baked
+in parallel by :mod:`dqskin.distributed`), one ``.npz`` (:mod:`dqskin.formats.npz`) or one mesh
+file per frame (:mod:`dqskin.formats.mesh_files`). Every output is written atomically
 (:mod:`dqskin.formats.atomic`) and checked first (:mod:`dqskin.validation`).
 """
 
@@ -21,10 +22,30 @@ from .scene import Scene
 from .skinning import Method, SignReference
 from .validation import check_skinned
 
-__all__ = ["OUTPUT_SUFFIXES", "bake", "check_output", "output_kind"]
+__all__ = ["CHUNK", "CLIP_CHUNK", "CLIPS_AUTO_BYTES", "OUTPUT_SUFFIXES", "bake", "check_output",
+           "output_kind", "sample_bytes"]
 
 OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXES
 """Suffixes :func:`bake` writes (mesh files take a per-frame pattern like ``f_{:04d}.obj``)."""
+
+
+CHUNK = 256
+"""Default frames skinned at a time (single-layer caches, .npz, per-frame files)."""
+
+CLIP_CHUNK = 128
+"""Default frames per clip layer."""
+
+CLIPS_AUTO_BYTES = 512 << 20
+"""A USD cache whose samples would exceed this many bytes (:func:`sample_bytes`) is written as
+value clips unless ``clips=False``: a single layer holds all of them in memory until saved."""
+
+
+def sample_bytes(scene: Scene, frames: int, normals: bool = True, velocities: bool = True) -> int:
+    """Bytes of point, normal and velocity samples a USD cache of ``frames`` frames holds."""
+    per_frame = sum(len(m.points) * (2 if velocities else 1)
+                    + (len(m.normals) if normals and m.normals is not None else 0)
+                    for m in scene.meshes)
+    return 12 * per_frame * int(frames)
 
 
 def output_kind(out: str | Path) -> str:
@@ -59,10 +80,12 @@ def _plural(n, word, plural=None):
     return f"{n} {word if n == 1 else plural or word + 's'}"
 
 
-def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
+def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None = None, *,
          method: Method | None = None, interp: Interpolation = "trs", device: Device = None,
-         chunk: int = 256, normals: bool = True, velocities: bool = True, force: bool = False,
-         progress: bool = False, sign_reference: SignReference = "largest_weight") -> str:
+         chunk: int | None = None, normals: bool = True, velocities: bool = True,
+         force: bool = False, progress: bool = False, clips: bool | None = None,
+         workers: int | None = None, scheduler: str | None = None, resume: bool = False,
+         sign_reference: SignReference = "largest_weight") -> str:
     """Skin ``scene`` at ``times`` and write ``out``.
 
     Every chunk's joint transforms are checked as they are sampled
@@ -74,7 +97,8 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
 
     Parameters
     ----------
-    scene : dqskin.Scene
+    scene : dqskin.Scene, str or Path
+        A loaded scene, or a file to load (:func:`dqskin.load`).
     out : str or Path
         ``.usd/.usda/.usdc`` (USD input only: a point cache of the source stage with points,
         extent, and normals and velocities as asked), ``.npz`` (points and faces), or a per-frame
@@ -87,8 +111,9 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
         None: each mesh's own.
     interp : str
         Joint interpolation (:data:`dqskin.animation.INTERPOLATIONS`).
-    chunk : int
-        Frames skinned at a time.
+    chunk : int, optional
+        Frames skinned at a time (default 256); with clips, frames per clip layer (default
+        :data:`CLIP_CHUNK`, 128).
     sign_reference : {"largest_weight", "running_sum"}
         Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`) for the skinned
         meshes (not yet for rigidly bound prims, which keep the default).
@@ -99,18 +124,46 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
     force : bool
         Overwrite existing outputs (never the input); the last writer wins.
     progress : bool
-        A tqdm bar over frames on stderr (for three chunks or more, and only when stderr is a
-        terminal).
+        A tqdm bar over frames (over chunks with clips) on stderr (for three chunks or more,
+        and only when stderr is a terminal).
+    clips : bool or None
+        USD output as value clips (:mod:`dqskin.formats.usd_clips`): a small top-level ``out``
+        and one crate layer per chunk in ``out``'s ``.clips`` folder. None (default): clips when
+        the samples would exceed :data:`CLIPS_AUTO_BYTES` (512 MiB), or when ``workers``,
+        ``scheduler`` or ``resume`` ask for them.
+    workers : int, optional
+        Bake the clip chunks on a local Dask cluster of this many worker processes
+        (:mod:`dqskin.distributed`). None: in this process.
+    scheduler : str, optional
+        ``tcp://HOST:PORT`` of a running Dask scheduler to bake the clip chunks on instead; its
+        workers read ``scene.path`` from the file (in-memory changes to ``scene`` are not seen)
+        and write to ``out``'s folder, so both must be at the same paths for them.
+    resume : bool
+        Keep the clip layers of an earlier, interrupted bake of the same input and settings
+        that verify against their checksums; bake the rest.
 
     Returns
     -------
     str
         A one-line summary of what was written.
     """
+    if not isinstance(scene, Scene):
+        from .formats import load
+        scene = load(scene)
     t = scene.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
     kind = output_kind(out)
-    if int(chunk) < 1:
+    if chunk is not None and int(chunk) < 1:
         raise ValueError(f"--chunk {chunk}: must be at least 1")
+    asked = workers is not None or bool(scheduler) or resume
+    if kind != "usd" and (clips or asked):
+        raise ValueError(f"--out {out}: value clips, --workers, --scheduler and --resume are for "
+                         "USD caches (.usd/.usdc/.usda)")
+    if workers is not None and int(workers) < 1:
+        raise ValueError(f"--workers {workers}: must be at least 1")
+    if clips is False and asked:
+        raise ValueError("--workers, --scheduler and --resume need value clips (not --no-clips)")
+    if clips is None and kind == "usd":
+        clips = asked or sample_bytes(scene, len(t), normals, velocities) > CLIPS_AUTO_BYTES
     names = [m.name for m in scene.meshes]
     args = dict(method=method, device=device, interp=interp)
     sign = dict(sign_reference=sign_reference)  # (the meshes only: rigid prims use the default)
@@ -120,10 +173,19 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
         if format_of(src) is not usd:
             raise ValueError(f"--out {out}: a USD point cache copies the input stage, so it needs "
                              "a USD input; for glTF write .npz or per-frame .obj/.ply/.glb files")
+        if clips:
+            from .distributed import bake_clips
+            done = bake_clips(scene, out, t, chunk=chunk or CLIP_CHUNK, normals=normals,
+                              velocities=velocities, workers=workers, scheduler=scheduler,
+                              resume=resume, force=force, progress=progress, **args, **sign)
+            kept = f", {done['kept']} kept from the earlier run" if done["kept"] else ""
+            return (f"wrote {out}: {counts} ({method or 'asset method'}"
+                    f"{', velocities' if velocities else ''}) as {_plural(done['chunks'], 'clip')} "
+                    f"in {done['folder']}{kept}")
         check_output(out, [src], force)
         wrote_velocities = False
         with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args) as writer:
-            for sl, res in _chunks(scene, t, chunk, progress, normals=normals,
+            for sl, res in _chunks(scene, t, chunk or CHUNK, progress, normals=normals,
                                    velocities=velocities, **args, **sign):
                 check_skinned(src, res)
                 writer.write(t[sl], res.points, res.normals, res.velocities)
@@ -135,7 +197,7 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
         with atomic_path(out, overwrite=force) as tmp:  # claimed for the whole run
             pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32)
                    for m in scene.meshes}
-            for sl, res in _chunks(scene, t, chunk, progress, **args, **sign):
+            for sl, res in _chunks(scene, t, chunk or CHUNK, progress, **args, **sign):
                 check_skinned(src, res)
                 for name in names:
                     pts[name][sl] = res.points[name]
@@ -151,7 +213,7 @@ def bake(scene: Scene, out: str | Path, times: npt.ArrayLike | None = None, *,
         scene.meshes, suffix, normals=normals, uv_top_left=gltf_input,
         uv_interpolation=None if gltf_input else _usd_uv_interpolation(src))
     with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=force) as writer:
-        for sl, res in _chunks(scene, t, chunk, progress, normals=layout.normals, **args,
+        for sl, res in _chunks(scene, t, chunk or CHUNK, progress, normals=layout.normals, **args,
                                **sign):
             check_skinned(src, res)
             points, nrm = layout.frames(res.points, res.normals)

@@ -1,22 +1,29 @@
-"""End-to-end bake benchmark: load → skin every frame → write ``.usdc``, dqskin vs UsdSkel.
+"""End-to-end bake benchmark, side by side in one run: UsdSkel, dqskin single layer, dqskin value
+clips in this process and on a Dask LocalCluster of 1 and 2 worker processes.
 
-    python tools/bench_bake.py [--frames 1000,2000,4000] [--asset PATH]
+    python tools/bench_bake.py [--frames 1000,10000] [--asset PATH] [--brainstem PATH]
+                               [--impls usdskel,single,clips0,clips1,clips2,clips2+nv]
 
-Makes a long clip by looping the asset's SkelAnimation (CesiumMan.usdz: 48 keys) over N frames,
-then, each in a fresh process so peak memory (max RSS) is its own:
+Assets: the looped CesiumMan (its 48-key walk looped over each ``--frames`` count) and, when the
+file exists, BrainStem.usdz's own clip (``--brainstem``; default: searched under
+../shared/assets). Each bake runs in a fresh process so its peak memory (VmHWM) is its own; the
+clip bakes also report the peak of every worker process. Implementations (``--impls``):
 
-* UsdSkel: ``UsdSkel.BakeSkinning(stage)`` + ``Export`` to ``.usdc`` (LBS, what usd-core bakes);
-* dqskin: ``dqskin skin --method lbs`` (load, skin chunks of frames on a worker thread while the
-  previous chunk is written with ``UsdCacheWriter``), writing points and extent as UsdSkel does;
-  and again with skinned normals too (UsdSkel's bake leaves ``primvars:normals`` at rest).
+* ``usdskel``: ``UsdSkel.BakeSkinning(stage)`` + ``Export`` to ``.usdc`` (LBS, points + extent);
+* ``single``: ``dqskin.bake(..., clips=False)``, LBS, points + extent (what UsdSkel writes);
+* ``clips0``/``clips1``/``clips2``: the same as value clips, in this process / on a LocalCluster
+  of 1 / 2 worker processes (cluster start-up included in the time);
+* ``single+nv``, ``clips2+nv``: with skinned normals and velocities (dqskin's default).
 
-Reports point-frames/s end to end, the ratio, peak RSS and the largest point difference between
-the two caches. Also callable from ``tools/bench.py`` (``bench_bake(rows)``).
+Reports wall seconds of the bake (module imports excluded, shown apart), point-frames/s, peak RSS
+of the main process and of each worker, and the largest point difference to UsdSkel's cache.
+Also callable from ``tools/bench.py`` (``bench_bake(rows)``).
 """
 
 import argparse
 import json
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -26,7 +33,14 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_ASSET = ROOT.parent / "shared" / "assets" / "usd-wg" / "CesiumMan" / "CesiumMan.usdz"
+SHARED = ROOT.parent / "shared" / "assets"
+DEFAULT_ASSET = SHARED / "usd-wg" / "CesiumMan" / "CesiumMan.usdz"
+IMPLS = ("usdskel", "single", "clips0", "clips1", "clips2", "single+nv", "clips2+nv")
+
+
+def find_brainstem():
+    hits = sorted(SHARED.rglob("BrainStem*.usd*")) if SHARED.is_dir() else []
+    return hits[0] if hits else None
 
 
 def make_long_clip(asset, frames, out):
@@ -60,8 +74,13 @@ def import_usdskel():
 
 def import_dqskin():
     import importlib
-    for name in ("dqskin.cli", "dqskin.formats.usd", "dqskin.formats.usd_cache"):
+    for name in ("dqskin.cli", "dqskin.formats.usd", "dqskin.formats.usd_cache",
+                 "dqskin.distributed"):
         importlib.import_module(name)
+    import warp as wp
+    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_ERROR
+    wp.init()
 
 
 def run_usdskel(src, dst):
@@ -69,19 +88,27 @@ def run_usdskel(src, dst):
     stage = Usd.Stage.Open(str(src))
     UsdSkel.BakeSkinning(stage.Traverse())
     stage.GetRootLayer().Export(str(dst))
+    return {}
 
 
-def run_dqskin(src, dst, normals=False):
-    """Like UsdSkel's bake: points and extent (UsdSkel leaves ``primvars:normals`` unskinned)."""
-    from dqskin.cli import main
-    rc = main(["skin", str(src), "--out", str(dst), "--method", "lbs", "--force", "--no-velocities"]
-              + ([] if normals else ["--no-normals"]))
-    if rc:
-        raise SystemExit(rc)
-
-
-def run_dqskin_normals(src, dst):
-    run_dqskin(src, dst, normals=True)
+def run_dqskin(src, dst, which):
+    """``which``: single | clips0 | clips1 | clips2, ``+nv`` for normals and velocities."""
+    from dqskin.baking import CLIP_CHUNK, bake
+    from dqskin.distributed import bake_clips
+    from dqskin.formats import load
+    nv = which.endswith("+nv")
+    kind = which.removesuffix("+nv")
+    scene = load(src)
+    if kind == "single":
+        bake(scene, dst, method="lbs", normals=nv, velocities=nv, clips=False, force=True)
+        return {}
+    workers = int(kind[5:]) or None
+    done = bake_clips(scene, dst, scene.times, chunk=CLIP_CHUNK, method="lbs", normals=nv,
+                      velocities=nv, workers=workers, force=True)
+    peaks = {}
+    for task in done["tasks"]:
+        peaks[task["pid"]] = max(peaks.get(task["pid"], 0.0), task["peak_rss_mb"])
+    return dict(worker_peak_mb=sorted(peaks.values()), chunks=done["chunks"])
 
 
 def peak_rss_mb():
@@ -99,11 +126,10 @@ def child(which, src, dst):
     t0 = time.perf_counter()
     (import_usdskel if which == "usdskel" else import_dqskin)()
     t1 = time.perf_counter()
-    {"usdskel": run_usdskel, "dqskin": run_dqskin, "dqskin+normals": run_dqskin_normals}[which](
-        src, dst)
+    extra = run_usdskel(src, dst) if which == "usdskel" else run_dqskin(src, dst, which)
     t2 = time.perf_counter()
-    peak_mb = peak_rss_mb()
-    print(json.dumps(dict(seconds=t2 - t1, import_seconds=t1 - t0, peak_mb=peak_mb)))
+    print(json.dumps(dict(seconds=t2 - t1, import_seconds=t1 - t0, peak_mb=peak_rss_mb(),
+                          **extra)))
 
 
 def compare_caches(a, b, probe_times):
@@ -122,36 +148,60 @@ def compare_caches(a, b, probe_times):
     return worst
 
 
-def bench_bake(rows, frames=(1000, 2000, 4000), asset=DEFAULT_ASSET):
-    if not Path(asset).is_file():
-        print(f"bake: skipped, {asset} not found")
-        return
+def output_mb(dst):
+    """Size of a cache: the file and, for clips, its ``.clips`` folder."""
+    folder = dst.with_name(dst.stem + ".clips")
+    files = [dst] + (list(folder.iterdir()) if folder.is_dir() else [])
+    return sum(f.stat().st_size for f in files) / 2**20
+
+
+def bench_one(rows, label, src, impls, tmp):
+    from pxr import Usd, UsdGeom
+    stage = Usd.Stage.Open(str(src))
+    points = sum(len(UsdGeom.Mesh(p).GetPointsAttr().Get()) for p in stage.Traverse()
+                 if p.IsA(UsdGeom.Mesh))
+    t0, t1 = stage.GetStartTimeCode(), stage.GetEndTimeCode()
+    frames = int(round(t1 - t0)) + 1
+    dsts = {}
+    for which in impls:
+        dst = tmp / f"{label}_{which.replace('+', '_')}.usd"
+        proc = subprocess.run([sys.executable, __file__, "--child", which, str(src), str(dst)],
+                              capture_output=True, text=True)
+        if proc.returncode:
+            raise RuntimeError(f"{which} bake failed:\n{proc.stderr[-2000:]}")
+        r = json.loads(proc.stdout.strip().splitlines()[-1])
+        dsts[which] = dst
+        rows.append(dict(kind="bake", asset=label, frames=frames, points=points, impl=which,
+                         seconds=r["seconds"], import_seconds=r["import_seconds"],
+                         peak_mb=r["peak_mb"], worker_peak_mb=r.get("worker_peak_mb", []),
+                         mpoint_frames_per_s=points * frames / r["seconds"] / 1e6,
+                         output_mb=output_mb(dst)))
+        print(f"  {label} {frames} frames {which}: {r['seconds']:.2f} s", file=sys.stderr)
+    if "usdskel" in dsts:
+        probes = [t0, t0 + (t1 - t0) // 2, t1, t0 + 0.5]
+        for r in rows:
+            if r.get("asset") == label and r["impl"] in dsts and r["impl"] != "usdskel":
+                r["max_point_diff"] = compare_caches(dsts["usdskel"], dsts[r["impl"]], probes)
+
+
+def bench_bake(rows, frames=(1000, 10000), asset=DEFAULT_ASSET, brainstem=None, impls=IMPLS):
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        for n in frames:
-            src = tmp / f"long_{n}.usdc"
-            make_long_clip(asset, n, src)
-            res = {}
-            for which in ("usdskel", "dqskin", "dqskin+normals"):
-                dst = tmp / f"{which}_{n}.usdc"
-                proc = subprocess.run(
-                    [sys.executable, __file__, "--child", which, str(src), str(dst)],
-                    capture_output=True, text=True)
-                if proc.returncode:
-                    raise RuntimeError(f"{which} bake failed:\n{proc.stderr[-2000:]}")
-                res[which] = json.loads(proc.stdout.strip().splitlines()[-1])
-            from pxr import Usd, UsdGeom
-            stage = Usd.Stage.Open(str(src))
-            points = sum(len(UsdGeom.Mesh(p).GetPointsAttr().Get()) for p in stage.Traverse()
-                         if p.IsA(UsdGeom.Mesh))
-            diff = compare_caches(tmp / f"usdskel_{n}.usdc", tmp / f"dqskin_{n}.usdc",
-                                  [1, n // 2, n])
-            for which, r in res.items():
-                rows.append(dict(kind="bake", frames=n, points=points, impl=which,
-                                 seconds=r["seconds"], import_seconds=r["import_seconds"],
-                                 peak_mb=r["peak_mb"],
-                                 mpoint_frames_per_s=points * n / r["seconds"] / 1e6,
-                                 max_point_diff=diff))
+        brainstem = brainstem or find_brainstem()
+        if brainstem and Path(brainstem).is_file():
+            bench_one(rows, "BrainStem", Path(brainstem), impls, tmp)
+        else:
+            print("bake: BrainStem.usdz not found under ../shared/assets; skipped")
+        if not Path(asset).is_file():
+            print(f"bake: skipped, {asset} not found")
+        else:
+            for n in frames:
+                src = tmp / f"long_{n}.usdc"
+                make_long_clip(asset, n, src)
+                bench_one(rows, f"CesiumMan×{n}", src, impls, tmp)
+                src.unlink()
+                for f in tmp.glob(f"CesiumMan×{n}*"):  # keep /tmp small between sizes
+                    shutil.rmtree(f) if f.is_dir() else f.unlink()
     print_bake(rows)
 
 
@@ -159,19 +209,30 @@ def print_bake(rows):
     bake = [r for r in rows if r["kind"] == "bake"]
     if not bake:
         return
-    print("\nEnd-to-end bake to .usdc (open + skin every frame + write points, normals, "
-          "extent), LBS;\nseconds exclude the one-off module imports, shown apart")
-    print("| frames | impl | seconds | M point-frames/s | imports s | peak RSS MB "
-          "| max |Δp| vs UsdSkel |")
-    print("|---|---|---|---|---|---|---|")
+    print("\nEnd-to-end bake to .usd (open + skin every frame + write), LBS; seconds exclude the "
+          "one-off module imports (shown apart), include Dask cluster start-up")
+    print("| asset | frames | impl | seconds | M point-frames/s | imports s | peak RSS MB main "
+          "| workers MB | output MB | max |Δp| vs UsdSkel |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in bake:
-        print(f"| {r['frames']} | {r['impl']} | {r['seconds']:.2f} "
-              f"| {r['mpoint_frames_per_s']:.1f} "
-              f"| {r['import_seconds']:.2f} | {r['peak_mb']:.0f} | {r['max_point_diff']:.2e} |")
-    for n in dict.fromkeys(r["frames"] for r in bake):
-        sel = {r["impl"]: r for r in bake if r["frames"] == n}
-        ratio = sel["dqskin"]["mpoint_frames_per_s"] / sel["usdskel"]["mpoint_frames_per_s"]
-        print(f"  {n} frames: dqskin / UsdSkel throughput = {ratio:.2f}×")
+        workers = ", ".join(f"{w:.0f}" for w in r.get("worker_peak_mb", [])) or "–"
+        diff = r.get("max_point_diff")
+        print(f"| {r.get('asset', '')} | {r['frames']} | {r['impl']} | {r['seconds']:.2f} "
+              f"| {r['mpoint_frames_per_s']:.1f} | {r['import_seconds']:.2f} | {r['peak_mb']:.0f} "
+              f"| {workers} | {r.get('output_mb', float('nan')):.0f} "
+              f"| {'–' if diff is None else f'{diff:.1e}'} |")
+    for key in dict.fromkeys((r.get("asset"), r["frames"]) for r in bake):
+        sel = {r["impl"]: r for r in bake if (r.get("asset"), r["frames"]) == key}
+        line = []
+        if "clips1" in sel and "clips2" in sel:
+            speedup = sel["clips1"]["seconds"] / sel["clips2"]["seconds"]
+            line.append(f"2 workers / 1 worker = {speedup:.2f}×")
+        if "usdskel" in sel:
+            for impl in ("single", "clips0", "clips2"):
+                if impl in sel:
+                    line.append(f"{impl} / UsdSkel throughput = "
+                                f"{sel['usdskel']['seconds'] / sel[impl]['seconds']:.2f}×")
+        print(f"  {key[0]}: " + "; ".join(line))
 
 
 if __name__ == "__main__":
@@ -179,7 +240,14 @@ if __name__ == "__main__":
         child(*sys.argv[2:5])
         sys.exit(0)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", default="1000,2000,4000")
+    ap.add_argument("--frames", default="1000,10000")
     ap.add_argument("--asset", default=str(DEFAULT_ASSET))
+    ap.add_argument("--brainstem", help="BrainStem.usdz (default: searched under ../shared)")
+    ap.add_argument("--impls", default=",".join(IMPLS))
+    ap.add_argument("--json", help="also write the rows here")
     a = ap.parse_args()
-    bench_bake([], [int(x) for x in a.frames.split(",")], a.asset)
+    out_rows = []
+    bench_bake(out_rows, [int(x) for x in a.frames.split(",")], a.asset, a.brainstem,
+               [x for x in a.impls.split(",") if x])
+    if a.json:
+        Path(a.json).write_text(json.dumps(out_rows, indent=1))

@@ -8,9 +8,16 @@ removed (``SkelBindingAPI``, ``skel:*`` and ``primvars:skel:*`` properties, ``Sk
 ``Xform``) so nothing is skinned twice, and stale ``extentsHint`` on the skinned prims' ancestors
 is dropped. ``Skeleton`` prims are kept but deactivated (unbound from their animation they would
 be drawn in the rest pose); ``SkelAnimation`` prims stay as inert data.
+
+Two pieces serve both USD outputs, the single layer (:class:`UsdCacheWriter`) and the value
+clips of :mod:`dqskin.formats.usd_clips`: :class:`CacheLayer` (the flattened, unbound copy of the
+source and where each skinned value goes in it, as picklable :class:`Target` records) and
+:class:`SampleWriter` (checked chunks of skinned frames → time samples in any layer: the cache's
+own, or a clip layer made on a worker that never opens the source stage).
 """
 
 import os
+from dataclasses import dataclass
 
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
@@ -19,7 +26,8 @@ from ..shapes import frames_of
 from .atomic import atomic_path, check_parent
 from .usd import load_rigid_prims, rigid_transforms
 
-__all__ = ["CACHE_EXTENSIONS", "UsdCacheWriter", "write_usd_cache"]
+__all__ = ["CACHE_EXTENSIONS", "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter",
+           "export_layer", "write_usd_cache"]
 
 CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
 """Extensions :func:`write_usd_cache` writes (``.usd`` is binary crate)."""
@@ -110,12 +118,249 @@ def _prim_spec(layer, path):
     return layer.GetPrimAtPath(sdf_path) or Sdf.CreatePrimInLayer(layer, sdf_path)
 
 
+@dataclass(frozen=True)
+class Target:
+    """Where one skinned value goes: plain strings and numbers, so it pickles to clip workers.
+
+    Attributes
+    ----------
+    attr : str
+        Attribute path (``/Root/Mesh.points``).
+    type_name : str
+        Its Sdf value type (``point3f[]``, ``normal3f[]``, ``matrix4d``, ...).
+    info : tuple of (str, str)
+        Metadata to author with it (a normals primvar's ``interpolation``).
+    pad : float
+        Half the widest rest width (curves, points): added around ``extent``.
+    """
+
+    attr: str
+    type_name: str
+    info: tuple = ()
+    pad: float = 0.0
+
+    def spec(self, layer):
+        """The attribute spec in ``layer``, made (with ``over`` prims above it) if absent."""
+        path = Sdf.Path(self.attr)
+        spec = layer.GetAttributeAtPath(path)
+        if spec is None:
+            prim = _prim_spec(layer, path.GetPrimPath())
+            spec = _attribute(layer, prim, path.name, Sdf.ValueTypeNames.Find(self.type_name),
+                              **dict(self.info))
+        return spec
+
+
+_VALUE_TYPES = {"points": "point3f[]", "extent": "float3[]", "velocities": "vector3f[]",
+                "normals": "normal3f[]", "xformOp:transform": "matrix4d"}
+
+
+class CacheLayer:
+    """The source stage flattened into one new layer with every skeleton binding removed, and the
+    :class:`Target` of each skinned value in it (made on first use by :meth:`target`).
+
+    Parameters
+    ----------
+    scene : Scene
+        What :func:`dqskin.formats.usd.load_usd` returned.
+    out_path : str or os.PathLike
+        The cache to write: checked to be ``.usda/.usdc/.usd`` and not the source file nor any
+        layer it reads (nothing is written here).
+    source_path : str or os.PathLike, optional
+        The stage to copy; ``scene.path`` by default.
+    """
+
+    def __init__(self, scene, out_path, *, source_path=None):
+        out = os.fspath(out_path)
+        check_parent(out)
+        src = os.fspath(scene.path if source_path is None else source_path)
+        ext = os.path.splitext(out)[1].lower()
+        if ext not in CACHE_EXTENSIONS:
+            raise ValueError(f"{out}: cannot write extension {ext!r}; use one of "
+                             f"{', '.join(CACHE_EXTENSIONS)}")
+        try:
+            stage = Usd.Stage.Open(src, Usd.Stage.LoadAll)
+        except Tf.ErrorException:
+            stage = None
+        if stage is None:
+            raise ValueError(f"{src}: cannot open the source stage")
+        if os.path.exists(out) and any(_same_file(out, f) for f in _source_files(stage, src)
+                                       if os.path.exists(f)):
+            raise ValueError(f"{out}: refusing to overwrite an input of {src}")
+        self.scene, self.out, self.src, self.ext = scene, out, src, ext
+        self.stage = stage
+        self.rigid = load_rigid_prims(scene)
+        self.layer = stage.Flatten()
+        _remove_skel_binding(self.layer)
+        self.targets = {}
+
+    def target(self, name, what):
+        """The :class:`Target` of ``what`` (``points``, ``extent``, ``normals``, ``velocities``,
+        ``xformOp:transform``) on prim ``name``; its spec is made in :attr:`layer` (time samples
+        cleared, stale ancestor ``extentsHint`` dropped) on first use."""
+        key = (name, what)
+        if key in self.targets:
+            return self.targets[key]
+        layer = self.layer
+        spec = _prim_spec(layer, name)
+        info, pad = (), 0.0
+        if what == "xformOp:transform":
+            attr = what
+            order = _attribute(layer, spec, "xformOpOrder", Sdf.ValueTypeNames.TokenArray,
+                               Sdf.VariabilityUniform)
+            order.default = Vt.TokenArray([what])
+        else:
+            prim = self.stage.GetPrimAtPath(name)
+            if not prim or not UsdGeom.PointBased(prim):
+                raise ValueError(f"{self.src}: {name}: not a point-based prim")
+            if not any(k[0] == name for k in self.targets):
+                for anc in Sdf.Path(name).GetPrefixes()[:-1]:
+                    anc_spec = layer.GetPrimAtPath(anc)
+                    if anc_spec is not None and "extentsHint" in anc_spec.properties:
+                        anc_spec.RemoveProperty(anc_spec.properties["extentsHint"])
+            attr = what
+            if what == "normals":
+                pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
+                if pv and pv.HasAuthoredValue():
+                    attr = "primvars:normals"
+                    idx = layer.GetAttributeAtPath(spec.path.AppendProperty(attr + ":indices"))
+                    if idx is not None:
+                        spec.RemoveProperty(idx)
+                    interp = pv.GetInterpolation()
+                else:
+                    interp = UsdGeom.PointBased(prim).GetNormalsInterpolation()
+                info = (("interpolation", str(interp)),)
+            elif what == "points":
+                w = _rest_widths(prim)
+                if w is not None and len(w):
+                    pad = 0.5 * float(np.max(np.asarray(w)))
+        target = Target(str(spec.path.AppendProperty(attr)), _VALUE_TYPES[what], info, pad)
+        _attribute(layer, spec, attr, Sdf.ValueTypeNames.Find(target.type_name), **dict(info))
+        self.targets[key] = target
+        return target
+
+    def all_targets(self, *, normals=True, velocities=True):
+        """Every :class:`Target` :meth:`dqskin.Scene.skin` fills with these options (points and
+        extent of every mesh, normals of meshes that have them, velocities) and every rigid
+        prim's ``xformOp:transform``, keyed ``(prim, what)``."""
+        for m in self.scene.meshes:
+            for what in ("points", "extent"):
+                self.target(m.name, what)
+            if normals and m.normals is not None:
+                self.target(m.name, "normals")
+            if velocities:
+                self.target(m.name, "velocities")
+        for r in self.rigid:
+            self.target(r.name, "xformOp:transform")
+        return dict(self.targets)
+
+    def set_metadata(self, t_min, t_max, note="point cache"):
+        """Time range, frame rate, up axis and units of the cache."""
+        layer, scene = self.layer, self.scene
+        with Sdf.ChangeBlock():
+            layer.timeCodesPerSecond = float(scene.time_codes_per_second)
+            layer.framesPerSecond = float(scene.time_codes_per_second)
+            layer.startTimeCode, layer.endTimeCode = float(t_min), float(t_max)
+            root = layer.pseudoRoot
+            root.SetInfo(UsdGeom.Tokens.upAxis, str(scene.up_axis))
+            root.SetInfo(UsdGeom.Tokens.metersPerUnit, float(scene.meters_per_unit))
+            layer.documentation = f"dqskin {note} of {self.src}"
+
+
+def export_layer(layer, claim, out=None):
+    """Write ``layer`` to the temporary file of ``claim`` (an :class:`~.atomic.atomic_path`, not
+    committed here); ``.usd`` is crate. ValueError naming ``out`` (default the claimed path)."""
+    out = os.fspath(claim.path if out is None else out)
+    tmp = claim.open()
+    args = {"format": "usdc"} if claim.path.suffix.lower() == ".usd" else {}
+    try:
+        ok = layer.Export(str(tmp), args=args)
+    except Tf.ErrorException as exc:
+        raise ValueError(f"{out}: USD could not write the layer "
+                         f"({str(exc).replace(str(tmp), out)})") from None
+    if not ok:
+        raise ValueError(f"{out}: USD could not write the layer")
+    return tmp
+
+
+class SampleWriter:
+    """Checked chunks of skinned frames → time samples in a layer.
+
+    Parameters
+    ----------
+    scene : Scene
+        Its meshes' rest data check the shapes; rigid prims are skinned from it.
+    target : callable (prim, what) → Target
+        :meth:`CacheLayer.target`, or a lookup in the :meth:`CacheLayer.all_targets` a clip
+        worker received.
+    rigid : list of dqskin.formats.usd.RigidPrim
+        Skinned prims without points, baked as ``xformOp:transform`` samples.
+    method, device, interp
+        As for :class:`UsdCacheWriter`.
+    """
+
+    def __init__(self, scene, target, rigid, *, method=None, device=None, interp="trs"):
+        self.scene, self.target, self.rigid = scene, target, rigid
+        self.method, self.device, self.interp = method, device, interp
+        self.meshes = {m.name: m for m in scene.meshes}
+
+    def write(self, layer, times, points, normals=None, velocities=None):
+        """Add samples at ``times`` to ``layer`` (see :meth:`UsdCacheWriter.write`); returns the
+        checked times as float64."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)):
+            raise ValueError(f"times: expected a non-empty 1-D array of finite time codes, "
+                             f"got shape {t.shape}")
+        F = t.shape[0]
+        meshes = self.meshes
+        normals, velocities = normals or {}, velocities or {}
+        for what, d in (("points", points), ("normals", normals), ("velocities", velocities)):
+            unknown = sorted(set(d) - set(meshes))
+            if unknown:
+                raise ValueError(f"{what}: no mesh {unknown[0]!r} in {self.scene.path}; meshes: "
+                                 f"{sorted(meshes)}")
+        pts = {n: _frames(n, "points", p, F, meshes[n].points.shape[0]) for n, p in points.items()}
+        nrm = {}
+        for n, v in normals.items():
+            if meshes[n].normals is None:
+                raise ValueError(f"normals[{n!r}]: the mesh has no rest normals to replace")
+            nrm[n] = _frames(n, "normals", v, F, meshes[n].normals.shape[0])
+        vel = {n: _frames(n, "velocities", v, F, meshes[n].points.shape[0])
+               for n, v in velocities.items()}
+        rigid = [(r.name, rigid_transforms(self.scene, r, t, self.method, device=self.device,
+                                           interp=self.interp)) for r in self.rigid]
+
+        def path(name, what):
+            return self.target(name, what).spec(layer).path
+
+        with Sdf.ChangeBlock():
+            for name in sorted(set(pts) | set(nrm) | set(vel)):
+                if name in pts:
+                    p = pts[name]
+                    _set_samples(layer, path(name, "points"), t, p, Vt.Vec3fArray)
+                    # per component: contiguous reductions (a min over axis 1 of (F, V, 3) is slow)
+                    lo = np.stack([p[..., k].min(axis=1) for k in range(3)], axis=1)
+                    hi = np.stack([p[..., k].max(axis=1) for k in range(3)], axis=1)
+                    pad = self.target(name, "points").pad
+                    _set_samples(layer, path(name, "extent"), t,
+                                 np.stack([lo - pad, hi + pad], axis=1), Vt.Vec3fArray)
+                if name in nrm:
+                    _set_samples(layer, path(name, "normals"), t, nrm[name], Vt.Vec3fArray)
+                if name in vel:
+                    _set_samples(layer, path(name, "velocities"), t, vel[name], Vt.Vec3fArray)
+            for name, xf in rigid:
+                attr = path(name, "xformOp:transform")
+                for ti, m in zip(t.tolist(), xf):
+                    layer.SetTimeSample(attr, ti, Gf.Matrix4d(m.T.tolist()))
+        return t
+
+
 class UsdCacheWriter:
     """Incremental USD point-cache writer: open once, :meth:`write` chunks of frames, :meth:`close`.
 
     Use as a context manager; on an exception nothing is written. Memory holds the new layer
     (which keeps every sample until export) but no copy of the caller's arrays, so a clip can be
-    skinned and written chunk by chunk.
+    skinned and written chunk by chunk (for clips too long for one layer in memory, see
+    :mod:`dqskin.formats.usd_clips`).
 
     Parameters
     ----------
@@ -146,32 +391,13 @@ class UsdCacheWriter:
 
     def __init__(self, scene, out_path, *, source_path=None, method=None, device=None,
                  interp="trs", overwrite=True):
-        out = os.fspath(out_path)
-        check_parent(out)
-        src = os.fspath(scene.path if source_path is None else source_path)
-        ext = os.path.splitext(out)[1].lower()
-        if ext not in CACHE_EXTENSIONS:
-            raise ValueError(f"{out}: cannot write extension {ext!r}; use one of "
-                             f"{', '.join(CACHE_EXTENSIONS)}")
-        try:
-            stage = Usd.Stage.Open(src, Usd.Stage.LoadAll)
-        except Tf.ErrorException:
-            stage = None
-        if stage is None:
-            raise ValueError(f"{src}: cannot open the source stage")
-        if os.path.exists(out) and any(_same_file(out, f) for f in _source_files(stage, src)
-                                       if os.path.exists(f)):
-            raise ValueError(f"{out}: refusing to overwrite an input of {src}")
-        self.scene, self.out, self.src, self.ext = scene, out, src, ext
-        self.method, self.device, self.interp = method, device, interp
-        self.stage = stage
-        self.meshes = {m.name: m for m in scene.meshes}
-        self.rigid = load_rigid_prims(scene)
-        self.layer = stage.Flatten()
-        _remove_skel_binding(self.layer)
-        self._attrs = {}
+        self.cache = CacheLayer(scene, out_path, source_path=source_path)
+        self.scene, self.out, self.src = scene, self.cache.out, self.cache.src
+        self.layer = self.cache.layer
+        self.samples = SampleWriter(scene, self.cache.target, self.cache.rigid, method=method,
+                                    device=device, interp=interp)
         self._t_min, self._t_max = np.inf, -np.inf
-        self._claim = atomic_path(out, overwrite=overwrite)
+        self._claim = atomic_path(self.out, overwrite=overwrite)
 
     def __enter__(self):
         self._claim.open()
@@ -183,40 +409,6 @@ class UsdCacheWriter:
         else:
             self._claim.discard()
         return False
-
-    def _attr(self, name, what):
-        """Attribute path of ``what`` on mesh ``name``, its spec made on first use."""
-        key = (name, what)
-        if key in self._attrs:
-            return self._attrs[key]
-        layer, prim = self.layer, self.stage.GetPrimAtPath(name)
-        if not prim or not UsdGeom.PointBased(prim):
-            raise ValueError(f"{self.src}: {name}: not a point-based prim")
-        spec = _prim_spec(layer, name)
-        if not any(k[0] == name for k in self._attrs):
-            for anc in Sdf.Path(name).GetPrefixes()[:-1]:
-                anc_spec = layer.GetPrimAtPath(anc)
-                if anc_spec is not None and "extentsHint" in anc_spec.properties:
-                    anc_spec.RemoveProperty(anc_spec.properties["extentsHint"])
-        if what == "normals":
-            pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
-            if pv and pv.HasAuthoredValue():
-                attr = "primvars:normals"
-                idx = layer.GetAttributeAtPath(spec.path.AppendProperty(attr + ":indices"))
-                if idx is not None:
-                    spec.RemoveProperty(idx)
-                interp = pv.GetInterpolation()
-            else:
-                attr, interp = "normals", UsdGeom.PointBased(prim).GetNormalsInterpolation()
-            path = _attribute(layer, spec, attr, Sdf.ValueTypeNames.Normal3fArray,
-                              interpolation=interp).path
-        else:
-            type_name = {"points": Sdf.ValueTypeNames.Point3fArray,
-                         "extent": Sdf.ValueTypeNames.Float3Array,
-                         "velocities": Sdf.ValueTypeNames.Vector3fArray}[what]
-            path = _attribute(layer, spec, what, type_name).path
-        self._attrs[key] = (path, prim)
-        return path, prim
 
     def write(self, times, points, normals=None, velocities=None):
         """Add samples for ``times``.
@@ -235,61 +427,7 @@ class UsdCacheWriter:
         velocities : dict str → (F, V, 3) float, optional
             Point velocities in prim-space units per second, written to ``velocities``.
         """
-        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-        if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)):
-            raise ValueError(f"times: expected a non-empty 1-D array of finite time codes, "
-                             f"got shape {t.shape}")
-        F = t.shape[0]
-        meshes = self.meshes
-        normals, velocities = normals or {}, velocities or {}
-        for what, d in (("points", points), ("normals", normals), ("velocities", velocities)):
-            unknown = sorted(set(d) - set(meshes))
-            if unknown:
-                raise ValueError(f"{what}: no mesh {unknown[0]!r} in {self.scene.path}; meshes: "
-                                 f"{sorted(meshes)}")
-        pts = {n: _frames(n, "points", p, F, meshes[n].points.shape[0]) for n, p in points.items()}
-        nrm = {}
-        for n, v in normals.items():
-            if meshes[n].normals is None:
-                raise ValueError(f"normals[{n!r}]: the mesh has no rest normals to replace")
-            nrm[n] = _frames(n, "normals", v, F, meshes[n].normals.shape[0])
-        vel = {n: _frames(n, "velocities", v, F, meshes[n].points.shape[0])
-               for n, v in velocities.items()}
-        rigid = [(r.name, rigid_transforms(self.scene, r, t, self.method, device=self.device,
-                                           interp=self.interp)) for r in self.rigid]
-        layer = self.layer
-        with Sdf.ChangeBlock():
-            for name in sorted(set(pts) | set(nrm) | set(vel)):
-                if name in pts:
-                    p = pts[name]
-                    path, prim = self._attr(name, "points")
-                    _set_samples(layer, path, t, p, Vt.Vec3fArray)
-                    # per component: contiguous reductions (a min over axis 1 of (F, V, 3) is slow)
-                    lo = np.stack([p[..., k].min(axis=1) for k in range(3)], axis=1)
-                    hi = np.stack([p[..., k].max(axis=1) for k in range(3)], axis=1)
-                    w = _rest_widths(prim)
-                    if w is not None and len(w):
-                        pad = 0.5 * float(np.max(np.asarray(w)))
-                        lo, hi = lo - pad, hi + pad
-                    _set_samples(layer, self._attr(name, "extent")[0], t,
-                                 np.stack([lo, hi], axis=1), Vt.Vec3fArray)
-                if name in nrm:
-                    _set_samples(layer, self._attr(name, "normals")[0], t, nrm[name], Vt.Vec3fArray)
-                if name in vel:
-                    _set_samples(layer, self._attr(name, "velocities")[0], t, vel[name],
-                                 Vt.Vec3fArray)
-            for name, xf in rigid:
-                spec = _prim_spec(layer, name)
-                key = (name, "xformOp:transform")
-                if key not in self._attrs:
-                    self._attrs[key] = (_attribute(layer, spec, "xformOp:transform",
-                                                   Sdf.ValueTypeNames.Matrix4d).path, None)
-                    order = _attribute(layer, spec, "xformOpOrder", Sdf.ValueTypeNames.TokenArray,
-                                       Sdf.VariabilityUniform)
-                    order.default = Vt.TokenArray(["xformOp:transform"])
-                path = self._attrs[key][0]
-                for ti, m in zip(t, xf):
-                    layer.SetTimeSample(path, float(ti), Gf.Matrix4d(m.T.tolist()))
+        t = self.samples.write(self.layer, times, points, normals, velocities)
         self._t_min, self._t_max = min(self._t_min, t.min()), max(self._t_max, t.max())
 
     def close(self):
@@ -298,24 +436,8 @@ class UsdCacheWriter:
         try:
             if not np.isfinite(self._t_min):
                 raise ValueError(f"{self.out}: no frames were written")
-            layer, scene = self.layer, self.scene
-            with Sdf.ChangeBlock():
-                layer.timeCodesPerSecond = float(scene.time_codes_per_second)
-                layer.framesPerSecond = float(scene.time_codes_per_second)
-                layer.startTimeCode, layer.endTimeCode = float(self._t_min), float(self._t_max)
-                root = layer.pseudoRoot
-                root.SetInfo(UsdGeom.Tokens.upAxis, str(scene.up_axis))
-                root.SetInfo(UsdGeom.Tokens.metersPerUnit, float(scene.meters_per_unit))
-                layer.documentation = f"dqskin point cache of {self.src}"
-            tmp = claim.open()
-            args = {"format": "usdc"} if self.ext == ".usd" else {}
-            try:
-                ok = layer.Export(str(tmp), args=args)
-            except Tf.ErrorException as exc:
-                raise ValueError(f"{self.out}: USD could not write the cache "
-                                 f"({str(exc).replace(str(tmp), self.out)})") from None
-            if not ok:
-                raise ValueError(f"{self.out}: USD could not write the cache")
+            self.cache.set_metadata(self._t_min, self._t_max)
+            export_layer(self.layer, claim)
         except BaseException:
             claim.discard()
             raise

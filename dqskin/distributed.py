@@ -1,0 +1,225 @@
+"""Clip bakes chunk by chunk, in this process or as tasks on Dask (:mod:`dqskin.formats.usd_clips`).
+
+Every chunk of frames is one independent task, :func:`run_chunk`: it skins its frames with
+:meth:`dqskin.Scene.skin_chunks` and writes its own clip layer (:func:`~.formats.usd_clips.
+write_clip`: complete, checksummed, then renamed into place). A task carries only the source's
+path, its times and where each value goes (:class:`~.formats.usd_cache.Target`); each worker
+process loads the asset once and keeps it for its later chunks, and returns a few numbers, so
+point data never travels through the scheduler. Workers need the source and the output folder at
+the same paths (one machine, or a shared file system).
+
+* ``workers=None`` and no ``scheduler``: the chunks run here, one after another.
+* ``workers=N``: a :class:`distributed.LocalCluster` of ``N`` worker processes (one thread each)
+  on 127.0.0.1, started and closed by the bake.
+* ``scheduler="tcp://HOST:PORT"``: an existing cluster (``dask scheduler`` and ``dask worker``).
+
+A worker process that dies mid-chunk leaves no layer under the chunk's name; Dask runs the task
+again on another worker (up to its ``allowed-failures``, 3 by default).
+"""
+
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .formats import usd_clips
+from .formats.usd_cache import SampleWriter
+from .validation import check_skinned
+
+__all__ = ["ChunkJob", "bake_clips", "run_chunk"]
+
+SUBCHUNK = 32
+"""Frames a task skins at a time (the clip layer holds its whole chunk until written)."""
+
+_scenes = {}  # this worker process's loaded asset: {(path, mtime, size): Scene}
+
+
+@dataclass(frozen=True)
+class ChunkJob:
+    """One chunk of a clip bake: everything a worker needs besides the asset file.
+
+    Attributes
+    ----------
+    index : int
+    source : str
+        Absolute path of the asset (read by the worker).
+    times : (F_k,) float64
+        The clip layer's time codes (its own frames and the next chunk's first).
+    path : str
+        Absolute path of the clip layer.
+    key : str
+        The plan key recorded with the layer.
+    targets : dict (prim, what) → Target
+    rigid : list of RigidPrim
+    skin : dict
+        Keyword arguments of :meth:`dqskin.Scene.skin` (``method``, ``interp``, ``device``,
+        ``normals``, ``velocities``, ...).
+    time_codes_per_second : float
+    """
+
+    index: int
+    source: str
+    times: np.ndarray
+    path: str
+    key: str
+    targets: dict
+    rigid: list
+    skin: dict
+    time_codes_per_second: float
+
+
+def _quiet_worker_plugin():
+    """A Dask worker plugin turning Warp's banner and module-load messages off in every worker
+    process (restarted ones too), whose stdout is the caller's. (Made here so that importing
+    this module does not import Dask; a local class travels by value.)"""
+    from distributed import WorkerPlugin
+
+    class QuietWarp(WorkerPlugin):
+        name = "dqskin-quiet-warp"
+
+        def setup(self, worker):
+            import warp as wp
+            wp.config.quiet = True
+            wp.config.log_level = wp.LOG_ERROR
+
+    return QuietWarp()
+
+
+def _worker_scene(path):
+    """The asset at ``path``, loaded once per worker process (reloaded if the file changed)."""
+    st = os.stat(path)
+    key = (path, st.st_mtime_ns, st.st_size)
+    if key not in _scenes:
+        from .formats import load
+        _scenes.clear()
+        _scenes[key] = load(path)
+    return _scenes[key]
+
+
+def _peak_rss_mb():
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return float("nan")
+
+
+def run_chunk(job: ChunkJob, scene=None) -> dict:
+    """Skin one chunk and write its clip layer; ``scene`` defaults to the worker's copy of
+    ``job.source``. Returns ``index``, ``sha256``, ``seconds``, ``pid`` and ``peak_rss_mb``."""
+    t0 = time.perf_counter()
+    scene = _worker_scene(job.source) if scene is None else scene
+    opts = job.skin
+
+    def target(name, what):
+        try:
+            return job.targets[name, what]
+        except KeyError:
+            raise ValueError(f"{job.source}: {name}: no {what} in this bake's plan") from None
+
+    writer = SampleWriter(scene, target, job.rigid, method=opts.get("method"),
+                          device=opts.get("device"), interp=opts.get("interp", "trs"))
+    layer = usd_clips.new_clip_layer(job.time_codes_per_second)
+    for _, res in scene.skin_chunks(job.times, SUBCHUNK, **opts):
+        check_skinned(scene.path, res)
+        writer.write(layer, res.times, res.points, res.normals, res.velocities)
+    digest = usd_clips.write_clip(layer, job.path, job.key, job.times)
+    del layer
+    return dict(index=job.index, sha256=digest, seconds=time.perf_counter() - t0,
+                pid=os.getpid(), peak_rss_mb=_peak_rss_mb())
+
+
+def bake_clips(scene, out, times, *, chunk, method=None, interp="trs", device=None,
+               normals=True, velocities=True, workers=None, scheduler=None, resume=False,
+               force=False, progress=False, **skin_options) -> dict:
+    """Bake ``scene`` at ``times`` to the value-clip cache ``out``
+    (:class:`~.formats.usd_clips.ClipBake`); see :func:`dqskin.bake` for the parameters.
+    ``skin_options`` go to :meth:`dqskin.Scene.skin` (``sign_reference``, ...) for the meshes
+    and into the plan key (rigidly bound prims use ``method``, ``interp`` and ``device``).
+
+    Returns
+    -------
+    dict
+        ``chunks`` (total), ``baked`` (this run), ``kept`` (verified from an earlier run),
+        ``folder``, and ``tasks``: what each task returned (pid, seconds, peak RSS).
+    """
+    options = dict(skin_options, method=method, interp=interp, normals=bool(normals),
+                   velocities=bool(velocities))
+    bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=force, resume=resume)
+    todo = bake.pending()
+    skin = dict(options, device=None if device is None else str(device))
+    source = str(Path(bake.cache.src).resolve())
+    jobs = [ChunkJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()), bake.key,
+                     bake.targets, bake.cache.rigid, skin, float(scene.time_codes_per_second))
+            for k in todo]
+    bar = _bar(len(bake.bounds), len(bake.bounds) - len(todo), progress)
+    tasks = []
+    try:
+        if workers is None and scheduler is None:
+            for job in jobs:
+                tasks.append(run_chunk(job, scene))
+                bar.update(1)
+        elif jobs:
+            def done(result):
+                tasks.append(result)
+                bar.update(1)
+            _run_on_dask(jobs, workers, scheduler, done)
+    finally:
+        bar.close()
+    bake.finish()
+    return dict(chunks=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
+                folder=str(bake.folder), tasks=tasks)
+
+
+def _bar(total, done, progress):
+    from tqdm import tqdm
+    return tqdm(total=total, initial=done, unit="chunk", desc="baking clips", file=sys.stderr,
+                disable=not progress or total < 2 or not sys.stderr.isatty())
+
+
+def _run_on_dask(jobs, workers, scheduler, done):
+    """Run the jobs on a new LocalCluster of ``workers`` processes or the cluster at
+    ``scheduler``; ``done(result)`` for each task as it finishes."""
+    import logging
+
+    from distributed import Client, LocalCluster, as_completed
+    from distributed.scheduler import KilledWorker
+
+    cluster = client = None
+    try:
+        if scheduler:
+            try:
+                client = Client(scheduler, timeout="20s")
+            except (OSError, ValueError) as exc:
+                raise ConnectionError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+        else:
+            if int(workers) < 1:
+                raise ValueError(f"--workers {workers}: must be at least 1")
+            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                                   host="127.0.0.1", dashboard_address=None,
+                                   silence_logs=logging.ERROR)
+            client = Client(cluster)
+        client.register_plugin(_quiet_worker_plugin())
+        futures = {client.submit(run_chunk, job, key=f"dqskin-chunk-{job.index}-{job.key[:12]}",
+                                 pure=False): job for job in jobs}
+        for fut in as_completed(futures):
+            try:
+                result = fut.result()
+            except KilledWorker:
+                job = futures[fut]
+                raise ChildProcessError(
+                    f"{job.path}: the worker processes baking it died repeatedly (out of memory? "
+                    "try a smaller --chunk); finished chunks are kept: rerun with --resume"
+                ) from None
+            done(result)
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()

@@ -1,0 +1,296 @@
+"""USD value clips: a long bake as one crate layer per chunk of frames, read as one animation.
+
+For ``--out SHOT.usd`` (any of ``.usd/.usdc/.usda``) a clip bake writes::
+
+    SHOT.usd                     top level: the source flattened and unbound, as the single-layer
+                                 cache (:class:`~.usd_cache.CacheLayer`), without the samples;
+                                 ``clips`` metadata on each root prim above a skinned prim
+    SHOT.clips/plan.json         what is baked: source, times, chunking, options, and their key
+    SHOT.clips/manifest.usda     the clip manifest: the attributes the clips hold
+    SHOT.clips/chunk_00000.usdc  one chunk's time samples (:class:`~.usd_cache.SampleWriter`)
+    SHOT.clips/chunk_00000.json  its SHA-256, size and the plan key
+
+USD never interpolates across clips: between the last sample of one clip and the first of the
+next it holds the earlier one. So chunk ``k`` owns frames ``[lo_k, lo_{k+1})`` but its layer also
+holds frame ``lo_{k+1}`` (the boundary sample is in both clips); clip ``k`` is ``active`` from
+``lo_k`` and the ``times`` mapping is the identity, so a sub-frame inside the interval between
+two chunks is interpolated within clip ``k`` exactly as in one layer. The top level has no
+default value on the clip-driven attributes (a default authored there would be stronger than
+every clip), so those attributes have no value at the ``Default`` time code.
+
+Each clip layer is written beside its final name and renamed into place only when complete,
+after its checksum record (:func:`write_clip`); :meth:`ClipBake.pending` verifies the chunks a
+previous run left (``resume``). :func:`flatten` turns a clip cache into one layer for tools that
+do not read clips.
+"""
+
+import contextlib
+import hashlib
+import json
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+from pxr import Sdf, Usd, Vt
+
+from .atomic import atomic_path, check_interrupted
+from .usd_cache import CacheLayer, export_layer
+
+__all__ = ["CLIPS_FOLDER_SUFFIX", "ClipBake", "chunk_bounds", "clips_folder", "flatten",
+           "new_clip_layer", "verify_chunk", "write_clip"]
+
+CLIPS_FOLDER_SUFFIX = ".clips"
+"""``SHOT.usd`` → ``SHOT.clips/``."""
+
+_FORMAT = "dqskin-usd-clips/1"
+_OURS = re.compile(r"^(chunk_\d+\.(usdc|json)|plan\.json|manifest\.usda|"
+                   r"\.(chunk_\d+|plan|manifest)\..+)$")
+_TEMP = re.compile(r"^\.(chunk_\d+|plan|manifest)\..+$")
+
+
+def clips_folder(out) -> Path:
+    """The folder of the clip layers of ``out`` (``SHOT.usd`` → ``SHOT.clips``)."""
+    out = Path(out)
+    return out.with_name(out.stem + CLIPS_FOLDER_SUFFIX)
+
+
+def chunk_bounds(count: int, chunk: int) -> list:
+    """``[(lo, hi), ...]``: chunk ``k`` owns frames ``lo..hi-1``; its clip layer holds frames
+    ``lo..min(hi, count - 1)`` (the next chunk's first frame too)."""
+    if int(chunk) < 1:
+        raise ValueError(f"--chunk {chunk}: must be at least 1")
+    return [(lo, min(lo + chunk, count)) for lo in range(0, count, chunk)]
+
+
+def _chunk_name(index, count):
+    return f"chunk_{index:0{max(5, len(str(count - 1)))}d}"
+
+
+def _sha256(path):
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _write_json(path, data, overwrite=True):
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        Path(tmp).write_text(json.dumps(data, indent=1) + "\n")
+
+
+def new_clip_layer(time_codes_per_second: float):
+    """An empty in-memory layer for one chunk (same frame rate as the top level)."""
+    layer = Sdf.Layer.CreateAnonymous(".usdc")
+    layer.timeCodesPerSecond = layer.framesPerSecond = float(time_codes_per_second)
+    return layer
+
+
+def write_clip(layer, path, key: str, times) -> str:
+    """Write one chunk's ``layer`` to ``path``: export beside it, record its SHA-256 in
+    ``path.json``, then rename it into place. Returns the checksum.
+
+    A process killed at any point leaves either no layer under ``path`` or one whose record
+    does not match it (the record was replaced first), which :func:`verify_chunk` rejects.
+    """
+    path = Path(path)
+    times = np.asarray(times, np.float64)
+    layer.startTimeCode, layer.endTimeCode = float(times[0]), float(times[-1])
+    claim = atomic_path(path, overwrite=True)
+    try:
+        tmp = export_layer(layer, claim)
+        digest = _sha256(tmp)
+        _write_json(path.with_suffix(".json"), {
+            "layer": path.name, "sha256": digest, "bytes": os.path.getsize(tmp), "plan": key,
+            "first": float(times[0]), "last": float(times[-1]), "frames": int(len(times))})
+        claim.commit()
+    except BaseException:
+        claim.discard()
+        raise
+    return digest
+
+
+def verify_chunk(path, key: str) -> bool:
+    """True when the clip layer ``path`` exists and matches its record (same plan key, size
+    and SHA-256)."""
+    path = Path(path)
+    try:
+        record = json.loads(path.with_suffix(".json").read_text())
+        return (record.get("plan") == key and path.is_file()
+                and path.stat().st_size == record.get("bytes")
+                and _sha256(path) == record.get("sha256"))
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+class ClipBake:
+    """The driver's side of a clip bake: checks, the plan, resume verification, and the top
+    level written last.
+
+    Parameters
+    ----------
+    scene : Scene
+        A USD scene (:func:`dqskin.formats.usd.load_usd`).
+    out : str or Path
+        ``SHOT.usd/.usdc/.usda``; the clips go to :func:`clips_folder`.
+    times : (F,) float64
+        Time codes to bake.
+    chunk : int
+        Frames each clip layer owns.
+    options : dict
+        Skinning options that change the result (method, interp, normals, velocities); part of
+        the plan key.
+    force : bool
+        Start over: an existing ``out`` and the clip files of an earlier bake are replaced.
+    resume : bool
+        Keep the chunks of an earlier bake of the same plan that verify; redo the rest.
+
+    Raises
+    ------
+    FileExistsError
+        ``out`` or an earlier clip bake exists, without ``force`` (or ``resume``).
+    ValueError
+        ``resume`` over a bake of another input or other settings.
+    """
+
+    def __init__(self, scene, out, times, chunk, options, *, force=False, resume=False):
+        normals, velocities = options.get("normals", True), options.get("velocities", True)
+        self.cache = CacheLayer(scene, out)
+        self.out, self.folder = Path(out), clips_folder(out)
+        self.times = np.asarray(times, np.float64)
+        self.bounds = chunk_bounds(len(self.times), chunk)
+        self.targets = self.cache.all_targets(normals=normals, velocities=velocities)
+        src = Path(self.cache.src).resolve()
+        st = src.stat()
+        plan = {"format": _FORMAT, "source": str(src), "source_bytes": st.st_size,
+                "source_mtime_ns": st.st_mtime_ns, "frames": len(self.times),
+                "first": float(self.times[0]), "last": float(self.times[-1]),
+                "times_sha256": hashlib.sha256(self.times.tobytes()).hexdigest(),
+                "chunk": int(chunk), "chunks": len(self.bounds),
+                "options": {k: options[k] for k in sorted(options)},
+                "attributes": sorted(t.attr for t in self.targets.values())}
+        self.key = hashlib.sha256(json.dumps(plan, sort_keys=True).encode()).hexdigest()
+        self.plan = dict(plan, key=self.key)
+        self.resumed = self._check_existing(force, resume)
+        self.overwrite = force or self.resumed
+
+    def _check_existing(self, force, resume):
+        """True when resuming a bake of this plan; clears an earlier bake when ``force``."""
+        plan_file = self.folder / "plan.json"
+        if self.folder.exists() and not self.folder.is_dir():
+            raise NotADirectoryError(f"{self.folder}: exists and is not a folder")
+        earlier = plan_file.exists()
+        if earlier and resume and not force:
+            try:
+                key = json.loads(plan_file.read_text()).get("key")
+            except (OSError, ValueError, AttributeError):
+                key = None
+            if key != self.key:
+                raise ValueError(f"{self.folder}: an earlier bake of another input or with other "
+                                 "settings (frames, chunk, method, normals, velocities); rerun "
+                                 "it with those, or use --force to start over")
+            return True
+        if not force:
+            if self.out.exists():
+                raise FileExistsError(f"{self.out}: exists (use --force to overwrite)")
+            if earlier:
+                raise FileExistsError(f"{self.folder}: an unfinished clip bake is there; use "
+                                      "--resume to complete it or --force to start over")
+        elif self.folder.is_dir():
+            self._remove(_OURS)
+        return False
+
+    def _remove(self, pattern):
+        for p in self.folder.iterdir():
+            if pattern.match(p.name) and p.is_file():
+                with contextlib.suppress(OSError):
+                    p.unlink()
+
+    def clip_path(self, index) -> Path:
+        return self.folder / (_chunk_name(index, len(self.bounds)) + ".usdc")
+
+    def chunk_times(self, index):
+        """(F_k,) times of clip layer ``index``: its own frames and the next chunk's first."""
+        lo, hi = self.bounds[index]
+        return self.times[lo:min(hi + 1, len(self.times))]
+
+    def pending(self) -> list:
+        """Indices of the chunks to bake: all, or when resuming those that do not verify. Writes
+        the plan and the manifest (and removes temporary files a killed run left)."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self._remove(_TEMP)
+        todo = [k for k in range(len(self.bounds))
+                if not (self.resumed and verify_chunk(self.clip_path(k), self.key))]
+        check_interrupted()
+        _write_json(self.folder / "plan.json", self.plan)
+        manifest = Sdf.Layer.CreateAnonymous(".usda")
+        for target in self.targets.values():
+            target.spec(manifest)
+        with atomic_path(self.folder / "manifest.usda") as tmp:
+            if not manifest.Export(str(tmp)):
+                raise ValueError(f"{self.folder / 'manifest.usda'}: USD could not write it")
+        return todo
+
+    def finish(self) -> Path:
+        """Check every chunk is in place, then write the top level (atomically). Returns it."""
+        missing = [k for k in range(len(self.bounds)) if not self.clip_path(k).is_file()]
+        if missing:
+            raise ValueError(f"{self.clip_path(missing[0])}: missing; {len(missing)} chunks "
+                             "were not written")
+        layer, t = self.cache.layer, self.times
+        with Sdf.ChangeBlock():
+            for target in self.targets.values():
+                spec = layer.GetAttributeAtPath(target.attr)
+                if spec is not None and spec.HasDefaultValue():
+                    spec.ClearDefaultValue()  # a default here would be stronger than the clips
+            rel = f"./{self.folder.name}/"
+            assets = Sdf.AssetPathArray([rel + self.clip_path(k).name
+                                         for k in range(len(self.bounds))])
+            active = Vt.Vec2dArray([(float(t[lo]), float(k))
+                                    for k, (lo, _) in enumerate(self.bounds)])
+            mapping = Vt.Vec2dArray(sorted({(float(t[0]),) * 2, (float(t[-1]),) * 2}))
+            roots = sorted({str(Sdf.Path(x.attr).GetPrefixes()[0]) for x in self.targets.values()})
+            for root in roots:
+                layer.GetPrimAtPath(root).SetInfo("clips", {"default": {
+                    "assetPaths": assets, "primPath": root, "active": active, "times": mapping,
+                    "manifestAssetPath": Sdf.AssetPath(rel + "manifest.usda")}})
+        self.cache.set_metadata(t.min(), t.max(), note=f"value-clip cache ({len(self.bounds)} "
+                                f"clips in {self.folder.name}/)")
+        claim = atomic_path(self.out, overwrite=self.overwrite)
+        try:
+            export_layer(layer, claim)
+        except BaseException:
+            claim.discard()
+            raise
+        claim.commit()
+        self._remove(_TEMP)
+        return self.out
+
+
+def flatten(src, out, *, overwrite: bool = False) -> Path:
+    """Write the composed stage ``src`` (a clip cache, or any stage) as one layer ``out``: every
+    clip's samples become ordinary time samples, for tools that do not read value clips. The
+    whole animation is held in memory while writing.
+
+    ``.usd`` output is crate. ``out`` appears only when complete (exclusively unless
+    ``overwrite``); ``src`` is never modified. Returns ``out``.
+    """
+    out = Path(out)
+    if out.suffix.lower() not in (".usd", ".usdc", ".usda"):
+        raise ValueError(f"{out}: cannot write extension {out.suffix!r}; use .usd/.usdc/.usda")
+    stage = Usd.Stage.Open(str(src)) if Path(src).is_file() else None
+    if stage is None:
+        raise ValueError(f"{src}: cannot open the stage")
+    for layer in stage.GetUsedLayers():
+        real = layer.realPath and layer.realPath.split("[", 1)[0]
+        if real and out.exists() and os.path.samefile(real, out):
+            raise ValueError(f"{out}: refusing to overwrite an input of {src}")
+    claim = atomic_path(out, overwrite=overwrite)
+    try:
+        export_layer(stage.Flatten(), claim)
+    except BaseException:
+        claim.discard()
+        raise
+    claim.commit()
+    return out

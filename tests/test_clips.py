@@ -1,0 +1,330 @@
+"""Value-clip caches (dqskin.formats.usd_clips), baked in this process.
+
+What USD shows through ``Usd.Stage.Open`` is checked against two references: a float64 oracle
+written from USD's own rule (linear interpolation between the bracketing samples, held outside
+the range) applied to :meth:`Scene.skin`'s frames, and today's single-layer cache, which it must
+equal exactly, sub-frames between two chunks included. Pixar's own baked baseline checks the
+rigid prims. Resume, interruption, flattening and refusals too.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Sdf, Usd, UsdGeom
+
+from dqskin import bake
+from dqskin.formats import load
+from dqskin.formats.usd_clips import chunk_bounds, clips_folder, flatten, verify_chunk
+
+HUMANOID = Path(__file__).resolve().parents[1] / "assets" / "humanoid.usda"
+BAKE = "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning"
+ATTRS = ("points", "normals", "velocities", "extent")
+CHUNK = 7
+
+
+def probe_times(times, chunk):
+    """Every frame; sub-frames inside each interval between two chunks and inside chunks;
+    times before and after the range."""
+    t = np.asarray(times, np.float64)
+    probes = set(t.tolist()) | {t[0] - 1.5, t[-1] + 2.25}
+    for lo, _ in chunk_bounds(len(t), chunk):
+        for k in (lo - 1, lo):
+            if 0 <= k < len(t) - 1:
+                for a in (0.01, 0.25, 0.5, 0.99):
+                    probes.add(float(t[k] + a * (t[k + 1] - t[k])))
+    return sorted(probes)
+
+
+def attribute(stage, name, what):
+    prim = stage.GetPrimAtPath(name)
+    if what == "normals" and UsdGeom.PrimvarsAPI(prim).HasPrimvar("normals"):
+        return prim.GetAttribute("primvars:normals")
+    return prim.GetAttribute(what)
+
+
+def assert_same_animation(stage_a, stage_b, names, times):
+    """Every attribute of ``ATTRS`` on every prim equal (bit for bit) in both stages at
+    ``times``; returns how many values were compared."""
+    n = 0
+    for name in names:
+        for what in ATTRS:
+            a, b = attribute(stage_a, name, what), attribute(stage_b, name, what)
+            if not a.HasAuthoredValue() and not a.GetTimeSamples():
+                continue
+            for t in times:
+                va, vb = a.Get(t), b.Get(t)
+                assert vb is not None, f"{name}.{what} at {t}: no value"
+                np.testing.assert_array_equal(np.asarray(vb), np.asarray(va),
+                                              err_msg=f"{name}.{what} at {t}")
+                n += 1
+    return n
+
+
+def oracle(frames, times, t):
+    """USD's value at ``t`` from samples ``frames`` (F, ...) at ``times``: linear between the
+    bracketing samples, held outside (float64)."""
+    k = int(np.searchsorted(times, t, side="right")) - 1
+    if k < 0:
+        return frames[0].astype(np.float64)
+    if k >= len(times) - 1:
+        return frames[-1].astype(np.float64)
+    a = (t - times[k]) / (times[k + 1] - times[k])
+    return (1 - a) * frames[k].astype(np.float64) + a * frames[k + 1].astype(np.float64)
+
+
+@pytest.fixture(scope="module")
+def humanoid(tmp_path_factory):
+    """The bundled humanoid baked three ways: skinned in memory, single layer, clips."""
+    tmp = tmp_path_factory.mktemp("humanoid")
+    scene = load(HUMANOID)
+    ref = scene.skin(normals=True, velocities=True)
+    single = tmp / "single.usdc"
+    bake(scene, single, clips=False)
+    shot = tmp / "shot.usd"
+    summary = bake(scene, shot, chunk=CHUNK, clips=True)
+    return dict(scene=scene, ref=ref, single=single, shot=shot, summary=summary, tmp=tmp)
+
+
+def test_clips_equal_oracle_and_single_layer_at_frames_and_sub_frames(humanoid):
+    scene, ref, shot = humanoid["scene"], humanoid["ref"], humanoid["shot"]
+    t = scene.times
+    assert "as 7 clips" in humanoid["summary"]
+    stage = Usd.Stage.Open(str(shot))
+    names = [m.name for m in scene.meshes]
+    probes = probe_times(t, CHUNK)
+    for name in names:
+        p = ref.points[name]
+        extent = np.stack([p.min(axis=1), p.max(axis=1)], axis=1)
+        for what, frames in (("points", p), ("normals", ref.normals.get(name)),
+                             ("velocities", ref.velocities[name]), ("extent", extent)):
+            if frames is None:
+                continue
+            attr = attribute(stage, name, what)
+            for tt in probes:
+                want = oracle(frames, t, tt)
+                got = np.asarray(attr.Get(tt), np.float64)
+                err = np.abs(got - want).max() / max(np.abs(want).max(), 1.0)
+                assert err < 1e-6, f"{name}.{what} at {tt}: {err:.2e}"
+    n = assert_same_animation(Usd.Stage.Open(str(humanoid["single"])), stage, names, probes)
+    assert n > 4 * len(names) * len(probes) - len(names) * len(probes)  # normals may be absent
+
+
+def test_layout_boundary_samples_and_metadata(humanoid):
+    scene, shot = humanoid["scene"], humanoid["shot"]
+    folder = clips_folder(shot)
+    t = scene.times
+    bounds = chunk_bounds(len(t), CHUNK)
+    clips = sorted(folder.glob("chunk_*.usdc"))
+    assert [p.name for p in clips] == [f"chunk_{k:05d}.usdc" for k in range(len(bounds))]
+    assert not [p for p in folder.iterdir() if p.name.startswith(".")]  # no temporary file
+    plan = json.loads((folder / "plan.json").read_text())
+    name = scene.meshes[0].name
+    for k, ((lo, hi), path) in enumerate(zip(bounds, clips)):
+        assert verify_chunk(path, plan["key"])
+        layer = Sdf.Layer.FindOrOpen(str(path))
+        samples = layer.ListTimeSamplesForPath(Sdf.Path(name).AppendProperty("points"))
+        # its own frames and, except for the last chunk, the next chunk's first frame
+        assert list(samples) == t[lo:min(hi + 1, len(t))].tolist(), k
+    top = Sdf.Layer.FindOrOpen(str(shot))
+    assert os.path.getsize(shot) < min(p.stat().st_size for p in clips)
+    root = Sdf.Path(name).GetPrefixes()[0]
+    info = top.GetPrimAtPath(root).GetInfo("clips")["default"]
+    assert [tuple(a) for a in info["active"]] == [(t[lo], k) for k, (lo, _) in enumerate(bounds)]
+    assert [a.path for a in info["assetPaths"]] == [f"./{folder.name}/{p.name}" for p in clips]
+    # no default on clip-driven attributes in the top level (it would hide the clips)
+    assert not top.GetAttributeAtPath(Sdf.Path(name).AppendProperty("points")).HasDefaultValue()
+    stage = Usd.Stage.Open(str(shot))
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (t[0], t[-1])
+    for prim in stage.Traverse():
+        assert not prim.GetTypeName() == "SkelRoot"
+        assert not [p for p in prim.GetAuthoredPropertyNames() if p.startswith("skel:")]
+
+
+def test_each_clip_holds_a_bit_identical_copy_of_the_next_clips_first_frame(humanoid):
+    """Between the last frame of chunk k and the first of chunk k+1 a reader interpolates either
+    within clip k (up to its copy of the boundary frame) or, as usd-core 26.11 does, across to
+    clip k+1's first sample; both copies are the same bits, so every reader sees one animation."""
+    scene, folder = humanoid["scene"], clips_folder(humanoid["shot"])
+    t = scene.times
+    bounds = chunk_bounds(len(t), CHUNK)
+    layers = [Sdf.Layer.FindOrOpen(str(folder / f"chunk_{k:05d}.usdc"))
+              for k in range(len(bounds))]
+    compared = 0
+    for k in range(len(bounds) - 1):
+        tb = float(t[bounds[k + 1][0]])
+        for spec_path in _sampled_attributes(layers[k]):
+            a = np.asarray(layers[k].QueryTimeSample(spec_path, tb))
+            b = np.asarray(layers[k + 1].QueryTimeSample(spec_path, tb))
+            np.testing.assert_array_equal(a, b, err_msg=f"{spec_path} at {tb}")
+            compared += 1
+    assert compared >= (len(bounds) - 1) * 4 * len(scene.meshes) - (len(bounds) - 1) * len(
+        scene.meshes)
+
+
+def _sampled_attributes(layer):
+    paths = []
+    layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: paths.append(p) if (
+        p.IsPropertyPath() and layer.GetNumTimeSamplesForPath(p)) else None)
+    return paths
+
+
+def test_flatten_gives_one_layer_with_the_same_animation(humanoid, tmp_path):
+    scene = humanoid["scene"]
+    flat = flatten(humanoid["shot"], tmp_path / "flat.usdc")
+    layer = Sdf.Layer.FindOrOpen(str(flat))
+    assert not layer.GetPrimAtPath(Sdf.Path(scene.meshes[0].name).GetPrefixes()[0]).HasInfo(
+        "clips")
+    assert layer.GetExternalReferences() == [] or all(
+        "chunk_" not in r for r in layer.GetExternalReferences())
+    names = [m.name for m in scene.meshes]
+    assert_same_animation(Usd.Stage.Open(str(humanoid["single"])), Usd.Stage.Open(str(flat)),
+                          names, probe_times(scene.times, CHUNK))
+    with pytest.raises(FileExistsError):
+        flatten(humanoid["shot"], flat)
+
+
+def test_resume_keeps_verified_chunks_and_redoes_missing_or_corrupt(humanoid, tmp_path):
+    scene = humanoid["scene"]
+    shot = tmp_path / "shot.usdc"
+    bake(scene, shot, chunk=CHUNK, clips=True)
+    folder = clips_folder(shot)
+    before = {p.name: p.stat().st_mtime_ns for p in folder.glob("chunk_*.usdc")}
+    shot.unlink()  # as if interrupted before the top level was written
+    (folder / "chunk_00002.usdc").unlink()
+    data = bytearray((folder / "chunk_00004.usdc").read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    (folder / "chunk_00004.usdc").write_bytes(bytes(data))
+    time.sleep(0.01)
+    with pytest.raises(FileExistsError, match="--resume"):
+        bake(scene, shot, chunk=CHUNK, clips=True)
+    with pytest.raises(ValueError, match="other settings"):
+        bake(scene, shot, chunk=CHUNK + 1, resume=True)
+    summary = bake(scene, shot, chunk=CHUNK, resume=True)
+    assert "5 kept from the earlier run" in summary
+    after = {p.name: p.stat().st_mtime_ns for p in folder.glob("chunk_*.usdc")}
+    changed = sorted(n for n in after if after[n] != before.get(n))
+    assert changed == ["chunk_00002.usdc", "chunk_00004.usdc"]
+    names = [m.name for m in scene.meshes]
+    assert_same_animation(Usd.Stage.Open(str(humanoid["single"])), Usd.Stage.Open(str(shot)),
+                          names, probe_times(scene.times, CHUNK))
+
+
+def test_refusals(humanoid, tmp_path):
+    scene, shot = humanoid["scene"], humanoid["shot"]
+    with pytest.raises(FileExistsError, match="exists"):
+        bake(scene, shot, chunk=CHUNK, clips=True)
+    with pytest.raises(ValueError, match="USD caches"):
+        bake(scene, tmp_path / "x.npz", workers=2)
+    with pytest.raises(ValueError, match="need value clips"):
+        bake(scene, tmp_path / "x.usd", clips=False, resume=True)
+    with pytest.raises(ValueError, match="--workers 0"):
+        bake(scene, tmp_path / "x.usd", workers=0)
+    import shutil
+    src = Path(shutil.copy(HUMANOID, tmp_path / "rig.usda"))
+    before = src.read_bytes()
+    with pytest.raises(ValueError, match="input"):
+        bake(src, src, clips=True, force=True)
+    assert src.read_bytes() == before
+
+
+def test_long_ranges_default_to_clips(humanoid, tmp_path, monkeypatch):
+    import dqskin.baking as baking
+    scene = humanoid["scene"]
+    need = baking.sample_bytes(scene, len(scene.times))
+    per_point = 12 * (2 * sum(len(m.points) for m in scene.meshes)
+                      + sum(len(m.normals) for m in scene.meshes if m.normals is not None))
+    assert need == per_point * len(scene.times)
+    monkeypatch.setattr(baking, "CLIPS_AUTO_BYTES", need - 1)
+    assert "clips in" in bake(scene, tmp_path / "auto.usd", chunk=30)
+    monkeypatch.setattr(baking, "CLIPS_AUTO_BYTES", need)
+    assert "clips" not in bake(scene, tmp_path / "one.usd", chunk=30)
+    assert not clips_folder(tmp_path / "one.usd").exists()
+
+
+def test_rigid_prims_match_pixars_baseline(shared_assets, tmp_path):
+    """``lbs.usda``: skinned meshes and rigidly bound prims (Cube, Sphere, Cylinder) through
+    clips of 4 frames equal UsdSkel's own bake (``baseline/lbs.baked.usda``) at every frame."""
+    src = shared_assets / BAKE / "lbs.usda"
+    scene = load(src)
+    shot = tmp_path / "lbs.usd"
+    bake(scene, shot, chunk=4, clips=True, velocities=False)
+    stage = Usd.Stage.Open(str(shot))
+    base = Usd.Stage.Open(str(shared_assets / BAKE / "baseline" / "lbs.baked.usda"))
+    checked = 0
+    rigid = ["/Root/Cube", "/Root/Cylinder", "/Root/Sphere"]
+    for name in rigid + [m.name for m in scene.meshes]:
+        for attr in ["xformOp:transform"] if name in rigid else ["points", "extent"]:
+            for t in scene.times:
+                ours = np.array(stage.GetPrimAtPath(name).GetAttribute(attr).Get(t), np.float64)
+                ref = np.array(base.GetPrimAtPath(name).GetAttribute(attr).Get(t), np.float64)
+                err = np.abs(ours - ref).max() / max(np.abs(ref).max(), 1.0)
+                assert err < 1e-5, f"{name}.{attr} at {t}: {err:.2e}"
+                checked += 1
+    assert checked > 3 * len(scene.times)
+
+
+def _wait_for(predicate, timeout):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def test_ctrl_c_then_resume_completes_the_same_cache(humanoid, tmp_path):
+    """SIGINT to ``dqskin skin --clips`` mid-bake: exit 130, no top level, no temporary file,
+    some chunks done; ``--resume`` completes it, keeping those, equal to the single layer."""
+    shot = tmp_path / "shot.usd"
+    folder = clips_folder(shot)
+    args = [sys.executable, "-m", "dqskin.cli", "skin", str(HUMANOID), "--out", str(shot),
+            "--clips", "--chunk", "4", "--substeps", "6", "--max-frames", "100000"]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert _wait_for(lambda: len(list(folder.glob("chunk_*.json"))) >= 3, 120), \
+            "the bake never started"
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    done = len(list(folder.glob("chunk_*.usdc")))
+    total = -(-(48 * 6 + 1) // 4)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "dqskin: interrupted"
+    assert not shot.exists()
+    assert not [p for p in folder.iterdir() if p.name.startswith(".")]
+    assert 0 < done < total, (done, total)
+    proc = subprocess.run(args + ["--resume"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert f"{total} clips" in proc.stdout and f"{done} kept" in proc.stdout, proc.stdout
+    scene = humanoid["scene"]
+    names = [m.name for m in scene.meshes]
+    stage = Usd.Stage.Open(str(shot))
+    times = np.array(stage.GetPrimAtPath(names[0]).GetAttribute("points").GetTimeSamples())
+    assert len(times) == 48 * 6 + 1
+    single = tmp_path / "single.usdc"
+    bake(scene, single, times=times, clips=False)
+    probes = probe_times(times, 4)[::7]
+    assert_same_animation(Usd.Stage.Open(str(single)), stage, names, probes)
+
+
+def test_skinning_options_reach_the_clips_and_their_plan(humanoid, tmp_path):
+    """``sign_reference`` (a :meth:`Scene.skin` option) gives the same clips as the single layer,
+    and resuming with another value is refused (it is part of the plan key)."""
+    scene = humanoid["scene"]
+    opts = dict(method="dqs", sign_reference="running_sum", velocities=False)
+    single, shot = tmp_path / "single.usdc", tmp_path / "shot.usd"
+    bake(scene, single, clips=False, **opts)
+    bake(scene, shot, chunk=CHUNK, clips=True, **opts)
+    names = [m.name for m in scene.meshes]
+    assert_same_animation(Usd.Stage.Open(str(single)), Usd.Stage.Open(str(shot)), names,
+                          probe_times(scene.times, CHUNK)[::3])
+    with pytest.raises(ValueError, match="other settings"):
+        bake(scene, shot, chunk=CHUNK, resume=True, **dict(opts, sign_reference="largest_weight"))

@@ -1,0 +1,137 @@
+"""Clip bakes on Dask (dqskin.distributed): a 2-process LocalCluster, a worker process killed
+mid-chunk, and an external ``dask scheduler`` + ``dask worker`` on 127.0.0.1.
+
+Each result must equal the single-process single-layer cache bit for bit at every frame and at
+sub-frames across chunk boundaries (points, normals, velocities, extent); the oracle comparison of
+that cache lives in tests/test_clips.py.
+"""
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from pxr import Usd
+
+from dqskin import bake
+from dqskin.formats import load
+from dqskin.formats.usd_clips import clips_folder
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_clips import HUMANOID, assert_same_animation, probe_times  # noqa: E402
+
+CHUNK = 7
+DASK = Path(sys.executable).with_name("dask")
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("reference")
+    scene = load(HUMANOID)
+    single = tmp / "single.usdc"
+    bake(scene, single, clips=False)
+    return dict(scene=scene, single=Usd.Stage.Open(str(single)),
+                names=[m.name for m in scene.meshes], probes=probe_times(scene.times, CHUNK))
+
+
+def check(reference, shot):
+    folder = clips_folder(shot)
+    assert not [p.name for p in folder.iterdir() if p.name.startswith(".")]  # no partial layer
+    n = assert_same_animation(reference["single"], Usd.Stage.Open(str(shot)),
+                              reference["names"], reference["probes"])
+    assert n > 0
+
+
+def test_two_worker_local_cluster_equals_the_single_process_cache(reference, tmp_path):
+    shot = tmp_path / "shot.usd"
+    summary = bake(HUMANOID, shot, chunk=CHUNK, workers=2)
+    assert "as 7 clips" in summary
+    check(reference, shot)
+
+
+def test_a_worker_killed_mid_chunk_is_replaced_and_the_bake_completes(reference, tmp_path):
+    """A worker plugin makes the first worker that has exported a clip layer to its temporary
+    file SIGKILL itself before the rename; Dask reruns that chunk elsewhere."""
+    import logging
+
+    from distributed import Client, LocalCluster, WorkerPlugin
+
+    marker = tmp_path / "killed"
+
+    class KillOnceMidChunk(WorkerPlugin):
+        name = "kill-once-mid-chunk"
+
+        def setup(self, worker):
+            from dqskin.formats import usd_clips
+            export = usd_clips.export_layer
+
+            def export_then_die(layer, claim, out=None):
+                tmp = export(layer, claim, out)
+                try:
+                    os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+                except FileExistsError:
+                    return tmp
+                os.kill(os.getpid(), signal.SIGKILL)  # the layer is only in its temporary file
+            usd_clips.export_layer = export_then_die
+
+    shot = tmp_path / "shot.usd"
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None, silence_logs=logging.CRITICAL) as cluster, \
+            Client(cluster) as client:
+        client.register_plugin(KillOnceMidChunk())
+        pids = set(client.run(os.getpid).values())
+        summary = bake(HUMANOID, shot, chunk=CHUNK, scheduler=cluster.scheduler_address)
+        assert marker.exists(), "no worker was killed"
+        assert set(client.run(os.getpid).values()) != pids  # the nanny started a new one
+    assert "as 7 clips" in summary
+    check(reference, shot)
+
+
+def _start(args, log):
+    return subprocess.Popen([str(DASK), *args], stdout=log, stderr=subprocess.STDOUT,
+                            start_new_session=True)
+
+
+def test_external_scheduler_and_worker_on_localhost(reference, tmp_path):
+    """``dask scheduler`` and ``dask worker`` started as subprocesses (the README's commands),
+    the bake through the CLI's ``--scheduler``."""
+    if not DASK.exists():
+        pytest.skip(f"no dask command beside {sys.executable}")
+    from dqskin.cli import main
+    info = tmp_path / "scheduler.json"
+    log = open(tmp_path / "dask.log", "w")
+    procs = [_start(["scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                     "--scheduler-file", str(info)], log)]
+    try:
+        end = time.monotonic() + 60
+        while not info.exists() and time.monotonic() < end:
+            time.sleep(0.1)
+        assert info.exists(), (tmp_path / "dask.log").read_text()
+        procs.append(_start(["worker", "--scheduler-file", str(info), "--nthreads", "1",
+                             "--host", "127.0.0.1", "--no-dashboard"], log))
+        import json
+
+        from distributed import Client
+        address = json.loads(info.read_text())["address"]
+        assert address.startswith("tcp://127.0.0.1:")
+        with Client(address, timeout="30s") as client:
+            client.wait_for_workers(1, timeout=60)
+        shot = tmp_path / "shot.usd"
+        assert main(["skin", str(HUMANOID), "--out", str(shot), "--chunk", str(CHUNK),
+                     "--scheduler", address]) == 0
+        check(reference, shot)
+    finally:
+        for p in reversed(procs):
+            os.killpg(p.pid, signal.SIGTERM)
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+        log.close()
+    shutil.rmtree(tmp_path / "dask-worker-space", ignore_errors=True)
