@@ -173,14 +173,19 @@ def blend_joints(inf: Influences, v: int, f: int, values: wp.array2d(dtype=Any))
 def dqs_blend(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8)):
     """Sign-aligned weighted sum of the vertex's dual quaternions (pivot: slot 0, or the running
     sum with ``inf.running_sum``; a zero sum flips nothing)."""
-    pv = dqs[f, inf.indices[v, 0][0]]
     b = vec8()
+    if inf.running_sum != 0:  # (one branch per vertex, not per influence)
+        for c in range(inf.indices.shape[1]):
+            iv = inf.indices[v, c]
+            wv = inf.weights[v, c]
+            for k in range(4):
+                b = dq_blend_add(b, dqs[f, iv[k]], wv[k], b)
+        return b
+    pv = dqs[f, inf.indices[v, 0][0]]
     for c in range(inf.indices.shape[1]):
         iv = inf.indices[v, c]
         wv = inf.weights[v, c]
         for k in range(4):
-            if inf.running_sum != 0:
-                pv = b
             b = dq_blend_add(b, dqs[f, iv[k]], wv[k], pv)
     return b
 

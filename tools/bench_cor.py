@@ -1,0 +1,125 @@
+"""Benchmark ``method="cor"``: center precomputation and runtime skinning next to LBS and DQS.
+
+    python tools/bench_cor.py [--json out/bench_cor.json] [--frames 32] [--repeat 5]
+
+Meshes: CesiumMan (../shared/assets/khronos-gltf/CesiumMan, when present) and the bundled humanoid
+subdivided to ~35.6k vertices as in tools/bench_compare.py. Precompute: ``rotation_centers``
+without the disk cache, first call in the process (Warp kernel already compiled) and the best of
+``--repeat`` more; then the cache hit (second run of the same mesh). Runtime: ``Skinner.skin`` of
+``--frames`` frames of the asset's own animation (host transforms in, host points out), the best
+of ``--repeat`` rounds, for LBS, DQS (both sign rules) and COR; in million point-frames per
+second. Prints a table and writes JSON.
+"""
+
+import argparse
+import json
+import platform
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+import dqskin
+from dqskin import cor
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+from bench_compare import subdivide  # noqa: E402
+
+CESIUM = ROOT.parent / "shared" / "assets" / "khronos-gltf" / "CesiumMan" / "CesiumMan.glb"
+
+
+def meshes():
+    """``(label, scene, mesh)`` of every benchmark mesh."""
+    out = []
+    if CESIUM.is_file():
+        scene = dqskin.load(CESIUM)
+        out += [(f"CesiumMan {m.name}", scene, m) for m in scene.meshes]
+    else:
+        print(f"skipping CesiumMan: {CESIUM} not found", file=sys.stderr)
+    scene = dqskin.load(ROOT / "assets" / "humanoid.usda")
+    body = [subdivide(subdivide(m)) if m.name.endswith("Body") else subdivide(m)
+            for m in scene.meshes]
+    # one mesh of all parts (same skeleton), so the figure is for one ~35k-point mesh
+    offsets = np.cumsum([0] + [len(m.points) for m in body[:-1]])
+    merged = replace(body[0], name="/Humanoid/All",
+                     points=np.concatenate([m.points for m in body]),
+                     faces=np.concatenate([m.faces + o for m, o in zip(body, offsets)]),
+                     joint_indices=np.concatenate([m.joint_indices for m in body]),
+                     joint_weights=np.concatenate([m.joint_weights for m in body]),
+                     deformer=None, output_transforms=None)
+    scene = replace(scene, meshes=[merged])
+    out.append(("humanoid subdivided", scene, merged))
+    return out
+
+
+def bind_points(mesh):
+    g = np.asarray(mesh.geom_bind_transform, np.float64)
+    return np.asarray(mesh.points, np.float64) @ g[:3, :3].T + g[:3, 3]
+
+
+def bench(frames, repeat):
+    rows = []
+    for label, scene, mesh in meshes():
+        pts = bind_points(mesh)
+        args = (pts, mesh.faces, mesh.joint_indices, mesh.joint_weights)
+        t0 = time.perf_counter()
+        centers = cor.rotation_centers(*args, cache=False)
+        first = time.perf_counter() - t0
+        best = float("inf")
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            cor.rotation_centers(*args, cache=False)
+            best = min(best, time.perf_counter() - t0)
+        cor.rotation_centers(*args)  # fills the cache
+        t0 = time.perf_counter()
+        cor.rotation_centers(*args)
+        hit = time.perf_counter() - t0
+        row = dict(mesh=label, vertices=len(mesh.points), faces=len(mesh.faces),
+                   influences=int(mesh.joint_indices.shape[1]),
+                   joints=len(scene.skeletons[mesh.skeleton].joint_names),
+                   with_center=int(np.sum(~np.isnan(centers[:, 0]))),
+                   precompute_first_s=first, precompute_s=best, cache_hit_s=hit)
+        times = np.resize(scene.times, frames) if len(scene.times) else np.zeros(frames)
+        xf = scene.skinning_transforms(times, mesh.skeleton)
+        sk = dqskin.Skinner(mesh.points, mesh.joint_indices, mesh.joint_weights,
+                            geom_bind_transform=mesh.geom_bind_transform, faces=mesh.faces)
+        for name, meth, rule in (("lbs", "lbs", "largest_weight"), ("dqs", "dqs", "largest_weight"),
+                                 ("dqs running_sum", "dqs", "running_sum"),
+                                 ("cor", "cor", "largest_weight")):
+            sk.skin(xf, meth, sign_reference=rule)  # warm-up (kernels, centers, buffers)
+            t = float("inf")
+            for _ in range(repeat):
+                t0 = time.perf_counter()
+                sk.skin(xf, meth, sign_reference=rule)
+                t = min(t, time.perf_counter() - t0)
+            row[f"{name} M pt-frames/s"] = len(mesh.points) * frames / t / 1e6
+        rows.append(row)
+    return rows
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=32)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--json")
+    args = ap.parse_args()
+    rows = bench(args.frames, args.repeat)
+    for r in rows:
+        print(f"{r['mesh']}: {r['vertices']} vertices, {r['faces']} triangles, "
+              f"{r['joints']} joints, K={r['influences']}, {r['with_center']} with a center")
+        print(f"  precompute {r['precompute_s']:.3f} s (first call "
+              f"{r['precompute_first_s']:.3f} s), cache hit {r['cache_hit_s'] * 1e3:.1f} ms")
+        print("  runtime M point-frames/s: " + ", ".join(
+            f"{k.split(' M ')[0]} {v:.1f}" for k, v in r.items() if k.endswith("M pt-frames/s")))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        machine = platform.processor() or platform.machine()
+        Path(args.json).write_text(json.dumps(dict(machine=machine, frames=args.frames,
+                                                   rows=rows), indent=1))
+
+
+if __name__ == "__main__":
+    main()
