@@ -346,3 +346,25 @@ def test_scene_cli_and_compare(tmp_path):
     assert rc == 0, text
     metrics = json.loads((tmp_path / "report" / "metrics.json").read_text())
     assert metrics["methods"] == ["lbs", "cor"]
+
+
+def test_usd_bake_with_rigid_prims(shared_assets, tmp_path):
+    """A USD cache baked with --method cor: meshes get COR, rigid prims (no triangles) DQS."""
+    from pxr import Usd
+
+    from dqskin.formats.usd import load_rigid_prims, rigid_transforms
+
+    src = shared_assets / "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning/dqs.usda"
+    scene = dqskin.load(src)
+    for r in load_rigid_prims(scene):
+        np.testing.assert_array_equal(rigid_transforms(scene, r, scene.times, "cor"),
+                                      rigid_transforms(scene, r, scene.times, "dqs"))
+    out = tmp_path / "cor.usda"
+    rc, text = run_cli("skin", src, "--out", out, "--method", "cor", "--no-velocities")
+    assert rc == 0, text
+    stage = Usd.Stage.Open(str(out))
+    m = next(m for m in scene.meshes if len(m.faces))
+    t = scene.times[-1]
+    got = np.array(stage.GetPrimAtPath(m.name).GetAttribute("points").Get(t))
+    want = scene.skin([t], "cor").points[m.name][0]
+    np.testing.assert_allclose(got, want, atol=1e-5)

@@ -1179,8 +1179,9 @@ def rigid_transforms(scene, prim, times, method=None, *, device=None, interp="tr
     scene : Scene
     prim : RigidPrim
     times : (F,) float
-    method : {"lbs", "dqs", "blend"} or None
-        None uses the prim's own ``skinning_method``; "blend" mixes half and half.
+    method : {"lbs", "dqs", "blend", "cor"} or None
+        None uses the prim's own ``skinning_method``; "blend" mixes half and half; "cor" is DQS
+        here (a rigid prim has no triangles to find a center of rotation from: COR's fallback).
     interp : str
         Joint interpolation (:data:`dqskin.animation.INTERPOLATIONS`), as for the meshes.
 
@@ -1195,6 +1196,7 @@ def rigid_transforms(scene, prim, times, method=None, *, device=None, interp="tr
     idx = np.tile(prim.joint_indices, (4, 1))
     wts = np.tile(prim.joint_weights, (4, 1))
     meth = method or prim.skinning_method
+    meth = "dqs" if meth == "cor" else meth
     q = skin_points(frame, idx, wts, x, meth, geom_bind_transform=prim.geom_bind_transform,
                     blend_weights=np.full(4, 0.5) if meth == "blend" else None, device=device)
     q = q.astype(np.float64).reshape(t.shape[0], 4, 3)
