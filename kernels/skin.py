@@ -1,4 +1,5 @@
-"""Per-vertex skinning kernels: LBS, DQS and the per-vertex LBS↔DQS blend, batched over frames.
+"""Per-vertex skinning kernels: LBS, DQS, the per-vertex LBS↔DQS blend and optimized centers of
+rotation (COR), batched over frames.
 
 Semantics follow UsdSkel (``UsdSkelSkinPointsLBS/DQS``):
 
@@ -11,6 +12,13 @@ Semantics follow UsdSkel (``UsdSkelSkinPointsLBS/DQS``):
   transform: for a blend ``b = r + ε·d``, ``p' = (r·p·r* + 2·(d·r*)_vec) / |r|²``; the Plücker
   correction of eq. 14 only changes the scalar part of ``d·r*`` and so drops out.
 * blend: ``p' = (1 − b)·LBS + b·DQS`` with a per-vertex ``b`` (Maya's "weight blended").
+* COR (Le & Hodgins 2016): ``p' = R·(p − c) + Σ wᵢ·Aᵢ·[c, 1]`` with the vertex's precomputed
+  center ``c`` (:mod:`dqskin.cor`), ``R`` the rotation of the DQS blend's real part (the same
+  sign rule), ``Σ wᵢ·Sᵢ`` applied to ``p − c`` on frames with a residual; DQS where the vertex has
+  no center.
+* Sign rule (``Influences.running_sum``): 0, each joint's sign is taken against the pivot in slot 0
+  (UsdSkel); otherwise against the running sum of the blend so far, the influences in their input
+  order (Blender's Preserve Volume; the layout is then unsorted).
 
 Normals use the inverse transpose of each linear part; tangents the linear part itself; both are
 normalized after blending.
