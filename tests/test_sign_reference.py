@@ -8,6 +8,7 @@ come from SciPy, points are rotated by SciPy, dual parts from the Hamilton produ
 The helpers here are imported by ``tests/test_cor.py``.
 """
 
+import os
 import subprocess
 import sys
 
@@ -272,3 +273,85 @@ def test_scene_and_cli_both_rules(tmp_path):
         np.testing.assert_allclose(np.load(out)["points_0"], ref[rule], atol=5e-5, err_msg=rule)
     rc, text = run_cli("skin", path, "--out", tmp_path / "x.npz", "--sign-reference", "blender")
     assert rc == 2 and "invalid choice" in text and "Traceback" not in text
+
+
+# ---------------------------------------------------------------------------------------------
+# Blender itself (optional oracle): its Armature modifier with Preserve Volume
+
+
+BLENDER_SCRIPT = """\
+import sys
+import bpy
+import numpy as np
+
+data = np.load(sys.argv[1])
+points, idx, wts, xf = data["points"], data["idx"], data["wts"], data["xforms"]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+arm = bpy.data.armatures.new("Arm")
+rig = bpy.data.objects.new("Rig", arm)
+bpy.context.scene.collection.objects.link(rig)
+bpy.context.view_layer.objects.active = rig
+bpy.ops.object.mode_set(mode="EDIT")
+J = xf.shape[1]
+for j in range(J):
+    b = arm.edit_bones.new(f"j{j}")
+    b.head, b.tail, b.roll = (0, 0, 0), (0, 1, 0), 0.0
+bpy.ops.object.mode_set(mode="OBJECT")
+me = bpy.data.meshes.new("M")
+me.from_pydata(points.tolist(), [], [])
+ob = bpy.data.objects.new("M", me)
+bpy.context.scene.collection.objects.link(ob)
+groups = [ob.vertex_groups.new(name=f"j{j}") for j in range(J)]
+for v in range(len(points)):
+    for k in range(idx.shape[1]):  # dvert order = input slot order
+        if wts[v, k] > 0:
+            groups[idx[v, k]].add([v], float(wts[v, k]), "REPLACE")
+mod = ob.modifiers.new("Armature", "ARMATURE")
+mod.object = rig
+mod.use_deform_preserve_volume = True
+from mathutils import Matrix
+out = []
+for f in range(xf.shape[0]):
+    for j in range(J):
+        rig.pose.bones[f"j{j}"].matrix_basis = Matrix(xf[f, j].tolist())
+    bpy.context.view_layer.update()
+    dg = bpy.context.evaluated_depsgraph_get()
+    ev = ob.evaluated_get(dg)
+    m = ev.to_mesh()
+    co = np.empty(len(m.vertices) * 3)
+    m.vertices.foreach_get("co", co)
+    out.append(co.reshape(-1, 3))
+    ev.to_mesh_clear()
+np.save(sys.argv[2], np.array(out))
+"""
+
+
+def bpy_python():
+    """A Python that imports ``bpy`` (Blender as a module; bpy 5.x needs Python 3.11): the one in
+    ``$DQSKIN_BPY_PYTHON``, or this one if it has bpy; None otherwise."""
+    if os.environ.get("DQSKIN_BPY_PYTHON"):
+        return os.environ["DQSKIN_BPY_PYTHON"]
+    try:
+        import bpy  # noqa: F401
+    except ImportError:
+        return None
+    return sys.executable
+
+
+def test_running_sum_matches_blender(tmp_path):
+    py = bpy_python()
+    if py is None:
+        pytest.skip("bpy not installed: set DQSKIN_BPY_PYTHON to a Python 3.11 with `pip install "
+                    "bpy` (Blender 5.x) to compare against Blender's Preserve Volume")
+    pts, idx, wts, xf = random_rig(np.random.default_rng(1), V=300, K=4, F=2)
+    np.savez(tmp_path / "in.npz", points=pts, idx=idx, wts=wts, xforms=xf)
+    (tmp_path / "blender.py").write_text(BLENDER_SCRIPT)
+    proc = subprocess.run([py, str(tmp_path / "blender.py"), str(tmp_path / "in.npz"),
+                           str(tmp_path / "out.npy")], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    blender = np.load(tmp_path / "out.npy")
+    ours = {rule: dqskin.skin_points(pts, idx, wts, xf, "dqs", sign_reference=rule)
+            for rule in RULES}
+    np.testing.assert_allclose(ours["running_sum"], blender, atol=2e-5)
+    assert differ_fraction(ours["largest_weight"], blender) > 0.2  # UsdSkel's rule is not it
