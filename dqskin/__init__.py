@@ -16,6 +16,8 @@ _EXPORTS = {
     "bake": "baking", "load": "formats", "load_mesh": "formats", "Mesh": "scene",
     "Scene": "scene", "SkinnedFrames": "scene", "Skeleton": "skeleton",
     "forward_kinematics": "skeleton", "dq": None, "dual": None, "quat": None,
+    "automatic_weights": "autoweights", "rig_mesh": "rigging", "replace_weights": "rigging",
+    "autoweights": None, "rigging": None,
 }
 
 __all__ = sorted(_EXPORTS)

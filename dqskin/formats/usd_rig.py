@@ -1,0 +1,159 @@
+"""A scene written as a UsdSkel rig: what usd-core, usdview and Blender skin themselves.
+
+:func:`write_rig` writes one ``SkelRoot`` (``/Root``) holding, per skeleton, a ``Skeleton`` with
+its joints (hierarchy paths), ``bindTransforms`` and ``restTransforms``, a ``SkelAnimation`` child
+with the animation sampled at the scene's times (``translations``, ``rotations``, ``scales`` from
+``UsdSkelAnimation::SetTransforms``) bound through ``skel:animationSource``; and every mesh as a
+``Mesh`` with ``SkelBindingAPI``: ``skel:skeleton``, ``primvars:skel:jointIndices`` and
+``jointWeights`` (vertex interpolation, ``elementSize`` K), ``primvars:skel:geomBindTransform``
+and ``primvars:skel:skinningMethod`` (``classicLinear`` for "lbs", ``dualQuaternion`` for
+"dqs"). Matrices are transposed here, at the USD boundary (Gf is row-vector). Joint names become
+valid USD identifiers (``Tf.MakeValidIdentifier``, made unique among siblings).
+
+The file is written atomically (:mod:`.atomic`); ``.usd`` is crate, ``.usda`` text.
+"""
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..scene import Scene
+from .atomic import atomic_path
+from .usd_cache import export_layer
+
+__all__ = ["RIG_SUFFIXES", "joint_paths", "write_rig"]
+
+RIG_SUFFIXES = (".usd", ".usda", ".usdc")
+
+_METHODS = {"lbs": "classicLinear", "dqs": "dualQuaternion"}
+
+
+def joint_paths(joint_names: list, parents: np.ndarray) -> list:
+    """UsdSkel joint paths (``"Hips/Spine/Chest"``) from names and parents: each name made a
+    valid identifier, unique among its siblings."""
+    from pxr import Tf
+    paths, taken = [], {}
+    for name, p in zip(joint_names, parents):
+        base = Tf.MakeValidIdentifier(str(name).split("/")[-1]) or "joint"
+        prefix = paths[p] + "/" if p >= 0 else ""
+        used = taken.setdefault(int(p), set())
+        leaf, k = base, 1
+        while leaf in used:
+            leaf, k = f"{base}_{k}", k + 1
+        used.add(leaf)
+        paths.append(prefix + leaf)
+    return paths
+
+
+def _prim_name(name, taken):
+    from pxr import Tf
+    base = Tf.MakeValidIdentifier(str(name).strip("/").split("/")[-1]) or "Mesh"
+    leaf, k = base, 1
+    while leaf in taken:
+        leaf, k = f"{base}_{k}", k + 1
+    taken.add(leaf)
+    return leaf
+
+
+def _matrices(m):
+    """(N, 4, 4) column-vector float64 → ``Vt.Matrix4dArray`` (row-vector, transposed)."""
+    from pxr import Vt
+    return Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(np.transpose(m, (0, 2, 1))))
+
+
+def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> str:
+    """Write ``scene`` as a UsdSkel rig at ``out`` (``.usd/.usda/.usdc``).
+
+    Parameters
+    ----------
+    scene : dqskin.Scene
+        Skeletons with their animations (sampled at ``scene.times``, time codes at
+        ``scene.time_codes_per_second``) and meshes with their influences.
+    out : path
+    force : bool
+        Replace an existing file (otherwise the name is claimed exclusively).
+
+    Returns
+    -------
+    str
+        A one-line summary.
+    """
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+
+    out = Path(out)
+    if out.suffix.lower() not in RIG_SUFFIXES:
+        raise ValueError(f"--out {out}: a rig is written as {'/'.join(RIG_SUFFIXES)}")
+    times = np.asarray(scene.times, np.float64)
+    stage = Usd.Stage.CreateInMemory()
+    stage.SetStartTimeCode(float(times[0]))
+    stage.SetEndTimeCode(float(times[-1]))
+    stage.SetTimeCodesPerSecond(float(scene.time_codes_per_second))
+    stage.SetFramesPerSecond(float(scene.time_codes_per_second))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z if scene.up_axis == "Z" else UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, float(scene.meters_per_unit))
+    root = UsdSkel.Root.Define(stage, "/Root")
+    stage.SetDefaultPrim(root.GetPrim())
+    taken = {"Skeleton"}
+    skel_paths = []
+    for s, skel in enumerate(scene.skeletons):
+        path = Sdf.Path("/Root/Skeleton" + (f"_{s}" if s else ""))
+        taken.add(path.name)
+        us = UsdSkel.Skeleton.Define(stage, path)
+        joints = Vt.TokenArray(joint_paths(skel.joint_names, skel.parents))
+        us.CreateJointsAttr(joints)
+        us.CreateBindTransformsAttr(_matrices(skel.bind_transforms))
+        us.CreateRestTransformsAttr(_matrices(skel.rest_transforms))
+        skel_paths.append(path)
+        if skel.animation is None:
+            continue
+        anim = UsdSkel.Animation.Define(stage, path.AppendChild("Animation"))
+        anim.CreateJointsAttr(joints)
+        local = scene.local_transforms(times, s)
+        for f, t in enumerate(times):
+            anim.SetTransforms(_matrices(local[f]), Usd.TimeCode(float(t)))
+        UsdSkel.BindingAPI.Apply(us.GetPrim()).CreateAnimationSourceRel().SetTargets(
+            [anim.GetPath()])
+    for m in scene.meshes:
+        mesh = UsdGeom.Mesh.Define(stage, Sdf.Path("/Root").AppendChild(_prim_name(m.name,
+                                                                                    taken)))
+        pts = np.asarray(m.points, np.float32)
+        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
+        if m.face_vertex_counts is not None and m.face_vertex_indices is not None:
+            counts, indices = m.face_vertex_counts, m.face_vertex_indices
+        else:
+            counts = np.full(len(m.faces), 3, np.int32)
+            indices = np.asarray(m.faces, np.int32).ravel()
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.asarray(counts, np.int32)))
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.asarray(indices, np.int32)))
+        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        if len(pts):
+            mesh.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, pts.min(0))),
+                                                 Gf.Vec3f(*map(float, pts.max(0)))]))
+        if m.uvs is not None and len(m.uvs) == len(pts):
+            UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
+                "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex).Set(
+                Vt.Vec2fArray.FromNumpy(np.asarray(m.uvs, np.float32)))
+        bind = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+        bind.CreateSkeletonRel().SetTargets([skel_paths[m.skeleton]])
+        idx = np.asarray(m.joint_indices, np.int32)
+        wts = np.asarray(m.joint_weights, np.float32)
+        K = idx.shape[1] if idx.ndim == 2 else 1
+        bind.CreateJointIndicesPrimvar(False, K).Set(Vt.IntArray.FromNumpy(idx.ravel()))
+        bind.CreateJointWeightsPrimvar(False, K).Set(Vt.FloatArray.FromNumpy(wts.ravel()))
+        bind.CreateGeomBindTransformAttr(Gf.Matrix4d(np.asarray(m.geom_bind_transform,
+                                                                np.float64).T.tolist()))
+        if m.skinning_method in _METHODS:
+            bind.CreateSkinningMethodAttr(_METHODS[m.skinning_method])
+    stage.GetRootLayer().documentation = f"dqskin rig of {scene.path}"
+    claim = atomic_path(out, overwrite=force)
+    try:
+        export_layer(stage.GetRootLayer(), claim, out)
+        claim.commit()
+    except BaseException:
+        claim.discard()
+        raise
+    n = len(scene.meshes)
+    joints = sum(s.joint_count for s in scene.skeletons)
+    return (f"wrote {out}: UsdSkel rig, {n} mesh{'es' if n != 1 else ''}, {joints} joints, "
+            f"{len(times)} animation samples")

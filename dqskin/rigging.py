@@ -1,0 +1,185 @@
+"""Rigging: a plain mesh bound to a BVH skeleton, and weights replaced on skinned characters.
+
+:func:`rig_mesh` turns a mesh modelled in a BVH file's rest pose (every channel zero) into a
+:class:`dqskin.Scene`: the BVH's :class:`dqskin.Skeleton` and animation, and one
+:class:`dqskin.Mesh` whose influences are computed (:mod:`dqskin.autoweights`, bone heat) or read
+from an ``.npz`` (:func:`read_weights`). The mesh is in the skeleton's space (no geom bind
+transform); :func:`check_fit` refuses a mesh that is far from its skeleton or in other units, and
+says how to fix it (``scale``: multiply the skeleton's lengths).
+
+:func:`replace_weights` swaps the artist's influences of a loaded character for automatic ones
+(or a file's), so the two can be compared under the character's own animation.
+"""
+
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ._warp import Device
+from .autoweights import automatic_weights
+from .formats import bvh
+from .formats.mesh_files import load_mesh
+from .influences import check_influences
+from .scene import Mesh, Scene
+
+__all__ = ["WEIGHT_FIELDS", "check_fit", "read_weights", "replace_weights", "rig_mesh"]
+
+WEIGHT_FIELDS = ("joint_indices", "joint_weights", "joint_names")
+"""Arrays of a weights ``.npz``: (V, K) int, (V, K) float, (J,) str."""
+
+_SIZE_RATIO = 2.0  # mesh and skeleton heights may differ by up to this factor
+_INSIDE = 0.75  # share of joints that must lie in the mesh's (padded) bounding box
+
+
+def read_weights(path: str | os.PathLike, joint_names: list, vertex_count: int
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Influences from an ``.npz`` with :data:`WEIGHT_FIELDS`, re-indexed by joint name into
+    ``joint_names`` order: ``(indices (V, K) int32, weights (V, K) float32)``.
+
+    Raises ValueError naming the file and field: missing arrays, wrong shapes, joints the
+    skeleton does not have, bad indices or weights.
+    """
+    p = Path(path)
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            missing = [f for f in WEIGHT_FIELDS if f not in z.files]
+            if missing:
+                raise ValueError(f"{p}: missing {', '.join(missing)} (a weights file holds "
+                                 f"{', '.join(WEIGHT_FIELDS)})")
+            idx, wts, names = (z[f] for f in WEIGHT_FIELDS)
+    except (OSError, EOFError) as exc:
+        raise ValueError(f"{p}: cannot read weights ({exc})") from None
+    except ValueError as exc:
+        if str(exc).startswith(str(p)):
+            raise
+        raise ValueError(f"{p}: cannot read weights ({exc})") from None
+    names = [str(n) for n in np.ravel(names)]
+    try:
+        idx, wts = check_influences(idx, wts, vertex_count, len(names))
+    except ValueError as exc:
+        raise ValueError(f"{p}: {exc} (the mesh has {vertex_count} points)") from None
+    index = {n: k for k, n in enumerate(joint_names)}
+    unknown = [n for n in names if n not in index]
+    if unknown:
+        raise ValueError(f"{p}: joint_names: {', '.join(map(repr, unknown[:5]))}"
+                         f"{' and more' if len(unknown) > 5 else ''} not in the skeleton")
+    remap = np.array([index[n] for n in names], np.int32)
+    return (remap[idx] if idx.size else idx.astype(np.int32)), wts
+
+
+def check_fit(points: np.ndarray, joint_positions: np.ndarray, where: str) -> None:
+    """ValueError unless the mesh ``points`` and the skeleton's rest ``joint_positions`` are the
+    same size (within a factor 2) and overlap (most joints inside the mesh's bounding box, padded
+    by a tenth); the message gives the sizes and the ``--scale`` that would match them."""
+    lo, hi = points.min(0), points.max(0)
+    size_mesh = float((hi - lo).max())
+    jlo, jhi = joint_positions.min(0), joint_positions.max(0)
+    size_skel = float((jhi - jlo).max())
+    if size_mesh <= 0 or size_skel <= 0:
+        return
+    ratio = size_mesh / size_skel
+    if not 1 / _SIZE_RATIO <= ratio <= _SIZE_RATIO:
+        raise ValueError(
+            f"{where}: the mesh is {ratio:.3g}× the size of the skeleton (mesh {size_mesh:.4g}, "
+            f"skeleton {size_skel:.4g} units across): different units? Scale the skeleton to "
+            f"the mesh with --scale {ratio:.4g} (or export the mesh in the BVH's units)")
+    pad = 0.1 * (hi - lo).max()
+    inside = np.all((joint_positions >= lo - pad) & (joint_positions <= hi + pad), axis=1)
+    if inside.mean() < _INSIDE:
+        mc, sc = 0.5 * (lo + hi), 0.5 * (jlo + jhi)
+        raise ValueError(
+            f"{where}: the mesh is far from its skeleton (only {inside.sum()} of {inside.size} "
+            f"rest joints inside the mesh's bounds; mesh centre {np.round(mc, 4).tolist()}, "
+            f"skeleton centre {np.round(sc, 4).tolist()}): model the mesh in the BVH's rest pose "
+            "(every channel zero) and space, moved by "
+            f"{np.round(mc - sc, 4).tolist()} back onto the skeleton")
+
+
+def rig_mesh(mesh: str | os.PathLike | tuple, skeleton: str | os.PathLike | bvh.BvhMotion, *,
+             weights: str | os.PathLike | None = "auto", scale: float | None = None,
+             max_influences: int = 8, cache: bool = True, device: Device = None) -> Scene:
+    """Bind a plain mesh in a BVH's rest pose to the BVH's skeleton and motion.
+
+    Parameters
+    ----------
+    mesh : path or (points (V, 3), faces (T, 3))
+        ``.obj/.ply/.stl/.off/.glb`` geometry (:func:`dqskin.load_mesh`), in the skeleton's
+        space and length unit (after ``scale``) and rest pose.
+    skeleton : path or BvhMotion
+        The ``.bvh`` file.
+    weights : "auto", path or None
+        "auto" (or None): bone heat (:func:`dqskin.autoweights.automatic_weights`, cached);
+        a path: an ``.npz`` read by :func:`read_weights`.
+    scale : float, optional
+        Multiplies the skeleton's lengths (offsets, End Sites, root positions) into the mesh's
+        unit, e.g. 0.0254 for a skeleton in inches and a mesh in metres.
+    max_influences : int
+        Influences kept per vertex by automatic weights.
+
+    Returns
+    -------
+    dqskin.Scene
+        Path of the BVH file, its frames as times (``time_codes_per_second = 1 / Frame Time``),
+        one mesh (named after the mesh file) on skeleton 0, method "lbs".
+
+    Raises
+    ------
+    ValueError
+        Unreadable inputs, a mesh far from the skeleton or in other units (naming the fix), a
+        weights file that does not fit.
+    """
+    motion = skeleton if isinstance(skeleton, bvh.BvhMotion) else bvh.read_bvh(skeleton)
+    if scale is not None and float(scale) != 1.0:
+        motion = bvh.scaled(motion, scale)
+    if isinstance(mesh, tuple):
+        points, faces = (np.asarray(a) for a in mesh)
+        name, where = "mesh", "mesh"
+    else:
+        points, faces = load_mesh(mesh)
+        name, where = Path(mesh).stem or "mesh", str(mesh)
+    points = np.asarray(points, np.float32)
+    faces = np.asarray(faces, np.int32).reshape(-1, 3)
+    skel = motion.skeleton()
+    check_fit(points.astype(np.float64), skel.bind_transforms[:, :3, 3],
+              f"{where} on {motion.path}")
+    if weights is None or str(weights) == "auto":
+        idx, w = automatic_weights(points, faces, skel, end_sites=motion.end_sites,
+                                   max_influences=max_influences, cache=cache, device=device)
+    else:
+        idx, w = read_weights(weights, skel.joint_names, len(points))
+    m = Mesh(name=name, points=points, faces=faces, joint_indices=idx, joint_weights=w,
+             skinning_method="lbs")
+    return Scene(motion.path, [m], [skel], np.arange(motion.frame_count, dtype=np.float64),
+                 time_codes_per_second=1.0 / motion.frame_time, up_axis="Y")
+
+
+def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,
+                    max_influences: int = 8, cache: bool = True, device: Device = None) -> Scene:
+    """``scene`` with every mesh's influences replaced: "auto" (bone heat from the mesh's bind
+    pose and its skeleton's bind transforms) or an ``.npz`` (:func:`read_weights`; the scene
+    must then have one mesh).
+
+    Automatic weights use the joints the mesh's skin deforms with (those its influences refer
+    to): a glTF skeleton also holds the skin's ancestors (an "Armature" node), which take no
+    weight. The artist's weights themselves are not used. Returns a new Scene sharing the
+    skeletons.
+    """
+    meshes = []
+    if str(weights) != "auto" and len(scene.meshes) != 1:
+        raise ValueError(f"{weights}: a weights file applies to a scene with one mesh; "
+                         f"{scene.path} has {len(scene.meshes)}")
+    for m in scene.meshes:
+        skel = scene.skeletons[m.skeleton]
+        if str(weights) == "auto":
+            used = np.unique(np.asarray(m.joint_indices)[np.asarray(m.joint_weights) > 0])
+            idx, w = automatic_weights(m.points, m.faces, skel,
+                                       geom_bind_transform=m.geom_bind_transform,
+                                       joints=used if used.size else None,
+                                       max_influences=max_influences, cache=cache,
+                                       device=device)
+        else:
+            idx, w = read_weights(weights, skel.joint_names, len(m.points))
+        meshes.append(replace(m, joint_indices=idx, joint_weights=w))
+    return replace(scene, meshes=meshes, _skinners={})

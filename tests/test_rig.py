@@ -1,0 +1,193 @@
+"""A plain mesh rigged to a BVH: ``dqskin skin MESH --skeleton X.bvh``, ``--weights FILE.npz``,
+``dqskin rig`` (the written UsdSkel rig skinned by usd-core's ``UsdSkel.BakeSkinning`` equals
+dqskin's skinning), and the errors for meshes that do not fit their skeleton.
+
+Oracles: the FK of tests/test_bvh.py (written from the format) and linear blend skinning in
+float64 NumPy from its equation ``p' = Σ w_j · W_j · B_j⁻¹ · p``; usd-core's UsdSkel."""
+
+import numpy as np
+import pytest
+import trimesh
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel
+from test_autoweights import capsule_body
+from test_bvh import oracle
+
+from dqskin import formats
+from dqskin.cli import main
+from dqskin.formats import bvh
+from dqskin.formats.usd_rig import write_rig
+from dqskin.rigging import read_weights, rig_mesh
+
+FRAMES = 12
+
+
+@pytest.fixture(scope="module")
+def capture(shared_assets, tmp_path_factory):
+    """The first frames of a CMU capture, a capsule body in its rest pose as an OBJ, and the
+    weights bone heat gives it."""
+    folder = tmp_path_factory.mktemp("rig")
+    lines = (shared_assets / "cmu-mocap" / "131_01.bvh").read_text().splitlines()
+    at = lines.index("MOTION")
+    short = lines[:at + 1] + [f"Frames: {FRAMES}", lines[at + 2]] + lines[at + 3:at + 3 + FRAMES]
+    path = folder / "walk.bvh"
+    path.write_text("\n".join(short) + "\n")
+    motion = bvh.read_bvh(path)
+    pts, faces = capsule_body(motion.skeleton(), motion.end_sites, count=(8, 8))
+    mesh = folder / "body.obj"
+    trimesh.Trimesh(pts, faces, process=False).export(mesh)
+    return path, mesh, motion
+
+
+def lbs_oracle(bvh_path, points, indices, weights):
+    """(F, V, 3) float64 linear blend skinning from the independent FK."""
+    names, parents, rot, pos, F = oracle(bvh_path)
+    world = np.zeros((F, len(names), 4, 4))
+    world[..., :3, :3], world[..., :3, 3], world[..., 3, 3] = rot, pos, 1.0
+    bind = np.tile(np.eye(4), (len(names), 1, 1))  # rest: every channel zero, i.e. joints at
+    for j, p in enumerate(parents):  # their summed OFFSETs (read from the text)
+        bind[j, :3, 3] = _offset(bvh_path, j) + (bind[p, :3, 3] if p >= 0 else 0)
+    skin = world @ np.linalg.inv(bind)  # (F, J, 4, 4)
+    p = np.concatenate([points, np.ones((len(points), 1))], 1)
+    out = np.zeros((F, len(points), 3))
+    for k in range(indices.shape[1]):
+        out += weights[None, :, k, None] * np.einsum("fvij,vj->fvi", skin[:, indices[:, k]],
+                                                     p)[..., :3]
+    return out
+
+
+def _offset(bvh_path, j):
+    """OFFSET of joint ``j`` (declaration order), from the text."""
+    import re
+    text = open(bvh_path).read().split("MOTION")[0]
+    blocks = re.findall(r"(?:ROOT|JOINT)\s+\S+\s*\{\s*OFFSET\s+(\S+)\s+(\S+)\s+(\S+)", text)
+    return np.array(blocks[j], dtype=np.float64)
+
+
+def _skin_cli(mesh, bvh_path, out, *extra):
+    """``dqskin skin MESH --skeleton BVH ... --out OUT.npz``; the (F, V, 3) points written."""
+    assert main(["skin", str(mesh), "--skeleton", str(bvh_path), *extra, "--out", str(out)]) == 0
+    with np.load(out) as z:
+        return z[[k for k in z.files if k.startswith("points")][0]]
+
+
+def test_cli_skin_with_skeleton_and_weights_file(capture, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("DQSKIN_CACHE_DIR", str(tmp_path / "cache"))
+    path, mesh, motion = capture
+    got = _skin_cli(mesh, path, tmp_path / "auto.npz")
+    assert "1 mesh × 12 frames" in capsys.readouterr().out
+    pts, _ = formats.load_mesh(mesh)
+    scene = rig_mesh(mesh, path)
+    (m,) = scene.meshes
+    ref = lbs_oracle(path, pts.astype(np.float64), m.joint_indices, m.joint_weights)
+    np.testing.assert_allclose(got, ref, atol=1e-4 * np.abs(ref).max())
+    assert list((tmp_path / "cache" / "weights").glob("*.npz")), "automatic weights cached"
+    # the same weights from a file whose joints are listed in another order
+    order = np.random.default_rng(0).permutation(len(motion.joint_names))
+    inverse = np.argsort(order)
+    wfile = tmp_path / "w.npz"
+    np.savez(wfile, joint_indices=inverse[m.joint_indices], joint_weights=m.joint_weights,
+             joint_names=np.array(motion.joint_names)[order])
+    got2 = _skin_cli(mesh, path, tmp_path / "file.npz", "--weights", str(wfile))
+    np.testing.assert_allclose(got2, got, atol=1e-6 * np.abs(ref).max())
+
+
+def test_rig_round_trip_through_usdskel(capture, tmp_path, monkeypatch, capsys):
+    """UsdSkel.BakeSkinning of the written rig equals dqskin's skinning, LBS and DQS."""
+    monkeypatch.setenv("DQSKIN_CACHE_DIR", str(tmp_path / "cache"))
+    path, mesh, motion = capture
+    rig = tmp_path / "rig.usda"
+    assert main(["rig", str(mesh), "--skeleton", str(path), "--out", str(rig)]) == 0
+    assert "UsdSkel rig" in capsys.readouterr().out
+    scene = rig_mesh(mesh, path)
+    (m,) = scene.meshes
+    for method in ("lbs", "dqs"):
+        stage = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(rig)))  # a fresh copy each time
+        prim = stage.GetPrimAtPath("/Root/body")
+        UsdSkel.BindingAPI(prim).CreateSkinningMethodAttr(
+            "classicLinear" if method == "lbs" else "dualQuaternion")
+        assert stage.GetTimeCodesPerSecond() == pytest.approx(1 / motion.frame_time)
+        assert UsdSkel.BakeSkinning(stage.Traverse(), Gf.Interval(0, FRAMES - 1))
+        points = UsdGeom.Mesh(prim).GetPointsAttr()
+        ref = np.stack([np.asarray(points.Get(float(t)), np.float64) for t in range(FRAMES)])
+        got = scene.skin(np.arange(FRAMES), method=method).points[m.name]
+        np.testing.assert_allclose(got, ref, atol=2e-5 * np.abs(ref).max(), err_msg=method)
+        assert np.abs(ref[-1] - ref[0]).max() > 0.1, "the capture moves the mesh"
+    # dqskin reads its own rig back: same skeleton, weights and motion
+    back = formats.load(rig)
+    np.testing.assert_allclose(back.skin(np.arange(FRAMES), method="lbs").points["/Root/body"],
+                               scene.skin(np.arange(FRAMES), method="lbs").points[m.name],
+                               atol=1e-5 * np.abs(ref).max())
+
+
+def test_rig_of_a_gltf_character_with_auto_weights(shared_assets, tmp_path):
+    scene = formats.load(shared_assets / "khronos-gltf" / "RiggedSimple" / "RiggedSimple.glb")
+    out = tmp_path / "simple.usda"
+    assert main(["rig", str(shared_assets / "khronos-gltf" / "RiggedSimple" /
+                             "RiggedSimple.glb"), "--weights", "auto", "--out", str(out)]) == 0
+    stage = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(out)))
+    t = float(scene.times[len(scene.times) // 2])
+    assert UsdSkel.BakeSkinning(stage.Traverse(), Gf.Interval(t, t))
+    (prim,) = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    ref = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(t), np.float64)
+    got = formats.load(out).skin([t], method="lbs", space="output").points[str(prim.GetPath())]
+    np.testing.assert_allclose(got[0], ref, atol=1e-5 * np.abs(ref).max())
+
+
+def test_misfits_are_explained(capture, tmp_path, capsys):
+    path, mesh, motion = capture
+    pts, faces = formats.load_mesh(mesh)
+    far = tmp_path / "far.obj"
+    trimesh.Trimesh(pts + [100, 0, 0], faces, process=False).export(far)
+    metres = tmp_path / "metres.obj"
+    trimesh.Trimesh(pts * 0.0254, faces, process=False).export(metres)
+    cases = [
+        (["skin", str(far), "--skeleton", str(path), "--out", str(tmp_path / "a.npz")],
+         "far from its skeleton"),
+        (["skin", str(metres), "--skeleton", str(path), "--out", str(tmp_path / "a.npz")],
+         "--scale 0.0"),
+        (["skin", str(mesh), "--scale", "2", "--out", str(tmp_path / "a.npz")],
+         "needs --skeleton"),
+        (["skin", str(mesh), "--skeleton", str(path), "--out", str(tmp_path / "a.usdc")],
+         "write the rig first"),
+        (["rig", str(path), "--skeleton", str(path), "--out", str(tmp_path / "r.usda")],
+         "cannot read mesh"),
+    ]
+    for argv, message in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err, (argv, err)
+    assert not list(tmp_path.glob("a.*")) and not (tmp_path / "r.usda").exists()
+    # the suggested scale fixes the units
+    assert main(["skin", str(metres), "--skeleton", str(path), "--scale", "0.0254", "--out",
+                 str(tmp_path / "ok.npz")]) == 0
+
+
+def test_bad_weight_files_are_named(capture, tmp_path):
+    path, mesh, motion = capture
+    V = len(formats.load_mesh(mesh)[0])
+    J = motion.joint_names
+    bad = {
+        "missing": (dict(joint_indices=np.zeros((V, 1), int)), "missing joint_weights"),
+        "names": (dict(joint_indices=np.zeros((V, 1), int), joint_weights=np.ones((V, 1)),
+                       joint_names=np.array(["Nope"])), "'Nope' not in the skeleton"),
+        "count": (dict(joint_indices=np.zeros((3, 1), int), joint_weights=np.ones((3, 1)),
+                       joint_names=np.array(J)), f"the mesh has {V} points"),
+        "negative": (dict(joint_indices=np.zeros((V, 1), int), joint_weights=-np.ones((V, 1)),
+                          joint_names=np.array(J)), "negative weight"),
+    }
+    for name, (arrays, message) in bad.items():
+        f = tmp_path / f"{name}.npz"
+        np.savez(f, **arrays)
+        with pytest.raises(ValueError, match=message) as err:
+            read_weights(f, J, V)
+        assert str(f) in str(err.value)
+    (tmp_path / "junk.npz").write_bytes(b"junk")
+    with pytest.raises(ValueError, match="cannot read weights"):
+        read_weights(tmp_path / "junk.npz", J, V)
+
+
+def test_write_rig_refuses_other_suffixes(capture, tmp_path):
+    path, mesh, motion = capture
+    scene = rig_mesh(mesh, path, cache=False)
+    with pytest.raises(ValueError, match="a rig is written as"):
+        write_rig(scene, tmp_path / "x.npz")
