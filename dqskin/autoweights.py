@@ -172,7 +172,8 @@ def _heat_sources(points, faces, heads, tails, visibility, device):
 def bone_heat_weights(points: npt.ArrayLike, faces: npt.ArrayLike, heads: npt.ArrayLike,
                       tails: npt.ArrayLike, joints: npt.ArrayLike, joint_count: int, *,
                       max_influences: int = 8, visibility: bool = True,
-                      device: Device = None) -> tuple[np.ndarray, np.ndarray]:
+                      device: Device = None, timings: dict | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """Bone-heat weights of a mesh (see the module docstring).
 
     Parameters
@@ -188,6 +189,9 @@ def bone_heat_weights(points: npt.ArrayLike, faces: npt.ArrayLike, heads: npt.Ar
     visibility : bool
         Heat only from bones visible from the vertex (Baran & Popović); False: from the
         nearest bones regardless.
+    timings : dict, optional
+        Filled with the seconds of each phase ("sources": distances and rays, "laplacian",
+        "factorize", "solve", "sparsify") for benchmarks.
 
     Returns
     -------
@@ -224,7 +228,9 @@ def bone_heat_weights(points: npt.ArrayLike, faces: npt.ArrayLike, heads: npt.Ar
     F = weld[F]
     V = P.shape[0]
     F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
+    clock = _Clock(timings)
     mind, nearest, closest = _heat_sources(P, F, heads, tails, visibility, device)
+    clock("sources")
     diag = float(np.linalg.norm(np.ptp(P, axis=0))) or 1.0
     dense = np.zeros((V, J))
     rigid = np.ones(V, bool)
@@ -236,6 +242,7 @@ def bone_heat_weights(points: npt.ArrayLike, faces: npt.ArrayLike, heads: npt.Ar
         remap = np.full(V, -1, np.int64)
         remap[sub] = np.arange(sub.size)
         L, M = robust_laplacian.mesh_laplacian(P[sub], remap[F])
+        clock("laplacian")
         count = closest[sub].sum(1)
         d2 = np.maximum(mind[sub], 1e-4 * diag) ** 2
         H = count / d2
@@ -251,11 +258,29 @@ def bone_heat_weights(points: npt.ArrayLike, faces: npt.ArrayLike, heads: npt.Ar
         for b in range(heads.shape[0]):
             per_joint[:, joints[b]] += src[:, b]
         mh = M.diagonal() * H
-        A = (L + sp.diags(mh)).tocsc()
-        solved = splu(A).solve(mh[:, None] * per_joint)
-        dense[sub] = solved
+        lu = splu((L + sp.diags(mh)).tocsc())
+        clock("factorize")
+        dense[sub] = lu.solve(mh[:, None] * per_joint)
+        clock("solve")
     dense[rigid, joints[nearest[rigid]]] = 1.0
-    return sparsify(dense[weld], max_influences)
+    result = sparsify(dense[weld], max_influences)
+    clock("sparsify")
+    return result
+
+
+class _Clock:
+    """``clock(name)`` records the seconds since the previous call into ``timings[name]``."""
+
+    def __init__(self, timings):
+        import time
+        self._now = time.perf_counter
+        self.timings, self.last = timings, self._now()
+
+    def __call__(self, name):
+        now = self._now()
+        if self.timings is not None:
+            self.timings[name] = self.timings.get(name, 0.0) + now - self.last
+        self.last = now
 
 
 def _cache_key(points, faces, heads, tails, joints, joint_count, max_influences, visibility):

@@ -1,0 +1,150 @@
+"""Automatic-weights benchmark: speed on a ~35k-vertex mesh, and accuracy against the artists'
+weights on the real characters (the figures of issue 14, beside Blender 5.0's).
+
+    python tools/bench_weights.py [--repeat 3] [--no-accuracy] [--no-speed]
+
+Speed (target: under 10 s for ~35k vertices and ~30 joints): bone heat without the cache
+(:func:`dqskin.autoweights.bone_heat_weights`), best of ``--repeat`` runs after one warm-up (Warp
+kernel load), with the time of each phase, on
+
+* ``capsules``: a body of capsules around every bone of the CMU capture 131_01 (31 joints), in
+  its rest pose, subdivided to ~35k vertices;
+* ``cesiumman-x4``: CesiumMan's mesh (welded: one closed surface) subdivided twice (~37k
+  vertices), on its 19 skin joints.
+
+Accuracy: each character's artist weights replaced by automatic ones
+(:func:`dqskin.rigging.replace_weights`) or by nearest-bone rigid weights, both skinned with LBS
+under the character's first clip at every key; the error is the distance to the artist's
+skinned points as a share of the rest mesh's height: the mean and the 95th percentile over the
+vertices, at the worst frame. Blender's figures (issue 14): CesiumMan 0.58% / 3.24% (bones
+pointed at their children: 95th ≈ 1.25%), RiggedFigure 0.28% / 1.27%; nearest-bone rigid
+CesiumMan 0.75% / 3.27%.
+"""
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "assets"
+sys.path.insert(0, str(ROOT / "tests"))  # the capsule body of the weight tests
+
+BLENDER = {"CesiumMan": (0.58, 3.24), "RiggedFigure": (0.28, 1.27)}
+
+
+def capsule_mesh():
+    from test_autoweights import capsule_body
+
+    from dqskin.autoweights import bone_segments
+    from dqskin.formats import bvh
+    motion = bvh.read_bvh(SHARED / "cmu-mocap" / "131_01.bvh")
+    skel = motion.skeleton()
+    pts, faces = capsule_body(skel, motion.end_sites, count=(16, 16), subdivide=1)
+    return pts, faces, bone_segments(skel, end_sites=motion.end_sites), skel.joint_count
+
+
+def cesium_mesh():
+    import trimesh
+
+    from dqskin import formats
+    from dqskin.autoweights import bone_segments
+    scene = formats.load(SHARED / "khronos-gltf" / "CesiumMan" / "CesiumMan.glb")
+    m = scene.meshes[0]
+    skel = scene.skeletons[m.skeleton]
+    g = m.geom_bind_transform
+    t = trimesh.Trimesh(np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3], m.faces)
+    t.merge_vertices()
+    t = t.subdivide().subdivide()
+    used = np.unique(np.asarray(m.joint_indices)[np.asarray(m.joint_weights) > 0])
+    return (np.asarray(t.vertices), np.asarray(t.faces), bone_segments(skel, joints=used),
+            skel.joint_count)
+
+
+def speed(repeat):
+    from dqskin.autoweights import bone_heat_weights
+    rows = []
+    for name, make in (("capsules", capsule_mesh), ("cesiumman-x4", cesium_mesh)):
+        pts, faces, (heads, tails, owners), J = make()
+        bone_heat_weights(pts, faces, heads, tails, owners, J)  # warm-up (kernel load)
+        best, phases = None, None
+        for _ in range(repeat):
+            timings = {}
+            t0 = time.perf_counter()
+            bone_heat_weights(pts, faces, heads, tails, owners, J, timings=timings)
+            dt = time.perf_counter() - t0
+            if best is None or dt < best:
+                best, phases = dt, timings
+        rows.append(name)
+        parts = ", ".join(f"{k} {v:.2f}" for k, v in phases.items())
+        print(f"{name}: {len(pts)} vertices, {len(faces)} triangles, "
+              f"{len(np.unique(owners))} joints, {len(heads)} bone segments: {best:.2f} s "
+              f"({parts})")
+    return rows
+
+
+def nearest_bone(scene):
+    """The scene with every vertex rigidly on its nearest bone segment (over the skin's
+    joints)."""
+    from dqskin.autoweights import bone_segments
+    meshes = []
+    for m in scene.meshes:
+        skel = scene.skeletons[m.skeleton]
+        used = np.unique(np.asarray(m.joint_indices)[np.asarray(m.joint_weights) > 0])
+        h, t, owner = bone_segments(skel, joints=used)
+        g = m.geom_bind_transform
+        p = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
+        d = t - h
+        u = np.clip(np.einsum("vbk,bk->vb", p[:, None] - h, d)
+                    / np.maximum((d * d).sum(1), 1e-30), 0, 1)
+        dist = np.linalg.norm(p[:, None] - (h + u[..., None] * d), axis=2)
+        j = owner[dist.argmin(1)][:, None].astype(np.int32)
+        meshes.append(dataclasses.replace(m, joint_indices=j,
+                                          joint_weights=np.ones(j.shape, np.float32)))
+    return dataclasses.replace(scene, meshes=meshes, _skinners={})
+
+
+def accuracy():
+    from dqskin import formats
+    from dqskin.rigging import replace_weights
+    for name in BLENDER:
+        scene = formats.load(SHARED / "khronos-gltf" / name / f"{name}.glb")
+        t0 = time.perf_counter()
+        auto = replace_weights(scene, "auto", cache=False)
+        dt = time.perf_counter() - t0
+        frames = np.arange(scene.times[0], scene.times[-1] + 1e-9, 1 / 24)  # as Blender plays it
+        for label, other in (("automatic", auto), ("nearest bone", nearest_bone(scene))):
+            for m, a in zip(scene.meshes, other.meshes):
+                ref = dataclasses.replace(scene, meshes=[m], _skinners={}).skin(
+                    frames, method="lbs", space="skeleton").points[m.name].astype(np.float64)
+                got = dataclasses.replace(other, meshes=[a], _skinners={}).skin(
+                    frames, method="lbs", space="skeleton").points[m.name].astype(np.float64)
+                g = m.geom_bind_transform
+                rest = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
+                err = np.linalg.norm(ref - got, axis=-1) / np.ptp(rest, axis=0).max() * 100
+                mean, p95 = err.mean(1).max(), np.percentile(err, 95, axis=1).max()
+                extra = f" (weights {dt:.2f} s)" if label == "automatic" else ""
+                blender = "% / ".join(map(str, BLENDER[name]))
+                print(f"{name} {label}: mean {mean:.3f}%, 95th percentile {p95:.3f}% of height "
+                      f"at the worst of {len(frames)} frames (24 fps); Blender {blender}%{extra}")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--no-speed", action="store_true")
+    ap.add_argument("--no-accuracy", action="store_true")
+    args = ap.parse_args(argv)
+    import warp as wp
+    wp.config.quiet = True
+    if not args.no_speed:
+        speed(args.repeat)
+    if not args.no_accuracy:
+        accuracy()
+
+
+if __name__ == "__main__":
+    main()
