@@ -175,8 +175,13 @@ def _compute(points, faces, idx, wts, sigma, device):
     pos = np.searchsorted(keys, rj * J + rk)
     pos = np.minimum(pos, max(keys.size - 1, 0))
     hit = (keys.size > 0) & (keys[pos] == rj * J + rk) if keys.size else np.zeros(rr.size, bool)
-    o = np.argsort(rr[hit], kind="stable")  # rows grouped by weight vector
-    rr, pos, rwj, rwk = rr[hit][o], pos[hit][o], rwj[hit][o], rwk[hit][o]
+    # rows grouped by weight vector, the vectors in a fixed shuffled order: the launch splits them
+    # into equal-count chunks per core, and similar (equally costly) vectors sort together
+    shuffle = np.random.default_rng(0).permutation(U)
+    rank = np.empty(U, np.int64)
+    rank[shuffle] = np.arange(U)
+    o = np.argsort(rank[rr[hit]], kind="stable")
+    rr, pos, rwj, rwk = rank[rr[hit][o]], pos[hit][o], rwj[hit][o], rwk[hit][o]
     row_offsets = np.concatenate([[0], np.cumsum(np.bincount(rr, minlength=U))]).astype(np.int32)
     d = device
     out = wp.empty(U, dtype=wp.vec4d, device=d)
@@ -190,7 +195,7 @@ def _compute(points, faces, idx, wts, sigma, device):
                sigma=sigma, out=out, device=d)
     c = out.numpy()
     res = np.where(c[:, 3:] > 0, c[:, :3], np.nan)
-    return res[inverse]
+    return res[rank[inverse]]
 
 
 def rotation_centers(points, faces, joint_indices, joint_weights, *, sigma: float = SIGMA,
