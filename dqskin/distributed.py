@@ -17,6 +17,7 @@ A worker process that dies mid-chunk leaves no layer under the chunk's name; Das
 again on another worker (up to its ``allowed-failures``, 3 by default).
 """
 
+import contextlib
 import os
 import sys
 import time
@@ -99,6 +100,10 @@ def _worker_scene(path):
     return _scenes[key]
 
 
+def _preload(path):
+    _worker_scene(path)
+
+
 def _peak_rss_mb():
     try:
         with open("/proc/self/status") as fh:
@@ -151,27 +156,35 @@ def bake_clips(scene, out, times, *, chunk, method=None, interp="trs", device=No
     """
     options = dict(skin_options, method=method, interp=interp, normals=bool(normals),
                    velocities=bool(velocities))
-    bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=force, resume=resume)
-    todo = bake.pending()
-    skin = dict(options, device=None if device is None else str(device))
-    source = str(Path(bake.cache.src).resolve())
-    jobs = [ChunkJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()), bake.key,
-                     bake.targets, bake.cache.rigid, skin, float(scene.time_codes_per_second))
-            for k in todo]
-    bar = _bar(len(bake.bounds), len(bake.bounds) - len(todo), progress)
+    usd_clips.ClipBake.check_free(out, force=force, resume=resume)  # before starting workers
+    source = str(Path(scene.path).resolve())
     tasks = []
-    try:
-        if workers is None and scheduler is None:
-            for job in jobs:
-                tasks.append(run_chunk(job, scene))
-                bar.update(1)
-        elif jobs:
-            def done(result):
-                tasks.append(result)
-                bar.update(1)
-            _run_on_dask(jobs, workers, scheduler, done)
-    finally:
-        bar.close()
+    with _dask(workers, scheduler) as client:
+        # the workers load the asset while this process flattens it (kept until the end: a
+        # released future is cancelled)
+        preload = [] if client is None else [
+            client.submit(_preload, source, pure=False, workers=[w], allow_other_workers=False)
+            for w in client.scheduler_info()["workers"]]
+        bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=force, resume=resume)
+        todo = bake.pending()
+        skin = dict(options, device=None if device is None else str(device))
+        jobs = [ChunkJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()),
+                         bake.key, bake.targets, bake.cache.rigid, skin,
+                         float(scene.time_codes_per_second)) for k in todo]
+        bar = _bar(len(bake.bounds), len(bake.bounds) - len(todo), progress)
+
+        def done(result):
+            tasks.append(result)
+            bar.update(1)
+        try:
+            if client is None:
+                for job in jobs:
+                    done(run_chunk(job, scene))
+            elif jobs:
+                _run_on_dask(client, jobs, done)
+        finally:
+            bar.close()
+            del preload
     bake.finish()
     return dict(chunks=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
                 folder=str(bake.folder), tasks=tasks)
@@ -183,13 +196,16 @@ def _bar(total, done, progress):
                 disable=not progress or total < 2 or not sys.stderr.isatty())
 
 
-def _run_on_dask(jobs, workers, scheduler, done):
-    """Run the jobs on a new LocalCluster of ``workers`` processes or the cluster at
-    ``scheduler``; ``done(result)`` for each task as it finishes."""
+@contextlib.contextmanager
+def _dask(workers, scheduler):
+    """A Dask client of a new LocalCluster of ``workers`` processes or of the cluster at
+    ``scheduler`` (None for neither), closed (the LocalCluster stopped) at the end."""
+    if workers is None and not scheduler:
+        yield None
+        return
     import logging
 
-    from distributed import Client, LocalCluster, as_completed
-    from distributed.scheduler import KilledWorker
+    from distributed import Client, LocalCluster
 
     cluster = client = None
     try:
@@ -206,20 +222,27 @@ def _run_on_dask(jobs, workers, scheduler, done):
                                    silence_logs=logging.ERROR)
             client = Client(cluster)
         client.register_plugin(_quiet_worker_plugin())
-        futures = {client.submit(run_chunk, job, key=f"dqskin-chunk-{job.index}-{job.key[:12]}",
-                                 pure=False): job for job in jobs}
-        for fut in as_completed(futures):
-            try:
-                result = fut.result()
-            except KilledWorker:
-                job = futures[fut]
-                raise ChildProcessError(
-                    f"{job.path}: the worker processes baking it died repeatedly (out of memory? "
-                    "try a smaller --chunk); finished chunks are kept: rerun with --resume"
-                ) from None
-            done(result)
+        yield client
     finally:
         if client is not None:
             client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _run_on_dask(client, jobs, done):
+    """Run the jobs as tasks; ``done(result)`` for each as it finishes."""
+    from distributed import as_completed
+    from distributed.scheduler import KilledWorker
+
+    futures = {client.submit(run_chunk, job, key=f"dqskin-chunk-{job.index}-{job.key[:12]}",
+                             pure=False): job for job in jobs}
+    for fut in as_completed(futures):
+        try:
+            result = fut.result()
+        except KilledWorker:
+            job = futures[fut]
+            raise ChildProcessError(
+                f"{job.path}: the worker processes baking it died repeatedly (out of memory? "
+                "try a smaller --chunk); finished chunks are kept: rerun with --resume") from None
+        done(result)

@@ -4,10 +4,11 @@ clips in this process and on a Dask LocalCluster of 1 and 2 worker processes.
     python tools/bench_bake.py [--frames 1000,10000] [--asset PATH] [--brainstem PATH]
                                [--impls usdskel,single,clips0,clips1,clips2,clips2+nv]
 
-Assets: the looped CesiumMan (its 48-key walk looped over each ``--frames`` count) and, when the
-file exists, BrainStem.usdz's own clip (``--brainstem``; default: searched under
-../shared/assets). Each bake runs in a fresh process so its peak memory (VmHWM) is its own; the
-clip bakes also report the peak of every worker process. Implementations (``--impls``):
+Assets: the looped CesiumMan (its 48-key walk looped over each ``--frames`` count, with root
+motion) and BrainStem.usdz's own clip when the file exists (``--brainstem``; default: searched
+under ../shared/assets), else a stand-in of its size (10 CesiumMen side by side, 1,292 frames,
+``--no-standin`` to skip). Each bake runs in a fresh process so its peak memory (VmHWM) is its
+own; the clip bakes also report the peak of every worker process. Implementations (``--impls``):
 
 * ``usdskel``: ``UsdSkel.BakeSkinning(stage)`` + ``Export`` to ``.usdc`` (LBS, points + extent);
 * ``single``: ``dqskin.bake(..., clips=False)``, LBS, points + extent (what UsdSkel writes);
@@ -43,9 +44,11 @@ def find_brainstem():
     return hits[0] if hits else None
 
 
-def make_long_clip(asset, frames, out):
-    """Flatten ``asset`` and loop every SkelAnimation's samples over ``frames`` time codes."""
-    from pxr import Usd, UsdSkel
+def make_long_clip(asset, frames, out, stride=0.5):
+    """Flatten ``asset`` and loop every SkelAnimation's samples over ``frames`` time codes; the
+    root joint moves ``stride`` along x per loop (root motion), so no two frames are equal (a
+    crate layer stores each distinct array once: a plain loop would flatter every writer)."""
+    from pxr import Gf, Usd, UsdSkel
     stage = Usd.Stage.Open(str(asset))
     layer = stage.Flatten()
     long_stage = Usd.Stage.Open(layer)
@@ -60,10 +63,35 @@ def make_long_clip(asset, frames, out):
             values = [attr.Get(k) for k in keys]
             attr.Clear()
             for f in range(frames):
-                attr.Set(values[f % len(values)], keys[0] + f)
+                value = values[f % len(values)]
+                if attr.GetName() == "translations" and stride:
+                    value = type(value)(value)
+                    value[0] = value[0] + Gf.Vec3f(stride * (f // len(values)), 0, 0)
+                attr.Set(value, keys[0] + f)
     long_stage.SetStartTimeCode(1)
     long_stage.SetEndTimeCode(frames)
     long_stage.GetRootLayer().Export(str(out))
+
+
+def make_crowd(long_clip, copies, out):
+    """A stage of ``copies`` references to ``long_clip``'s default prim side by side: a
+    BrainStem-sized stand-in (BrainStem.usdz: 59 meshes, 34k points, 1,292 frames)."""
+    from pxr import Sdf, Usd, UsdGeom
+    clip = Usd.Stage.Open(str(long_clip))
+    stage = Usd.Stage.CreateNew(str(out))
+    for key in ("upAxis", "metersPerUnit"):
+        stage.SetMetadata(key, clip.GetMetadata(key))
+    stage.SetTimeCodesPerSecond(clip.GetTimeCodesPerSecond())
+    stage.SetStartTimeCode(clip.GetStartTimeCode())
+    stage.SetEndTimeCode(clip.GetEndTimeCode())
+    root = UsdGeom.Xform.Define(stage, "/Crowd")
+    stage.SetDefaultPrim(root.GetPrim())
+    src = clip.GetDefaultPrim().GetPath()
+    for i in range(copies):
+        x = UsdGeom.Xform.Define(stage, f"/Crowd/C{i:02d}")
+        x.GetPrim().GetReferences().AddReference(Sdf.Reference(str(long_clip), src))
+        x.AddTranslateOp().Set((0.0, 2.0 * i, 0.0))
+    stage.Save()
 
 
 def import_usdskel():
@@ -184,14 +212,19 @@ def bench_one(rows, label, src, impls, tmp):
                 r["max_point_diff"] = compare_caches(dsts["usdskel"], dsts[r["impl"]], probes)
 
 
-def bench_bake(rows, frames=(1000, 10000), asset=DEFAULT_ASSET, brainstem=None, impls=IMPLS):
+def bench_bake(rows, frames=(1000, 10000), asset=DEFAULT_ASSET, brainstem=None, impls=IMPLS,
+               standin=True):
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         brainstem = brainstem or find_brainstem()
         if brainstem and Path(brainstem).is_file():
             bench_one(rows, "BrainStem", Path(brainstem), impls, tmp)
-        else:
-            print("bake: BrainStem.usdz not found under ../shared/assets; skipped")
+        elif Path(asset).is_file() and standin:
+            print("bake: BrainStem.usdz not found under ../shared/assets; a stand-in of the "
+                  "same size instead: 10 CesiumMen × 1,292 frames (32,730 points)")
+            make_long_clip(asset, 1292, tmp / "long_1292.usdc")
+            make_crowd(tmp / "long_1292.usdc", 10, tmp / "crowd.usda")
+            bench_one(rows, "10×CesiumMan", tmp / "crowd.usda", impls, tmp)
         if not Path(asset).is_file():
             print(f"bake: skipped, {asset} not found")
         else:
@@ -244,10 +277,11 @@ if __name__ == "__main__":
     ap.add_argument("--asset", default=str(DEFAULT_ASSET))
     ap.add_argument("--brainstem", help="BrainStem.usdz (default: searched under ../shared)")
     ap.add_argument("--impls", default=",".join(IMPLS))
+    ap.add_argument("--no-standin", action="store_true", help="no BrainStem stand-in")
     ap.add_argument("--json", help="also write the rows here")
     a = ap.parse_args()
     out_rows = []
     bench_bake(out_rows, [int(x) for x in a.frames.split(",")], a.asset, a.brainstem,
-               [x for x in a.impls.split(",") if x])
+               [x for x in a.impls.split(",") if x], not a.no_standin)
     if a.json:
         Path(a.json).write_text(json.dumps(out_rows, indent=1))

@@ -192,14 +192,23 @@ class ClipBake:
                                  "it with those, or use --force to start over")
             return True
         if not force:
-            if self.out.exists():
-                raise FileExistsError(f"{self.out}: exists (use --force to overwrite)")
-            if earlier:
-                raise FileExistsError(f"{self.folder}: an unfinished clip bake is there; use "
-                                      "--resume to complete it or --force to start over")
+            self.check_free(self.out)
         elif self.folder.is_dir():
             self._remove(_OURS)
         return False
+
+    @staticmethod
+    def check_free(out, *, force=False, resume=False):
+        """The refusals that need no plan (before starting workers): FileExistsError when
+        ``out`` or an unfinished clip bake exists, unless ``force`` or ``resume``."""
+        if force or resume:
+            return
+        out, folder = Path(out), clips_folder(out)
+        if out.exists():
+            raise FileExistsError(f"{out}: exists (use --force to overwrite)")
+        if (folder / "plan.json").exists():
+            raise FileExistsError(f"{folder}: an unfinished clip bake is there; use --resume to "
+                                  "complete it or --force to start over")
 
     def _remove(self, pattern):
         for p in self.folder.iterdir():
