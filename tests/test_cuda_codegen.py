@@ -6,7 +6,7 @@ import importlib
 import pytest
 import warp as wp
 
-MODULES = ("fk", "skin", "velocity", "metrics", "render", "cor")
+MODULES = ("fk", "skin", "velocity", "metrics", "render", "cor", "layout")
 
 
 @pytest.mark.parametrize("name", MODULES)

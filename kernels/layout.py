@@ -1,0 +1,55 @@
+"""The influence layout of :class:`dqskin.kernels.skin.Influences`, built on the device.
+
+:class:`dqskin.influences.Influences` sorts each vertex's ``K`` influences by descending weight
+(stable: the first input first on ties) and zero-pads them to ``C = max(1, ceil(K / 4))`` groups
+of four. On the host that sort (argsort, gather, pad) costs several times the skinning of the same
+points; here one thread per vertex ranks its influences, ``rank(k) = #{m : w_m > w_k or (w_m ==
+w_k and m < k)}``, and writes each to its slot -- the same order as NumPy's stable argsort of
+``-w`` for finite weights.
+"""
+
+import warp as wp
+
+from .grid import launch_rows
+
+wp.set_module_options({"enable_backward": False})  # forward-only kernels
+
+
+@wp.kernel
+def layout_kernel(
+    joint_indices: wp.array2d(dtype=wp.int32),
+    joint_weights: wp.array2d(dtype=float),
+    row_offset: int,
+    # outputs
+    indices: wp.array2d(dtype=wp.vec4i),
+    weights: wp.array2d(dtype=wp.vec4),
+):
+    """Vertex ``row_offset + tid``: its (K,) influences → (C,) groups, largest weight first,
+    padded with joint 0 and weight 0."""
+    v = wp.tid() + row_offset
+    count = joint_weights.shape[1]
+    for c in range(indices.shape[1]):
+        indices[v, c] = wp.vec4i(0, 0, 0, 0)
+        weights[v, c] = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    for k in range(count):
+        wk = joint_weights[v, k]
+        rank = int(0)
+        for m in range(count):
+            wm = joint_weights[v, m]
+            if wm > wk or (wm == wk and m < k):
+                rank += 1
+        c = rank // 4
+        slot = rank - 4 * c
+        iv = indices[v, c]
+        wv = weights[v, c]
+        iv[slot] = joint_indices[v, k]
+        wv[slot] = wk
+        indices[v, c] = iv
+        weights[v, c] = wv
+
+
+def layout(*, joint_indices, joint_weights, indices, weights, device):
+    """Fill ``indices`` (V, C) ``wp.vec4i`` and ``weights`` (V, C) ``wp.vec4`` from the (V, K)
+    ``joint_indices`` (int32) and ``joint_weights`` (float32, finite)."""
+    launch_rows(layout_kernel, indices.shape[0], [joint_indices, joint_weights],
+                [indices, weights], device, min_chunk=65536)
