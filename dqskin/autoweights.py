@@ -57,7 +57,7 @@ from .skeleton import Skeleton
 __all__ = ["ALGORITHM_VERSION", "automatic_weights", "bone_heat_weights", "bone_segments",
            "cache_dir", "sparsify"]
 
-ALGORITHM_VERSION = 1
+ALGORITHM_VERSION = 2
 """Bumped whenever the weights this module computes change; part of the cache key."""
 
 _NEAR = 1.0e-4  # bones within (1 + _NEAR) of the nearest distance share the heat (as Blender)
@@ -75,7 +75,9 @@ def cache_dir() -> Path:
 def bone_segments(skeleton: Skeleton, *, end_sites: list | None = None,
                   leaf_fraction: float = 0.5, joints: npt.ArrayLike | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Bone segments of a skeleton's bind pose, in skeleton space.
+    """Bone segments of a skeleton's bind pose, in skeleton space: from each joint to each of
+    its children (through children at the joint's own place, to theirs), else to its End Sites,
+    else along its parent bone.
 
     Parameters
     ----------
@@ -108,10 +110,22 @@ def bone_segments(skeleton: Skeleton, *, end_sites: list | None = None,
     deforming = range(J) if joints is None else sorted({int(j) for j in np.ravel(joints)})
     if not len(deforming) or deforming[0] < 0 or deforming[-1] >= J:
         raise ValueError(f"joints: expected indices of the {J} joints, got {list(deforming)}")
+    kids = [np.nonzero(skeleton.parents == j)[0] for j in range(J)]
+
+    def reach(j, at):
+        """Where the bone of a joint at ``at`` points: its children, and through children at
+        the same place (a CMU "lhand" at its wrist) their children and End Sites."""
+        out = []
+        for c in kids[j]:
+            if np.linalg.norm(pos[c] - at) > tiny:
+                out.append(pos[c])
+            else:
+                out += reach(c, at) or [t for t in tips.get(int(c), [])
+                                        if np.linalg.norm(t - at) > tiny]
+        return out
+
     for j in deforming:
-        children = [c for c in np.nonzero(skeleton.parents == j)[0]
-                    if np.linalg.norm(pos[c] - pos[j]) > tiny]
-        ends = [pos[c] for c in children]
+        ends = reach(j, pos[j])
         if not ends:
             ends = [t for t in tips.get(j, []) if np.linalg.norm(t - pos[j]) > tiny]
         if not ends:

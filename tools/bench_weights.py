@@ -1,7 +1,7 @@
 """Automatic-weights benchmark: speed on a ~35k-vertex mesh, and accuracy against the artists'
 weights on the real characters (the figures of issue 14, beside Blender 5.0's).
 
-    python tools/bench_weights.py [--repeat 3] [--no-accuracy] [--no-speed]
+    python tools/bench_weights.py [--repeat 3] [--no-accuracy] [--no-speed] [--blender PYTHON]
 
 Speed (target: under 10 s for ~35k vertices and ~30 joints): bone heat without the cache
 (:func:`dqskin.autoweights.bone_heat_weights`), best of ``--repeat`` runs after one warm-up (Warp
@@ -19,6 +19,12 @@ skinned points as a share of the rest mesh's height: the mean and the 95th perce
 vertices, at the worst frame. Blender's figures (issue 14): CesiumMan 0.58% / 3.24% (bones
 pointed at their children: 95th ≈ 1.25%), RiggedFigure 0.28% / 1.27%; nearest-bone rigid
 CesiumMan 0.75% / 3.27%.
+
+Blender (``--blender PYTHON``, a Python with the ``bpy`` module, e.g. ``bpy`` from PyPI in its own
+virtual environment): the capsule body (12×12 capsules) and the CMU capture go through Blender's
+own BVH and OBJ importers and "Parent with Automatic Weights"; its weights (normalized, as its
+Armature modifier deforms) and dqskin's are both skinned with LBS over the whole capture, and the
+distance between the two is reported as above (mean, 95th percentile, max; worst frame).
 """
 
 import argparse
@@ -132,11 +138,85 @@ def accuracy():
                       f"at the worst of {len(frames)} frames (24 fps); Blender {blender}%{extra}")
 
 
+BLENDER_SCRIPT = """
+import sys
+import bpy
+import numpy as np
+bvh, obj, out = sys.argv[-3:]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.import_anim.bvh(filepath=bvh, rotate_mode="NATIVE")
+arm = [o for o in bpy.context.scene.objects if o.type == "ARMATURE"][0]
+bpy.ops.wm.obj_import(filepath=obj)
+mesh = [o for o in bpy.context.scene.objects if o.type == "MESH"][0]
+for o in bpy.context.scene.objects:
+    o.select_set(False)
+mesh.select_set(True)
+arm.select_set(True)
+bpy.context.view_layer.objects.active = arm
+bpy.ops.object.parent_set(type="ARMATURE_AUTO")
+V, K = len(mesh.data.vertices), 8
+idx, w = np.zeros((V, K), np.int64), np.zeros((V, K), np.float32)
+for v in mesh.data.vertices:
+    for k, (wt, g) in enumerate(sorted(((g.weight, g.group) for g in v.groups), reverse=True)[:K]):
+        idx[v.index, k], w[v.index, k] = g, wt
+co = np.array([tuple(v.co) for v in mesh.data.vertices])
+np.savez(out, joint_indices=idx, joint_weights=w, co=co,
+         joint_names=np.array([g.name for g in mesh.vertex_groups]))
+"""
+
+
+def blender(python):
+    """dqskin's automatic weights against Blender's on the capsule body under the CMU capture."""
+    import subprocess
+    import tempfile
+
+    import trimesh
+    from test_autoweights import capsule_body
+
+    from dqskin.formats import bvh
+    from dqskin.rigging import rig_mesh
+    src = SHARED / "cmu-mocap" / "131_01.bvh"
+    motion = bvh.read_bvh(src)
+    pts, faces = capsule_body(motion.skeleton(), motion.end_sites)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        trimesh.Trimesh(pts, faces, process=False).export(tmp / "body.obj")
+        (tmp / "weights.py").write_text(BLENDER_SCRIPT)
+        t0 = time.perf_counter()
+        subprocess.run([python, str(tmp / "weights.py"), "--", str(src), str(tmp / "body.obj"),
+                        str(tmp / "blender.npz")], check=True, capture_output=True)
+        dt = time.perf_counter() - t0
+        with np.load(tmp / "blender.npz") as z:
+            if not np.allclose(z["co"], formats_points(tmp / "body.obj"), atol=1e-5):
+                raise SystemExit("Blender reordered the OBJ's vertices")
+            w = z["joint_weights"] / np.maximum(z["joint_weights"].sum(1, keepdims=True), 1e-30)
+            np.savez(tmp / "norm.npz", joint_indices=z["joint_indices"], joint_weights=w,
+                     joint_names=z["joint_names"])
+        t1 = time.perf_counter()
+        ours = rig_mesh(tmp / "body.obj", src, cache=False)
+        dt_ours = time.perf_counter() - t1
+        theirs = rig_mesh(tmp / "body.obj", src, weights=tmp / "norm.npz")
+        a = ours.skin(method="lbs").points["body"].astype(np.float64)
+        b = theirs.skin(method="lbs").points["body"].astype(np.float64)
+    err = np.linalg.norm(a - b, axis=-1) / np.ptp(pts, axis=0).max() * 100
+    print(f"capsule body ({len(pts)} vertices) on 131_01, dqskin vs Blender automatic weights "
+          f"over {len(a)} frames: mean {err.mean(1).max():.3f}%, 95th percentile "
+          f"{np.percentile(err, 95, axis=1).max():.3f}%, max {err.max():.3f}% of height "
+          f"(Blender incl. start-up {dt:.1f} s, dqskin {dt_ours:.2f} s)")
+
+
+def formats_points(path):
+    from dqskin.formats import load_mesh
+    return load_mesh(path)[0]
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-speed", action="store_true")
     ap.add_argument("--no-accuracy", action="store_true")
+    ap.add_argument("--blender", metavar="PYTHON", help="a Python with bpy: compare with Blender's "
+                    "automatic weights")
     args = ap.parse_args(argv)
     import warp as wp
     wp.config.quiet = True
@@ -144,6 +224,8 @@ def main(argv=None):
         speed(args.repeat)
     if not args.no_accuracy:
         accuracy()
+    if args.blender:
+        blender(args.blender)
 
 
 if __name__ == "__main__":
