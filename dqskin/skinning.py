@@ -90,6 +90,9 @@ class Skinner:
         rest points (not from ``points`` passed per call), and cached on disk.
     cor_sigma : float
         Similarity width of the centers (:data:`dqskin.cor.SIGMA`).
+    cor_subdivide : float, optional
+        Refine the centers' integral by subdividing triangles to this weight distance (the
+        paper's 0.1; :func:`dqskin.cor.rotation_centers`); None: one term per triangle.
     device : str, optional
         Warp device; CUDA when present, else CPU.
     """
@@ -97,7 +100,8 @@ class Skinner:
     def __init__(self, points: npt.ArrayLike, joint_indices: npt.ArrayLike,
                  joint_weights: npt.ArrayLike, *, geom_bind_transform: npt.ArrayLike | None = None,
                  blend_weights: npt.ArrayLike | None = None, faces: npt.ArrayLike | None = None,
-                 cor_sigma: float = SIGMA, device: Device = None) -> None:
+                 cor_sigma: float = SIGMA, cor_subdivide: float | None = None,
+                 device: Device = None) -> None:
         self.device = resolve_device(device)
         pts = as_array("points", points, np.float64, (3,))
         if pts.ndim != 2:
@@ -117,7 +121,7 @@ class Skinner:
         self._points = self._upload(pts[None])
         self._rest_bind = pts @ g[:3, :3].T + g[:3, 3]
         self.faces = None if faces is None else check_faces(faces, self.vertex_count)
-        self.cor_sigma = float(cor_sigma)
+        self.cor_sigma, self.cor_subdivide = float(cor_sigma), cor_subdivide
         self._centers = None
         if blend_weights is None:
             self._blend = wp.zeros(0, dtype=wp.float32, device=d)
@@ -138,7 +142,8 @@ class Skinner:
             raise ValueError('method "cor" needs faces (the mesh triangles): pass faces=')
         if self._centers is None:
             c = rotation_centers(self._rest_bind, self.faces, *self.influences.given,
-                                 sigma=self.cor_sigma, device=self.device)
+                                 sigma=self.cor_sigma, subdivide=self.cor_subdivide,
+                                 device=self.device)
             c4 = np.zeros((self.vertex_count, 4), np.float32)
             ok = ~np.isnan(c[:, 0])
             c4[ok, :3], c4[ok, 3] = c[ok], 1.0

@@ -50,13 +50,36 @@ def dense(idx, wts, J):
     return W
 
 
-def centers_reference(points, faces, idx, wts, sigma=0.1):
+def subdivided(tri, corner_w, eps, max_levels=8):
+    """The paper's refinement, one triangle at a time: split 1→4 at the edge midpoints until the
+    weights at both ends of every edge are within ``eps``."""
+    out_p, out_w = [], []
+
+    def split(p, w, level):
+        gap = max(np.linalg.norm(w[a] - w[b]) for a, b in ((0, 1), (1, 2), (2, 0)))
+        if gap <= eps or level == max_levels:
+            out_p.append(p)
+            out_w.append(w)
+            return
+        mp = [(p[a] + p[b]) / 2 for a, b in ((0, 1), (1, 2), (2, 0))]
+        mw = [(w[a] + w[b]) / 2 for a, b in ((0, 1), (1, 2), (2, 0))]
+        for c in ((0, 3, 5), (3, 1, 4), (5, 4, 2), (3, 4, 5)):
+            split(np.stack([[*p, *mp][i] for i in c]), np.stack([[*w, *mw][i] for i in c]),
+                  level + 1)
+    for p, w in zip(tri, corner_w):
+        split(p, w, 0)
+    return np.array(out_p), np.array(out_w)
+
+
+def centers_reference(points, faces, idx, wts, sigma=0.1, subdivide=None):
     """``p*ᵢ = Σₜ s(wᵢ, wₜ)·aₜ·cₜ / Σₜ s(wᵢ, wₜ)·aₜ``, brute force; NaN where the sum is 0."""
     J = int(idx.max()) + 1
     W = dense(idx, np.asarray(wts, np.float64), J)
-    tri = points[faces]
+    tri, corner_w = points[faces], W[faces]
+    if subdivide is not None:
+        tri, corner_w = subdivided(tri, corner_w, subdivide)
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    Wt = W[faces].mean(axis=1)
+    Wt = corner_w.mean(axis=1)
     wv = W[:, None, :, None] * W[:, None, None, :]
     wt = Wt[None, :, :, None] * Wt[None, :, None, :]
     diff = W[:, None, :, None] * Wt[None, :, None, :] - W[:, None, None, :] * Wt[None, :, :, None]
@@ -154,6 +177,19 @@ def test_centers_match_reference_on_a_random_soup():
         got = cor.rotation_centers(pts, faces, idx, w, sigma=sigma, cache=False)
         np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
         np.testing.assert_allclose(got, want, atol=1e-9)
+
+
+def test_subdivision_matches_reference_and_refines():
+    pts, faces, idx, w = chain_mesh(around=6, rings=11)  # rings 0.6 apart: weights jump ~0.5
+    coarse = cor.rotation_centers(pts, faces, idx, w, cache=False)
+    got = cor.rotation_centers(pts, faces, idx, w, subdivide=0.1, cache=False)
+    np.testing.assert_allclose(got, centers_reference(pts, faces, idx, w, subdivide=0.1),
+                               atol=1e-9)
+    fine = cor.rotation_centers(pts, faces, idx, w, subdivide=0.04, cache=False)
+    err = {name: np.nanmax(np.abs(c - fine)) for name, c in (("coarse", coarse), ("0.1", got))}
+    assert err["0.1"] < 0.5 * err["coarse"], err  # the refinement converges
+    sk = Skinner(pts, idx, w, faces=faces, cor_subdivide=0.1)
+    np.testing.assert_array_equal(sk.rotation_centers(), got)
 
 
 @pytest.mark.parametrize("rule", RULES)
@@ -303,10 +339,11 @@ def test_cache_reused_and_invalidated(cache_dir):
                                first + [0.0, 0.0, 1e-3], atol=1e-9)
     cor.rotation_centers(pts, faces[:-2], idx, w)
     cor.rotation_centers(pts, faces, idx, w, sigma=0.2)
+    cor.rotation_centers(pts, faces, idx, w, subdivide=0.1)
     w2 = w.copy()
     w2[5] = w2[5][::-1]
     cor.rotation_centers(pts, faces, idx, w2)
-    assert len(list((cache_dir / "cor").glob("*.npy"))) == 5
+    assert len(list((cache_dir / "cor").glob("*.npy"))) == 6
     # a corrupt file is recomputed and replaced
     files[0].write_bytes(b"not a numpy file")
     np.testing.assert_array_equal(np.isnan(cor.rotation_centers(pts, faces, idx, w)),
@@ -325,6 +362,8 @@ def test_errors():
         Skinner(pts, idx, w, faces=faces[:, :2])
     with pytest.raises(ValueError, match="sigma"):
         cor.rotation_centers(pts, faces, idx, w, sigma=0.0)
+    with pytest.raises(ValueError, match="subdivide"):
+        cor.rotation_centers(pts, faces, idx, w, subdivide=-1)
 
 
 def test_scene_cli_and_compare(tmp_path):
