@@ -14,14 +14,19 @@ weights are merged (area and moment summed), triangles weighting fewer than two 
 and vertices with equal weight vectors (which have equal centers) are computed once. The cost is
 the number of (vertex weight vector, pair, triangle entry) triples, not vertices × triangles.
 
+Optional refinement (``subdivide``, the paper's ε = 0.1): triangles are split 1→4 at their edge
+midpoints, weights interpolated, until the weights at the two ends of every edge are within ε, so
+the sum approximates the integral over the surface better where weights change fast.
+
 A vertex no triangle is similar to (one-hot weights, or no face sharing two of its joints) has no
 center (NaN); ``method="cor"`` skins it as DQS -- for one-hot weights both are the joint's own
 rigid motion.
 
 Cache: ``$DQSKIN_CACHE_DIR`` (default ``$XDG_CACHE_HOME/dqskin``, else ``~/.cache/dqskin``),
-``cor/<sha256>.npy``, keyed by the points (bind space, float64), faces, influences, σ and
-:data:`ALGORITHM_VERSION`; any change to one of them is a different file. Files are written
-atomically; an unreadable one is recomputed; a cache that cannot be written is skipped.
+``cor/<sha256>.npy``, keyed by the points (bind space, float64), faces, influences, σ, the
+subdivision and :data:`ALGORITHM_VERSION`; any change to one of them is a different file.
+Files are written atomically; an unreadable one is recomputed; a cache that cannot be written is
+skipped.
 """
 
 import hashlib
