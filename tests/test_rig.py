@@ -191,3 +191,15 @@ def test_write_rig_refuses_other_suffixes(capture, tmp_path):
     scene = rig_mesh(mesh, path, cache=False)
     with pytest.raises(ValueError, match="a rig is written as"):
         write_rig(scene, tmp_path / "x.npz")
+
+
+def test_cli_compare_on_a_rigged_mesh(capture, tmp_path, monkeypatch, capsys):
+    import json
+    monkeypatch.setenv("DQSKIN_CACHE_DIR", str(tmp_path / "cache"))
+    path, mesh, motion = capture
+    out = tmp_path / "report"
+    assert main(["compare", str(mesh), "--skeleton", str(path), "--out", str(out), "--frames",
+                 "0,11", "--width", "48", "--supersample", "1", "--no-sweeps", "--quiet"]) == 0
+    assert "report.html" in capsys.readouterr().out
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert "body" in metrics["meshes"] and (out / "report.html").stat().st_size > 1000
