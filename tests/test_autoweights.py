@@ -200,8 +200,10 @@ BLENDER = {"CesiumMan": (0.58, 1.25), "RiggedFigure": (0.28, 1.27)}
 
 
 @pytest.mark.parametrize("name", sorted(BLENDER))
-def test_real_characters_match_blender_or_better(shared_assets, name):
-    scene = formats.load(shared_assets / "khronos-gltf" / name / f"{name}.glb")
+@pytest.mark.parametrize("source", ["khronos-gltf", "usd-wg"])
+def test_real_characters_match_blender_or_better(shared_assets, name, source):
+    suffix = ".glb" if source == "khronos-gltf" else ".usdz"
+    scene = formats.load(shared_assets / source / name / f"{name}{suffix}")
     auto = replace_weights(scene, "auto", cache=False)
     frames = np.arange(scene.times[0], scene.times[-1] + 1e-9, 1 / 24)  # as Blender plays it
     for m, a in zip(scene.meshes, auto.meshes):
