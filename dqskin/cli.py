@@ -186,6 +186,10 @@ def _load_input(args, cache_out=None):
     if args.scale is not None:
         raise ValueError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")
     scene = formats.load(src, clip=_clip(args.clip))
+    if cache_out is not None and not scene.meshes and src.suffix.lower() == ".bvh":
+        raise ValueError(f"{src}: no mesh to skin (a BVH holds a skeleton and its motion); bind "
+                         f"a mesh in its rest pose: dqskin skin MESH --skeleton {src.name} "
+                         f"--out {cache_out}")
     if weights is not None:
         scene = replace_weights(scene, weights, max_influences=args.max_influences,
                                 device=args.device)

@@ -151,6 +151,7 @@ def test_misfits_are_explained(capture, tmp_path, capsys):
          "write the rig first"),
         (["rig", str(path), "--skeleton", str(path), "--out", str(tmp_path / "r.usda")],
          "cannot read mesh"),
+        (["skin", str(path), "--out", str(tmp_path / "a.npz")], "no mesh to skin"),
     ]
     for argv, message in cases:
         assert main(argv) == 2, argv
