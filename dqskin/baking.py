@@ -115,8 +115,8 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         Frames skinned at a time (default 256); with clips, frames per clip layer (default
         :data:`CLIP_CHUNK`, 128).
     sign_reference : {"largest_weight", "running_sum"}
-        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`) for the skinned
-        meshes (not yet for rigidly bound prims, which keep the default).
+        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`), for meshes and
+        rigidly bound prims.
     normals : bool
         Skin normals into USD caches and ``.obj/.ply/.glb`` files.
     velocities : bool
@@ -166,7 +166,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         clips = asked or sample_bytes(scene, len(t), normals, velocities) > CLIPS_AUTO_BYTES
     names = [m.name for m in scene.meshes]
     args = dict(method=method, device=device, interp=interp)
-    sign = dict(sign_reference=sign_reference)  # (the meshes only: rigid prims use the default)
+    sign = dict(sign_reference=sign_reference)
     src = scene.path
     counts = f"{_plural(len(names), 'mesh', 'meshes')} × {_plural(len(t), 'frame')}"
     if kind == "usd":
@@ -184,7 +184,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
                     f"in {done['folder']}{kept}")
         check_output(out, [src], force)
         wrote_velocities = False
-        with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args) as writer:
+        with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args, **sign) as writer:
             for sl, res in _chunks(scene, t, chunk or CHUNK, progress, normals=normals,
                                    velocities=velocities, **args, **sign):
                 check_skinned(src, res)

@@ -129,7 +129,8 @@ def run_chunk(job: ChunkJob, scene=None) -> dict:
             raise ValueError(f"{job.source}: {name}: no {what} in this bake's plan") from None
 
     writer = SampleWriter(scene, target, job.rigid, method=opts.get("method"),
-                          device=opts.get("device"), interp=opts.get("interp", "trs"))
+                          device=opts.get("device"), interp=opts.get("interp", "trs"),
+                          sign_reference=opts.get("sign_reference", "largest_weight"))
     layer = usd_clips.new_clip_layer(job.time_codes_per_second)
     for _, res in scene.skin_chunks(job.times, SUBCHUNK, **opts):
         check_skinned(scene.path, res)
@@ -146,7 +147,8 @@ def bake_clips(scene, out, times, *, chunk, method=None, interp="trs", device=No
     """Bake ``scene`` at ``times`` to the value-clip cache ``out``
     (:class:`~.formats.usd_clips.ClipBake`); see :func:`dqskin.bake` for the parameters.
     ``skin_options`` go to :meth:`dqskin.Scene.skin` (``sign_reference``, ...) for the meshes
-    and into the plan key (rigidly bound prims use ``method``, ``interp`` and ``device``).
+    and into the plan key (rigidly bound prims use ``method``, ``interp``, ``device`` and
+    ``sign_reference``).
 
     Returns
     -------

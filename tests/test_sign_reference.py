@@ -355,3 +355,45 @@ def test_running_sum_matches_blender(tmp_path):
             for rule in RULES}
     np.testing.assert_allclose(ours["running_sum"], blender, atol=2e-5)
     assert differ_fraction(ours["largest_weight"], blender) > 0.2  # UsdSkel's rule is not it
+
+
+def test_rigid_prims_both_rules(tmp_path):
+    """A Cube bound with constant influences (three joints) moves as the affine map DQS makes of
+    its frame: from Python (rigid_transforms) and in a baked USD cache."""
+    from pxr import Sdf, Usd, UsdGeom, UsdSkel, Vt
+
+    from dqskin.formats.usd import load_rigid_prims, rigid_transforms
+
+    path = tmp_path / "rig.usda"
+    write_usd_rig(path, np.random.default_rng(31))
+    stage = Usd.Stage.Open(str(path))
+    cube = UsdGeom.Cube.Define(stage, "/Rig/Cube")
+    binding = UsdSkel.BindingAPI.Apply(cube.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([Sdf.Path("/Rig/Skel")])
+    idx, wts = np.array([3, 1, 2]), np.array([0.3, 0.25, 0.45])
+    binding.CreateJointIndicesPrimvar(True, 3).Set(Vt.IntArray(idx.tolist()))
+    binding.CreateJointWeightsPrimvar(True, 3).Set(Vt.FloatArray(wts.tolist()))
+    binding.CreateSkinningMethodAttr().Set("dualQuaternion")
+    stage.GetRootLayer().Save()
+    xf = usdskel_transforms(path, [0, 1, 2])
+    frame = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float64)
+    want = {}
+    for rule in RULES:
+        q = dqs_reference(frame, np.tile(idx, (4, 1)), np.tile(wts, (4, 1)), xf, rule)
+        m = np.tile(np.eye(4), (3, 1, 1))
+        m[:, :3, 3] = q[:, 0]
+        m[:, :3, :3] = (q[:, 1:] - q[:, :1]).transpose(0, 2, 1)
+        want[rule] = m
+    assert np.abs(want["largest_weight"] - want["running_sum"]).max() > 0.1
+    scene = dqskin.load(path)
+    (rigid,) = load_rigid_prims(scene)
+    for rule in RULES:
+        got = rigid_transforms(scene, rigid, scene.times, "dqs", sign_reference=rule)
+        np.testing.assert_allclose(got, want[rule], atol=5e-5, err_msg=rule)
+        out = tmp_path / f"{rule}.usda"
+        rc, text = run_cli("skin", path, "--out", out, "--method", "dqs", "--sign-reference", rule)
+        assert rc == 0, text
+        baked_stage = Usd.Stage.Open(str(out))
+        attr = baked_stage.GetPrimAtPath("/Rig/Cube").GetAttribute("xformOp:transform")
+        baked = np.stack([np.array(attr.Get(t)).T for t in scene.times])
+        np.testing.assert_allclose(baked, want[rule], atol=5e-5, err_msg=rule)

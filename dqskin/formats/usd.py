@@ -1167,7 +1167,8 @@ def load_rigid_prims(scene):
     return out
 
 
-def rigid_transforms(scene, prim, times, method=None, *, device=None, interp="trs"):
+def rigid_transforms(scene, prim, times, method=None, *, device=None, interp="trs",
+                     sign_reference="largest_weight"):
     """Local transforms of a rigidly skinned prim, skinned by the engine.
 
     The skinned transform is recovered exactly from four skinned points (origin and the three
@@ -1184,6 +1185,8 @@ def rigid_transforms(scene, prim, times, method=None, *, device=None, interp="tr
         here (a rigid prim has no triangles to find a center of rotation from: COR's fallback).
     interp : str
         Joint interpolation (:data:`dqskin.animation.INTERPOLATIONS`), as for the meshes.
+    sign_reference : {"largest_weight", "running_sum"}
+        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
 
     Returns
     -------
@@ -1198,7 +1201,8 @@ def rigid_transforms(scene, prim, times, method=None, *, device=None, interp="tr
     meth = method or prim.skinning_method
     meth = "dqs" if meth == "cor" else meth
     q = skin_points(frame, idx, wts, x, meth, geom_bind_transform=prim.geom_bind_transform,
-                    blend_weights=np.full(4, 0.5) if meth == "blend" else None, device=device)
+                    blend_weights=np.full(4, 0.5) if meth == "blend" else None,
+                    sign_reference=sign_reference, device=device)
     q = q.astype(np.float64).reshape(t.shape[0], 4, 3)
     m = np.tile(np.eye(4), (t.shape[0], 1, 1))
     m[:, :3, 3] = q[:, 0]

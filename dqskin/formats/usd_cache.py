@@ -294,13 +294,15 @@ class SampleWriter:
         worker received.
     rigid : list of dqskin.formats.usd.RigidPrim
         Skinned prims without points, baked as ``xformOp:transform`` samples.
-    method, device, interp
+    method, device, interp, sign_reference
         As for :class:`UsdCacheWriter`.
     """
 
-    def __init__(self, scene, target, rigid, *, method=None, device=None, interp="trs"):
+    def __init__(self, scene, target, rigid, *, method=None, device=None, interp="trs",
+                 sign_reference="largest_weight"):
         self.scene, self.target, self.rigid = scene, target, rigid
         self.method, self.device, self.interp = method, device, interp
+        self.sign_reference = sign_reference
         self.meshes = {m.name: m for m in scene.meshes}
 
     def write(self, layer, times, points, normals=None, velocities=None):
@@ -327,7 +329,9 @@ class SampleWriter:
         vel = {n: _frames(n, "velocities", v, F, meshes[n].points.shape[0])
                for n, v in velocities.items()}
         rigid = [(r.name, rigid_transforms(self.scene, r, t, self.method, device=self.device,
-                                           interp=self.interp)) for r in self.rigid]
+                                           interp=self.interp,
+                                           sign_reference=self.sign_reference))
+                 for r in self.rigid]
 
         def path(name, what):
             return self.target(name, what).spec(layer).path
@@ -372,7 +376,7 @@ class UsdCacheWriter:
         then ``os.replace``) by :meth:`close`. Must not be the source file or any layer it reads.
     source_path : str or os.PathLike, optional
         The stage to copy; ``scene.path`` by default.
-    method : {"lbs", "dqs"} or None
+    method : {"lbs", "dqs", "blend", "cor"} or None
         Skinning method for the skinned prims without points (``Sphere``, ``Cube``, ...), baked
         as ``xformOp:transform`` samples as ``UsdSkel.BakeSkinning`` does; None uses each prim's
         own. Pass the method that produced the points.
@@ -381,6 +385,9 @@ class UsdCacheWriter:
     interp : str
         Joint interpolation for those transforms (:data:`dqskin.animation.INTERPOLATIONS`); pass
         the one that produced the points.
+    sign_reference : {"largest_weight", "running_sum"}
+        DQS sign rule for those transforms (:data:`dqskin.skinning.SignReference`); pass the one
+        that produced the points.
     overwrite : bool
         Replace an existing ``out_path`` (the last writer wins). False claims it exclusively:
         :meth:`close` raises FileExistsError if it exists by then (another run finished first).
@@ -390,12 +397,12 @@ class UsdCacheWriter:
     """
 
     def __init__(self, scene, out_path, *, source_path=None, method=None, device=None,
-                 interp="trs", overwrite=True):
+                 interp="trs", overwrite=True, sign_reference="largest_weight"):
         self.cache = CacheLayer(scene, out_path, source_path=source_path)
         self.scene, self.out, self.src = scene, self.cache.out, self.cache.src
         self.layer = self.cache.layer
         self.samples = SampleWriter(scene, self.cache.target, self.cache.rigid, method=method,
-                                    device=device, interp=interp)
+                                    device=device, interp=interp, sign_reference=sign_reference)
         self._t_min, self._t_max = np.inf, -np.inf
         self._claim = atomic_path(self.out, overwrite=overwrite)
 
