@@ -221,6 +221,10 @@ def cmd_info(args):
     print(f"  time range: {t[0]:g} .. {t[-1]:g} ({len(t)} samples, {unit}); "
           f"up axis {scene.up_axis}, "
           f"{scene.meters_per_unit:g} m/unit")
+    if Path(scene.path).suffix.lower() == ".bvh":
+        from .formats import bvh
+        for line in bvh.summary_lines(bvh.read_bvh(scene.path)):
+            print(f"  {line}")
     if scene.clips:
         print(f"  clips: {', '.join(scene.clips)} (loaded: {scene.clip})")
     problems = []

@@ -34,7 +34,7 @@ from ..animation import KeyedAnimation
 from ..scene import Scene
 from ..skeleton import Skeleton
 
-__all__ = ["CHANNELS", "SUFFIXES", "BvhMotion", "load", "read_bvh", "scaled"]
+__all__ = ["CHANNELS", "SUFFIXES", "BvhMotion", "load", "read_bvh", "scaled", "summary_lines"]
 
 SUFFIXES = (".bvh",)
 
@@ -118,6 +118,26 @@ class BvhMotion:
         return Scene(self.path, [], [self.skeleton()],
                      np.arange(self.frame_count, dtype=np.float64),
                      time_codes_per_second=1.0 / self.frame_time, up_axis="Y")
+
+
+def summary_lines(motion: BvhMotion) -> list:
+    """What ``dqskin info`` adds for a BVH file: channels, End Sites, frame time, rotation
+    orders and the rest skeleton's size (the unit a mesh to bind must be in)."""
+    from collections import Counter
+    orders = Counter("".join(c[0] for c in ch if c.endswith("rotation")) or "none"
+                     for ch in motion.channels)
+    positions = sum(any(c.endswith("position") for c in ch) for ch in motion.channels)
+    pts = np.concatenate([motion.rest_world()[:, :3, 3]]
+                         + [(motion.rest_world()[j] @ np.append(o, 1.0))[None, :3]
+                            for j, o in motion.end_sites])
+    size = np.ptp(pts, axis=0)
+    return [f"BVH: {sum(map(len, motion.channels))} channels, {len(motion.end_sites)} End Sites, "
+            f"{motion.frame_count} frames of {motion.frame_time:g} s; position channels on "
+            f"{positions} joint{'s' if positions != 1 else ''}",
+            "rotation orders (as written, intrinsic): "
+            + ", ".join(f"{o} ×{n}" for o, n in orders.most_common()),
+            f"rest skeleton: {size[0]:.4g} × {size[1]:.4g} × {size[2]:.4g} units (x × y × z); a "
+            "mesh to bind must be in this unit and pose, or use --scale"]
 
 
 def scaled(motion: BvhMotion, scale: float) -> BvhMotion:
