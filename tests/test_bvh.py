@@ -225,3 +225,38 @@ def test_cli_info_and_error(tmp_path, capsys):
     bad.write_text(MALFORMED[2][0])
     assert main(["info", str(bad)]) == 2
     assert "unknown channel" in capsys.readouterr().err
+
+
+def test_seeded_corruptions_give_value_errors_only(shared_assets, tmp_path):
+    """Truncations, dropped, swapped and garbled words of a real capture: each either loads or
+    raises ValueError naming the file, never another exception."""
+    text = (shared_assets / "cmu-mocap" / "131_01.bvh").read_text()
+    lines = text.splitlines()
+    at = lines.index("MOTION")
+    base = lines[:at + 1] + ["Frames: 3", lines[at + 2]] + lines[at + 3:at + 6]
+    words = "\n".join(base).split(" ")
+    rng = np.random.default_rng(14)
+    path = tmp_path / "fuzz.bvh"
+    outcomes = {"loaded": 0, "refused": 0}
+    for trial in range(60):
+        w = list(words)
+        for _ in range(rng.integers(1, 4)):
+            i = int(rng.integers(len(w)))
+            kind = rng.integers(4)
+            if kind == 0:
+                w = w[:i]
+            elif kind == 1:
+                del w[i]
+            elif kind == 2:
+                w[i] = rng.choice(["nan", "{", "}", "JOINT", "-", "1e999", "CHANNELS", "ROOT"])
+            else:
+                w.insert(i, w[int(rng.integers(len(w)))])
+        path.write_text(" ".join(w))
+        try:
+            scene = load(path)
+            scene.local_transforms(scene.times[:1])
+            outcomes["loaded"] += 1
+        except ValueError as exc:
+            assert str(path) in str(exc) or "rotations" in str(exc), exc
+            outcomes["refused"] += 1
+    assert outcomes["refused"] > 10, outcomes
