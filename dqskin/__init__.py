@@ -13,7 +13,7 @@ import importlib
 _EXPORTS = {
     "METHODS": "skinning", "Skinner": "skinning", "skin_normals": "skinning",
     "skin_points": "skinning", "Animation": "animation", "KeyedAnimation": "animation",
-    "bake": "baking", "load": "formats", "load_mesh": "formats", "Mesh": "scene",
+    "bake": "baking", "Crowd": "crowd", "load": "formats", "load_mesh": "formats", "Mesh": "scene",
     "Scene": "scene", "SkinnedFrames": "scene", "Skeleton": "skeleton",
     "forward_kinematics": "skeleton", "dq": None, "dual": None, "quat": None,
     "automatic_weights": "autoweights", "rig_mesh": "rigging", "replace_weights": "rigging",

@@ -4,6 +4,7 @@
 import numpy as np
 import warp as wp
 
+from .kernels import layout as KL
 from .shapes import as_real
 
 __all__ = ["Influences", "check_influences"]
@@ -72,12 +73,21 @@ class Influences:
     def __init__(self, joint_indices, joint_weights, *, vertex_count=None):
         idx, wts = check_influences(joint_indices, joint_weights, vertex_count)
         self.vertex_count, self.influence_count = idx.shape
-        order = np.argsort(-wts, axis=1, kind="stable")
-        self.order = order
         self._input = idx, wts
-        self.indices, self.weights = self._groups(np.take_along_axis(idx, order, 1),
-                                                  np.take_along_axis(wts, order, 1))
+        self._sorted = None  # (order, indices, weights) on the host, computed when first asked
         self.joint_count_min = int(idx.max()) + 1 if idx.size else 0
+
+    def _host_layout(self):
+        if self._sorted is None:
+            idx, wts = self._input
+            order = np.argsort(-wts, axis=1, kind="stable")
+            self._sorted = (order,) + self._groups(np.take_along_axis(idx, order, 1),
+                                                   np.take_along_axis(wts, order, 1))
+        return self._sorted
+
+    order = property(lambda self: self._host_layout()[0])
+    indices = property(lambda self: self._host_layout()[1])
+    weights = property(lambda self: self._host_layout()[2])
 
     @property
     def given(self):
@@ -106,6 +116,8 @@ class Influences:
         ``order="weight"``: the sorted layout above; ``"input"``: the influences in the order they
         were given, zero-padded the same way (for the running-sum sign rule, which depends on the
         order)."""
+        if order == "weight" and self._sorted is None:  # sorted on the device (kernels.layout)
+            return self._device_layout(device)
         if order == "weight":
             idx, wts = self.indices, self.weights
         elif order == "input":
@@ -114,3 +126,19 @@ class Influences:
             raise ValueError(f'order must be "weight" or "input", got {order!r}')
         return {"indices": wp.array(idx, dtype=wp.vec4i, device=device),
                 "weights": wp.array(wts, dtype=wp.vec4, device=device)}
+
+    def _device_layout(self, device):
+        """The weight-sorted layout built by :mod:`dqskin.kernels.layout` from the (V, K) input:
+        no host sort, gather or pad (several times the cost of skinning the points once)."""
+        idx, wts = self._input
+        V, groups = self.vertex_count, max(1, -(-self.influence_count // 4))
+        out = {"indices": wp.empty((V, groups), dtype=wp.vec4i, device=device),
+               "weights": wp.empty((V, groups), dtype=wp.vec4, device=device)}
+        if self.influence_count == 0:
+            out["indices"].zero_()
+            out["weights"].zero_()
+            return out
+        KL.layout(joint_indices=wp.array(idx.astype(np.int32), dtype=wp.int32, device=device),
+                  joint_weights=wp.array(wts, dtype=wp.float32, device=device),
+                  device=device, **out)
+        return out

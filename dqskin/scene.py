@@ -15,6 +15,7 @@ import numpy.typing as npt
 
 from ._warp import Device, resolve_device
 from .animation import Deformer, Interpolation, TransformTrack, check_times, sample
+from .crowd import BATCH_METHODS, skin_meshes
 from .motion import skinning_transforms_with_derivative
 from .skeleton import Skeleton
 from .skinning import Method, SignReference, Skinner
@@ -150,7 +151,8 @@ class Scene:
 
     def invalidate(self, name: str | None = None) -> None:
         """Drop the uploaded skinner of mesh ``name`` (every mesh when None)."""
-        for key in [k for k in self._skinners if name is None or k[0] == name]:
+        for key in [k for k in self._skinners if name is None or k[0] == name
+                    or (k[0] == "meshes" and name in k[1])]:  # batches (dqskin.crowd) too
             del self._skinners[key]
 
     def skinner(self, mesh: Mesh, device: Device = None) -> Skinner:
@@ -237,6 +239,12 @@ class Scene:
         if space not in ("output", "skeleton"):
             raise ValueError(f'space must be "output" or "skeleton", got {space!r}')
         t = self.times if times is None else check_times(times)
+        if (len(self.meshes) > 1 and not tangents and sign_reference == "largest_weight"
+                and all((method or m.skinning_method) in BATCH_METHODS for m in self.meshes)):
+            # many meshes (a crowd): one FK launch, one skinning launch per method
+            return SkinnedFrames(t, *skin_meshes(
+                self, t, method, device=device, normals=normals, velocities=velocities,
+                interp=interp, space=space, blend_shapes=blend_shapes, cache=self._skinners))
         result = SkinnedFrames(t)
         xforms, rates = {}, {}
         for m in self.meshes:

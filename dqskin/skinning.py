@@ -21,7 +21,7 @@ from .kernels import skin as K
 from .kernels import velocity as KV
 from .kernels.dqmath import mat34, vec8
 from .shapes import as_array, frames_of
-from .validation import check_transforms
+from .validation import FLOAT32_MAX, check_finite, check_transforms
 
 __all__ = ["METHODS", "Method", "SIGN_REFERENCES", "SignReference", "Skinner", "VectorKind",
            "skin_points", "skin_normals"]
@@ -61,7 +61,9 @@ def _method_code(method):
 
 
 def _transforms(name, skinning_transforms):
-    x = as_array(name, skinning_transforms, np.float64, (4, 4))
+    x = as_array(name, skinning_transforms, None, (4, 4))
+    if x.dtype.kind != "f":
+        x = x.astype(np.float64)
     if x.ndim == 3:
         return x[None], False
     if x.ndim == 4:
@@ -103,10 +105,10 @@ class Skinner:
                  cor_sigma: float = SIGMA, cor_subdivide: float | None = None,
                  device: Device = None) -> None:
         self.device = resolve_device(device)
-        pts = as_array("points", points, np.float64, (3,))
+        pts = as_array("points", points, None, (3,))
         if pts.ndim != 2:
             raise ValueError(f"points: expected (V, 3), got {pts.shape}")
-        if not np.all(np.isfinite(pts)):
+        if pts.size and not (np.isfinite(pts.max()) and np.isfinite(pts.min())):  # no temporaries
             raise ValueError("points: NaN or infinite coordinates")
         self.influences = Influences(joint_indices, joint_weights, vertex_count=pts.shape[0])
         self.vertex_count = self.influences.vertex_count
@@ -115,11 +117,12 @@ class Skinner:
             "geom_bind_transform", as_array("geom_bind_transform", geom_bind_transform, np.float64,
                                             (4, 4)).reshape(1, 4, 4))[0]
         self.geom_bind_transform = g
+        self._identity_bind = np.array_equal(g, np.eye(4))
         self._cache = {}
         self._lock = threading.Lock()
         d = self.device
         self._points = self._upload(pts[None])
-        self._rest_bind = pts @ g[:3, :3].T + g[:3, 3]
+        self._rest_points = pts  # mesh space; bind space (float64) only when "cor" needs it
         self.faces = None if faces is None else check_faces(faces, self.vertex_count)
         self.cor_sigma, self.cor_subdivide = float(cor_sigma), cor_subdivide
         self._centers = None
@@ -141,7 +144,9 @@ class Skinner:
         if self.faces is None:
             raise ValueError('method "cor" needs faces (the mesh triangles): pass faces=')
         if self._centers is None:
-            c = rotation_centers(self._rest_bind, self.faces, *self.influences.given,
+            g = self.geom_bind_transform
+            rest_bind = np.asarray(self._rest_points, np.float64) @ g[:3, :3].T + g[:3, 3]
+            c = rotation_centers(rest_bind, self.faces, *self.influences.given,
                                  sigma=self.cor_sigma, subdivide=self.cor_subdivide,
                                  device=self.device)
             c4 = np.zeros((self.vertex_count, 4), np.float32)
@@ -166,10 +171,17 @@ class Skinner:
                             **self._layouts[order])
 
     def _upload(self, pts, linear=False):
-        """(Fp, N, 3) mesh-space rows → bind space on the device (``linear``: directions)."""
-        g = self.geom_bind_transform
-        x = pts @ g[:3, :3].T if linear else pts @ g[:3, :3].T + g[:3, 3]
-        return wp.array(x.astype(np.float32), dtype=wp.vec3, device=self.device)
+        """(Fp, N, 3) mesh-space rows → bind space on the device (``linear``: directions), in
+        float32: the identity geom-bind transform is skipped, any other is one (Fp·N, 3) @ (3, 3)
+        product."""
+        x = np.asarray(pts, dtype=np.float32)
+        if not self._identity_bind:
+            g = self.geom_bind_transform.astype(np.float32)
+            flat = x.reshape(-1, 3) @ g[:3, :3].T
+            if not linear:
+                flat += g[:3, 3]
+            x = flat.reshape(x.shape)
+        return wp.array(x, dtype=wp.vec3, device=self.device)
 
     def _check_method(self, method, points=True):
         code = _method_code(method)
@@ -212,8 +224,19 @@ class Skinner:
                                  f"{x.ndim}-D {x.dtype} on {x.device}")
             return x, True  # used in place, unchecked: a non-finite entry gives NaN in every method
         xs, batched = _transforms(name, skinning_transforms)
-        check_transforms(name, xs)
-        return wp.array(xs.astype(np.float32), dtype=wp.mat44, device=d), batched
+        if not np.abs(xs).max(initial=0.0) <= FLOAT32_MAX:  # NaN too; then name frame and joint
+            check_finite(name, xs, 1)
+        # one device buffer per argument and shape, refilled each call (no allocation)
+        key = ("transforms", name) + xs.shape[:2]
+        buf = self._cache.get(key)
+        if buf is None:
+            arr = wp.empty(xs.shape[:2], dtype=wp.mat44, device=d)
+            buf = self._cache[key] = (arr, arr.numpy() if d.is_cpu else None)
+        if buf[1] is not None:
+            buf[1][...] = xs  # the CPU array's memory, cast to float32 in place
+        else:
+            buf[0].assign(np.ascontiguousarray(xs, dtype=np.float32))
+        return buf[0], batched
 
     def _prepare(self, skinning_transforms, kind="points", derivatives=None):
         """Per-joint data for ``kind`` ("points", "vectors", "derivatives" with ``derivatives``)."""
@@ -241,7 +264,7 @@ class Skinner:
         """Uploaded rest points, or ``points`` (V, 3) / (F, V, 3) replacing them."""
         if points is None:
             return self._points
-        p, _ = frames_of(name, points, frames, self.vertex_count, finite=True)
+        p, _ = frames_of(name, points, frames, self.vertex_count, finite=True, dtype=np.float32)
         return self._upload(p, linear)
 
     def _output(self, out, output_transforms, frames, normals):

@@ -1,0 +1,456 @@
+"""Crowds: many skinned meshes and skeletons in one launch each.
+
+Skinning one character at a time costs one FK launch per skeleton and one skinning launch per
+mesh and frame block; a crowd of small characters is then bound by launch overhead, not by the
+kernels. Here every skeleton of a batch is concatenated on one joint axis (FK's kernel already
+walks many skeletons, ``skeleton_start``), and every mesh on one vertex axis: points moved to
+their skeleton's bind space, joint indices offset onto the concatenated joints, so a single
+:class:`dqskin.Skinner` skins every instance with the existing kernels, one launch per method.
+
+* :class:`JointBatch`: skeletons → one FK launch → (F, ΣJ) skinning transforms on the device.
+* :class:`MeshBatch`: meshes → one :class:`~dqskin.skinning.Skinner` (one influence layout).
+* :class:`Crowd`: instances of characters (any :class:`dqskin.Scene`: meshes, skeletons,
+  animations), each with a time offset and a root transform, built in code.
+* :func:`skin_meshes`: what :meth:`dqskin.Scene.skin` runs for scenes of many meshes (a USD
+  stage referencing many characters): the same batches, then each mesh's output transform,
+  normals and velocities, matching the per-mesh results.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+import warp as wp
+
+from ._warp import Device, resolve_device
+from .animation import check_times
+from .kernels import fk as FK
+from .kernels.dqmath import vec8
+from .motion import skinning_transforms_with_derivative
+from .skinning import Method, Skinner
+from .validation import check_transforms
+
+__all__ = ["BATCH_METHODS", "Crowd", "JointBatch", "MeshBatch", "skin_meshes"]
+
+BATCH_METHODS = ("lbs", "dqs", "blend")
+"""Methods a :class:`MeshBatch` skins in one launch (the others need per-mesh data)."""
+
+
+def _ranges(counts):
+    starts = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)]).astype(np.int64)
+    return [slice(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:])], int(starts[-1])
+
+
+class JointBatch:
+    """Skeletons concatenated on one joint axis, posed with one FK launch.
+
+    Parameters
+    ----------
+    skeletons : sequence of dqskin.Skeleton
+    device : str, optional
+
+    Attributes
+    ----------
+    joints : list of slice
+        Each skeleton's joints on the concatenated axis.
+    joint_count : int
+    """
+
+    def __init__(self, skeletons, device: Device = None) -> None:
+        self.device = resolve_device(device)
+        self.skeletons = list(skeletons)
+        self.joints, self.joint_count = _ranges([s.joint_count for s in self.skeletons])
+        parents = np.concatenate([np.where(s.parents >= 0, s.parents + sl.start, -1)
+                                  for s, sl in zip(self.skeletons, self.joints)])
+        starts = [sl.start for sl in self.joints] + [self.joint_count]
+        inverse_bind = np.concatenate([s.inverse_bind_transforms for s in self.skeletons])
+        d = self.device
+        self._parents = wp.array(parents.astype(np.int32), dtype=wp.int32, device=d)
+        self._starts = wp.array(np.asarray(starts, np.int32), dtype=wp.int32, device=d)
+        self._inverse_bind = wp.array(inverse_bind.astype(np.float32), dtype=wp.mat44, device=d)
+
+    def skinning_transforms(self, local_transforms) -> wp.array:
+        """(F, ΣJ) ``wp.mat44`` bind-relative transforms on the device, from each skeleton's
+        checked (F, J, 4, 4) local transforms (one host copy into one upload, one FK launch,
+        one bind-relative launch)."""
+        F = local_transforms[0].shape[0]
+        host = np.empty((F, self.joint_count, 4, 4), np.float32)
+        for sl, local in zip(self.joints, local_transforms):
+            host[:, sl] = local
+        d = self.device
+        local = wp.array(host, dtype=wp.mat44, device=d)
+        shape = (F, self.joint_count)
+        world = wp.empty(shape, dtype=wp.mat44, device=d)
+        FK.forward_kinematics(parents=self._parents, skeleton_start=self._starts, local=local,
+                              world_dq=wp.empty(shape, dtype=vec8, device=d),
+                              world_residual=wp.empty(shape, dtype=wp.mat33, device=d),
+                              world=world, device=d)
+        out = wp.empty(shape, dtype=wp.mat44, device=d)
+        FK.bind_relative(world=world, inverse_bind=self._inverse_bind, skinning=out, device=d)
+        return out
+
+
+class MeshBatch:
+    """Meshes concatenated on one vertex axis, skinned by one :class:`~dqskin.skinning.Skinner`.
+
+    Parameters
+    ----------
+    meshes : sequence of dqskin.Mesh
+    joint_offsets : sequence of int
+        Where each mesh's skeleton starts on the concatenated joint axis
+        (:attr:`JointBatch.joints`).
+    joint_counts : sequence of int
+        Joints of each mesh's skeleton (its indices must stay below).
+    device : str, optional
+
+    Each mesh's rest points are moved to bind space by its ``geom_bind_transform``; influences
+    are zero-padded to the largest ``K``; ``blend_weights`` default to ½ as per mesh.
+
+    Attributes
+    ----------
+    vertices : list of slice
+        Each mesh's vertices on the concatenated axis.
+    skinner : dqskin.Skinner
+    """
+
+    def __init__(self, meshes, joint_offsets, joint_counts, device: Device = None) -> None:
+        self.meshes = list(meshes)
+        self.vertices, V = _ranges([len(m.points) for m in self.meshes])
+        K = max([np.shape(m.joint_weights)[1] if np.ndim(m.joint_weights) == 2 else 1
+                 for m in self.meshes] + [0])
+        points = np.empty((V, 3), np.float32)
+        idx = np.zeros((V, K), np.int32)
+        wts = np.zeros((V, K), np.float32)
+        blend = np.empty(V, np.float32)
+        for m, sl, off, count in zip(self.meshes, self.vertices, joint_offsets, joint_counts):
+            i = np.asarray(m.joint_indices).reshape(sl.stop - sl.start, -1)
+            if i.size and (i.min() < 0 or i.max() >= count):
+                raise ValueError(f"{m.name}: joint index {int(i.max())} out of range for its "
+                                 f"skeleton's {count} joints")
+            g = np.asarray(m.geom_bind_transform, np.float64)
+            points[sl] = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
+            idx[sl, :i.shape[1]] = i + off
+            wts[sl, :i.shape[1]] = np.asarray(m.joint_weights, np.float32).reshape(i.shape)
+            blend[sl] = m.blend_or_default()
+        self.skinner = Skinner(points, idx, wts, blend_weights=blend, device=device)
+
+    @property
+    def vertex_count(self):
+        return self.skinner.vertex_count
+
+    def bind_points(self, per_mesh, frames):
+        """(F, V, 3) float32 bind-space rest points: ``per_mesh`` maps a mesh index to its
+        (F, Vm, 3) mesh-space points (deformed), the others keep their rest points; None when no
+        mesh has any."""
+        if not per_mesh:
+            return None
+        rest = self.skinner._points.numpy()  # (1, V, 3) bind space, float32
+        out = np.repeat(rest, frames, axis=0)
+        for i, p in per_mesh.items():
+            g = np.asarray(self.meshes[i].geom_bind_transform, np.float64)
+            out[:, self.vertices[i]] = p @ g[:3, :3].T + g[:3, 3]
+        return out
+
+    def bind_velocities(self, per_mesh, frames):
+        """(F, V, 3) float32 bind-space rest-point velocities (zero for meshes not in
+        ``per_mesh``); None when no mesh has any."""
+        if not per_mesh:
+            return None
+        out = np.zeros((frames, self.vertex_count, 3), np.float32)
+        for i, v in per_mesh.items():
+            g = np.asarray(self.meshes[i].geom_bind_transform, np.float64)
+            out[:, self.vertices[i]] = v @ g[:3, :3].T
+        return out
+
+    def bind_normals(self, meshes, per_mesh, frames):
+        """``(vectors (Fp, N, 3) float32 bind space, vector_vertex (N,) int32, slices)`` of the
+        normals of ``meshes`` (indices): a mesh's deformed normals in ``per_mesh`` (F, N, 3),
+        else its rest normals; normals move by the inverse transpose of the geom-bind linear
+        part."""
+        blocks, vv, counts = [], [], []
+        per_frame = any(np.ndim(per_mesh[i]) == 3 for i in meshes if i in per_mesh)
+        for i in meshes:
+            m = self.meshes[i]
+            g = np.asarray(m.geom_bind_transform, np.float64)[:3, :3]
+            try:
+                ginv = np.linalg.inv(g)
+            except np.linalg.LinAlgError:
+                raise ValueError(f"{m.name}: geom_bind_transform: singular, normals cannot "
+                                 "follow") from None
+            n = np.asarray(per_mesh.get(i, m.normals), np.float64) @ ginv  # (G⁻ᵀ·n)ᵀ = nᵀ·G⁻¹
+            blocks.append(np.broadcast_to(n, (frames,) + n.shape[-2:]) if per_frame else n)
+            start = self.vertices[i].start
+            vv.append((np.arange(len(m.points)) if m.normal_vertex is None
+                       else np.asarray(m.normal_vertex, np.int64)) + start)
+            counts.append(n.shape[-2])
+        slices, _ = _ranges(counts)
+        axis = 1 if blocks[0].ndim == 3 else 0
+        vectors = np.concatenate(blocks, axis=axis).astype(np.float32)
+        return vectors, np.concatenate(vv).astype(np.int32), slices
+
+
+def _apply_points(p, xf):
+    """``xf (F, 4, 4) · [p, 1]`` for (F, N, 3) points, float32."""
+    a = xf[:, :3, :3].astype(np.float32)
+    return np.einsum("fij,fvj->fvi", a, p) + xf[:, None, :3, 3].astype(np.float32)
+
+
+def _apply_normals(n, xf):
+    lin = np.linalg.inv(xf[:, :3, :3]).transpose(0, 2, 1).astype(np.float32)
+    y = np.einsum("fij,fvj->fvi", lin, n)
+    return y / np.maximum(np.linalg.norm(y, axis=-1, keepdims=True), 1e-30)
+
+
+def skin_meshes(scene, times, method: Method | None = None, *, device: Device = None,
+                normals: bool = False, velocities: bool = False, interp="trs",
+                space="output", blend_shapes: bool = True, cache=None):
+    """Skin every mesh of ``scene`` with one FK launch and one skinning launch per method.
+
+    The batched twin of the per-mesh loop of :meth:`dqskin.Scene.skin` (same arguments, same
+    results): each skeleton's local transforms are sampled and checked as
+    :meth:`dqskin.Scene.local_transforms` does, posed together (:class:`JointBatch`), and the
+    meshes of each method skinned together (:class:`MeshBatch`); then each mesh's output
+    transform is applied to its rows (points; normals by the inverse transpose; velocities by the
+    chain rule, as :meth:`dqskin.Scene.skin`). ``cache`` (a dict) keeps the uploaded batches
+    between calls.
+
+    Returns
+    -------
+    points, normals, velocities : dict mesh name → (F, N, 3) float32
+    """
+    t = check_times(times)
+    F = t.shape[0]
+    cache = {} if cache is None else cache
+    dev = str(resolve_device(device))
+    used = sorted({m.skeleton for m in scene.meshes})
+    jkey = ("joints", tuple(scene.skeletons[s] for s in used), dev)
+    if jkey not in cache:
+        cache[jkey] = JointBatch([scene.skeletons[s] for s in used], device)
+    joints: JointBatch = cache[jkey]
+    where = dict(zip(used, joints.joints))
+    xforms = joints.skinning_transforms([scene.local_transforms(t, s, interp=interp)
+                                         for s in used])
+    rates = None
+    if velocities:
+        rates = np.empty((F, joints.joint_count, 4, 4), np.float64)
+        for s in used:
+            try:
+                rates[:, where[s]] = skinning_transforms_with_derivative(
+                    scene.skeletons[s], scene.skeletons[s].animation, t, interp)[1]
+            except ValueError as exc:
+                raise ValueError(f"{scene.path}: {exc}") from None
+    groups = {}
+    for m in scene.meshes:
+        groups.setdefault(method or m.skinning_method, []).append(m)
+    points, nrm, vel = {}, {}, {}
+    for meth, meshes in groups.items():
+        key = ("meshes", tuple(m.name for m in meshes), dev)
+        if key not in cache:
+            cache[key] = MeshBatch(meshes, [where[m.skeleton].start for m in meshes],
+                                   [scene.skeletons[m.skeleton].joint_count for m in meshes],
+                                   device)
+        batch: MeshBatch = cache[key]
+        deformers = {i: m.deformer for i, m in enumerate(meshes)
+                     if blend_shapes and m.deformer is not None}
+        rest = {i: d.points_at(t) for i, d in deformers.items()}
+        rest = {i: p for i, p in rest.items() if p is not None}
+        bind_rest = batch.bind_points(rest, F)
+        skel = batch.skinner.skin(xforms, meth, points=bind_rest)
+        outs = {}
+        for i, m in enumerate(meshes):
+            track = m.output_transforms if space == "output" else None
+            if track is not None:
+                outs[i] = track.with_derivative(t) if velocities else (track.at(t), None)
+        for i, m in enumerate(meshes):
+            p = skel[:, batch.vertices[i]]
+            points[m.name] = _apply_points(p, outs[i][0]) if i in outs else p
+        if normals:
+            with_normals = [i for i, m in enumerate(meshes) if m.normals is not None]
+            if with_normals:
+                rn = {i: deformers[i].normals_at(t) for i in with_normals if i in deformers}
+                rn = {i: n for i, n in rn.items() if n is not None}
+                vectors, vv, slices = batch.bind_normals(with_normals, rn, F)
+                skinned = batch.skinner.skin_vectors(xforms, vectors, meth, kind="normal",
+                                                     vector_vertex=vv)
+                if skinned.ndim == 2:
+                    skinned = skinned[None]
+                for i, sl in zip(with_normals, slices):
+                    n = skinned[:, sl]
+                    nrm[meshes[i].name] = _apply_normals(n, outs[i][0]) if i in outs else n
+        if velocities:
+            rest_dot = {i: d.point_velocities_at(t) for i, d in deformers.items()}
+            rest_dot = {i: v for i, v in rest_dot.items() if v is not None}
+            v_all = batch.skinner.skin_velocities(
+                xforms, rates, meth, points=bind_rest,
+                point_velocities=batch.bind_velocities(rest_dot, F))
+            tcps = float(scene.time_codes_per_second)
+            for i, m in enumerate(meshes):
+                v = v_all[:, batch.vertices[i]].astype(np.float64)
+                if i in outs:
+                    o, o_dot = outs[i]
+                    v = np.einsum("fij,fvj->fvi", o[:, :3, :3], v)
+                    if np.any(o_dot):
+                        p = skel[:, batch.vertices[i]]
+                        v += (np.einsum("fij,fvj->fvi", o_dot[:, :3, :3], p)
+                              + o_dot[:, None, :3, 3])
+                vel[m.name] = (v * tcps).astype(np.float32)
+    return points, nrm, vel
+
+
+@dataclass(frozen=True)
+class Instance:
+    """One placed character of a :class:`Crowd`."""
+
+    name: str
+    character: object
+    """A :class:`dqskin.Scene` (meshes, skeletons and their animations)."""
+    time_offset: float
+    """The instance shows its animation at ``t - time_offset`` (a USD layer offset)."""
+    root_transform: np.ndarray
+    """(4, 4) float64: the character's skeleton space → crowd space."""
+
+
+class Crowd:
+    """Many instances of characters, skinned with one FK launch for every skeleton and one
+    skinning launch for every vertex, per call.
+
+    Parameters
+    ----------
+    device : str, optional
+        Warp device; CUDA when present, else CPU.
+
+    Examples
+    --------
+    >>> crowd = Crowd()
+    >>> for k in range(100):
+    ...     crowd.add(scene, time_offset=0.1 * k, root_transform=placement[k])
+    >>> points = crowd.skin(times, "dqs")          # (F, V, 3), every instance
+    >>> parts = crowd.split(points)                # "instance/mesh" → (F, Vm, 3)
+
+    Each instance's root transform is composed onto its skeleton's root joints (the skeleton is
+    placed, then skinned), so a point comes out in crowd space: ``root · skinned`` exactly for
+    rigid or uniformly scaled roots (and for any root under LBS with weights summing to one).
+    Output transforms of the meshes (glTF node or USD prim transforms) are not applied: results
+    are in each instance's skeleton space moved by its root.
+    """
+
+    def __init__(self, device: Device = None) -> None:
+        self.device = resolve_device(device)
+        self.instances: list[Instance] = []
+        self._joints = self._meshes = None
+
+    def add(self, character, *, time_offset: float = 0.0,
+            root_transform: npt.ArrayLike | None = None, name: str | None = None) -> str:
+        """Place one more instance of ``character`` (a :class:`dqskin.Scene`); returns its name
+        (default ``"i<index>"``). ValueError for a non-finite offset or root transform, a
+        repeated name, or a character without meshes."""
+        if not getattr(character, "meshes", None):
+            raise ValueError("character: no skinned meshes")
+        off = float(time_offset)
+        if not np.isfinite(off):
+            raise ValueError(f"time_offset: {time_offset!r} is not finite")
+        root = np.eye(4) if root_transform is None else check_transforms(
+            "root_transform", np.asarray(root_transform, np.float64).reshape(1, 4, 4))[0]
+        if not np.allclose(root[3], [0, 0, 0, 1]):
+            raise ValueError("root_transform: last row must be (0, 0, 0, 1)")
+        name = f"i{len(self.instances)}" if name is None else str(name)
+        if any(i.name == name for i in self.instances):
+            raise ValueError(f"instance name {name!r} used twice")
+        self.instances.append(Instance(name, character, off, root))
+        self._joints = self._meshes = None
+        return name
+
+    def _build(self):
+        if self._meshes is not None:
+            return
+        if not self.instances:
+            raise ValueError("crowd: no instances (add some first)")
+        skeletons, meshes, offsets, counts, names = [], [], [], [], []
+        for inst in self.instances:
+            first = len(skeletons)
+            skeletons.extend(inst.character.skeletons)
+            for m in inst.character.meshes:
+                meshes.append(m)
+                offsets.append(first + m.skeleton)
+                counts.append(inst.character.skeletons[m.skeleton].joint_count)
+                names.append(f"{inst.name}/{m.name}")
+        self._joints = JointBatch(skeletons, self.device)
+        self._meshes = MeshBatch(meshes, [self._joints.joints[s].start for s in offsets],
+                                 counts, self.device)
+        self._names = names
+
+    @property
+    def vertex_count(self) -> int:
+        self._build()
+        return self._meshes.vertex_count
+
+    @property
+    def joint_count(self) -> int:
+        self._build()
+        return self._joints.joint_count
+
+    @property
+    def slices(self) -> dict:
+        """``"instance/mesh"`` → slice of the vertex axis of :meth:`skin`'s result."""
+        self._build()
+        return dict(zip(self._names, self._meshes.vertices))
+
+    def split(self, points: np.ndarray) -> dict:
+        """``"instance/mesh"`` → (F, Vm, 3) views of a (F, V, 3) result of :meth:`skin`."""
+        return {name: points[:, sl] for name, sl in self.slices.items()}
+
+    def local_transforms(self, times: npt.ArrayLike, *, interp="trs") -> list:
+        """Every instance skeleton's (F, J, 4, 4) local transforms at ``times`` (each at ``t −
+        time_offset``), root transforms composed onto root joints. Instances of the same
+        character skeleton are sampled in one call."""
+        t = check_times(times)
+        F = t.shape[0]
+        groups = {}
+        for k, inst in enumerate(self.instances):
+            for s in range(len(inst.character.skeletons)):
+                groups.setdefault((id(inst.character), s), []).append(k)
+        per = {}
+        for (_, s), ks in groups.items():
+            character = self.instances[ks[0]].character
+            tt = np.concatenate([t - self.instances[k].time_offset for k in ks])
+            local = np.asarray(character.local_transforms(tt, s, interp=interp), np.float64)
+            roots = character.skeletons[s].parents < 0
+            for n, k in enumerate(ks):
+                loc = local[n * F:(n + 1) * F]
+                root = self.instances[k].root_transform
+                if not np.array_equal(root, np.eye(4)):
+                    loc = loc.copy()
+                    loc[:, roots] = root @ loc[:, roots]
+                per[(k, s)] = loc
+        return [per[(k, s)] for k, inst in enumerate(self.instances)
+                for s in range(len(inst.character.skeletons))]
+
+    def skinning_transforms(self, times: npt.ArrayLike, *, interp="trs") -> wp.array:
+        """(F, ΣJ) ``wp.mat44`` skinning transforms of every instance skeleton, crowd space,
+        from one FK launch."""
+        self._build()
+        return self._joints.skinning_transforms(self.local_transforms(times, interp=interp))
+
+    def skin(self, times: npt.ArrayLike, method: Method = "dqs", *, interp="trs",
+             as_warp: bool = False) -> np.ndarray | wp.array:
+        """Skin every instance at ``times`` with one method.
+
+        Parameters
+        ----------
+        times : (F,) float
+            Crowd time (each instance samples ``t − time_offset`` of its character's time unit).
+        method : {"dqs", "lbs", "blend"}
+        as_warp : bool
+            Return the device array (F, V) ``wp.vec3`` without a copy.
+
+        Returns
+        -------
+        (F, V, 3) float32
+            Every instance's points in crowd space, in :attr:`slices` order.
+        """
+        if method not in BATCH_METHODS:
+            raise ValueError(f"method must be one of {list(BATCH_METHODS)} for a crowd, got "
+                             f"{method!r}")
+        xforms = self.skinning_transforms(times, interp=interp)
+        out = self._meshes.skinner.skin(xforms, method, as_warp=as_warp)
+        return out if as_warp or out.ndim == 3 else out[None]

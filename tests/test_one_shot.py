@@ -1,0 +1,125 @@
+"""The one-shot API (``skin_points``) and small calls: the influence layout built on the device,
+float32 uploads that skip an identity geom-bind transform, reused per-shape transform buffers and
+replayed launches -- all against float64 NumPy written from the equations."""
+
+import numpy as np
+import pytest
+import warp as wp
+from scipy.spatial.transform import Rotation
+
+import dqskin
+from dqskin.influences import Influences
+
+
+def lbs64(points, idx, w, M, geom_bind=np.eye(4)):
+    """``Σ wᵢ·Mᵢ·G·p`` in float64."""
+    p = np.asarray(points, np.float64) @ geom_bind[:3, :3].T + geom_bind[:3, 3]
+    A = np.einsum("vk,vkij->vij", np.asarray(w, np.float64), M[idx])
+    return np.einsum("vij,vj->vi", A[:, :3, :3], p) + A[:, :3, 3]
+
+
+def rig(rng, V=500, J=12, K=4):
+    points = rng.normal(size=(V, 3)).astype(np.float32)
+    idx = rng.integers(0, J, size=(V, K)).astype(np.int32)
+    w = rng.random((V, K)).astype(np.float32)
+    w /= w.sum(1, keepdims=True)
+    M = np.tile(np.eye(4), (J, 1, 1))
+    M[:, :3, :3] = Rotation.random(J, random_state=rng).as_matrix()
+    M[:, :3, 3] = rng.normal(size=(J, 3))
+    return points, idx, w, M
+
+
+@pytest.mark.parametrize("K", [1, 3, 4, 5, 8, 9])
+def test_device_layout_is_the_stable_descending_sort(K):
+    """The layout kernel ranks each vertex's influences as NumPy's stable argsort of -w does,
+    ties included (first input first), zero-padded to groups of four."""
+    rng = np.random.default_rng(K)
+    V = 300
+    w = rng.integers(0, 4, size=(V, K)).astype(np.float32) / 4  # many ties and zeros
+    idx = rng.integers(0, 50, size=(V, K))
+    inf = Influences(idx, w)
+    dev = inf.upload("cpu")
+    order = np.argsort(-w, axis=1, kind="stable")
+    C = -(-K // 4)
+    want_i = np.zeros((V, 4 * C), np.int32)
+    want_w = np.zeros((V, 4 * C), np.float32)
+    want_i[:, :K] = np.take_along_axis(idx, order, 1)
+    want_w[:, :K] = np.take_along_axis(w, order, 1)
+    np.testing.assert_array_equal(dev["indices"].numpy().reshape(V, -1), want_i)
+    np.testing.assert_array_equal(dev["weights"].numpy().reshape(V, -1), want_w)
+    # and the host layout (what metrics read) agrees
+    np.testing.assert_array_equal(inf.indices.reshape(V, -1), want_i)
+    np.testing.assert_array_equal(inf.order, order)
+
+
+def test_no_influences_layout():
+    inf = Influences(np.zeros((5, 0), np.int32), np.zeros((5, 0), np.float32))
+    dev = inf.upload("cpu")
+    assert dev["indices"].shape == (5, 1)
+    assert not dev["weights"].numpy().any()
+
+
+@pytest.mark.parametrize("geom_bind", ["identity", "affine"])
+def test_skin_points_matches_float64_lbs(geom_bind):
+    rng = np.random.default_rng(3)
+    points, idx, w, M = rig(rng)
+    G = np.eye(4)
+    if geom_bind == "affine":
+        G[:3, :3] = Rotation.random(random_state=rng).as_matrix() * 1.7
+        G[:3, 3] = [0.5, -2.0, 3.0]
+    got = dqskin.skin_points(points, idx, w, M, "lbs", geom_bind_transform=G)
+    assert got.dtype == np.float32
+    np.testing.assert_allclose(got, lbs64(points, idx, w, M, G), atol=2e-5)
+
+
+def test_skin_points_accepts_float64_and_integer_points():
+    rng = np.random.default_rng(4)
+    points, idx, w, M = rig(rng, V=50)
+    pi = np.round(points * 10).astype(np.int64)
+    np.testing.assert_allclose(dqskin.skin_points(pi, idx, w, M, "lbs"),
+                               lbs64(pi, idx, w, M), atol=1e-4)
+    np.testing.assert_allclose(dqskin.skin_points(points.astype(np.float64), idx, w, M, "lbs"),
+                               lbs64(points, idx, w, M), atol=2e-5)
+
+
+def test_repeated_calls_reuse_buffers_without_aliasing_results():
+    """Each call refills the same transform buffer and replays the same launches: results of
+    earlier calls stay as they were, every call sees its own transforms."""
+    rng = np.random.default_rng(5)
+    points, idx, w, _ = rig(rng, V=64)
+    sk = dqskin.Skinner(points, idx, w)
+    poses = [rig(rng, V=1)[3] for _ in range(4)]
+    results = [sk.skin(M, "lbs") for M in poses]
+    for M, got in zip(poses, results):
+        np.testing.assert_allclose(got, lbs64(points, idx, w, M), atol=2e-5)
+    batch = np.stack(poses)
+    np.testing.assert_allclose(sk.skin(batch, "lbs"),
+                               np.stack([lbs64(points, idx, w, M) for M in poses]), atol=2e-5)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, 1e39])
+def test_bad_transforms_still_named_by_frame_and_joint(bad):
+    rng = np.random.default_rng(6)
+    points, idx, w, M = rig(rng, V=8)
+    F = np.stack([M, M, M])
+    F[2, 7, 0, 3] = bad
+    sk = dqskin.Skinner(points, idx, w)
+    with pytest.raises(ValueError, match="skinning_transforms: .*frame 2, joint 7"):
+        sk.skin(F, "lbs")
+    sk.skin(M, "lbs")  # the skinner is still usable
+
+
+def test_points_not_finite_rejected():
+    rng = np.random.default_rng(7)
+    points, idx, w, M = rig(rng, V=8)
+    points[3, 1] = np.nan
+    with pytest.raises(ValueError, match="points: NaN or infinite"):
+        dqskin.skin_points(points, idx, w, M)
+
+
+def test_warp_array_input_on_device_used_in_place():
+    rng = np.random.default_rng(8)
+    points, idx, w, M = rig(rng, V=32)
+    sk = dqskin.Skinner(points, idx, w, device="cpu")
+    x = wp.array(M[None].astype(np.float32), dtype=wp.mat44, device="cpu")
+    np.testing.assert_allclose(sk.skin(x, "lbs")[0], lbs64(points, idx, w, M), atol=2e-5)
