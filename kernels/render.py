@@ -89,75 +89,258 @@ def camera_ray_direction(cam: CameraParams, x: float, y: float):
     return wp.normalize(cam.forward + (x * cam.half_w) * cam.right + (y * cam.half_h) * cam.up)
 
 
-@wp.kernel
-def render_kernel(
-    mesh: wp.uint64,
-    faces: wp.array(dtype=wp.int32),
-    normals: wp.array(dtype=wp.vec3),
-    scalars: wp.array(dtype=float),
-    lut: wp.array(dtype=wp.vec3),
-    scalar_min: float,
-    scalar_scale: float,
-    nan_color: wp.vec3,
-    cam: CameraParams,
-    shading: ShadingParams,
-    width: int,
-    height: int,
-    row_offset: int,
-    # output: straight RGB and coverage per super-sampled pixel
-    image: wp.array(dtype=wp.vec4),
-):
-    """Shade one super-sampled pixel (row-major index ``row_offset + tid``).
+@wp.func
+def to_byte(c: float):
+    return wp.uint8(int(wp.clamp(c, 0.0, 1.0) * 255.0 + 0.5))
 
-    ``scalars`` empty → constant ``base_color``; else the albedo is
-    ``lut((s − scalar_min)·scalar_scale)`` with ``s`` interpolated barycentrically, or
-    ``nan_color`` where ``s`` is not finite.
-    """
-    i = wp.tid() + row_offset
-    px = i % width
-    py = i // width
-    x = 2.0 * (float(px) + 0.5) / float(width) - 1.0
-    y = 1.0 - 2.0 * (float(py) + 0.5) / float(height)
-    origin = camera_ray_origin(cam, x, y)
-    d = camera_ray_direction(cam, x, y)
-    q = wp.mesh_query_ray(mesh, origin, d, 1.0e30)
-    if not q.result:
-        image[i] = wp.vec4(shading.background[0], shading.background[1], shading.background[2],
-                           0.0)
-        return
-    f = q.face
-    ia = faces[3 * f]
-    ib = faces[3 * f + 1]
-    ic = faces[3 * f + 2]
-    w = 1.0 - q.u - q.v
-    geometric = wp.normalize(q.normal)
-    n = geometric
+
+@wp.struct
+class Layer:
+    """What one image shows of the surface a ray hits: a constant colour (``scalars`` empty) or
+    a heat map ``lut((s − scalar_min)·scalar_scale)`` of per-vertex scalars interpolated
+    barycentrically (``nan_color`` where ``s`` is not finite), lit by ``shading``. Two layers
+    share every ray (e.g. the plain and the heat-map image of one mesh)."""
+
+    scalars: wp.array(dtype=float)
+    lut: wp.array(dtype=wp.vec3)
+    scalar_min: float
+    scalar_scale: float
+    nan_color: wp.vec3
+    shading: ShadingParams
+
+
+@wp.func
+def background(layer: Layer):
+    bg = layer.shading.background
+    return wp.vec4(bg[0], bg[1], bg[2], 0.0)
+
+
+@wp.func
+def shade_hit(faces: wp.array(dtype=wp.int32), normals: wp.array(dtype=wp.vec3), layer: Layer,
+              face: int, u: float, v: float, geometric: wp.vec3, d: wp.vec3):
+    """Straight RGB and coverage 1 of a hit on ``face`` at barycentrics ``(u, v)`` seen along
+    ``d``, and the viewer-facing shading normal."""
+    shading = layer.shading
+    ia = faces[3 * face]
+    ib = faces[3 * face + 1]
+    ic = faces[3 * face + 2]
+    w = 1.0 - u - v
+    g = wp.normalize(geometric)
+    n = g
     if shading.smooth != 0:
-        s = q.u * normals[ia] + q.v * normals[ib] + w * normals[ic]
+        s = u * normals[ia] + v * normals[ib] + w * normals[ic]
         if wp.length(s) > 0.0:
             n = wp.normalize(s)
-    if wp.dot(geometric, d) > 0.0:
+    if wp.dot(g, d) > 0.0:
         n = -n
     albedo = shading.base_color
-    if scalars.shape[0] > 0:
-        value = q.u * scalars[ia] + q.v * scalars[ib] + w * scalars[ic]
+    if layer.scalars.shape[0] > 0:
+        value = u * layer.scalars[ia] + v * layer.scalars[ib] + w * layer.scalars[ic]
         if wp.isfinite(value):
-            albedo = colormap(lut, (value - scalar_min) * scalar_scale)
+            albedo = colormap(layer.lut, (value - layer.scalar_min) * layer.scalar_scale)
         else:
-            albedo = nan_color
+            albedo = layer.nan_color
     c = albedo
     if shading.lit != 0:
         lambert = wp.max(wp.dot(n, shading.light), 0.0)
         facing = wp.max(-wp.dot(n, d), 0.0)
         rim = shading.rim * wp.pow(1.0 - facing, shading.rim_power)
         c = albedo * (shading.ambient + shading.diffuse * lambert) + wp.vec3(rim)
-    image[i] = wp.vec4(wp.clamp(c[0], 0.0, 1.0), wp.clamp(c[1], 0.0, 1.0),
-                       wp.clamp(c[2], 0.0, 1.0), 1.0)
+    color = wp.vec4(wp.clamp(c[0], 0.0, 1.0), wp.clamp(c[1], 0.0, 1.0),
+                    wp.clamp(c[2], 0.0, 1.0), 1.0)
+    return color, n
 
 
 @wp.func
-def to_byte(c: float):
-    return wp.uint8(int(wp.clamp(c, 0.0, 1.0) * 255.0 + 0.5))
+def trace(mesh: wp.uint64, faces: wp.array(dtype=wp.int32), normals: wp.array(dtype=wp.vec3),
+          cam: CameraParams, a: Layer, b: Layer, layers: int, x: float, y: float):
+    """Cast the ray through normalized device coordinates ``(x, y)`` and shade what it hits in
+    layer ``a`` (and ``b`` when ``layers`` is 2).
+
+    Returns ``(colour a, colour b, depth, normal)``: straight RGB and coverage
+    (``(background, 0)`` on a miss), the hit distance along the ray (-1 on a miss) and the
+    viewer-facing shading normal of layer ``a``.
+    """
+    d = camera_ray_direction(cam, x, y)
+    q = wp.mesh_query_ray(mesh, camera_ray_origin(cam, x, y), d, 1.0e30)
+    if not q.result:
+        return background(a), background(b), -1.0, wp.vec3(0.0)
+    ca, n = shade_hit(faces, normals, a, q.face, q.u, q.v, q.normal, d)
+    cb = background(b)
+    if layers > 1:
+        cb, nb = shade_hit(faces, normals, b, q.face, q.u, q.v, q.normal, d)
+    return ca, cb, q.t, n
+
+
+@wp.kernel
+def render_kernel(
+    mesh: wp.uint64,
+    faces: wp.array(dtype=wp.int32),
+    normals: wp.array(dtype=wp.vec3),
+    cam: CameraParams,
+    a: Layer,
+    b: Layer,
+    layers: int,
+    width: int,
+    height: int,
+    row_offset: int,
+    # outputs: straight RGB and coverage per super-sampled pixel, per layer
+    image_a: wp.array(dtype=wp.vec4),
+    image_b: wp.array(dtype=wp.vec4),
+):
+    """Shade one super-sampled pixel (row-major index ``row_offset + tid``) through its centre
+    (see :func:`trace`); ``image_b`` is written when ``layers`` is 2."""
+    i = wp.tid() + row_offset
+    x = 2.0 * (float(i % width) + 0.5) / float(width) - 1.0
+    y = 1.0 - 2.0 * (float(i // width) + 0.5) / float(height)
+    ca, cb, t, n = trace(mesh, faces, normals, cam, a, b, layers, x, y)
+    image_a[i] = ca
+    if layers > 1:
+        image_b[i] = cb
+
+
+@wp.kernel
+def render_centres_kernel(
+    mesh: wp.uint64,
+    faces: wp.array(dtype=wp.int32),
+    normals: wp.array(dtype=wp.vec3),
+    cam: CameraParams,
+    a: Layer,
+    b: Layer,
+    layers: int,
+    width: int,
+    height: int,
+    row_offset: int,
+    # outputs: per pixel, the centre sample's colours, hit distance (-1: miss) and normal
+    centres_a: wp.array(dtype=wp.vec4),
+    centres_b: wp.array(dtype=wp.vec4),
+    depth: wp.array(dtype=float),
+    facing: wp.array(dtype=wp.vec3),
+):
+    """First pass of adaptive anti-aliasing: one ray through each pixel's centre."""
+    i = wp.tid() + row_offset
+    x = 2.0 * (float(i % width) + 0.5) / float(width) - 1.0
+    y = 1.0 - 2.0 * (float(i // width) + 0.5) / float(height)
+    ca, cb, t, n = trace(mesh, faces, normals, cam, a, b, layers, x, y)
+    centres_a[i] = ca
+    if layers > 1:
+        centres_b[i] = cb
+    depth[i] = t
+    facing[i] = n
+
+
+@wp.func
+def discontinuous(depth: wp.array(dtype=float), facing: wp.array(dtype=wp.vec3), i: int, j: int,
+                  depth_jump: float, normal_cos: float):
+    """Whether the centre samples of pixels ``i`` and ``j`` straddle an edge: one hits and the
+    other misses, their depths differ by more than ``depth_jump`` of the nearer one, or their
+    normals by more than ``acos(normal_cos)``."""
+    da = depth[i]
+    db = depth[j]
+    if (da < 0.0) != (db < 0.0):
+        return True
+    if da < 0.0:
+        return False
+    if wp.abs(da - db) > depth_jump * wp.min(da, db):
+        return True
+    return wp.dot(facing[i], facing[j]) < normal_cos
+
+
+@wp.func
+def write_pixel(out: wp.array3d(dtype=wp.uint8), py: int, px: int, rgb: wp.vec3, alpha: float):
+    out[py, px, 0] = to_byte(rgb[0])
+    out[py, px, 1] = to_byte(rgb[1])
+    out[py, px, 2] = to_byte(rgb[2])
+    out[py, px, 3] = to_byte(alpha)
+
+
+@wp.func
+def resolve(total: wp.vec3, weighted: wp.vec3, coverage: float, count: float, transparent: int):
+    """Box filter of ``count`` samples: the plain mean (opaque, misses hold the background) or
+    the coverage-weighted mean with the mean coverage as alpha (transparent)."""
+    rgb = total / count
+    alpha = float(1.0)
+    if transparent != 0:
+        alpha = coverage / count
+        if coverage > 0.0:
+            rgb = weighted / coverage
+    return rgb, alpha
+
+
+@wp.kernel
+def refine_kernel(
+    mesh: wp.uint64,
+    faces: wp.array(dtype=wp.int32),
+    normals: wp.array(dtype=wp.vec3),
+    cam: CameraParams,
+    a: Layer,
+    b: Layer,
+    layers: int,
+    centres_a: wp.array(dtype=wp.vec4),
+    centres_b: wp.array(dtype=wp.vec4),
+    depth: wp.array(dtype=float),
+    facing: wp.array(dtype=wp.vec3),
+    factor: int,
+    transparent: int,
+    depth_jump: float,
+    normal_cos: float,
+    row_offset: int,
+    # outputs (height, width, 4) per layer, row 0 at the top
+    out_a: wp.array3d(dtype=wp.uint8),
+    out_b: wp.array3d(dtype=wp.uint8),
+):
+    """Second pass: a pixel whose centre sample differs from a 4-neighbour's
+    (:func:`discontinuous`) is resampled on the ``factor × factor`` grid of full super-sampling
+    and box-filtered (as :func:`downsample_kernel`); any other pixel keeps its centre sample."""
+    i = wp.tid() + row_offset
+    height = out_a.shape[0]
+    width = out_a.shape[1]
+    px = i % width
+    py = i // width
+    edge = bool(False)
+    if px > 0:
+        edge = edge or discontinuous(depth, facing, i, i - 1, depth_jump, normal_cos)
+    if px + 1 < width:
+        edge = edge or discontinuous(depth, facing, i, i + 1, depth_jump, normal_cos)
+    if py > 0:
+        edge = edge or discontinuous(depth, facing, i, i - width, depth_jump, normal_cos)
+    if py + 1 < height:
+        edge = edge or discontinuous(depth, facing, i, i + width, depth_jump, normal_cos)
+    total_a = wp.vec3(0.0)
+    weighted_a = wp.vec3(0.0)
+    total_b = wp.vec3(0.0)
+    weighted_b = wp.vec3(0.0)
+    coverage = float(0.0)
+    count = float(1.0)
+    if not edge or factor == 1:
+        ca = centres_a[i]
+        cb = centres_b[i * (layers - 1)]  # (index 0 of an unused array: never read below)
+        total_a = wp.vec3(ca[0], ca[1], ca[2])
+        weighted_a = ca[3] * total_a
+        total_b = wp.vec3(cb[0], cb[1], cb[2])
+        weighted_b = ca[3] * total_b
+        coverage = ca[3]
+    else:
+        sw = width * factor
+        sh = height * factor
+        for dy in range(factor):
+            for dx in range(factor):
+                x = 2.0 * (float(px * factor + dx) + 0.5) / float(sw) - 1.0
+                y = 1.0 - 2.0 * (float(py * factor + dy) + 0.5) / float(sh)
+                ca, cb, t, n = trace(mesh, faces, normals, cam, a, b, layers, x, y)
+                sa = wp.vec3(ca[0], ca[1], ca[2])
+                sb = wp.vec3(cb[0], cb[1], cb[2])
+                total_a += sa
+                weighted_a += ca[3] * sa
+                total_b += sb
+                weighted_b += ca[3] * sb
+                coverage += ca[3]
+        count = float(factor * factor)
+    rgb, alpha = resolve(total_a, weighted_a, coverage, count, transparent)
+    write_pixel(out_a, py, px, rgb, alpha)
+    if layers > 1:
+        rgb_b, alpha_b = resolve(total_b, weighted_b, coverage, count, transparent)
+        write_pixel(out_b, py, px, rgb_b, alpha_b)
 
 
 @wp.kernel
@@ -210,14 +393,30 @@ def vertex_normals(*, points, faces, vf_offsets, vf_faces, out, device):
                 device)
 
 
-def render(*, mesh, faces, normals, scalars, lut, scalar_min, scalar_scale, nan_color, camera,
-           shading, width, height, out, device):
-    """Ray cast every super-sampled pixel of a ``width × height`` image into ``out``
-    (width·height,) ``wp.vec4``; ``mesh`` is a ``wp.Mesh`` id (see :func:`render_kernel` for the
-    other arguments)."""
+def render(*, mesh, faces, normals, camera, layer_a, layer_b, layers, width, height, out_a,
+           out_b, device):
+    """Ray cast every super-sampled pixel of a ``width × height`` image into ``out_a`` (and
+    ``out_b`` for ``layers`` = 2) (width·height,) ``wp.vec4``; ``mesh`` is a ``wp.Mesh`` id, the
+    layers :class:`Layer` (see :func:`render_kernel`)."""
     launch_rows(render_kernel, width * height,
-                [mesh, faces, normals, scalars, lut, float(scalar_min), float(scalar_scale),
-                 nan_color, camera, shading, int(width), int(height)], [out], device)
+                [mesh, faces, normals, camera, layer_a, layer_b, int(layers), int(width),
+                 int(height)], [out_a, out_b], device)
+
+
+def render_adaptive(*, mesh, faces, normals, camera, layer_a, layer_b, layers, factor,
+                    transparent, depth_jump, normal_cos, centres_a, centres_b, depth, facing,
+                    out_a, out_b, device):
+    """Adaptive anti-aliasing into the 8-bit RGBA ``out_a`` (and ``out_b``) (H, W, 4): one ray
+    per pixel (:func:`render_centres_kernel`, into the scratch arrays ``centres_*``, ``depth``,
+    ``facing`` of H·W), then ``factor × factor`` rays for the pixels on an edge
+    (:func:`refine_kernel`)."""
+    height, width = out_a.shape[:2]
+    common = [mesh, faces, normals, camera, layer_a, layer_b, int(layers)]
+    launch_rows(render_centres_kernel, width * height, common + [int(width), int(height)],
+                [centres_a, centres_b, depth, facing], device)
+    launch_rows(refine_kernel, width * height,
+                common + [centres_a, centres_b, depth, facing, int(factor), int(transparent),
+                          float(depth_jump), float(normal_cos)], [out_a, out_b], device)
 
 
 def downsample(*, samples, factor, transparent, out, device):

@@ -168,20 +168,27 @@ def _per_joint(a, joints, reduce):
     return out
 
 
-def _measure(mesh, skeleton, method, device):
-    """Per-frame metrics of one mesh and method: dict of (F,) float64 arrays (NaN undefined) and
-    the (F,) int joints they belong to (-1 none)."""
-    posed = mesh.posed[method]
+def _measure(mesh, skeleton, methods, device):
+    """Per-frame metrics of one mesh: method → dict of (F,) float64 arrays (NaN undefined) and
+    the (F,) int joints they belong to (-1 none). Every method in one call of each measure (the
+    mesh's closedness is checked once)."""
+    frames = len(next(iter(mesh.posed.values())))
+    posed = np.concatenate([mesh.posed[meth] for meth in methods])
     ratio, reason = M.volume_ratio(posed, mesh.rest, mesh.faces, device=device)
     joints = len(skeleton.parents)
     sec = M.ring_sections(mesh.rest, posed, mesh.rings, joints * len(mesh.ring_share))
     section, section_joint = _nan_reduce(_per_joint(sec.section_ratio, joints, np.nanmin),
                                          np.argmin)
     bulge, bulge_joint = _nan_reduce(_per_joint(sec.bulge_ratio, joints, np.nanmax), np.argmax)
-    return {"volume_ratio": None if ratio is None else np.asarray(ratio, dtype=np.float64),
-            "volume_ratio_reason": reason,
-            "min_section_ratio": section, "min_section_joint": section_joint,
-            "max_bulge_ratio": bulge, "max_bulge_joint": bulge_joint}
+    out = {}
+    for k, meth in enumerate(methods):
+        part = slice(k * frames, (k + 1) * frames)
+        out[meth] = {"volume_ratio": None if ratio is None else np.asarray(ratio[part],
+                                                                           dtype=np.float64),
+                     "volume_ratio_reason": reason,
+                     "min_section_ratio": section[part], "min_section_joint": section_joint[part],
+                     "max_bulge_ratio": bulge[part], "max_bulge_joint": bulge_joint[part]}
+    return out
 
 
 def _json_float(v):
@@ -293,8 +300,8 @@ def _render_count(times, methods, views, heat, closeup):
     return len(times) * len(views) * per_frame + per_frame * bool(closeup)
 
 
-def _render(meshes, times, methods, views, up_axis, width, supersample, frames_dir, closeup,
-            distance, bar, device):
+def _render(meshes, times, methods, views, up_axis, width, supersample, adaptive, frames_dir,
+            closeup, distance, bar, device):
     """Render every panel to ``frames_dir``; returns {view: [paths per frame]} and the close-up."""
     faces, posed = _combined(meshes, methods)
     lo = np.min([p.min(axis=(0, 1)) for p in posed.values()], axis=0).astype(np.float64)
@@ -314,20 +321,24 @@ def _render(meshes, times, methods, views, up_axis, width, supersample, frames_d
 
     def panel(f, cams, dims):
         images = {v: [] for v in cams}
+        heat_images = {}
         for meth in methods:
             renderers[meth].update(posed[meth][f])
             for v, cam in cams.items():
-                images[v].append(renderers[meth].render(cam, supersample=supersample,
-                                                        **dims[v]))
+                # the heat map is drawn on the DQS surface: a second layer of the same rays
+                second = None
+                if heat and renderers[meth] is heat_renderer:
+                    second = {"scalars": distance[f], "scalar_range": heat_range,
+                              "colormap": _HEAT_COLORMAP, "shading": _HEAT_SHADING}
+                img = renderers[meth].render(cam, supersample=supersample, adaptive=adaptive,
+                                             second_layer=second, **dims[v])
+                if second is not None:
+                    img, heat_images[v] = img
+                    bar.update()
+                images[v].append(img)
                 bar.update()
-        if heat:
-            for v, cam in cams.items():
-                img = heat_renderer.render(cam, scalars=distance[f], scalar_range=heat_range,
-                                           colormap=_HEAT_COLORMAP, shading=_HEAT_SHADING,
-                                           supersample=supersample, **dims[v])
-                images[v].append(add_colorbar(img, heat_range, _HEAT_COLORMAP,
-                                              label="distance"))
-                bar.update()
+        for v, img in heat_images.items():
+            images[v].append(add_colorbar(img, heat_range, _HEAT_COLORMAP, label="distance"))
         return {v: side_by_side(imgs, labels) for v, imgs in images.items()}
 
     paths = {v: [] for v in views}
@@ -385,8 +396,7 @@ def sweeps(assets_dir, *, device=None):
         theta = theta_all[:, joint]
         entry = {"asset": file, "joint": skel.joint_names[joint], "fraction": fraction,
                  "angle_deg": _json_floats(np.degrees(theta))}
-        for meth in ("lbs", "dqs"):
-            m = _measure(mesh, skel, meth, device)
+        for meth, m in _measure(mesh, skel, ("lbs", "dqs"), device).items():
             entry[meth] = {k: (None if m[k] is None else _json_floats(m[k])) for k in METRICS}
         entry["reference"] = {"lbs_volume_ratio": _json_floats(
             1 - fraction * (1 - np.cos(theta)) / divisor)}
@@ -448,7 +458,7 @@ def skeleton_up_axis(scene):
 def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, views=VIEWS,
                 device=None, width=512, supersample=2, progress=True, force=False,
                 sweeps_dir="default", up_axis=None, clip=None, max_rays=MAX_RAYS,
-                sign_reference="largest_weight", viewer_frames=VIEWER_FRAMES):
+                sign_reference="largest_weight", viewer_frames=VIEWER_FRAMES, adaptive=True):
     """Compare skinning methods on an asset and write ``report.html``, ``metrics.json`` and
     ``frames/*.png`` in ``out_dir``.
 
@@ -472,6 +482,9 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         (within 1:2 and 2:1); the close-up is ``width × width``.
     supersample : int
         Anti-aliasing rays per pixel along each axis.
+    adaptive : bool
+        Cast the ``supersample²`` rays only for pixels on an edge, one ray through the centre
+        elsewhere (:meth:`MeshRenderer.render`'s ``adaptive``); False super-samples every pixel.
     progress : bool
         One tqdm progress bar on stderr for the whole comparison.
     sweeps_dir : str, Path or None
@@ -526,8 +539,8 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
              + bool(viewer_frames) + 2 * (sweeps_dir is not None) + 1)
     with _progress_bar(steps, progress) as bar:
         result = _compare(scene, out, frames_dir, times, all_times, methods, views, up, width,
-                          supersample, sweeps_dir, sign_reference, bool(viewer_frames), heat, bar,
-                          device, t0)
+                          supersample, adaptive, sweeps_dir, sign_reference,
+                          bool(viewer_frames), heat, bar, device, t0)
     return result
 
 
@@ -550,7 +563,7 @@ class _NoBar:
 
 
 def _compare(scene, out, frames_dir, times, all_times, methods, views, up, width, supersample,
-             sweeps_dir, sign_reference, viewer, heat, bar, device, t0):
+             adaptive, sweeps_dir, sign_reference, viewer, heat, bar, device, t0):
     """The body of :func:`run_compare` once its arguments are checked; ``bar`` counts steps."""
     bar.set_postfix_str("skinning")
     meshes, skipped, xforms = _skin(scene, all_times, methods, device, sign_reference)
@@ -565,11 +578,8 @@ def _compare(scene, out, frames_dir, times, all_times, methods, views, up, width
     skeletons = scene.skeletons
     measures = {}
     for m in meshes:
-        measures[m.name] = {}
-    for meth in methods:
-        for m in meshes:
-            measures[m.name][meth] = _measure(m, skeletons[m.skeleton], meth, device)
-        bar.update()
+        measures[m.name] = _measure(m, skeletons[m.skeleton], methods, device)
+    bar.update(len(methods))
     angles = {s: M.joint_bend_twist(x, skeletons[s].bind_transforms[:, :3, 3],
                                     skeletons[s].parents) for s, x in xforms.items()}
     distance, dist_json = None, None
@@ -586,7 +596,7 @@ def _compare(scene, out, frames_dir, times, all_times, methods, views, up, width
 
     bar.set_postfix_str("rendering")
     panels, closeup_path, dmax = _render(meshes, times, methods, views, up, width, supersample,
-                                         frames_dir, closeup, distance, bar, device)
+                                         adaptive, frames_dir, closeup, distance, bar, device)
     if closeup is None:
         bar.update(len(methods) + heat)
     t_render = time.perf_counter()
@@ -649,6 +659,7 @@ def _compare(scene, out, frames_dir, times, all_times, methods, views, up, width
                    "heat_range": [0.0, dmax] if heat else None},
         "sweeps": sweep_data,
         "render": {"width": int(width), "supersample": int(supersample),
+                   "antialiasing": "adaptive" if adaptive else "full",
                    "vertices": int(sum(len(m.rest) for m in meshes)),
                    "faces": int(sum(len(m.faces) for m in meshes))},
     }

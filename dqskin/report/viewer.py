@@ -81,7 +81,7 @@ def _spread(posed):
     return out
 
 
-def encode(posed, rest, faces, *, level=6):
+def encode(posed, rest, faces, *, level=1):
     """The viewer's metadata and compressed vertex data.
 
     Parameters
@@ -91,7 +91,7 @@ def encode(posed, rest, faces, *, level=6):
     rest : (V, 3) float
     faces : (T, 3) int
     level : int
-        zlib compression level.
+        zlib compression level (1: ~5× faster than 6 for ~8% more bytes here).
 
     Returns
     -------
