@@ -10,7 +10,7 @@ import pytest
 import trimesh
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel
 from test_autoweights import capsule_body
-from test_bvh import oracle
+from test_bvh import _offsets, oracle
 
 from dqskin import formats
 from dqskin.cli import main
@@ -44,8 +44,9 @@ def lbs_oracle(bvh_path, points, indices, weights):
     world = np.zeros((F, len(names), 4, 4))
     world[..., :3, :3], world[..., :3, 3], world[..., 3, 3] = rot, pos, 1.0
     bind = np.tile(np.eye(4), (len(names), 1, 1))  # rest: every channel zero, i.e. joints at
+    offsets = _offsets(bvh_path)
     for j, p in enumerate(parents):  # their summed OFFSETs (read from the text)
-        bind[j, :3, 3] = _offset(bvh_path, j) + (bind[p, :3, 3] if p >= 0 else 0)
+        bind[j, :3, 3] = offsets[j] + (bind[p, :3, 3] if p >= 0 else 0)
     skin = world @ np.linalg.inv(bind)  # (F, J, 4, 4)
     p = np.concatenate([points, np.ones((len(points), 1))], 1)
     out = np.zeros((F, len(points), 3))
@@ -53,14 +54,6 @@ def lbs_oracle(bvh_path, points, indices, weights):
         out += weights[None, :, k, None] * np.einsum("fvij,vj->fvi", skin[:, indices[:, k]],
                                                      p)[..., :3]
     return out
-
-
-def _offset(bvh_path, j):
-    """OFFSET of joint ``j`` (declaration order), from the text."""
-    import re
-    text = open(bvh_path).read().split("MOTION")[0]
-    blocks = re.findall(r"(?:ROOT|JOINT)\s+\S+\s*\{\s*OFFSET\s+(\S+)\s+(\S+)\s+(\S+)", text)
-    return np.array(blocks[j], dtype=np.float64)
 
 
 def _skin_cli(mesh, bvh_path, out, *extra):
