@@ -1,8 +1,11 @@
-"""Ray-casting kernels of the offscreen renderer: vertex normals, shading, box downsampling.
+"""Ray-casting kernels of the offscreen renderer: vertex normals, shading, box downsampling,
+adaptive anti-aliasing.
 
 One ray per (super-sampled) pixel is cast against a ``wp.Mesh`` BVH with
-``wp.mesh_query_ray``. Surfaces are two-sided: the normal is flipped to face the viewer. Shading is
-Lambert with one directional light plus an ambient term and a white rim light,
+``wp.mesh_query_ray``; with adaptive anti-aliasing, one per pixel and the super-sampled grid only
+for pixels on an edge (:func:`refine_kernel`). Each ray can shade two :class:`Layer` s (a plain
+and a heat-map image of one pose). Surfaces are two-sided: the normal is flipped to face the
+viewer. Shading is Lambert with one directional light plus an ambient term and a white rim light,
 ``c = albedo·(ambient + diffuse·max(n·l, 0)) + rim·(1 − max(n·v, 0))^rim_power`` where ``v`` points
 from the surface to the eye. The albedo is either a constant colour or a colour-map lookup of a
 per-vertex scalar interpolated barycentrically. Pixel rows run top to bottom; row-major pixel
@@ -173,33 +176,6 @@ def trace(mesh: wp.uint64, faces: wp.array(dtype=wp.int32), normals: wp.array(dt
 
 
 @wp.kernel
-def render_kernel(
-    mesh: wp.uint64,
-    faces: wp.array(dtype=wp.int32),
-    normals: wp.array(dtype=wp.vec3),
-    cam: CameraParams,
-    a: Layer,
-    b: Layer,
-    layers: int,
-    width: int,
-    height: int,
-    row_offset: int,
-    # outputs: straight RGB and coverage per super-sampled pixel, per layer
-    image_a: wp.array(dtype=wp.vec4),
-    image_b: wp.array(dtype=wp.vec4),
-):
-    """Shade one super-sampled pixel (row-major index ``row_offset + tid``) through its centre
-    (see :func:`trace`); ``image_b`` is written when ``layers`` is 2."""
-    i = wp.tid() + row_offset
-    x = 2.0 * (float(i % width) + 0.5) / float(width) - 1.0
-    y = 1.0 - 2.0 * (float(i // width) + 0.5) / float(height)
-    ca, cb, t, n = trace(mesh, faces, normals, cam, a, b, layers, x, y)
-    image_a[i] = ca
-    if layers > 1:
-        image_b[i] = cb
-
-
-@wp.kernel
 def render_centres_kernel(
     mesh: wp.uint64,
     faces: wp.array(dtype=wp.int32),
@@ -217,7 +193,9 @@ def render_centres_kernel(
     depth: wp.array(dtype=float),
     facing: wp.array(dtype=wp.vec3),
 ):
-    """First pass of adaptive anti-aliasing: one ray through each pixel's centre."""
+    """One ray through the centre of each pixel (row-major index ``row_offset + tid``), shaded
+    by :func:`trace`: every sample of full super-sampling (on the super-sampled grid), or the
+    first pass of adaptive anti-aliasing. ``centres_b`` is written when ``layers`` is 2."""
     i = wp.tid() + row_offset
     x = 2.0 * (float(i % width) + 0.5) / float(width) - 1.0
     y = 1.0 - 2.0 * (float(i // width) + 0.5) / float(height)
@@ -394,13 +372,14 @@ def vertex_normals(*, points, faces, vf_offsets, vf_faces, out, device):
 
 
 def render(*, mesh, faces, normals, camera, layer_a, layer_b, layers, width, height, out_a,
-           out_b, device):
-    """Ray cast every super-sampled pixel of a ``width × height`` image into ``out_a`` (and
-    ``out_b`` for ``layers`` = 2) (width·height,) ``wp.vec4``; ``mesh`` is a ``wp.Mesh`` id, the
-    layers :class:`Layer` (see :func:`render_kernel`)."""
-    launch_rows(render_kernel, width * height,
+           out_b, depth, facing, device):
+    """Ray cast every pixel of a ``width × height`` (super-sampled) image into ``out_a`` (and
+    ``out_b`` for ``layers`` = 2) (width·height,) ``wp.vec4``, hit distances into ``depth`` and
+    normals into ``facing``; ``mesh`` is a ``wp.Mesh`` id, the layers :class:`Layer` (see
+    :func:`render_centres_kernel`)."""
+    launch_rows(render_centres_kernel, width * height,
                 [mesh, faces, normals, camera, layer_a, layer_b, int(layers), int(width),
-                 int(height)], [out_a, out_b], device)
+                 int(height)], [out_a, out_b, depth, facing], device)
 
 
 def render_adaptive(*, mesh, faces, normals, camera, layer_a, layer_b, layers, factor,
@@ -412,8 +391,9 @@ def render_adaptive(*, mesh, faces, normals, camera, layer_a, layer_b, layers, f
     (:func:`refine_kernel`)."""
     height, width = out_a.shape[:2]
     common = [mesh, faces, normals, camera, layer_a, layer_b, int(layers)]
-    launch_rows(render_centres_kernel, width * height, common + [int(width), int(height)],
-                [centres_a, centres_b, depth, facing], device)
+    render(mesh=mesh, faces=faces, normals=normals, camera=camera, layer_a=layer_a,
+           layer_b=layer_b, layers=layers, width=width, height=height, out_a=centres_a,
+           out_b=centres_b, depth=depth, facing=facing, device=device)
     launch_rows(refine_kernel, width * height,
                 common + [centres_a, centres_b, depth, facing, int(factor), int(transparent),
                           float(depth_jump), float(normal_cos)], [out_a, out_b], device)

@@ -446,7 +446,8 @@ class MeshRenderer:
             samples = [wp.empty(sw * sh, dtype=wp.vec4, device=d) for _ in range(layers)]
             K.render(width=sw, height=sh, out_a=samples[0],
                      out_b=samples[-1] if layers > 1 else wp.empty(1, dtype=wp.vec4, device=d),
-                     **common)
+                     depth=wp.empty(sw * sh, dtype=float, device=d),
+                     facing=wp.empty(sw * sh, dtype=wp.vec3, device=d), **common)
             for sample, out in zip(samples, outs):
                 K.downsample(samples=sample, factor=s, transparent=transparent, out=out,
                              device=d)
