@@ -119,6 +119,14 @@ def test_running_sum_follows_input_order(device):
     np.testing.assert_allclose(la, lb, atol=2e-5)  # ... only for the running sum
 
 
+def test_two_influences_agree(device):
+    """With two influences the rules differ only by the sign of the whole blend, which
+    normalization removes."""
+    pts, idx, wts, xf = random_rig(np.random.default_rng(9), K=2, zero=0.0)
+    a, b = (skin_points_rule(pts, idx, wts, xf, rule, device) for rule in RULES)
+    np.testing.assert_allclose(a, b, atol=2e-5)
+
+
 def skin_points_rule(pts, idx, wts, xf, rule, device):
     return dqskin.skin_points(pts, idx, wts, xf, "dqs", sign_reference=rule, device=device)
 
