@@ -16,7 +16,7 @@ from dqskin import formats
 from dqskin.cli import main
 from dqskin.formats import bvh
 from dqskin.formats.usd_rig import write_rig
-from dqskin.rigging import read_weights, rig_mesh
+from dqskin.rigging import read_weights, replace_weights, rig_mesh
 
 FRAMES = 12
 
@@ -118,12 +118,19 @@ def test_rig_of_a_gltf_character_with_auto_weights(shared_assets, tmp_path):
     assert main(["rig", str(shared_assets / "khronos-gltf" / "RiggedSimple" /
                              "RiggedSimple.glb"), "--weights", "auto", "--out", str(out)]) == 0
     stage = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(out)))
+    assert stage.GetTimeCodesPerSecond() == 24  # glTF seconds become time codes at 24/s
     t = float(scene.times[len(scene.times) // 2])
-    assert UsdSkel.BakeSkinning(stage.Traverse(), Gf.Interval(t, t))
+    assert UsdSkel.BakeSkinning(stage.Traverse(), Gf.Interval(24 * t, 24 * t))
     (prim,) = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
-    ref = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(t), np.float64)
-    got = formats.load(out).skin([t], method="lbs", space="output").points[str(prim.GetPath())]
+    ref = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(24 * t), np.float64)
+    rig = formats.load(out)
+    np.testing.assert_allclose(rig.times, 24 * scene.times, atol=1e-5)
+    got = rig.skin([24 * t], method="lbs", space="output").points[str(prim.GetPath())]
     np.testing.assert_allclose(got[0], ref, atol=1e-5 * np.abs(ref).max())
+    # the glTF character's own skinning at t, with the automatic weights: the same motion
+    auto = replace_weights(scene, "auto")
+    mine = auto.skin([t], method="lbs", space="output").points[auto.meshes[0].name]
+    np.testing.assert_allclose(mine[0], ref, atol=1e-4 * np.abs(ref).max())
 
 
 def test_misfits_are_explained(capture, tmp_path, capsys):

@@ -19,12 +19,16 @@ from pathlib import Path
 import numpy as np
 
 from ..scene import Scene
+from . import gltf
 from .atomic import atomic_path
 from .usd_cache import export_layer
 
-__all__ = ["RIG_SUFFIXES", "joint_paths", "write_rig"]
+__all__ = ["RIG_SUFFIXES", "SECONDS_RATE", "joint_paths", "write_rig"]
 
 RIG_SUFFIXES = (".usd", ".usda", ".usdc")
+
+SECONDS_RATE = 24.0
+"""Time codes per second of a rig written from a glTF scene (whose times are seconds)."""
 
 _METHODS = {"lbs": "classicLinear", "dqs": "dualQuaternion"}
 
@@ -68,8 +72,9 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
     Parameters
     ----------
     scene : dqskin.Scene
-        Skeletons with their animations (sampled at ``scene.times``, time codes at
-        ``scene.time_codes_per_second``) and meshes with their influences.
+        Skeletons with their animations, sampled at ``scene.times`` (time codes at
+        ``scene.time_codes_per_second``; glTF seconds become time codes at
+        :data:`SECONDS_RATE` per second), and meshes with their influences.
     out : path
     force : bool
         Replace an existing file (otherwise the name is claimed exclusively).
@@ -85,11 +90,15 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
     if out.suffix.lower() not in RIG_SUFFIXES:
         raise ValueError(f"--out {out}: a rig is written as {'/'.join(RIG_SUFFIXES)}")
     times = np.asarray(scene.times, np.float64)
+    rate = float(scene.time_codes_per_second)
+    codes = times
+    if Path(scene.path).suffix.lower() in gltf.SUFFIXES:  # seconds: 24 time codes a second
+        codes, rate = times * SECONDS_RATE, SECONDS_RATE
     stage = Usd.Stage.CreateInMemory()
-    stage.SetStartTimeCode(float(times[0]))
-    stage.SetEndTimeCode(float(times[-1]))
-    stage.SetTimeCodesPerSecond(float(scene.time_codes_per_second))
-    stage.SetFramesPerSecond(float(scene.time_codes_per_second))
+    stage.SetStartTimeCode(float(codes[0]))
+    stage.SetEndTimeCode(float(codes[-1]))
+    stage.SetTimeCodesPerSecond(rate)
+    stage.SetFramesPerSecond(rate)
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z if scene.up_axis == "Z" else UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, float(scene.meters_per_unit))
     root = UsdSkel.Root.Define(stage, "/Root")
@@ -110,7 +119,7 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
         anim = UsdSkel.Animation.Define(stage, path.AppendChild("Animation"))
         anim.CreateJointsAttr(joints)
         local = scene.local_transforms(times, s)
-        for f, t in enumerate(times):
+        for f, t in enumerate(codes):
             anim.SetTransforms(_matrices(local[f]), Usd.TimeCode(float(t)))
         UsdSkel.BindingAPI.Apply(us.GetPrim()).CreateAnimationSourceRel().SetTargets(
             [anim.GetPath()])
