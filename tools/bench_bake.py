@@ -16,8 +16,10 @@ own; the clip bakes also report the peak of every worker process. Implementation
   of 1 / 2 worker processes (cluster start-up included in the time);
 * ``single+nv``, ``clips2+nv``: with skinned normals and velocities (dqskin's default).
 
-Reports wall seconds of the bake (module imports excluded, shown apart), point-frames/s, peak RSS
-of the main process and of each worker, and the largest point difference to UsdSkel's cache.
+Reports wall seconds of the bake (module imports excluded, shown apart), point-frames/s, the CPU
+seconds of the whole process tree (imports and worker start-up included: on a machine shared
+with other work, wall time is noise and CPU time is not), peak RSS of the main process and of each
+worker, and the largest point difference to UsdSkel's cache.
 Also callable from ``tools/bench.py`` (``bench_bake(rows)``).
 """
 
@@ -193,14 +195,20 @@ def bench_one(rows, label, src, impls, tmp):
     dsts = {}
     for which in impls:
         dst = tmp / f"{label}_{which.replace('+', '_')}.usd"
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         proc = subprocess.run([sys.executable, __file__, "--child", which, str(src), str(dst)],
                               capture_output=True, text=True)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)  # the whole process tree, reaped
+        cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
         if proc.returncode:
-            raise RuntimeError(f"{which} bake failed:\n{proc.stderr[-2000:]}")
+            print(f"  {label} {which}: failed (exit {proc.returncode}):\n{proc.stderr[-1000:]}",
+                  file=sys.stderr)
+            continue
         r = json.loads(proc.stdout.strip().splitlines()[-1])
         dsts[which] = dst
         rows.append(dict(kind="bake", asset=label, frames=frames, points=points, impl=which,
                          seconds=r["seconds"], import_seconds=r["import_seconds"],
+                         cpu_seconds=cpu,
                          peak_mb=r["peak_mb"], worker_peak_mb=r.get("worker_peak_mb", []),
                          mpoint_frames_per_s=points * frames / r["seconds"] / 1e6,
                          output_mb=output_mb(dst)))
@@ -244,14 +252,15 @@ def print_bake(rows):
         return
     print("\nEnd-to-end bake to .usd (open + skin every frame + write), LBS; seconds exclude the "
           "one-off module imports (shown apart), include Dask cluster start-up")
-    print("| asset | frames | impl | seconds | M point-frames/s | imports s | peak RSS MB main "
-          "| workers MB | output MB | max |Δp| vs UsdSkel |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| asset | frames | impl | seconds | M point-frames/s | imports s | CPU s, all processes "
+          "| peak RSS MB main | workers MB | output MB | max |Δp| vs UsdSkel |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in bake:
         workers = ", ".join(f"{w:.0f}" for w in r.get("worker_peak_mb", [])) or "–"
         diff = r.get("max_point_diff")
         print(f"| {r.get('asset', '')} | {r['frames']} | {r['impl']} | {r['seconds']:.2f} "
-              f"| {r['mpoint_frames_per_s']:.1f} | {r['import_seconds']:.2f} | {r['peak_mb']:.0f} "
+              f"| {r['mpoint_frames_per_s']:.1f} | {r['import_seconds']:.2f} "
+              f"| {r.get('cpu_seconds', float('nan')):.1f} | {r['peak_mb']:.0f} "
               f"| {workers} | {r.get('output_mb', float('nan')):.0f} "
               f"| {'–' if diff is None else f'{diff:.1e}'} |")
     for key in dict.fromkeys((r.get("asset"), r["frames"]) for r in bake):

