@@ -191,9 +191,25 @@ def _load_input(args, cache_out=None):
                          f"a mesh in its rest pose: dqskin skin MESH --skeleton {src.name} "
                          f"--out {cache_out}")
     if weights is not None:
+        asset = scene
         scene = replace_weights(scene, weights, max_influences=args.max_influences,
                                 device=args.device)
+        _print_weight_difference(asset, scene, "automatic" if weights == "auto" else weights.name,
+                                 args.device)
     return scene
+
+
+def _print_weight_difference(asset, scene, label, device, samples=100):
+    """One line per mesh: how far the new weights move the skinned points from the asset's own
+    (LBS, at up to ``samples`` of the asset's times)."""
+    import numpy as np
+
+    from .rigging import skinned_difference
+    t = np.unique(asset.times[np.linspace(0, len(asset.times) - 1,
+                                          min(samples, len(asset.times))).round().astype(int)])
+    for name, (mean, p95) in skinned_difference(asset, scene, t, device=device).items():
+        print(f"{label} weights vs the asset's on {name} (LBS, {len(t)} times): mean "
+              f"{mean:.3f}%, 95th percentile {p95:.3f}% of its height at the worst time")
 
 
 def cmd_rig(args):

@@ -24,7 +24,8 @@ from .formats.mesh_files import load_mesh
 from .influences import check_influences
 from .scene import Mesh, Scene
 
-__all__ = ["WEIGHT_FIELDS", "check_fit", "read_weights", "replace_weights", "rig_mesh"]
+__all__ = ["WEIGHT_FIELDS", "check_fit", "read_weights", "replace_weights", "rig_mesh",
+           "skinned_difference"]
 
 WEIGHT_FIELDS = ("joint_indices", "joint_weights", "joint_names")
 """Arrays of a weights ``.npz``: (V, K) int, (V, K) float, (J,) str."""
@@ -183,3 +184,27 @@ def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,
             idx, w = read_weights(weights, skel.joint_names, len(m.points))
         meshes.append(replace(m, joint_indices=idx, joint_weights=w))
     return replace(scene, meshes=meshes, _skinners={})
+
+
+def skinned_difference(reference: Scene, other: Scene, times=None, *, method: str = "lbs",
+                       device: Device = None) -> dict:
+    """How far ``other``'s skinned points are from ``reference``'s (the same scene with other
+    weights, e.g. from :func:`replace_weights`), as a share of each mesh's height.
+
+    Both are skinned with ``method`` at ``times`` (default the reference's) in skeleton space.
+    Returns ``{mesh name: (mean, p95)}``: the mean and 95th percentile over the vertices of the
+    distance, in % of the largest extent of the mesh's bind-pose points, at the worst frame.
+    """
+    times = reference.times if times is None else times
+    ref = reference.skin(times, method=method, space="skeleton", device=device)
+    got = other.skin(times, method=method, space="skeleton", device=device)
+    out = {}
+    for m in reference.meshes:
+        g = np.asarray(m.geom_bind_transform, np.float64)
+        rest = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
+        height = float(np.ptp(rest, axis=0).max()) if len(rest) else 0.0
+        d = np.linalg.norm(ref.points[m.name].astype(np.float64)
+                           - got.points[m.name].astype(np.float64), axis=-1)
+        d = d / (height or 1.0) * 100
+        out[m.name] = (float(d.mean(1).max()), float(np.percentile(d, 95, axis=1).max()))
+    return out

@@ -112,11 +112,13 @@ def test_rig_round_trip_through_usdskel(capture, tmp_path, monkeypatch, capsys):
                                atol=1e-5 * np.abs(ref).max())
 
 
-def test_rig_of_a_gltf_character_with_auto_weights(shared_assets, tmp_path):
+def test_rig_of_a_gltf_character_with_auto_weights(shared_assets, tmp_path, capsys):
     scene = formats.load(shared_assets / "khronos-gltf" / "RiggedSimple" / "RiggedSimple.glb")
     out = tmp_path / "simple.usda"
     assert main(["rig", str(shared_assets / "khronos-gltf" / "RiggedSimple" /
                              "RiggedSimple.glb"), "--weights", "auto", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "automatic weights vs the asset's on" in said and "95th percentile" in said
     stage = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(out)))
     assert stage.GetTimeCodesPerSecond() == 24  # glTF seconds become time codes at 24/s
     t = float(scene.times[len(scene.times) // 2])

@@ -115,7 +115,7 @@ def nearest_bone(scene):
 
 def accuracy():
     from dqskin import formats
-    from dqskin.rigging import replace_weights
+    from dqskin.rigging import replace_weights, skinned_difference
     for name in BLENDER:
         scene = formats.load(SHARED / "khronos-gltf" / name / f"{name}.glb")
         t0 = time.perf_counter()
@@ -123,19 +123,12 @@ def accuracy():
         dt = time.perf_counter() - t0
         frames = np.arange(scene.times[0], scene.times[-1] + 1e-9, 1 / 24)  # as Blender plays it
         for label, other in (("automatic", auto), ("nearest bone", nearest_bone(scene))):
-            for m, a in zip(scene.meshes, other.meshes):
-                ref = dataclasses.replace(scene, meshes=[m], _skinners={}).skin(
-                    frames, method="lbs", space="skeleton").points[m.name].astype(np.float64)
-                got = dataclasses.replace(other, meshes=[a], _skinners={}).skin(
-                    frames, method="lbs", space="skeleton").points[m.name].astype(np.float64)
-                g = m.geom_bind_transform
-                rest = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
-                err = np.linalg.norm(ref - got, axis=-1) / np.ptp(rest, axis=0).max() * 100
-                mean, p95 = err.mean(1).max(), np.percentile(err, 95, axis=1).max()
+            for mesh, (mean, p95) in skinned_difference(scene, other, frames).items():
                 extra = f" (weights {dt:.2f} s)" if label == "automatic" else ""
                 blender = "% / ".join(map(str, BLENDER[name]))
-                print(f"{name} {label}: mean {mean:.3f}%, 95th percentile {p95:.3f}% of height "
-                      f"at the worst of {len(frames)} frames (24 fps); Blender {blender}%{extra}")
+                print(f"{name} {label} ({mesh}): mean {mean:.3f}%, 95th percentile {p95:.3f}% of "
+                      f"height at the worst of {len(frames)} frames (24 fps); Blender "
+                      f"{blender}%{extra}")
 
 
 BLENDER_SCRIPT = """
