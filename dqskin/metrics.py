@@ -25,9 +25,9 @@ from .shapes import frames_of
 from .skeleton import check_parents
 from .topology import check_faces
 
-__all__ = ["METRICS", "RING_WIDTH", "RingSections", "bone_directions", "dominant_pair_regions",
-           "edge_strain", "joint_bend_twist", "joint_rings", "mesh_edges", "ring_sections",
-           "vertex_distance", "volume", "volume_ratio", "worst"]
+__all__ = ["METRICS", "PAIR_SHARE", "RING_WIDTH", "RingSections", "bone_directions",
+           "dominant_pair_regions", "edge_strain", "joint_bend_twist", "joint_rings", "mesh_edges",
+           "ring_sections", "vertex_distance", "volume", "volume_ratio", "worst"]
 
 
 def _vec3s(a, device):
@@ -211,9 +211,16 @@ def _parents(parents, count):
     return par
 
 
-def dominant_pair_regions(joint_indices, joint_weights, parents, *, min_weight=0.05):
+PAIR_SHARE = 0.9
+"""Share of a vertex's weight its joint and parent must hold for the vertex to be in the joint's
+region (:func:`dominant_pair_regions`): a third joint moving the rest would distort its ring."""
+
+
+def dominant_pair_regions(joint_indices, joint_weights, parents, *, min_weight=0.05,
+                          min_pair=PAIR_SHARE):
     """Assign vertices to the joint they bend around: the vertex's two largest weights belong to a
-    joint ``j`` and its parent, and the smaller of the two is at least ``min_weight``.
+    joint ``j`` and its parent, the smaller of the two is at least ``min_weight`` and together
+    they hold at least ``min_pair`` of the vertex's total weight (other joints barely move it).
 
     Parameters
     ----------
@@ -221,6 +228,8 @@ def dominant_pair_regions(joint_indices, joint_weights, parents, *, min_weight=0
         K ≥ 2 influence slots (ties keep the earlier slot).
     parents : (J,) int
     min_weight : float
+    min_pair : float
+        In [0, 1].
 
     Returns
     -------
@@ -242,7 +251,7 @@ def dominant_pair_regions(joint_indices, joint_weights, parents, *, min_weight=0
         raise ValueError(f"joint_indices: index out of range [0, {par.shape[0]})")
     (a, b) = idx[:, :2].T
     wa, wb = np.take_along_axis(w, inf.order[:, :2], 1).T
-    strong = wb >= min_weight
+    strong = (wb >= min_weight) & (wa + wb >= min_pair * w.sum(axis=1))
     a_child = strong & (par[a] == b)
     b_child = strong & (par[b] == a)
     regions[a_child], fraction[a_child] = a[a_child], (wa / (wa + wb))[a_child]
@@ -255,7 +264,8 @@ RING_WIDTH = 1 / 32
 shares within ``RING_WIDTH / 2`` of ``k · RING_WIDTH`` (so the share ½ is a ring centre)."""
 
 
-def joint_rings(joint_indices, joint_weights, parents, *, ring_width=RING_WIDTH, min_weight=0.05):
+def joint_rings(joint_indices, joint_weights, parents, *, ring_width=RING_WIDTH, min_weight=0.05,
+                min_pair=PAIR_SHARE):
     """Cut each joint's region into rings of equal weight share: the level sets of the blend.
 
     A vertex belongs to joint ``j`` when its two largest weights are ``j`` and ``j``'s parent
@@ -270,7 +280,8 @@ def joint_rings(joint_indices, joint_weights, parents, *, ring_width=RING_WIDTH,
     parents : (J,) int
     ring_width : float
         In (0, 1]; ``1 / ring_width`` should be an even integer, so ½ is a ring centre.
-    min_weight : float
+    min_weight, min_pair : float
+        As :func:`dominant_pair_regions`.
 
     Returns
     -------
@@ -284,7 +295,7 @@ def joint_rings(joint_indices, joint_weights, parents, *, ring_width=RING_WIDTH,
         raise ValueError(f"ring_width: expected a share in (0, 1], got {ring_width!r}")
     count = int(round(1 / ring_width)) + 1
     regions, share = dominant_pair_regions(joint_indices, joint_weights, parents,
-                                           min_weight=min_weight)
+                                           min_weight=min_weight, min_pair=min_pair)
     rings = np.full(regions.shape, -1, dtype=np.int32)
     inside = regions >= 0
     k = np.clip(np.floor(share[inside] / ring_width + 0.5), 0, count - 1).astype(np.int32)

@@ -260,11 +260,14 @@ def test_helpers_and_validation():
     idx = np.array([[1, 2, 0], [2, 1, 0], [0, 3, 1], [1, 0, 3], [2, 3, 0]])
     wts = np.array([[0.6, 0.4, 0], [0.9, 0.02, 0.08], [0.1, 0.5, 0.4], [0.5, 0.3, 0.2],
                     [0.5, 0.5, 0]])
-    # rows: (1,2) pair → 2; 2-vs-1 too weak; (3,1) → 3; (1,0) → 1; (2,3) siblings → -1
+    # rows: (1,2) pair → 2; 2-vs-1 too weak; (3,1) → 3; (1,0) → 1 but holds only 0.8 of the
+    # weight (below the default 0.9); (2,3) siblings → -1
     regions, share = M.dominant_pair_regions(idx, wts, parents)
+    np.testing.assert_array_equal(regions, [2, -1, 3, -1, -1])
+    regions, share = M.dominant_pair_regions(idx, wts, parents, min_pair=0.8)
     np.testing.assert_array_equal(regions, [2, -1, 3, 1, -1])
     np.testing.assert_allclose(share, [0.4, np.nan, 0.5 / 0.9, 0.5 / 0.8, np.nan])
-    rings, centres = M.joint_rings(idx, wts, parents, ring_width=0.25)
+    rings, centres = M.joint_rings(idx, wts, parents, ring_width=0.25, min_pair=0.8)
     np.testing.assert_array_equal(centres, [0, 0.25, 0.5, 0.75, 1])
     np.testing.assert_array_equal(rings, [2 * 5 + 2, -1, 3 * 5 + 2, 1 * 5 + 3, -1])
     with pytest.raises(ValueError, match="parents"):

@@ -50,7 +50,7 @@ from .html import build_html, method_label
 from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
 from .viewer import VIEWER_FRAMES, encode, viewer_times
 
-__all__ = ["BLEND_WEIGHT", "MAX_RAYS", "SWEEP_RIGS", "run_compare", "skeleton_up_axis",
+__all__ = ["BLEND_WEIGHT", "MAX_RAYS", "SWEEP_RIGS", "TIE", "run_compare", "skeleton_up_axis",
            "summary_lines", "sweeps"]
 
 BLEND_WEIGHT = DEFAULT_BLEND
@@ -199,7 +199,12 @@ def _json_floats(a):
     return [float(v) if np.isfinite(v) else None for v in np.asarray(a, dtype=np.float64)]
 
 
-def _summary(measures, meshes, skeletons, angles, times, methods, tie=1e-3):
+TIE = 0.01
+"""Methods whose worst values differ by less than this (a ratio: 1% of volume or radius, under a
+pixel at report resolution) tie in the summary."""
+
+
+def _summary(measures, meshes, skeletons, angles, times, methods, tie=TIE):
     """Worst frame and value of each metric per method over all meshes (with the joint's bend
     and twist there, from ``angles``: skeleton → (bend, twist) (F, J) degrees), and the winner:
     the method of least severity (see :func:`worst`), or ``"tie"`` within ``tie``."""
@@ -227,12 +232,12 @@ def _summary(measures, meshes, skeletons, angles, times, methods, tie=1e-3):
                 "time": float(times[best[2]]), "mesh": best[1], "joint": best[4],
                 "bend_deg": best[5], "twist_deg": best[6]}
         scored = {m: r["severity"] for m, r in by_method.items() if r is not None}
-        winner = None
+        winner, leaders = None, []
         if scored:
             lowest = min(scored.values())
             leaders = [m for m, d in scored.items() if d <= lowest + tie]
             winner = leaders[0] if len(leaders) == 1 else "tie"
-        out[metric] = {"by_method": by_method, "winner": winner}
+        out[metric] = {"by_method": by_method, "winner": winner, "leaders": leaders}
     return out
 
 
@@ -648,6 +653,7 @@ def _compare(scene, out, frames_dir, times, all_times, methods, views, up, width
         "views": list(views),
         "space": "skeleton",
         "ring_width": M.RING_WIDTH,
+        "tie": TIE,
         "meshes": {m.name: {meth: mesh_json(m, meth) for meth in methods} for m in meshes},
         "skipped_meshes": skipped,
         "lbs_dqs_distance": dist_json,
@@ -693,5 +699,8 @@ def summary_lines(result):
         worst_values = ", ".join(f"{_label(m)} {r['value']:.3f} @ t={r['time']:g}"
                                  for m, r in s["by_method"].items() if r is not None)
         if worst_values:
-            lines.append(f"  {metric}: {worst_values}; best: {s['winner']}")
+            best = s["winner"]
+            if best == "tie":
+                best = "tie (" + ", ".join(_label(m) for m in s["leaders"]) + ")"
+            lines.append(f"  {metric}: {worst_values}; best: {best}")
     return lines

@@ -197,7 +197,11 @@ def _summary_table(metrics):
             cells.append(f"<td{win}><b>{r['value']:.4f}</b><br><span class=note>"
                          f"{_esc(where)}</span></td>")
         winner = s["winner"]
-        winner = "—" if winner is None else ("tie" if winner == "tie" else method_label(winner))
+        if winner == "tie":
+            winner = "tie: " + ", ".join(method_label(x) for x in s.get("leaders", []))
+        elif winner is not None:
+            winner = method_label(winner)
+        winner = winner or "—"
         rows.append(f"<tr><th class=l>{METRIC_TITLES[metric]}</th>{''.join(cells)}"
                     f"<td class=l>{_esc(winner)}</td></tr>")
     return (f"<table><tr><th class=l>metric</th>{head}<th class=l>best</th></tr>"
@@ -310,8 +314,10 @@ def build_html(metrics, out_dir, *, viewer=None):
     parts.append("<h2>Summary</h2>"
                  "<p class=note>Worst value of each metric over all meshes, joints and frames "
                  "(volume ratio furthest from 1, smallest section ratio, largest bulge ratio), "
-                 "where it happens, and the method whose worst is mildest (ties within "
-                 "0.001).</p>" + _summary_table(m))
+                 "where it happens (with the joint's bend and twist relative to its parent), "
+                 "and the method whose worst is mildest; methods within "
+                 f"{m.get('tie', 0.01):g} of it tie (smaller differences are under a pixel "
+                 "at this resolution).</p>" + _summary_table(m))
     parts.append("<h3>Per mesh (worst over frames)</h3>" + _mesh_table(m))
     if viewer is not None:
         parts.append(_viewer_section(m, viewer))
