@@ -2,11 +2,23 @@
 without a GPU, so a CUDA code-generation error fails CI even on CPU-only machines."""
 
 import importlib
+import importlib.util
+import pkgutil
 
 import pytest
 import warp as wp
 
-MODULES = ("fk", "skin", "velocity", "metrics", "render", "cor", "layout")
+import dqskin.kernels
+
+# every module that defines a kernel: a new kernel module is covered without editing this list
+MODULES = tuple(m.name for m in pkgutil.iter_modules(dqskin.kernels.__path__)
+                if "@wp.kernel" in (importlib.util.find_spec(f"dqskin.kernels.{m.name}")
+                                    .loader.get_source(f"dqskin.kernels.{m.name}") or ""))
+
+
+def test_every_kernel_module_is_listed():
+    known = {"fk", "skin", "velocity", "metrics", "render", "cor", "layout", "bone_heat"}
+    assert known <= set(MODULES)
 
 
 @pytest.mark.parametrize("name", MODULES)
