@@ -322,7 +322,8 @@ def cmd_compare(args):
         width=args.width, supersample=args.supersample, progress=not args.quiet,
         force=args.force, sweeps_dir=None if args.no_sweeps else "default",
         up_axis=args.up_axis, clip=_clip(args.clip), max_rays=args.max_rays,
-        sign_reference=args.sign_reference, viewer_frames=args.viewer_frames)
+        sign_reference=args.sign_reference, viewer_frames=args.viewer_frames,
+        adaptive=not args.full_supersample)
     print(f"wrote {Path(args.out) / 'report.html'} ({len(result['frames'])} frames × "
           f"{len(result['methods'])} methods × {len(result['views'])} views, "
           f"{result['timing_s']['total']:.1f} s)")
@@ -364,6 +365,8 @@ def _add_compare_arguments(parser):
                         "cameras (default: the asset's)")
     parser.add_argument("--no-sweeps", action="store_true", help="leave out the twist/bend "
                         "sweeps on the procedural rigs")
+    parser.add_argument("--full-supersample", action="store_true", help="cast SUPERSAMPLE² rays "
+                        "for every pixel (default: only on edges, one ray elsewhere)")
     parser.add_argument("--viewer-frames", type=int, default=VIEWER_FRAMES, help="frames of the "
                         "animated viewer in report.html, evenly spaced over the clip plus the "
                         f"compared ones; 0: no viewer (default: {VIEWER_FRAMES})")

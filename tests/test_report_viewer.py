@@ -128,6 +128,7 @@ def test_cli_viewer_frames(tmp_path):
     out = tmp_path / "r"
     assert main(["compare", str(ROOT / "assets" / "twist_cylinder.usda"), "--out", str(out),
                  "--frames", "0,24", "--width", "32", "--supersample", "1", "--no-sweeps",
-                 "--viewer-frames", "5", "--quiet", "--device", "cpu"]) == 0
+                 "--viewer-frames", "5", "--quiet", "--device", "cpu", "--full-supersample"]) == 0
     saved = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
     assert saved["viewer"]["frames"] == [0.0, 6.0, 12.0, 18.0, 24.0]
+    assert saved["render"]["antialiasing"] == "full"

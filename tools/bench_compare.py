@@ -1,6 +1,6 @@
 """Benchmark ``dqskin compare`` on a ~35k-vertex character.
 
-    python tools/bench_compare.py [OUT_DIR] [--methods lbs,dqs,blend] [--repeat N]
+    python tools/bench_compare.py [OUT_DIR] [--methods lbs,dqs,blend] [--repeat N] [--full]
 
 The bundled humanoid (assets/humanoid.usda, 5.3k vertices) is midpoint-subdivided -- the body
 twice, the limbs once; new vertices take the average of their edge's weights, cut to the 4
@@ -60,13 +60,15 @@ def main():
     ap.add_argument("out", nargs="?", default="out/bench_compare")
     ap.add_argument("--methods", default="lbs,dqs,blend")
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--full", action="store_true", help="full super-sampling (not adaptive)")
     args = ap.parse_args()
     scene = character()
     print("vertices", sum(len(m.points) for m in scene.meshes),
           "faces", sum(len(m.faces) for m in scene.meshes))
     for _ in range(args.repeat):
         t, cpu = time.perf_counter(), time.process_time()
-        r = run_compare(scene, args.out, methods=args.methods.split(","), force=True)
+        r = run_compare(scene, args.out, methods=args.methods.split(","), force=True,
+                        adaptive=not args.full)
         size = (Path(args.out) / "report.html").stat().st_size
         wall, cpu = time.perf_counter() - t, time.process_time() - cpu
         # CPU seconds over all threads: on an idle 2-core machine the wall time lies between
