@@ -289,6 +289,7 @@ def build_html(metrics, out_dir, *, viewer=None):
     m = metrics
     t = m["frames"]
     render = m["render"]
+    adaptive = render.get("antialiasing") == "adaptive" and render["supersample"] > 1
     parts = [f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
              f"<title>dqskin compare: {_esc(Path(m['asset']).name)}</title>"
              f"<style>{_CSS}{VIEWER_CSS if viewer else ''}</style></head><body>",
@@ -305,7 +306,7 @@ def build_html(metrics, out_dir, *, viewer=None):
              f" ({m['time_codes_per_second']:g} per second)</td></tr>"
              f"<tr><th class=l>views</th><td>{_esc(', '.join(m['views']))}; up axis "
              f"{_esc(m['up_axis'])}; {render['width']} px, {render['supersample']}× "
-             f"supersampled{_ADAPTIVE_NOTE if render.get('antialiasing') == 'adaptive' else ''}"
+             f"supersampled{_ADAPTIVE_NOTE if adaptive else ''}"
              "</td></tr></table>"]
     if m.get("skipped_meshes"):
         parts.append("<p class=note>Not rendered: " + "; ".join(
