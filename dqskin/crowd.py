@@ -425,11 +425,19 @@ class Crowd:
         return [per[(k, s)] for k, inst in enumerate(self.instances)
                 for s in range(len(inst.character.skeletons))]
 
-    def skinning_transforms(self, times: npt.ArrayLike, *, interp="trs") -> wp.array:
-        """(F, ΣJ) ``wp.mat44`` skinning transforms of every instance skeleton, crowd space,
-        from one FK launch."""
+    def pose(self, local_transforms: list) -> wp.array:
+        """(F, ΣJ) ``wp.mat44`` skinning transforms on the device from :meth:`local_transforms`'
+        list, in one FK launch."""
         self._build()
-        return self._joints.skinning_transforms(self.local_transforms(times, interp=interp))
+        if len(local_transforms) != len(self._joints.skeletons):
+            raise ValueError(f"local_transforms: {len(local_transforms)} skeletons for "
+                             f"{len(self._joints.skeletons)}")
+        return self._joints.skinning_transforms(local_transforms)
+
+    def skinning_transforms(self, times: npt.ArrayLike, *, interp="trs") -> wp.array:
+        """(F, ΣJ) ``wp.mat44`` skinning transforms of every instance skeleton, crowd space:
+        :meth:`local_transforms` then :meth:`pose`."""
+        return self.pose(self.local_transforms(times, interp=interp))
 
     def skin(self, times: npt.ArrayLike, method: Method = "dqs", *, interp="trs",
              as_warp: bool = False) -> np.ndarray | wp.array:
@@ -448,9 +456,20 @@ class Crowd:
         (F, V, 3) float32
             Every instance's points in crowd space, in :attr:`slices` order.
         """
+        self._check_method(method)
+        return self.skin_transforms(self.skinning_transforms(times, interp=interp), method,
+                                    as_warp=as_warp)
+
+    def skin_transforms(self, skinning_transforms: wp.array, method: Method = "dqs", *,
+                        as_warp: bool = False) -> np.ndarray | wp.array:
+        """Skin every instance with given (F, ΣJ) skinning transforms (:meth:`pose`,
+        :meth:`skinning_transforms`, or a (F, ΣJ, 4, 4) array): one launch."""
+        self._check_method(method)
+        self._build()
+        return self._meshes.skinner.skin(skinning_transforms, method, as_warp=as_warp)
+
+    @staticmethod
+    def _check_method(method):
         if method not in BATCH_METHODS:
             raise ValueError(f"method must be one of {list(BATCH_METHODS)} for a crowd, got "
                              f"{method!r}")
-        xforms = self.skinning_transforms(times, interp=interp)
-        out = self._meshes.skinner.skin(xforms, method, as_warp=as_warp)
-        return out if as_warp or out.ndim == 3 else out[None]

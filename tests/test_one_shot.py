@@ -123,3 +123,17 @@ def test_warp_array_input_on_device_used_in_place():
     sk = dqskin.Skinner(points, idx, w, device="cpu")
     x = wp.array(M[None].astype(np.float32), dtype=wp.mat44, device="cpu")
     np.testing.assert_allclose(sk.skin(x, "lbs")[0], lbs64(points, idx, w, M), atol=2e-5)
+
+
+@pytest.mark.skipif(wp.get_cuda_device_count() > 0, reason="a CUDA device is present: "
+                    "tools/gpu_check.py would run its full check")
+def test_gpu_check_without_cuda_says_so_and_exits_0():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    tool = Path(__file__).resolve().parents[1] / "tools" / "gpu_check.py"
+    proc = subprocess.run([sys.executable, str(tool)], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "no CUDA device" in proc.stdout

@@ -6,7 +6,11 @@ Skinning: random rigid rigs, 4 influences, 64 joints, float32; each implementati
 points with the same transforms; per-call time is the best over ``--repeat`` rounds of the mean of
 a burst of back-to-back calls. dqskin times include uploading the
 frame's transforms, preparing them and reading the result back (the mesh is uploaded once, as a
-pipeline would). FK: 1,000 skeletons × 64 joints. Prints a table and writes JSON.
+pipeline would); "one-shot" is ``dqskin.skin_points`` (validation, influence layout and upload
+of the mesh included, as ``UsdSkel.SkinPoints`` converts its inputs every call). FK: 1,000
+skeletons × 64 joints. Crowds (:func:`bench_crowd`): 100 and 1,000 CesiumMen (glTF, from
+../shared; the bundled humanoid without it) against one mesh of the same total points. Prints
+tables and writes JSON.
 """
 
 import argparse
@@ -97,6 +101,8 @@ def bench_skinning(sizes, repeat, devices, rows):
             for dev in devices:
                 sk = dqskin.Skinner(points, idx, w, device=dev)
                 fns[f"dqskin {dev}"] = (lambda sk=sk: (sk.skin(M, method), wp.synchronize()))
+                fns[f"dqskin {dev} one-shot"] = (lambda dev=dev: (
+                    dqskin.skin_points(points, idx, w, M, method, device=dev), wp.synchronize()))
             src = Vt.Vec3fArray.FromNumpy(points)
             for serial in (True, False):
                 def usd(serial=serial):
@@ -155,10 +161,91 @@ def bench_fk(devices, rows, skeletons=1000):
                          mjoints_per_s=skeletons * JOINTS / t / 1e6))
 
 
+def crowd_character():
+    """CesiumMan (glTF, 3,273 points, 19 joints) from ../shared, else the bundled humanoid."""
+    root = Path(__file__).resolve().parents[1]
+    glb = root.parent / "shared" / "assets" / "khronos-gltf" / "CesiumMan" / "CesiumMan.glb"
+    return dqskin.load(glb if glb.exists() else root / "assets" / "humanoid.usda")
+
+
+def bench_crowd(devices, rows, counts=(100, 1000), frames=16, repeat=3):
+    """A crowd of ``count`` instances of one character (random time offsets and root
+    transforms) against one mesh with the same total points (4 influences, 64 joints), both
+    skinning ``frames`` frames per call and reading the result back.
+
+    "crowd skin": the instances' skinning transforms given (one skinning launch); "crowd
+    FK+skin": from sampled local transforms (one FK launch, then one skinning launch);
+    "crowd end-to-end": :meth:`dqskin.Crowd.skin` from times (animation sampling on the host
+    included; only for the smallest count, it is host-bound)."""
+    char = crowd_character()
+    V1 = sum(len(m.points) for m in char.meshes)
+    rng = np.random.default_rng(2)
+    t = np.arange(frames) / 24.0 if char.time_codes_per_second == 1 else np.arange(float(frames))
+    for count in counts:
+        V = count * V1
+        for dev in devices:
+            crowd = dqskin.Crowd(device=dev)
+            for k in range(count):
+                root = np.eye(4)
+                root[:3, :3] = Rotation.from_euler("y", rng.uniform(0, 360), degrees=True)\
+                    .as_matrix()
+                root[:3, 3] = [3.0 * (k % 40), 0.0, 3.0 * (k // 40)]
+                crowd.add(char, time_offset=float(rng.uniform(0, 1)), root_transform=root)
+            local = crowd.local_transforms(t)
+            xf = crowd.pose(local)
+            points, idx, w, _ = make_rig(rng, V)
+            M = np.tile(make_rig(rng, 1)[3], (frames, 1, 1, 1))
+            # the same frames with a 1e-5 scale: DQS then runs its residual (scale/shear) kernel,
+            # as it does for CesiumMan, whose skinning transforms are that far from rigid
+            M_res = M.copy()
+            M_res[..., :3, :3] *= 1.00001
+            one = dqskin.Skinner(points, idx, w, device=dev)
+            mesh = char.meshes[0]
+            single = dqskin.Skinner(mesh.points, mesh.joint_indices, mesh.joint_weights,
+                                    geom_bind_transform=mesh.geom_bind_transform, device=dev)
+            host = xf.numpy()
+            per_instance = [np.ascontiguousarray(host[:, sl]) for sl in crowd._joints.joints]
+            for method in ("lbs", "dqs"):
+                fns = {
+                    "one mesh": lambda: (one.skin(M, method), wp.synchronize()),
+                    "one mesh, residual": lambda: (one.skin(M_res, method), wp.synchronize()),
+                    "per-instance loop": lambda: ([single.skin(x, method) for x in per_instance],
+                                                  wp.synchronize()),
+                    "crowd skin": lambda: (crowd.skin_transforms(xf, method), wp.synchronize()),
+                    "crowd FK+skin": lambda: (crowd.skin_transforms(crowd.pose(local), method),
+                                              wp.synchronize()),
+                }
+                if count == min(counts):
+                    fns["crowd end-to-end"] = lambda: (crowd.skin(t, method), wp.synchronize())
+                res = best_times(fns, repeat, burst_seconds=0.5)
+                for impl, sec in res.items():
+                    rows.append(dict(kind="crowd", device=dev, method=method, instances=count,
+                                     vertices=V, frames=frames, impl=impl, seconds=sec,
+                                     mpts_per_s=V * frames / sec / 1e6))
+
+
+def print_crowd_table(crowd):
+    print(f"\nCrowds: {crowd[0]['frames']} frames per call (M point-frames/s; ratio = crowd "
+          "skin time ÷ one-mesh time with a residual as the crowd has, target ≤ 1.3)")
+    impls = list(dict.fromkeys(r["impl"] for r in crowd))
+    print("| instances | points | device | method | " + " | ".join(impls) + " | ratio |")
+    print("|" + "---|" * (len(impls) + 5))
+    for key in dict.fromkeys((r["instances"], r["device"], r["method"]) for r in crowd):
+        sel = {r["impl"]: r for r in crowd
+               if (r["instances"], r["device"], r["method"]) == key}
+        cells = " | ".join(f"{sel[i]['mpts_per_s']:.1f}" if i in sel else "-" for i in impls)
+        ratio = sel["crowd skin"]["seconds"] / sel["one mesh, residual"]["seconds"]
+        V = next(iter(sel.values()))["vertices"]
+        print(f"| {key[0]} | {V} | {key[1]} | {key[2]} | {cells} | {ratio:.2f} |")
+
+
 def print_tables(rows):
     skin = [r for r in rows if r["kind"] == "skin"]
     if skin:
         print_skin_table(skin)
+    crowd = [r for r in rows if r["kind"] == "crowd"]
+    if crowd:
+        print_crowd_table(crowd)
     fk = [r for r in rows if r["kind"] == "fk"]
     if fk:
         print(f"\nFK: {fk[0]['skeletons']} skeletons × {fk[0]['joints']} joints (M joints/s)")
@@ -190,7 +277,9 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--json", default="out/bench.json")
     ap.add_argument("--quick", action="store_true", help="10k and 100k only, fewer repeats")
-    ap.add_argument("--skip", default="", help="comma list of sections to skip: skin,fk,bake")
+    ap.add_argument("--skip", default="",
+                    help="comma list of sections to skip: skin,fk,crowd,bake")
+    ap.add_argument("--crowds", default="100,1000", help="crowd sizes (instances)")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
     if args.quick:
@@ -205,6 +294,8 @@ def main(argv=None):
         bench_skinning(sizes, args.repeat, devices, rows)
     if "fk" not in skip:
         bench_fk(devices, rows)
+    if "crowd" not in skip:
+        bench_crowd(devices, rows, [int(c) for c in args.crowds.split(",")])
     if "bake" not in skip:
         from bench_bake import bench_bake  # noqa: E402  (tools/ sibling)
         bench_bake(rows)
