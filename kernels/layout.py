@@ -5,7 +5,8 @@
 of four. On the host that sort (argsort, gather, pad) costs several times the skinning of the same
 points; here one thread per vertex ranks its influences, ``rank(k) = #{m : w_m > w_k or (w_m ==
 w_k and m < k)}``, and writes each to its slot -- the same order as NumPy's stable argsort of
-``-w`` for finite weights.
+``-w`` for finite weights. Up to four influences (one group) go through a five-exchange sorting
+network on ``(weight, input slot)`` in registers instead: the same order, several times faster.
 """
 
 import warp as wp
@@ -13,6 +14,24 @@ import warp as wp
 from .grid import launch_rows
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
+
+
+@wp.func
+def _exchange(wa: float, ia: int, oa: int, wb: float, ib: int, ob: int):
+    """One compare-exchange of a sorting network on ``(weight, joint, input slot)``: the larger
+    weight first, the earlier input slot first on ties."""
+    if wb > wa or (wb == wa and ob < oa):
+        return wb, ib, ob, wa, ia, oa
+    return wa, ia, oa, wb, ib, ob
+
+
+@wp.func
+def _four(joint_indices: wp.array2d(dtype=wp.int32), joint_weights: wp.array2d(dtype=float),
+          v: int, k: int):
+    """Influence ``k`` of vertex ``v``, or the padding (joint 0, weight 0) past the last."""
+    if k < joint_weights.shape[1]:
+        return joint_weights[v, k], joint_indices[v, k]
+    return 0.0, 0
 
 
 @wp.kernel
@@ -28,6 +47,20 @@ def layout_kernel(
     padded with joint 0 and weight 0."""
     v = wp.tid() + row_offset
     count = joint_weights.shape[1]
+    if count <= 4:  # the common case: a 5-exchange sorting network in registers
+        w0, i0 = _four(joint_indices, joint_weights, v, 0)
+        w1, i1 = _four(joint_indices, joint_weights, v, 1)
+        w2, i2 = _four(joint_indices, joint_weights, v, 2)
+        w3, i3 = _four(joint_indices, joint_weights, v, 3)
+        o0, o1, o2, o3 = int(0), int(1), int(2), int(3)
+        w0, i0, o0, w1, i1, o1 = _exchange(w0, i0, o0, w1, i1, o1)
+        w2, i2, o2, w3, i3, o3 = _exchange(w2, i2, o2, w3, i3, o3)
+        w0, i0, o0, w2, i2, o2 = _exchange(w0, i0, o0, w2, i2, o2)
+        w1, i1, o1, w3, i3, o3 = _exchange(w1, i1, o1, w3, i3, o3)
+        w1, i1, o1, w2, i2, o2 = _exchange(w1, i1, o1, w2, i2, o2)
+        indices[v, 0] = wp.vec4i(i0, i1, i2, i3)
+        weights[v, 0] = wp.vec4(w0, w1, w2, w3)
+        return
     for c in range(indices.shape[1]):
         indices[v, c] = wp.vec4i(0, 0, 0, 0)
         weights[v, c] = wp.vec4(0.0, 0.0, 0.0, 0.0)
