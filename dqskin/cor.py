@@ -8,11 +8,13 @@ area ``aₜ`` times the similarity ``s(wᵥ, wₜ)`` of the vertex's skinning we
 normalized, sign-aligned quaternion blend ``R`` and the LBS image of its center:
 ``v' = R·(v − p*) + Σ wⱼ·Aⱼ·[p*, 1]``.
 
-Acceleration (exact, no approximation): the similarity is a sum of one term per joint pair that
+Acceleration, exact first: the similarity is a sum of one term per joint pair that
 both weight vectors share, so triangles are listed per joint pair, entries of one pair with equal
 weights are merged (area and moment summed), triangles weighting fewer than two joints drop out,
 and vertices with equal weight vectors (which have equal centers) are computed once. The cost is
 the number of (vertex weight vector, pair, triangle entry) triples, not vertices × triangles.
+Painted weights are rarely equal, though: above :data:`AUTO_TERMS` triples the weights are
+clustered on a grid (``cluster``), which bounds the entries per pair (an approximation).
 
 Optional refinement (``subdivide``, the paper's ε = 0.1): triangles are split 1→4 at their edge
 midpoints, weights interpolated, until the weights at the two ends of every edge are within ε, so
@@ -24,7 +26,8 @@ rigid motion.
 
 Cache: ``$DQSKIN_CACHE_DIR`` (default ``$XDG_CACHE_HOME/dqskin``, else ``~/.cache/dqskin``),
 ``cor/<sha256>.npy``, keyed by the points (bind space, float64), faces, influences, σ, the
-subdivision and :data:`ALGORITHM_VERSION`; any change to one of them is a different file.
+subdivision, the clustering and :data:`ALGORITHM_VERSION`; any change to one of them is a
+different file.
 Files are written atomically; an unreadable one is recomputed; a cache that cannot be written is
 skipped.
 """
@@ -46,6 +49,13 @@ __all__ = ["ALGORITHM_VERSION", "SIGMA", "cache_dir", "check_faces", "rotation_c
 
 SIGMA = 0.1
 """Width of the similarity kernel (Le & Hodgins' value)."""
+
+CLUSTER = 1.0 / 256
+"""Weight grid of ``cluster="auto"`` when it clusters (see :func:`rotation_centers`)."""
+
+AUTO_TERMS = 50_000_000
+"""``cluster="auto"`` computes exactly up to this many similarity terms (about 2 s on two CPU
+cores), and clusters on the :data:`CLUSTER` grid above it."""
 
 ALGORITHM_VERSION = 2
 """Part of the cache key: bump when the computed centers change."""
@@ -73,8 +83,9 @@ def check_faces(faces, vertex_count):
     return f.astype(np.int64)
 
 
-def _cache_key(points, faces, idx, wts, sigma, subdivide):
-    h = hashlib.sha256(f"dqskin-cor-v{ALGORITHM_VERSION}:{float(sigma)!r}:{subdivide!r}:".encode())
+def _cache_key(points, faces, idx, wts, sigma, subdivide, cluster):
+    h = hashlib.sha256(f"dqskin-cor-v{ALGORITHM_VERSION}:{float(sigma)!r}:{subdivide!r}:"
+                       f"{cluster!r}:{AUTO_TERMS}:{CLUSTER!r}:".encode())
     for a in (points.astype("<f8"), faces.astype("<i8"), idx.astype("<i8"), wts.astype("<f4")):
         h.update(str(a.shape).encode())
         h.update(np.ascontiguousarray(a).tobytes())
@@ -132,9 +143,10 @@ def _pairs(rows, cols, vals, row_count):
     return tuple(np.concatenate(x) if x else e for x, e in zip(out, empty))
 
 
-def _weight_vectors(idx, wts, J):
+def _weight_vectors(idx, wts, J, cluster):
     """Distinct vertex weight vectors: ``(uniq (U, 2m) [joints..., weights...] with -1 padding,
-    inverse (V,), m)``, each vector's joints ascending."""
+    inverse (V,), m)``, each vector's joints ascending. With ``cluster``, vectors whose weights
+    round to the same multiples of it are one, at their mean weights."""
     V, K = idx.shape
     vr, vc, vw = _sparse_rows(np.repeat(np.arange(V), K), idx.reshape(-1),
                               wts.reshape(-1).astype(np.float64), V, J)
@@ -144,8 +156,17 @@ def _weight_vectors(idx, wts, J):
     dense = np.full((V, 2 * max(m, 1)), -1.0)
     dense[vr, slot] = vc
     dense[vr, m + slot] = vw
-    uniq, inverse = np.unique(dense, axis=0, return_inverse=True)
-    return uniq, inverse.reshape(-1), m
+    if cluster is None:
+        uniq, inverse = np.unique(dense, axis=0, return_inverse=True)
+        return uniq, inverse.reshape(-1), m
+    key = dense.copy()
+    key[:, m:] = np.round(dense[:, m:] / cluster)
+    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    size = np.bincount(inverse, minlength=len(uniq))
+    for c in range(m, dense.shape[1]):
+        uniq[:, c] = np.bincount(inverse, weights=dense[:, c], minlength=len(uniq)) / size
+    return uniq, inverse, m
 
 
 def _corner_weights(faces, idx, wts, J):
@@ -197,10 +218,11 @@ def _subdivide(tri, cw, eps, max_levels=8):
     return tuple(np.concatenate(x) for x in zip(*out))
 
 
-def _pair_entries(points, faces, idx, wts, J, subdivide):
+def _pair_entries(points, faces, idx, wts, J, subdivide, cluster):
     """Triangles as joint-pair entries, merged: ``(keys (P,) j·J + k, starts (P,), ends (P,),
     weights (E, 2), areas (E,), moments (E, 3))``, entries of key ``keys[i]`` at
-    ``starts[i]:ends[i]``."""
+    ``starts[i]:ends[i]``. Entries of one pair merge when their two weights are equal, or with
+    ``cluster`` when they round to the same multiples of it (at their area-weighted mean)."""
     joints, cw = _corner_weights(faces, idx, wts, J)
     tri, parent = points[faces], np.arange(faces.shape[0])
     if subdivide is not None:
@@ -216,26 +238,36 @@ def _pair_entries(points, faces, idx, wts, J, subdivide):
     keep = area[pt] > 0
     pt, pwj, pwk = pt[keep], pwj[keep], pwk[keep]
     pkey = pj[keep] * J + pk[keep]
-    # merge entries of one pair with equal weights
-    order = np.lexsort((pwk, pwj, pkey))
-    pkey, pwj, pwk, pt = pkey[order], pwj[order], pwk[order], pt[order]
+    # merge entries of one pair with equal (or, clustered, nearby) weights
+    bj, bk = (pwj, pwk) if cluster is None else (np.floor(pwj / cluster), np.floor(pwk / cluster))
+    order = np.lexsort((bk, bj, pkey))
+    pkey, pwj, pwk, bj, bk, pt = (a[order] for a in (pkey, pwj, pwk, bj, bk, pt))
     new = np.ones(pkey.size, bool)
-    new[1:] = (pkey[1:] != pkey[:-1]) | (pwj[1:] != pwj[:-1]) | (pwk[1:] != pwk[:-1])
+    new[1:] = (pkey[1:] != pkey[:-1]) | (bj[1:] != bj[:-1]) | (bk[1:] != bk[:-1])
     group = np.cumsum(new) - 1
     ekey = pkey[new]
-    earea = np.bincount(group, weights=area[pt], minlength=ekey.size)
+    a = area[pt]
+    earea = np.bincount(group, weights=a, minlength=ekey.size)
     emom = np.stack([np.bincount(group, weights=moment[pt, i], minlength=ekey.size)
                      for i in range(3)], axis=1)
+    if cluster is None:
+        ew = np.stack([pwj[new], pwk[new]], 1)
+    else:
+        ew = np.stack([np.bincount(group, weights=a * w, minlength=ekey.size) / earea
+                       for w in (pwj, pwk)], 1)
     keys, starts = np.unique(ekey, return_index=True)
     ends = np.append(starts[1:], ekey.size)
-    return keys, starts, ends, np.stack([pwj[new], pwk[new]], 1), earea, emom
+    return keys, starts, ends, ew, earea, emom
 
 
-def _compute(points, faces, idx, wts, sigma, subdivide, device):
+def _plan(points, faces, idx, wts, subdivide, cluster):
+    """Everything the center kernel reads (host arrays), its cost in similarity terms, and how
+    to map its U results back to the V vertices."""
     J = int(idx.max()) + 1 if idx.size else 1
-    uniq, inverse, m = _weight_vectors(idx, wts, J)
+    uniq, inverse, m = _weight_vectors(idx, wts, J, cluster)
     U = uniq.shape[0]
-    keys, starts, ends, ew, earea, emom = _pair_entries(points, faces, idx, wts, J, subdivide)
+    keys, starts, ends, ew, earea, emom = _pair_entries(points, faces, idx, wts, J, subdivide,
+                                                        cluster)
     # rows: (distinct weight vector, joint pair it has and some triangle shares)
     ur = np.repeat(np.arange(U), m)
     ok = uniq[:, :m].reshape(-1) >= 0 if m else np.zeros(0, bool)
@@ -252,24 +284,44 @@ def _compute(points, faces, idx, wts, sigma, subdivide, device):
     rank[shuffle] = np.arange(U)
     o = np.argsort(rank[rr[hit]], kind="stable")
     rr, pos, rwj, rwk = rank[rr[hit][o]], pos[hit][o], rwj[hit][o], rwk[hit][o]
-    row_offsets = np.concatenate([[0], np.cumsum(np.bincount(rr, minlength=U))]).astype(np.int32)
-    d = device
-    out = wp.empty(U, dtype=wp.vec4d, device=d)
-    KC.centers(row_offsets=wp.array(row_offsets, dtype=wp.int32, device=d),
-               row_entries=wp.array(np.stack([starts[pos], ends[pos]], 1).astype(np.int32),
-                                    dtype=wp.vec2i, device=d),
-               row_weights=wp.array(np.stack([rwj, rwk], 1), dtype=wp.vec2d, device=d),
-               entry_weights=wp.array(ew, dtype=wp.vec2d, device=d),
-               entry_areas=wp.array(earea, dtype=wp.float64, device=d),
-               entry_moments=wp.array(emom, dtype=wp.vec3d, device=d),
-               sigma=sigma, out=out, device=d)
+    spans = np.stack([starts[pos], ends[pos]], 1)
+    plan = dict(row_offsets=np.concatenate([[0], np.cumsum(np.bincount(rr, minlength=U))]),
+                row_entries=spans, row_weights=np.stack([rwj, rwk], 1), entry_weights=ew,
+                entry_areas=earea, entry_moments=emom)
+    return plan, int(np.sum(spans[:, 1] - spans[:, 0])), rank[inverse]
+
+
+def _compute(points, faces, idx, wts, sigma, subdivide, cluster, device):
+    plan, terms, back = _plan(points, faces, idx, wts, subdivide,
+                              None if cluster == "auto" else cluster)
+    if cluster == "auto" and terms > AUTO_TERMS:
+        plan, terms, back = _plan(points, faces, idx, wts, subdivide, CLUSTER)
+    types = dict(row_offsets=wp.int32, row_entries=wp.vec2i, row_weights=wp.vec2d,
+                 entry_weights=wp.vec2d, entry_areas=wp.float64, entry_moments=wp.vec3d)
+    arrays = {k: wp.array(np.asarray(v, dtype=np.int32 if t in (wp.int32, wp.vec2i) else
+                                     np.float64), dtype=t, device=device)
+              for (k, v), t in zip(plan.items(), types.values())}
+    out = wp.empty(len(plan["row_offsets"]) - 1, dtype=wp.vec4d, device=device)
+    KC.centers(sigma=sigma, out=out, device=device, **arrays)
     c = out.numpy()
-    res = np.where(c[:, 3:] > 0, c[:, :3], np.nan)
-    return res[rank[inverse]]
+    return np.where(c[:, 3:] > 0, c[:, :3], np.nan)[back]
+
+
+def _positive_or_none(name, value, also=""):
+    if value is None:
+        return None
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not (np.isfinite(v) and v > 0):
+        raise ValueError(f"{name}: expected a positive number{also} or None, got {value!r}")
+    return v
 
 
 def rotation_centers(points, faces, joint_indices, joint_weights, *, sigma: float = SIGMA,
-                     subdivide: float | None = None, cache: bool = True,
+                     subdivide: float | None = None, cluster: float | str | None = "auto",
+                     cache: bool = True,
                      device: Device = None) -> np.ndarray:
     """Optimized centers of rotation of a mesh's vertices (see the module docstring).
 
@@ -287,6 +339,13 @@ def rotation_centers(points, faces, joint_indices, joint_weights, *, sigma: floa
         Refine the integral as the paper does: split triangles 1→4 at their edge midpoints (weights
         interpolated) until the weights at the ends of every edge are within this Euclidean
         distance (the paper's 0.1), at most 8 times. None: one term per input triangle.
+    cluster : float, "auto" or None
+        Weight grid of the clustering: a joint pair's triangle entries whose two weights fall in
+        one cell merge (at their area-weighted mean weights), and vertices whose weights round to
+        the same multiples share one center (at their mean weights). None: exact. "auto"
+        (default): exact up to :data:`AUTO_TERMS` similarity terms, else the :data:`CLUSTER`
+        grid (1/256: centers within ~2·10⁻⁴ of the mesh size of the exact ones on a 35k-point
+        4-influence test tube, 13× faster).
     cache : bool
         Read and write the on-disk cache (:func:`cache_dir`).
     device : str, optional
@@ -304,18 +363,18 @@ def rotation_centers(points, faces, joint_indices, joint_weights, *, sigma: floa
         raise ValueError("points: NaN or infinite coordinates")
     if not (np.isfinite(sigma) and sigma > 0):
         raise ValueError(f"sigma: expected a positive number, got {sigma!r}")
-    if subdivide is not None:
-        subdivide = float(subdivide)
-        if not (np.isfinite(subdivide) and subdivide > 0):
-            raise ValueError(f"subdivide: expected a positive number or None, got {subdivide!r}")
+    subdivide = _positive_or_none("subdivide", subdivide)
+    cluster = cluster if cluster == "auto" else _positive_or_none("cluster", cluster, ', "auto"')
     idx, wts = check_influences(joint_indices, joint_weights, pts.shape[0])
     tris = check_faces(faces, pts.shape[0])
-    path = cache_dir() / "cor" / f"{_cache_key(pts, tris, idx, wts, sigma, subdivide)}.npy"
+    key = _cache_key(pts, tris, idx, wts, sigma, subdivide, cluster)
+    path = cache_dir() / "cor" / f"{key}.npy"
     if cache:
         hit = _cache_load(path, pts.shape[0])
         if hit is not None:
             return hit
-    res = _compute(pts, tris, idx, wts, float(sigma), subdivide, resolve_device(device))
+    res = _compute(pts, tris, idx, wts, float(sigma), subdivide, cluster,
+                   resolve_device(device))
     if cache:
         _cache_store(path, res)
     return res

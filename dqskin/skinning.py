@@ -95,6 +95,8 @@ class Skinner:
     cor_subdivide : float, optional
         Refine the centers' integral by subdividing triangles to this weight distance (the
         paper's 0.1; :func:`dqskin.cor.rotation_centers`); None: one term per triangle.
+    cor_cluster : float, "auto" or None
+        Weight clustering of the centers (:func:`dqskin.cor.rotation_centers`); None: exact.
     device : str, optional
         Warp device; CUDA when present, else CPU.
     """
@@ -103,6 +105,7 @@ class Skinner:
                  joint_weights: npt.ArrayLike, *, geom_bind_transform: npt.ArrayLike | None = None,
                  blend_weights: npt.ArrayLike | None = None, faces: npt.ArrayLike | None = None,
                  cor_sigma: float = SIGMA, cor_subdivide: float | None = None,
+                 cor_cluster: float | str | None = "auto",
                  device: Device = None) -> None:
         self.device = resolve_device(device)
         pts = as_array("points", points, None, (3,))
@@ -125,6 +128,7 @@ class Skinner:
         self._rest_points = pts  # mesh space; bind space (float64) only when "cor" needs it
         self.faces = None if faces is None else check_faces(faces, self.vertex_count)
         self.cor_sigma, self.cor_subdivide = float(cor_sigma), cor_subdivide
+        self.cor_cluster = cor_cluster
         self._centers = None
         if blend_weights is None:
             self._blend = wp.zeros(0, dtype=wp.float32, device=d)
@@ -148,6 +152,7 @@ class Skinner:
             rest_bind = np.asarray(self._rest_points, np.float64) @ g[:3, :3].T + g[:3, 3]
             c = rotation_centers(rest_bind, self.faces, *self.influences.given,
                                  sigma=self.cor_sigma, subdivide=self.cor_subdivide,
+                                 cluster=self.cor_cluster,
                                  device=self.device)
             c4 = np.zeros((self.vertex_count, 4), np.float32)
             ok = ~np.isnan(c[:, 0])

@@ -179,6 +179,26 @@ def test_centers_match_reference_on_a_random_soup():
         np.testing.assert_allclose(got, want, atol=1e-9)
 
 
+def test_clustering_approximates_and_auto_switches(monkeypatch):
+    pts, faces, idx, w = chain_mesh(rings=21)
+    exact = centers_reference(pts, faces, idx, w)
+    np.testing.assert_allclose(cor.rotation_centers(pts, faces, idx, w, cluster=None, cache=False),
+                               exact, atol=1e-9)
+    coarse = cor.rotation_centers(pts, faces, idx, w, cluster=1 / 32, cache=False)
+    fine = cor.rotation_centers(pts, faces, idx, w, cluster=1 / 256, cache=False)
+    err = {name: np.nanmax(np.abs(c - exact)) for name, c in (("1/32", coarse), ("1/256", fine))}
+    assert err["1/256"] < 1e-2 and err["1/256"] < err["1/32"] < 0.1, err  # mesh length 6
+    assert err["1/32"] > 1e-6  # (it did cluster)
+    # "auto": exact on this small mesh, the CLUSTER grid once the work exceeds AUTO_TERMS
+    np.testing.assert_array_equal(cor.rotation_centers(pts, faces, idx, w, cache=False),
+                                  cor.rotation_centers(pts, faces, idx, w, cluster=None,
+                                                       cache=False))
+    monkeypatch.setattr(cor, "AUTO_TERMS", 0)
+    np.testing.assert_array_equal(cor.rotation_centers(pts, faces, idx, w, cache=False),
+                                  cor.rotation_centers(pts, faces, idx, w, cluster=cor.CLUSTER,
+                                                       cache=False))
+
+
 def test_subdivision_matches_reference_and_refines():
     pts, faces, idx, w = chain_mesh(around=6, rings=11)  # rings 0.6 apart: weights jump ~0.5
     coarse = cor.rotation_centers(pts, faces, idx, w, cache=False)
@@ -364,6 +384,8 @@ def test_errors():
         cor.rotation_centers(pts, faces, idx, w, sigma=0.0)
     with pytest.raises(ValueError, match="subdivide"):
         cor.rotation_centers(pts, faces, idx, w, subdivide=-1)
+    with pytest.raises(ValueError, match="cluster"):
+        cor.rotation_centers(pts, faces, idx, w, cluster="fast")
 
 
 def test_scene_cli_and_compare(tmp_path):

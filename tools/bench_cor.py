@@ -2,14 +2,17 @@
 
     python tools/bench_cor.py [--json out/bench_cor.json] [--frames 32] [--repeat 5]
 
-Meshes: CesiumMan (../shared/assets/khronos-gltf/CesiumMan, when present) and the bundled humanoid
-subdivided to ~35.6k vertices as in tools/bench_compare.py. Precompute: ``rotation_centers``
-without the disk cache, first call in the process (Warp kernel already compiled) and the best of
-``--repeat`` more; with the paper's refinement (``subdivide=0.1``, one call); then the cache hit
-(second run of the same mesh). Runtime: ``Skinner.skin`` of
-``--frames`` frames of the asset's own animation (host transforms in, host points out), the best
-of ``--repeat`` rounds, for LBS, DQS (both sign rules) and COR; in million point-frames per
-second. Prints a table and writes JSON.
+Meshes: CesiumMan (../shared/assets/khronos-gltf/CesiumMan, when present), the bundled humanoid
+subdivided to ~35.6k vertices as in tools/bench_compare.py, and a hard case: a 35.2k-point tube
+along a chain of 40 joints, 4 influences per vertex from overlapping ramps with 5% per-vertex noise
+(no two weight vectors equal, every joint pair shared by thousands of triangles), which
+``cluster="auto"`` clusters; its exact time is printed too (``--exact``). Precompute:
+``rotation_centers`` without the disk cache, first call in the process (Warp kernel already
+compiled) and the best of ``--repeat`` more; with the paper's refinement (``subdivide=0.1``, one
+call); then the cache hit (second run of the same mesh). Runtime: ``Skinner.skin`` of ``--frames``
+frames of the asset's own animation (host transforms in, host points out), the best of ``--repeat``
+rounds, for LBS, DQS (both sign rules) and COR; in million point-frames per second. Prints a table
+and writes JSON.
 """
 
 import argparse
@@ -53,7 +56,31 @@ def meshes():
                      deformer=None, output_transforms=None)
     scene = replace(scene, meshes=[merged])
     out.append(("humanoid subdivided", scene, merged))
+    tube = tube_scene()
+    out.append(("noisy tube", tube, tube.meshes[0]))
     return out
+
+
+def tube_scene(around=64, rings=550, joints=40, influences=4):
+    """The hard case above, as a one-mesh Scene on a flat skeleton (rest pose only)."""
+    x = np.linspace(0, joints, rings)
+    a = np.linspace(0, 2 * np.pi, around, endpoint=False)
+    X, A = np.meshgrid(x, a, indexing="ij")
+    pts = np.stack([X, np.cos(A), np.sin(A)], -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(rings - 1), np.arange(around), indexing="ij")
+    p, q = (i * around + j).ravel(), (i * around + (j + 1) % around).ravel()
+    faces = np.concatenate([np.stack([p, q, q + around], 1), np.stack([p, q + around, p + around],
+                                                                       1)])
+    w = np.maximum(0, 1 - np.abs(pts[:, :1] - (np.arange(joints) + 0.5)) / 2.0)
+    w *= 1 + 0.05 * np.random.default_rng(0).random(w.shape)
+    idx = np.argsort(-w, 1)[:, :influences]
+    wts = np.take_along_axis(w, idx, 1)
+    wts /= wts.sum(1, keepdims=True)
+    mesh = dqskin.Mesh("/Tube", pts.astype(np.float32), faces.astype(np.int32),
+                       idx.astype(np.int32), wts.astype(np.float32))
+    bind = np.tile(np.eye(4), (joints, 1, 1))
+    skel = dqskin.Skeleton([f"j{k}" for k in range(joints)], np.full(joints, -1), bind, bind)
+    return dqskin.Scene("tube", [mesh], [skel], np.zeros(1))
 
 
 def bind_points(mesh):
@@ -61,7 +88,7 @@ def bind_points(mesh):
     return np.asarray(mesh.points, np.float64) @ g[:3, :3].T + g[:3, 3]
 
 
-def bench(frames, repeat):
+def bench(frames, repeat, exact):
     rows = []
     for label, scene, mesh in meshes():
         pts = bind_points(mesh)
@@ -81,12 +108,18 @@ def bench(frames, repeat):
         t0 = time.perf_counter()
         cor.rotation_centers(*args)
         hit = time.perf_counter() - t0
+        if exact:
+            t0 = time.perf_counter()
+            cor.rotation_centers(*args, cluster=None, cache=False)
+            row_exact = time.perf_counter() - t0
         row = dict(mesh=label, vertices=len(mesh.points), faces=len(mesh.faces),
                    influences=int(mesh.joint_indices.shape[1]),
                    joints=len(scene.skeletons[mesh.skeleton].joint_names),
                    with_center=int(np.sum(~np.isnan(centers[:, 0]))),
                    precompute_first_s=first, precompute_s=best, cache_hit_s=hit,
                    precompute_subdivided_s=subdivided)
+        if exact:
+            row["precompute_exact_s"] = row_exact
         times = np.resize(scene.times, frames) if len(scene.times) else np.zeros(frames)
         xf = scene.skinning_transforms(times, mesh.skeleton)
         sk = dqskin.Skinner(mesh.points, mesh.joint_indices, mesh.joint_weights,
@@ -109,15 +142,18 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=32)
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--exact", action="store_true",
+                    help="also time cluster=None (the tube takes ~30 s)")
     ap.add_argument("--json")
     args = ap.parse_args()
-    rows = bench(args.frames, args.repeat)
+    rows = bench(args.frames, args.repeat, args.exact)
     for r in rows:
         print(f"{r['mesh']}: {r['vertices']} vertices, {r['faces']} triangles, "
               f"{r['joints']} joints, K={r['influences']}, {r['with_center']} with a center")
         print(f"  precompute {r['precompute_s']:.3f} s (first call "
               f"{r['precompute_first_s']:.3f} s), cache hit {r['cache_hit_s'] * 1e3:.1f} ms, "
-              f"subdivide=0.1 {r['precompute_subdivided_s']:.3f} s")
+              f"subdivide=0.1 {r['precompute_subdivided_s']:.3f} s"
+              + (f", exact {r['precompute_exact_s']:.2f} s" if "precompute_exact_s" in r else ""))
         print("  runtime M point-frames/s: " + ", ".join(
             f"{k.split(' M ')[0]} {v:.1f}" for k, v in r.items() if k.endswith("M pt-frames/s")))
     if args.json:
