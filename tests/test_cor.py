@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from test_sign_reference import (
     RULES,
     dqs_reference,
+    hamilton,
     rotate,
     rotation_blend,
     run_cli,
@@ -102,6 +103,27 @@ def cor_reference(points, idx, wts, xforms, centers, rule="largest_weight"):
     out = rotate(r, (points - c)[None]) + lbs_c
     none = np.isnan(centers[:, 0])
     out[:, none] = dqs_reference(points, idx, wts, xforms, rule)[:, none]
+    return out
+
+
+def cor_residual_reference(points, idx, wts, xforms, centers):
+    """:func:`cor_reference` of transforms with scale/shear: each ``A = R·S`` (polar), the blended
+    residual ``Σ wⱼ·Sⱼ`` on ``v − p*`` (and, for DQS without a center, on ``v``)."""
+    lin = xforms[..., :3, :3]
+    rot = Rotation.from_matrix(lin.reshape(-1, 3, 3)).as_matrix().reshape(lin.shape)
+    res = np.einsum("fjki,fjkl->fjil", rot, lin)  # Rᵀ·A
+    s_blend = np.einsum("vk,fvkij->fvij", wts, res[:, idx])
+    rigid = xforms.copy()
+    rigid[..., :3, :3] = rot
+    r, d = rotation_blend(rigid, idx, wts, "largest_weight")
+    c = np.where(np.isnan(centers), 0.0, centers)
+    lbs_c = np.einsum("vk,fvkij,vj->fvi", wts, xforms[:, idx, :3, :], np.c_[c, np.ones(len(c))])
+    out = rotate(r, np.einsum("fvij,vj->fvi", s_blend, points - c)) + lbs_c
+    none = np.isnan(centers[:, 0])
+    t = 2.0 * hamilton(d, r * np.array([1, -1, -1, -1]))[..., 1:] / np.sum(r * r, -1,
+                                                                           keepdims=True)
+    dqs = rotate(r, np.einsum("fvij,vj->fvi", s_blend, points)) + t
+    out[:, none] = dqs[:, none]
     return out
 
 
@@ -250,6 +272,31 @@ def test_scale_residual_and_normals(device):
     scaled = xf.copy()
     scaled[:, :, :3, :] *= 1.5
     np.testing.assert_allclose(sk.skin(scaled, "cor"), 1.5 * sk.skin(xf, "cor"), atol=1e-4)
+
+
+def test_scale_and_shear(device):
+    """Non-uniform scale and shear on every joint (changing over time): points against the
+    residual reference, velocities against its central differences."""
+    pts, faces, idx, w = chain_mesh(rings=16)
+    rng = np.random.default_rng(8)
+    poses = chain_pose(rng, frames=2)
+    s0, s1 = rng.uniform(0.7, 1.3, size=(2, 4, 3)), rng.normal(size=(2, 4, 3)) * 0.2
+    shear = np.eye(3) + 0.2 * np.triu(rng.normal(size=(3, 3)), 1)
+
+    def at(t):
+        x = poses.copy()
+        x[..., :3, :3] = np.einsum("fjab,fjbc,cd->fjad", poses[..., :3, :3],
+                                   np.eye(3) * (s0 + t * s1)[..., None, :], shear)
+        return x
+    centers = centers_reference(pts, faces, idx, w)
+    sk = Skinner(pts, idx, w, faces=faces, device=device)
+    np.testing.assert_allclose(sk.skin(at(0.0), "cor"),
+                               cor_residual_reference(pts, idx, w, at(0.0), centers), atol=1e-4)
+    h = 1e-5
+    got = sk.skin_velocities(at(0.0), (at(h) - at(-h)) / (2 * h), "cor")
+    want = (cor_residual_reference(pts, idx, w, at(h), centers)
+            - cor_residual_reference(pts, idx, w, at(-h), centers)) / (2 * h)
+    np.testing.assert_allclose(got, want, atol=2e-3 * np.abs(want).max())
 
 
 def test_velocities_match_central_differences(device):
