@@ -138,7 +138,10 @@ class Influences:
             out["indices"].zero_()
             out["weights"].zero_()
             return out
-        KL.layout(joint_indices=wp.array(idx.astype(np.int32), dtype=wp.int32, device=device),
-                  joint_weights=wp.array(wts, dtype=wp.float32, device=device),
+        cpu = wp.get_device(device).is_cpu  # inputs read during the launch only: no copies
+        KL.layout(joint_indices=wp.array(idx.astype(np.int32), dtype=wp.int32, device=device,
+                                         copy=not cpu),
+                  joint_weights=wp.array(np.ascontiguousarray(wts, np.float32), dtype=wp.float32,
+                                         device=device, copy=not cpu),
                   device=device, **out)
         return out

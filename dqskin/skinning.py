@@ -71,6 +71,11 @@ def _transforms(name, skinning_transforms):
     raise ValueError(f"{name}: expected (J, 4, 4) or (F, J, 4, 4), got {x.shape}")
 
 
+_SMALL_RESULT = 65536
+"""Point-frames up to which :meth:`Skinner.skin` reuses its output buffer (an allocation costs
+more than the copy out)."""
+
+
 class Skinner:
     """A mesh's skinning data uploaded once to a device, skinned for many frames.
 
@@ -175,6 +180,9 @@ class Skinner:
         return K.influences(blend=self._blend, centers=centers, running_sum=running,
                             **self._layouts[order])
 
+    _copy_uploads = True
+    """False: CPU uploads alias the caller's float32 arrays (:class:`_OneCall`)."""
+
     def _upload(self, pts, linear=False):
         """(Fp, N, 3) mesh-space rows → bind space on the device (``linear``: directions), in
         float32: the identity geom-bind transform is skipped, any other is one (Fp·N, 3) @ (3, 3)
@@ -186,7 +194,8 @@ class Skinner:
             if not linear:
                 flat += g[:3, 3]
             x = flat.reshape(x.shape)
-        return wp.array(x, dtype=wp.vec3, device=self.device)
+        copy = self._copy_uploads or not self.device.is_cpu
+        return wp.array(x, dtype=wp.vec3, device=self.device, copy=copy)
 
     def _check_method(self, method, points=True):
         code = _method_code(method)
@@ -332,12 +341,19 @@ class Skinner:
             inf = self._influences(code, sign_reference)
             prep, frames, batched = self._prepare(skinning_transforms)
             src = self._rest("points", points, frames)
-            out = wp.empty((frames, self.vertex_count), dtype=wp.vec3, device=self.device)
+            # small results go through one reused device buffer and leave as a NumPy copy
+            small = not as_warp and frames * self.vertex_count <= _SMALL_RESULT
+            out = self._cache.get(("out", frames)) if small else None
+            if out is None:
+                out = wp.empty((frames, self.vertex_count), dtype=wp.vec3, device=self.device)
+                if small:
+                    self._cache[("out", frames)] = out
             rigid = code in (K.DQS, K.COR) and not prep["joints"].has_residual.numpy().any()
             K.skin_points(method=code, points=src, influences=inf, joints=prep["joints"],
                           rigid=rigid, out=out, device=self.device)
             self._output(out, output_transforms, frames, normals=False)
-            return self._result(out, batched, as_warp)
+            res = self._result(out, batched, as_warp)
+            return res.copy() if small else res
 
     def skin_vectors(self, skinning_transforms: npt.ArrayLike | wp.array, vectors: npt.ArrayLike,
                      method: Method = "dqs", *, kind: VectorKind = "normal",
@@ -483,8 +499,8 @@ def skin_points(points: npt.ArrayLike, joint_indices: npt.ArrayLike, joint_weigh
     (V, 3) or (F, V, 3) float32
         Skinned points in skeleton space.
     """
-    sk = Skinner(points, joint_indices, joint_weights, geom_bind_transform=geom_bind_transform,
-                 blend_weights=blend_weights, faces=faces, device=device)
+    sk = _OneCall(points, joint_indices, joint_weights, geom_bind_transform=geom_bind_transform,
+                  blend_weights=blend_weights, faces=faces, device=device)
     return sk.skin(skinning_transforms, method, sign_reference=sign_reference)
 
 
@@ -519,3 +535,11 @@ def skin_normals(normals: npt.ArrayLike, joint_indices: npt.ArrayLike,
                  device=device)
     return sk.skin_vectors(skinning_transforms, normals, method, kind="normal",
                            vector_vertex=normal_vertex, sign_reference=sign_reference)
+
+
+class _OneCall(Skinner):
+    """The skinner of one :func:`skin_points` call: nothing outlives the call, so on the CPU the
+    caller's float32 points are used in place instead of copied (a copy of fresh memory costs
+    page faults comparable to skinning the points)."""
+
+    _copy_uploads = False
