@@ -95,7 +95,7 @@ def _cache_key(points, faces, idx, wts, sigma, subdivide, cluster):
 def _cache_load(path, vertex_count):
     try:
         c = np.load(path, allow_pickle=False)
-    except (OSError, ValueError):
+    except (OSError, ValueError, EOFError):  # missing, truncated, empty or not an array
         return None
     return c if c.shape == (vertex_count, 3) and c.dtype == np.float64 else None
 

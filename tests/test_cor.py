@@ -411,10 +411,11 @@ def test_cache_reused_and_invalidated(cache_dir):
     w2[5] = w2[5][::-1]
     cor.rotation_centers(pts, faces, idx, w2)
     assert len(list((cache_dir / "cor").glob("*.npy"))) == 6
-    # a corrupt file is recomputed and replaced
-    files[0].write_bytes(b"not a numpy file")
-    np.testing.assert_array_equal(np.isnan(cor.rotation_centers(pts, faces, idx, w)),
-                                  np.isnan(first))
+    # a corrupt, empty or truncated file is recomputed and replaced
+    for junk in (b"not a numpy file", b"", files[0].read_bytes()[:100]):
+        files[0].write_bytes(junk)
+        np.testing.assert_array_equal(np.isnan(cor.rotation_centers(pts, faces, idx, w)),
+                                      np.isnan(first))
     assert not list((cache_dir / "cor").glob(".tmp-*"))
 
 
