@@ -137,3 +137,13 @@ def test_gpu_check_without_cuda_says_so_and_exits_0():
                           timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert "no CUDA device" in proc.stdout
+
+
+def test_strided_inputs_used_in_place_give_the_same_result():
+    """The one-shot path reads the caller's arrays in place on the CPU: strided views too."""
+    rng = np.random.default_rng(9)
+    points, idx, w, M = rig(rng, V=40)
+    p4 = np.concatenate([points, np.ones((40, 1), np.float32)], 1)
+    w8 = np.repeat(w, 2, axis=1)
+    got = dqskin.skin_points(p4[:, :3], idx, w8[:, ::2], M, "lbs")
+    np.testing.assert_allclose(got, lbs64(points, idx, w, M), atol=2e-5)
