@@ -219,9 +219,11 @@ def _dask(workers, scheduler):
         else:
             if int(workers) < 1:
                 raise ValueError(f"--workers {workers}: must be at least 1")
+            threads = str(max(1, (os.cpu_count() or 1) // int(workers)))
             cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address=None,
-                                   silence_logs=logging.ERROR)
+                                   silence_logs=logging.ERROR,
+                                   env=dict(PXR_WORK_THREAD_LIMIT=threads, DQSKIN_THREADS=threads))
             client = Client(cluster)
         client.register_plugin(_quiet_worker_plugin())
         yield client
