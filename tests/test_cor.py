@@ -436,7 +436,7 @@ def test_errors():
         cor.rotation_centers(pts, faces, idx, w, cluster="fast")
 
 
-def test_scene_cli_and_compare(tmp_path):
+def test_scene_cli_and_compare(tmp_path, monkeypatch):
     pts, faces, idx, w = chain_mesh(rings=16)
     path = tmp_path / "chain.usda"
     write_usd_rig(path, np.random.default_rng(6), J=4, frames=2, points=pts, faces=faces,
@@ -449,12 +449,17 @@ def test_scene_cli_and_compare(tmp_path):
     rc, text = run_cli("skin", path, "--out", out, "--method", "cor")
     assert rc == 0, text
     np.testing.assert_allclose(np.load(out)["points_0"], want, atol=5e-5)
+    rules = []  # what compare asks the scene for
+    real = dqskin.Scene.skin
+    monkeypatch.setattr(dqskin.Scene, "skin", lambda self, *a, **k: (
+        rules.append(k.get("sign_reference")), real(self, *a, **k))[1])
     rc, text = run_cli("compare", path, "--out", tmp_path / "report", "--methods", "lbs,cor",
                        "--frames", "1", "--views", "front", "--width", "32", "--supersample",
-                       "1", "--no-sweeps", "--quiet")
+                       "1", "--no-sweeps", "--quiet", "--sign-reference", "running_sum")
     assert rc == 0, text
     metrics = json.loads((tmp_path / "report" / "metrics.json").read_text())
     assert metrics["methods"] == ["lbs", "cor"]
+    assert rules and set(rules) == {"running_sum"}
 
 
 def test_usd_bake_with_rigid_prims(shared_assets, tmp_path):
