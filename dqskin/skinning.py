@@ -378,6 +378,7 @@ class Skinner:
             Point transforms applied after skinning (normals get their inverse transpose and are
             renormalized; tangents their linear part).
         sign_reference : {"largest_weight", "running_sum"}
+            Sign rule of the rotation blends (:data:`SignReference`).
 
         Returns
         -------
@@ -446,6 +447,7 @@ class Skinner:
         point_velocities : (V, 3) or (F, V, 3) float, optional
             ``d points / dt`` in mesh space (e.g. from blend shapes); zero by default.
         sign_reference : {"largest_weight", "running_sum"}
+            Sign rule of the rotation blends (:data:`SignReference`).
 
         Returns
         -------
