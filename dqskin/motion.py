@@ -164,7 +164,7 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
     """Velocities of skinned points, by the chain rule (Warp, one thread per vertex).
 
     Same skinning semantics as :func:`dqskin.skin_points` (UsdSkel): weights used as given, DQS
-    with sign alignment to the largest-weight influence and the residual (scale/shear) path
+    with sign alignment by ``sign_reference`` and the residual (scale/shear) path
     ``Σ wᵢ·Sᵢ·p`` on frames where any joint has one. The joint DQs and their derivatives come from
     the polar split ``A = R·S`` and its derivative (``Rᵀ·Ȧ = [ω]×·S + Ṡ``) on the device.
 
