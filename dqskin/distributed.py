@@ -9,8 +9,9 @@ point data never travels through the scheduler. Workers need the source and the 
 the same paths (one machine, or a shared file system).
 
 * ``workers=None`` and no ``scheduler``: the chunks run here, one after another.
-* ``workers=N``: a :class:`distributed.LocalCluster` of ``N`` worker processes (one thread each)
-  on 127.0.0.1, started and closed by the bake.
+* ``workers=N``: a :class:`distributed.LocalCluster` of ``N`` worker processes (one task at a
+  time each; USD's and dqskin's CPU threads limited to cores / ``N`` per process) on 127.0.0.1,
+  started and closed by the bake.
 * ``scheduler="tcp://HOST:PORT"``: an existing cluster (``dask scheduler`` and ``dask worker``).
 
 A worker process that dies mid-chunk leaves no layer under the chunk's name; Dask runs the task
