@@ -59,7 +59,24 @@ def cpu_threads():
     return max(1, int(os.environ.get("DQSKIN_THREADS", _CORES)))
 
 
+_warm = set()  # (kernel, device) launched at least once in this process
+_warm_lock = threading.Lock()
+
+
 def _launch(kernel, dim, args, device):
+    """:func:`_replay`, but the first launch of a kernel on a device holds a lock: Warp's
+    ``Module.load`` is not thread-safe, and two pool threads loading one module at once can
+    unload the library the other is running (an intermittent segfault)."""
+    key = (kernel, str(device))
+    if key in _warm:
+        _replay(kernel, dim, args, device)
+        return
+    with _warm_lock:
+        _replay(kernel, dim, args, device)
+        _warm.add(key)
+
+
+def _replay(kernel, dim, args, device):
     """One ``wp.launch`` of ``kernel`` on ``dim`` with ``args`` (inputs then outputs), replayed
     from a recorded ``wp.Launch`` of the same kernel, grid and device (per thread): ~8 µs instead
     of ~40 µs of argument packing, which dominates small calls. Arrays are re-packed only when a
