@@ -1,6 +1,7 @@
 """Benchmark ``method="cor"``: center precomputation and runtime skinning next to LBS and DQS.
 
-    python tools/bench_cor.py [--json out/bench_cor.json] [--frames 32] [--repeat 5]
+    python tools/bench_cor.py [--json out/bench_cor.json] [--frames 32] [--repeat 5] [--exact]
+    DQSKIN_THREADS=1 python tools/bench_cor.py --kernels
 
 Meshes: CesiumMan (../shared/assets/khronos-gltf/CesiumMan, when present), the bundled humanoid
 subdivided to ~35.6k vertices as in tools/bench_compare.py, and a hard case: a 35.2k-point tube
@@ -138,14 +139,50 @@ def bench(frames, repeat, exact):
     return rows
 
 
+def bench_kernels(rounds=15, V=200_000, F=8, J=64, K=4):
+    """The skinning kernel alone (no upload, preparation or readback): ``V`` random points, ``K``
+    influences of ``J`` random rigid joints, ``F`` frames, one launch per method, best of
+    ``rounds``; M point-frames per second. Run with ``DQSKIN_THREADS=1`` for one thread."""
+    import warp as wp
+    from scipy.spatial.transform import Rotation
+
+    from dqskin.kernels import skin as K_
+
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(V, 3)).astype(np.float32)
+    idx, w = rng.integers(0, J, (V, K)), rng.random((V, K)).astype(np.float32)
+    xf = np.tile(np.eye(4), (F, J, 1, 1))
+    xf[..., :3, :3] = Rotation.random(F * J, random_state=1).as_matrix().reshape(F, J, 3, 3)
+    sk = dqskin.Skinner(pts, idx, w, faces=rng.integers(0, V, (1000, 3)), cor_cluster=None)
+    prep, frames, _ = sk._prepare(xf)
+    out = wp.empty((frames, V), dtype=wp.vec3, device=sk.device)
+    cases = {"lbs": (K_.LBS, "largest_weight"), "dqs": (K_.DQS, "largest_weight"),
+             "dqs running_sum": (K_.DQS, "running_sum"), "cor": (K_.COR, "largest_weight")}
+    infs = {name: sk._influences(code, rule) for name, (code, rule) in cases.items()}
+    best = dict.fromkeys(cases, float("inf"))
+    for _ in range(rounds):
+        for name, (code, _rule) in cases.items():
+            t0 = time.perf_counter()
+            K_.skin_points(method=code, points=sk._points, influences=infs[name],
+                           joints=prep["joints"], rigid=True, out=out, device=sk.device)
+            best[name] = min(best[name], time.perf_counter() - t0)
+    return {name: V * frames / t / 1e6 for name, t in best.items()}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=32)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--exact", action="store_true",
                     help="also time cluster=None (the tube takes ~30 s)")
+    ap.add_argument("--kernels", action="store_true",
+                    help="only the skinning kernels, no meshes (DQSKIN_THREADS=1: one thread)")
     ap.add_argument("--json")
     args = ap.parse_args()
+    if args.kernels:
+        print("kernel M point-frames/s: " + ", ".join(f"{k} {v:.1f}"
+                                                      for k, v in bench_kernels().items()))
+        return
     rows = bench(args.frames, args.repeat, args.exact)
     for r in rows:
         print(f"{r['mesh']}: {r['vertices']} vertices, {r['faces']} triangles, "
