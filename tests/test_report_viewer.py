@@ -78,6 +78,7 @@ def test_fragment_is_safe_inline():
     meta, blob = encode({"lbs": lbs}, rest, [[0, 1, 2]])
     html = viewer_html(meta, blob, {"labels": ["</script><!--"], "times": [0.0, 1.0]})
     assert html.count("</script>") == 4 and "<!--" not in html
+    assert "Copyright © 2010-2026 three.js authors" in html  # the MIT notice travels with the code
     config = json.loads(re.search(r'id="dqv-config">(.*?)</script>', html, re.S).group(1))
     assert config["labels"] == ["</script><!--"] and config["meta"] == meta
     data = re.search(r'id="dqv-data">(.*?)</script>', html, re.S).group(1)

@@ -1,8 +1,8 @@
 """The animated WebGL viewer inside ``report.html``: compact vertex data and the page fragment.
 
 Every compared method plays in sync in one three.js view (side by side or overlaid), one orbit
-camera shared by all. The page stays one self-contained file: three.js (vendored, MIT licence in
-``vendor/THREE_LICENSE``) and :file:`viewer.js` are inlined, and the vertex data is one
+camera shared by all. The page stays one self-contained file: three.js (vendored in ``vendor/``,
+inlined with its MIT licence notice) and :file:`viewer.js` are inlined, and the vertex data is one
 zlib-compressed, base64 blob inside a ``<script type="application/octet-stream">`` element,
 decompressed in the browser with ``DecompressionStream``.
 
@@ -222,7 +222,9 @@ def viewer_html(meta, blob, settings):
         '</div>\n'
         f'<script type="application/json" id="dqv-config">{_script_json(config)}</script>\n'
         f'<script type="application/octet-stream" id="dqv-data">{data}</script>\n'
-        f'<script>{_asset("vendor", "three.min.js")}</script>\n'
+        f'<script>/*! three.js r187 (npm three@0.187.0), bundled by esbuild.\n'
+        f'{_asset("vendor", "THREE_LICENSE").replace("*/", "* /")}*/\n'
+        f'{_asset("vendor", "three.min.js")}</script>\n'
         f'<script>{_asset("viewer.js")}</script>\n')
 
 
