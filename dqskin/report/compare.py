@@ -370,21 +370,22 @@ def _rotation_angles(x):
                       0.5 * (np.trace(r, axis1=-2, axis2=-1) - 1))
 
 
-def sweeps(assets_dir, *, device=None):
-    """Artifact curves of LBS and DQS against the joint angle on the procedural rigs.
+def sweeps(assets_dir, *, methods=("lbs", "dqs"), device=None, sign_reference="largest_weight"):
+    """Artifact curves of the skinning methods against the joint angle on the procedural rigs.
 
     Every frame of ``twist_cylinder.usda`` (twist 0→180°) and ``bending_arm.usda`` (bend 0→150°)
-    in ``assets_dir`` is skinned with both methods; the angle is the rotation angle of the
-    animated joint's skinning transform.
+    in ``assets_dir`` is skinned with LBS, DQS and ``methods``; the angle is the rotation angle of
+    the animated joint's skinning transform.
 
     Returns
     -------
     dict
-        ``name → {"asset", "joint", "fraction", "angle_deg": [...], "lbs"/"dqs": {metric:
-        [...]}, "reference": {"lbs_volume_ratio": [...], "lbs_min_section_ratio": [...]},
+        ``name → {"asset", "joint", "fraction", "angle_deg": [...], "methods": [...], method:
+        {metric: [...]}, "reference": {"lbs_volume_ratio": [...], "lbs_min_section_ratio": [...]},
         "formulas": {...}}`` (JSON-safe; see :data:`SWEEP_RIGS` for the references), or
         ``{"skipped": reason}`` when a rig file is missing.
     """
+    methods = tuple(dict.fromkeys(("lbs", "dqs") + tuple(methods)))
     out = {}
     for name, (file, fraction, divisor) in SWEEP_RIGS.items():
         path = Path(assets_dir) / file
@@ -393,15 +394,15 @@ def sweeps(assets_dir, *, device=None):
             continue
         scene = load(path)
         times = np.asarray(scene.times, dtype=np.float64)
-        meshes, _, xforms = _skin(scene, times, ("lbs", "dqs"), device)
+        meshes, _, xforms = _skin(scene, times, methods, device, sign_reference)
         mesh = meshes[0]
         skel = scene.skeletons[mesh.skeleton]
         theta_all = _rotation_angles(xforms[mesh.skeleton])
         joint = int(np.argmax(theta_all[-1]))
         theta = theta_all[:, joint]
         entry = {"asset": file, "joint": skel.joint_names[joint], "fraction": fraction,
-                 "angle_deg": _json_floats(np.degrees(theta))}
-        for meth, m in _measure(mesh, skel, ("lbs", "dqs"), device).items():
+                 "angle_deg": _json_floats(np.degrees(theta)), "methods": list(methods)}
+        for meth, m in _measure(mesh, skel, methods, device).items():
             entry[meth] = {k: (None if m[k] is None else _json_floats(m[k])) for k in METRICS}
         entry["reference"] = {"lbs_volume_ratio": _json_floats(
             1 - fraction * (1 - np.cos(theta)) / divisor)}
@@ -619,7 +620,8 @@ def _compare(scene, out, frames_dir, times, all_times, methods, views, up, width
     if sweeps_dir is not None:
         folder = _default_assets() if sweeps_dir == "default" else Path(sweeps_dir)
         bar.set_postfix_str("sweeps")
-        sweep_data = (sweeps(folder, device=device) if folder.is_dir()
+        sweep_data = (sweeps(folder, methods=methods, device=device,
+                             sign_reference=sign_reference) if folder.is_dir()
                       else {"skipped": f"{folder}: rig folder not found"})
         bar.update(2)
 

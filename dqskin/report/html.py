@@ -140,7 +140,7 @@ def frame_plot_png(metrics):
 
 def sweep_plot_png(sweeps):
     """Min section, max bulge and volume ratios against the joint angle on the procedural rigs,
-    LBS and DQS measured (solid) and the closed-form LBS references (dashed).
+    every method measured (solid) and the closed-form LBS references (dashed).
 
     Returns
     -------
@@ -159,7 +159,7 @@ def sweep_plot_png(sweeps):
     for row, (name, rig) in zip(axes, rigs):
         theta = np.asarray(rig["angle_deg"], dtype=np.float64)
         for ax, metric in zip(row, ("min_section_ratio", "max_bulge_ratio", "volume_ratio")):
-            for meth in ("lbs", "dqs"):
+            for meth in rig.get("methods", ("lbs", "dqs")):
                 v = rig[meth][metric]
                 if v is not None:
                     ax.plot(theta, _array(v), "-", marker=".", color=method_color(meth),
@@ -363,7 +363,8 @@ def build_html(metrics, out_dir, *, viewer=None):
                              f"{_esc(rig['skipped'])}.</p>")
         png = sweep_plot_png(sw)
         if png is not None:
-            parts.append("<p class=note>Every frame of each rig, skinned with LBS and DQS; the "
+            parts.append("<p class=note>Every frame of each rig, skinned with LBS, DQS and every "
+                         "compared method; the "
                          "angle is the rotation of the animated joint. Dashed: continuum LBS "
                          "closed forms for a linear weight ramp of width f·L (section of the ring "
                          "w = ½: k = √(1 − 2w(1−w)(1 − cos θ)) = |cos(θ/2)| in the twist, √k in "
