@@ -24,7 +24,7 @@ from PIL import Image
 
 import dqskin
 from dqskin.cli import build_parser
-from dqskin.report.compare import run_compare
+from dqskin.report.compare import run_compare, sweeps
 from dqskin.report.render import VIEWS
 from dqskin.times import parse_frames
 
@@ -371,3 +371,14 @@ def test_cameras_use_the_skeleton_spaces_up_axis(shared_assets):
     assert usdz.up_axis == "Y" and skeleton_up_axis(usdz) == "Z"
     assert skeleton_up_axis(glb) == "Y"
     assert skeleton_up_axis(dqskin.load(TWIST)) == "Y"
+
+
+def test_sweeps_show_every_method():
+    sw = sweeps(ASSETS, methods=("blend",), device="cpu")
+    for rig in ("twist", "bend"):
+        entry = sw[rig]
+        assert entry["methods"] == ["lbs", "dqs", "blend"]
+        lbs, dqs, blend = (np.array(entry[m]["min_section_ratio"]) for m in entry["methods"])
+        # the 50/50 blend of the two results lies between them, strictly once LBS collapses
+        assert np.all(lbs - 1e-6 <= blend) and np.all(blend <= dqs + 1e-6)
+        assert blend[-1] > lbs[-1] + 0.1

@@ -133,3 +133,4 @@ def test_cli_viewer_frames(tmp_path):
     saved = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
     assert saved["viewer"]["frames"] == [0.0, 6.0, 12.0, 18.0, 24.0]
     assert saved["render"]["antialiasing"] == "full"
+
