@@ -873,9 +873,37 @@ class _Loader:
         return np.array(sorted(keys) or [0.0], dtype=np.float64)
 
 
+def _shared_space(loader, skel_prim, gprim):
+    """True when the skeleton and the gprim share their local-to-world at every time: no xform
+    op (nor ``!resetXformStack!``) on either below their common ancestor, and that ancestor's
+    local-to-world finite and invertible (checked once per ancestor: a crowd's instances hold
+    many meshes each). Then skeleton space is gprim space and no transform chain is needed."""
+    common = skel_prim.GetPath().GetCommonPrefix(gprim.GetPath())
+    for p in (skel_prim, gprim):
+        while p and p.GetPath() != common:
+            xf = UsdGeom.Xformable(p)
+            if xf and (xf.GetOrderedXformOps() or xf.GetResetXformStack()):
+                return False
+            p = p.GetParent()
+    spaces = loader.__dict__.setdefault("_shared_spaces", {})
+    if common not in spaces:
+        prim = loader.stage.GetPrimAtPath(common)
+        chain = XformChain(read_local_to_world(prim), [], name=f"{loader.path}: {common}")
+        try:
+            with np.errstate(all="ignore"):
+                m = chain.at(chain.key_times)
+            spaces[common] = bool(np.isfinite(m).all() and
+                                  (np.abs(np.linalg.det(m[:, :3, :3])) > 0).all())
+        except (ValueError, np.linalg.LinAlgError):
+            spaces[common] = False  # the full chain below names the problem
+    return spaces[common]
+
+
 def _output_transforms(loader, where, skel_prim, gprim):
     """Skeleton space → gprim space as an :class:`XformChain`, or None when it is the identity
     at every time."""
+    if _shared_space(loader, skel_prim, gprim):
+        return None
     track = XformChain(read_local_to_world(skel_prim), read_local_to_world(gprim),
                        name=f"{loader.path}: {where}")
     try:
