@@ -526,41 +526,45 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         raise ValueError(f"--width {width} × --supersample {supersample} casts {rays:,} rays per "
                          f"image side, more than the limit of {max_rays:,}; pass --max-rays to "
                          "raise it")
-    scene = input_path if isinstance(input_path, Scene) else load(input_path, clip=clip)
-    up = skeleton_up_axis(scene) if up_axis is None else up_axis
-    if up not in ("Y", "Z"):
-        raise ValueError(f"{scene.path}: up axis must be Y or Z, got {up!r}")
-    if frames is None:
-        times = default_frames(scene.times)
-    else:
-        times = np.asarray(frames, dtype=np.float64).reshape(-1)
-        if times.size == 0 or not np.all(np.isfinite(times)):
-            raise ValueError(f"frames: expected finite times, got {list(frames)!r}")
-    _renderable(scene)
-    out, frames_dir = _prepare_out(out_dir, force)
+    with _progress_bar(progress) as bar:
+        bar.set_postfix_str("loading")
+        scene = input_path if isinstance(input_path, Scene) else load(input_path, clip=clip)
+        up = skeleton_up_axis(scene) if up_axis is None else up_axis
+        if up not in ("Y", "Z"):
+            raise ValueError(f"{scene.path}: up axis must be Y or Z, got {up!r}")
+        if frames is None:
+            times = default_frames(scene.times)
+        else:
+            times = np.asarray(frames, dtype=np.float64).reshape(-1)
+            if times.size == 0 or not np.all(np.isfinite(times)):
+                raise ValueError(f"frames: expected finite times, got {list(frames)!r}")
+        _renderable(scene)
+        out, frames_dir = _prepare_out(out_dir, force)
 
-    all_times = viewer_times(scene.times, times, viewer_frames) if viewer_frames else times
-    heat = "lbs" in methods and "dqs" in methods
-    steps = (2 * len(methods) + _render_count(times, methods, views, heat, True)
-             + bool(viewer_frames) + 2 * (sweeps_dir is not None) + 1)
-    with _progress_bar(steps, progress) as bar:
-        result = _compare(scene, out, frames_dir, times, all_times, methods, views, up, width,
-                          supersample, adaptive, sweeps_dir, sign_reference,
-                          bool(viewer_frames), heat, bar, device, t0)
-    return result
+        all_times = viewer_times(scene.times, times, viewer_frames) if viewer_frames else times
+        heat = "lbs" in methods and "dqs" in methods
+        bar.total = (1 + 2 * len(methods) + _render_count(times, methods, views, heat, True)
+                     + bool(viewer_frames) + 2 * (sweeps_dir is not None) + 1)
+        bar.update()  # loaded
+        return _compare(scene, out, frames_dir, times, all_times, methods, views, up, width,
+                        supersample, adaptive, sweeps_dir, sign_reference, bool(viewer_frames),
+                        heat, bar, device, t0)
 
 
-def _progress_bar(total, enabled):
-    """One tqdm bar on stderr for the whole comparison (a do-nothing context when disabled)."""
+def _progress_bar(enabled):
+    """One tqdm bar on stderr for the whole comparison, loading included (its ``total`` is set
+    once the frames are known); a do-nothing context when disabled."""
     if not enabled:
         return nullcontext(_NoBar())
     from tqdm import tqdm
 
-    return tqdm(total=total, desc="compare", unit="step", file=sys.stderr, leave=False,
+    return tqdm(total=None, desc="compare", unit="step", file=sys.stderr, leave=False,
                 dynamic_ncols=True)
 
 
 class _NoBar:
+    total = None
+
     def update(self, n=1):
         pass
 
