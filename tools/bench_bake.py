@@ -253,7 +253,7 @@ def print_bake(rows):
     print("\nEnd-to-end bake to .usd (open + skin every frame + write), LBS; seconds exclude the "
           "one-off module imports (shown apart), include Dask cluster start-up")
     print("| asset | frames | impl | seconds | M point-frames/s | imports s | CPU s, all processes "
-          "| peak RSS MB main | workers MB | output MB | max |Δp| vs UsdSkel |")
+          "| peak RSS MB, main | workers MB | output MB | max \\|Δp\\| vs UsdSkel |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in bake:
         workers = ", ".join(f"{w:.0f}" for w in r.get("worker_peak_mb", [])) or "–"
