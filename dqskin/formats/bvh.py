@@ -9,11 +9,12 @@ How dqskin reads it (the conventions of the format as Biovision, CMU and Blender
 * Joint order is the order of declaration (depth first), so parents come before children. End
   Sites are not joints (nothing can be weighted to them); their offsets are kept in
   :attr:`BvhMotion.end_sites` (they give leaf bones their length for automatic weights).
-* A joint's local transform is ``T(offset) · C₁ · C₂ · … · Cₙ`` for its channels ``C`` in the order
-  written: ``Xposition`` is a translation along x, ``Zrotation`` a rotation about z (degrees,
-  right-handed), and so on. ``Zrotation Yrotation Xrotation`` gives ``R = Rz·Ry·Rx`` (column
-  vectors). Every joint may have its own order; real files mix ``Zrotation Yrotation Xrotation``
-  and ``Zrotation Xrotation Yrotation``.
+* A joint's local transform is ``T(offset + p) · R``: ``p`` its position channels (``Xposition``
+  a translation along x, …), wherever they are written among the channels, and ``R = R₁ · R₂ ·
+  … · Rₙ`` its rotation channels in the order written (``Zrotation`` a rotation about z, degrees,
+  right-handed): ``Zrotation Yrotation Xrotation`` gives ``R = Rz·Ry·Rx`` (column vectors). This
+  is how Blender and three.js read them. Every joint may have its own order; real files mix
+  ``Zrotation Yrotation Xrotation`` and ``Zrotation Xrotation Yrotation``.
 * The rest pose (bind pose) is every channel at zero: joints at their offsets, unrotated. Position
   channels add to the offset (a root with offset 0, as CMU's, gets exactly its positions).
 * Times are frame numbers 0 … F−1; ``time_codes_per_second`` is ``1 / Frame Time``. Between
@@ -25,7 +26,7 @@ Malformed files raise ValueError naming the file, the line and what was expected
 
 import os
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -66,7 +67,8 @@ class BvhMotion:
     frame_time : float
         Seconds per frame.
     values : (F, C) float64
-        Channel values per frame, C the total channel count (degrees for rotations).
+        Channel values per frame, C the total channel count (degrees for rotations), columns in
+        the order of ``channels`` (joint by joint).
     """
 
     path: str
@@ -77,7 +79,18 @@ class BvhMotion:
     end_sites: list
     frame_time: float
     values: np.ndarray
-    _columns: list = field(default_factory=list, repr=False)
+
+    def __post_init__(self):
+        self.values = np.asarray(self.values, np.float64)
+        counts = [len(ch) for ch in self.channels]
+        if len(counts) != len(self.joint_names):
+            raise ValueError(f"{self.path}: {len(self.joint_names)} joints but channels for "
+                             f"{len(counts)}")
+        if self.values.ndim != 2 or self.values.shape[1] != sum(counts):
+            raise ValueError(f"{self.path}: values of shape {self.values.shape}: expected (F, "
+                             f"{sum(counts)}), one column per channel")
+        starts = np.concatenate([[0], np.cumsum(counts)]).astype(int)
+        self._columns = [list(range(a, a + n)) for a, n in zip(starts, counts)]
 
     @property
     def frame_count(self) -> int:
@@ -94,16 +107,19 @@ class BvhMotion:
 
     def local_transforms(self, frames: np.ndarray | None = None) -> np.ndarray:
         """(F, J, 4, 4) float64 parent-relative transforms at integer ``frames`` (all by
-        default): ``T(offset) · C₁ · … · Cₙ``."""
+        default): ``T(offset + positions) · R₁ · … · Rₙ`` (rotation channels in file order)."""
         v = self.values if frames is None else self.values[np.asarray(frames, dtype=np.int64)]
         F, J = v.shape[0], len(self.joint_names)
         local = np.tile(np.eye(4), (F, J, 1, 1))
         local[:, :, :3, 3] = self.offsets
         for j, (names, cols) in enumerate(zip(self.channels, self._columns)):
-            m = local[:, j]
+            rot = np.tile(np.eye(4), (F, 1, 1))
             for name, col in zip(names, cols):
-                m = m @ _channel_matrix(name, v[:, col])
-            local[:, j] = m
+                if name.endswith("position"):
+                    local[:, j, "XYZ".index(name[0]), 3] += v[:, col]
+                else:
+                    rot = rot @ _channel_matrix(name, v[:, col])
+            local[:, j, :3, :3] = rot[:, :3, :3]
         return local
 
     def skeleton(self, name: str | None = None) -> Skeleton:
@@ -153,18 +169,14 @@ def scaled(motion: BvhMotion, scale: float) -> BvhMotion:
                 values[:, col] *= scale
     return BvhMotion(motion.path, list(motion.joint_names), motion.parents.copy(),
                      motion.offsets * scale, list(motion.channels),
-                     [(j, o * scale) for j, o in motion.end_sites], motion.frame_time, values,
-                     list(motion._columns))
+                     [(j, o * scale) for j, o in motion.end_sites], motion.frame_time, values)
 
 
 def _channel_matrix(name, values):
-    """(F, 4, 4) elementary transforms of one channel (degrees for rotations)."""
+    """(F, 4, 4) rotations of one rotation channel (``values`` in degrees)."""
     F = values.shape[0]
     m = np.tile(np.eye(4), (F, 1, 1))
     axis = "XYZ".index(name[0])
-    if name.endswith("position"):
-        m[:, axis, 3] = values
-        return m
     a = np.radians(values)
     c, s = np.cos(a), np.sin(a)
     i, k = [(1, 2), (2, 0), (0, 1)][axis]  # the plane the rotation turns
@@ -332,10 +344,7 @@ def read_bvh(path: str | os.PathLike) -> BvhMotion:
         raise ValueError(f"{p}: line {motion_line + 3}: Frame Time: {frame_time:g}: must be "
                          "positive")
     frames = int(frames)
-    columns, c = [], 0
-    for chans in b.channels:
-        columns.append(list(range(c, c + len(chans))))
-        c += len(chans)
+    c = sum(map(len, b.channels))
     data_lines = [(n + k + 1, r) for k, r in enumerate(lines[n:]) if r.strip()]
     if len(data_lines) < frames:
         raise ValueError(f"{p}: Frames: {frames} but only {len(data_lines)} frame lines")
@@ -355,7 +364,7 @@ def read_bvh(path: str | os.PathLike) -> BvhMotion:
         raise ValueError(f"{p}: frame {f}: channel {col}: value is not finite")
     return BvhMotion(str(p), b.joint_names, np.asarray(b._parents, np.int32),
                      np.asarray(b._offsets, np.float64).reshape(-1, 3), b.channels, b.end_sites,
-                     float(frame_time), values, columns)
+                     float(frame_time), values)
 
 
 def _is_float(w):
