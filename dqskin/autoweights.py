@@ -28,12 +28,14 @@ one from every joint to each child not at the same place ("bones pointed at thei
 for a leaf one to its BVH End Site when known, else along its parent's direction (half that
 bone's length).
 
-Cache: :func:`automatic_weights` stores results as ``.npz`` files under :func:`cache_dir`
-(``$DQSKIN_CACHE_DIR``, else ``$XDG_CACHE_HOME/dqskin``, else ``~/.cache/dqskin``), in
-``weights/``, named by a SHA-256 of everything the result depends on: the points (in skeleton
-space) and triangles, the bone segments and their joints, the joint count, ``max_influences``,
-the visibility switch, and :data:`ALGORITHM_VERSION`. Any change of those is a different file
-(nothing is overwritten or invalidated in place); delete the folder to reclaim space.
+Cache: :func:`automatic_weights` stores results as ``.npz`` files (:mod:`dqskin.cache`) under
+:func:`dqskin.cache.cache_dir` (``$DQSKIN_CACHE_DIR``, else ``$XDG_CACHE_HOME/dqskin``, else
+``~/.cache/dqskin``), in ``weights/``, named by a SHA-256 of everything the result depends on:
+the points (in skeleton space) and triangles, the bone segments and their joints, the joint
+count, ``max_influences``, the visibility switch, and :data:`ALGORITHM_VERSION`. Any change of
+those is a different file (nothing is overwritten or invalidated in place); an entry that cannot
+be read or does not fit (empty, truncated, other shapes or dtypes, indices out of range) is
+computed again and replaced; delete the folder to reclaim space.
 
 References
 ----------
@@ -42,34 +44,23 @@ N. Sharp and K. Crane, "A Laplacian for Nonmanifold Triangle Meshes", SGP 2020.
 """
 
 import hashlib
-import os
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 import warp as wp
 
+from . import cache as _cache
 from ._warp import Device, resolve_device
 from .kernels import bone_heat as BH
 from .skeleton import Skeleton
 
 __all__ = ["ALGORITHM_VERSION", "automatic_weights", "bone_heat_weights", "bone_segments",
-           "cache_dir", "sparsify"]
+           "sparsify"]
 
 ALGORITHM_VERSION = 2
 """Bumped whenever the weights this module computes change; part of the cache key."""
 
 _NEAR = 1.0e-4  # bones within (1 + _NEAR) of the nearest distance share the heat (as Blender)
-
-
-def cache_dir() -> Path:
-    """Where cached weights live: ``$DQSKIN_CACHE_DIR``, ``$XDG_CACHE_HOME/dqskin`` or
-    ``~/.cache/dqskin``."""
-    if os.environ.get("DQSKIN_CACHE_DIR"):
-        return Path(os.environ["DQSKIN_CACHE_DIR"])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "dqskin"
 
 
 def bone_segments(skeleton: Skeleton, *, end_sites: list | None = None,
@@ -161,6 +152,14 @@ def sparsify(weights: np.ndarray, max_influences: int = 8) -> tuple[np.ndarray, 
     return idx.astype(np.int32), (wk / s).astype(np.float32)
 
 
+def _check_max_influences(max_influences):
+    """ValueError unless ``max_influences`` is a whole number of at least 1 (checked before any
+    work)."""
+    if isinstance(max_influences, bool) or int(max_influences) != max_influences \
+            or max_influences < 1:
+        raise ValueError(f"max_influences {max_influences}: must be a whole number, at least 1")
+
+
 def _heat_sources(points, faces, heads, tails, visibility, device):
     """``(min_distance (V,), nearest bone (V,), closest (V, B) bool)`` from the kernel."""
     d = resolve_device(device)
@@ -224,6 +223,7 @@ def bone_heat_weights(points: npt.ArrayLike, faces: npt.ArrayLike, heads: npt.Ar
     heads, tails = np.asarray(heads, np.float64), np.asarray(tails, np.float64)
     joints = np.asarray(joints, np.int64)
     V, J = P.shape[0], int(joint_count)
+    _check_max_influences(max_influences)
     if P.ndim != 2 or P.shape[1] != 3 or V == 0:
         raise ValueError(f"points: expected (V, 3) with V > 0, got {P.shape}")
     if not np.all(np.isfinite(P)):
@@ -268,13 +268,13 @@ def bone_heat_weights(points: npt.ArrayLike, faces: npt.ArrayLike, heads: npt.Ar
         src = np.zeros((sub.size, heads.shape[0]))
         src[~cold] = closest[sub][~cold] / np.maximum(count[~cold], 1)[:, None]
         src[np.nonzero(cold)[0], nearest[sub][cold]] = 1.0
-        per_joint = np.zeros((sub.size, J))
-        for b in range(heads.shape[0]):
-            per_joint[:, joints[b]] += src[:, b]
+        owners = np.unique(joints)  # only joints owning a bone get heat; the rest stay 0
+        per_joint = np.zeros((sub.size, owners.size))
+        np.add.at(per_joint.T, np.searchsorted(owners, joints), src.T)
         mh = M.diagonal() * H
         lu = splu((L + sp.diags(mh)).tocsc())
         clock("factorize")
-        dense[sub] = lu.solve(mh[:, None] * per_joint)
+        dense[np.ix_(sub, owners)] = lu.solve(mh[:, None] * per_joint)
         clock("solve")
     dense[rigid, joints[nearest[rigid]]] = 1.0
     result = sparsify(dense[weld], max_influences)
@@ -331,7 +331,8 @@ def automatic_weights(points: npt.ArrayLike, faces: npt.ArrayLike, skeleton: Ske
     max_influences : int
     visibility : bool
     cache : bool
-        Read and write the cache under :func:`cache_dir` (see the module docstring).
+        Read and write the cache under :func:`dqskin.cache.cache_dir` (see the module
+        docstring).
 
     Returns
     -------
@@ -340,6 +341,7 @@ def automatic_weights(points: npt.ArrayLike, faces: npt.ArrayLike, skeleton: Ske
     joint_weights : (V, K) float32
         Non-negative, summing to 1 per vertex, descending.
     """
+    _check_max_influences(max_influences)
     pts = np.asarray(points, np.float64)
     g = np.eye(4) if geom_bind_transform is None else np.asarray(geom_bind_transform, np.float64)
     pts = pts @ g[:3, :3].T + g[:3, 3]
@@ -349,31 +351,26 @@ def automatic_weights(points: npt.ArrayLike, faces: npt.ArrayLike, skeleton: Ske
     path = None
     if cache:
         key = _cache_key(pts, faces, heads, tails, owners, J, max_influences, visibility)
-        path = cache_dir() / "weights" / f"{key}.npz"
-        if path.is_file():
-            try:
-                with np.load(path) as z:
-                    return z["joint_indices"], z["joint_weights"]
-            except (OSError, ValueError, KeyError):
-                pass  # unreadable: computed again and replaced
+        path = _cache.cache_dir() / "weights" / f"{key}.npz"
+        hit = _cached(path, len(pts), J, max_influences)
+        if hit is not None:
+            return hit
     result = bone_heat_weights(pts, faces, heads, tails, owners, J, max_influences=max_influences,
                                visibility=visibility, device=device)
     if path is not None:
-        _store(path, *result)
+        _cache.store(path, joint_indices=result[0], joint_weights=result[1])
     return result
 
 
-def _store(path, indices, weights):
-    """Write the cache file atomically; a cache that cannot be written is skipped."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, joint_indices=indices, joint_weights=weights)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError:
-        pass
+def _cached(path, vertex_count, joint_count, max_influences):
+    """The cached ``(indices, weights)`` at ``path`` if they fit (shapes, dtypes, indices in
+    range, finite weights), else None."""
+    K = min(int(max_influences), joint_count)
+    z = _cache.load(path, {"joint_indices": ((vertex_count, K), np.int32),
+                           "joint_weights": ((vertex_count, K), np.float32)})
+    if z is None:
+        return None
+    idx, w = z["joint_indices"], z["joint_weights"]
+    if idx.size and (idx.min() < 0 or idx.max() >= joint_count or not np.isfinite(w).all()):
+        return None
+    return idx, w

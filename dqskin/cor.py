@@ -25,27 +25,25 @@ center (NaN); ``method="cor"`` skins it as DQS -- for one-hot weights both are t
 rigid motion.
 
 Cache: ``$DQSKIN_CACHE_DIR`` (default ``$XDG_CACHE_HOME/dqskin``, else ``~/.cache/dqskin``),
-``cor/<sha256>.npy``, keyed by the points (bind space, float64), faces, influences, σ, the
-subdivision, the clustering and :data:`ALGORITHM_VERSION`; any change to one of them is a
-different file.
+``cor/<sha256>.npz`` (:mod:`dqskin.cache`), keyed by the points (bind space, float64), faces,
+influences, σ, the subdivision, the clustering and :data:`ALGORITHM_VERSION`; any change to
+one of them is a different file.
 Files are written atomically; an unreadable one is recomputed; a cache that cannot be written is
 skipped.
 """
 
 import hashlib
-import os
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import warp as wp
 
+from . import cache as _cache
 from ._warp import Device, resolve_device
 from .influences import check_influences
 from .kernels import cor as KC
 from .shapes import as_real
 
-__all__ = ["ALGORITHM_VERSION", "SIGMA", "cache_dir", "check_faces", "rotation_centers"]
+__all__ = ["ALGORITHM_VERSION", "SIGMA", "check_faces", "rotation_centers"]
 
 SIGMA = 0.1
 """Width of the similarity kernel (Le & Hodgins' value)."""
@@ -59,16 +57,6 @@ cores), and clusters on the :data:`CLUSTER` grid above it."""
 
 ALGORITHM_VERSION = 2
 """Part of the cache key: bump when the computed centers change."""
-
-
-def cache_dir() -> Path:
-    """Where centers are cached: ``$DQSKIN_CACHE_DIR``, else ``$XDG_CACHE_HOME/dqskin``, else
-    ``~/.cache/dqskin`` (the files go in its ``cor/`` folder)."""
-    root = os.environ.get("DQSKIN_CACHE_DIR")
-    if root:
-        return Path(root)
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    return (Path(xdg) if xdg else Path.home() / ".cache") / "dqskin"
 
 
 def check_faces(faces, vertex_count):
@@ -90,29 +78,6 @@ def _cache_key(points, faces, idx, wts, sigma, subdivide, cluster):
         h.update(str(a.shape).encode())
         h.update(np.ascontiguousarray(a).tobytes())
     return h.hexdigest()
-
-
-def _cache_load(path, vertex_count):
-    try:
-        c = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError):  # missing, truncated, empty or not an array
-        return None
-    return c if c.shape == (vertex_count, 3) and c.dtype == np.float64 else None
-
-
-def _cache_store(path, centers):
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npy", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.save(fh, centers)
-            os.replace(tmp, path)
-        except BaseException:
-            os.unlink(tmp)
-            raise
-    except OSError:
-        pass  # a read-only or full cache costs a recomputation next time, nothing more
 
 
 def _sparse_rows(rows, cols, vals, row_count, col_count):
@@ -347,7 +312,7 @@ def rotation_centers(points, faces, joint_indices, joint_weights, *, sigma: floa
         grid (1/256: centers within ~2·10⁻⁴ of the mesh size of the exact ones on a 35k-point
         4-influence test tube, 13× faster).
     cache : bool
-        Read and write the on-disk cache (:func:`cache_dir`).
+        Read and write the on-disk cache (:func:`dqskin.cache.cache_dir`).
     device : str, optional
         Warp device of the computation.
 
@@ -368,13 +333,13 @@ def rotation_centers(points, faces, joint_indices, joint_weights, *, sigma: floa
     idx, wts = check_influences(joint_indices, joint_weights, pts.shape[0])
     tris = check_faces(faces, pts.shape[0])
     key = _cache_key(pts, tris, idx, wts, sigma, subdivide, cluster)
-    path = cache_dir() / "cor" / f"{key}.npy"
+    path = _cache.cache_dir() / "cor" / f"{key}.npz"
     if cache:
-        hit = _cache_load(path, pts.shape[0])
+        hit = _cache.load(path, {"centers": ((pts.shape[0], 3), np.float64)})
         if hit is not None:
-            return hit
+            return hit["centers"]
     res = _compute(pts, tris, idx, wts, float(sigma), subdivide, cluster,
                    resolve_device(device))
     if cache:
-        _cache_store(path, res)
+        _cache.store(path, centers=res)
     return res

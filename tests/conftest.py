@@ -23,6 +23,19 @@ def shared_assets():
     return path
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _private_cache(tmp_path_factory):
+    """Every test (and the CLI it runs, and its subprocesses) caches in a temporary folder, never
+    in the user's ``~/.cache/dqskin``: tests neither read stale entries nor leave files there."""
+    old = os.environ.get("DQSKIN_CACHE_DIR")
+    os.environ["DQSKIN_CACHE_DIR"] = str(tmp_path_factory.mktemp("dqskin-cache"))
+    yield
+    if old is None:
+        os.environ.pop("DQSKIN_CACHE_DIR", None)
+    else:
+        os.environ["DQSKIN_CACHE_DIR"] = old
+
+
 def _devices():
     wp.config.quiet = True
     wp.init()

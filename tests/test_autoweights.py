@@ -3,13 +3,14 @@ symmetry on a symmetric mesh, the cache, and the real characters' skinned positi
 artists' weights, measured against Blender 5.0's automatic weights (the anchors of issue 14)."""
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from dqskin import Scene, Skeleton, autoweights, formats
+from dqskin import Scene, Skeleton, autoweights, cache, formats
 from dqskin.autoweights import automatic_weights, bone_heat_weights, bone_segments, sparsify
 from dqskin.rigging import replace_weights
 
@@ -171,12 +172,19 @@ def test_bad_input_is_named():
         bone_heat_weights(np.zeros((3, 3)), [[0, 1, 2]], [[0, 0, 0]], [[1, 0, 0]], [3], 1)
 
 
+def test_tests_never_use_the_users_cache():
+    """tests/conftest.py points every test at a temporary cache folder."""
+    home = Path.home() / ".cache"
+    assert home not in cache.cache_dir().parents and cache.cache_dir() != home / "dqskin"
+
+
 def test_cache_reused_and_keyed_by_inputs(tmp_path, monkeypatch):
     monkeypatch.setenv("DQSKIN_CACHE_DIR", str(tmp_path))
     skel, pts, faces = arm_span()
     first = automatic_weights(pts, faces, skel)
     files = list((tmp_path / "weights").glob("*.npz"))
-    assert len(files) == 1 and autoweights.cache_dir() == tmp_path
+    assert len(files) == 1 and cache.cache_dir() == tmp_path
+    whole = files[0].read_bytes()
 
     def boom(*a, **k):
         raise AssertionError("recomputed despite a cached result")
@@ -188,9 +196,61 @@ def test_cache_reused_and_keyed_by_inputs(tmp_path, monkeypatch):
         automatic_weights(pts + [0, 0.01, 0], faces, skel)
     with pytest.raises(AssertionError, match="recomputed"):  # other influence count
         automatic_weights(pts, faces, skel, max_influences=2)
-    files[0].write_bytes(b"corrupt")  # an unreadable entry is recomputed
-    with pytest.raises(AssertionError, match="recomputed"):
-        automatic_weights(pts, faces, skel)
+    monkeypatch.undo()
+    monkeypatch.setenv("DQSKIN_CACHE_DIR", str(tmp_path))
+    idx, w = first
+    damaged = {  # each is a miss: computed again and replaced, never an exception
+        "corrupt": b"corrupt", "empty": b"", "truncated": whole[:len(whole) // 2],
+        "cut at the end": whole[:-10]}
+    for what, data in damaged.items():
+        files[0].write_bytes(data)
+        got = automatic_weights(pts, faces, skel)
+        np.testing.assert_array_equal(got[1], w, err_msg=what)
+        assert files[0].read_bytes() == whole, what
+    misfits = {"too few rows": (idx[:-1], w[:-1]), "float indices": (idx.astype(float), w),
+               "float64 weights": (idx, w.astype(np.float64)),
+               "index out of range": (idx + 5, w), "nan weight": (idx, np.full_like(w, np.nan))}
+    for what, (a, b) in misfits.items():
+        np.savez(files[0], joint_indices=a, joint_weights=b)
+        got = automatic_weights(pts, faces, skel)
+        np.testing.assert_array_equal(got[0], idx, err_msg=what)
+        np.testing.assert_array_equal(got[1], w, err_msg=what)
+    assert sorted(p.name for p in (tmp_path / "weights").iterdir()) == sorted(
+        p.name for p in files), "no temporary file left"
+
+
+def test_only_joints_owning_a_bone_are_solved(monkeypatch):
+    """Joints without a bone (here: a non-deforming root, and an unused extra joint) take no
+    right-hand side in the solve and get no weight."""
+    import scipy.sparse.linalg as sla
+    columns = []
+    real = sla.splu
+
+    class Spy:
+        def __init__(self, a):
+            self.lu = real(a)
+
+        def solve(self, b):
+            columns.append(b.shape[1])
+            return self.lu.solve(b)
+
+    monkeypatch.setattr(sla, "splu", Spy)
+    skel, pts, faces = arm_span()
+    heads, tails, owners = bone_segments(skel, joints=[1, 2, 3, 4])
+    idx, w = bone_heat_weights(pts, faces, heads, tails, owners, 7, max_influences=4)
+    assert columns == [4]
+    assert set(np.unique(idx[w > 0])) <= {1, 2, 3, 4}
+
+
+@pytest.mark.parametrize("bad", [0, -1, 2.5])
+def test_max_influences_refused_before_the_solve(monkeypatch, bad):
+    monkeypatch.setattr(autoweights, "_heat_sources", lambda *a, **k: 1 / 0)
+    skel, pts, faces = arm_span()
+    with pytest.raises(ValueError, match="max_influences"):
+        automatic_weights(pts, faces, skel, max_influences=bad, cache=False)
+    heads, tails, owners = bone_segments(skel)
+    with pytest.raises(ValueError, match="max_influences"):
+        bone_heat_weights(pts, faces, heads, tails, owners, 5, max_influences=bad)
 
 
 # Blender 5.0 automatic weights vs the artist's, first clip, worst frame (issue 14): mean and
@@ -205,7 +265,10 @@ def test_real_characters_match_blender_or_better(shared_assets, name, source):
     suffix = ".glb" if source == "khronos-gltf" else ".usdz"
     scene = formats.load(shared_assets / source / name / f"{name}{suffix}")
     auto = replace_weights(scene, "auto", cache=False)
-    frames = np.arange(scene.times[0], scene.times[-1] + 1e-9, 1 / 24)  # as Blender plays it
+    # 24 frames a second, as Blender plays it (times are seconds in glTF, time codes in USD)
+    step = scene.time_codes_per_second / 24
+    frames = np.arange(scene.times[0], scene.times[-1] + 1e-9, step)
+    assert len(frames) < 100, len(frames)  # both characters' first clips are about 2 s
     for m, a in zip(scene.meshes, auto.meshes):
         one = dataclasses.replace(scene, meshes=[m], _skinners={})
         other = dataclasses.replace(auto, meshes=[a], _skinners={})
