@@ -85,7 +85,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
          chunk: int | None = None, normals: bool = True, velocities: bool = True,
          force: bool = False, progress: bool = False, clips: bool | None = None,
          workers: int | None = None, scheduler: str | None = None, resume: bool = False,
-         sign_reference: SignReference = "largest_weight") -> str:
+         sign_reference: SignReference = "largest_weight", inputs: tuple = ()) -> str:
     """Skin ``scene`` at ``times`` and write ``out``.
 
     Every chunk's joint transforms are checked as they are sampled
@@ -141,6 +141,9 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     resume : bool
         Keep the clip layers of an earlier, interrupted bake of the same input and settings
         that verify against their checksums; bake the rest.
+    inputs : sequence of paths
+        Other files the scene was read from (a mesh, a BVH, a weights file): like
+        ``scene.path``, no output may replace them.
 
     Returns
     -------
@@ -168,6 +171,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     args = dict(method=method, device=device, interp=interp)
     sign = dict(sign_reference=sign_reference)
     src = scene.path
+    sources = [src, *inputs]
     counts = f"{_plural(len(names), 'mesh', 'meshes')} × {_plural(len(t), 'frame')}"
     if kind == "usd":
         if format_of(src) is not usd:
@@ -182,7 +186,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
             return (f"wrote {out}: {counts} ({method or 'asset method'}"
                     f"{', velocities' if velocities else ''}) as {_plural(done['chunks'], 'clip')} "
                     f"in {done['folder']}{kept}")
-        check_output(out, [src], force)
+        check_output(out, sources, force)
         wrote_velocities = False
         with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args, **sign) as writer:
             for sl, res in _chunks(scene, t, chunk or CHUNK, progress, normals=normals,
@@ -193,7 +197,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         return (f"wrote {out}: {counts} "
                 f"({method or 'asset method'}{', velocities' if wrote_velocities else ''})")
     if kind == "npz":
-        check_output(out, [src], force)
+        check_output(out, sources, force)
         with atomic_path(out, overwrite=force) as tmp:  # claimed for the whole run
             pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32)
                    for m in scene.meshes}
@@ -207,7 +211,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     numbers = _frame_numbers(scene, t)
     paths = mesh_files.frame_paths(str(out), numbers)
     for p in paths:
-        check_output(p, [src], force)
+        check_output(p, sources, force)
     gltf_input = format_of(src) is gltf
     layout = mesh_files.MeshLayout(
         scene.meshes, suffix, normals=normals, uv_top_left=gltf_input,

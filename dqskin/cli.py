@@ -19,6 +19,7 @@ All argument parsing lives here; each command calls the library (:func:`dqskin.b
   progress bars only on a terminal.
 """
 
+import math
 import signal
 import sys
 from pathlib import Path
@@ -132,9 +133,18 @@ def _clip(text):
 
 
 def cmd_skin(args):
-    from .baking import bake, output_kind
+    from .baking import bake, check_output, output_kind
     from .times import select_times
     output_kind(args.out)
+    inputs = _inputs(args)
+    if "{" not in str(args.out):  # a per-frame pattern is checked frame by frame by bake
+        check_output(args.out, inputs, force=True)
+    if (args.skeleton is not None or args.weights is not None) and (
+            args.workers is not None or args.scheduler or args.resume):
+        raise ValueError("--skeleton and --weights cannot be combined with --workers, "
+                         "--scheduler or --resume: clip workers and the resume check read INPUT "
+                         "from its file, without the new weights; write the rig first (dqskin "
+                         "rig ... --out rig.usda) and bake that")
     _checkpoint()
     scene = _load_input(args, cache_out=args.out)
     _checkpoint()
@@ -144,7 +154,7 @@ def cmd_skin(args):
                device=args.device, chunk=args.chunk, normals=args.normals,
                velocities=args.velocities, force=args.force, progress=True, clips=args.clips,
                workers=args.workers, scheduler=args.scheduler, resume=args.resume,
-               sign_reference=args.sign_reference))
+               sign_reference=args.sign_reference, inputs=inputs))
     return 0
 
 
@@ -160,6 +170,14 @@ def _rigging(args):
     return any(getattr(args, k, None) is not None for k in ("skeleton", "weights", "scale"))
 
 
+def _inputs(args):
+    """The files ``skin``/``compare``/``rig`` read: INPUT, ``--skeleton``, ``--weights FILE``
+    (no output may replace one of them)."""
+    weights = getattr(args, "weights", None)
+    return [args.input] + [f for f in (getattr(args, "skeleton", None), weights)
+                           if f is not None and f != "auto"]
+
+
 def _load_input(args, cache_out=None):
     """The scene of ``skin``/``compare``/``rig``: the character file, or with ``--skeleton`` a
     plain mesh bound to a BVH (:func:`dqskin.rigging.rig_mesh`); ``--weights`` replaces the
@@ -167,6 +185,10 @@ def _load_input(args, cache_out=None):
     write (a USD cache needs a USD input: a rig first)."""
     from . import formats
     from .rigging import replace_weights, rig_mesh
+    if args.max_influences < 1:
+        raise ValueError(f"--max-influences {args.max_influences}: must be at least 1")
+    if args.scale is not None and not (math.isfinite(args.scale) and args.scale > 0):
+        raise ValueError(f"--scale {args.scale:g}: must be a positive number")
     weights = args.weights
     if weights is not None and weights != "auto":
         weights = _regular_file(weights)
@@ -216,8 +238,7 @@ def cmd_rig(args):
     """``dqskin rig``: bind (or re-weight) and write a UsdSkel rig."""
     from .baking import check_output
     from .formats.usd_rig import write_rig
-    inputs = [args.input] + ([args.skeleton] if args.skeleton else [])
-    check_output(args.out, inputs, args.force)
+    check_output(args.out, _inputs(args), args.force)
     scene = _load_input(args)
     _checkpoint()
     print(write_rig(scene, args.out, force=args.force))
@@ -313,6 +334,12 @@ def cmd_compare(args):
     """``dqskin compare``: :func:`dqskin.report.compare.run_compare`, then a summary."""
     from .report.compare import run_compare, summary_lines
     from .times import parse_frames
+    out = Path(args.out).resolve()
+    for src in _inputs(args):  # what the report writes: the folder, these files, frames/*
+        p = Path(src).resolve()
+        if p in (out, out / "report.html", out / "metrics.json") or p.parent == out / "frames":
+            raise ValueError(f"--out {args.out}: refusing to write the report over the input "
+                             f"{src}")
     source = _load_input(args) if _rigging(args) else _regular_file(args.input)
     result = run_compare(
         source, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],

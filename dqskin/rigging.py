@@ -12,6 +12,8 @@ says how to fix it (``scale``: multiply the skeleton's lengths).
 """
 
 import os
+import zipfile
+import zlib
 from dataclasses import replace
 from pathlib import Path
 
@@ -39,8 +41,9 @@ def read_weights(path: str | os.PathLike, joint_names: list, vertex_count: int
     """Influences from an ``.npz`` with :data:`WEIGHT_FIELDS`, re-indexed by joint name into
     ``joint_names`` order: ``(indices (V, K) int32, weights (V, K) float32)``.
 
-    Raises ValueError naming the file and field: missing arrays, wrong shapes, joints the
-    skeleton does not have, bad indices or weights.
+    Raises ValueError naming the file and field: an unreadable file (missing, empty, truncated,
+    not an ``.npz``), missing arrays, wrong shapes, joints the skeleton does not have, bad
+    indices or weights.
     """
     p = Path(path)
     try:
@@ -50,12 +53,13 @@ def read_weights(path: str | os.PathLike, joint_names: list, vertex_count: int
                 raise ValueError(f"{p}: missing {', '.join(missing)} (a weights file holds "
                                  f"{', '.join(WEIGHT_FIELDS)})")
             idx, wts, names = (z[f] for f in WEIGHT_FIELDS)
-    except (OSError, EOFError) as exc:
-        raise ValueError(f"{p}: cannot read weights ({exc})") from None
     except ValueError as exc:
         if str(exc).startswith(str(p)):
             raise
-        raise ValueError(f"{p}: cannot read weights ({exc})") from None
+        raise ValueError(f"{p}: cannot read weights: {exc}") from None
+    except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        # missing, empty, truncated or damaged archive
+        raise ValueError(f"{p}: cannot read weights: {exc or type(exc).__name__}") from None
     names = [str(n) for n in np.ravel(names)]
     try:
         idx, wts = check_influences(idx, wts, vertex_count, len(names))

@@ -5,6 +5,8 @@ dqskin's skinning), and the errors for meshes that do not fit their skeleton.
 Oracles: the FK of tests/test_bvh.py (written from the format) and linear blend skinning in
 float64 NumPy from its equation ``p' = Σ w_j · W_j · B_j⁻¹ · p``; usd-core's UsdSkel."""
 
+import re
+
 import numpy as np
 import pytest
 import trimesh
@@ -206,3 +208,83 @@ def test_cli_compare_on_a_rigged_mesh(capture, tmp_path, monkeypatch, capsys):
     assert "report.html" in capsys.readouterr().out
     metrics = json.loads((out / "metrics.json").read_text())
     assert "body" in metrics["meshes"] and (out / "report.html").stat().st_size > 1000
+
+
+def test_damaged_weight_files_are_named(capture, tmp_path, capsys):
+    path, mesh, motion = capture
+    V, J = len(formats.load_mesh(mesh)[0]), motion.joint_names
+    good = tmp_path / "good.npz"
+    np.savez(good, joint_indices=np.zeros((V, 1), int), joint_weights=np.ones((V, 1)),
+             joint_names=np.array(J))
+    whole = good.read_bytes()
+    for name, data in {"empty": b"", "truncated": whole[:len(whole) // 2],
+                       "cut": whole[:-10]}.items():
+        f = tmp_path / f"{name}.npz"
+        f.write_bytes(data)
+        with pytest.raises(ValueError, match=re.escape(f"{f}: cannot read weights: ")):
+            read_weights(f, J, V)
+        argv = ["skin", str(mesh), "--skeleton", str(path), "--weights", str(f), "--out",
+                str(tmp_path / "x.npz")]
+        assert main(argv) == 2, name
+        err = capsys.readouterr().err
+        assert f"{f}: cannot read weights" in err and "Traceback" not in err, err
+
+
+def test_outputs_never_replace_an_input(capture, tmp_path, capsys):
+    """``--force`` replaces outputs, never the mesh, skeleton or weights a command reads."""
+    path, mesh, motion = capture
+    body = tmp_path / "f_0000.obj"  # also what the pattern f_{:04d}.obj names frame 0
+    body.write_bytes(mesh.read_bytes())
+    walk = tmp_path / "walk.bvh"
+    walk.write_bytes(path.read_bytes())
+    scene = rig_mesh(mesh, path)
+    (m,) = scene.meshes
+    arrays = dict(joint_indices=m.joint_indices, joint_weights=m.joint_weights,
+                  joint_names=np.array(motion.joint_names))
+    wfile, wusd = tmp_path / "w.npz", tmp_path / "w.usda"  # np.load reads either by content
+    np.savez(wfile, **arrays)
+    wusd.write_bytes(wfile.read_bytes())
+    report = tmp_path / "report"
+    (report / "frames").mkdir(parents=True)
+    in_report = report / "metrics.json"
+    in_report.write_bytes(wfile.read_bytes())
+    skin = ["skin", str(body), "--skeleton", str(walk), "--frames", "0", "--force", "--out"]
+    cases = [skin + [str(body)], skin + [str(wfile), "--weights", str(wfile)],
+             skin + [str(tmp_path / "f_{:04d}.obj")],
+             ["rig", str(body), "--skeleton", str(walk), "--weights", str(wusd), "--force",
+              "--out", str(wusd)],
+             ["compare", str(body), "--skeleton", str(walk), "--weights", str(in_report),
+              "--force", "--quiet", "--no-sweeps", "--out", str(report)]]
+    before = {p: p.read_bytes() for p in (body, walk, wfile, wusd, in_report)}
+    for argv in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert "refusing to" in err and "input" in err and "Traceback" not in err, (argv, err)
+    for p, data in before.items():
+        assert p.read_bytes() == data, p
+
+
+def test_weights_refused_with_clip_workers_or_resume(tmp_path, capsys, monkeypatch):
+    """Clip workers reload INPUT from its file (without the new weights), and the resume check
+    does not know them: refused before anything is loaded."""
+    from dqskin.cli import default_asset
+    monkeypatch.setattr("dqskin.formats.load", lambda *a, **k: 1 / 0)
+    for extra in (["--workers", "1"], ["--scheduler", "tcp://127.0.0.1:1"], ["--resume"]):
+        argv = ["skin", str(default_asset()), "--weights", "auto", "--out",
+                str(tmp_path / "x.usdc"), *extra]
+        assert main(argv) == 2, extra
+        err = capsys.readouterr().err
+        assert "cannot be combined with --workers, --scheduler or --resume" in err, err
+    assert not list(tmp_path.iterdir())
+
+
+def test_bad_scale_and_influence_count_named_up_front(capture, tmp_path, capsys, monkeypatch):
+    path, mesh, motion = capture
+    monkeypatch.setattr("dqskin.rigging.automatic_weights", lambda *a, **k: 1 / 0)
+    for flag, value in (("--scale", "0"), ("--scale", "-2"), ("--scale", "nan"),
+                        ("--max-influences", "0")):
+        argv = ["skin", str(mesh), "--skeleton", str(path), flag, value, "--out",
+                str(tmp_path / "x.npz")]
+        assert main(argv) == 2, (flag, value)
+        err = capsys.readouterr().err
+        assert f"{flag} {float(value):g}: must be" in err and "Traceback" not in err, err
