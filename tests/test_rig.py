@@ -288,3 +288,59 @@ def test_bad_scale_and_influence_count_named_up_front(capture, tmp_path, capsys,
         assert main(argv) == 2, (flag, value)
         err = capsys.readouterr().err
         assert f"{flag} {float(value):g}: must be" in err and "Traceback" not in err, err
+
+
+def _world_skinned(path, times):
+    """``{mesh leaf name: (F, V, 3) float64}``: UsdSkel.BakeSkinning of the stage at ``path``,
+    taken to the world by each mesh's local-to-world at each time."""
+    stage = Usd.Stage.Open(str(path))
+    stage.SetEditTarget(stage.GetSessionLayer())  # a .usdz is read-only
+    assert UsdSkel.BakeSkinning(stage.Traverse(), Gf.Interval(min(times), max(times)))
+    out = {}
+    for prim in stage.Traverse():
+        if prim.IsA(UsdGeom.Mesh):
+            frames = []
+            for t in times:
+                p = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(t), np.float64)
+                m = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t)).T
+                frames.append(p @ m[:3, :3].T + m[:3, 3])
+            out[prim.GetName()] = np.stack(frames)
+    return out
+
+
+@pytest.mark.parametrize("moving", [False, True])
+def test_rig_of_a_usd_character_keeps_its_world_placement(shared_assets, tmp_path, moving):
+    """usd-wg CesiumMan stands in a ``Z_UP`` group (a rotation); moved about over time by a
+    parent in the second case. The rig skinned by UsdSkel is where the source is, in the world."""
+    src = shared_assets / "usd-wg" / "CesiumMan" / "CesiumMan.usdz"
+    if moving:
+        wrapper = tmp_path / "moving.usda"
+        wrapper.write_text(f"""#usda 1.0
+(
+    defaultPrim = "World"
+    startTimeCode = 1
+    endTimeCode = 48
+    timeCodesPerSecond = 24
+    upAxis = "Y"
+)
+def Xform "World"
+{{
+    double3 xformOp:translate.timeSamples = {{1: (0, 0, 0), 48: (1.5, -0.5, 2)}}
+    float xformOp:rotateY.timeSamples = {{1: 0, 48: 120}}
+    uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateY"]
+    def "Man" (references = @{src}@)
+    {{
+    }}
+}}
+""")
+        src = wrapper
+    rig = tmp_path / "rig.usda"
+    assert main(["rig", str(src), "--out", str(rig)]) == 0
+    times = [1.0, 17.0, 33.0, 48.0]
+    ref, got = _world_skinned(src, times), _world_skinned(rig, times)
+    assert sorted(ref) == sorted(got) and ref
+    for name in ref:
+        scale = np.abs(ref[name]).max()
+        np.testing.assert_allclose(got[name], ref[name], atol=1e-5 * scale, err_msg=name)
+        up = np.ptp(ref[name][0], axis=0)
+        assert up[1] == up.max(), "the man stands along +Y in the world"

@@ -7,8 +7,12 @@ with the animation sampled at the scene's times (``translations``, ``rotations``
 ``Mesh`` with ``SkelBindingAPI``: ``skel:skeleton``, ``primvars:skel:jointIndices`` and
 ``jointWeights`` (vertex interpolation, ``elementSize`` K), ``primvars:skel:geomBindTransform``
 and ``primvars:skel:skinningMethod`` (``classicLinear`` for "lbs", ``dualQuaternion`` for
-"dqs"). Matrices are transposed here, at the USD boundary (Gf is row-vector). Joint names become
-valid USD identifiers (``Tf.MakeValidIdentifier``, made unique among siblings).
+"dqs"). The Skeleton prim carries the source skeleton's placement in the world (in a USD scene
+its prim's local-to-world, time-sampled when animated: a converter's ``Z_UP`` group, say) as one
+``xformOp:transform``; the meshes need none (UsdSkel skins into skeleton space and takes the
+result to the world by the skeleton's transform). Matrices are transposed here, at the USD
+boundary (Gf is row-vector). Joint names become valid USD identifiers
+(``Tf.MakeValidIdentifier``, made unique among siblings).
 
 The file is written atomically (:mod:`.atomic`); ``.usd`` is crate, ``.usda`` text.
 """
@@ -22,6 +26,7 @@ from ..scene import Scene
 from . import gltf
 from .atomic import atomic_path
 from .usd_cache import export_layer
+from .usd_xform import XformChain, read_local_to_world
 
 __all__ = ["RIG_SUFFIXES", "SECONDS_RATE", "joint_paths", "write_rig"]
 
@@ -66,6 +71,42 @@ def _matrices(m):
     return Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(np.transpose(m, (0, 2, 1))))
 
 
+def _source_stage(scene):
+    """The USD stage ``scene`` was read from, or None (glTF, BVH, a missing file)."""
+    from pxr import Usd
+
+    from . import usd
+    if Path(scene.path).suffix.lower() not in usd.SUFFIXES or not Path(scene.path).is_file():
+        return None
+    return Usd.Stage.Open(str(scene.path))
+
+
+def _skeleton_to_world(scene, skel, source, times):
+    """(F, 4, 4) skeleton space → world at ``times``: the source Skeleton prim's
+    local-to-world (its xform ops and its ancestors', time-sampled ones evaluated at every time)
+    for a USD scene, else the skeleton's ``world_transform`` (identity for glTF and BVH)."""
+    prim = source.GetPrimAtPath(skel.name) if source is not None and skel.name and \
+        str(skel.name).startswith("/") else None
+    if prim:
+        track = XformChain(read_local_to_world(prim), [], name=f"{scene.path}: {skel.name}")
+        return track.at(times)
+    return np.broadcast_to(np.asarray(skel.world_transform, np.float64), (len(times), 4, 4))
+
+
+def _author_placement(xformable, world, codes):
+    """Give ``xformable`` the transform ``world`` (F, 4, 4) at time ``codes``: nothing when it is
+    the identity throughout, one value when constant, else a time sample per code."""
+    from pxr import Gf, Usd, UsdGeom
+    if np.allclose(world, np.eye(4), rtol=0, atol=1e-12):
+        return
+    op = UsdGeom.Xformable(xformable).AddTransformOp()
+    if np.allclose(world, world[:1], rtol=0, atol=1e-12):
+        op.Set(Gf.Matrix4d(world[0].T.tolist()))
+        return
+    for m, t in zip(world, codes):
+        op.Set(Gf.Matrix4d(m.T.tolist()), Usd.TimeCode(float(t)))
+
+
 def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> str:
     """Write ``scene`` as a UsdSkel rig at ``out`` (``.usd/.usda/.usdc``).
 
@@ -105,6 +146,7 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
     stage.SetDefaultPrim(root.GetPrim())
     taken = {"Skeleton"}
     skel_paths = []
+    source = _source_stage(scene)
     for s, skel in enumerate(scene.skeletons):
         path = Sdf.Path("/Root/Skeleton" + (f"_{s}" if s else ""))
         taken.add(path.name)
@@ -114,6 +156,7 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
         us.CreateBindTransformsAttr(_matrices(skel.bind_transforms))
         us.CreateRestTransformsAttr(_matrices(skel.rest_transforms))
         skel_paths.append(path)
+        _author_placement(us, _skeleton_to_world(scene, skel, source, times), codes)
         if skel.animation is None:
             continue
         anim = UsdSkel.Animation.Define(stage, path.AppendChild("Animation"))
