@@ -145,8 +145,13 @@ def cmd_skin(args):
                          "--scheduler or --resume: clip workers and the resume check read INPUT "
                          "from its file, without the new weights; write the rig first (dqskin "
                          "rig ... --out rig.usda) and bake that")
+    if args.cor_exact and (args.workers is not None or args.scheduler or args.resume):
+        raise ValueError("--cor-exact cannot be combined with --workers, --scheduler or --resume "
+                         "(clip workers compute the centers with the defaults)")
     _checkpoint()
     scene = _load_input(args, cache_out=args.out)
+    if args.cor_exact:
+        scene.cor_options = {"cluster": None}
     _checkpoint()
     times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
                          args.substeps, max_frames=args.max_frames)
@@ -440,6 +445,9 @@ def build_parser():
     s.add_argument("--method", choices=list(METHODS), default=None,
                    help="default: what the asset asks for (LBS for glTF); cor = optimized "
                    "centers of rotation (precomputed per mesh, cached in ~/.cache/dqskin)")
+    s.add_argument("--cor-exact", action="store_true",
+                   help="cor: exact centers even on meshes so large that the default clusters "
+                   "their weights on a 1/256 grid (slower; see README)")
     _add_sign_reference(s)
     s.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
                    "asset's time unit (USD time codes, glTF seconds)")

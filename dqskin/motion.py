@@ -159,6 +159,7 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
                        point_velocities: npt.ArrayLike | None = None,
                        blend_weights: npt.ArrayLike | None = None,
                        faces: npt.ArrayLike | None = None,
+                       rest_points: npt.ArrayLike | None = None,
                        sign_reference: SignReference = "largest_weight",
                        device: Device = None) -> np.ndarray:
     """Velocities of skinned points, by the chain rule (Warp, one thread per vertex).
@@ -171,7 +172,7 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
     Parameters
     ----------
     points : (V, 3) or (F, V, 3) float
-        Rest points, mesh space.
+        Points, mesh space: the rest points, or each frame's (e.g. after blend shapes).
     joint_indices, joint_weights : (V, K) int, (V, K) float
     skinning_transforms : (J, 4, 4) or (F, J, 4, 4) float
         Bind-relative transforms ``A`` (world ∘ inverse bind), column-vector convention.
@@ -185,7 +186,12 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
     blend_weights : (V,) float, optional
         DQS fraction per vertex, required for ``"blend"``.
     faces : (T, 3) int, optional
-        Triangles, required for ``"cor"`` (centers from the first frame's points).
+        Triangles, required for ``"cor"``.
+    rest_points : (V, 3) float, optional
+        Rest points (mesh space) the ``"cor"`` centers are computed from, as
+        :class:`dqskin.Skinner` and :meth:`dqskin.Scene.skin` do (the centers do not follow
+        blend shapes), so these are the derivatives of their positions. Default: ``points``
+        when it is (V, 3); required for ``"cor"`` with per-frame (F, V, 3) points.
     sign_reference : {"largest_weight", "running_sum"}
         Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
     device : str, optional
@@ -203,8 +209,17 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
                          f"{x_dot.shape} must both be (J, 4, 4) or (F, J, 4, 4)")
     frames = x.shape[0] if x.ndim == 4 else 1
     idx, wts = check_influences(joint_indices, joint_weights, joint_count=x.shape[-3])
-    pts, _ = frames_of("points", points, frames, idx.shape[0])
-    sk = Skinner(pts[0], idx, wts, geom_bind_transform=geom_bind_transform,
+    pts, batched = frames_of("points", points, frames, idx.shape[0])
+    rest = pts[0]
+    if rest_points is not None:
+        rest = as_real("rest_points", rest_points, np.float64)
+        if rest.shape != (idx.shape[0], 3):
+            raise ValueError(f"rest_points: expected ({idx.shape[0]}, 3), got {rest.shape}")
+    elif method == "cor" and batched:
+        raise ValueError('method "cor" with per-frame points needs rest_points (its centers '
+                         'come from the rest mesh)')
+    sk = Skinner(rest, idx, wts, geom_bind_transform=geom_bind_transform,
                  blend_weights=blend_weights, faces=faces, device=device)
-    return sk.skin_velocities(x, x_dot, method, points=pts if pts.shape[0] > 1 else None,
+    per_frame = pts.shape[0] > 1 or rest_points is not None
+    return sk.skin_velocities(x, x_dot, method, points=pts if per_frame else None,
                               point_velocities=point_velocities, sign_reference=sign_reference)

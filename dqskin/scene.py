@@ -119,6 +119,10 @@ class Scene:
     meters_per_unit : float
     clips : list of str
         Animation clip names available (glTF); the loaded one is ``clip``.
+    cor_options : dict
+        Options of ``method="cor"``'s centers for every mesh: ``sigma``, ``subdivide``,
+        ``cluster`` (:func:`dqskin.cor.rotation_centers`; e.g. ``{"cluster": None}`` for exact
+        centers); empty: the defaults. Call :meth:`invalidate` after changing it.
 
     Each mesh's ``skeleton`` indexes ``skeletons`` (checked on construction); each skeleton carries
     the animation that drives it (``Skeleton.animation``; :attr:`animations` lists them). Skinners
@@ -135,6 +139,7 @@ class Scene:
     meters_per_unit: float = 1.0
     clips: list = field(default_factory=list)
     clip: str | None = None
+    cor_options: dict = field(default_factory=dict)
     _skinners: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self):
@@ -163,7 +168,7 @@ class Scene:
             sk = Skinner(mesh.points, mesh.joint_indices, mesh.joint_weights,
                          geom_bind_transform=mesh.geom_bind_transform,
                          blend_weights=mesh.blend_or_default(), faces=mesh.faces,
-                         device=device)
+                         device=device, **{f"cor_{k}": v for k, v in self.cor_options.items()})
             self._skinners[key] = sk
         return sk
 

@@ -230,24 +230,39 @@ def test_exact_merging_on_rigs_with_repeated_weights(asset):
     np.testing.assert_allclose(got, want, atol=1e-9)
 
 
-def test_clustering_approximates_and_auto_switches(monkeypatch):
-    pts, faces, idx, w = chain_mesh(rings=21)
+def test_clustering_within_the_documented_bound(monkeypatch, caplog):
+    """Clustered centers and the points skinned with them against the exact oracle, within the
+    bound rotation_centers documents: grid step × falloff width (1 / the steepest weight
+    gradient: ℓ = 1.5 here), for centers and skinned points alike."""
+    pts, faces, idx, w = chain_mesh()
     exact = centers_reference(pts, faces, idx, w)
     np.testing.assert_allclose(cor.rotation_centers(pts, faces, idx, w, cluster=None, cache=False),
                                exact, atol=1e-9)
-    coarse = cor.rotation_centers(pts, faces, idx, w, cluster=1 / 32, cache=False)
-    fine = cor.rotation_centers(pts, faces, idx, w, cluster=1 / 256, cache=False)
-    err = {name: np.nanmax(np.abs(c - exact)) for name, c in (("1/32", coarse), ("1/256", fine))}
-    assert err["1/256"] < 1e-2 and err["1/256"] < err["1/32"] < 0.1, err  # mesh length 6
-    assert err["1/32"] > 1e-6  # (it did cluster)
-    # "auto": exact on this small mesh, the CLUSTER grid once the work exceeds AUTO_TERMS
-    np.testing.assert_array_equal(cor.rotation_centers(pts, faces, idx, w, cache=False),
-                                  cor.rotation_centers(pts, faces, idx, w, cluster=None,
-                                                       cache=False))
+    xf = chain_pose(np.random.default_rng(2))
+    want = cor_reference(pts, idx, w, xf, exact)
+    err = {}
+    for g in (1 / 32, 1 / 256):
+        c = cor.rotation_centers(pts, faces, idx, w, cluster=g, cache=False)
+        np.testing.assert_array_equal(np.isnan(c[:, 0]), np.isnan(exact[:, 0]))
+        got = Skinner(pts, idx, w, faces=faces, cor_cluster=g).skin(xf, "cor")
+        err[g] = (np.nanmax(np.linalg.norm(c - exact, axis=1)),
+                  np.linalg.norm(got - want, axis=-1).max())
+        assert 1e-6 < err[g][0] <= g * 1.5 and err[g][1] <= g * 1.5, (g, err[g])
+    assert err[1 / 256][0] < err[1 / 32][0], err
+    # "auto": exact on this small mesh (logged at DEBUG), the CLUSTER grid once the work exceeds
+    # AUTO_TERMS (logged at INFO)
+    with caplog.at_level("DEBUG", logger="dqskin.cor"):
+        np.testing.assert_array_equal(cor.rotation_centers(pts, faces, idx, w, cache=False),
+                                      cor.rotation_centers(pts, faces, idx, w, cluster=None,
+                                                           cache=False))
+    assert [r.levelname for r in caplog.records] == ["DEBUG", "DEBUG"]
+    caplog.clear()
     monkeypatch.setattr(cor, "AUTO_TERMS", 0)
-    np.testing.assert_array_equal(cor.rotation_centers(pts, faces, idx, w, cache=False),
-                                  cor.rotation_centers(pts, faces, idx, w, cluster=cor.CLUSTER,
-                                                       cache=False))
+    with caplog.at_level("INFO", logger="dqskin.cor"):
+        np.testing.assert_array_equal(cor.rotation_centers(pts, faces, idx, w, cache=False),
+                                      cor.rotation_centers(pts, faces, idx, w,
+                                                           cluster=cor.CLUSTER, cache=False))
+    assert len(caplog.records) == 1 and "clustered on a 1/256 grid" in caplog.records[0].message
 
 
 def test_subdivision_matches_reference_and_refines():
@@ -316,19 +331,80 @@ def test_one_hot_vertices_move_rigidly(device):
     np.testing.assert_allclose(got[:, one_hot], rigid[:, one_hot], atol=2e-5)
 
 
-def test_scale_residual_and_normals(device):
-    pts, faces, idx, w = chain_mesh()
-    xf = chain_pose(np.random.default_rng(4), frames=1)
+def test_near_one_hot_vertices_get_a_center(device):
+    """Vertices whose weights are one-hot but for 10⁻³ on the neighbouring joint share triangles
+    with two-joint pairs: they get a center (the oracle's) and the COR formula, nearly rigid."""
+    pts, faces, idx, w = chain_mesh(rings=16)
+    one_hot = (w > 0).sum(1) == 1
+    j = np.argmax(w, axis=1)
+    w = w.copy()
+    w[one_hot, j[one_hot]] = 1 - 1e-3
+    w[one_hot, np.where(j[one_hot] == 0, 1, j[one_hot] - 1)] = 1e-3
+    centers = centers_reference(pts, faces, idx, w)
+    assert not np.any(np.isnan(centers[:, 0]))
     sk = Skinner(pts, idx, w, faces=faces, device=device)
-    # normals turn as DQS's (the same rotation)
-    n = np.c_[np.zeros(len(pts)), pts[:, 1:]] / 0.5
-    np.testing.assert_allclose(sk.skin_vectors(xf, n, "cor"), sk.skin_vectors(xf, n, "dqs"),
-                               atol=1e-6)
-    # a uniform scale s about the origin on every joint scales the rigid result: s·(R(v−p*)) +
-    # Σ wⱼ·s·Aⱼ·[p*, 1]
+    np.testing.assert_allclose(sk.rotation_centers(), centers, atol=1e-9)
+    xf = chain_pose(np.random.default_rng(3))
+    got = sk.skin(xf, "cor")
+    np.testing.assert_allclose(got, cor_reference(pts, idx, w, xf, centers), atol=5e-5)
+    rigid = np.einsum("fvij,vj->fvi", xf[:, j, :3, :], np.c_[pts, np.ones(len(pts))])
+    off = np.linalg.norm(got - rigid, axis=-1)[:, one_hot]
+    assert 1e-5 < off.max() < 0.02, off.max()
+
+
+def test_one_hot_vertices_with_a_center_move_rigidly(device, monkeypatch):
+    """The formula itself: for one-hot weights ``R·(v − p*) + Aⱼ·[p*, 1] = Aⱼ·[v, 1]`` whatever
+    the center (the engine gives them none; here every vertex gets a planted one)."""
+    from dqskin import skinning
+
+    pts, faces, idx, w = chain_mesh(rings=16)
+    planted = pts + np.random.default_rng(7).normal(size=pts.shape)
+    monkeypatch.setattr(skinning, "rotation_centers", lambda *a, **k: planted.copy())
+    sk = Skinner(pts, idx, w, faces=faces, device=device)
+    np.testing.assert_array_equal(sk.rotation_centers(), planted)
+    xf = chain_pose(np.random.default_rng(3))
+    got = sk.skin(xf, "cor")
+    one_hot = (w > 0).sum(1) == 1
+    j = np.argmax(w, axis=1)
+    rigid = np.einsum("fvij,vj->fvi", xf[:, j, :3, :], np.c_[pts, np.ones(len(pts))])
+    np.testing.assert_allclose(got[:, one_hot], rigid[:, one_hot], atol=5e-5)
+    np.testing.assert_allclose(got, cor_reference(pts, idx, w, xf, planted), atol=5e-5)
+
+
+def test_geom_bind_transform(device):
+    """Centers are computed in bind space: from ``G·v`` (G rotates, scales unevenly and
+    translates, so mesh-space centers mapped by G differ), and points are skinned from there."""
+    pts, faces, idx, w, xf = random_cor_rig(15, V=150, T=300, F=2)
+    g = np.eye(4)
+    g[:3, :3] = Rotation.from_rotvec([0.3, -0.5, 0.8]).as_matrix() @ np.diag([2.0, 0.5, 1.2])
+    g[:3, 3] = [0.5, -1.0, 2.0]
+    bind = pts @ g[:3, :3].T + g[:3, 3]
+    centers = centers_reference(bind, faces, idx, w)
+    mapped = centers_reference(pts, faces, idx, w) @ g[:3, :3].T + g[:3, 3]
+    assert np.nanmax(np.abs(mapped - centers)) > 0.05
+    sk = Skinner(pts, idx, w, faces=faces, geom_bind_transform=g, device=device)
+    np.testing.assert_allclose(sk.rotation_centers(), centers, atol=1e-9)
+    np.testing.assert_allclose(sk.skin(xf, "cor"), cor_reference(bind, idx, w, xf, centers),
+                               atol=1e-4)
+
+
+def test_normals_and_uniform_scale(device):
+    pts, faces, idx, w, xf = random_cor_rig(4, F=2)
+    sk = Skinner(pts, idx, w, faces=faces, device=device)
+    # normals turn by the normalized rotation blend R (of either rule), centers or not
+    n = np.random.default_rng(5).normal(size=pts.shape)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    for rule in RULES:
+        r, _ = rotation_blend(xf, idx, w, rule)
+        np.testing.assert_allclose(sk.skin_vectors(xf, n, "cor", sign_reference=rule),
+                                   rotate(r, n[None]), atol=2e-5, err_msg=rule)
+    # a uniform scale about the origin on every joint: the float64 residual reference
+    centers = centers_reference(pts, faces, idx, w)
     scaled = xf.copy()
     scaled[:, :, :3, :] *= 1.5
-    np.testing.assert_allclose(sk.skin(scaled, "cor"), 1.5 * sk.skin(xf, "cor"), atol=1e-4)
+    want = cor_residual_reference(pts, idx, w, scaled, centers)
+    np.testing.assert_allclose(sk.skin(scaled, "cor"), want, atol=1e-4)
+    assert np.abs(want - cor_reference(pts, idx, w, xf, centers)).max() > 0.1  # (it scaled)
 
 
 def test_scale_and_shear(device):
@@ -373,6 +449,36 @@ def test_velocities_match_central_differences(device):
                                  faces=faces, sign_reference=rule, device=device)
         np.testing.assert_allclose(got, want[rule], atol=2e-3 * np.abs(want[rule]).max(),
                                    err_msg=rule)
+
+
+def test_velocities_of_per_frame_points_use_rest_centers(device):
+    """With per-frame points (blend shapes), centers come from the rest points, as Skinner.skin
+    and Scene.skin take them: the velocities are the derivatives of those positions."""
+    pts, faces, idx, w, _ = random_cor_rig(16, V=150, T=300)
+    rng = np.random.default_rng(17)
+    at = motion(rng, 6)
+    offset, rate = 0.6 * rng.normal(size=(2,) + pts.shape), rng.normal(size=(2,) + pts.shape)
+
+    def points(t):
+        return pts + offset + t * rate
+    rest_centers = centers_reference(pts, faces, idx, w)
+    h = 1e-5
+    want = (cor_reference(points(h)[0], idx, w, at(h)[:1], rest_centers)[0]
+            - cor_reference(points(-h)[0], idx, w, at(-h)[:1], rest_centers)[0]) / (2 * h)
+    wrong_centers = centers_reference(points(0.0)[0], faces, idx, w)
+    wrong = (cor_reference(points(h)[0], idx, w, at(h)[:1], wrong_centers)[0]
+             - cor_reference(points(-h)[0], idx, w, at(-h)[:1], wrong_centers)[0]) / (2 * h)
+    assert np.abs(wrong - want).max() > 10 * 2e-3 * np.abs(want).max()  # the centers matter
+    got = skinned_velocities(points(0.0), idx, w, at(0.0), (at(h) - at(-h)) / (2 * h), "cor",
+                             faces=faces, point_velocities=rate, rest_points=pts, device=device)
+    np.testing.assert_allclose(got[0], want, atol=2e-3 * np.abs(want).max())
+    # the positions they differentiate: Skinner.skin (as Scene.skin) of per-frame points
+    sk = Skinner(pts, idx, w, faces=faces, device=device)
+    np.testing.assert_allclose(sk.skin(at(0.0), "cor", points=points(0.0))[0],
+                               cor_reference(points(0.0)[0], idx, w, at(0.0)[:1], rest_centers)[0],
+                               atol=1e-4)
+    with pytest.raises(ValueError, match="needs rest_points"):
+        skinned_velocities(points(0.0), idx, w, at(0.0), at(0.0), "cor", faces=faces)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -518,6 +624,33 @@ def test_scene_cli_and_compare(tmp_path, monkeypatch):
     metrics = json.loads((tmp_path / "report" / "metrics.json").read_text())
     assert metrics["methods"] == ["lbs", "cor"]
     assert rules and set(rules) == {"running_sum"}
+
+
+def test_cor_options_through_scene_and_cli(tmp_path, monkeypatch):
+    """Scene.cor_options and ``dqskin skin --cor-exact`` reach the centers: with every mesh
+    above AUTO_TERMS the default clusters, the option gives the exact oracle's points."""
+    pts, faces, idx, w = chain_mesh(rings=16)
+    path = tmp_path / "chain.usda"
+    write_usd_rig(path, np.random.default_rng(6), J=4, frames=2, points=pts, faces=faces,
+                  idx=idx.astype(np.int32), wts=w.astype(np.float32))
+    want = cor_reference(pts, idx, w, usdskel_transforms(path, [0, 1]),
+                         centers_reference(pts, faces, idx, w))
+    monkeypatch.setattr(cor, "AUTO_TERMS", 0)
+    scene = dqskin.load(path)
+    clustered = scene.skin(method="cor").points["/Rig/Mesh"]
+    assert np.abs(clustered - want).max() > 2e-4  # (the default clusters here)
+    scene.cor_options = {"cluster": None}
+    scene.invalidate()
+    np.testing.assert_allclose(scene.skin(method="cor").points["/Rig/Mesh"], want, atol=5e-5)
+    for flags, exact in (([], False), (["--cor-exact"], True)):
+        out = tmp_path / f"cor{len(flags)}.npz"
+        rc, text = run_cli("skin", path, "--out", out, "--method", "cor", *flags)
+        assert rc == 0, text
+        err = np.abs(np.load(out)["points_0"] - want).max()
+        assert (err < 5e-5) if exact else (err > 2e-4), (flags, err)
+    rc, text = run_cli("skin", path, "--out", tmp_path / "x.usda", "--method", "cor",
+                       "--cor-exact", "--workers", "2")
+    assert rc != 0 and "--cor-exact cannot be combined" in text
 
 
 def test_usd_bake_with_rigid_prims(shared_assets, tmp_path):

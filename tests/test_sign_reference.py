@@ -60,8 +60,8 @@ def rotation_blend(xforms, idx, wts, rule):
 def rotate(r, p):
     """Rotate points ``p`` (..., 3) by the normalized quaternions ``r`` (..., 4)."""
     shape = np.broadcast_shapes(r.shape[:-1], p.shape[:-1])
-    rr = np.broadcast_to(r, shape + (4,)).reshape(-1, 4)
-    pp = np.broadcast_to(p, shape + (3,)).reshape(-1, 3)
+    rr = np.array(np.broadcast_to(r, shape + (4,))).reshape(-1, 4)  # (SciPy wants writable)
+    pp = np.array(np.broadcast_to(p, shape + (3,))).reshape(-1, 3)
     return Rotation.from_quat(rr[:, [1, 2, 3, 0]]).apply(pp).reshape(shape + (3,))
 
 

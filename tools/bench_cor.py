@@ -7,7 +7,11 @@ Meshes: CesiumMan (../shared/assets/khronos-gltf/CesiumMan, when present), the b
 subdivided to ~35.6k vertices as in tools/bench_compare.py, and a hard case: a 35.2k-point tube
 along a chain of 40 joints, 4 influences per vertex from overlapping ramps with 5% per-vertex noise
 (no two weight vectors equal, every joint pair shared by thousands of triangles), which
-``cluster="auto"`` clusters; its exact time is printed too (``--exact``). Precompute:
+``cluster="auto"`` clusters. ``--exact`` also times ``cluster=None`` and prints what the default
+costs in accuracy: the largest distance between default and exact centers, and between the points
+skinned with them (the asset's frames; the tube, which has no animation, bent 30° and twisted 15°
+at every joint), absolute and relative to the mesh's bounding-box diagonal. The disk cache is a
+fresh temporary folder (``$DQSKIN_CACHE_DIR``), so every computation is a miss. Precompute:
 ``rotation_centers`` without the disk cache, first call in the process (Warp kernel already
 compiled) and the best of ``--repeat`` more; with the paper's refinement (``subdivide=0.1``, one
 call); then the cache hit (second run of the same mesh). Runtime: ``Skinner.skin`` of ``--frames``
@@ -18,8 +22,10 @@ and writes JSON.
 
 import argparse
 import json
+import os
 import platform
 import sys
+import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -84,6 +90,43 @@ def tube_scene(around=64, rings=550, joints=40, influences=4):
     return dqskin.Scene("tube", [mesh], [skel], np.zeros(1))
 
 
+def tube_bend(joints, angle=np.radians(30.0)):
+    """(1, J, 4, 4) skinning transforms of :func:`tube_scene`'s chain (joint j at x = j) bent by
+    ``angle`` about z and twisted by half of it about x at every joint."""
+    from scipy.spatial.transform import Rotation
+
+    out = np.zeros((1, joints, 4, 4))
+    world = np.eye(4)
+    for j in range(joints):
+        local = np.eye(4)
+        local[:3, :3] = Rotation.from_rotvec([angle / 2, 0.0, angle]).as_matrix()
+        local[0, 3] = 1.0 if j else 0.0
+        world = world @ local
+        inv_bind = np.eye(4)
+        inv_bind[0, 3] = -j
+        out[0, j] = world @ inv_bind
+    return out
+
+
+def cluster_error(scene, mesh, pts, centers, xf):
+    """Exact centers (timed, a cache miss) and the default's errors against them."""
+    t0 = time.perf_counter()
+    exact = cor.rotation_centers(pts, mesh.faces, mesh.joint_indices, mesh.joint_weights,
+                                 cluster=None)
+    seconds = time.perf_counter() - t0
+    if scene.path == "tube":
+        xf = tube_bend(len(scene.skeletons[0].joint_names))
+    skinned = [dqskin.Skinner(mesh.points, mesh.joint_indices, mesh.joint_weights,
+                              geom_bind_transform=mesh.geom_bind_transform, faces=mesh.faces,
+                              cor_cluster=c).skin(xf, "cor").astype(np.float64)
+               for c in ("auto", None)]  # (the exact one reads the cache just filled)
+    size = float(np.linalg.norm(np.ptp(pts, axis=0)))
+    c_err = float(np.nanmax(np.linalg.norm(centers - exact, axis=1), initial=0.0))
+    p_err = float(np.linalg.norm(skinned[0] - skinned[1], axis=-1).max())
+    return dict(precompute_exact_s=seconds, size=size, center_error=c_err,
+                point_error=p_err)
+
+
 def bind_points(mesh):
     g = np.asarray(mesh.geom_bind_transform, np.float64)
     return np.asarray(mesh.points, np.float64) @ g[:3, :3].T + g[:3, 3]
@@ -109,20 +152,16 @@ def bench(frames, repeat, exact):
         t0 = time.perf_counter()
         cor.rotation_centers(*args)
         hit = time.perf_counter() - t0
-        if exact:
-            t0 = time.perf_counter()
-            cor.rotation_centers(*args, cluster=None, cache=False)
-            row_exact = time.perf_counter() - t0
         row = dict(mesh=label, vertices=len(mesh.points), faces=len(mesh.faces),
                    influences=int(mesh.joint_indices.shape[1]),
                    joints=len(scene.skeletons[mesh.skeleton].joint_names),
                    with_center=int(np.sum(~np.isnan(centers[:, 0]))),
                    precompute_first_s=first, precompute_s=best, cache_hit_s=hit,
                    precompute_subdivided_s=subdivided)
-        if exact:
-            row["precompute_exact_s"] = row_exact
         times = np.resize(scene.times, frames) if len(scene.times) else np.zeros(frames)
         xf = scene.skinning_transforms(times, mesh.skeleton)
+        if exact:
+            row.update(cluster_error(scene, mesh, pts, centers, xf))
         sk = dqskin.Skinner(mesh.points, mesh.joint_indices, mesh.joint_weights,
                             geom_bind_transform=mesh.geom_bind_transform, faces=mesh.faces)
         for name, meth, rule in (("lbs", "lbs", "largest_weight"), ("dqs", "dqs", "largest_weight"),
@@ -174,7 +213,8 @@ def main():
     ap.add_argument("--frames", type=int, default=32)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--exact", action="store_true",
-                    help="also time cluster=None (the tube takes ~30 s)")
+                    help="also time cluster=None (the tube takes ~30 s) and print the default's "
+                         "center and skinned-point errors against it")
     ap.add_argument("--kernels", action="store_true",
                     help="only the skinning kernels, no meshes (DQSKIN_THREADS=1: one thread)")
     ap.add_argument("--json")
@@ -183,6 +223,7 @@ def main():
         print("kernel M point-frames/s: " + ", ".join(f"{k} {v:.1f}"
                                                       for k, v in bench_kernels().items()))
         return
+    os.environ["DQSKIN_CACHE_DIR"] = tempfile.mkdtemp(prefix="bench_cor-")  # all misses
     rows = bench(args.frames, args.repeat, args.exact)
     for r in rows:
         print(f"{r['mesh']}: {r['vertices']} vertices, {r['faces']} triangles, "
@@ -191,6 +232,12 @@ def main():
               f"{r['precompute_first_s']:.3f} s), cache hit {r['cache_hit_s'] * 1e3:.1f} ms, "
               f"subdivide=0.1 {r['precompute_subdivided_s']:.3f} s"
               + (f", exact {r['precompute_exact_s']:.2f} s" if "precompute_exact_s" in r else ""))
+        if "center_error" in r:
+            print(f"  default vs exact: centers {r['center_error']:.2e} "
+                  f"({r['center_error'] / r['size']:.1e} of the {r['size']:.3g} diagonal), "
+                  f"skinned points {r['point_error']:.2e} "
+                  f"({r['point_error'] / r['size']:.1e}); exact / default time "
+                  f"{r['precompute_exact_s'] / r['precompute_s']:.1f}x")
         print("  runtime M point-frames/s: " + ", ".join(
             f"{k.split(' M ')[0]} {v:.1f}" for k, v in r.items() if k.endswith("M pt-frames/s")))
     if args.json:
