@@ -4,8 +4,12 @@ The centers are checked against a brute-force float64 evaluation of the paper's 
 vertex against every triangle, the similarity summed over all joint pairs), and the skinned points
 against ``R·(v − p*) + Σ wⱼ·Aⱼ·[p*, 1]`` with ``R`` from SciPy quaternions, on a chain of four
 joints (bent at every joint: a twist alone cannot tell a wrong center on the axis from the right
-one). Then the procedural rigs (candy wrapper, bend), rigid vertices, velocities (central
-differences of the reference), normals, the disk cache, Scene.skin, the CLI and compare.
+one). Both sign rules give the same result on that chain, so the rules are checked on a random
+rig (4 random influences, random joint rotations, random triangles) where their references differ
+on more than 10% of the vertices (asserted first). Then the exact merging on the bundled rigs, the
+clustering error bound, the procedural rigs (candy wrapper, bend), one-hot and near-one-hot
+vertices, a geomBindTransform, velocities (central differences of the reference), normals, the
+disk cache, Scene.skin, the CLI and compare.
 """
 
 import json
