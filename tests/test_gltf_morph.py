@@ -20,6 +20,7 @@ from test_gltf import (
     _DTYPE,
     _WIDTH,
     FLOAT,
+    SHORT,
     UBYTE,
     USHORT,
     Doc,
@@ -443,3 +444,72 @@ def corrupt(path, tmp_path, mutate):
 def test_bad_morphs_rejected(morph_file, tmp_path, mutate, pattern):
     with pytest.raises(ValueError, match=r"bad\.gltf: " + pattern):
         load_gltf(corrupt(morph_file, tmp_path, mutate))
+
+
+BYTE = 5120
+
+
+def build_quantized(path, unflag=None):
+    """Two unskinned morphing meshes with quantized data: target NORMAL as normalized BYTE,
+    TANGENT as normalized SHORT, POSITION as plain SHORT (KHR_mesh_quantization's integer
+    offsets); ``weights`` samplers with normalized UNSIGNED_BYTE (LINEAR) and UNSIGNED_SHORT
+    (STEP) outputs. ``unflag``: "targets" or "weights" drops ``normalized`` from the NORMAL and
+    TANGENT targets or from the weights: what the spec forbids."""
+    rng = np.random.default_rng(8)
+    d = Doc()
+    g = d.g
+    g.nodes = [gl.Node(name="a", mesh=0, **trs((0, 1, 0), (0, 0, 1), 0.5)),
+               gl.Node(name="b", mesh=1, **trs((2, 0, 0)))]
+    g.scenes = [gl.Scene(nodes=[0, 1])]
+    V = 8
+    flag_t, flag_w = unflag != "targets", unflag != "weights"
+
+    def prim():
+        tangents = np.concatenate([unit(rng, V), np.ones((V, 1))], 1)
+        attrs = gl.Attributes(POSITION=d.acc(rng.uniform(-1, 1, (V, 3)), "VEC3"),
+                              NORMAL=d.acc(unit(rng, V), "VEC3"),
+                              TANGENT=d.acc(tangents, "VEC4"))
+        targets = [gl.Attributes(
+            POSITION=d.acc(rng.integers(-2, 3, (V, 3)), "VEC3", SHORT),
+            NORMAL=d.acc(rng.integers(-127, 128, (V, 3)), "VEC3", BYTE, flag_t),
+            TANGENT=d.acc(rng.integers(-20000, 20000, (V, 3)), "VEC3", SHORT, flag_t)),
+            gl.Attributes(POSITION=d.acc(rng.normal(0, 0.3, (V, 3)), "VEC3"))]
+        faces = rng.integers(0, V, (V, 3)).reshape(-1)
+        return gl.Primitive(attributes=attrs, targets=targets,
+                            indices=d.acc(faces, "SCALAR", USHORT))
+
+    g.meshes = [gl.Mesh(primitives=[prim()]), gl.Mesh(primitives=[prim()])]
+    anim = gl.Animation(name="anim")
+    for node, ctype, top, interp in ((0, UBYTE, 255, "LINEAR"), (1, USHORT, 65535, "STEP")):
+        values = rng.integers(0, top + 1, (3 * 2, 1))
+        anim.samplers.append(gl.AnimationSampler(
+            input=d.acc(np.array([[0.0], [0.8], [2.0]]), "SCALAR"),
+            output=d.acc(values, "SCALAR", ctype, flag_w), interpolation=interp))
+        anim.channels.append(gl.AnimationChannel(
+            sampler=len(anim.samplers) - 1,
+            target=gl.AnimationChannelTarget(node=node, path="weights")))
+    g.animations = [anim]
+    return write(d, path)
+
+
+def test_quantized_morphs_match_oracle(tmp_path):
+    """Normalized integer targets and weights are dequantized as the spec says (the oracle
+    divides by 127, 32767, 255, 65535)."""
+    path = build_quantized(tmp_path / "quantized.gltf")
+    check(path, [0.0, 0.3, 0.8, 1.4, 2.0])
+    scene = load_gltf(path)
+    w = scene.mesh("a").deformer.weights([0.0])
+    assert np.all((w >= 0) & (w <= 1)) and np.any((w > 0) & (w < 1)), w
+
+
+@pytest.mark.parametrize("unflag, pattern", [
+    ("targets", r"mesh 0 primitive 0 targets\[0\]\.NORMAL \(accessor \d+\): BYTE "
+                r"components must be normalized"),
+    ("weights", r"animations\[0\]\.samplers\[0\]\.output \(accessor \d+\): UNSIGNED_BYTE "
+                r"components must be normalized"),
+])
+def test_non_normalized_integer_morph_data_refused(tmp_path, unflag, pattern):
+    """glTF allows integer morph weights and NORMAL/TANGENT offsets only when normalized."""
+    path = build_quantized(tmp_path / "bad.gltf", unflag)
+    with pytest.raises(ValueError, match=r"bad\.gltf: " + pattern):
+        load_gltf(path)

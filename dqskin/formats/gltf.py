@@ -784,14 +784,20 @@ class _Reader:
         return np.ndarray((count, width), dtype, buffer=data, offset=start,
                           strides=(stride, dtype.itemsize)).copy()
 
-    def accessor(self, index, where, types, components, *, as_float=True):
-        """Accessor data (count, n), dequantized to float64 unless ``as_float`` is False."""
+    def accessor(self, index, where, types, components, *, as_float=True, normalized=False):
+        """Accessor data (count, n), dequantized to float64 unless ``as_float`` is False.
+        ``normalized``: integer components must have ``normalized: true`` (the spec allows only
+        normalized integers there)."""
         acc = self.item("accessor", self.doc.accessors, index, where)
         where = f"{where} (accessor {index})"
         if acc.type not in types:
             raise self.error(f"{where}: type {acc.type}, expected {' or '.join(types)}")
         if acc.componentType not in components:
             raise self.error(f"{where}: componentType {acc.componentType} not allowed here")
+        if normalized and acc.componentType != 5126 and not acc.normalized:
+            name = _COMPONENT_NAMES.get(acc.componentType, acc.componentType)
+            raise self.error(f"{where}: {name} components must be normalized here (glTF allows "
+                             "only FLOAT or normalized integers; set \"normalized\": true)")
         width, dtype = _TYPE_SIZES[acc.type], np.dtype(_COMPONENT_DTYPES[acc.componentType])
         if acc.bufferView is None:
             out = np.zeros((acc.count, width), dtype)
@@ -1061,7 +1067,7 @@ class _Reader:
                 if name not in target:
                     continue
                 a = self.accessor(target[name], f"{where} targets[{k}].{name}", ("VEC3",),
-                                  (5126, 5120, 5122))
+                                  (5126, 5120, 5122), normalized=name != "POSITION")
                 if a.shape[0] != vertex_count:
                     raise self.error(f"{where} targets[{k}].{name}: {a.shape[0]} elements for "
                                      f"{vertex_count} POSITION vertices")
@@ -1166,7 +1172,8 @@ class _Reader:
             return keys, None, interpolation
         per_key = 3 if interpolation == "CUBICSPLINE" else 1
         if path == "weights":
-            values = self.accessor(sam.output, f"{where}.output", ("SCALAR",), _WEIGHT_COMPONENTS)
+            values = self.accessor(sam.output, f"{where}.output", ("SCALAR",), _WEIGHT_COMPONENTS,
+                                   normalized=True)
             if values.shape[0] != per_key * keys.size * targets:
                 raise self.error(f"{where}.output: {values.shape[0]} values for {keys.size} "
                                  f"{interpolation} keys of {targets} morph weights (expected "
@@ -1175,7 +1182,8 @@ class _Reader:
         n = _PATH_SIZES[path]
         types = ("VEC4",) if n == 4 else ("VEC3",)
         components = (5126, 5120, 5121, 5122, 5123) if n == 4 else (5126,)
-        values = self.accessor(sam.output, f"{where}.output", types, components)
+        values = self.accessor(sam.output, f"{where}.output", types, components,
+                               normalized=True)
         if values.shape[0] != per_key * keys.size:
             raise self.error(f"{where}.output: {values.shape[0]} values for {keys.size} "
                              f"{interpolation} keys (expected {per_key * keys.size})")
