@@ -133,6 +133,8 @@ def _clip(text):
 
 
 def cmd_skin(args):
+    import tempfile
+
     from .baking import bake, check_output, output_kind
     from .times import select_times
     output_kind(args.out)
@@ -149,17 +151,18 @@ def cmd_skin(args):
         raise ValueError("--cor-exact cannot be combined with --workers, --scheduler or --resume "
                          "(clip workers compute the centers with the defaults)")
     _checkpoint()
-    scene = _load_input(args, cache_out=args.out)
-    if args.cor_exact:
-        scene.cor_options = {"cluster": None}
-    _checkpoint()
-    times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
-                         args.substeps, max_frames=args.max_frames)
-    print(bake(scene, args.out, times, method=args.method, interp=args.interp,
-               device=args.device, chunk=args.chunk, normals=args.normals,
-               velocities=args.velocities, force=args.force, progress=True, clips=args.clips,
-               workers=args.workers, scheduler=args.scheduler, resume=args.resume,
-               sign_reference=args.sign_reference, inputs=inputs))
+    with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
+        scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
+        if args.cor_exact:
+            scene.cor_options = {"cluster": None}
+        _checkpoint()
+        times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
+                             args.substeps, max_frames=args.max_frames)
+        print(bake(scene, args.out, times, method=args.method, interp=args.interp,
+                   device=args.device, chunk=args.chunk, normals=args.normals,
+                   velocities=args.velocities, force=args.force, progress=True,
+                   clips=args.clips, workers=args.workers, scheduler=args.scheduler,
+                   resume=args.resume, sign_reference=args.sign_reference, inputs=inputs))
     return 0
 
 
@@ -183,11 +186,12 @@ def _inputs(args):
                            if f is not None and f != "auto"]
 
 
-def _load_input(args, cache_out=None):
+def _load_input(args, cache_out=None, rig_dir=None):
     """The scene of ``skin``/``compare``/``rig``: the character file, or with ``--skeleton`` a
     plain mesh bound to a BVH (:func:`dqskin.rigging.rig_mesh`); ``--weights`` replaces the
     influences (:func:`dqskin.rigging.replace_weights`). ``cache_out``: the cache ``skin`` will
-    write (a USD cache needs a USD input: a rig first)."""
+    write; a USD cache copies a USD stage, so a bound mesh is then written as a UsdSkel rig in
+    the folder ``rig_dir`` (:func:`dqskin.formats.usd_rig.write_rig`) and that rig loaded."""
     from . import formats
     from .rigging import replace_weights, rig_mesh
     if args.max_influences < 1:
@@ -203,13 +207,20 @@ def _load_input(args, cache_out=None):
             raise ValueError(f"{src}: --skeleton binds a plain mesh (.obj/.ply/.stl/.off/.glb) "
                              "to a BVH; a character file has its own skeleton (use --weights "
                              "auto to replace its weights)")
-        if cache_out is not None and Path(cache_out).suffix.lower() in (".usd", ".usda", ".usdc"):
+        usd_out = cache_out is not None and Path(cache_out).suffix.lower() in (".usd", ".usda",
+                                                                               ".usdc")
+        if usd_out and rig_dir is None:
             raise ValueError(f"--out {cache_out}: a USD point cache copies a USD input stage; "
                              f"write the rig first (dqskin rig {src.name} --skeleton "
-                             f"{Path(args.skeleton).name} --out rig.usda), then skin it, or "
-                             "write .npz or per-frame .obj/.ply/.glb files")
-        return rig_mesh(src, _regular_file(args.skeleton), weights=weights or "auto",
-                        scale=args.scale, max_influences=args.max_influences, device=args.device)
+                             f"{Path(args.skeleton).name} --out rig.usda)")
+        scene = rig_mesh(src, _regular_file(args.skeleton), weights=weights or "auto",
+                         scale=args.scale, max_influences=args.max_influences, device=args.device)
+        if usd_out:
+            from .formats.usd_rig import write_rig
+            rig = Path(rig_dir) / f"{src.stem or 'mesh'}.usdc"
+            write_rig(scene, rig)
+            scene = formats.load(rig)
+        return scene
     if args.scale is not None:
         raise ValueError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")
     scene = formats.load(src, clip=_clip(args.clip))

@@ -151,8 +151,6 @@ def test_misfits_are_explained(capture, tmp_path, capsys):
          "--scale 0.0"),
         (["skin", str(mesh), "--scale", "2", "--out", str(tmp_path / "a.npz")],
          "needs --skeleton"),
-        (["skin", str(mesh), "--skeleton", str(path), "--out", str(tmp_path / "a.usdc")],
-         "write the rig first"),
         (["rig", str(path), "--skeleton", str(path), "--out", str(tmp_path / "r.usda")],
          "cannot read mesh"),
         (["skin", str(path), "--out", str(tmp_path / "a.npz")], "no mesh to skin"),
@@ -344,3 +342,23 @@ def Xform "World"
         np.testing.assert_allclose(got[name], ref[name], atol=1e-5 * scale, err_msg=name)
         up = np.ptp(ref[name][0], axis=0)
         assert up[1] == up.max(), "the man stands along +Y in the world"
+
+
+def test_cli_skin_with_skeleton_to_a_usd_cache(capture, tmp_path, capsys):
+    """OBJ + BVH → a USD point cache (through a temporary UsdSkel rig): its time-sampled points
+    are the float64 LBS oracle's, nothing of the rig is left bound or behind."""
+    path, mesh, motion = capture
+    out = tmp_path / "walk.usdc"
+    assert main(["skin", str(mesh), "--skeleton", str(path), "--out", str(out)]) == 0
+    assert "1 mesh × 12 frames" in capsys.readouterr().out
+    pts, _ = formats.load_mesh(mesh)
+    (m,) = rig_mesh(mesh, path).meshes
+    ref = lbs_oracle(path, pts.astype(np.float64), m.joint_indices, m.joint_weights)
+    stage = Usd.Stage.Open(str(out))
+    assert stage.GetTimeCodesPerSecond() == pytest.approx(1 / motion.frame_time)
+    prim = stage.GetPrimAtPath("/Root/body")
+    assert not prim.HasAPI(UsdSkel.BindingAPI), "the cache is not skinned again"
+    attr = UsdGeom.Mesh(prim).GetPointsAttr()
+    got = np.stack([np.asarray(attr.Get(float(t)), np.float64) for t in range(FRAMES)])
+    np.testing.assert_allclose(got, ref, atol=1e-4 * np.abs(ref).max())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.usdc"]
