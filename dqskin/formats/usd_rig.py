@@ -1,4 +1,4 @@
-"""A scene written as a UsdSkel rig: what usd-core, usdview and Blender skin themselves.
+"""A scene written as a UsdSkel rig: what usd-core (and Blender, for LBS) skin themselves.
 
 :func:`write_rig` writes one ``SkelRoot`` (``/Root``) holding, per skeleton, a ``Skeleton`` with
 its joints (hierarchy paths), ``bindTransforms`` and ``restTransforms``, a ``SkelAnimation`` child
@@ -7,11 +7,12 @@ with the animation sampled at the scene's times (``translations``, ``rotations``
 ``Mesh`` with ``SkelBindingAPI``: ``skel:skeleton``, ``primvars:skel:jointIndices`` and
 ``jointWeights`` (vertex interpolation, ``elementSize`` K), ``primvars:skel:geomBindTransform``
 and ``primvars:skel:skinningMethod`` (``classicLinear`` for "lbs", ``dualQuaternion`` for
-"dqs"). The Skeleton prim carries the source skeleton's placement in the world (in a USD scene
-its prim's local-to-world, time-sampled when animated: a converter's ``Z_UP`` group, say) as one
-``xformOp:transform``; the meshes need none (UsdSkel skins into skeleton space and takes the
-result to the world by the skeleton's transform). Matrices are transposed here, at the USD
-boundary (Gf is row-vector). Joint names become valid USD identifiers
+"dqs"). A skeleton placed in the world (in a USD scene its prim's local-to-world, time-sampled
+when animated: a converter's ``Z_UP`` group, say) is written with its meshes under an ``Xform``
+(``/Root/Placement``) whose ``xformOp:transform`` is that placement: UsdSkel takes skinned
+points to the world by the skeleton's transform, and Blender's importer, which ignores a skinned
+mesh's own transform, sees the mesh in its skeleton's space. Matrices are transposed here, at
+the USD boundary (Gf is row-vector). Joint names become valid USD identifiers
 (``Tf.MakeValidIdentifier``, made unique among siblings).
 
 The file is written atomically (:mod:`.atomic`); ``.usd`` is crate, ``.usda`` text.
@@ -94,11 +95,9 @@ def _skeleton_to_world(scene, skel, source, times):
 
 
 def _author_placement(xformable, world, codes):
-    """Give ``xformable`` the transform ``world`` (F, 4, 4) at time ``codes``: nothing when it is
-    the identity throughout, one value when constant, else a time sample per code."""
+    """Give ``xformable`` the transform ``world`` (F, 4, 4) at time ``codes``: one value when
+    constant, else a time sample per code."""
     from pxr import Gf, Usd, UsdGeom
-    if np.allclose(world, np.eye(4), rtol=0, atol=1e-12):
-        return
     op = UsdGeom.Xformable(xformable).AddTransformOp()
     if np.allclose(world, world[:1], rtol=0, atol=1e-12):
         op.Set(Gf.Matrix4d(world[0].T.tolist()))
@@ -145,10 +144,17 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
     root = UsdSkel.Root.Define(stage, "/Root")
     stage.SetDefaultPrim(root.GetPrim())
     taken = {"Skeleton"}
-    skel_paths = []
+    skel_paths, groups = [], []  # per skeleton: its path, the prim holding it and its meshes
     source = _source_stage(scene)
     for s, skel in enumerate(scene.skeletons):
-        path = Sdf.Path("/Root/Skeleton" + (f"_{s}" if s else ""))
+        suffix = f"_{s}" if s else ""
+        group = Sdf.Path("/Root")
+        world = _skeleton_to_world(scene, skel, source, times)
+        if not np.allclose(world, np.eye(4), rtol=0, atol=1e-12):
+            group = group.AppendChild("Placement" + suffix)
+            taken.add(group.name)
+            _author_placement(UsdGeom.Xform.Define(stage, group), world, codes)
+        path = group.AppendChild("Skeleton" + suffix)
         taken.add(path.name)
         us = UsdSkel.Skeleton.Define(stage, path)
         joints = Vt.TokenArray(joint_paths(skel.joint_names, skel.parents))
@@ -156,7 +162,7 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
         us.CreateBindTransformsAttr(_matrices(skel.bind_transforms))
         us.CreateRestTransformsAttr(_matrices(skel.rest_transforms))
         skel_paths.append(path)
-        _author_placement(us, _skeleton_to_world(scene, skel, source, times), codes)
+        groups.append(group)
         if skel.animation is None:
             continue
         anim = UsdSkel.Animation.Define(stage, path.AppendChild("Animation"))
@@ -167,7 +173,7 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
         UsdSkel.BindingAPI.Apply(us.GetPrim()).CreateAnimationSourceRel().SetTargets(
             [anim.GetPath()])
     for m in scene.meshes:
-        mesh = UsdGeom.Mesh.Define(stage, Sdf.Path("/Root").AppendChild(_prim_name(m.name,
+        mesh = UsdGeom.Mesh.Define(stage, groups[m.skeleton].AppendChild(_prim_name(m.name,
                                                                                     taken)))
         pts = np.asarray(m.points, np.float32)
         mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
