@@ -204,6 +204,7 @@ class CacheLayer:
         self.layer = stage.Flatten()
         _remove_skel_binding(self.layer)
         self.targets = {}
+        self._target_prims = set()  # prims with a target (ancestors' extentsHint dropped)
 
     def target(self, name, what):
         """The :class:`Target` of ``what`` (``points``, ``extent``, ``normals``, ``velocities``,
@@ -224,7 +225,7 @@ class CacheLayer:
             prim = self.stage.GetPrimAtPath(name)
             if not prim or not UsdGeom.PointBased(prim):
                 raise ValueError(f"{self.src}: {name}: not a point-based prim")
-            if not any(k[0] == name for k in self.targets):
+            if name not in self._target_prims:  # a set: a crowd has thousands of prims
                 for anc in Sdf.Path(name).GetPrefixes()[:-1]:
                     anc_spec = layer.GetPrimAtPath(anc)
                     if anc_spec is not None and "extentsHint" in anc_spec.properties:
@@ -248,6 +249,7 @@ class CacheLayer:
         target = Target(str(spec.path.AppendProperty(attr)), _VALUE_TYPES[what], info, pad)
         _attribute(layer, spec, attr, Sdf.ValueTypeNames.Find(target.type_name), **dict(info))
         self.targets[key] = target
+        self._target_prims.add(name)
         return target
 
     def all_targets(self, *, normals=True, velocities=True):
