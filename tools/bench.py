@@ -117,6 +117,26 @@ def bench_skinning(sizes, repeat, devices, rows):
                                  mpts_per_s=V / t / 1e6))
 
 
+def bench_overhead(devices, rows, repeat=5, calls=200):
+    """Per-call time of ``Skinner.skin`` on one point with 64 joints (the fixed cost of a call:
+    checking and uploading the transforms, preparing them, launching, reading back)."""
+    rng = np.random.default_rng(3)
+    points, idx, w, M = make_rig(rng, 1)
+    for dev in devices:
+        sk = dqskin.Skinner(points, idx, w, device=dev)
+        for method in ("lbs", "dqs"):
+            sk.skin(M, method)
+            best = float("inf")
+            for _ in range(repeat):
+                t0 = time.perf_counter()
+                for _ in range(calls):
+                    sk.skin(M, method)
+                wp.synchronize()
+                best = min(best, (time.perf_counter() - t0) / calls)
+            rows.append(dict(kind="overhead", device=dev, method=method, joints=JOINTS,
+                             impl=f"dqskin {dev}", seconds=best))
+
+
 def bench_fk(devices, rows, skeletons=1000):
     """FK of ``skeletons`` × 64 joints from local matrices and from TRS (what animations store).
 
@@ -243,6 +263,9 @@ def print_tables(rows):
     skin = [r for r in rows if r["kind"] == "skin"]
     if skin:
         print_skin_table(skin)
+    for r in (r for r in rows if r["kind"] == "overhead"):
+        print(f"\nper-call overhead, Skinner.skin of 1 point, {r['joints']} joints, "
+              f"{r['method']} on {r['device']}: {r['seconds'] * 1e6:.0f} µs")
     crowd = [r for r in rows if r["kind"] == "crowd"]
     if crowd:
         print_crowd_table(crowd)
@@ -278,7 +301,7 @@ def main(argv=None):
     ap.add_argument("--json", default="out/bench.json")
     ap.add_argument("--quick", action="store_true", help="10k and 100k only, fewer repeats")
     ap.add_argument("--skip", default="",
-                    help="comma list of sections to skip: skin,fk,crowd,bake")
+                    help="comma list of sections to skip: skin,overhead,fk,crowd,bake")
     ap.add_argument("--crowds", default="100,1000", help="crowd sizes (instances)")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
@@ -292,6 +315,8 @@ def main(argv=None):
     rows = []
     if "skin" not in skip:
         bench_skinning(sizes, args.repeat, devices, rows)
+    if "overhead" not in skip:
+        bench_overhead(devices, rows)
     if "fk" not in skip:
         bench_fk(devices, rows)
     if "crowd" not in skip:
