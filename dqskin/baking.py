@@ -188,12 +188,16 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
                     f"in {done['folder']}{kept}")
         check_output(out, sources, force)
         wrote_velocities = False
+
+        def check(res):
+            nonlocal wrote_velocities
+            check_skinned(src, res)
+            wrote_velocities |= bool(res.velocities)
+
         with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args, **sign) as writer:
-            for sl, res in _chunks(scene, t, chunk or CHUNK, progress, normals=normals,
-                                   velocities=velocities, **args, **sign):
-                check_skinned(src, res)
-                writer.write(t[sl], res.points, res.normals, res.velocities)
-                wrote_velocities |= bool(res.velocities)
+            writer.write_chunks((res for _, res in _chunks(
+                scene, t, chunk or CHUNK, progress, normals=normals, velocities=velocities,
+                **args, **sign)), check)
         return (f"wrote {out}: {counts} "
                 f"({method or 'asset method'}{', velocities' if wrote_velocities else ''})")
     if kind == "npz":

@@ -133,9 +133,8 @@ def run_chunk(job: ChunkJob, scene=None) -> dict:
                           device=opts.get("device"), interp=opts.get("interp", "trs"),
                           sign_reference=opts.get("sign_reference", "largest_weight"))
     layer = usd_clips.new_clip_layer(job.time_codes_per_second)
-    for _, res in scene.skin_chunks(job.times, SUBCHUNK, **opts):
-        check_skinned(scene.path, res)
-        writer.write(layer, res.times, res.points, res.normals, res.velocities)
+    writer.write_chunks(layer, (res for _, res in scene.skin_chunks(job.times, SUBCHUNK, **opts)),
+                        lambda res: check_skinned(scene.path, res))
     digest = usd_clips.write_clip(layer, job.path, job.key, job.times)
     del layer
     return dict(index=job.index, sha256=digest, seconds=time.perf_counter() - t0,
