@@ -18,8 +18,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import warp as wp
 
-__all__ = ["FRAME_BLOCK", "FrameBlocks", "block_frames", "cpu_threads", "launch", "launch_blocks",
-           "launch_rows"]
+__all__ = ["CPU_ROW_BLOCK", "FRAME_BLOCK", "FrameBlocks", "block_frames", "block_rows",
+           "cpu_threads", "launch", "launch_blocks", "launch_rows"]
 
 FRAME_BLOCK = 16
 """Frames one thread handles on a (frame block, row) grid: the joints of 16 frames stay in L1
@@ -37,6 +37,10 @@ class FrameBlocks:
     """First frame block of the launch."""
     row_offset: int
     """First row of the launch."""
+    row_block: int
+    """Rows per thread (:func:`block_rows`; 0 or 1: one)."""
+    row_end: int
+    """End of the launch's rows (:func:`block_rows`; 0: the grid's)."""
 
 
 @wp.func
@@ -44,6 +48,24 @@ def block_frames(blocks: FrameBlocks, block: int, frame_count: int):
     """``(first frame, end frame, row offset)`` of grid block ``block`` of a launch."""
     first = (block + blocks.block_offset) * blocks.frame_block
     return first, wp.min(first + blocks.frame_block, frame_count), blocks.row_offset
+
+
+@wp.func
+def block_rows(blocks: FrameBlocks, i: int, row_count: int):
+    """``(first row, end row)`` of grid column ``i`` of a launch whose threads handle
+    ``blocks.row_block`` rows each (``row_count``: the rows of the whole grid)."""
+    n = wp.max(blocks.row_block, 1)
+    start = blocks.row_offset + i * n
+    end = row_count
+    if blocks.row_end > 0:
+        end = blocks.row_end
+    return start, wp.min(start + n, end)
+
+
+CPU_ROW_BLOCK = 64
+"""Rows per thread of row-blocked kernels on the CPU: a Warp CPU launch calls the kernel once per
+thread, copying every argument (array descriptors, structs) and splitting the thread index, which
+costs as much as skinning a vertex; 64 rows per call amortize it. One row per thread on CUDA."""
 
 
 _pool = None
@@ -125,10 +147,13 @@ def launch(kernel, dim, inputs, outputs, device):
         _launch(kernel, dim, list(inputs) + list(outputs), device)
 
 
-def launch_blocks(kernel, rows, frames, inputs, outputs, device, min_work=32768):
+def launch_blocks(kernel, rows, frames, inputs, outputs, device, min_work=32768,
+                  row_blocks=False):
     """Launch ``kernel`` over ``ceil(frames / FRAME_BLOCK)`` frame blocks × ``rows``.
 
-    ``kernel`` takes ``inputs``, then a :class:`FrameBlocks`, then ``outputs``.
+    ``kernel`` takes ``inputs``, then a :class:`FrameBlocks`, then ``outputs``. With
+    ``row_blocks`` (a kernel looping over :func:`block_rows`) a CPU thread handles
+    :data:`CPU_ROW_BLOCK` rows.
     On CUDA one launch covers the grid. On the CPU, above ``min_work`` row-frames, the grid is
     split along its longer axis into one piece per core, launched from a thread pool.
     """
@@ -136,12 +161,17 @@ def launch_blocks(kernel, rows, frames, inputs, outputs, device, min_work=32768)
         return
     blocks = -(-frames // FRAME_BLOCK)
 
+    cpu = wp.get_device(device).is_cpu
+    per_thread = CPU_ROW_BLOCK if row_blocks and cpu else 1
+
     def run(block_offset, block_count, row_offset, row_count):
         part = FrameBlocks()
         part.frame_block, part.block_offset, part.row_offset = FRAME_BLOCK, block_offset, row_offset
-        _launch(kernel, (block_count, row_count), list(inputs) + [part] + list(outputs), device)
+        part.row_block, part.row_end = per_thread, row_offset + row_count
+        _launch(kernel, (block_count, -(-row_count // per_thread)),
+                list(inputs) + [part] + list(outputs), device)
 
-    threads = cpu_threads() if wp.get_device(device).is_cpu else 1
+    threads = cpu_threads() if cpu else 1
     chunks = min(threads, max(1, rows * frames // min_work))
     if chunks <= 1:
         run(0, blocks, 0, rows)

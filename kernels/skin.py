@@ -52,7 +52,7 @@ from .dqmath import (
     quat_from_rotation,
     vec8,
 )
-from .grid import FrameBlocks, block_frames, launch, launch_blocks
+from .grid import FrameBlocks, block_frames, block_rows, launch, launch_blocks
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
@@ -165,37 +165,54 @@ def prepare_vectors_kernel(
 
 
 @wp.func
-def blend_joints(inf: Influences, v: int, f: int, values: wp.array2d(dtype=Any)):
-    """``Σ wᵢ·Xᵢ`` of the vertex's per-joint values (F, J): 3×4 affines (LBS) and their
-    derivatives, 3×3 residuals ``S`` (DQS) and linear parts (directions)."""
-    acc = values[f, inf.indices[v, 0][0]] * 0.0
-    for c in range(inf.indices.shape[1]):
-        iv = inf.indices[v, c]
-        wv = inf.weights[v, c]
-        for k in range(4):
-            acc += values[f, iv[k]] * wv[k]
+def blend4(values: wp.array2d(dtype=Any), f: int, iv: wp.vec4i, wv: wp.vec4):
+    """``Σ wᵢ·Xᵢ`` over one group of four influences of frame ``f``."""
+    return (values[f, iv[0]] * wv[0] + values[f, iv[1]] * wv[1] + values[f, iv[2]] * wv[2]
+            + values[f, iv[3]] * wv[3])
+
+
+@wp.func
+def blend_groups(inf: Influences, v: int, f: int, values: wp.array2d(dtype=Any), groups: int):
+    """:func:`blend_joints` over the first ``groups`` groups (a compile-time 1 in the kernels
+    specialized for ``K <= 4``: no loop)."""
+    acc = blend4(values, f, inf.indices[v, 0], inf.weights[v, 0])
+    for c in range(1, groups):
+        acc += blend4(values, f, inf.indices[v, c], inf.weights[v, c])
     return acc
 
 
 @wp.func
-def dqs_blend(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8)):
-    """Sign-aligned weighted sum of the vertex's dual quaternions (pivot: slot 0, or the running
-    sum with ``inf.running_sum``; a zero sum flips nothing)."""
+def blend_joints(inf: Influences, v: int, f: int, values: wp.array2d(dtype=Any)):
+    """``Σ wᵢ·Xᵢ`` of the vertex's per-joint values (F, J): 3×4 affines (LBS) and their
+    derivatives, 3×3 residuals ``S`` (DQS) and linear parts (directions)."""
+    return blend_groups(inf, v, f, values, inf.indices.shape[1])
+
+
+@wp.func
+def dqs_blend_groups(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8), groups: int):
+    """:func:`dqs_blend` over the first ``groups`` groups."""
     b = vec8()
     if inf.running_sum != 0:  # (one branch per vertex, not per influence)
-        for c in range(inf.indices.shape[1]):
+        for c in range(groups):
             iv = inf.indices[v, c]
             wv = inf.weights[v, c]
             for k in range(4):
                 b = dq_blend_add(b, dqs[f, iv[k]], wv[k], b)
         return b
     pv = dqs[f, inf.indices[v, 0][0]]
-    for c in range(inf.indices.shape[1]):
+    for c in range(groups):
         iv = inf.indices[v, c]
         wv = inf.weights[v, c]
         for k in range(4):
             b = dq_blend_add(b, dqs[f, iv[k]], wv[k], pv)
     return b
+
+
+@wp.func
+def dqs_blend(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8)):
+    """Sign-aligned weighted sum of the vertex's dual quaternions (pivot: slot 0, or the running
+    sum with ``inf.running_sum``; a zero sum flips nothing)."""
+    return dqs_blend_groups(inf, v, f, dqs, inf.indices.shape[1])
 
 
 @wp.func
@@ -251,10 +268,11 @@ def by_method(inf: Influences, v: int, method: int, lbs: wp.vec3, dqs: wp.vec3):
 
 @wp.func
 def skin_point(p: wp.vec3, inf: Influences, v: int, f: int, joints: Joints, method: int,
-               residual: bool):
-    """One point skinned with ``method`` (``residual``: the frame may have scale/shear)."""
+               residual: bool, groups: int):
+    """One point skinned with ``method`` (``residual``: the frame may have scale/shear) from the
+    vertex's first ``groups`` influence groups."""
     if method == LBS:
-        return blend_joints(inf, v, f, joints.affines) * wp.vec4(p[0], p[1], p[2], 1.0)
+        return blend_groups(inf, v, f, joints.affines, groups) * wp.vec4(p[0], p[1], p[2], 1.0)
     if method == COR:
         c4 = inf.centers[v]
         if c4[3] != 0.0:
@@ -262,23 +280,24 @@ def skin_point(p: wp.vec3, inf: Influences, v: int, f: int, joints: Joints, meth
             y = p - c
             if residual:
                 if joints.has_residual[f] != 0:
-                    y = blend_joints(inf, v, f, joints.residuals) * y
-            lc = blend_joints(inf, v, f, joints.affines) * wp.vec4(c[0], c[1], c[2], 1.0)
-            return dqs_apply(rotation_only(dqs_blend(inf, v, f, joints.dqs)), y) + lc
+                    y = blend_groups(inf, v, f, joints.residuals, groups) * y
+            lc = blend_groups(inf, v, f, joints.affines, groups) * wp.vec4(c[0], c[1], c[2], 1.0)
+            return dqs_apply(rotation_only(dqs_blend_groups(inf, v, f, joints.dqs, groups)), y) + lc
     x = p
     if residual:
         if joints.has_residual[f] != 0:
-            x = blend_joints(inf, v, f, joints.residuals) * p
-    dqs = dqs_apply(dqs_blend(inf, v, f, joints.dqs), x)
+            x = blend_groups(inf, v, f, joints.residuals, groups) * p
+    dqs = dqs_apply(dqs_blend_groups(inf, v, f, joints.dqs, groups), x)
     lbs = wp.vec3()
     if method == BLEND:
-        lbs = blend_joints(inf, v, f, joints.affines) * wp.vec4(p[0], p[1], p[2], 1.0)
+        lbs = blend_groups(inf, v, f, joints.affines, groups) * wp.vec4(p[0], p[1], p[2], 1.0)
     return by_method(inf, v, method, lbs, dqs)
 
 
-def _skin_points_kernel(method, residual, name):
-    """The (frame block, vertex) kernel of one method, its branches resolved at compile time
-    (``residual=False``: no scale/shear code, ~18% faster on the CPU for rigid launches)."""
+def _skin_points_kernel(method, residual, four):
+    """The (frame block, row block) kernel of one method, specialized at compile time:
+    ``residual=False`` drops the scale/shear code (~18% faster on the CPU for rigid launches),
+    ``four`` (``K <= 4``, one influence group) drops the loop over groups."""
 
     def kernel(
         points: wp.array2d(dtype=wp.vec3),
@@ -289,24 +308,32 @@ def _skin_points_kernel(method, residual, name):
         out: wp.array2d(dtype=wp.vec3),
     ):
         b, i = wp.tid()
-        first, end, row = block_frames(blocks, b, out.shape[0])
-        v = i + row
+        first, end, _row = block_frames(blocks, b, out.shape[0])
+        rows, rows_end = block_rows(blocks, i, out.shape[1])
         last = points.shape[0] - 1
-        for f in range(first, end):
-            out[f, v] = skin_point(points[wp.min(f, last), v], inf, v, f, joints,
-                                   wp.static(method), wp.static(residual))
+        groups = inf.indices.shape[1]
+        if wp.static(four):
+            groups = 1
+        for v in range(rows, rows_end):
+            for f in range(first, end):
+                out[f, v] = skin_point(points[wp.min(f, last), v], inf, v, f, joints,
+                                       wp.static(method), wp.static(residual), groups)
 
+    rigid = "_rigid" if method in (DQS, COR) and not residual else ""
+    name = f"skin_{['lbs', 'dqs', 'blend', 'cor'][method]}{rigid}_kernel{'_k4' if four else ''}"
     kernel.__doc__ = (f"Skin ``points`` (Fp, V) bind space, Fp 1 or F, into ``out`` (F, V) with "
-                      f"method {method} over a (frame block, vertex) grid.")
+                      f"method {method} over a (frame block, row block) grid.")
     return wp.kernel(kernel, name=name)
 
 
-skin_lbs_kernel = _skin_points_kernel(LBS, False, "skin_lbs_kernel")
-skin_dqs_kernel = _skin_points_kernel(DQS, True, "skin_dqs_kernel")
-skin_dqs_rigid_kernel = _skin_points_kernel(DQS, False, "skin_dqs_rigid_kernel")
-skin_blend_kernel = _skin_points_kernel(BLEND, True, "skin_blend_kernel")
-skin_cor_kernel = _skin_points_kernel(COR, True, "skin_cor_kernel")
-skin_cor_rigid_kernel = _skin_points_kernel(COR, False, "skin_cor_rigid_kernel")
+SKIN_POINTS_KERNELS = {(m, r, four): _skin_points_kernel(m, r, four)
+                       for m, r in ((LBS, False), (DQS, True), (DQS, False), (BLEND, True),
+                                    (COR, True), (COR, False))
+                       for four in (False, True)}
+"""The point-skinning kernels by ``(method, residual code, K <= 4)``: LBS needs no residual code,
+BLEND always has it."""
+skin_dqs_kernel = SKIN_POINTS_KERNELS[(DQS, True, False)]
+"""The general DQS kernel (any K, residual code compiled in), for tests comparing against it."""
 
 
 @wp.func
@@ -422,10 +449,11 @@ def skin_points(*, method, points, influences, joints, rigid, out, device):
     """Skin ``points`` (Fp, V) into ``out`` (F, V) with ``method`` (:data:`LBS`, :data:`DQS`,
     :data:`BLEND`, :data:`COR`). ``rigid`` (no frame has a residual) selects the DQS or COR
     kernel without the residual code."""
-    kernel = {LBS: skin_lbs_kernel, BLEND: skin_blend_kernel,
-              COR: skin_cor_rigid_kernel if rigid else skin_cor_kernel}.get(
-        method, skin_dqs_rigid_kernel if rigid else skin_dqs_kernel)
-    launch_blocks(kernel, out.shape[1], out.shape[0], [points, influences, joints], [out], device)
+    residual = method == BLEND or (method != LBS and not rigid)
+    four = influences.indices.shape[1] == 1
+    kernel = SKIN_POINTS_KERNELS[(method, residual, four)]
+    launch_blocks(kernel, out.shape[1], out.shape[0], [points, influences, joints], [out], device,
+                  row_blocks=True)
 
 
 def skin_vectors(*, method, vectors, vector_vertex, influences, linears, rotations, residuals,
