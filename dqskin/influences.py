@@ -10,13 +10,9 @@ from .shapes import as_real
 __all__ = ["Influences", "check_influences"]
 
 
-def check_influences(joint_indices, joint_weights, vertex_count=None, joint_count=None):
-    """Validate per-vertex influences; returns ``(indices (V, K) int64, weights (V, K) float32)``.
-
-    1-D inputs are one influence per vertex. Raises ValueError naming ``joint_indices`` or
-    ``joint_weights`` for mismatched shapes, non-integer or out-of-range indices (``0 <= index <
-    joint_count`` when given), and NaN, infinite or negative weights.
-    """
+def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None):
+    """:func:`check_influences` without its int64 copy: ``(indices (V, K) in their integer dtype,
+    weights (V, K) float32, largest index or -1)``; one min and one max pass over each array."""
     idx = as_real("joint_indices", joint_indices)
     wts = as_real("joint_weights", joint_weights, np.float32)
     if idx.ndim == 1:
@@ -28,15 +24,29 @@ def check_influences(joint_indices, joint_weights, vertex_count=None, joint_coun
                          f"{want}")
     if not np.issubdtype(idx.dtype, np.integer):
         raise ValueError(f"joint_indices: expected integers, got {idx.dtype}")
-    if idx.size and idx.min() < 0:
-        raise ValueError(f"joint_indices: negative index {int(idx.min())}")
-    if joint_count is not None and idx.size and idx.max() >= joint_count:
-        raise ValueError(f"joint_indices: index {int(idx.max())} out of range for {joint_count} "
-                         "joints")
-    if not np.all(np.isfinite(wts)):
+    if not idx.size:
+        return idx, wts, -1
+    lo, hi = int(idx.min()), int(idx.max())
+    if lo < 0:
+        raise ValueError(f"joint_indices: negative index {lo}")
+    if joint_count is not None and hi >= joint_count:
+        raise ValueError(f"joint_indices: index {hi} out of range for {joint_count} joints")
+    wlo, whi = wts.min(), wts.max()  # NaN propagates; no temporaries
+    if not (np.isfinite(wlo) and np.isfinite(whi)):
         raise ValueError("joint_weights: NaN or infinite weight")
-    if wts.size and wts.min() < 0:
-        raise ValueError(f"joint_weights: negative weight {float(wts.min())}")
+    if wlo < 0:
+        raise ValueError(f"joint_weights: negative weight {float(wlo)}")
+    return idx, wts, hi
+
+
+def check_influences(joint_indices, joint_weights, vertex_count=None, joint_count=None):
+    """Validate per-vertex influences; returns ``(indices (V, K) int64, weights (V, K) float32)``.
+
+    1-D inputs are one influence per vertex. Raises ValueError naming ``joint_indices`` or
+    ``joint_weights`` for mismatched shapes, non-integer or out-of-range indices (``0 <= index <
+    joint_count`` when given), and NaN, infinite or negative weights.
+    """
+    idx, wts, _ = _validated(joint_indices, joint_weights, vertex_count, joint_count)
     return idx.astype(np.int64), wts
 
 
@@ -71,11 +81,11 @@ class Influences:
     """
 
     def __init__(self, joint_indices, joint_weights, *, vertex_count=None):
-        idx, wts = check_influences(joint_indices, joint_weights, vertex_count)
+        idx, wts, hi = _validated(joint_indices, joint_weights, vertex_count)
         self.vertex_count, self.influence_count = idx.shape
-        self._input = idx, wts
+        self._input = idx, wts  # indices in the caller's integer dtype (no copy)
         self._sorted = None  # (order, indices, weights) on the host, computed when first asked
-        self.joint_count_min = int(idx.max()) + 1 if idx.size else 0
+        self.joint_count_min = hi + 1
 
     def _host_layout(self):
         if self._sorted is None:
@@ -92,7 +102,7 @@ class Influences:
     @property
     def given(self):
         """``(indices (V, K) int64, weights (V, K) float32)`` as given (validated, unsorted)."""
-        return self._input
+        return self._input[0].astype(np.int64), self._input[1]
 
     def _groups(self, idx, wts):
         groups = max(1, -(-idx.shape[1] // 4))  # K = 0: one group of zero weights
@@ -110,18 +120,30 @@ class Influences:
         if joint_count == 0 and self.vertex_count:
             raise ValueError("skinning_transforms: no joints to skin the points with")
 
-    def upload(self, device, order="weight"):
+    def upload(self, device, order="weight", copy=True):
         """``{"indices": (V, C) wp.vec4i, "weights": (V, C) wp.vec4}`` on ``device``.
 
         ``order="weight"``: the sorted layout above; ``"input"``: the influences in the order they
         were given, zero-padded the same way (for the running-sum sign rule, which depends on the
-        order)."""
+        order, and for one-shot calls, whose kernels then search the pivot). ``copy=False``: on
+        the CPU, ``"input"`` reads the caller's (V, 4k) int32 and float32 arrays in place when
+        their layout allows (no pass over them at all)."""
         if order == "weight" and self._sorted is None:  # sorted on the device (kernels.layout)
             return self._device_layout(device)
         if order == "weight":
             idx, wts = self.indices, self.weights
         elif order == "input":
-            idx, wts = self._groups(*self._input)
+            idx, wts = self._input
+            V, K = idx.shape
+            alias = (not copy and wp.get_device(device).is_cpu and K and K % 4 == 0
+                     and idx.dtype == np.int32 and idx.flags.c_contiguous
+                     and wts.flags.c_contiguous)
+            if alias:
+                return {"indices": wp.array(idx.reshape(V, K // 4, 4), dtype=wp.vec4i,
+                                            device=device, copy=False),
+                        "weights": wp.array(wts.reshape(V, K // 4, 4), dtype=wp.vec4,
+                                            device=device, copy=False)}
+            idx, wts = self._groups(idx, wts)
         else:
             raise ValueError(f'order must be "weight" or "input", got {order!r}')
         return {"indices": wp.array(idx, dtype=wp.vec4i, device=device),
@@ -139,8 +161,8 @@ class Influences:
             out["weights"].zero_()
             return out
         cpu = wp.get_device(device).is_cpu  # inputs read during the launch only: no copies
-        KL.layout(joint_indices=wp.array(idx.astype(np.int32), dtype=wp.int32, device=device,
-                                         copy=not cpu),
+        KL.layout(joint_indices=wp.array(idx.astype(np.int32, copy=False), dtype=wp.int32,
+                                         device=device, copy=not cpu),
                   joint_weights=wp.array(np.ascontiguousarray(wts, np.float32), dtype=wp.float32,
                                          device=device, copy=not cpu),
                   device=device, **out)

@@ -143,9 +143,11 @@ class Skinner:
                 raise ValueError(f"blend_weights: expected ({self.vertex_count},) values in [0, 1]")
             self._blend = wp.array(b, dtype=wp.float32, device=d)
         self._no_centers = wp.zeros(0, dtype=wp.vec4, device=d)
-        self._layouts = {"weight": self.influences.upload(d)}
+        order = self._layout_order
+        self._layouts = {order: self.influences.upload(d, order, copy=self._copy_uploads)}
         self._inf = K.influences(blend=self._blend, centers=self._no_centers,
-                                 **self._layouts["weight"])  # the default: UsdSkel's rule
+                                 unsorted=order == "input",
+                                 **self._layouts[order])  # the default: UsdSkel's rule
 
     def rotation_centers(self) -> np.ndarray:
         """(V, 3) float64 centers of rotation of ``method="cor"`` in bind space, NaN for vertices
@@ -170,7 +172,7 @@ class Skinner:
         running = _check_sign_reference(sign_reference) == "running_sum"
         if not running and code != K.COR:
             return self._inf
-        order = "input" if running else "weight"
+        order = "input" if running else self._layout_order
         if order not in self._layouts:
             self._layouts[order] = self.influences.upload(self.device, order)
         centers = self._no_centers
@@ -178,10 +180,15 @@ class Skinner:
             self.rotation_centers()
             centers = self._centers[1]
         return K.influences(blend=self._blend, centers=centers, running_sum=running,
-                            **self._layouts[order])
+                            unsorted=order == "input", **self._layouts[order])
 
     _copy_uploads = True
-    """False: CPU uploads alias the caller's float32 arrays (:class:`_OneCall`)."""
+    """False: CPU uploads alias the caller's float32 (and int32) arrays (:class:`_OneCall`)."""
+
+    _layout_order = "weight"
+    """The influence layout of the default sign rule: sorted by weight once ("weight"), or
+    "input" order with the pivot searched per vertex by the kernels (:class:`_OneCall`: no
+    layout pass for a single call)."""
 
     def _upload(self, pts, linear=False):
         """(Fp, N, 3) mesh-space rows → bind space on the device (``linear``: directions), in
@@ -541,7 +548,10 @@ def skin_normals(normals: npt.ArrayLike, joint_indices: npt.ArrayLike,
 
 class _OneCall(Skinner):
     """The skinner of one :func:`skin_points` call: nothing outlives the call, so on the CPU the
-    caller's float32 points are used in place instead of copied (a copy of fresh memory costs
-    page faults comparable to skinning the points)."""
+    caller's float32 points and (V, 4k) int32/float32 influences are used in place instead of
+    copied (a copy of fresh memory costs page faults comparable to skinning the points), and the
+    influences stay in input order (the kernels search each vertex's pivot: cheaper than one
+    layout pass when the points are skinned once)."""
 
     _copy_uploads = False
+    _layout_order = "input"

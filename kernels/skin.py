@@ -27,10 +27,14 @@ Influence layout (:class:`Influences`, built once per mesh by
 :class:`dqskin.influences.Influences`): ``indices`` (V, C) ``wp.vec4i`` and ``weights`` (V, C)
 ``wp.vec4`` -- ``K`` influences in ``C = ceil(K/4)`` groups of four, sorted by descending weight
 and zero-padded, so slot 0 is the antipodality pivot (the largest weight, first on ties, as
-UsdSkel). Per-(frame, joint) data is a :class:`Joints` (from :func:`prepare_points`). Every kernel
-that blends influences -- here and in :mod:`dqskin.kernels.velocity` -- goes through the
-``@wp.func`` blends below. Grids are (frame block, vertex): a thread skins one vertex for a block
-of frames, so influences are read once per block and the block's joints stay in cache.
+UsdSkel); or, ``unsorted``, in input order with the pivot searched per vertex (a one-shot call
+whose ``(V, 4k)`` int32/float32 arrays are read in place: no layout pass). Per-(frame, joint)
+data is a :class:`Joints` (from :func:`prepare_points`). Every kernel that blends influences --
+here and in :mod:`dqskin.kernels.velocity` -- goes through the ``@wp.func`` blends below. Grids
+are (frame block, row block): a thread skins its rows (one on CUDA, 64 on the CPU, where Warp's
+per-thread call costs as much as a vertex) for a block of frames, so influences are read once per
+block and the block's joints stay in cache. The point kernels are specialized at compile time for
+the method, rigid frames and ``K <= 4``.
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
 """
 
@@ -79,6 +83,9 @@ class Influences:
     running_sum: int
     """Sign reference of the rotation blends: 0 the pivot in slot 0 (largest weight, UsdSkel);
     nonzero the running sum of the blend so far, the slots in their input order (Blender)."""
+    unsorted: int
+    """Nonzero: the slots are in input order, not sorted by weight, and the pivot of
+    ``running_sum = 0`` is searched per vertex (:func:`pivot_joint`)."""
 
 
 @wp.struct
@@ -189,6 +196,30 @@ def blend_joints(inf: Influences, v: int, f: int, values: wp.array2d(dtype=Any))
 
 
 @wp.func
+def pivot_joint(inf: Influences, v: int, groups: int):
+    """The joint of the vertex's largest weight, first on ties: slot 0 of a sorted layout, else
+    searched (``inf.unsorted``)."""
+    iv = inf.indices[v, 0]
+    j = iv[0]
+    if inf.unsorted == 0:
+        return j
+    wv = inf.weights[v, 0]
+    wm = wv[0]
+    for k in range(1, 4):
+        if wv[k] > wm:
+            wm = wv[k]
+            j = iv[k]
+    for c in range(1, groups):
+        iv = inf.indices[v, c]
+        wv = inf.weights[v, c]
+        for k in range(4):
+            if wv[k] > wm:
+                wm = wv[k]
+                j = iv[k]
+    return j
+
+
+@wp.func
 def dqs_blend_groups(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8), groups: int):
     """:func:`dqs_blend` over the first ``groups`` groups."""
     b = vec8()
@@ -199,7 +230,7 @@ def dqs_blend_groups(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8
             for k in range(4):
                 b = dq_blend_add(b, dqs[f, iv[k]], wv[k], b)
         return b
-    pv = dqs[f, inf.indices[v, 0][0]]
+    pv = dqs[f, pivot_joint(inf, v, groups)]
     for c in range(groups):
         iv = inf.indices[v, c]
         wv = inf.weights[v, c]
@@ -220,7 +251,7 @@ def dqs_blend_derivative(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=
                          dq_derivatives: wp.array2d(dtype=vec8)):
     """``Σ sᵢ·wᵢ·η̇ᵢ``: the derivative of :func:`dqs_blend`, whose signs ``sᵢ`` (the same rule)
     are locally constant."""
-    pv = dqs[f, inf.indices[v, 0][0]]
+    pv = dqs[f, pivot_joint(inf, v, inf.indices.shape[1])]
     b = vec8()
     acc = vec8()
     for c in range(inf.indices.shape[1]):
@@ -341,7 +372,7 @@ def dqs_vector(x: wp.vec3, inf: Influences, v: int, f: int, rotations: wp.array2
                residuals: wp.array2d(dtype=wp.mat33), use_residual: bool):
     """Rotation-only DQS of a direction (sign-aligned quaternion blend, the sign rule of
     :func:`dqs_blend`), unit length."""
-    pivot = rotations[f, inf.indices[v, 0][0]]
+    pivot = rotations[f, pivot_joint(inf, v, inf.indices.shape[1])]
     r = wp.quat(0.0, 0.0, 0.0, 0.0)
     for c in range(inf.indices.shape[1]):
         iv = inf.indices[v, c]
@@ -416,11 +447,11 @@ def transform_frames_kernel(
 # launchers: keyword arguments, chunked over the CPU cores by dqskin.kernels.grid
 
 
-def influences(*, indices, weights, blend, centers, running_sum=False):
+def influences(*, indices, weights, blend, centers, running_sum=False, unsorted=False):
     """The :class:`Influences` struct of a mesh's device arrays."""
     s = Influences()
     s.indices, s.weights, s.blend, s.centers = indices, weights, blend, centers
-    s.running_sum = int(bool(running_sum))
+    s.running_sum, s.unsorted = int(bool(running_sum)), int(bool(unsorted))
     return s
 
 

@@ -147,3 +147,39 @@ def test_strided_inputs_used_in_place_give_the_same_result():
     w8 = np.repeat(w, 2, axis=1)
     got = dqskin.skin_points(p4[:, :3], idx, w8[:, ::2], M, "lbs")
     np.testing.assert_allclose(got, lbs64(points, idx, w, M), atol=2e-5)
+
+
+def dqs64(points, idx, w, M):
+    """Float64 DQS from the equations: quaternions of each rotation, signs against the vertex's
+    largest weight (first on ties, as UsdSkel), normalized blend applied to the points."""
+    q = Rotation.from_matrix(M[:, :3, :3]).as_quat()[:, [3, 0, 1, 2]]  # (w, x, y, z)
+    t = M[:, :3, 3]
+    out = np.empty((len(points), 3))
+    for v in range(len(points)):
+        qs, ts = q[idx[v]], t[idx[v]]
+        pivot = qs[np.argmax(w[v])]
+        s = np.where(qs @ pivot < 0, -1.0, 1.0) * w[v]
+        r = s @ qs
+        # dual part of each joint, d = ½·(0, t)·q, blended with the same signs
+        tq = np.stack([-np.einsum("ki,ki->k", ts, qs[:, 1:]),
+                       *(ts * qs[:, :1] + np.cross(ts, qs[:, 1:])).T], 1) * 0.5
+        d = s @ tq
+        n = np.linalg.norm(r)
+        r, d = r / n, d / n
+        rot = Rotation.from_quat(r[[1, 2, 3, 0]])
+        trans = 2.0 * (r[0] * d[1:] - d[0] * r[1:] + np.cross(r[1:], d[1:]))
+        out[v] = rot.apply(points[v]) + trans
+    return out
+
+
+@pytest.mark.parametrize("K", [3, 4, 8])
+def test_one_shot_dqs_finds_the_pivot_in_input_order(K):
+    """One-shot calls keep the influences in input order (read in place for (V, 4k) int32) and
+    the kernels search the largest weight: here it is never in the first slot, some are tied."""
+    rng = np.random.default_rng(21)
+    points, idx, w, M = rig(rng, V=300, J=12, K=K)
+    idx = idx.astype(np.int32)
+    w[:, 0] = 0.01
+    w[::5, 1] = w[::5, -1] = 2.0  # ties: the first of them is the pivot
+    got = dqskin.skin_points(points, idx, w, M, "dqs")
+    np.testing.assert_allclose(got, dqs64(points, idx, w, M), atol=5e-5)
