@@ -75,7 +75,9 @@ class ChunkJob:
 
 def _quiet_worker_plugin():
     """A Dask worker plugin turning Warp's banner and module-load messages off in every worker
-    process (restarted ones too), whose stdout is the caller's. (Made here so that importing
+    process (restarted ones too), whose stdout is the caller's, and limiting USD's thread pool
+    to ``PXR_WORK_THREAD_LIMIT`` when set (a worker forked from a forkserver that imported USD
+    before that variable was set would otherwise use every core). (Made here so that importing
     this module does not import Dask; a local class travels by value.)"""
     from distributed import WorkerPlugin
 
@@ -86,8 +88,42 @@ def _quiet_worker_plugin():
             import warp as wp
             wp.config.quiet = True
             wp.config.log_level = wp.LOG_ERROR
+            limit = os.environ.get("PXR_WORK_THREAD_LIMIT")
+            if limit:
+                from pxr import Work
+                Work.SetConcurrencyLimitArgument(int(limit))
 
     return QuietWarp()
+
+
+_PRELOAD = ["distributed", "numpy", "dqskin.distributed", "dqskin.formats.usd"]
+"""Modules a LocalCluster's forkserver imports once; every worker process forked from it starts
+with them (importing them costs each spawned worker 2-3 CPU-seconds)."""
+
+
+def _forkserver_context():
+    """Make LocalCluster start its worker processes from a forkserver that has imported
+    :data:`_PRELOAD` (Dask's own default spawns each one afresh). Returns the dask config."""
+    import multiprocessing
+
+    import dask
+    from distributed.utils import get_mp_context
+
+    config = {"distributed.worker.multiprocessing-method": "forkserver"}
+    with dask.config.set(config):
+        get_mp_context()  # Dask's own preload list, set once per process; ours replaces it
+    multiprocessing.get_context("forkserver").set_forkserver_preload(_PRELOAD)
+    return config
+
+
+def _stop_forkserver():
+    """Stop the forkserver once its workers are gone, so that no process outlives the bake (and
+    its CPU time, its workers' included, is reaped into this process's). ``_stop`` is
+    multiprocessing's own (Python 3.10+), skipped when absent."""
+    import multiprocessing.forkserver as fs
+    stop = getattr(getattr(fs, "_forkserver", None), "_stop", None)
+    if stop is not None:
+        stop()
 
 
 def _worker_scene(path):
@@ -207,9 +243,11 @@ def _dask(workers, scheduler):
         return
     import logging
 
+    import dask
     from distributed import Client, LocalCluster
 
     cluster = client = None
+    stack = contextlib.ExitStack()
     try:
         if scheduler:
             try:
@@ -220,6 +258,8 @@ def _dask(workers, scheduler):
             if int(workers) < 1:
                 raise ValueError(f"--workers {workers}: must be at least 1")
             threads = str(max(1, (os.cpu_count() or 1) // int(workers)))
+            # for the cluster's lifetime: a restarted worker is forked from the same server
+            stack.enter_context(dask.config.set(_forkserver_context()))
             cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address=None,
                                    silence_logs=logging.ERROR,
@@ -232,6 +272,8 @@ def _dask(workers, scheduler):
             client.close()
         if cluster is not None:
             cluster.close()
+            _stop_forkserver()
+        stack.close()
 
 
 def _run_on_dask(client, jobs, done):
