@@ -229,8 +229,11 @@ class Skinner:
             buf = {k: wp.empty((frames, joints), dtype=t, device=self.device)
                    for k, t in self._BUFFERS[kind].items()}
             if kind == "joints":
-                buf = K.joints(has_residual=wp.zeros(frames, dtype=wp.int32, device=self.device),
-                               **buf)
+                flags = wp.zeros(frames, dtype=wp.int32, device=self.device)
+                buf = K.joints(has_residual=flags, **buf)
+                # read back each call: on the CPU a NumPy view made once (~10 µs a view)
+                self._cache[("has_residual", frames, joints)] = (
+                    flags.numpy() if self.device.is_cpu else flags)
             elif kind == "rates":
                 buf = KV.joint_rates(**buf)
             self._cache[key] = buf
@@ -350,15 +353,21 @@ class Skinner:
             src = self._rest("points", points, frames)
             # small results go through one reused device buffer and leave as a NumPy copy
             small = not as_warp and frames * self.vertex_count <= _SMALL_RESULT
-            out = self._cache.get(("out", frames)) if small else None
+            out, view = self._cache.get(("out", frames), (None, None)) if small else (None, None)
             if out is None:
                 out = wp.empty((frames, self.vertex_count), dtype=wp.vec3, device=self.device)
+                if small and self.device.is_cpu:  # its NumPy view, made once
+                    view = out.numpy()
                 if small:
-                    self._cache[("out", frames)] = out
-            rigid = code in (K.DQS, K.COR) and not prep["joints"].has_residual.numpy().any()
+                    self._cache[("out", frames)] = out, view
+            flags = self._cache[("has_residual",) + prep["joints"].dqs.shape]
+            rigid = code in (K.DQS, K.COR) and not (
+                flags if isinstance(flags, np.ndarray) else flags.numpy()).any()
             K.skin_points(method=code, points=src, influences=inf, joints=prep["joints"],
                           rigid=rigid, out=out, device=self.device)
             self._output(out, output_transforms, frames, normals=False)
+            if view is not None:
+                return (view if batched else view[0]).copy()
             res = self._result(out, batched, as_warp)
             return res.copy() if small else res
 

@@ -147,6 +147,23 @@ def launch(kernel, dim, inputs, outputs, device):
         _launch(kernel, dim, list(inputs) + list(outputs), device)
 
 
+_parts = {}  # FrameBlocks by their fields: building a Warp struct costs ~10 µs a call
+
+
+def _frame_blocks(block_offset, row_offset, row_block, row_end):
+    """The :class:`FrameBlocks` of a launch, built once per distinct value (never modified)."""
+    key = (block_offset, row_offset, row_block, row_end)
+    part = _parts.get(key)
+    if part is None:
+        if len(_parts) >= 256:
+            _parts.clear()
+        part = FrameBlocks()
+        part.frame_block, part.block_offset, part.row_offset = FRAME_BLOCK, block_offset, row_offset
+        part.row_block, part.row_end = row_block, row_end
+        _parts[key] = part
+    return part
+
+
 def launch_blocks(kernel, rows, frames, inputs, outputs, device, min_work=32768,
                   row_blocks=False):
     """Launch ``kernel`` over ``ceil(frames / FRAME_BLOCK)`` frame blocks × ``rows``.
@@ -165,9 +182,7 @@ def launch_blocks(kernel, rows, frames, inputs, outputs, device, min_work=32768,
     per_thread = CPU_ROW_BLOCK if row_blocks and cpu else 1
 
     def run(block_offset, block_count, row_offset, row_count):
-        part = FrameBlocks()
-        part.frame_block, part.block_offset, part.row_offset = FRAME_BLOCK, block_offset, row_offset
-        part.row_block, part.row_end = per_thread, row_offset + row_count
+        part = _frame_blocks(block_offset, row_offset, per_thread, row_offset + row_count)
         _launch(kernel, (block_count, -(-row_count // per_thread)),
                 list(inputs) + [part] + list(outputs), device)
 

@@ -27,6 +27,8 @@ from pxr import Gf, UsdSkel, Vt
 from scipy.spatial.transform import Rotation
 
 import dqskin
+from dqskin.kernels.dqmath import dq_blend_add, mat34, vec8
+from dqskin.kernels.skin import dqs_apply
 from dqskin.skeleton import forward_kinematics
 
 JOINTS, INFLUENCES = 64, 4
@@ -115,6 +117,74 @@ def bench_skinning(sizes, repeat, devices, rows):
             for impl, t in res.items():
                 rows.append(dict(kind="skin", method=method, vertices=V, impl=impl, seconds=t,
                                  mpts_per_s=V / t / 1e6))
+
+
+@wp.kernel
+def minimal_lbs_kernel(points: wp.array(dtype=wp.vec3), idx: wp.array(dtype=wp.vec4i),
+                       wts: wp.array(dtype=wp.vec4), affines: wp.array(dtype=mat34),
+                       out: wp.array(dtype=wp.vec3)):
+    """The reference of item 3: LBS of one frame, 4 influences, nothing else (1-D arrays, one
+    vertex per thread)."""
+    v = wp.tid()
+    iv = idx[v]
+    wv = wts[v]
+    a = (affines[iv[0]] * wv[0] + affines[iv[1]] * wv[1] + affines[iv[2]] * wv[2]
+         + affines[iv[3]] * wv[3])
+    p = points[v]
+    out[v] = a * wp.vec4(p[0], p[1], p[2], 1.0)
+
+
+@wp.kernel
+def minimal_dqs_kernel(points: wp.array(dtype=wp.vec3), idx: wp.array(dtype=wp.vec4i),
+                       wts: wp.array(dtype=wp.vec4), dqs: wp.array(dtype=vec8),
+                       out: wp.array(dtype=wp.vec3)):
+    """DQS of one frame, 4 influences sorted (pivot in slot 0), normalization folded in."""
+    v = wp.tid()
+    iv = idx[v]
+    wv = wts[v]
+    pv = dqs[iv[0]]
+    b = pv * wv[0]
+    for k in range(1, 4):
+        b = dq_blend_add(b, dqs[iv[k]], wv[k], pv)
+    out[v] = dqs_apply(b, points[v])
+
+
+def bench_kernels(rows, repeat=9, V=1_000_000):
+    """One thread (``DQSKIN_THREADS=1`` for the section): the skinning kernels alone (the
+    launcher ``dqskin.kernels.skin.skin_points`` on prepared joints, output preallocated) against
+    the minimal kernels above, 1M points × 1 frame and 62,500 points × 16 frames (frame blocks)."""
+    from dqskin.kernels import skin as K
+    saved = os.environ.get("DQSKIN_THREADS")
+    os.environ["DQSKIN_THREADS"] = "1"
+    try:
+        for verts, frames in ((V, 1), (V // 16, 16)):
+            points, idx, w, M = make_rig(np.random.default_rng(4), verts)
+            sk = dqskin.Skinner(points, idx, w, device="cpu")
+            prep, _, _ = sk._prepare(np.broadcast_to(M, (frames,) + M.shape))
+            j = prep["joints"]
+            fns = {}
+            for method, code in (("lbs", K.LBS), ("dqs", K.DQS)):
+                out = wp.empty((frames, verts), dtype=wp.vec3, device="cpu")
+                fns[f"dqskin {method}"] = (lambda code=code, out=out: K.skin_points(
+                    method=code, points=sk._points, influences=sk._inf, joints=j, rigid=True,
+                    out=out, device="cpu"))
+                if frames == 1:
+                    per_joint = j.affines if method == "lbs" else j.dqs
+                    kern = minimal_lbs_kernel if method == "lbs" else minimal_dqs_kernel
+                    args = [sk._points.flatten(), sk._inf.indices.flatten(),
+                            sk._inf.weights.flatten(), per_joint.flatten(), out.flatten()]
+                    fns[f"minimal {method}"] = (lambda kern=kern, args=args: wp.launch(
+                        kern, dim=verts, inputs=args, device="cpu"))
+            res = best_times(fns, repeat)
+            for impl, t in res.items():
+                rows.append(dict(kind="kernel", method=impl.split()[1], vertices=verts,
+                                 frames=frames, impl=impl, seconds=t,
+                                 mpts_per_s=verts * frames / t / 1e6))
+    finally:
+        if saved is None:
+            del os.environ["DQSKIN_THREADS"]
+        else:
+            os.environ["DQSKIN_THREADS"] = saved
 
 
 def bench_overhead(devices, rows, repeat=5, calls=200):
@@ -263,6 +333,12 @@ def print_tables(rows):
     skin = [r for r in rows if r["kind"] == "skin"]
     if skin:
         print_skin_table(skin)
+    kern = [r for r in rows if r["kind"] == "kernel"]
+    if kern:
+        print("\nKernels alone, one thread (M point-frames/s; minimal: 1-D arrays, one frame)")
+        for r in kern:
+            print(f"| {r['vertices']:>8} × {r['frames']:>2} | {r['impl']:>12} | "
+                  f"{r['mpts_per_s']:7.1f} |")
     for r in (r for r in rows if r["kind"] == "overhead"):
         print(f"\nper-call overhead, Skinner.skin of 1 point, {r['joints']} joints, "
               f"{r['method']} on {r['device']}: {r['seconds'] * 1e6:.0f} µs")
@@ -281,17 +357,20 @@ def print_skin_table(skin):
           "(Mpts/s, higher is better)")
     impls = list(dict.fromkeys(r["impl"] for r in skin))
     head = f"| {'vertices':>9} | method | " + " | ".join(f"{i:>17}" for i in impls)
-    print(head + " | ×UsdSkel par. | DQS/LBS time |")
-    print("|" + "---|" * (len(impls) + 4))
+    print(head + " | ×UsdSkel par. | one-shot ×UsdSkel par. | one-shot ÷ Skinner time | "
+                 "DQS/LBS time |")
+    print("|" + "---|" * (len(impls) + 6))
     for V in dict.fromkeys(r["vertices"] for r in skin):
         for method in ("lbs", "dqs"):
             sel = {r["impl"]: r for r in skin if r["vertices"] == V and r["method"] == method}
             ours = next(i for i in impls if i.startswith("dqskin"))
-            ratio = sel[ours]["mpts_per_s"] / sel["UsdSkel parallel"]["mpts_per_s"]
+            usd = sel["UsdSkel parallel"]["seconds"]
+            one = sel[ours + " one-shot"]["seconds"]
             other = {r["impl"]: r for r in skin if r["vertices"] == V and r["method"] == "lbs"}
             dl = sel[ours]["seconds"] / other[ours]["seconds"]
             cells = " | ".join(f"{sel[i]['mpts_per_s']:17.1f}" for i in impls)
-            print(f"| {V:>9} | {method:6} | {cells} | {ratio:12.2f}× | {dl:11.2f}× |")
+            print(f"| {V:>9} | {method:6} | {cells} | {usd / sel[ours]['seconds']:12.2f}× | "
+                  f"{usd / one:12.2f}× | {one / sel[ours]['seconds']:12.2f}× | {dl:11.2f}× |")
 
 
 def main(argv=None):
@@ -301,7 +380,7 @@ def main(argv=None):
     ap.add_argument("--json", default="out/bench.json")
     ap.add_argument("--quick", action="store_true", help="10k and 100k only, fewer repeats")
     ap.add_argument("--skip", default="",
-                    help="comma list of sections to skip: skin,overhead,fk,crowd,bake")
+                    help="comma list of sections to skip: skin,kernel,overhead,fk,crowd,bake")
     ap.add_argument("--crowds", default="100,1000", help="crowd sizes (instances)")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
@@ -315,6 +394,8 @@ def main(argv=None):
     rows = []
     if "skin" not in skip:
         bench_skinning(sizes, args.repeat, devices, rows)
+    if "kernel" not in skip:
+        bench_kernels(rows)
     if "overhead" not in skip:
         bench_overhead(devices, rows)
     if "fk" not in skip:
