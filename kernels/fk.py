@@ -100,14 +100,16 @@ def _forward_kinematics_kernel(trs, name):
         parents: wp.array(dtype=wp.int32),
         skeleton_start: wp.array(dtype=wp.int32),
         poses: LocalPoses,
-        frame_offset: int,
+        row_offset: int,
         # outputs
         world_dq: wp.array2d(dtype=vec8),
         world_residual: wp.array2d(dtype=wp.mat33),
         world: wp.array2d(dtype=wp.mat44),
     ):
-        i, s = wp.tid()
-        f = i + frame_offset
+        r = wp.tid() + row_offset  # one row per (frame, skeleton), frame-major
+        skeletons = skeleton_start.shape[0] - 1
+        f = r // skeletons
+        s = r - f * skeletons
         for j in range(skeleton_start[s], skeleton_start[s + 1]):
             if wp.static(trs):
                 q, t, res, rigid = split_trs(poses.translations[f, j], poses.rotations[f, j],
@@ -116,7 +118,7 @@ def _forward_kinematics_kernel(trs, name):
                 q, t, res, rigid = split_matrix(poses.matrices[f, j])
             fk_joint(f, j, parents[j], q, t, res, rigid, world_dq, world_residual, world)
 
-    kernel.__doc__ = f"FK over a (frame, skeleton) grid from local {'TRS' if trs else 'matrices'}."
+    kernel.__doc__ = (f"FK over (frame, skeleton) rows from local {'TRS' if trs else 'matrices'}.")
     return wp.kernel(kernel, name=name)
 
 
@@ -140,7 +142,8 @@ def forward_kinematics(*, parents, skeleton_start, local, world_dq, world_residu
                        device):
     """FK of every skeleton for every frame: ``local`` is a (F, J) ``wp.mat44`` array or a
     ``(translations, rotations, scales)`` tuple of (F, J) arrays; fills the three (F, J) outputs.
-    One thread per (frame, skeleton); on the CPU, frames are split across the cores."""
+    One thread per (frame, skeleton); on the CPU those rows are split across the cores (one frame
+    of a crowd's many skeletons too)."""
     trs = isinstance(local, tuple)
     poses = LocalPoses()
     if trs:
@@ -148,9 +151,9 @@ def forward_kinematics(*, parents, skeleton_start, local, world_dq, world_residu
     else:
         poses.matrices = local
     kernel = forward_kinematics_trs_kernel if trs else forward_kinematics_kernel
-    launch_rows(kernel, (local[0] if trs else local).shape[0], [parents, skeleton_start, poses],
-                [world_dq, world_residual, world], device, min_chunk=64,
-                inner=(skeleton_start.shape[0] - 1,))
+    frames, skeletons = (local[0] if trs else local).shape[0], skeleton_start.shape[0] - 1
+    launch_rows(kernel, frames * skeletons, [parents, skeleton_start, poses],
+                [world_dq, world_residual, world], device, min_chunk=64)
 
 
 def bind_relative(*, world, inverse_bind, skinning, device):
