@@ -7,8 +7,9 @@ points with the same transforms; per-call time is the best over ``--repeat`` rou
 a burst of back-to-back calls. dqskin times include uploading the
 frame's transforms, preparing them and reading the result back (the mesh is uploaded once, as a
 pipeline would); "one-shot" is ``dqskin.skin_points`` (validation, influence layout and upload
-of the mesh included, as ``UsdSkel.SkinPoints`` converts its inputs every call). FK: 1,000
-skeletons × 64 joints. Crowds (:func:`bench_crowd`): 100 and 1,000 CesiumMen (glTF, from
+of the mesh included, as ``UsdSkel.SkinPoints`` converts its inputs every call). Kernels alone
+(:func:`bench_kernels`): one thread, dqskin's point kernels against minimal LBS/DQS kernels.
+FK: 1,000 skeletons × 64 joints. Crowds (:func:`bench_crowd`): 100 and 1,000 CesiumMen (glTF, from
 ../shared; the bundled humanoid without it) against one mesh of the same total points. Prints
 tables and writes JSON.
 """
