@@ -392,6 +392,10 @@ def main(argv=None):
     wp.init()
     devices = ["cpu"] + (["cuda:0"] if wp.get_cuda_device_count() > 0 else [])
     skip = set(filter(None, args.skip.split(",")))
+    unknown = skip - {"skin", "kernel", "overhead", "fk", "crowd", "bake"}
+    if unknown:
+        ap.error(f"--skip: unknown section(s) {', '.join(sorted(unknown))}; "
+                 "sections: skin,kernel,overhead,fk,crowd,bake")
     rows = []
     if "skin" not in skip:
         bench_skinning(sizes, args.repeat, devices, rows)
