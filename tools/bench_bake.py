@@ -24,6 +24,7 @@ Also callable from ``tools/bench.py`` (``bench_bake(rows)``).
 """
 
 import argparse
+import contextlib
 import json
 import resource
 import shutil
@@ -162,6 +163,130 @@ def child(which, src, dst):
                           **extra)))
 
 
+class _Phases:
+    """``with phases("name"):`` records CPU seconds of this process (all its threads) and wall
+    seconds of the block."""
+
+    def __init__(self):
+        self.rows = []
+
+    @contextlib.contextmanager
+    def __call__(self, name):
+        c0, w0 = time.process_time(), time.perf_counter()
+        yield
+        self.rows.append((name, time.process_time() - c0, time.perf_counter() - w0))
+
+
+def breakdown_usdskel(src, dst):
+    """UsdSkel's points-only bake phase by phase; its skinning alone estimated apart (the same
+    LBS per frame through ``UsdSkel.SkinningQuery``, Python calls included)."""
+    ph = _Phases()
+    with ph("imports"):
+        from pxr import Usd, UsdGeom, UsdSkel, Vt
+    with ph("open stage"):
+        stage = Usd.Stage.Open(str(src))
+    cache, pred = UsdSkel.Cache(), Usd.TraverseInstanceProxies()
+    with ph("(apart) its skinning alone: SkinningQuery.ComputeSkinnedPoints per frame"):
+        for prim in stage.Traverse():
+            if not prim.IsA(UsdSkel.Root):
+                continue
+            cache.Populate(UsdSkel.Root(prim), pred)
+            for binding in cache.ComputeSkelBindings(UsdSkel.Root(prim), pred):
+                skel = cache.GetSkelQuery(binding.GetSkeleton())
+                for target in binding.GetSkinningTargets():
+                    rest = UsdGeom.PointBased(target.GetPrim()).GetPointsAttr().Get()
+                    for f in range(int(stage.GetStartTimeCode()), int(stage.GetEndTimeCode()) + 1):
+                        target.ComputeSkinnedPoints(skel.ComputeSkinningTransforms(f),
+                                                    Vt.Vec3fArray(rest), f)
+    with ph("BakeSkinning: skin + Vt arrays + set samples (C++, TBB)"):
+        UsdSkel.BakeSkinning(stage.Traverse())
+    with ph("Export (crate)"):
+        stage.GetRootLayer().Export(str(dst))
+    return ph.rows
+
+
+def breakdown_dqskin(src, dst, chunk=256):
+    """dqskin's points-only LBS single-layer bake (:func:`dqskin.bake`'s steps), each step over
+    every frame before the next (no overlap), then the clip bake's extra step (hashing)."""
+    ph = _Phases()
+    with ph("imports"):
+        from pxr import Sdf, Vt
+
+        from dqskin.formats import load
+        from dqskin.formats.atomic import atomic_path
+        from dqskin.formats.usd_cache import CacheLayer, _extents, export_layer, vec3f_arrays
+        from dqskin.formats.usd_clips import _sha256
+        from dqskin.validation import check_skinned
+        import_dqskin()
+    with ph("load (dqskin.formats.load)"):
+        scene = load(src)
+    with ph("CacheLayer: open, Flatten, unbind"):
+        cache = CacheLayer(scene, dst)
+    res = []
+    with ph("skinning (Scene.skin_chunks, LBS points, 2 threads)"):
+        for _, r in scene.skin_chunks(scene.times, chunk, method="lbs", normals=False,
+                                      velocities=False):
+            res.append(r)
+    with ph("check_skinned (all finite)"):
+        for r in res:
+            check_skinned(src, r)
+    names = [m.name for m in scene.meshes]
+    with ph("extents"):
+        ext = [{n: _extents(r.points[n], 0.0) for n in names} for r in res]
+    with ph("Vt arrays (Vt.Vec3fArray(N) + memmove), points + extent"):
+        vts = [{n: (vec3f_arrays(r.points[n]), vec3f_arrays(e[n])) for n in names}
+               for r, e in zip(res, ext)]
+    with ph("(apart) of which new Vt arrays alone: first touch of fresh memory"):
+        fresh = [Vt.Vec3fArray(len(m.points)) for m in scene.meshes for _ in scene.times]
+    del fresh
+    layer = cache.layer
+    paths = {n: (cache.target(n, "points").spec(layer).path,
+                 cache.target(n, "extent").spec(layer).path) for n in names}
+    with ph("layer.SetTimeSample under Sdf.ChangeBlock, points + extent"):
+        with Sdf.ChangeBlock():
+            for r, v in zip(res, vts):
+                times = r.times.tolist()
+                for n in names:
+                    for ti, p, e in zip(times, *v[n]):
+                        layer.SetTimeSample(paths[n][0], ti, p)
+                        layer.SetTimeSample(paths[n][1], ti, e)
+    del vts, res
+    cache.set_metadata(scene.times.min(), scene.times.max())
+    claim = atomic_path(dst, overwrite=True)
+    with ph("Export (crate)"):
+        tmp = export_layer(layer, claim)
+    with ph("(clips only) SHA-256 of the layer"):
+        _sha256(tmp)
+    claim.commit()
+    return ph.rows
+
+
+def breakdown(frames, asset=DEFAULT_ASSET):
+    """Print the CPU-seconds breakdown of a looped CesiumMan bake of ``frames`` frames."""
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        src = tmp / "long.usdc"
+        make_long_clip(asset, frames, src)
+        tables = {}
+        for which in ("usdskel", "dqskin"):
+            proc = subprocess.run([sys.executable, __file__, "--child-breakdown", which, str(src),
+                                   str(tmp / f"{which}.usd")], capture_output=True, text=True)
+            if proc.returncode:
+                sys.exit(f"breakdown {which} failed:\n{proc.stderr[-2000:]}")
+            tables[which] = json.loads(proc.stdout.strip().splitlines()[-1])
+    print(f"\nPoints-only LBS bake of CesiumMan looped over {frames} frames, step by step (no "
+          "overlap); CPU s counts every thread of the process")
+    print("| bake | step | CPU s | wall s |\n|---|---|---|---|")
+    for which, rows in tables.items():
+        total = [0.0, 0.0]
+        for name, cpu, wall in rows:
+            print(f"| {which} | {name} | {cpu:.2f} | {wall:.2f} |")
+            if name != "imports" and not name.startswith("("):
+                total = [total[0] + cpu, total[1] + wall]
+        print(f"| {which} | **sum without imports and (apart) rows** | {total[0]:.2f} "
+              f"| {total[1]:.2f} |")
+
+
 def compare_caches(a, b, probe_times):
     """Largest point distance between meshes of the same path in two caches."""
     from pxr import Usd, UsdGeom
@@ -281,6 +406,10 @@ if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
         child(*sys.argv[2:5])
         sys.exit(0)
+    if len(sys.argv) > 1 and sys.argv[1] == "--child-breakdown":
+        fn = breakdown_usdskel if sys.argv[2] == "usdskel" else breakdown_dqskin
+        print(json.dumps(fn(*sys.argv[3:5])))
+        sys.exit(0)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", default="1000,10000")
     ap.add_argument("--asset", default=str(DEFAULT_ASSET))
@@ -288,7 +417,12 @@ if __name__ == "__main__":
     ap.add_argument("--impls", default=",".join(IMPLS))
     ap.add_argument("--no-standin", action="store_true", help="no BrainStem stand-in")
     ap.add_argument("--json", help="also write the rows here")
+    ap.add_argument("--breakdown", type=int, metavar="FRAMES",
+                    help="only the step-by-step CPU-seconds breakdown of a FRAMES-frame bake")
     a = ap.parse_args()
+    if a.breakdown:
+        breakdown(a.breakdown, a.asset)
+        sys.exit(0)
     out_rows = []
     bench_bake(out_rows, [int(x) for x in a.frames.split(",")], a.asset, a.brainstem,
                [x for x in a.impls.split(",") if x], not a.no_standin)
