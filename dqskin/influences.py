@@ -6,13 +6,15 @@ import warp as wp
 
 from .kernels import layout as KL
 from .shapes import as_real
+from .validation import extrema
 
 __all__ = ["Influences", "check_influences"]
 
 
 def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None):
     """:func:`check_influences` without its int64 copy: ``(indices (V, K) in their integer dtype,
-    weights (V, K) float32, largest index or -1)``; one min and one max pass over each array."""
+    weights (V, K) float32, largest index or -1)``; one :func:`~dqskin.validation.extrema` of each
+    array."""
     idx = as_real("joint_indices", joint_indices)
     wts = as_real("joint_weights", joint_weights, np.float32)
     if idx.ndim == 1:
@@ -26,13 +28,14 @@ def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None
         raise ValueError(f"joint_indices: expected integers, got {idx.dtype}")
     if not idx.size:
         return idx, wts, -1
-    lo, hi = int(idx.min()), int(idx.max())
+    lo, hi, _ = extrema(idx)
+    lo, hi = int(lo), int(hi)
     if lo < 0:
         raise ValueError(f"joint_indices: negative index {lo}")
     if joint_count is not None and hi >= joint_count:
         raise ValueError(f"joint_indices: index {hi} out of range for {joint_count} joints")
-    wlo, whi = wts.min(), wts.max()  # NaN propagates; no temporaries
-    if not (np.isfinite(wlo) and np.isfinite(whi)):
+    wlo, _, finite = extrema(wts)
+    if not finite:
         raise ValueError("joint_weights: NaN or infinite weight")
     if wlo < 0:
         raise ValueError(f"joint_weights: negative weight {float(wlo)}")

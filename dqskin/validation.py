@@ -14,11 +14,31 @@ import numpy as np
 
 from .shapes import as_real
 
-__all__ = ["FLOAT32_MAX", "check_finite", "check_skinned", "check_transforms", "location",
-           "scene_problems"]
+__all__ = ["FLOAT32_MAX", "check_finite", "check_skinned", "check_transforms", "extrema",
+           "location", "scene_problems"]
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 """Largest magnitude a value may have to survive the device's float32."""
+
+
+_CHUNK = 1 << 18
+"""Values per slice of :func:`extrema` (1 MB of float32: its max re-reads what its min brought
+into cache)."""
+
+
+def extrema(a):
+    """``(min, max, every value finite)`` of a non-empty NumPy array of numbers in one read from
+    memory and without temporaries: min and max of cache-sized slices (NaN propagates)."""
+    if a.size <= _CHUNK or not a.flags.c_contiguous:
+        lo, hi = a.min(), a.max()
+    else:
+        flat = a.reshape(-1)
+        parts = np.array([(c.min(), c.max()) for c in (flat[i:i + _CHUNK]
+                                                       for i in range(0, flat.size, _CHUNK))])
+        lo, hi = parts[:, 0].min(), parts[:, 1].max()  # NaN propagates here too
+    if a.dtype.kind == "f" and not (np.isfinite(lo) and np.isfinite(hi)):
+        return lo, hi, False
+    return lo, hi, True
 
 
 def location(index, lead, joint_names=None, times=None):

@@ -183,3 +183,100 @@ def test_one_shot_dqs_finds_the_pivot_in_input_order(K):
     w[::5, 1] = w[::5, -1] = 2.0  # ties: the first of them is the pivot
     got = dqskin.skin_points(points, idx, w, M, "dqs")
     np.testing.assert_allclose(got, dqs64(points, idx, w, M), atol=5e-5)
+
+
+def _graphs(sk):
+    """The launch graphs a skinner has captured (not just counted calls for)."""
+    return [k for k, v in sk._cache.items() if k[0] == "graph" and not isinstance(v, int)]
+
+
+def residual_dqs64(points, idx, w, M):
+    """UsdSkel's DQS of transforms with scale: ``p_s = Σ wᵢ·Sᵢ·p`` (``Sᵢ = Rᵢᵀ·Aᵢ``, polar
+    rotation from the SVD), then the DQS of the rotations and translations (:func:`dqs64`)."""
+    u, _, vt = np.linalg.svd(M[:, :3, :3])
+    R = u @ vt
+    S = np.transpose(R, (0, 2, 1)) @ M[:, :3, :3]
+    ps = np.einsum("vk,vkij,vj->vi", np.asarray(w, np.float64), S[idx], points)
+    rt = M.copy()
+    rt[:, :3, :3] = R
+    return dqs64(ps, idx, w, rt)
+
+
+def test_replayed_launch_graphs_follow_every_call():
+    """After enough calls the skinner replays captured launch graphs: each call still sees its
+    own transforms, method and sign rule, frames with scale (the residual kernel) and without
+    alternate after the capture, two skinners of one shape keep their own graphs, and results
+    already returned are never overwritten."""
+    rng = np.random.default_rng(30)
+    points, idx, w, _ = rig(rng, V=40, J=10)
+    points2, idx2, w2, _ = rig(rng, V=40, J=10)
+    a, b = dqskin.Skinner(points, idx, w), dqskin.Skinner(points2, idx2, w2)
+    kept = []
+    for call in range(3 * dqskin.skinning._GRAPH_AFTER + 6):
+        M = rig(rng, V=1, J=10)[3]
+        scaled = call % 3 == 2
+        if scaled:  # some joints scaled: the DQS residual path
+            M[::2, :3, :3] *= 1.5
+        for sk, (p, i, ww) in ((a, (points, idx, w)), (b, (points2, idx2, w2))):
+            got = sk.skin(M, "lbs")
+            np.testing.assert_allclose(got, lbs64(p, i, ww, M), atol=5e-5)
+            kept.append((got, lbs64(p, i, ww, M)))
+            want = (residual_dqs64 if scaled else dqs64)(p, i, ww, M)
+            np.testing.assert_allclose(sk.skin(M, "dqs"), want, atol=5e-5)
+    assert len(_graphs(a)) == len(_graphs(b)) == 4  # prepare, LBS, DQS rigid and residual
+    for got, want in kept:
+        np.testing.assert_allclose(got, want, atol=5e-5)
+    # other shapes and per-call points beside the graphs
+    F = np.stack([rig(rng, V=1, J=10)[3] for _ in range(3)])
+    np.testing.assert_allclose(a.skin(F, "lbs"), [lbs64(points, idx, w, m) for m in F],
+                               atol=5e-5)
+    moved = points + 1.0
+    np.testing.assert_allclose(a.skin(F[0], "lbs", points=moved), lbs64(moved, idx, w, F[0]),
+                               atol=5e-5)
+    shift = np.eye(4)
+    shift[:3, 3] = [1.0, 2.0, 3.0]
+    np.testing.assert_allclose(a.skin(F[0], "lbs", output_transforms=shift),
+                               lbs64(points, idx, w, F[0]) + [1.0, 2.0, 3.0], atol=5e-5)
+
+
+def test_replayed_graphs_from_two_threads():
+    """Skinners replaying graphs on two threads at once (graph capture is per thread)."""
+    import threading
+
+    rng = np.random.default_rng(31)
+    rigs = [rig(rng, V=30, J=8) for _ in range(2)]
+    poses = [rig(rng, V=1, J=8)[3] for _ in range(dqskin.skinning._GRAPH_AFTER + 10)]
+    errors = []
+
+    def work(points, idx, w, _):
+        sk = dqskin.Skinner(points, idx, w)
+        try:
+            for M in poses:
+                np.testing.assert_allclose(sk.skin(M, "dqs"), dqs64(points, idx, w, M),
+                                           atol=5e-5)
+        except AssertionError as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work, args=r) for r in rigs]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors[0]
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.int32, np.float64])
+def test_extrema_of_large_arrays_in_slices(dtype):
+    """Min, max and finiteness read in cache-sized slices: NaN or inf in any slice is found."""
+    from dqskin.validation import _CHUNK, extrema
+
+    rng = np.random.default_rng(32)
+    a = (rng.random(3 * _CHUNK + 5) * 100 - 50).astype(dtype)
+    lo, hi, finite = extrema(a)
+    assert (lo, hi, finite) == (a.min(), a.max(), True)
+    if dtype != np.int32:
+        for where in (0, _CHUNK + 7, a.size - 1):
+            for bad in (np.nan, np.inf, -np.inf):
+                b = a.copy()
+                b[where] = bad
+                assert not extrema(b)[2]
