@@ -1,11 +1,13 @@
-"""Clip bakes on Dask (dqskin.distributed): a 2-process LocalCluster, a worker process killed
-mid-chunk, and an external ``dask scheduler`` + ``dask worker`` on 127.0.0.1.
+"""Clip bakes on Dask (dqskin.distributed): a 2-process LocalCluster (the embedded default), and
+on one external ``dask scheduler`` + ``dask worker`` cluster on 127.0.0.1 shared by two tests:
+the CLI's ``--scheduler``, and a worker process killed mid-chunk.
 
 Each result must equal the single-process single-layer cache bit for bit at every frame and at
 sub-frames across chunk boundaries (points, normals, velocities, extent); the oracle comparison of
 that cache lives in tests/test_clips.py.
 """
 
+import json
 import os
 import shutil
 import signal
@@ -53,77 +55,38 @@ def test_two_worker_local_cluster_equals_the_single_process_cache(reference, tmp
     check(reference, shot)
 
 
-def test_a_worker_killed_mid_chunk_is_replaced_and_the_bake_completes(reference, tmp_path):
-    """A worker plugin makes the first worker that has exported a clip layer to its temporary
-    file SIGKILL itself before the rename; Dask reruns that chunk elsewhere."""
-    import logging
-
-    from distributed import Client, LocalCluster, WorkerPlugin
-
-    marker = tmp_path / "killed"
-
-    class KillOnceMidChunk(WorkerPlugin):
-        name = "kill-once-mid-chunk"
-
-        def setup(self, worker):
-            from dqskin.formats import usd_clips
-            export = usd_clips.export_layer
-
-            def export_then_die(layer, claim, out=None):
-                tmp = export(layer, claim, out)
-                try:
-                    os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
-                except FileExistsError:
-                    return tmp
-                os.kill(os.getpid(), signal.SIGKILL)  # the layer is only in its temporary file
-            usd_clips.export_layer = export_then_die
-
-    shot = tmp_path / "shot.usd"
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None, silence_logs=logging.CRITICAL) as cluster, \
-            Client(cluster) as client:
-        client.register_plugin(KillOnceMidChunk())
-        pids = set(client.run(os.getpid).values())
-        summary = bake(HUMANOID, shot, chunk=CHUNK, scheduler=cluster.scheduler_address)
-        assert marker.exists(), "no worker was killed"
-        assert set(client.run(os.getpid).values()) != pids  # the nanny started a new one
-    assert "as 7 clips" in summary
-    check(reference, shot)
-
-
 def _start(args, log):
+    env = {k: v for k, v in os.environ.items()  # the workers' budget from --nthreads alone
+           if k not in ("DQSKIN_THREADS", "PXR_WORK_THREAD_LIMIT")}
     return subprocess.Popen([str(DASK), *args], stdout=log, stderr=subprocess.STDOUT,
-                            start_new_session=True)
+                            start_new_session=True, env=env)
 
 
-def test_external_scheduler_and_worker_on_localhost(reference, tmp_path):
-    """``dask scheduler`` and ``dask worker`` started as subprocesses (the README's commands),
-    the bake through the CLI's ``--scheduler``."""
+@pytest.fixture(scope="module")
+def external_cluster(tmp_path_factory):
+    """``dask scheduler`` and ``dask worker --nworkers 2 --nthreads 1`` started as subprocesses
+    on 127.0.0.1 (the README's commands), shared by the tests below (starting a cluster is most
+    of each test's time); yields the scheduler's address."""
     if not DASK.exists():
         pytest.skip(f"no dask command beside {sys.executable}")
-    from dqskin.cli import main
-    info = tmp_path / "scheduler.json"
-    log = open(tmp_path / "dask.log", "w")
+    from distributed import Client
+    tmp = tmp_path_factory.mktemp("dask")
+    info = tmp / "scheduler.json"
+    log = open(tmp / "dask.log", "w")
     procs = [_start(["scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
                      "--scheduler-file", str(info)], log)]
     try:
         end = time.monotonic() + 60
         while not info.exists() and time.monotonic() < end:
             time.sleep(0.1)
-        assert info.exists(), (tmp_path / "dask.log").read_text()
-        procs.append(_start(["worker", "--scheduler-file", str(info), "--nthreads", "1",
-                             "--host", "127.0.0.1", "--no-dashboard"], log))
-        import json
-
-        from distributed import Client
+        assert info.exists(), (tmp / "dask.log").read_text()
+        procs.append(_start(["worker", "--scheduler-file", str(info), "--nworkers", "2",
+                             "--nthreads", "1", "--host", "127.0.0.1", "--no-dashboard"], log))
         address = json.loads(info.read_text())["address"]
         assert address.startswith("tcp://127.0.0.1:")
         with Client(address, timeout="30s") as client:
-            client.wait_for_workers(1, timeout=60)
-        shot = tmp_path / "shot.usd"
-        assert main(["skin", str(HUMANOID), "--out", str(shot), "--chunk", str(CHUNK),
-                     "--scheduler", address]) == 0
-        check(reference, shot)
+            client.wait_for_workers(2, timeout=60)
+        yield address
     finally:
         for p in reversed(procs):
             os.killpg(p.pid, signal.SIGTERM)
@@ -134,4 +97,67 @@ def test_external_scheduler_and_worker_on_localhost(reference, tmp_path):
                 os.killpg(p.pid, signal.SIGKILL)
                 p.wait()
         log.close()
-    shutil.rmtree(tmp_path / "dask-worker-space", ignore_errors=True)
+        shutil.rmtree(tmp / "dask-worker-space", ignore_errors=True)
+
+
+def test_external_scheduler_and_workers_on_localhost(reference, external_cluster, tmp_path):
+    """The bake through the CLI's ``--scheduler``; each worker's thread budget follows its
+    ``--nthreads 1`` (dqskin's launch pool and USD's thread pool)."""
+    from distributed import Client
+
+    from dqskin.cli import main
+    shot = tmp_path / "shot.usd"
+    assert main(["skin", str(HUMANOID), "--out", str(shot), "--chunk", str(CHUNK),
+                 "--scheduler", external_cluster]) == 0
+    check(reference, shot)
+
+    def budget():
+        from pxr import Work
+
+        from dqskin.kernels.grid import cpu_threads
+        return cpu_threads(), Work.GetConcurrencyLimit()
+    with Client(external_cluster, timeout="30s") as client:
+        assert set(client.run(budget).values()) == {(1, 1)}
+
+
+def test_a_worker_killed_mid_chunk_is_replaced_and_the_bake_completes(reference, external_cluster,
+                                                                       tmp_path):
+    """A worker plugin makes the first worker that has exported a clip layer to its temporary
+    file SIGKILL itself before the rename; its nanny starts a new worker process and Dask reruns
+    that chunk. (The plugin is removed afterwards, its patch undone.)"""
+    from distributed import Client, WorkerPlugin
+
+    marker = tmp_path / "killed"
+
+    class KillOnceMidChunk(WorkerPlugin):
+        name = "kill-once-mid-chunk"
+
+        def setup(self, worker):
+            from dqskin.formats import usd_clips
+            export = self.export = usd_clips.export_layer
+
+            def export_then_die(layer, claim, out=None):
+                tmp = export(layer, claim, out)
+                try:
+                    os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+                except FileExistsError:
+                    return tmp
+                os.kill(os.getpid(), signal.SIGKILL)  # the layer is only in its temporary file
+            usd_clips.export_layer = export_then_die
+
+        def teardown(self, worker):
+            from dqskin.formats import usd_clips
+            usd_clips.export_layer = self.export
+
+    shot = tmp_path / "shot.usd"
+    with Client(external_cluster, timeout="30s") as client:
+        client.register_plugin(KillOnceMidChunk())
+        try:
+            pids = set(client.run(os.getpid).values())
+            summary = bake(HUMANOID, shot, chunk=CHUNK, scheduler=external_cluster)
+            assert marker.exists(), "no worker was killed"
+            assert set(client.run(os.getpid).values()) != pids  # the nanny started a new one
+        finally:
+            client.unregister_worker_plugin(KillOnceMidChunk.name)
+    assert "as 7 clips" in summary
+    check(reference, shot)

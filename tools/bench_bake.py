@@ -2,7 +2,8 @@
 clips in this process and on a Dask LocalCluster of 1 and 2 worker processes.
 
     python tools/bench_bake.py [--frames 1000,10000] [--asset PATH] [--brainstem PATH]
-                               [--impls usdskel,single,clips0,clips1,clips2,clips2+nv]
+                               [--impls usdskel,single,clips0,clips1,clips2,clips1t1,...]
+    python tools/bench_bake.py --breakdown 10000
 
 Assets: the looped CesiumMan (its 48-key walk looped over each ``--frames`` count, with root
 motion) and BrainStem.usdz's own clip when the file exists (``--brainstem``; default: searched
@@ -13,7 +14,11 @@ own; the clip bakes also report the peak of every worker process. Implementation
 * ``usdskel``: ``UsdSkel.BakeSkinning(stage)`` + ``Export`` to ``.usdc`` (LBS, points + extent);
 * ``single``: ``dqskin.bake(..., clips=False)``, LBS, points + extent (what UsdSkel writes);
 * ``clips0``/``clips1``/``clips2``: the same as value clips, in this process / on a LocalCluster
-  of 1 / 2 worker processes (cluster start-up included in the time);
+  of 1 / 2 worker processes of cores / workers threads each (cluster start-up and stop included
+  in the time);
+* ``clips0t1``/``clips1t1``/``clips2t1``: in this process / 1 / 2 worker processes with a
+  thread budget of one each (dqskin's launch pool and USD's; what ``dask worker --nthreads 1``
+  per core gives on a farm): process scaling without the threads a lone worker also uses;
 * ``single+nv``, ``clips2+nv``: with skinned normals and velocities (dqskin's default).
 
 Reports wall seconds of the bake (module imports excluded, shown apart), point-frames/s, the CPU
@@ -26,6 +31,7 @@ Also callable from ``tools/bench.py`` (``bench_bake(rows)``).
 import argparse
 import contextlib
 import json
+import os
 import resource
 import shutil
 import subprocess
@@ -39,7 +45,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "assets"
 DEFAULT_ASSET = SHARED / "usd-wg" / "CesiumMan" / "CesiumMan.usdz"
-IMPLS = ("usdskel", "single", "clips0", "clips1", "clips2", "single+nv", "clips2+nv")
+IMPLS = ("usdskel", "single", "clips0", "clips1", "clips2", "clips0t1", "clips1t1", "clips2t1",
+         "single+nv", "clips2+nv")
 
 
 def find_brainstem():
@@ -123,7 +130,8 @@ def run_usdskel(src, dst):
 
 
 def run_dqskin(src, dst, which):
-    """``which``: single | clips0 | clips1 | clips2, ``+nv`` for normals and velocities."""
+    """``which``: single | clips0 | clips1 | clips2 | clips1t1 | clips2t1 (``tN``: N threads per
+    worker), ``+nv`` for normals and velocities."""
     from dqskin.baking import CLIP_CHUNK, bake
     from dqskin.distributed import bake_clips
     from dqskin.formats import load
@@ -133,9 +141,14 @@ def run_dqskin(src, dst, which):
     if kind == "single":
         bake(scene, dst, method="lbs", normals=nv, velocities=nv, clips=False, force=True)
         return {}
-    workers = int(kind[5:]) or None
+    workers, _, threads = kind[5:].partition("t")
+    if threads and not int(workers):  # in this process: the budget a one-thread worker gets
+        from pxr import Work
+        os.environ["DQSKIN_THREADS"] = threads
+        Work.SetConcurrencyLimitArgument(int(threads))
     done = bake_clips(scene, dst, scene.times, chunk=CLIP_CHUNK, method="lbs", normals=nv,
-                      velocities=nv, workers=workers, force=True)
+                      velocities=nv, workers=int(workers) or None,
+                      threads=int(threads or 0) or None, force=True)
     peaks = {}
     for task in done["tasks"]:
         peaks[task["pid"]] = max(peaks.get(task["pid"], 0.0), task["peak_rss_mb"])
@@ -391,9 +404,12 @@ def print_bake(rows):
     for key in dict.fromkeys((r.get("asset"), r["frames"]) for r in bake):
         sel = {r["impl"]: r for r in bake if (r.get("asset"), r["frames"]) == key}
         line = []
-        if "clips1" in sel and "clips2" in sel:
-            speedup = sel["clips1"]["seconds"] / sel["clips2"]["seconds"]
-            line.append(f"2 workers / 1 worker = {speedup:.2f}×")
+        for one, two, what in (("clips1", "clips2", "2 workers / 1 worker"),
+                               ("clips1t1", "clips2t1", "2 workers / 1 worker, 1 thread each"),
+                               ("clips0t1", "clips2t1", "2 one-thread workers / in-process, 1 "
+                                "thread")):
+            if one in sel and two in sel:
+                line.append(f"{what} = {sel[one]['seconds'] / sel[two]['seconds']:.2f}×")
         if "usdskel" in sel:
             for impl in ("single", "clips0", "clips2"):
                 if impl in sel:
