@@ -25,7 +25,6 @@ import warp as wp
 from ._warp import Device, resolve_device
 from .animation import check_times
 from .kernels import fk as FK
-from .kernels.dqmath import vec8
 from .motion import skinning_transforms_with_derivative
 from .skinning import Method, Skinner
 from .validation import check_transforms
@@ -78,13 +77,12 @@ class JointBatch:
         for sl, local in zip(self.joints, local_transforms):
             host[:, sl] = local
         d = self.device
-        local = wp.array(host, dtype=wp.mat44, device=d)
+        local = wp.array(host.reshape(-1, 4, 4), dtype=wp.mat44, device=d)
         shape = (F, self.joint_count)
-        world = wp.empty(shape, dtype=wp.mat44, device=d)
+        poses = FK.world_poses(F * self.joint_count, d)
         FK.forward_kinematics(parents=self._parents, skeleton_start=self._starts, local=local,
-                              world_dq=wp.empty(shape, dtype=vec8, device=d),
-                              world_residual=wp.empty(shape, dtype=wp.mat33, device=d),
-                              world=world, device=d)
+                              out=poses, device=d)
+        world = poses.matrices.reshape(shape)
         out = wp.empty(shape, dtype=wp.mat44, device=d)
         FK.bind_relative(world=world, inverse_bind=self._inverse_bind, skinning=out, device=d)
         return out

@@ -9,7 +9,6 @@ import warp as wp
 
 from ._warp import Device, resolve_device
 from .kernels import fk as FK
-from .kernels.dqmath import vec8
 from .shapes import as_real
 from .validation import FLOAT32_MAX, check_finite, location
 
@@ -259,10 +258,9 @@ class Skeleton:
             ``rotations: NaN at frame 3, joint 'Hips'``.
         """
         local = self.rest_transforms if local_transforms is None else local_transforms
-        extra = []
-        world, batch = _forward_kinematics(self.parents, local, resolve_device(device), extra,
-                                           self.joint_names)
-        return _results(world, batch, extra if return_dq else None)
+        out, shape = _forward_kinematics(self.parents, local, resolve_device(device),
+                                         self.joint_names)
+        return _results(out, shape, return_dq)
 
     def skinning_transforms(self, local_transforms: LocalTransforms | None = None, *,
                             device: Device = None, as_warp: bool = False):
@@ -289,11 +287,12 @@ class Skeleton:
         local = self.rest_transforms if local_transforms is None else local_transforms
         d = resolve_device(device)
         inverse_bind = self.inverse_bind_transforms.astype(np.float32)
-        world, batch = _forward_kinematics(self.parents, local, d, joint_names=self.joint_names)
+        poses, shape = _forward_kinematics(self.parents, local, d, joint_names=self.joint_names)
+        world = poses.matrices.reshape((-1, self.joint_count))
         inv = wp.array(inverse_bind, dtype=wp.mat44, device=d)
         out = wp.empty(world.shape, dtype=wp.mat44, device=d)
         FK.bind_relative(world=world, inverse_bind=inv, skinning=out, device=d)
-        return out if as_warp else out.numpy().reshape(*batch, self.joint_count, 4, 4)
+        return out if as_warp else out.numpy().reshape(*shape, 4, 4)
 
 
 def _trs_arrays(pose, J, joint_names=None):
@@ -313,38 +312,44 @@ def _trs_arrays(pose, J, joint_names=None):
     for name, a in (("translations", tr), ("rotations", rot), ("scales", sc)):
         check_finite(name, a, len(batch), joint_names)
     _check_quaternions(rot, len(batch), joint_names)
-    return tuple(a.astype(np.float32) for a in (tr, rot, sc)), batch
+    return tuple(np.ascontiguousarray(a, np.float32) for a in (tr, rot, sc)), batch
 
 
 def _matrix_array(local_transforms, J, joint_names=None):
-    """Checked float32 (..., J, 4, 4) local matrices, and their batch shape."""
+    """Checked float32 contiguous (..., J, 4, 4) local matrices (the input itself when it is
+    one), and their batch shape."""
     loc = as_real("local_transforms", local_transforms)
     if loc.ndim < 3 or loc.shape[-3:] != (J, 4, 4):
         raise ValueError(f"local_transforms: expected (..., {J}, 4, 4), got {loc.shape}")
     batch = loc.shape[:-3]
     check_finite("local_transforms", loc, len(batch), joint_names)
-    return loc.astype(np.float32), batch
+    return np.ascontiguousarray(loc, np.float32), batch
+
+
+def _device_array(a, dtype, device):
+    """Flat (n,) Warp array of ``dtype`` over contiguous float32 ``a``: on the CPU a view of
+    ``a`` (the kernels only read it), else an upload."""
+    flat = a.reshape(-1, *dtype._shape_)
+    return wp.array(flat, dtype=dtype, device=device, copy=not wp.get_device(device).is_cpu)
 
 
 def _local_arrays(local_transforms, J, device, joint_names=None):
-    """Check and upload local poses: (..., J, 4, 4) matrices, or a (translations, rotations,
-    scales) tuple of (..., J, 3), (..., J, 4) ``(w, x, y, z)``, (..., J, 3) or None. Returns
-    (arrays, batch). Every value is checked on the host first (finite, within float32, non-zero
-    quaternions): ValueError naming the argument, frame and joint."""
+    """Check local poses and put them on the device, flat (B·J,): (..., J, 4, 4) matrices, or a
+    (translations, rotations, scales) tuple of (..., J, 3), (..., J, 4) ``(w, x, y, z)``,
+    (..., J, 3) or None. Returns (arrays, batch). Every value is checked on the host first
+    (finite, within float32, non-zero quaternions): ValueError naming the argument, frame and
+    joint."""
     if isinstance(local_transforms, (tuple, list)):
         host, batch = _trs_arrays(local_transforms, J, joint_names)
-        B = int(np.prod(batch, dtype=np.int64))
-        arrays = tuple(wp.array(np.ascontiguousarray(a.reshape(B, J, -1)), dtype=t, device=device)
-                       for a, t in zip(host, (wp.vec3, wp.vec4, wp.vec3)))
-        return arrays, batch
+        return tuple(_device_array(a, t, device)
+                     for a, t in zip(host, (wp.vec3, wp.vec4, wp.vec3))), batch
     loc, batch = _matrix_array(local_transforms, J, joint_names)
-    B = int(np.prod(batch, dtype=np.int64))
-    return wp.array(np.ascontiguousarray(loc.reshape(B, J, 4, 4)), dtype=wp.mat44,
-                    device=device), batch
+    return _device_array(loc, wp.mat44, device), batch
 
 
-def _forward_kinematics(parents, local_transforms, device, outputs=None, joint_names=None):
-    """Launch FK; returns the (B, J) world ``wp.mat44`` array and the batch shape."""
+def _forward_kinematics(parents, local_transforms, device, joint_names=None):
+    """Launch FK; returns the filled :class:`dqskin.kernels.fk.WorldPoses` (flat (B·J,)) and
+    their shape ``batch + (J,)``."""
     par = check_parents(parents)
     J = par.shape[0]
     if J == 0:
@@ -352,25 +357,23 @@ def _forward_kinematics(parents, local_transforms, device, outputs=None, joint_n
     d = device
     local, batch = _local_arrays(local_transforms, J, d, joint_names)
     B = int(np.prod(batch, dtype=np.int64))
-    world_dq = wp.empty((B, J), dtype=vec8, device=d)
-    residual = wp.empty((B, J), dtype=wp.mat33, device=d)
-    world = wp.empty((B, J), dtype=wp.mat44, device=d)
+    out = FK.world_poses(B * J, d)
     par_w = wp.array(par, dtype=wp.int32, device=d)
     start = wp.array(np.array([0, J], np.int32), dtype=wp.int32, device=d)
-    FK.forward_kinematics(parents=par_w, skeleton_start=start, local=local, world_dq=world_dq,
-                          world_residual=residual, world=world, device=d)
-    if outputs is not None:
-        outputs.extend([world_dq, residual])
-    return world, batch
+    FK.forward_kinematics(parents=par_w, skeleton_start=start, local=local, out=out, device=d)
+    return out, batch + (J,)
 
 
-def _results(world, batch, extra=None):
-    """World matrices (and, given ``extra``, dual quaternions and residuals) as NumPy arrays."""
-    J = world.shape[1]
-    w = world.numpy().reshape(*batch, J, 4, 4)
-    if extra is None:
+def _results(out, shape, return_dq=False):
+    """World matrices (and, with ``return_dq``, dual quaternions and residuals: the identity
+    where the kernel flagged a joint rigid) as NumPy arrays of ``shape`` (..., J) joints."""
+    w = out.matrices.numpy().reshape(*shape, 4, 4)
+    if not return_dq:
         return w
-    return w, extra[0].numpy().reshape(*batch, J, 8), extra[1].numpy().reshape(*batch, J, 3, 3)
+    rigid = out.rigid.numpy().reshape(shape).astype(bool)
+    residual = np.where(rigid[..., None, None], np.eye(3, dtype=np.float32),
+                        out.residuals.numpy().reshape(*shape, 3, 3))
+    return w, out.dqs.numpy().reshape(*shape, 8), residual
 
 
 def forward_kinematics(parents: npt.ArrayLike, local_transforms: LocalTransforms, *,
@@ -402,6 +405,5 @@ def forward_kinematics(parents: npt.ArrayLike, local_transforms: LocalTransforms
         or zero quaternions: the message names the argument (``local_transforms``,
         ``translations``, ``rotations``, ``scales``), the frame (batch index) and the joint index.
     """
-    extra = []
-    world, batch = _forward_kinematics(parents, local_transforms, resolve_device(device), extra)
-    return _results(world, batch, extra if return_dq else None)
+    out, shape = _forward_kinematics(parents, local_transforms, resolve_device(device))
+    return _results(out, shape, return_dq)

@@ -18,79 +18,145 @@ Kernels run one thread per (frame, skeleton), walking that skeleton's joints par
 
 import warp as wp
 
-from .dqmath import (
-    dq_from_rt,
-    dq_mul,
-    dq_to_matrix,
-    is_identity33,
-    is_rotation,
-    mat44_linear,
-    polar_rotation,
-    quat_from_rotation,
-    vec8,
-)
+from .dqmath import dq_from_rt, dq_mul, dq_translation, mat44_linear, polar_rotation, vec8
 from .grid import launch, launch_rows
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 
-@wp.func
-def fk_joint(f: int, j: int, p: int, q: wp.quat, t: wp.vec3, res: wp.mat33, rigid: bool,
-             world_dq: wp.array2d(dtype=vec8), world_residual: wp.array2d(dtype=wp.mat33),
-             world: wp.array2d(dtype=wp.mat44)):
-    """Compose joint ``j`` (local rotation ``q``, translation ``t``, residual ``res``) onto its
-    parent ``p`` and store the world pair and matrix. Rigid parents take a plain DQ product."""
-    eta = dq_from_rt(q, t)
-    if p >= 0:
-        sp = world_residual[f, p]
-        if is_identity33(sp, 0.0):
-            eta = dq_mul(world_dq[f, p], eta)
-        else:
-            rigid = False
-            r = wp.quat_to_matrix(q)
-            eta = dq_mul(world_dq[f, p], dq_from_rt(q, sp * t))
-            res = wp.transpose(r) * sp * r * res
-    world_dq[f, j] = eta
-    world_residual[f, j] = res
-    x = dq_to_matrix(eta)
-    if not rigid:
-        lin = mat44_linear(x) * res
-        x = wp.mat44(lin[0, 0], lin[0, 1], lin[0, 2], x[0, 3],
-                     lin[1, 0], lin[1, 1], lin[1, 2], x[1, 3],
-                     lin[2, 0], lin[2, 1], lin[2, 2], x[2, 3],
-                     0.0, 0.0, 0.0, 1.0)
-    world[f, j] = x
+@wp.struct
+class LocalPoses:
+    """Parent-relative joint poses, flat (F·J,) (frame-major): 4×4 ``matrices``, or
+    ``translations``, unit ``rotations`` ``(w, x, y, z)`` and ``scales`` (``M = T·R·S``); the other
+    kind stays unset."""
+
+    matrices: wp.array(dtype=wp.mat44)
+    translations: wp.array(dtype=wp.vec3)
+    rotations: wp.array(dtype=wp.vec4)
+    scales: wp.array(dtype=wp.vec3)
 
 
 @wp.struct
-class LocalPoses:
-    """Parent-relative joint poses (F, J): 4×4 ``matrices``, or ``translations``, unit
-    ``rotations`` ``(w, x, y, z)`` and ``scales`` (``M = T·R·S``); the other kind stays unset."""
+class WorldPoses:
+    """FK outputs, flat (F·J,) (frame-major): world ``matrices``, the rigid part ``dqs``, and the
+    scale/shear ``residuals`` (``matrix = [R·S | t]``), written only where ``rigid`` is 0 (1: the
+    residual is the identity)."""
 
-    matrices: wp.array2d(dtype=wp.mat44)
-    translations: wp.array2d(dtype=wp.vec3)
-    rotations: wp.array2d(dtype=wp.vec4)
-    scales: wp.array2d(dtype=wp.vec3)
+    matrices: wp.array(dtype=wp.mat44)
+    dqs: wp.array(dtype=vec8)
+    residuals: wp.array(dtype=wp.mat33)
+    rigid: wp.array(dtype=wp.uint8)
+
+
+@wp.func
+def rotation_quat(m: wp.mat33):
+    """Warp quaternion ``(x, y, z, w)`` of rotation matrix ``m``, times a positive factor (not
+    normalized). Shepperd's method: the row of ``4·q·qᵀ`` with the largest diagonal term, picked
+    by scalar selects (no branches: random rotations mispredict them)."""
+    m00 = m[0, 0]
+    m11 = m[1, 1]
+    m22 = m[2, 2]
+    d0 = m[2, 1] - m[1, 2]  # 4wx
+    d1 = m[0, 2] - m[2, 0]  # 4wy
+    d2 = m[1, 0] - m[0, 1]  # 4wz
+    s0 = m[0, 1] + m[1, 0]  # 4xy
+    s1 = m[0, 2] + m[2, 0]  # 4xz
+    s2 = m[1, 2] + m[2, 1]  # 4yz
+    tr = m00 + m11 + m22
+    big = wp.max(m00, wp.max(m11, m22))
+    cw = tr >= big
+    cx = not cw and m00 == big
+    cy = not cw and not cx and m11 == big
+    x = wp.where(cw, d0, wp.where(cx, 1.0 + m00 - m11 - m22, wp.where(cy, s0, s1)))
+    y = wp.where(cw, d1, wp.where(cx, s0, wp.where(cy, 1.0 - m00 + m11 - m22, s2)))
+    z = wp.where(cw, d2, wp.where(cx, s1, wp.where(cy, s2, 1.0 - m00 - m11 + m22)))
+    w = wp.where(cw, 1.0 + tr, wp.where(cx, d0, wp.where(cy, d1, d2)))
+    return wp.quat(x, y, z, w)
+
+
+@wp.func
+def rigid_matrix(a: vec8):
+    """4×4 rigid matrix (column-vector convention) of unit dual quaternion ``a``, written out
+    (``wp.quat_to_matrix`` rotates three basis vectors: three times the work)."""
+    x2 = a[1] + a[1]
+    y2 = a[2] + a[2]
+    z2 = a[3] + a[3]
+    xx = a[1] * x2
+    yy = a[2] * y2
+    zz = a[3] * z2
+    xy = a[1] * y2
+    xz = a[1] * z2
+    yz = a[2] * z2
+    wx = a[0] * x2
+    wy = a[0] * y2
+    wz = a[0] * z2
+    t = dq_translation(a)
+    return wp.mat44(1.0 - yy - zz, xy - wz, xz + wy, t[0],
+                    xy + wz, 1.0 - xx - zz, yz - wx, t[1],
+                    xz - wy, yz + wx, 1.0 - xx - yy, t[2],
+                    0.0, 0.0, 0.0, 1.0)
+
+
+@wp.func
+def is_rigid(m: wp.mat44):
+    """:func:`~dqskin.kernels.dqmath.is_rotation` of the linear part of ``m``, written out over
+    its columns (orthonormal to ~1e-6, det > 0)."""
+    c0 = wp.vec3(m[0, 0], m[1, 0], m[2, 0])
+    c1 = wp.vec3(m[0, 1], m[1, 1], m[2, 1])
+    c2 = wp.vec3(m[0, 2], m[1, 2], m[2, 2])
+    err = (wp.abs(wp.dot(c0, c0) - 1.0) + wp.abs(wp.dot(c1, c1) - 1.0)
+           + wp.abs(wp.dot(c2, c2) - 1.0) + wp.abs(wp.dot(c0, c1)) + wp.abs(wp.dot(c0, c2))
+           + wp.abs(wp.dot(c1, c2)))
+    return err < 1.0e-6 and wp.dot(c0, wp.cross(c1, c2)) > 0.0
 
 
 @wp.func
 def split_matrix(m: wp.mat44):
-    """``(rotation, translation, residual, rigid)`` of a local 4×4 matrix (polar split)."""
+    """``(rotation, translation, rigid)`` of a local 4×4 matrix: its linear part when that is a
+    rotation, else the rotation of its polar split ``A = R·S``; the rotation is a quaternion
+    times a positive factor."""
     a = mat44_linear(m)
+    rigid = is_rigid(m)
     r = a
-    res = wp.identity(n=3, dtype=float)
-    rigid = is_rotation(a)
     if not rigid:
         r = polar_rotation(a)
-        res = wp.transpose(r) * a
-    return quat_from_rotation(r), wp.vec3(m[0, 3], m[1, 3], m[2, 3]), res, rigid
+    return rotation_quat(r), wp.vec3(m[0, 3], m[1, 3], m[2, 3]), rigid
 
 
 @wp.func
-def split_trs(t: wp.vec3, r: wp.vec4, sc: wp.vec3):
-    """``(rotation, translation, residual, rigid)`` of a TRS pose (``r`` is ``(w, x, y, z)``)."""
+def local_residual(m: wp.mat44, q: wp.quat):
+    """Residual ``S = Rᵀ·A`` of a local matrix whose rotation is ``q``."""
+    return wp.transpose(wp.quat_to_matrix(q)) * mat44_linear(m)
+
+
+@wp.func
+def split_trs(r: wp.vec4, sc: wp.vec3):
+    """``(rotation, rigid)`` of a TRS pose (``r`` is ``(w, x, y, z)``, any positive length)."""
     rigid = sc[0] == 1.0 and sc[1] == 1.0 and sc[2] == 1.0
-    return wp.normalize(wp.quat(r[1], r[2], r[3], r[0])), t, wp.diag(sc), rigid
+    return wp.quat(r[1], r[2], r[3], r[0]), rigid
+
+
+@wp.func
+def store_general(i: int, k: int, q: wp.quat, t: wp.vec3, res: wp.mat33, eta: vec8,
+                  out: WorldPoses):
+    """Store joint ``i`` with local residual ``res`` (``eta``: its DQ, already composed onto a
+    rigid parent). ``k >= 0`` is a non-rigid parent: ``(η_p·η(R_l, S_p·t_l), R_lᵀ·S_p·R_l·S_l)``."""
+    e = eta
+    s = res
+    if k >= 0:
+        sp = out.residuals[k]
+        r = wp.quat_to_matrix(q)
+        e = dq_mul(out.dqs[k], dq_from_rt(q, sp * t))
+        s = wp.transpose(r) * sp * r * res
+    out.dqs[i] = e
+    out.residuals[i] = s
+    out.rigid[i] = wp.uint8(0)
+    x = rigid_matrix(e)
+    lin = mat44_linear(x) * s
+    out.matrices[i] = wp.mat44(lin[0, 0], lin[0, 1], lin[0, 2], x[0, 3],
+                               lin[1, 0], lin[1, 1], lin[1, 2], x[1, 3],
+                               lin[2, 0], lin[2, 1], lin[2, 2], x[2, 3],
+                               0.0, 0.0, 0.0, 1.0)
 
 
 def _forward_kinematics_kernel(trs, name):
@@ -102,21 +168,46 @@ def _forward_kinematics_kernel(trs, name):
         poses: LocalPoses,
         row_offset: int,
         # outputs
-        world_dq: wp.array2d(dtype=vec8),
-        world_residual: wp.array2d(dtype=wp.mat33),
-        world: wp.array2d(dtype=wp.mat44),
+        out: WorldPoses,
     ):
         r = wp.tid() + row_offset  # one row per (frame, skeleton), frame-major
         skeletons = skeleton_start.shape[0] - 1
         f = r // skeletons
         s = r - f * skeletons
+        base = f * skeleton_start[skeletons]
         for j in range(skeleton_start[s], skeleton_start[s + 1]):
+            i = base + j
+            t = wp.vec3()
             if wp.static(trs):
-                q, t, res, rigid = split_trs(poses.translations[f, j], poses.rotations[f, j],
-                                             poses.scales[f, j])
+                t = poses.translations[i]
+                q, rigid = split_trs(poses.rotations[i], poses.scales[i])
             else:
-                q, t, res, rigid = split_matrix(poses.matrices[f, j])
-            fk_joint(f, j, parents[j], q, t, res, rigid, world_dq, world_residual, world)
+                m = poses.matrices[i]
+                q, t, rigid = split_matrix(m)
+            # q is the rotation times a positive factor: normalize after the product, so the
+            # square root and division run beside it rather than before it
+            n = 1.0 / wp.sqrt(wp.dot(q, q))
+            eta = dq_from_rt(q, t)
+            p = parents[j]
+            k = -1
+            if p >= 0:
+                k = base + p
+                if out.rigid[k] != wp.uint8(0):
+                    eta = dq_mul(out.dqs[k], eta)
+                    k = -1
+            eta = eta * n
+            if rigid and k < 0:
+                out.dqs[i] = eta
+                out.rigid[i] = wp.uint8(1)
+                out.matrices[i] = rigid_matrix(eta)
+            else:
+                res = wp.identity(n=3, dtype=float)
+                if not rigid:
+                    if wp.static(trs):
+                        res = wp.diag(poses.scales[i])
+                    else:
+                        res = local_residual(m, q * n)
+                store_general(i, k, q * n, t, res, eta, out)
 
     kernel.__doc__ = (f"FK over (frame, skeleton) rows from local {'TRS' if trs else 'matrices'}.")
     return wp.kernel(kernel, name=name)
@@ -138,12 +229,21 @@ def bind_relative_kernel(
     skinning[f, j] = world[f, j] * inverse_bind[j]
 
 
-def forward_kinematics(*, parents, skeleton_start, local, world_dq, world_residual, world,
-                       device):
-    """FK of every skeleton for every frame: ``local`` is a (F, J) ``wp.mat44`` array or a
-    ``(translations, rotations, scales)`` tuple of (F, J) arrays; fills the three (F, J) outputs.
-    One thread per (frame, skeleton); on the CPU those rows are split across the cores (one frame
-    of a crowd's many skeletons too)."""
+def world_poses(count, device):
+    """A :class:`WorldPoses` of ``count`` (F·J) uninitialized joints on ``device``."""
+    out = WorldPoses()
+    out.matrices = wp.empty(count, dtype=wp.mat44, device=device)
+    out.dqs = wp.empty(count, dtype=vec8, device=device)
+    out.residuals = wp.empty(count, dtype=wp.mat33, device=device)
+    out.rigid = wp.empty(count, dtype=wp.uint8, device=device)
+    return out
+
+
+def forward_kinematics(*, parents, skeleton_start, local, out, device):
+    """FK of every skeleton for every frame: ``local`` is a flat (F·J,) ``wp.mat44`` array or a
+    ``(translations, rotations, scales)`` tuple of (F·J,) arrays; fills ``out``
+    (:func:`world_poses`). One thread per (frame, skeleton); on the CPU those rows are split
+    across the cores (one frame of a crowd's many skeletons too)."""
     trs = isinstance(local, tuple)
     poses = LocalPoses()
     if trs:
@@ -151,9 +251,10 @@ def forward_kinematics(*, parents, skeleton_start, local, world_dq, world_residu
     else:
         poses.matrices = local
     kernel = forward_kinematics_trs_kernel if trs else forward_kinematics_kernel
-    frames, skeletons = (local[0] if trs else local).shape[0], skeleton_start.shape[0] - 1
-    launch_rows(kernel, frames * skeletons, [parents, skeleton_start, poses],
-                [world_dq, world_residual, world], device, min_chunk=64)
+    skeletons = skeleton_start.shape[0] - 1
+    frames = (local[0] if trs else local).shape[0] // max(parents.shape[0], 1)
+    launch_rows(kernel, frames * skeletons, [parents, skeleton_start, poses], [out], device,
+                min_chunk=64)
 
 
 def bind_relative(*, world, inverse_bind, skinning, device):
