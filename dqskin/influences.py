@@ -6,15 +6,15 @@ import warp as wp
 
 from .kernels import layout as KL
 from .shapes import as_real
-from .validation import extrema
+from .validation import nonnegative_max
 
 __all__ = ["Influences", "check_influences"]
 
 
 def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None):
     """:func:`check_influences` without its int64 copy: ``(indices (V, K) in their integer dtype,
-    weights (V, K) float32, largest index or -1)``; one :func:`~dqskin.validation.extrema` of each
-    array."""
+    weights (V, K) float32, largest index or -1)``; one pass over each array
+    (:func:`~dqskin.validation.nonnegative_max`)."""
     idx = as_real("joint_indices", joint_indices)
     wts = as_real("joint_weights", joint_weights, np.float32)
     if idx.ndim == 1:
@@ -28,17 +28,18 @@ def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None
         raise ValueError(f"joint_indices: expected integers, got {idx.dtype}")
     if not idx.size:
         return idx, wts, -1
-    lo, hi, _ = extrema(idx)
-    lo, hi = int(lo), int(hi)
-    if lo < 0:
-        raise ValueError(f"joint_indices: negative index {lo}")
+    hi = nonnegative_max(idx)
+    if hi is None:
+        raise ValueError(f"joint_indices: negative index {int(idx.min())}")
+    hi = int(hi)
     if joint_count is not None and hi >= joint_count:
         raise ValueError(f"joint_indices: index {hi} out of range for {joint_count} joints")
-    wlo, _, finite = extrema(wts)
-    if not finite:
-        raise ValueError("joint_weights: NaN or infinite weight")
-    if wlo < 0:
-        raise ValueError(f"joint_weights: negative weight {float(wlo)}")
+    if nonnegative_max(wts) is None:  # then look closer (-0.0 is fine)
+        wlo, whi = wts.min(), wts.max()  # NaN propagates; no temporaries
+        if not (np.isfinite(wlo) and np.isfinite(whi)):
+            raise ValueError("joint_weights: NaN or infinite weight")
+        if wlo < 0:
+            raise ValueError(f"joint_weights: negative weight {float(wlo)}")
     return idx, wts, hi
 
 

@@ -22,7 +22,7 @@ from .kernels import skin as K
 from .kernels import velocity as KV
 from .kernels.dqmath import mat34, vec8
 from .shapes import as_array, frames_of
-from .validation import FLOAT32_MAX, check_finite, check_transforms, extrema
+from .validation import check_finite, check_transforms, within_float32
 
 __all__ = ["METHODS", "Method", "SIGN_REFERENCES", "SignReference", "Skinner", "VectorKind",
            "skin_points", "skin_normals"]
@@ -71,10 +71,6 @@ def _transforms(name, skinning_transforms):
         return x, True
     raise ValueError(f"{name}: expected (J, 4, 4) or (F, J, 4, 4), got {x.shape}")
 
-
-_SQUARES_MAX = FLOAT32_MAX ** 2
-"""Bound of a sum of squares of float32-range values, finite in float64 (above it, a transform's
-entries are checked one by one)."""
 
 _GRAPH_AFTER = 16
 """Calls with the same shapes after which :meth:`Skinner.skin` replays its launches from a
@@ -125,8 +121,9 @@ class Skinner:
         pts = as_array("points", points, None, (3,))
         if pts.ndim != 2:
             raise ValueError(f"points: expected (V, 3), got {pts.shape}")
-        if pts.size and not extrema(pts)[2]:  # one pass, no temporaries
-            raise ValueError("points: NaN or infinite coordinates")
+        problem = within_float32(pts)  # one pass, no temporaries
+        if problem:
+            raise ValueError(f"points: {problem} coordinates")
         self.influences = Influences(joint_indices, joint_weights, vertex_count=pts.shape[0])
         self.vertex_count = self.influences.vertex_count
         self.influence_count = self.influences.influence_count
@@ -263,9 +260,8 @@ class Skinner:
             xs = xs if batched else xs[None]
         else:
             xs, batched = _transforms(name, skinning_transforms)
-        flat = xs.reshape(-1)
-        if not float(flat @ flat) <= _SQUARES_MAX:  # NaN, inf, beyond float32; 1 pass, no copy
-            check_finite(name, xs, 1)  # names frame and joint (or passes: large, in range)
+        if within_float32(xs):  # NaN, inf, beyond float32: one pass, no copy
+            check_finite(name, xs, 1)  # then name frame and joint
         # one device buffer per argument and shape, refilled each call (no allocation)
         key = ("transforms", name) + xs.shape[:2]
         buf = self._cache.get(key)

@@ -14,31 +14,57 @@ import numpy as np
 
 from .shapes import as_real
 
-__all__ = ["FLOAT32_MAX", "check_finite", "check_skinned", "check_transforms", "extrema",
-           "location", "scene_problems"]
+__all__ = ["FLOAT32_MAX", "check_finite", "check_skinned", "check_transforms", "location",
+           "nonnegative_max", "scene_problems", "within_float32"]
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 """Largest magnitude a value may have to survive the device's float32."""
 
 
-_CHUNK = 1 << 18
-"""Values per slice of :func:`extrema` (1 MB of float32: its max re-reads what its min brought
-into cache)."""
-
-
-def extrema(a):
-    """``(min, max, every value finite)`` of a non-empty NumPy array of numbers in one read from
-    memory and without temporaries: min and max of cache-sized slices (NaN propagates)."""
-    if a.size <= _CHUNK or not a.flags.c_contiguous:
-        lo, hi = a.min(), a.max()
-    else:
+def within_float32(a):
+    """None when every value of the array is finite and within float32 range, else what is wrong
+    ("NaN or infinite", "beyond float32 range"); one pass without temporaries in the common case:
+    a contiguous float array's sum of squares (BLAS) is finite and within ``FLOAT32_MAX²`` only
+    then (otherwise, or when it overflows, min and max decide)."""
+    if a.dtype.kind != "f" or a.size == 0:
+        return None
+    if a.flags.c_contiguous and a.dtype in (np.float32, np.float64):
         flat = a.reshape(-1)
-        parts = np.array([(c.min(), c.max()) for c in (flat[i:i + _CHUNK]
-                                                       for i in range(0, flat.size, _CHUNK))])
-        lo, hi = parts[:, 0].min(), parts[:, 1].max()  # NaN propagates here too
-    if a.dtype.kind == "f" and not (np.isfinite(lo) and np.isfinite(hi)):
-        return lo, hi, False
-    return lo, hi, True
+        if a.dtype == np.float32:  # large in-range values may overflow the float32 sum
+            with np.errstate(over="ignore", invalid="ignore"):
+                squares = float(flat @ flat)
+        else:
+            squares = float(flat @ flat)
+        if squares <= _SQUARES_MAX:
+            return None
+    lo, hi = a.min(), a.max()
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return "NaN or infinite"
+    return None if max(hi, -lo) <= FLOAT32_MAX else "beyond float32 range"
+
+
+_SQUARES_MAX = FLOAT32_MAX ** 2  # exact in float64 (a 24-bit mantissa squared)
+
+_BITS = {np.dtype(np.int32): (np.uint32, 1 << 31), np.dtype(np.int64): (np.uint64, 1 << 63),
+         np.dtype(np.float32): (np.uint32, 0x7F800000),
+         np.dtype(np.float64): (np.uint64, 0x7FF0000000000000)}
+"""Unsigned view of a dtype, and the bits from which a value is negative, infinite or NaN."""
+
+
+def nonnegative_max(a):
+    """The largest value of a non-empty array of numbers when every value is non-negative (and
+    finite, for floats), else None (-0.0 included: look closer then). One pass over the bits of a
+    contiguous int32/int64/float32/float64 array: as unsigned integers, non-negative finite
+    values keep their order and a sign bit, inf or NaN lands above them all."""
+    bits = _BITS.get(a.dtype)
+    if bits is None or not a.flags.c_contiguous:
+        lo, hi = a.min(), a.max()
+        ok = lo >= 0 and (a.dtype.kind != "f" or np.isfinite(hi))  # NaN fails lo >= 0
+        return hi if ok else None
+    m = a.view(bits[0]).max()
+    if m >= bits[1]:
+        return None
+    return np.array(m).view(a.dtype)[()]
 
 
 def location(index, lead, joint_names=None, times=None):

@@ -265,18 +265,46 @@ def test_replayed_graphs_from_two_threads():
     assert not errors, errors[0]
 
 
-@pytest.mark.parametrize("dtype", [np.float32, np.int32, np.float64])
-def test_extrema_of_large_arrays_in_slices(dtype):
-    """Min, max and finiteness read in cache-sized slices: NaN or inf in any slice is found."""
-    from dqskin.validation import _CHUNK, extrema
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int32, np.int64])
+def test_one_pass_checks_agree_with_elementwise_numpy(dtype):
+    """``nonnegative_max`` (one pass over the bits) and ``within_float32`` (one sum of squares)
+    against element-wise NumPy: every bad value is found wherever it is, -0.0 is non-negative,
+    float32-range values in float64 pass, values beyond it do not."""
+    from dqskin.validation import FLOAT32_MAX, nonnegative_max, within_float32
 
     rng = np.random.default_rng(32)
-    a = (rng.random(3 * _CHUNK + 5) * 100 - 50).astype(dtype)
-    lo, hi, finite = extrema(a)
-    assert (lo, hi, finite) == (a.min(), a.max(), True)
-    if dtype != np.int32:
-        for where in (0, _CHUNK + 7, a.size - 1):
-            for bad in (np.nan, np.inf, -np.inf):
-                b = a.copy()
-                b[where] = bad
-                assert not extrema(b)[2]
+    a = (rng.random(1000) * 100).astype(dtype)
+    assert nonnegative_max(a) == a.max() and within_float32(a) is None
+    assert nonnegative_max(a[::2]) == a[::2].max()  # strided: min and max
+    floats = np.dtype(dtype).kind == "f"
+    bads = [-1, -0.5, np.nan, -np.nan, np.inf, -np.inf] if floats else [-1, -2**30]
+    for where in (0, 517, a.size - 1):
+        for bad in bads:
+            b = a.copy()
+            b[where] = bad
+            assert nonnegative_max(b) is None, (bad, where)
+            if floats:
+                want = None if np.isfinite(bad) else "NaN or infinite"
+                assert within_float32(b) == want, (bad, where)
+    if floats:
+        b = a.copy()
+        b[3] = -0.0
+        assert nonnegative_max(b) is None  # "look closer": the caller's min says -0.0 >= 0
+        big = a.copy()
+        big[:4] = FLOAT32_MAX  # in range, but the sum of squares overflows: min and max decide
+        assert within_float32(big) is None
+        if dtype == np.float64:
+            big[5] = -np.nextafter(FLOAT32_MAX, np.inf)
+            assert within_float32(big) == "beyond float32 range"
+
+
+def test_points_beyond_float32_refused():
+    rng = np.random.default_rng(33)
+    points, idx, w, M = rig(rng, V=8)
+    p64 = points.astype(np.float64)
+    p64[2, 0] = 1e39
+    with pytest.raises(ValueError, match="points: beyond float32 range"):
+        dqskin.skin_points(p64, idx, w, M)
+    w[5, 1] = -0.0  # a negative zero weight is a zero weight
+    np.testing.assert_allclose(dqskin.skin_points(points, idx, w, M, "lbs"),
+                               lbs64(points, idx, w, M), atol=2e-5)
