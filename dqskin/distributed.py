@@ -8,7 +8,8 @@ process loads the asset once and keeps it for its later chunks, and returns a fe
 point data never travels through the scheduler. Workers need the source and the output folder at
 the same paths (one machine, or a shared file system).
 
-* ``workers=None`` and no ``scheduler``: the chunks run here, one after another.
+* ``workers=None`` and no ``scheduler``: the chunks run here, one after another, pipelined
+  across chunks (:func:`run_here`).
 * ``workers=N``: a :class:`distributed.LocalCluster` of ``N`` worker processes (one task at a
   time each; USD's and dqskin's CPU threads limited to cores / ``N`` per process, or to
   ``threads``) on 127.0.0.1, started and closed by the bake.
@@ -25,6 +26,7 @@ import os
 import signal
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,7 +36,7 @@ from .formats import usd_clips
 from .formats.usd_cache import SampleWriter
 from .validation import check_skinned
 
-__all__ = ["ChunkJob", "bake_clips", "run_chunk", "worker_threads"]
+__all__ = ["ChunkJob", "bake_clips", "run_chunk", "run_here", "worker_threads"]
 
 SUBCHUNK = 32
 """Frames a task skins at a time (the clip layer holds its whole chunk until written)."""
@@ -174,11 +176,8 @@ def _peak_rss_mb():
     return float("nan")
 
 
-def run_chunk(job: ChunkJob, scene=None) -> dict:
-    """Skin one chunk and write its clip layer; ``scene`` defaults to the worker's copy of
-    ``job.source``. Returns ``index``, ``sha256``, ``seconds``, ``pid`` and ``peak_rss_mb``."""
-    t0 = time.perf_counter()
-    scene = _worker_scene(job.source) if scene is None else scene
+def _sample_writer(scene, job):
+    """The :class:`SampleWriter` of ``job``'s clip layers (the plan's targets, its options)."""
     opts = job.skin
 
     def target(name, what):
@@ -187,16 +186,74 @@ def run_chunk(job: ChunkJob, scene=None) -> dict:
         except KeyError:
             raise ValueError(f"{job.source}: {name}: no {what} in this bake's plan") from None
 
-    writer = SampleWriter(scene, target, job.rigid, method=opts.get("method"),
-                          device=opts.get("device"), interp=opts.get("interp", "trs"),
-                          sign_reference=opts.get("sign_reference", "largest_weight"))
-    layer = usd_clips.new_clip_layer(job.time_codes_per_second)
-    writer.write_chunks(layer, (res for _, res in scene.skin_chunks(job.times, SUBCHUNK, **opts)),
-                        lambda res: check_skinned(scene.path, res))
-    digest = usd_clips.write_clip(layer, job.path, job.key, job.times)
-    del layer
+    return SampleWriter(scene, target, job.rigid, method=opts.get("method"),
+                        device=opts.get("device"), interp=opts.get("interp", "trs"),
+                        sign_reference=opts.get("sign_reference", "largest_weight"))
+
+
+def _result(job, digest, t0):
     return dict(index=job.index, sha256=digest, seconds=time.perf_counter() - t0,
                 pid=os.getpid(), peak_rss_mb=_peak_rss_mb())
+
+
+def run_chunk(job: ChunkJob, scene=None) -> dict:
+    """Skin one chunk and write its clip layer; ``scene`` defaults to the worker's copy of
+    ``job.source``. Returns ``index``, ``sha256``, ``seconds``, ``pid`` and ``peak_rss_mb``."""
+    t0 = time.perf_counter()
+    scene = _worker_scene(job.source) if scene is None else scene
+    layer = usd_clips.new_clip_layer(job.time_codes_per_second)
+    _sample_writer(scene, job).write_chunks(
+        layer, (res for _, res in scene.skin_chunks(job.times, SUBCHUNK, **job.skin)),
+        lambda res: check_skinned(scene.path, res))
+    digest = usd_clips.write_clip(layer, job.path, job.key, job.times)
+    del layer
+    return _result(job, digest, t0)
+
+
+def run_here(jobs: list, scene, done) -> None:
+    """Every job, in order, in this process (``done(result)`` after each; results as
+    :func:`run_chunk`'s), pipelined across chunks instead of :func:`run_chunk` one by one: one
+    :meth:`dqskin.Scene.skin_chunks` stream over all their frames skins chunk ``k + 1`` on its
+    helper thread while chunk ``k``'s layer is filled and exported, and chunk ``k``'s layer is
+    hashed on another thread while chunk ``k + 1``'s is filled, then recorded and renamed
+    (:func:`~.formats.usd_clips.commit_clip`) before that one is exported. A clip layer is held
+    whole either way, so memory stays bounded by the chunk size."""
+    size = len(jobs[0].times) if jobs else 0
+    if any(len(j.times) != size for j in jobs[:-1]):  # clips of other lengths: one by one
+        for job in jobs:
+            done(run_chunk(job, scene))
+        return
+    if not jobs:
+        return
+    writer = _sample_writer(scene, jobs[0])
+    stream = scene.skin_chunks(np.concatenate([j.times for j in jobs]), size, **jobs[0].skin)
+    pending = None  # (job, claim, digest future, start) of the exported, unrecorded layer
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-clip-hash") as hasher:
+        try:
+            t0 = time.perf_counter()
+            for job, (_, res) in zip(jobs, stream):
+                layer = usd_clips.new_clip_layer(job.time_codes_per_second)
+                writer.write_chunks(layer, [res], lambda r: check_skinned(scene.path, r))
+                del res
+                if pending is not None:
+                    done(_commit(*pending))
+                pending = None
+                claim = usd_clips.export_clip(layer, job.path, job.times)
+                del layer
+                pending = (job, claim, hasher.submit(usd_clips.sha256_file, claim.tmp), t0)
+                t0 = time.perf_counter()
+            if pending is not None:
+                done(_commit(*pending))
+            pending = None
+        finally:
+            stream.close()
+            if pending is not None:
+                wait([pending[2]])
+                pending[1].discard()
+
+
+def _commit(job, claim, digest, t0):
+    return _result(job, usd_clips.commit_clip(claim, job.key, job.times, digest.result()), t0)
 
 
 def bake_clips(scene, out, times, *, chunk, method=None, interp="trs", device=None,
@@ -240,8 +297,7 @@ def bake_clips(scene, out, times, *, chunk, method=None, interp="trs", device=No
             bar.update(1)
         try:
             if client is None:
-                for job in jobs:
-                    done(run_chunk(job, scene))
+                run_here(jobs, scene, done)
             elif jobs:
                 _run_on_dask(client, jobs, done)
         finally:

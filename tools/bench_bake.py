@@ -228,7 +228,7 @@ def breakdown_dqskin(src, dst, chunk=256):
         from dqskin.formats import load
         from dqskin.formats.atomic import atomic_path
         from dqskin.formats.usd_cache import CacheLayer, _extents, export_layer, vec3f_arrays
-        from dqskin.formats.usd_clips import _sha256
+        from dqskin.formats.usd_clips import sha256_file
         from dqskin.validation import check_skinned
         import_dqskin()
     with ph("load (dqskin.formats.load)"):
@@ -269,7 +269,7 @@ def breakdown_dqskin(src, dst, chunk=256):
     with ph("Export (crate)"):
         tmp = export_layer(layer, claim)
     with ph("(clips only) SHA-256 of the layer"):
-        _sha256(tmp)
+        sha256_file(tmp)
     claim.commit()
     return ph.rows
 

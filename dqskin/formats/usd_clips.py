@@ -37,8 +37,8 @@ from pxr import Sdf, Usd, Vt
 from .atomic import atomic_path, check_interrupted
 from .usd_cache import CacheLayer, export_layer
 
-__all__ = ["CLIPS_FOLDER_SUFFIX", "ClipBake", "chunk_bounds", "clips_folder", "flatten",
-           "new_clip_layer", "verify_chunk", "write_clip"]
+__all__ = ["CLIPS_FOLDER_SUFFIX", "ClipBake", "chunk_bounds", "clips_folder", "commit_clip",
+           "export_clip", "flatten", "new_clip_layer", "sha256_file", "verify_chunk", "write_clip"]
 
 CLIPS_FOLDER_SUFFIX = ".clips"
 """``SHOT.usd`` → ``SHOT.clips/``."""
@@ -67,7 +67,8 @@ def _chunk_name(index, count):
     return f"chunk_{index:0{max(5, len(str(count - 1)))}d}"
 
 
-def _sha256(path):
+def sha256_file(path) -> str:
+    """Hex SHA-256 of a file (hashlib releases the GIL while hashing)."""
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
@@ -89,18 +90,38 @@ def new_clip_layer(time_codes_per_second: float):
 
 def write_clip(layer, path, key: str, times) -> str:
     """Write one chunk's ``layer`` to ``path``: export beside it, record its SHA-256 in
-    ``path.json``, then rename it into place. Returns the checksum.
+    ``path.json``, then rename it into place (:func:`export_clip`, then :func:`commit_clip`).
+    Returns the checksum.
 
     A process killed at any point leaves either no layer under ``path`` or one whose record
     does not match it (the record was replaced first), which :func:`verify_chunk` rejects.
     """
-    path = Path(path)
+    return commit_clip(export_clip(layer, path, times), key, times)
+
+
+def export_clip(layer, path, times):
+    """Export one chunk's ``layer`` beside ``path`` (its time range set from ``times``); returns
+    the claim (:class:`~.atomic.atomic_path`) holding it, for :func:`commit_clip`."""
     times = np.asarray(times, np.float64)
     layer.startTimeCode, layer.endTimeCode = float(times[0]), float(times[-1])
-    claim = atomic_path(path, overwrite=True)
+    claim = atomic_path(Path(path), overwrite=True)
     try:
-        tmp = export_layer(layer, claim)
-        digest = _sha256(tmp)
+        export_layer(layer, claim)
+    except BaseException:
+        claim.discard()
+        raise
+    return claim
+
+
+def commit_clip(claim, key: str, times, digest: str | None = None) -> str:
+    """Record the SHA-256 of the layer :func:`export_clip` left in ``claim`` (``path.json``,
+    with ``key``), then rename it into place. ``digest``: that file's SHA-256 if already known
+    (:func:`sha256_file`, which needs no layer nor the main thread, so it can run while the next
+    chunk is baked). Returns the checksum."""
+    path, times = claim.path, np.asarray(times, np.float64)
+    try:
+        tmp = claim.open()
+        digest = digest or sha256_file(tmp)
         _write_json(path.with_suffix(".json"), {
             "layer": path.name, "sha256": digest, "bytes": os.path.getsize(tmp), "plan": key,
             "first": float(times[0]), "last": float(times[-1]), "frames": int(len(times))})
@@ -119,7 +140,7 @@ def verify_chunk(path, key: str) -> bool:
         record = json.loads(path.with_suffix(".json").read_text())
         return (record.get("plan") == key and path.is_file()
                 and path.stat().st_size == record.get("bytes")
-                and _sha256(path) == record.get("sha256"))
+                and sha256_file(path) == record.get("sha256"))
     except (OSError, ValueError, AttributeError):
         return False
 
