@@ -150,6 +150,9 @@ def cmd_skin(args):
     if args.cor_exact and (args.workers is not None or args.scheduler or args.resume):
         raise ValueError("--cor-exact cannot be combined with --workers, --scheduler or --resume "
                          "(clip workers compute the centers with the defaults)")
+    if args.workers is not None and not args.scheduler and output_kind(args.out) == "usd":
+        from .distributed import prestart_workers
+        prestart_workers()  # the workers' imports overlap loading INPUT
     _checkpoint()
     with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
         scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)

@@ -48,11 +48,18 @@ def check(reference, shot):
     assert n > 0
 
 
-def test_two_worker_local_cluster_equals_the_single_process_cache(reference, tmp_path):
+def test_two_worker_local_cluster_equals_the_single_process_cache(reference, tmp_path, capsys):
+    """Through the CLI's ``--workers 2`` (which starts the workers' forkserver before loading
+    the input); no process of the cluster outlives the bake."""
+    import multiprocessing.forkserver
+
+    from dqskin.cli import main
     shot = tmp_path / "shot.usd"
-    summary = bake(HUMANOID, shot, chunk=CHUNK, workers=2)
-    assert "as 7 clips" in summary
+    assert main(["skin", str(HUMANOID), "--out", str(shot), "--chunk", str(CHUNK),
+                 "--workers", "2"]) == 0
+    assert "as 7 clips" in capsys.readouterr().out
     check(reference, shot)
+    assert getattr(multiprocessing.forkserver._forkserver, "_forkserver_pid", None) is None
 
 
 def _start(args, log):

@@ -137,11 +137,14 @@ def run_dqskin(src, dst, which):
     from dqskin.formats import load
     nv = which.endswith("+nv")
     kind = which.removesuffix("+nv")
+    workers, _, threads = kind[5:].partition("t")
+    if kind.startswith("clips") and int(workers):
+        from dqskin.distributed import prestart_workers
+        prestart_workers()  # as `dqskin skin --workers` does: its imports overlap the load
     scene = load(src)
     if kind == "single":
         bake(scene, dst, method="lbs", normals=nv, velocities=nv, clips=False, force=True)
         return {}
-    workers, _, threads = kind[5:].partition("t")
     if threads and not int(workers):  # in this process: the budget a one-thread worker gets
         from pxr import Work
         os.environ["DQSKIN_THREADS"] = threads
