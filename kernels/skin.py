@@ -29,15 +29,16 @@ Influence layout (:class:`Influences`, built once per mesh by
 and zero-padded, so slot 0 is the antipodality pivot (the largest weight, first on ties, as
 UsdSkel); or, ``unsorted``, in input order with the pivot searched per vertex (a one-shot call
 whose ``(V, 4k)`` int32/float32 arrays are read in place: no layout pass). Per-(frame, joint)
-data is a :class:`Joints` (from :func:`prepare_points`). Every kernel that blends influences --
-here and in :mod:`dqskin.kernels.velocity` -- goes through the ``@wp.func`` blends below. Grids
-are (frame block, row block): a thread skins its rows (one on CUDA, 64 on the CPU, where Warp's
-per-thread call costs as much as a vertex) for a block of frames, so influences are read once per
-block and the block's joints stay in cache. The point kernels are specialized at compile time for
-the method, rigid frames and ``K <= 4``.
+data is a :class:`Joints` (from :func:`prepare_points`). The direction and velocity kernels blend
+influences through the ``@wp.func`` blends on these structs, on (frame block, row) grids. The point
+kernels read the same arrays as flat 1-D views (the ``gather`` blends), one thread per vertex of a
+single frame, or per (frame block, vertex) with a block of frames read once per vertex: a 1-D
+launch over 1-D arrays is what Warp compiles with constant strides and an inlined task loop on the
+CPU. They are specialized at compile time for the method, rigid frames and ``K <= 4``.
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
 """
 
+import weakref
 from typing import Any
 
 import warp as wp
@@ -56,7 +57,15 @@ from .dqmath import (
     quat_from_rotation,
     vec8,
 )
-from .grid import FrameBlocks, block_frames, block_rows, launch, launch_blocks
+from .grid import (
+    FRAME_BLOCK,
+    MIN_WORK,
+    FrameBlocks,
+    block_frames,
+    launch,
+    launch_blocks,
+    launch_rows,
+)
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
@@ -65,6 +74,9 @@ LBS = wp.constant(0)
 DQS = wp.constant(1)
 BLEND = wp.constant(2)
 COR = wp.constant(3)
+
+POINT_FRAME_BLOCK = wp.constant(FRAME_BLOCK)
+"""Frames a point-kernel thread skins (one vertex, :data:`~dqskin.kernels.grid.FRAME_BLOCK`)."""
 
 
 @wp.struct
@@ -195,6 +207,16 @@ def blend_joints(inf: Influences, v: int, f: int, values: wp.array2d(dtype=Any))
     return blend_groups(inf, v, f, values, inf.indices.shape[1])
 
 
+@wp.func(inline=True)
+def heavier(j: int, wm: float, iv: wp.vec4i, wv: wp.vec4):
+    """``(joint, weight)`` of the largest weight after one more group, the earlier on ties."""
+    for k in range(4):
+        if wv[k] > wm:
+            wm = wv[k]
+            j = iv[k]
+    return j, wm
+
+
 @wp.func
 def pivot_joint(inf: Influences, v: int, groups: int):
     """The joint of the vertex's largest weight, first on ties: slot 0 of a sorted layout, else
@@ -203,19 +225,9 @@ def pivot_joint(inf: Influences, v: int, groups: int):
     j = iv[0]
     if inf.unsorted == 0:
         return j
-    wv = inf.weights[v, 0]
-    wm = wv[0]
-    for k in range(1, 4):
-        if wv[k] > wm:
-            wm = wv[k]
-            j = iv[k]
-    for c in range(1, groups):
-        iv = inf.indices[v, c]
-        wv = inf.weights[v, c]
-        for k in range(4):
-            if wv[k] > wm:
-                wm = wv[k]
-                j = iv[k]
+    wm = inf.weights[v, 0][0]
+    for c in range(groups):
+        j, wm = heavier(j, wm, inf.indices[v, c], inf.weights[v, c])
     return j
 
 
@@ -267,7 +279,7 @@ def dqs_blend_derivative(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=
     return acc
 
 
-@wp.func
+@wp.func(inline=True)
 def dqs_apply(b: vec8, x: wp.vec3):
     """Apply a blended (unnormalized) dual quaternion ``b = r + ε·d`` to ``x``, normalization
     folded in: ``x + 2·(r⃗×(r⃗×x + r_w·x) + r_w·d⃗ − d_w·r⃗ + r⃗×d⃗)/|r|²``. A zero blend (all
@@ -279,7 +291,7 @@ def dqs_apply(b: vec8, x: wp.vec3):
     return x + s * (wp.cross(rv, wp.cross(rv, x) + rw * x) + rw * dv - b[4] * rv + wp.cross(rv, dv))
 
 
-@wp.func
+@wp.func(inline=True)
 def rotation_only(b: vec8):
     """The real part of a blend, dual part zeroed: :func:`dqs_apply` then only rotates."""
     return vec8(b[0], b[1], b[2], b[3], 0.0, 0.0, 0.0, 0.0)
@@ -297,63 +309,182 @@ def by_method(inf: Influences, v: int, method: int, lbs: wp.vec3, dqs: wp.vec3):
     return lbs * (1.0 - b) + dqs * b
 
 
-@wp.func
-def skin_point(p: wp.vec3, inf: Influences, v: int, f: int, joints: Joints, method: int,
-               residual: bool, groups: int):
-    """One point skinned with ``method`` (``residual``: the frame may have scale/shear) from the
-    vertex's first ``groups`` influence groups."""
+# ---------------------------------------------------------------------------------------------
+# point kernels: flat 1-D arrays, one (frame block, vertex) per thread
+#
+# Warp specializes a CPU kernel whose launch is 1-D and whose array arguments are all 1-D and
+# contiguous: their strides become compile-time constants and the task loop is inlined (1.19's
+# ``wp_linear_contiguous``). Arrays inside structs or 2-D arrays keep runtime strides, and a frame
+# loop costs even when it runs once; measured on one thread, 1M points, that was 25-30% of the
+# time. So the point kernels take the (V, C) influences and (F, J) / (F, V) arrays as flat views
+# and skin one frame straight, without the loop.
+
+
+@wp.func(inline=True)
+def gather4(values: wp.array(dtype=Any), o: int, iv: wp.vec4i, wv: wp.vec4):
+    """``Σ wᵢ·X[o + jᵢ]`` over one group of four influences (``o``: the frame's first joint)."""
+    return (values[o + iv[0]] * wv[0] + values[o + iv[1]] * wv[1] + values[o + iv[2]] * wv[2]
+            + values[o + iv[3]] * wv[3])
+
+
+@wp.func(inline=True)
+def gather(values: wp.array(dtype=Any), o: int, indices: wp.array(dtype=wp.vec4i),
+           weights: wp.array(dtype=wp.vec4), v: int, groups: int, iv: wp.vec4i, wv: wp.vec4):
+    """``Σ wᵢ·Xᵢ`` over the vertex's ``groups`` groups, group 0 (``iv``, ``wv``) already read."""
+    acc = gather4(values, o, iv, wv)
+    for c in range(1, groups):
+        acc += gather4(values, o, indices[v * groups + c], weights[v * groups + c])
+    return acc
+
+
+@wp.func(inline=True)
+def dq_add4(b: vec8, dqs: wp.array(dtype=vec8), o: int, iv: wp.vec4i, wv: wp.vec4, pv: vec8,
+            running_sum: int):
+    """:func:`~dqskin.kernels.dqmath.dq_blend_add` of one group, signs against ``pv`` or (with
+    ``running_sum``) against the sum so far."""
+    if running_sum != 0:
+        for k in range(4):
+            b = dq_blend_add(b, dqs[o + iv[k]], wv[k], b)
+        return b
+    for k in range(4):
+        b = dq_blend_add(b, dqs[o + iv[k]], wv[k], pv)
+    return b
+
+
+@wp.func(inline=True)
+def dq_gather(dqs: wp.array(dtype=vec8), o: int, indices: wp.array(dtype=wp.vec4i),
+              weights: wp.array(dtype=wp.vec4), v: int, groups: int, iv: wp.vec4i, wv: wp.vec4,
+              pivot: int, unsorted: int, running_sum: int):
+    """The sign-aligned blend of :func:`dqs_blend` on the flat layout; ``pivot`` the vertex's
+    largest-weight joint (:func:`flat_pivot`: slot 0 unless ``unsorted``). The first term is set,
+    not added to zero; its sign is +1 against itself or against the running sum's zero."""
+    d0 = dqs[o + iv[0]]
+    b = d0 * wv[0]
+    if running_sum != 0:
+        for k in range(1, 4):
+            b = dq_blend_add(b, dqs[o + iv[k]], wv[k], b)
+        for c in range(1, groups):
+            b = dq_add4(b, dqs, o, indices[v * groups + c], weights[v * groups + c], b, 1)
+        return b
+    pv = d0
+    if unsorted != 0:
+        pv = dqs[o + pivot]
+        b = d0 * (wv[0] * dq_sign(d0, pv))
+    for k in range(1, 4):
+        b = dq_blend_add(b, dqs[o + iv[k]], wv[k], pv)
+    for c in range(1, groups):
+        b = dq_add4(b, dqs, o, indices[v * groups + c], weights[v * groups + c], pv, 0)
+    return b
+
+
+@wp.func(inline=True)
+def flat_pivot(indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4), v: int,
+               groups: int, iv: wp.vec4i, wv: wp.vec4, unsorted: int):
+    """:func:`pivot_joint` on the flat layout (once per vertex, not per frame)."""
+    j = iv[0]
+    if unsorted == 0:
+        return j
+    j, wm = heavier(j, wv[0], iv, wv)
+    for c in range(1, groups):
+        j, wm = heavier(j, wm, indices[v * groups + c], weights[v * groups + c])
+    return j
+
+
+@wp.func(inline=True)
+def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pivot: int,
+               indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4), groups: int,
+               blend: wp.array(dtype=float), centers: wp.array(dtype=wp.vec4), unsorted: int,
+               running_sum: int,
+               affines: wp.array(dtype=mat34), dqs: wp.array(dtype=vec8),
+               residuals: wp.array(dtype=wp.mat33), has_residual: wp.array(dtype=wp.int32),
+               method: int, residual: bool):
+    """Point ``p`` of vertex ``v`` skinned with ``method`` at frame ``f`` (its joints from ``o``);
+    ``method``, ``residual`` (the frame may have scale/shear) and, in the ``K <= 4`` kernels,
+    ``groups`` are compile-time constants, so only one method's code remains."""
     if method == LBS:
-        return blend_groups(inf, v, f, joints.affines, groups) * wp.vec4(p[0], p[1], p[2], 1.0)
+        return gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(
+            p[0], p[1], p[2], 1.0)
     if method == COR:
-        c4 = inf.centers[v]
+        c4 = centers[v]
         if c4[3] != 0.0:
             c = wp.vec3(c4[0], c4[1], c4[2])
             y = p - c
             if residual:
-                if joints.has_residual[f] != 0:
-                    y = blend_groups(inf, v, f, joints.residuals, groups) * y
-            lc = blend_groups(inf, v, f, joints.affines, groups) * wp.vec4(c[0], c[1], c[2], 1.0)
-            return dqs_apply(rotation_only(dqs_blend_groups(inf, v, f, joints.dqs, groups)), y) + lc
+                if has_residual[f] != 0:
+                    y = gather(residuals, o, indices, weights, v, groups, iv, wv) * y
+            lc = gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(
+                c[0], c[1], c[2], 1.0)
+            return dqs_apply(rotation_only(dq_gather(dqs, o, indices, weights, v, groups, iv, wv,
+                                                     pivot, unsorted, running_sum)), y) + lc
     x = p
     if residual:
-        if joints.has_residual[f] != 0:
-            x = blend_groups(inf, v, f, joints.residuals, groups) * p
-    dqs = dqs_apply(dqs_blend_groups(inf, v, f, joints.dqs, groups), x)
-    lbs = wp.vec3()
+        if has_residual[f] != 0:
+            x = gather(residuals, o, indices, weights, v, groups, iv, wv) * p
+    d = dqs_apply(dq_gather(dqs, o, indices, weights, v, groups, iv, wv, pivot, unsorted,
+                            running_sum), x)
     if method == BLEND:
-        lbs = blend_groups(inf, v, f, joints.affines, groups) * wp.vec4(p[0], p[1], p[2], 1.0)
-    return by_method(inf, v, method, lbs, dqs)
+        lbs = gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(p[0], p[1], p[2],
+                                                                               1.0)
+        b = blend[v]
+        return lbs * (1.0 - b) + d * b
+    return d
 
 
 def _skin_points_kernel(method, residual, four):
-    """The (frame block, row block) kernel of one method, specialized at compile time:
-    ``residual=False`` drops the scale/shear code (~18% faster on the CPU for rigid launches),
-    ``four`` (``K <= 4``, one influence group) drops the loop over groups."""
+    """The point kernel of one method, specialized at compile time: ``residual=False`` drops the
+    scale/shear code (~18% faster on the CPU for rigid launches), ``four`` (``K <= 4``, one
+    influence group) drops the loops over groups."""
 
     def kernel(
-        points: wp.array2d(dtype=wp.vec3),
-        inf: Influences,
-        joints: Joints,
-        blocks: FrameBlocks,
+        points: wp.array(dtype=wp.vec3),
+        point_stride: int,
+        indices: wp.array(dtype=wp.vec4i),
+        weights: wp.array(dtype=wp.vec4),
+        groups: int,
+        blend: wp.array(dtype=float),
+        centers: wp.array(dtype=wp.vec4),
+        running_sum: int,
+        unsorted: int,
+        affines: wp.array(dtype=mat34),
+        dqs: wp.array(dtype=vec8),
+        residuals: wp.array(dtype=wp.mat33),
+        has_residual: wp.array(dtype=wp.int32),
+        joint_count: int,
+        frame_count: int,
+        row_offset: int,
         # outputs
-        out: wp.array2d(dtype=wp.vec3),
+        out: wp.array(dtype=wp.vec3),
     ):
-        b, i = wp.tid()
-        first, end, _row = block_frames(blocks, b, out.shape[0])
-        rows, rows_end = block_rows(blocks, i, out.shape[1])
-        last = points.shape[0] - 1
-        groups = inf.indices.shape[1]
+        t = wp.tid() + row_offset
+        g = groups
         if wp.static(four):
-            groups = 1
-        for v in range(rows, rows_end):
-            for f in range(first, end):
-                out[f, v] = skin_point(points[wp.min(f, last), v], inf, v, f, joints,
-                                       wp.static(method), wp.static(residual), groups)
+            g = 1
+        if frame_count == 1:  # one frame: vertex t, no frame loop
+            iv = indices[t * g]
+            wv = weights[t * g]
+            pivot = flat_pivot(indices, weights, t, g, iv, wv, unsorted)
+            out[t] = skin_frame(points[t], t, 0, 0, iv, wv, pivot, indices, weights, g, blend,
+                                centers, unsorted, running_sum, affines, dqs, residuals,
+                                has_residual, wp.static(method), wp.static(residual))
+            return
+        vertex_count = out.shape[0] // frame_count
+        block = t // vertex_count
+        v = t - block * vertex_count
+        first = block * POINT_FRAME_BLOCK
+        iv = indices[v * g]
+        wv = weights[v * g]
+        pivot = flat_pivot(indices, weights, v, g, iv, wv, unsorted)
+        for f in range(first, wp.min(first + POINT_FRAME_BLOCK, frame_count)):
+            out[wp.int64(f) * wp.int64(vertex_count) + wp.int64(v)] = skin_frame(
+                points[wp.int64(f) * wp.int64(point_stride) + wp.int64(v)], v, f, f * joint_count,
+                iv, wv, pivot, indices, weights, g, blend, centers, unsorted, running_sum, affines,
+                dqs, residuals, has_residual, wp.static(method), wp.static(residual))
 
     rigid = "_rigid" if method in (DQS, COR) and not residual else ""
     name = f"skin_{['lbs', 'dqs', 'blend', 'cor'][method]}{rigid}_kernel{'_k4' if four else ''}"
-    kernel.__doc__ = (f"Skin ``points`` (Fp, V) bind space, Fp 1 or F, into ``out`` (F, V) with "
-                      f"method {method} over a (frame block, row block) grid.")
+    kernel.__doc__ = (f"Skin flat ``points`` (Fp·V) bind space, Fp 1 or F, into ``out`` (F·V) "
+                      f"with method {method}; thread ``t``: vertex ``t`` of one frame, or vertex "
+                      f"``t mod V`` of frame block ``t div V``.")
     return wp.kernel(kernel, name=name)
 
 
@@ -363,8 +494,6 @@ SKIN_POINTS_KERNELS = {(m, r, four): _skin_points_kernel(m, r, four)
                        for four in (False, True)}
 """The point-skinning kernels by ``(method, residual code, K <= 4)``: LBS needs no residual code,
 BLEND always has it."""
-skin_dqs_kernel = SKIN_POINTS_KERNELS[(DQS, True, False)]
-"""The general DQS kernel (any K, residual code compiled in), for tests comparing against it."""
 
 
 @wp.func
@@ -476,15 +605,51 @@ def prepare_vectors(*, xforms, linears, rotations, normal_linears, normal_residu
            [linears, rotations, normal_linears, normal_residuals, normal_rotations], device)
 
 
+_flat_views = weakref.WeakKeyDictionary()
+
+
+def _flat(a):
+    """A 1-D view of contiguous array ``a`` (itself when 1-D), made once per array: a view costs
+    ~5 µs, the point launch takes seven. The view does not own or reference ``a`` (a cached view
+    holding ``a`` would keep it alive); it is only passed to launches together with ``a``'s
+    struct, which does."""
+    if a.ndim == 1:
+        return a
+    view = _flat_views.get(a)
+    if view is None:
+        if not a.is_contiguous:
+            raise ValueError(f"skin_points: expected a contiguous array, got strides {a.strides}")
+        if a.size == 0:
+            view = wp.empty(0, dtype=a.dtype, device=a.device)
+        else:
+            view = wp.array(ptr=a.ptr, shape=(a.size,), dtype=a.dtype, device=a.device,
+                            copy=False)
+        _flat_views[a] = view
+    return view
+
+
 def skin_points(*, method, points, influences, joints, rigid, out, device):
     """Skin ``points`` (Fp, V) into ``out`` (F, V) with ``method`` (:data:`LBS`, :data:`DQS`,
     :data:`BLEND`, :data:`COR`). ``rigid`` (no frame has a residual) selects the DQS or COR
-    kernel without the residual code."""
+    kernel without the residual code. One thread per vertex of a single frame, else per (frame
+    block, vertex); chunks of threads on the CPU cores."""
     residual = method == BLEND or (method != LBS and not rigid)
-    four = influences.indices.shape[1] == 1
-    kernel = SKIN_POINTS_KERNELS[(method, residual, four)]
-    launch_blocks(kernel, out.shape[1], out.shape[0], [points, influences, joints], [out], device,
-                  row_blocks=True)
+    groups = influences.indices.shape[1]
+    kernel = SKIN_POINTS_KERNELS[(method, residual, groups == 1)]
+    frames, verts = out.shape
+    per_thread = min(frames, FRAME_BLOCK)
+    inf, jn = influences, joints
+    point_stride = verts if points.shape[0] > 1 else 0
+    if point_stride and points.strides[0] == 0:  # one row broadcast to every frame
+        points, point_stride = points[0], 0
+    elif not points.is_contiguous:
+        points = points.contiguous()
+    launch_rows(kernel, verts * -(-frames // FRAME_BLOCK),
+                [_flat(points), point_stride, _flat(inf.indices),
+                 _flat(inf.weights), groups, inf.blend, inf.centers, inf.running_sum,
+                 inf.unsorted, _flat(jn.affines), _flat(jn.dqs), _flat(jn.residuals),
+                 jn.has_residual, jn.affines.shape[1], frames],
+                [_flat(out)], device, min_chunk=-(-MIN_WORK // per_thread))
 
 
 def skin_vectors(*, method, vectors, vector_vertex, influences, linears, rotations, residuals,

@@ -169,19 +169,12 @@ def test_twist_keeps_radius_with_dqs_and_collapses_with_lbs(device, theta):
                                atol=1e-5)
 
 
-def _one_frame_blocks():
-    blocks = grid.FrameBlocks()
-    blocks.frame_block, blocks.block_offset, blocks.row_offset = 1, 0, 0
-    return blocks
-
-
 def _launch_dqs(prep, sk):
-    """The general DQS kernel (residual path compiled in), one frame per thread block."""
+    """The general DQS kernel (residual path compiled in)."""
     j = prep["joints"]
     out = wp.empty((j.dqs.shape[0], sk.vertex_count), dtype=wp.vec3, device=sk.device)
-    wp.launch(K.skin_dqs_kernel, dim=(out.shape[0], sk.vertex_count),
-              inputs=[sk._points, sk._inf, j, _one_frame_blocks()], outputs=[out],
-              device=sk.device)
+    K.skin_points(method=K.DQS, points=sk._points, influences=sk._inf, joints=j, rigid=False,
+                  out=out, device=sk.device)
     return out.numpy()
 
 
