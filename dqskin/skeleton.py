@@ -66,7 +66,12 @@ def _joint_list(mask, joint_names=None, limit=5):
 def _check_quaternions(rot, lead, joint_names=None):
     """Raise ValueError for a rotation the device cannot normalize: zero, or a squared norm outside
     float32's normal range (the kernels normalize in float32)."""
-    n2 = np.sum(np.square(rot.astype(np.float32).astype(np.float64)), axis=-1)
+    r32 = np.asarray(rot, np.float32)
+    fast = np.einsum("...i,...i->...", r32, r32)  # float32, one pass, no float64 copies
+    if fast.size == 0 or (fast.min() >= 2 * np.finfo(np.float32).tiny
+                          and fast.max() <= FLOAT32_MAX / 2):
+        return  # clear of both limits by more than float32 rounding: the common case
+    n2 = np.sum(np.square(r32.astype(np.float64)), axis=-1)
     bad = ~((n2 >= np.finfo(np.float32).tiny) & (n2 <= FLOAT32_MAX))
     if bad.any():
         index = np.argwhere(bad)[0]
@@ -311,8 +316,9 @@ def _trs_arrays(pose, J, joint_names=None):
             raise ValueError(f"{name}: expected {batch + (J, 3)}, got {a.shape}")
     for name, a in (("translations", tr), ("rotations", rot), ("scales", sc)):
         check_finite(name, a, len(batch), joint_names)
+    tr, rot, sc = (np.ascontiguousarray(a, np.float32) for a in (tr, rot, sc))
     _check_quaternions(rot, len(batch), joint_names)
-    return tuple(np.ascontiguousarray(a, np.float32) for a in (tr, rot, sc)), batch
+    return (tr, rot, sc), batch
 
 
 def _matrix_array(local_transforms, J, joint_names=None):

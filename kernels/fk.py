@@ -75,6 +75,30 @@ def rotation_quat(m: wp.mat33):
 
 
 @wp.func
+def hamilton(a: wp.vec4, b: wp.vec4):
+    """Quaternion product ``a·b``, both ``(w, x, y, z)``."""
+    return wp.vec4(a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+                   a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+                   a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+                   a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0])
+
+
+@wp.func
+def compose(a: vec8, q: wp.quat, t: wp.vec3):
+    """``a·η(q, t)`` without forming ``η(q, t) = q + ε·½·t·q``: real ``r_a·q``, dual
+    ``(d_a + ½·r_a·t)·q`` (16 products fewer than :func:`dq_mul` of :func:`dq_from_rt`). Linear
+    in ``q``: a scaled ``q`` scales the result."""
+    u = wp.vec4(a[4] - 0.5 * (a[1] * t[0] + a[2] * t[1] + a[3] * t[2]),
+                a[5] + 0.5 * (a[0] * t[0] + a[2] * t[2] - a[3] * t[1]),
+                a[6] + 0.5 * (a[0] * t[1] - a[1] * t[2] + a[3] * t[0]),
+                a[7] + 0.5 * (a[0] * t[2] + a[1] * t[1] - a[2] * t[0]))
+    b = wp.vec4(q[3], q[0], q[1], q[2])
+    r = hamilton(wp.vec4(a[0], a[1], a[2], a[3]), b)
+    d = hamilton(u, b)
+    return vec8(r[0], r[1], r[2], r[3], d[0], d[1], d[2], d[3])
+
+
+@wp.func
 def rigid_matrix(a: vec8):
     """4×4 rigid matrix (column-vector convention) of unit dual quaternion ``a``, written out
     (``wp.quat_to_matrix`` rotates three basis vectors: three times the work)."""
@@ -187,14 +211,18 @@ def _forward_kinematics_kernel(trs, name):
             # q is the rotation times a positive factor: normalize after the product, so the
             # square root and division run beside it rather than before it
             n = 1.0 / wp.sqrt(wp.dot(q, q))
-            eta = dq_from_rt(q, t)
+            eta = vec8()
             p = parents[j]
             k = -1
             if p >= 0:
                 k = base + p
                 if out.rigid[k] != wp.uint8(0):
-                    eta = dq_mul(out.dqs[k], eta)
+                    eta = compose(out.dqs[k], q, t)
                     k = -1
+                else:
+                    eta = dq_from_rt(q, t)
+            else:
+                eta = dq_from_rt(q, t)
             eta = eta * n
             if rigid and k < 0:
                 out.dqs[i] = eta
