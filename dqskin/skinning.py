@@ -17,7 +17,6 @@ import warp as wp
 from ._warp import Device, resolve_device
 from .cor import SIGMA, check_faces, rotation_centers
 from .influences import Influences
-from .kernels import grid as KG
 from .kernels import skin as K
 from .kernels import velocity as KV
 from .kernels.dqmath import mat34, vec8
@@ -71,10 +70,6 @@ def _transforms(name, skinning_transforms):
         return x, True
     raise ValueError(f"{name}: expected (J, 4, 4) or (F, J, 4, 4), got {x.shape}")
 
-
-_GRAPH_AFTER = 16
-"""Calls with the same shapes after which :meth:`Skinner.skin` replays its launches from a
-captured graph: a capture costs ~0.7 ms, about 15 calls' savings."""
 
 _SMALL_RESULT = 65536
 """Point-frames up to which :meth:`Skinner.skin` reuses its output buffer (an allocation costs
@@ -247,17 +242,16 @@ class Skinner:
 
     def _upload_transforms(self, name, skinning_transforms):
         d = self.device
-        if isinstance(skinning_transforms, wp.array):
-            x = skinning_transforms
-            if x.dtype != wp.mat44 or x.ndim != 2 or x.device != d:
-                raise ValueError(f"{name}: a Warp array must be 2-D (F, J) of wp.mat44 on {d}, got "
-                                 f"{x.ndim}-D {x.dtype} on {x.device}")
-            return x, True  # used in place, unchecked: a non-finite entry gives NaN in every method
         xs = skinning_transforms
         if (type(xs) is np.ndarray and xs.dtype.kind == "f" and xs.ndim in (3, 4)
                 and xs.shape[-2:] == (4, 4)):  # the common case, checked in a few µs
             batched = xs.ndim == 4
             xs = xs if batched else xs[None]
+        elif isinstance(xs, wp.array):
+            if xs.dtype != wp.mat44 or xs.ndim != 2 or xs.device != d:
+                raise ValueError(f"{name}: a Warp array must be 2-D (F, J) of wp.mat44 on {d}, got "
+                                 f"{xs.ndim}-D {xs.dtype} on {xs.device}")
+            return xs, True  # used in place, unchecked: a non-finite entry gives NaN everywhere
         else:
             xs, batched = _transforms(name, skinning_transforms)
         if within_float32(xs):  # NaN, inf, beyond float32: one pass, no copy
@@ -289,32 +283,12 @@ class Skinner:
             prep["rates"] = self._buffers("rates", frames, joints)
             KV.prepare(xforms=x, xform_derivatives=xd, device=self.device, **prep)
             return prep, frames, batched
-        own = not isinstance(skinning_transforms, wp.array)  # in our buffer: its memory is fixed
-        self._launch(("prepare", frames, joints) if own else None,
-                     lambda: K.prepare_points(xforms=x, device=self.device, **prep))
+        K.prepare_points(xforms=x, device=self.device, **prep)
         if kind == "vectors":
             vec = self._buffers("vectors", frames, joints)
             K.prepare_vectors(xforms=x, device=self.device, **vec)
             prep.update(vec)
         return prep, frames, batched
-
-    def _launch(self, key, run):
-        """``run()``, which only launches kernels on arrays this skinner keeps per ``key``; on the
-        CPU, from call :data:`_GRAPH_AFTER` with the same ``key`` on, replayed from a graph
-        captured then (:func:`dqskin.kernels.grid.capture`: ~1 µs a launch instead of 10-40).
-        ``key`` None: run directly."""
-        if key is None or not self.device.is_cpu:
-            run()
-            return
-        key = ("graph",) + key
-        graph = self._cache.get(key, 0)
-        if isinstance(graph, int):  # calls so far: too few to pay for a capture
-            if graph + 1 < _GRAPH_AFTER:
-                self._cache[key] = graph + 1
-                run()
-                return
-            graph = self._cache[key] = KG.capture(run, self.device)
-        KG.replay(graph)
 
     def _rest(self, name, points, frames, linear=False):
         """Uploaded rest points, or ``points`` (V, 3) / (F, V, 3) replacing them."""
@@ -393,17 +367,10 @@ class Skinner:
                 if small:
                     self._cache[("out", frames)] = out, view
             flags = self._cache[("has_residual",) + prep["joints"].dqs.shape]
-            rigid = code in (K.DQS, K.COR) and not (
-                flags if isinstance(flags, np.ndarray) else flags.numpy()).any()
-            joints = prep["joints"]
-            # a graph when every array is ours and one CPU thread skins them anyway
-            fixed = (view is not None and points is None and not isinstance(
-                skinning_transforms, wp.array) and frames * self.vertex_count < KG.MIN_WORK)
-            self._launch(("skin", code, sign_reference, rigid) + joints.dqs.shape if fixed
-                         else None,
-                         lambda: K.skin_points(method=code, points=src, influences=inf,
-                                               joints=joints, rigid=rigid, out=out,
-                                               device=self.device))
+            rigid = code in (K.DQS, K.COR) and not np.count_nonzero(
+                flags if isinstance(flags, np.ndarray) else flags.numpy())
+            K.skin_points(method=code, points=src, influences=inf, joints=prep["joints"],
+                          rigid=rigid, out=out, device=self.device)
             self._output(out, output_transforms, frames, normals=False)
             if view is not None:
                 return (view if batched else view[0]).copy()

@@ -28,9 +28,10 @@ def within_float32(a):
     then (otherwise, or when it overflows, min and max decide)."""
     if a.dtype.kind != "f" or a.size == 0:
         return None
-    if a.flags.c_contiguous and a.dtype in (np.float32, np.float64):
+    kind = a.dtype.char
+    if a.flags.c_contiguous and (kind == "d" or kind == "f"):  # float64, float32
         flat = a.reshape(-1)
-        if a.dtype == np.float32:  # large in-range values may overflow the float32 sum
+        if kind == "f":  # large in-range values may overflow the float32 sum
             with np.errstate(over="ignore", invalid="ignore"):
                 squares = float(flat @ flat)
         else:

@@ -12,6 +12,7 @@ in cache. Kernels on such a grid take a :class:`FrameBlocks` after their inputs 
 :func:`block_frames`.
 """
 
+import ctypes
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -19,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 import warp as wp
 
 __all__ = ["CPU_ROW_BLOCK", "FRAME_BLOCK", "MIN_WORK", "FrameBlocks", "block_frames", "block_rows",
-           "capture", "cpu_threads", "launch", "launch_blocks", "launch_rows", "replay"]
+           "cpu_threads", "launch", "launch_blocks", "launch_rows"]
 
 FRAME_BLOCK = 16
 """Frames one thread handles on a (frame block, row) grid: the joints of 16 frames stay in L1
@@ -82,31 +83,8 @@ _RECORDED_GRID = 1 << 16  # larger grids: the packing cost is noise, and no arra
 
 
 def cpu_threads():
-    """Threads used for CPU launches (``DQSKIN_THREADS`` or the core count); one while this
-    thread captures a graph (:func:`capture`: pool threads would launch instead of recording)."""
-    if getattr(_recorded, "capturing", False):
-        return 1
+    """Threads used for CPU launches (``DQSKIN_THREADS`` or the core count)."""
     return max(1, int(os.environ.get("DQSKIN_THREADS", _CORES)))
-
-
-def capture(run, device):
-    """A graph of the launches and memsets ``run()`` makes on this thread, recorded, not run
-    (Warp's CPU graph capture): :func:`replay` runs them again on the arrays they were given, in
-    ~1 µs a launch instead of the 10-40 µs of a Python launch. Every chunk is launched from this
-    thread. CPU only: the caller keeps the graph's arrays alive and reuses them (their contents may
-    change between replays, not their memory)."""
-    _recorded.capturing = True
-    try:
-        with wp.ScopedCapture(device=device, force_module_load=False) as cap:
-            run()
-    finally:
-        _recorded.capturing = False
-    return cap.graph
-
-
-def replay(graph):
-    """Run a graph made by :func:`capture`."""
-    wp.capture_launch(graph)
 
 
 _warm = set()  # (kernel, device) launched at least once in this process
@@ -126,13 +104,55 @@ def _launch(kernel, dim, args, device):
         _warm.add(key)
 
 
+class _Recorded:
+    """A recorded ``wp.Launch`` and the arguments it was last given. On the CPU its ctypes
+    argument block is built once and only arguments that changed are packed into it again, then
+    the kernel's entry point is called directly (~0.3 µs; ``Launch.launch`` builds the block on
+    every call, ~4 µs). A struct argument given again is re-copied each launch (it may have been
+    changed in place). Without the Warp internals this needs, ``Launch.launch``."""
+
+    __slots__ = ("cmd", "last", "block", "names", "structs", "call")
+
+    def __init__(self, cmd, args):
+        self.cmd, self.last, self.call = cmd, list(args), None
+        try:
+            if not cmd.device.is_cpu or cmd.adjoint or cmd.block_dim > 1:
+                return
+            params = cmd.params
+            self.names = [a.label for a in cmd.kernel.adj.args]
+            fields = [(n, type(params[1 + i])) for i, n in enumerate(self.names)]
+            self.block = type("ArgsStruct", (ctypes.Structure,), {"_fields_": fields})()
+            for i, n in enumerate(self.names):
+                setattr(self.block, n, params[1 + i])
+            self.structs = [i for i, a in enumerate(args) if hasattr(a, "_ctype")]
+            forward, bounds, block = cmd.hooks.forward, ctypes.byref(params[0]), \
+                ctypes.byref(self.block)
+            self.call = lambda: forward(bounds, block)
+        except (AttributeError, TypeError):  # another Warp: its own launch
+            self.call = None
+
+    def launch(self, args):
+        cmd, last, call = self.cmd, self.last, self.call
+        for i, a in enumerate(args):
+            if a is not last[i]:
+                cmd.set_param_at_index(i, a)
+                last[i] = a
+                if call is not None:
+                    setattr(self.block, self.names[i], cmd.params[1 + i])
+        if call is None:
+            cmd.launch()
+            return
+        for i in self.structs:
+            setattr(self.block, self.names[i], cmd.params[1 + i])
+        call()
+
+
 def _replay(kernel, dim, args, device):
     """One ``wp.launch`` of ``kernel`` on ``dim`` with ``args`` (inputs then outputs), replayed
-    from a recorded ``wp.Launch`` of the same kernel, grid and device (per thread): ~8 µs instead
-    of ~40 µs of argument packing, which dominates small calls. Arrays are re-packed only when a
-    different array object is passed; every other argument (structs, scalars) each time. Grids
-    above :data:`_RECORDED_GRID` threads launch directly (a recorded launch keeps its arrays
-    alive until it is replaced)."""
+    from a recorded launch of the same kernel, grid and device (per thread, :class:`_Recorded`):
+    a few µs instead of ~40 µs of argument packing, which dominates small calls. Grids above
+    :data:`_RECORDED_GRID` threads launch directly (a recorded launch keeps its arrays alive
+    until it is replaced)."""
     size = 1
     for d in dim:
         size *= d
@@ -142,21 +162,17 @@ def _replay(kernel, dim, args, device):
     cache = getattr(_recorded, "launches", None)
     if cache is None:
         cache = _recorded.launches = {}
-    key = (kernel, tuple(dim), str(device))
+    key = (kernel, dim, str(device))
     hit = cache.pop(key, None)
     if hit is None:
         if len(cache) >= _RECORDED_MAX:
             cache.pop(next(iter(cache)))  # oldest first
-        cmd = wp.launch(kernel, dim=dim, inputs=args, device=device, record_cmd=True)
-        hit = (cmd, list(args))
+        hit = _Recorded(wp.launch(kernel, dim=dim, inputs=args, device=device, record_cmd=True),
+                        args)
+        hit.cmd.launch()
     else:
-        cmd, last = hit
-        for i, a in enumerate(args):
-            if a is not last[i] or not isinstance(a, wp.array):
-                cmd.set_param_at_index(i, a)
-                last[i] = a
+        hit.launch(args)
     cache[key] = hit  # most recent last
-    hit[0].launch()
 
 
 def _pool_map(tasks):
@@ -168,11 +184,26 @@ def _pool_map(tasks):
         fut.result()
 
 
+def _is_cpu(device):
+    """Whether ``device`` (a ``wp.Device``, a name or None) is the CPU; a Device without a
+    look-up."""
+    cpu = getattr(device, "is_cpu", None)
+    return wp.get_device(device).is_cpu if cpu is None else cpu
+
+
+def _threads_for(work, device):
+    """CPU threads for ``work`` pieces of at least the minimum size: one (the environment not
+    read) when there are fewer than two pieces."""
+    if work < 2 or not _is_cpu(device):
+        return 1
+    return min(cpu_threads(), work)
+
+
 def launch(kernel, dim, inputs, outputs, device):
     """``wp.launch`` for grids that need no chunking (per joint, per frame, small images)."""
     dim = (dim,) if isinstance(dim, int) else tuple(int(d) for d in dim)
-    if all(d > 0 for d in dim):
-        _launch(kernel, dim, list(inputs) + list(outputs), device)
+    if min(dim) > 0:
+        _launch(kernel, dim, [*inputs, *outputs], device)
 
 
 _parts = {}  # FrameBlocks by their fields: building a Warp struct costs ~10 µs a call
@@ -208,16 +239,14 @@ def launch_blocks(kernel, rows, frames, inputs, outputs, device, min_work=None,
     min_work = MIN_WORK if min_work is None else min_work
     blocks = -(-frames // FRAME_BLOCK)
 
-    cpu = wp.get_device(device).is_cpu
-    per_thread = CPU_ROW_BLOCK if row_blocks and cpu else 1
+    per_thread = CPU_ROW_BLOCK if row_blocks and _is_cpu(device) else 1
 
     def run(block_offset, block_count, row_offset, row_count):
         part = _frame_blocks(block_offset, row_offset, per_thread, row_offset + row_count)
-        _launch(kernel, (block_count, -(-row_count // per_thread)),
-                list(inputs) + [part] + list(outputs), device)
+        _launch(kernel, (block_count, -(-row_count // per_thread)), [*inputs, part, *outputs],
+                device)
 
-    threads = cpu_threads() if cpu else 1
-    chunks = min(threads, max(1, rows * frames // min_work))
+    chunks = _threads_for(rows * frames // min_work, device)
     if chunks <= 1:
         run(0, blocks, 0, rows)
     elif blocks >= chunks and blocks * FRAME_BLOCK >= rows:
@@ -238,10 +267,9 @@ def launch_rows(kernel, count, inputs, outputs, device, min_chunk=4096, inner=()
         return
 
     def run(offset, n):
-        _launch(kernel, (n,) + tuple(inner), list(inputs) + [offset] + list(outputs), device)
+        _launch(kernel, (n, *inner), [*inputs, offset, *outputs], device)
 
-    threads = cpu_threads() if wp.get_device(device).is_cpu else 1
-    chunks = min(threads, max(1, count // min_chunk))
+    chunks = _threads_for(count // min_chunk, device)
     if chunks <= 1:
         run(0, count)
         return

@@ -185,11 +185,6 @@ def test_one_shot_dqs_finds_the_pivot_in_input_order(K):
     np.testing.assert_allclose(got, dqs64(points, idx, w, M), atol=5e-5)
 
 
-def _graphs(sk):
-    """The launch graphs a skinner has captured (not just counted calls for)."""
-    return [k for k, v in sk._cache.items() if k[0] == "graph" and not isinstance(v, int)]
-
-
 def residual_dqs64(points, idx, w, M):
     """UsdSkel's DQS of transforms with scale: ``p_s = Σ wᵢ·Sᵢ·p`` (``Sᵢ = Rᵢᵀ·Aᵢ``, polar
     rotation from the SVD), then the DQS of the rotations and translations (:func:`dqs64`)."""
@@ -202,17 +197,17 @@ def residual_dqs64(points, idx, w, M):
     return dqs64(ps, idx, w, rt)
 
 
-def test_replayed_launch_graphs_follow_every_call():
-    """After enough calls the skinner replays captured launch graphs: each call still sees its
-    own transforms, method and sign rule, frames with scale (the residual kernel) and without
-    alternate after the capture, two skinners of one shape keep their own graphs, and results
-    already returned are never overwritten."""
+def test_replayed_launches_follow_every_call():
+    """Small calls replay recorded launches with prebuilt argument blocks: each call still sees
+    its own transforms, method and sign rule, frames with scale (the residual kernel) and
+    without alternate, two skinners of one shape (the same recorded launches, other arrays) keep
+    their own data, and results already returned are never overwritten."""
     rng = np.random.default_rng(30)
     points, idx, w, _ = rig(rng, V=40, J=10)
     points2, idx2, w2, _ = rig(rng, V=40, J=10)
     a, b = dqskin.Skinner(points, idx, w), dqskin.Skinner(points2, idx2, w2)
     kept = []
-    for call in range(3 * dqskin.skinning._GRAPH_AFTER + 6):
+    for call in range(12):
         M = rig(rng, V=1, J=10)[3]
         scaled = call % 3 == 2
         if scaled:  # some joints scaled: the DQS residual path
@@ -223,10 +218,9 @@ def test_replayed_launch_graphs_follow_every_call():
             kept.append((got, lbs64(p, i, ww, M)))
             want = (residual_dqs64 if scaled else dqs64)(p, i, ww, M)
             np.testing.assert_allclose(sk.skin(M, "dqs"), want, atol=5e-5)
-    assert len(_graphs(a)) == len(_graphs(b)) == 4  # prepare, LBS, DQS rigid and residual
     for got, want in kept:
         np.testing.assert_allclose(got, want, atol=5e-5)
-    # other shapes and per-call points beside the graphs
+    # other shapes, per-call points and output transforms between the same launches
     F = np.stack([rig(rng, V=1, J=10)[3] for _ in range(3)])
     np.testing.assert_allclose(a.skin(F, "lbs"), [lbs64(points, idx, w, m) for m in F],
                                atol=5e-5)
@@ -239,13 +233,14 @@ def test_replayed_launch_graphs_follow_every_call():
                                lbs64(points, idx, w, F[0]) + [1.0, 2.0, 3.0], atol=5e-5)
 
 
-def test_replayed_graphs_from_two_threads():
-    """Skinners replaying graphs on two threads at once (graph capture is per thread)."""
+def test_replayed_launches_from_two_threads():
+    """Skinners replaying their launches on two threads at once (recorded launches are per
+    thread); any exception in a thread fails the test."""
     import threading
 
     rng = np.random.default_rng(31)
     rigs = [rig(rng, V=30, J=8) for _ in range(2)]
-    poses = [rig(rng, V=1, J=8)[3] for _ in range(dqskin.skinning._GRAPH_AFTER + 10)]
+    poses = [rig(rng, V=1, J=8)[3] for _ in range(20)]
     errors = []
 
     def work(points, idx, w, _):
@@ -254,7 +249,7 @@ def test_replayed_graphs_from_two_threads():
             for M in poses:
                 np.testing.assert_allclose(sk.skin(M, "dqs"), dqs64(points, idx, w, M),
                                            atol=5e-5)
-        except AssertionError as exc:
+        except Exception as exc:  # noqa: BLE001  (reported below, not lost in the thread)
             errors.append(exc)
 
     threads = [threading.Thread(target=work, args=r) for r in rigs]
@@ -308,3 +303,32 @@ def test_points_beyond_float32_refused():
     w[5, 1] = -0.0  # a negative zero weight is a zero weight
     np.testing.assert_allclose(dqskin.skin_points(points, idx, w, M, "lbs"),
                                lbs64(points, idx, w, M), atol=2e-5)
+
+
+def test_recorded_launch_repacks_changed_arrays_and_mutated_structs():
+    """The launch replay (kernels.grid) with its prebuilt argument block: a different array is
+    packed again, a struct changed in place is copied again, scalars follow each call."""
+    from dqskin.kernels import grid
+
+    @wp.struct
+    class Pair:
+        src: wp.array(dtype=float)
+        scale: float
+
+    @wp.kernel
+    def scaled_copy(pair: Pair, offset: float, row_offset: int, out: wp.array(dtype=float)):
+        i = wp.tid() + row_offset
+        out[i] = pair.src[i] * pair.scale + offset
+
+    a = wp.array(np.arange(8, dtype=np.float32), dtype=float, device="cpu")
+    b = wp.array(np.full(8, 10.0, np.float32), dtype=float, device="cpu")
+    out = wp.zeros(8, dtype=float, device="cpu")
+    pair = Pair()
+    pair.src, pair.scale = a, 2.0
+    for step, (src, scale, offset) in enumerate([(a, 2.0, 0.0), (a, 3.0, 0.0), (b, 3.0, 1.0),
+                                                 (a, 3.0, 5.0), (b, 0.5, 5.0)]):
+        pair.src, pair.scale = src, scale  # the same struct object, changed in place
+        other = wp.zeros(8, dtype=float, device="cpu") if step == 3 else out
+        grid.launch_rows(scaled_copy, 8, [pair, offset], [other], "cpu")
+        want = src.numpy() * scale + offset
+        np.testing.assert_array_equal(other.numpy(), want)
