@@ -120,6 +120,89 @@ def test_fk_from_trs_matches_matrices(device, scaled):
     assert np.abs(world - ref).max() / np.abs(ref).max() <= 1e-5
 
 
+def test_fk_every_quaternion_case_and_near_half_turns(device):
+    """Shepperd's four cases (largest of trace, x, y, z diagonal terms) picked by selects:
+    half turns and near half turns about each axis and between axes, and the identity, each
+    composed under a random parent, against the float64 matrix chain."""
+    rng = np.random.default_rng(21)
+    axes = [[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0], [0, 1, 1], [1, 0, 1], [1, 1, 1]]
+    rots = [Rotation.identity()] + [Rotation.from_rotvec(np.pi * a * np.asarray(v) /
+                                                         np.linalg.norm(v))
+                                    for v in axes for a in (1.0, 0.999, -0.9999)]
+    J = 2 * len(rots)
+    parents = np.array([-1 if j % 2 == 0 else j - 1 for j in range(J)])
+    local = np.tile(np.eye(4), (J, 1, 1))
+    for i, r in enumerate(rots):
+        local[2 * i, :3, :3] = Rotation.random(random_state=rng).as_matrix()
+        local[2 * i + 1, :3, :3] = r.as_matrix()
+    local[:, :3, 3] = rng.normal(size=(J, 3))
+    world, dq, residual = forward_kinematics(parents, local, device=device, return_dq=True)
+    np.testing.assert_allclose(world, chain_product(parents, local), atol=2e-6)
+    np.testing.assert_allclose(np.linalg.norm(dq[:, :4], axis=-1), 1.0, atol=1e-6)
+    np.testing.assert_array_equal(residual, np.broadcast_to(np.eye(3), residual.shape))
+
+
+def test_fk_rigid_children_of_scaled_parents(device):
+    """A rigid joint under a scaled or sheared one takes the residual path; a rigid joint under
+    a rigid child of a scaled one too (the residual is inherited), checked at every depth."""
+    rng = np.random.default_rng(22)
+    J = 12
+    parents = np.arange(-1, J - 1)  # one chain
+    local = random_locals(rng, (3,), J)
+    local[:, 2, :3, :3] = local[:, 2, :3, :3] @ np.diag([2.0, 0.5, 1.5])
+    local[:, 7, :3, :3] = local[:, 7, :3, :3] @ (np.eye(3) + 0.4 * np.triu(np.ones((3, 3)), 1))
+    world, _, residual = forward_kinematics(parents, local, device=device, return_dq=True)
+    ref = chain_product(parents, local)
+    assert np.abs(world - ref).max() / np.abs(ref).max() <= 1e-5
+    rigid = np.all(np.abs(residual - np.eye(3)) <= 1e-6, axis=(-1, -2))
+    assert rigid[:, :2].all() and not rigid[:, 2:].any()
+
+
+def test_fk_many_skeletons_in_one_launch(device):
+    """The launcher over a concatenated joint axis (crowds): skeletons of different sizes, one
+    rigid and one scaled, several frames, each against its own float64 chain."""
+    import warp as wp
+
+    from dqskin.kernels import fk as FK
+
+    rng = np.random.default_rng(23)
+    sizes, F = [5, 9, 1, 7], 3
+    hierarchies = [random_hierarchy(rng, n) for n in sizes]
+    locals_ = [random_locals(rng, (F,), n, scale=(i == 1), shear=(i == 3))
+               for i, n in enumerate(sizes)]
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    parents = np.concatenate([np.where(h >= 0, h + a, -1) for h, a in zip(hierarchies, starts)])
+    local = np.concatenate(locals_, axis=1).astype(np.float32)
+    out = FK.world_poses(int(F * starts[-1]), device)
+    FK.forward_kinematics(parents=wp.array(parents.astype(np.int32), device=device),
+                          skeleton_start=wp.array(starts.astype(np.int32), device=device),
+                          local=wp.array(local.reshape(-1, 4, 4), dtype=wp.mat44, device=device),
+                          out=out, device=device)
+    world = out.matrices.numpy().reshape(F, starts[-1], 4, 4)
+    for h, loc, a, n in zip(hierarchies, locals_, starts, sizes):
+        ref = chain_product(h, loc)
+        assert np.abs(world[:, a:a + n] - ref).max() / np.abs(ref).max() <= 1e-5
+
+
+def test_fk_leaves_its_input_alone_and_returns_its_own_arrays(device):
+    """On the CPU a float32 contiguous pose is read in place: never written, never aliased by
+    the result; TRS rotations of any positive length are normalized."""
+    rng = np.random.default_rng(24)
+    parents = random_hierarchy(rng, 6)
+    local = random_locals(rng, (2,), 6).astype(np.float32)
+    before = local.copy()
+    world = forward_kinematics(parents, local, device=device)
+    np.testing.assert_array_equal(local, before)
+    assert not np.shares_memory(world, local)
+    rot = Rotation.random(12, random_state=rng)
+    q = rot.as_quat()[:, [3, 0, 1, 2]].reshape(2, 6, 4).astype(np.float32)
+    t = rng.normal(size=(2, 6, 3)).astype(np.float32)
+    lengths = rng.uniform(0.01, 50.0, size=(2, 6, 1)).astype(np.float32)
+    got = forward_kinematics(parents, (t, q * lengths, None), device=device)
+    np.testing.assert_allclose(got, forward_kinematics(parents, (t, q, None), device=device),
+                               atol=2e-6)
+
+
 # -- hostile input: every fault is a one-line ValueError naming argument, frame and joint --------
 
 NAMES = ["Hips", "Spine", "Head"]
@@ -165,6 +248,11 @@ def test_zero_quaternion_raises():
             "rotations: zero quaternion at frame 2, joint 'Spine'")
     q[2, 1] = [1e-30, 0, 0, 0]  # squared norm underflows float32: the device cannot normalize
     _raises(lambda: skel.forward_kinematics((t, q, None)), "at frame 2, joint 'Spine' cannot be")
+    q[2, 1] = [0, 0, 3e19, 0]  # squared norm overflows float32
+    _raises(lambda: skel.forward_kinematics((t, q, None)),
+            "rotations: quaternion of norm 3e+19 at frame 2, joint 'Spine' cannot be normalized")
+    q[2, 1] = [0, 0, 1e19, 0]  # just inside: squared norm 1e38 < float32's 3.4e38
+    assert np.isfinite(skel.forward_kinematics((t, q, None))).all()
 
 
 @pytest.mark.parametrize("value,message", [
