@@ -128,13 +128,13 @@ def dq_transform_point(a: vec8, p: wp.vec3):
     return dq_transform_vector(a, p) + dq_translation(a)
 
 
-@wp.func(inline=True)
+@wp.func
 def dq_sign(a: vec8, pivot: vec8):
     """±1 putting ``a``'s real part on ``pivot``'s hemisphere (antipodality)."""
     return wp.sign(a[0] * pivot[0] + a[1] * pivot[1] + a[2] * pivot[2] + a[3] * pivot[3])
 
 
-@wp.func(inline=True)
+@wp.func
 def dq_blend_add(acc: vec8, a: vec8, w: float, pivot: vec8):
     """``acc + ±w·a``, the sign from :func:`dq_sign` -- one step of dual-quaternion linear
     blending (Kavan et al.); normalize the sum after."""

@@ -207,7 +207,7 @@ def blend_joints(inf: Influences, v: int, f: int, values: wp.array2d(dtype=Any))
     return blend_groups(inf, v, f, values, inf.indices.shape[1])
 
 
-@wp.func(inline=True)
+@wp.func
 def heavier(j: int, wm: float, iv: wp.vec4i, wv: wp.vec4):
     """``(joint, weight)`` of the largest weight after one more group, the earlier on ties."""
     for k in range(4):
@@ -279,7 +279,7 @@ def dqs_blend_derivative(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=
     return acc
 
 
-@wp.func(inline=True)
+@wp.func
 def dqs_apply(b: vec8, x: wp.vec3):
     """Apply a blended (unnormalized) dual quaternion ``b = r + ε·d`` to ``x``, normalization
     folded in: ``x + 2·(r⃗×(r⃗×x + r_w·x) + r_w·d⃗ − d_w·r⃗ + r⃗×d⃗)/|r|²``. A zero blend (all
@@ -291,7 +291,7 @@ def dqs_apply(b: vec8, x: wp.vec3):
     return x + s * (wp.cross(rv, wp.cross(rv, x) + rw * x) + rw * dv - b[4] * rv + wp.cross(rv, dv))
 
 
-@wp.func(inline=True)
+@wp.func
 def rotation_only(b: vec8):
     """The real part of a blend, dual part zeroed: :func:`dqs_apply` then only rotates."""
     return vec8(b[0], b[1], b[2], b[3], 0.0, 0.0, 0.0, 0.0)
@@ -320,14 +320,14 @@ def by_method(inf: Influences, v: int, method: int, lbs: wp.vec3, dqs: wp.vec3):
 # and skin one frame straight, without the loop.
 
 
-@wp.func(inline=True)
+@wp.func
 def gather4(values: wp.array(dtype=Any), o: int, iv: wp.vec4i, wv: wp.vec4):
     """``Σ wᵢ·X[o + jᵢ]`` over one group of four influences (``o``: the frame's first joint)."""
     return (values[o + iv[0]] * wv[0] + values[o + iv[1]] * wv[1] + values[o + iv[2]] * wv[2]
             + values[o + iv[3]] * wv[3])
 
 
-@wp.func(inline=True)
+@wp.func
 def gather(values: wp.array(dtype=Any), o: int, indices: wp.array(dtype=wp.vec4i),
            weights: wp.array(dtype=wp.vec4), v: int, groups: int, iv: wp.vec4i, wv: wp.vec4):
     """``Σ wᵢ·Xᵢ`` over the vertex's ``groups`` groups, group 0 (``iv``, ``wv``) already read."""
@@ -337,7 +337,7 @@ def gather(values: wp.array(dtype=Any), o: int, indices: wp.array(dtype=wp.vec4i
     return acc
 
 
-@wp.func(inline=True)
+@wp.func
 def dq_add4(b: vec8, dqs: wp.array(dtype=vec8), o: int, iv: wp.vec4i, wv: wp.vec4, pv: vec8,
             running_sum: int):
     """:func:`~dqskin.kernels.dqmath.dq_blend_add` of one group, signs against ``pv`` or (with
@@ -351,7 +351,7 @@ def dq_add4(b: vec8, dqs: wp.array(dtype=vec8), o: int, iv: wp.vec4i, wv: wp.vec
     return b
 
 
-@wp.func(inline=True)
+@wp.func
 def dq_gather(dqs: wp.array(dtype=vec8), o: int, indices: wp.array(dtype=wp.vec4i),
               weights: wp.array(dtype=wp.vec4), v: int, groups: int, iv: wp.vec4i, wv: wp.vec4,
               pivot: int, unsorted: int, running_sum: int):
@@ -377,7 +377,7 @@ def dq_gather(dqs: wp.array(dtype=vec8), o: int, indices: wp.array(dtype=wp.vec4
     return b
 
 
-@wp.func(inline=True)
+@wp.func
 def flat_pivot(indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4), v: int,
                groups: int, iv: wp.vec4i, wv: wp.vec4, unsorted: int):
     """:func:`pivot_joint` on the flat layout (once per vertex, not per frame)."""
