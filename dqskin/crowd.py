@@ -70,14 +70,16 @@ class JointBatch:
 
     def skinning_transforms(self, local_transforms) -> wp.array:
         """(F, ΣJ) ``wp.mat44`` bind-relative transforms on the device, from each skeleton's
-        checked (F, J, 4, 4) local transforms (one host copy into one upload, one FK launch,
-        one bind-relative launch)."""
+        checked (F, J, 4, 4) local transforms (one host copy, uploaded on a GPU and read in place
+        on the CPU, one FK launch, one bind-relative launch)."""
         F = local_transforms[0].shape[0]
         host = np.empty((F, self.joint_count, 4, 4), np.float32)
         for sl, local in zip(self.joints, local_transforms):
             host[:, sl] = local
         d = self.device
-        local = wp.array(host.reshape(-1, 4, 4), dtype=wp.mat44, device=d)
+        # on the CPU the kernel reads the host copy in place (no second copy)
+        local = wp.array(host.reshape(-1, 4, 4), dtype=wp.mat44, device=d,
+                         copy=not wp.get_device(d).is_cpu)
         shape = (F, self.joint_count)
         poses = FK.world_poses(F * self.joint_count, d)
         FK.forward_kinematics(parents=self._parents, skeleton_start=self._starts, local=local,
