@@ -13,7 +13,13 @@ no split: ``η = η(q, t)`` and ``S = diag(s)``.
 
 Kernels run one thread per (frame, skeleton), walking that skeleton's joints parents-first;
 ``parents`` holds global joint indices (−1 for roots) and skeleton ``s`` owns joints
-``skeleton_start[s] .. skeleton_start[s+1]-1`` of the concatenated joint axis.
+``skeleton_start[s] .. skeleton_start[s+1]-1`` of the concatenated joint axis. Poses are flat
+(F·J,) arrays, frame-major.
+
+The rigid case is the fast path: a cheap rotation check, the local quaternion by branch-free
+selects, one DQ product (without forming the child's own DQ), normalization after it, the matrix
+written straight from the result. Each joint keeps a rigid flag; residuals are stored only for
+non-rigid joints, and only their descendants take the residual composition.
 """
 
 import warp as wp
