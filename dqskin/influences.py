@@ -5,16 +5,21 @@ import numpy as np
 import warp as wp
 
 from .kernels import layout as KL
+from .kernels.grid import beside
 from .shapes import as_real
 from .validation import nonnegative_max
 
 __all__ = ["Influences", "check_influences"]
 
 
+_BESIDE_MIN = 1 << 18
+"""Influences from which indices and weights are checked on two threads at once."""
+
+
 def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None):
     """:func:`check_influences` without its int64 copy: ``(indices (V, K) in their integer dtype,
     weights (V, K) float32, largest index or -1)``; one pass over each array
-    (:func:`~dqskin.validation.nonnegative_max`)."""
+    (:func:`~dqskin.validation.nonnegative_max`), the two at once when large."""
     idx = as_real("joint_indices", joint_indices)
     wts = as_real("joint_weights", joint_weights, np.float32)
     if idx.ndim == 1:
@@ -28,13 +33,19 @@ def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None
         raise ValueError(f"joint_indices: expected integers, got {idx.dtype}")
     if not idx.size:
         return idx, wts, -1
-    hi = nonnegative_max(idx)
+    if idx.size >= _BESIDE_MIN:  # the weights on another core
+        weights_ok, hi = beside(lambda: nonnegative_max(wts) is not None,
+                                lambda: nonnegative_max(idx))
+    else:
+        weights_ok, hi = None, nonnegative_max(idx)
     if hi is None:
         raise ValueError(f"joint_indices: negative index {int(idx.min())}")
     hi = int(hi)
     if joint_count is not None and hi >= joint_count:
         raise ValueError(f"joint_indices: index {hi} out of range for {joint_count} joints")
-    if nonnegative_max(wts) is None:  # then look closer (-0.0 is fine)
+    if weights_ok is None:
+        weights_ok = nonnegative_max(wts) is not None
+    if not weights_ok:  # then look closer (-0.0 is fine)
         wlo, whi = wts.min(), wts.max()  # NaN propagates; no temporaries
         if not (np.isfinite(wlo) and np.isfinite(whi)):
             raise ValueError("joint_weights: NaN or infinite weight")

@@ -17,6 +17,7 @@ import warp as wp
 from ._warp import Device, resolve_device
 from .cor import SIGMA, check_faces, rotation_centers
 from .influences import Influences
+from .kernels import grid as KG
 from .kernels import skin as K
 from .kernels import velocity as KV
 from .kernels.dqmath import mat34, vec8
@@ -71,6 +72,9 @@ def _transforms(name, skinning_transforms):
     raise ValueError(f"{name}: expected (J, 4, 4) or (F, J, 4, 4), got {x.shape}")
 
 
+_BESIDE_MIN = 1 << 18
+"""Point coordinates from which they are checked on another thread beside the influences."""
+
 _SMALL_RESULT = 65536
 """Point-frames up to which :meth:`Skinner.skin` reuses its output buffer (an allocation costs
 more than the copy out)."""
@@ -116,10 +120,20 @@ class Skinner:
         pts = as_array("points", points, None, (3,))
         if pts.ndim != 2:
             raise ValueError(f"points: expected (V, 3), got {pts.shape}")
-        problem = within_float32(pts)  # one pass, no temporaries
+        def influences():  # its error is raised after one about the points
+            try:
+                return Influences(joint_indices, joint_weights, vertex_count=pts.shape[0]), None
+            except ValueError as exc:
+                return None, exc
+
+        # one pass over each array, the points beside the influences when large
+        problem, (self.influences, error) = (
+            KG.beside(lambda: within_float32(pts), influences) if pts.size >= _BESIDE_MIN
+            else (within_float32(pts), influences()))
         if problem:
             raise ValueError(f"points: {problem} coordinates")
-        self.influences = Influences(joint_indices, joint_weights, vertex_count=pts.shape[0])
+        if error is not None:
+            raise error
         self.vertex_count = self.influences.vertex_count
         self.influence_count = self.influences.influence_count
         g = np.eye(4) if geom_bind_transform is None else check_transforms(

@@ -24,25 +24,31 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 def within_float32(a):
     """None when every value of the array is finite and within float32 range, else what is wrong
     ("NaN or infinite", "beyond float32 range"); one pass without temporaries in the common case:
-    a contiguous float array's sum of squares (BLAS) is finite and within ``FLOAT32_MAX²`` only
-    then (otherwise, or when it overflows, min and max decide)."""
+    a contiguous float32 array's sum, or a float64 array's sum of squares, is finite (within
+    ``FLOAT32_MAX²``) only then; otherwise, or when it overflows, min and max decide. No BLAS
+    for large arrays: its threads would keep spinning beside the skinning launch."""
     if a.dtype.kind != "f" or a.size == 0:
         return None
     kind = a.dtype.char
     if a.flags.c_contiguous and (kind == "d" or kind == "f"):  # float64, float32
         flat = a.reshape(-1)
-        if kind == "f":  # large in-range values may overflow the float32 sum
-            with np.errstate(over="ignore", invalid="ignore"):
-                squares = float(flat @ flat)
-        else:
-            squares = float(flat @ flat)
-        if squares <= _SQUARES_MAX:
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow: look closer below
+            if kind == "f":
+                ok = bool(np.isfinite(np.add.reduce(flat)))
+            elif flat.size <= _BLAS_ONE_THREAD:
+                ok = float(flat @ flat) <= _SQUARES_MAX
+            else:
+                ok = float(np.einsum("i,i->", flat, flat)) <= _SQUARES_MAX
+        if ok:
             return None
     lo, hi = a.min(), a.max()
     if not (np.isfinite(lo) and np.isfinite(hi)):
         return "NaN or infinite"
     return None if max(hi, -lo) <= FLOAT32_MAX else "beyond float32 range"
 
+
+_BLAS_ONE_THREAD = 8192
+"""Lengths up to which a BLAS dot product runs on the calling thread (~1 µs for 1,024)."""
 
 _SQUARES_MAX = FLOAT32_MAX ** 2  # exact in float64 (a 24-bit mantissa squared)
 

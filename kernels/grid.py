@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 import warp as wp
 
 __all__ = ["CPU_ROW_BLOCK", "FRAME_BLOCK", "MIN_WORK", "FrameBlocks", "block_frames", "block_rows",
-           "cpu_threads", "launch", "launch_blocks", "launch_rows"]
+           "beside", "cpu_threads", "launch", "launch_blocks", "launch_rows"]
 
 FRAME_BLOCK = 16
 """Frames one thread handles on a (frame block, row) grid: the joints of 16 frames stay in L1
@@ -175,13 +175,35 @@ def _replay(kernel, dim, args, device):
     cache[key] = hit  # most recent last
 
 
-def _pool_map(tasks):
+def _get_pool():
     global _pool
     with _pool_lock:
         if _pool is None:
             _pool = ThreadPoolExecutor(max_workers=cpu_threads(), thread_name_prefix="dqskin")
-    for fut in [_pool.submit(*t) for t in tasks]:
+    return _pool
+
+
+def _pool_map(tasks):
+    pool = _get_pool()
+    for fut in [pool.submit(*t) for t in tasks]:
         fut.result()
+
+
+def beside(fn, main):
+    """``(fn(), main())`` with ``fn`` on a pool thread while ``main`` runs on this one (both
+    release the GIL for the work that matters, e.g. NumPy reductions); sequential on one core or
+    from a pool thread (no waiting on the pool from inside it). An exception of ``main`` is
+    raised first, then one of ``fn``."""
+    if cpu_threads() < 2 or threading.current_thread().name.startswith("dqskin"):
+        return fn(), main()
+    fut = _get_pool().submit(fn)
+    try:
+        second = main()
+    finally:
+        first = fut.exception()  # waits
+    if first is not None:
+        raise first
+    return fut.result(), second
 
 
 def _is_cpu(device):

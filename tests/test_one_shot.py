@@ -291,6 +291,13 @@ def test_one_pass_checks_agree_with_elementwise_numpy(dtype):
         if dtype == np.float64:
             big[5] = -np.nextafter(FLOAT32_MAX, np.inf)
             assert within_float32(big) == "beyond float32 range"
+    long = rng.normal(size=20000).astype(dtype)  # past the one-thread BLAS length
+    assert within_float32(long) is None
+    for bad, want in ((np.nan, "NaN or infinite"), (1e39, "beyond float32 range")):
+        if floats and (dtype == np.float64 or not np.isfinite(bad)):
+            b = long.copy()
+            b[12345] = bad
+            assert within_float32(b) == want
 
 
 def test_points_beyond_float32_refused():
