@@ -339,3 +339,41 @@ def test_recorded_launch_repacks_changed_arrays_and_mutated_structs():
         grid.launch_rows(scaled_copy, 8, [pair, offset], [other], "cpu")
         want = src.numpy() * scale + offset
         np.testing.assert_array_equal(other.numpy(), want)
+
+
+def test_large_inputs_checked_on_two_threads_report_errors_in_order():
+    """Above the size where points, indices and weights are checked on two threads, the errors
+    are those of the one-thread order: points first, then indices, then weights."""
+    V = 100_000
+    rng = np.random.default_rng(34)
+    points = rng.normal(size=(V, 3)).astype(np.float32)
+    idx = rng.integers(0, 8, size=(V, 4)).astype(np.int32)
+    w = np.full((V, 4), 0.25, np.float32)
+    M = np.tile(np.eye(4), (8, 1, 1))
+    bad_p, bad_i, bad_w = points.copy(), idx.copy(), w.copy()
+    bad_p[V - 3, 2], bad_i[V - 2, 1], bad_w[V - 1, 3] = np.nan, -4, np.inf
+    cases = [((bad_p, bad_i, bad_w), "points: NaN or infinite"),
+             ((points, bad_i, bad_w), "joint_indices: negative index -4"),
+             ((points, idx, bad_w), "joint_weights: NaN or infinite"),
+             ((points, idx, -w), "joint_weights: negative weight -0.25")]
+    for (p, i, ww), message in cases:
+        with pytest.raises(ValueError, match=message):
+            dqskin.skin_points(p, i, ww, M, "lbs")
+    got = dqskin.skin_points(points, idx, w, M, "lbs")
+    np.testing.assert_allclose(got, points, atol=1e-6)
+
+
+def test_beside_runs_inline_on_a_pool_thread_and_raises_in_order():
+    from dqskin.kernels import grid
+
+    assert grid.beside(lambda: 1, lambda: 2) == (1, 2)
+    # from inside the pool: inline, no waiting on the pool's own threads
+    assert grid._get_pool().submit(grid.beside, lambda: 3, lambda: 4).result(timeout=30) == (3, 4)
+
+    def fail(msg):
+        raise ValueError(msg)
+
+    with pytest.raises(ValueError, match="main"):
+        grid.beside(lambda: fail("other"), lambda: fail("main"))
+    with pytest.raises(ValueError, match="other"):
+        grid.beside(lambda: fail("other"), lambda: 5)
