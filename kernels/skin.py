@@ -29,12 +29,13 @@ Influence layout (:class:`Influences`, built once per mesh by
 and zero-padded, so slot 0 is the antipodality pivot (the largest weight, first on ties, as
 UsdSkel); or, ``unsorted``, in input order with the pivot searched per vertex (a one-shot call
 whose ``(V, 4k)`` int32/float32 arrays are read in place: no layout pass). Per-(frame, joint)
-data is a :class:`Joints` (from :func:`prepare_points`). The direction and velocity kernels blend
-influences through the ``@wp.func`` blends on these structs, on (frame block, row) grids. The point
-kernels read the same arrays as flat 1-D views (the ``gather`` blends), one thread per vertex of a
-single frame, or per (frame block, vertex) with a block of frames read once per vertex: a 1-D
-launch over 1-D arrays is what Warp compiles with constant strides and an inlined task loop on the
-CPU. They are specialized at compile time for the method, rigid frames and ``K <= 4``.
+data is a :class:`Joints` (from :func:`prepare_points`). The kernels read these arrays as flat 1-D
+views (:func:`influence_args`; the blends :func:`gather` and :func:`dq_gather`, which the velocity
+kernels share): one thread per vertex of a single frame, or per (frame block, vertex), a block of
+frames read with the vertex's influences once (:func:`frame_rows`). A 1-D launch over 1-D arrays
+is what Warp compiles with constant strides and an inlined task loop on the CPU (2-D arrays or
+arrays inside structs cost 25-30% on one thread). The point kernels are specialized at compile
+time for the method, rigid frames and ``K <= 4``, and skin a single frame without a frame loop.
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
 """
 
@@ -60,10 +61,7 @@ from .dqmath import (
 from .grid import (
     FRAME_BLOCK,
     MIN_WORK,
-    FrameBlocks,
-    block_frames,
     launch,
-    launch_blocks,
     launch_rows,
 )
 
@@ -97,7 +95,7 @@ class Influences:
     nonzero the running sum of the blend so far, the slots in their input order (Blender)."""
     unsorted: int
     """Nonzero: the slots are in input order, not sorted by weight, and the pivot of
-    ``running_sum = 0`` is searched per vertex (:func:`pivot_joint`)."""
+    ``running_sum = 0`` is searched per vertex (:func:`flat_pivot`)."""
 
 
 @wp.struct
@@ -184,30 +182,6 @@ def prepare_vectors_kernel(
 
 
 @wp.func
-def blend4(values: wp.array2d(dtype=Any), f: int, iv: wp.vec4i, wv: wp.vec4):
-    """``Σ wᵢ·Xᵢ`` over one group of four influences of frame ``f``."""
-    return (values[f, iv[0]] * wv[0] + values[f, iv[1]] * wv[1] + values[f, iv[2]] * wv[2]
-            + values[f, iv[3]] * wv[3])
-
-
-@wp.func
-def blend_groups(inf: Influences, v: int, f: int, values: wp.array2d(dtype=Any), groups: int):
-    """:func:`blend_joints` over the first ``groups`` groups (a compile-time 1 in the kernels
-    specialized for ``K <= 4``: no loop)."""
-    acc = blend4(values, f, inf.indices[v, 0], inf.weights[v, 0])
-    for c in range(1, groups):
-        acc += blend4(values, f, inf.indices[v, c], inf.weights[v, c])
-    return acc
-
-
-@wp.func
-def blend_joints(inf: Influences, v: int, f: int, values: wp.array2d(dtype=Any)):
-    """``Σ wᵢ·Xᵢ`` of the vertex's per-joint values (F, J): 3×4 affines (LBS) and their
-    derivatives, 3×3 residuals ``S`` (DQS) and linear parts (directions)."""
-    return blend_groups(inf, v, f, values, inf.indices.shape[1])
-
-
-@wp.func
 def heavier(j: int, wm: float, iv: wp.vec4i, wv: wp.vec4):
     """``(joint, weight)`` of the largest weight after one more group, the earlier on ties."""
     for k in range(4):
@@ -215,68 +189,6 @@ def heavier(j: int, wm: float, iv: wp.vec4i, wv: wp.vec4):
             wm = wv[k]
             j = iv[k]
     return j, wm
-
-
-@wp.func
-def pivot_joint(inf: Influences, v: int, groups: int):
-    """The joint of the vertex's largest weight, first on ties: slot 0 of a sorted layout, else
-    searched (``inf.unsorted``)."""
-    iv = inf.indices[v, 0]
-    j = iv[0]
-    if inf.unsorted == 0:
-        return j
-    wm = inf.weights[v, 0][0]
-    for c in range(groups):
-        j, wm = heavier(j, wm, inf.indices[v, c], inf.weights[v, c])
-    return j
-
-
-@wp.func
-def dqs_blend_groups(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8), groups: int):
-    """:func:`dqs_blend` over the first ``groups`` groups."""
-    b = vec8()
-    if inf.running_sum != 0:  # (one branch per vertex, not per influence)
-        for c in range(groups):
-            iv = inf.indices[v, c]
-            wv = inf.weights[v, c]
-            for k in range(4):
-                b = dq_blend_add(b, dqs[f, iv[k]], wv[k], b)
-        return b
-    pv = dqs[f, pivot_joint(inf, v, groups)]
-    for c in range(groups):
-        iv = inf.indices[v, c]
-        wv = inf.weights[v, c]
-        for k in range(4):
-            b = dq_blend_add(b, dqs[f, iv[k]], wv[k], pv)
-    return b
-
-
-@wp.func
-def dqs_blend(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8)):
-    """Sign-aligned weighted sum of the vertex's dual quaternions (pivot: slot 0, or the running
-    sum with ``inf.running_sum``; a zero sum flips nothing)."""
-    return dqs_blend_groups(inf, v, f, dqs, inf.indices.shape[1])
-
-
-@wp.func
-def dqs_blend_derivative(inf: Influences, v: int, f: int, dqs: wp.array2d(dtype=vec8),
-                         dq_derivatives: wp.array2d(dtype=vec8)):
-    """``Σ sᵢ·wᵢ·η̇ᵢ``: the derivative of :func:`dqs_blend`, whose signs ``sᵢ`` (the same rule)
-    are locally constant."""
-    pv = dqs[f, pivot_joint(inf, v, inf.indices.shape[1])]
-    b = vec8()
-    acc = vec8()
-    for c in range(inf.indices.shape[1]):
-        iv = inf.indices[v, c]
-        wv = inf.weights[v, c]
-        for k in range(4):
-            if inf.running_sum != 0:
-                pv = b
-            j = iv[k]
-            sw = wv[k] * dq_sign(dqs[f, j], pv)
-            b += dqs[f, j] * sw
-            acc += dq_derivatives[f, j] * sw
-    return acc
 
 
 @wp.func
@@ -298,26 +210,35 @@ def rotation_only(b: vec8):
 
 
 @wp.func
-def by_method(inf: Influences, v: int, method: int, lbs: wp.vec3, dqs: wp.vec3):
+def by_method(method: int, lbs: wp.vec3, dqs: wp.vec3, blend: wp.array(dtype=float), v: int):
     """The result of ``method``: ``lbs``, ``dqs`` (also for COR, whose directions rotate as DQS's)
-    or their per-vertex blend ``(1 − b)·lbs + b·dqs``, ``b = inf.blend[v]``."""
+    or their per-vertex blend ``(1 − b)·lbs + b·dqs``, ``b = blend[v]``."""
     if method == LBS:
         return lbs
     if method == DQS or method == COR:
         return dqs
-    b = inf.blend[v]
+    b = blend[v]
     return lbs * (1.0 - b) + dqs * b
 
 
-# ---------------------------------------------------------------------------------------------
-# point kernels: flat 1-D arrays, one (frame block, vertex) per thread
-#
-# Warp specializes a CPU kernel whose launch is 1-D and whose array arguments are all 1-D and
-# contiguous: their strides become compile-time constants and the task loop is inlined (1.19's
-# ``wp_linear_contiguous``). Arrays inside structs or 2-D arrays keep runtime strides, and a frame
-# loop costs even when it runs once; measured on one thread, 1M points, that was 25-30% of the
-# time. So the point kernels take the (V, C) influences and (F, J) / (F, V) arrays as flat views
-# and skin one frame straight, without the loop.
+@wp.func
+def group(indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4), v: int,
+          groups: int, c: int, iv: wp.vec4i, wv: wp.vec4):
+    """Influence group ``c`` of vertex ``v`` (group 0, ``iv`` and ``wv``, already read)."""
+    if c == 0:
+        return iv, wv
+    return indices[v * groups + c], weights[v * groups + c]
+
+
+@wp.func
+def frame_rows(t: int, rows: int, frame_count: int):
+    """``(row, first frame, end frame)`` of thread ``t`` of a flat launch: row ``t`` of the only
+    frame, or row ``t mod rows`` of frame block ``t div rows``."""
+    if frame_count == 1:
+        return t, 0, 1
+    block = t // rows
+    first = block * POINT_FRAME_BLOCK
+    return t - block * rows, first, wp.min(first + POINT_FRAME_BLOCK, frame_count)
 
 
 @wp.func
@@ -333,7 +254,8 @@ def gather(values: wp.array(dtype=Any), o: int, indices: wp.array(dtype=wp.vec4i
     """``Σ wᵢ·Xᵢ`` over the vertex's ``groups`` groups, group 0 (``iv``, ``wv``) already read."""
     acc = gather4(values, o, iv, wv)
     for c in range(1, groups):
-        acc += gather4(values, o, indices[v * groups + c], weights[v * groups + c])
+        ic, wc = group(indices, weights, v, groups, c, iv, wv)
+        acc += gather4(values, o, ic, wc)
     return acc
 
 
@@ -355,7 +277,8 @@ def dq_add4(b: vec8, dqs: wp.array(dtype=vec8), o: int, iv: wp.vec4i, wv: wp.vec
 def dq_gather(dqs: wp.array(dtype=vec8), o: int, indices: wp.array(dtype=wp.vec4i),
               weights: wp.array(dtype=wp.vec4), v: int, groups: int, iv: wp.vec4i, wv: wp.vec4,
               pivot: int, unsorted: int, running_sum: int):
-    """The sign-aligned blend of :func:`dqs_blend` on the flat layout; ``pivot`` the vertex's
+    """Sign-aligned weighted sum of the vertex's dual quaternions at the frame's joints ``o``
+    (antipodality; a zero sum flips nothing); ``pivot`` the vertex's
     largest-weight joint (:func:`flat_pivot`: slot 0 unless ``unsorted``). The first term is set,
     not added to zero; its sign is +1 against itself or against the running sum's zero."""
     d0 = dqs[o + iv[0]]
@@ -380,7 +303,8 @@ def dq_gather(dqs: wp.array(dtype=vec8), o: int, indices: wp.array(dtype=wp.vec4
 @wp.func
 def flat_pivot(indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4), v: int,
                groups: int, iv: wp.vec4i, wv: wp.vec4, unsorted: int):
-    """:func:`pivot_joint` on the flat layout (once per vertex, not per frame)."""
+    """The joint of the vertex's largest weight, first on ties (once per vertex, not per frame):
+    slot 0 of a sorted layout, else searched (``unsorted``)."""
     j = iv[0]
     if unsorted == 0:
         return j
@@ -422,12 +346,11 @@ def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pi
             x = gather(residuals, o, indices, weights, v, groups, iv, wv) * p
     d = dqs_apply(dq_gather(dqs, o, indices, weights, v, groups, iv, wv, pivot, unsorted,
                             running_sum), x)
+    lbs = wp.vec3()
     if method == BLEND:
         lbs = gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(p[0], p[1], p[2],
                                                                                1.0)
-        b = blend[v]
-        return lbs * (1.0 - b) + d * b
-    return d
+    return by_method(method, lbs, d, blend, v)
 
 
 def _skin_points_kernel(method, residual, four):
@@ -468,13 +391,11 @@ def _skin_points_kernel(method, residual, four):
                                 has_residual, wp.static(method), wp.static(residual))
             return
         vertex_count = out.shape[0] // frame_count
-        block = t // vertex_count
-        v = t - block * vertex_count
-        first = block * POINT_FRAME_BLOCK
+        v, first, end = frame_rows(t, vertex_count, frame_count)
         iv = indices[v * g]
         wv = weights[v * g]
         pivot = flat_pivot(indices, weights, v, g, iv, wv, unsorted)
-        for f in range(first, wp.min(first + POINT_FRAME_BLOCK, frame_count)):
+        for f in range(first, end):
             out[wp.int64(f) * wp.int64(vertex_count) + wp.int64(v)] = skin_frame(
                 points[wp.int64(f) * wp.int64(point_stride) + wp.int64(v)], v, f, f * joint_count,
                 iv, wv, pivot, indices, weights, g, blend, centers, unsorted, running_sum, affines,
@@ -497,23 +418,24 @@ BLEND always has it."""
 
 
 @wp.func
-def dqs_vector(x: wp.vec3, inf: Influences, v: int, f: int, rotations: wp.array2d(dtype=wp.quat),
-               residuals: wp.array2d(dtype=wp.mat33), use_residual: bool):
+def dqs_vector(x: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pivot: int,
+               indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4), groups: int,
+               running_sum: int, rotations: wp.array(dtype=wp.quat),
+               residuals: wp.array(dtype=wp.mat33), has_residual: wp.array(dtype=wp.int32)):
     """Rotation-only DQS of a direction (sign-aligned quaternion blend, the sign rule of
-    :func:`dqs_blend`), unit length."""
-    pivot = rotations[f, pivot_joint(inf, v, inf.indices.shape[1])]
+    :func:`dq_gather`), unit length."""
+    ref = rotations[o + pivot]
     r = wp.quat(0.0, 0.0, 0.0, 0.0)
-    for c in range(inf.indices.shape[1]):
-        iv = inf.indices[v, c]
-        wv = inf.weights[v, c]
+    for c in range(groups):
+        ic, wc = group(indices, weights, v, groups, c, iv, wv)
         for k in range(4):
-            if inf.running_sum != 0:
-                pivot = r
-            q = rotations[f, iv[k]]
-            r += q * (wv[k] * wp.sign(wp.dot(q, pivot)))
+            if running_sum != 0:
+                ref = r
+            q = rotations[o + ic[k]]
+            r += q * (wc[k] * wp.sign(wp.dot(q, ref)))
     scaled = x
-    if use_residual:
-        scaled = blend_joints(inf, v, f, residuals) * x
+    if has_residual[f] != 0:
+        scaled = gather(residuals, o, indices, weights, v, groups, iv, wv) * x
     if wp.length(r) < 1.0e-10:
         return wp.normalize(scaled)
     return wp.normalize(wp.quat_rotate(wp.normalize(r), scaled))
@@ -521,39 +443,52 @@ def dqs_vector(x: wp.vec3, inf: Influences, v: int, f: int, rotations: wp.array2
 
 @wp.kernel
 def skin_vectors_kernel(
-    vectors: wp.array2d(dtype=wp.vec3),
+    vectors: wp.array(dtype=wp.vec3),
+    vector_stride: int,
     vector_vertex: wp.array(dtype=wp.int32),
-    inf: Influences,
-    linears: wp.array2d(dtype=wp.mat33),
-    rotations: wp.array2d(dtype=wp.quat),
-    residuals: wp.array2d(dtype=wp.mat33),
+    indices: wp.array(dtype=wp.vec4i),
+    weights: wp.array(dtype=wp.vec4),
+    groups: int,
+    blend: wp.array(dtype=float),
+    centers: wp.array(dtype=wp.vec4),
+    running_sum: int,
+    unsorted: int,
+    linears: wp.array(dtype=wp.mat33),
+    rotations: wp.array(dtype=wp.quat),
+    residuals: wp.array(dtype=wp.mat33),
     has_residual: wp.array(dtype=wp.int32),
+    joint_count: int,
+    frame_count: int,
     method: int,
-    blocks: FrameBlocks,
+    row_offset: int,
     # outputs
-    out: wp.array2d(dtype=wp.vec3),
+    out: wp.array(dtype=wp.vec3),
 ):
-    """Skin directions (normals or tangents), normalized, over a (frame block, vector) grid.
+    """Skin directions (normals or tangents), normalized, flat as the point kernels.
 
-    ``vectors`` (Fp, N); ``vector_vertex`` (N,) maps each vector to the vertex whose influences it
+    ``vectors`` (Fp·N); ``vector_vertex`` (N,) maps each vector to the vertex whose influences it
     uses (identity for per-vertex data, the face-vertex map for faceVarying). For normals pass the
     inverse-transpose matrices and the rotations UsdSkel derives from them; for tangents the
     matrices themselves and their polar rotations.
     """
-    blk, i = wp.tid()
-    first, end, row = block_frames(blocks, blk, out.shape[0])
-    n = i + row
+    rows = out.shape[0] // frame_count
+    n, first, end = frame_rows(wp.tid() + row_offset, rows, frame_count)
     v = vector_vertex[n]
-    last = vectors.shape[0] - 1
+    iv = indices[v * groups]
+    wv = weights[v * groups]
+    pivot = flat_pivot(indices, weights, v, groups, iv, wv, unsorted)
     for f in range(first, end):
-        x = vectors[wp.min(f, last), n]
+        o = f * joint_count
+        x = vectors[wp.int64(f) * wp.int64(vector_stride) + wp.int64(n)]
         lbs = wp.vec3()
         dqs = wp.vec3()
         if method == LBS or method == BLEND:
-            lbs = wp.normalize(blend_joints(inf, v, f, linears) * x)
+            lbs = wp.normalize(gather(linears, o, indices, weights, v, groups, iv, wv) * x)
         if method != LBS:
-            dqs = dqs_vector(x, inf, v, f, rotations, residuals, has_residual[f] != 0)
-        out[f, n] = wp.normalize(by_method(inf, v, method, lbs, dqs))
+            dqs = dqs_vector(x, v, f, o, iv, wv, pivot, indices, weights, groups, running_sum,
+                             rotations, residuals, has_residual)
+        out[wp.int64(f) * wp.int64(rows) + wp.int64(n)] = wp.normalize(
+            by_method(method, lbs, dqs, blend, v))
 
 
 @wp.kernel
@@ -610,7 +545,7 @@ _flat_views = weakref.WeakKeyDictionary()
 
 def _flat(a):
     """A 1-D view of contiguous array ``a`` (itself when 1-D), made once per array: a view costs
-    ~5 µs, the point launch takes seven. The view does not own or reference ``a`` (a cached view
+    ~5 µs, a launch takes up to ten. The view does not own or reference ``a`` (a cached view
     holding ``a`` would keep it alive); it is only passed to launches together with ``a``'s
     struct, which does."""
     if a.ndim == 1:
@@ -618,7 +553,7 @@ def _flat(a):
     view = _flat_views.get(a)
     if view is None:
         if not a.is_contiguous:
-            raise ValueError(f"skin_points: expected a contiguous array, got strides {a.strides}")
+            raise ValueError(f"expected a contiguous array, got strides {a.strides}")
         if a.size == 0:
             view = wp.empty(0, dtype=a.dtype, device=a.device)
         else:
@@ -628,37 +563,54 @@ def _flat(a):
     return view
 
 
+def frame_rows_array(values, rows):
+    """``(flat view, frame stride)`` of (Fp, rows) per-frame inputs, Fp 1 or F: stride 0 when one
+    row serves every frame (also a row broadcast with stride 0)."""
+    stride = rows if values.shape[0] > 1 else 0
+    if stride and values.strides[0] == 0:
+        return values[0], 0
+    if not values.is_contiguous:  # a copy: flattened with a reference to it
+        return values.contiguous().flatten(), stride
+    return _flat(values), stride
+
+
+def influence_args(influences):
+    """The flat :class:`Influences` arguments of the point and velocity kernels."""
+    inf = influences
+    return [_flat(inf.indices), _flat(inf.weights), inf.indices.shape[1], inf.blend, inf.centers,
+            inf.running_sum, inf.unsorted]
+
+
+def launch_frames(kernel, rows, frames, inputs, outputs, device):
+    """Launch a flat kernel (:func:`frame_rows`) over ``rows`` × ``frames``: one thread per row
+    of a single frame, else per (frame block, row); chunks of threads on the CPU cores."""
+    launch_rows(kernel, rows * -(-frames // FRAME_BLOCK), inputs, [_flat(o) for o in outputs],
+                device, min_chunk=-(-MIN_WORK // min(frames, FRAME_BLOCK)))
+
+
 def skin_points(*, method, points, influences, joints, rigid, out, device):
     """Skin ``points`` (Fp, V) into ``out`` (F, V) with ``method`` (:data:`LBS`, :data:`DQS`,
     :data:`BLEND`, :data:`COR`). ``rigid`` (no frame has a residual) selects the DQS or COR
-    kernel without the residual code. One thread per vertex of a single frame, else per (frame
-    block, vertex); chunks of threads on the CPU cores."""
+    kernel without the residual code."""
     residual = method == BLEND or (method != LBS and not rigid)
-    groups = influences.indices.shape[1]
-    kernel = SKIN_POINTS_KERNELS[(method, residual, groups == 1)]
+    kernel = SKIN_POINTS_KERNELS[(method, residual, influences.indices.shape[1] == 1)]
     frames, verts = out.shape
-    per_thread = min(frames, FRAME_BLOCK)
-    inf, jn = influences, joints
-    point_stride = verts if points.shape[0] > 1 else 0
-    if point_stride and points.strides[0] == 0:  # one row broadcast to every frame
-        points, point_stride = points[0], 0
-    elif not points.is_contiguous:
-        points = points.contiguous()
-    launch_rows(kernel, verts * -(-frames // FRAME_BLOCK),
-                [_flat(points), point_stride, _flat(inf.indices),
-                 _flat(inf.weights), groups, inf.blend, inf.centers, inf.running_sum,
-                 inf.unsorted, _flat(jn.affines), _flat(jn.dqs), _flat(jn.residuals),
-                 jn.has_residual, jn.affines.shape[1], frames],
-                [_flat(out)], device, min_chunk=-(-MIN_WORK // per_thread))
+    jn = joints
+    launch_frames(kernel, verts, frames,
+                  [*frame_rows_array(points, verts), *influence_args(influences),
+                   _flat(jn.affines), _flat(jn.dqs), _flat(jn.residuals), jn.has_residual,
+                   jn.affines.shape[1], frames], [out], device)
 
 
 def skin_vectors(*, method, vectors, vector_vertex, influences, linears, rotations, residuals,
                  has_residual, out, device):
     """Skin directions ``vectors`` (Fp, N) into ``out`` (F, N), normalized (see
     :func:`skin_vectors_kernel` for which per-joint arrays normals and tangents take)."""
-    launch_blocks(skin_vectors_kernel, out.shape[1], out.shape[0],
-                  [vectors, vector_vertex, influences, linears, rotations, residuals,
-                   has_residual, int(method)], [out], device)
+    frames, rows = out.shape
+    launch_frames(skin_vectors_kernel, rows, frames,
+                  [*frame_rows_array(vectors, rows), vector_vertex, *influence_args(influences),
+                   _flat(linears), _flat(rotations), _flat(residuals), has_residual,
+                   linears.shape[1], frames, int(method)], [out], device)
 
 
 def transform_frames(*, xforms, normalize, values, device):

@@ -14,7 +14,7 @@ derivatives of the skinning transforms ``Ȧ`` and of the rest points ``ṗ``:
 * blend: ``(1 − b)·LBS' + b·DQS'``.
 * COR (center ``c``): ``p' = R(r)·y + Σ wᵢ·Aᵢ·[c, 1]``, ``y = p − c`` (through the residuals on
   frames with one), ``R(r)`` the rotation of the blend's real part: ``ṗ' = Ṙ·y + R·ẏ +
-  Σ wᵢ·Ȧᵢ·[c, 1]`` (:func:`cor_velocity`); vertices without a center as DQS.
+  Σ wᵢ·Ȧᵢ·[c, 1]``; vertices without a center as DQS.
 
 The joints' ``η̇`` and ``Ṡ`` come from the polar split ``A = R·S`` (:func:`polar_rotation`, as
 skinning) and its derivative ``Rᵀ·Ȧ = [ω]×·S + Ṡ``: the skew part gives
@@ -27,6 +27,7 @@ from .dqmath import (
     FACTOR_EPSILON,
     RESIDUAL_TOLERANCE,
     dq_from_rt,
+    dq_sign,
     is_identity33,
     mat34,
     mat44_linear,
@@ -34,20 +35,24 @@ from .dqmath import (
     quat_from_rotation,
     vec8,
 )
-from .grid import FrameBlocks, block_frames, launch, launch_blocks
+from .grid import launch
 from .skin import (
     BLEND,
     COR,
     LBS,
-    Influences,
-    Joints,
-    blend_joints,
     by_method,
-    dqs_blend,
-    dqs_blend_derivative,
+    dq_gather,
+    flat_pivot,
+    frame_rows,
+    frame_rows_array,
+    gather,
+    group,
+    influence_args,
+    launch_frames,
     prepare_points,
     rotation_only,
 )
+from .skin import _flat as flat
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
@@ -141,68 +146,96 @@ class JointRates:
 
 
 @wp.func
-def cor_velocity(inf: Influences, v: int, f: int, joints: Joints, rates: JointRates, c: wp.vec3,
-                 p: wp.vec3, pd: wp.vec3):
-    """``d/dt`` of the COR point ``R(r)·y + Σ wᵢ·Aᵢ·[c, 1]`` (``y = p − c``, or ``Σ wᵢ·Sᵢ·(p − c)``
-    on frames with a residual; the center ``c`` is constant): ``Ṙ·y + R·ẏ + Σ wᵢ·Ȧᵢ·[c, 1]``, the
-    rotation's part through :func:`dqs_apply_derivative` with zero dual parts."""
-    y = p - c
-    yd = pd
-    if joints.has_residual[f] != 0:
-        s = blend_joints(inf, v, f, joints.residuals)
-        y = s * (p - c)
-        yd = blend_joints(inf, v, f, rates.residuals) * (p - c) + s * pd
-    rot = dqs_apply_derivative(rotation_only(dqs_blend(inf, v, f, joints.dqs)),
-                               rotation_only(dqs_blend_derivative(inf, v, f, joints.dqs,
-                                                                  rates.dqs)), y, yd)
-    return rot + blend_joints(inf, v, f, rates.affines) * wp.vec4(c[0], c[1], c[2], 1.0)
+def dq_gather_derivative(dqs: wp.array(dtype=vec8), dq_rates: wp.array(dtype=vec8), o: int,
+                         indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
+                         v: int, groups: int, iv: wp.vec4i, wv: wp.vec4, pivot: int,
+                         running_sum: int):
+    """``Σ sᵢ·wᵢ·η̇ᵢ``: the derivative of :func:`~dqskin.kernels.skin.dq_gather`, whose signs
+    ``sᵢ`` (the same rule) are locally constant."""
+    ref = dqs[o + pivot]
+    b = vec8()
+    acc = vec8()
+    for c in range(groups):
+        ic, wc = group(indices, weights, v, groups, c, iv, wv)
+        for k in range(4):
+            if running_sum != 0:
+                ref = b
+            j = o + ic[k]
+            sw = wc[k] * dq_sign(dqs[j], ref)
+            b += dqs[j] * sw
+            acc += dq_rates[j] * sw
+    return acc
 
 
 @wp.kernel
 def velocity_kernel(
-    points: wp.array2d(dtype=wp.vec3),
-    point_velocities: wp.array2d(dtype=wp.vec3),
-    inf: Influences,
-    joints: Joints,
-    rates: JointRates,
+    points: wp.array(dtype=wp.vec3),
+    point_stride: int,
+    point_velocities: wp.array(dtype=wp.vec3),
+    velocity_stride: int,
+    indices: wp.array(dtype=wp.vec4i),
+    weights: wp.array(dtype=wp.vec4),
+    groups: int,
+    blend: wp.array(dtype=float),
+    centers: wp.array(dtype=wp.vec4),
+    running_sum: int,
+    unsorted: int,
+    affines: wp.array(dtype=mat34),
+    dqs: wp.array(dtype=vec8),
+    residuals: wp.array(dtype=wp.mat33),
+    has_residual: wp.array(dtype=wp.int32),
+    affine_rates: wp.array(dtype=mat34),
+    dq_rates: wp.array(dtype=vec8),
+    residual_rates: wp.array(dtype=wp.mat33),
+    joint_count: int,
+    frame_count: int,
     method: int,
-    blocks: FrameBlocks,
+    row_offset: int,
     # outputs
-    out: wp.array2d(dtype=wp.vec3),
+    out: wp.array(dtype=wp.vec3),
 ):
-    """Velocities of skinned points over a (frame block, vertex) grid. ``points``,
-    ``point_velocities`` (Fp, V) bind space, Fp 1 or F; ``out`` (F, V) skeleton space per unit
-    time."""
-    blk, i = wp.tid()
-    first, end, row = block_frames(blocks, blk, out.shape[0])
-    v = i + row
-    last_p = points.shape[0] - 1
-    last_v = point_velocities.shape[0] - 1
+    """Velocities of skinned points, flat as the point kernels. ``points``, ``point_velocities``
+    (Fp·V) bind space, Fp 1 or F; ``out`` (F·V) skeleton space per unit time."""
+    rows = out.shape[0] // frame_count
+    v, first, end = frame_rows(wp.tid() + row_offset, rows, frame_count)
+    g = groups
+    iv = indices[v * g]
+    wv = weights[v * g]
+    pivot = flat_pivot(indices, weights, v, g, iv, wv, unsorted)
+    c4 = wp.vec4()
+    if method == COR:
+        c4 = centers[v]
     for f in range(first, end):
-        p = points[wp.min(f, last_p), v]
-        pd = point_velocities[wp.min(f, last_v), v]
+        o = f * joint_count
+        p = points[wp.int64(f) * wp.int64(point_stride) + wp.int64(v)]
+        pd = point_velocities[wp.int64(f) * wp.int64(velocity_stride) + wp.int64(v)]
         lbs = wp.vec3()
         dqs_v = wp.vec3()
-        if method == COR:
-            c4 = inf.centers[v]
-            if c4[3] != 0.0:
-                out[f, v] = cor_velocity(inf, v, f, joints, rates,
-                                         wp.vec3(c4[0], c4[1], c4[2]), p, pd)
-                continue
         if method == LBS or method == BLEND:
-            lbs = (blend_joints(inf, v, f, rates.affines) * wp.vec4(p[0], p[1], p[2], 1.0)
-                   + blend_joints(inf, v, f, joints.affines) * wp.vec4(pd[0], pd[1], pd[2], 0.0))
+            lbs = (gather(affine_rates, o, indices, weights, v, g, iv, wv)
+                   * wp.vec4(p[0], p[1], p[2], 1.0)
+                   + gather(affines, o, indices, weights, v, g, iv, wv)
+                   * wp.vec4(pd[0], pd[1], pd[2], 0.0))
         if method != LBS:
             x = p
             xd = pd
-            if joints.has_residual[f] != 0:
-                s = blend_joints(inf, v, f, joints.residuals)
-                x = s * p
-                xd = blend_joints(inf, v, f, rates.residuals) * p + s * pd
-            dqs_v = dqs_apply_derivative(dqs_blend(inf, v, f, joints.dqs),
-                                         dqs_blend_derivative(inf, v, f, joints.dqs, rates.dqs),
-                                         x, xd)
-        out[f, v] = by_method(inf, v, method, lbs, dqs_v)
+            cor = c4[3] != 0.0  # COR with a center: the rotation acts on y = p − c
+            if cor:
+                x = p - wp.vec3(c4[0], c4[1], c4[2])
+            if has_residual[f] != 0:
+                s = gather(residuals, o, indices, weights, v, g, iv, wv)
+                xd = gather(residual_rates, o, indices, weights, v, g, iv, wv) * x + s * pd
+                x = s * x
+            b = dq_gather(dqs, o, indices, weights, v, g, iv, wv, pivot, unsorted, running_sum)
+            bd = dq_gather_derivative(dqs, dq_rates, o, indices, weights, v, g, iv, wv, pivot,
+                                      running_sum)
+            if cor:
+                dqs_v = dqs_apply_derivative(rotation_only(b), rotation_only(bd), x, xd) + gather(
+                    affine_rates, o, indices, weights, v, g, iv, wv) * wp.vec4(c4[0], c4[1],
+                                                                               c4[2], 1.0)
+            else:
+                dqs_v = dqs_apply_derivative(b, bd, x, xd)
+        out[wp.int64(f) * wp.int64(rows) + wp.int64(v)] = by_method(method, lbs, dqs_v, blend, v)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -225,6 +258,11 @@ def prepare(*, xforms, xform_derivatives, joints, rates, device):
 
 def velocities(*, method, points, point_velocities, influences, joints, rates, out, device):
     """Velocities of ``points`` skinned with ``method`` into ``out`` (F, V)."""
-    launch_blocks(velocity_kernel, out.shape[1], out.shape[0],
-                  [points, point_velocities, influences, joints, rates, int(method)], [out],
+    frames, verts = out.shape
+    jn = joints
+    launch_frames(velocity_kernel, verts, frames,
+                  [*frame_rows_array(points, verts), *frame_rows_array(point_velocities, verts),
+                   *influence_args(influences), flat(jn.affines), flat(jn.dqs),
+                   flat(jn.residuals), jn.has_residual, flat(rates.affines), flat(rates.dqs),
+                   flat(rates.residuals), jn.affines.shape[1], frames, int(method)], [out],
                   device)
