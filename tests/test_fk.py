@@ -270,6 +270,29 @@ def test_local_matrix_non_finite_raises(value, message):
     _raises(lambda: forward_kinematics(CHAIN, local), message.replace("'Head'", "2"))
 
 
+@pytest.mark.parametrize("value,message", [
+    (np.nan, "local_transforms: NaN at frame 1, joint 'Head'"),
+    (-np.inf, "local_transforms: infinite value at frame 1, joint 'Head'"),
+    (3e30, None),  # finite, but its square overflows the one-pass test: the detailed check passes
+])
+def test_float32_pose_checked_in_one_pass(value, message):
+    """float32 poses take a one-pass finiteness test before the detailed check; a fault is
+    still named, and a huge but finite value still runs (against the float64 chain)."""
+    local = np.tile(np.eye(4, dtype=np.float32), (2, 3, 1, 1))
+    local[1, 2, 0, 3] = value
+    skel = Skeleton(NAMES, CHAIN)
+    t, q, s = (a.astype(np.float32) for a in _trs(2))
+    t[1, 2, 0] = value
+    if message is None:
+        ref = chain_product(np.array(CHAIN), local.astype(np.float64))
+        np.testing.assert_allclose(skel.forward_kinematics(local), ref, rtol=1e-6)
+        assert np.isfinite(skel.forward_kinematics((t, q, s))).all()
+        return
+    _raises(lambda: skel.forward_kinematics(local), message)
+    _raises(lambda: skel.forward_kinematics((t, q, s)),
+            message.replace("local_transforms", "translations"))
+
+
 def test_batch_index_and_unbatched_pose_in_messages():
     local = np.tile(np.eye(4), (2, 3, 3, 1, 1))
     local[1, 2, 0, 1, 1] = np.nan
