@@ -40,7 +40,23 @@ __all__ = ["ChunkJob", "bake_clips", "prestart_workers", "run_chunk", "run_here"
            "worker_threads"]
 
 SUBCHUNK = 32
-"""Frames a task skins at a time (the clip layer holds its whole chunk until written)."""
+"""Fewest frames a task skins at a time (the clip layer holds its whole chunk until written)."""
+
+PIECE_BYTES = 64 << 20
+"""Skinned points, normals and velocities a task holds per piece it skins: pieces are
+:data:`SUBCHUNK` frames or as many more as fit (a whole chunk of a small mesh), since each
+:meth:`dqskin.Scene.skin` call costs milliseconds whatever its size (32-frame pieces of a
+3,273-point mesh cost 0.8 of 4.2 CPU-s of a 10,000-frame bake)."""
+
+
+def _piece_frames(scene, opts):
+    """Frames per piece for :meth:`dqskin.Scene.skin` options ``opts`` (:data:`PIECE_BYTES`)."""
+    per_frame = 12 * sum(
+        len(m.points) * (2 if opts.get("velocities", True) else 1)
+        + (len(m.normals) if opts.get("normals", True) and m.normals is not None else 0)
+        for m in scene.meshes)
+    return max(SUBCHUNK, PIECE_BYTES // max(per_frame, 1))
+
 
 _scenes = {}  # this worker process's loaded asset: {(path, mtime, size): Scene}
 
@@ -214,7 +230,8 @@ def run_chunk(job: ChunkJob, scene=None) -> dict:
     scene = _worker_scene(job.source) if scene is None else scene
     layer = usd_clips.new_clip_layer(job.time_codes_per_second)
     _sample_writer(scene, job).write_chunks(
-        layer, (res for _, res in scene.skin_chunks(job.times, SUBCHUNK, **job.skin)),
+        layer, (res for _, res in scene.skin_chunks(job.times, _piece_frames(scene, job.skin),
+                                                     **job.skin)),
         lambda res: check_skinned(scene.path, res))
     digest = usd_clips.write_clip(layer, job.path, job.key, job.times)
     del layer
@@ -224,28 +241,26 @@ def run_chunk(job: ChunkJob, scene=None) -> dict:
 def run_here(jobs: list, scene, done) -> None:
     """Every job, in order, in this process (``done(result)`` after each; results as
     :func:`run_chunk`'s), pipelined across chunks instead of :func:`run_chunk` one by one: one
-    :meth:`dqskin.Scene.skin_chunks` stream over all their frames skins chunk ``k + 1`` on its
-    helper thread while chunk ``k``'s layer is filled and exported, and chunk ``k``'s layer is
-    hashed on another thread while chunk ``k + 1``'s is filled, then recorded and renamed
-    (:func:`~.formats.usd_clips.commit_clip`) before that one is exported. A clip layer is held
-    whole either way, so memory stays bounded by the chunk size."""
-    size = len(jobs[0].times) if jobs else 0
-    if any(len(j.times) != size for j in jobs[:-1]):  # clips of other lengths: one by one
-        for job in jobs:
-            done(run_chunk(job, scene))
-        return
+    :meth:`dqskin.Scene.skin_chunks` stream of pieces (:data:`PIECE_BYTES`) over all their
+    frames keeps skinning (the first piece of chunk ``k + 1`` while chunk ``k``'s layer is
+    exported), and chunk ``k``'s layer is hashed on another thread while chunk ``k + 1``'s is
+    filled, then recorded and renamed (:func:`~.formats.usd_clips.commit_clip`) before that one
+    is exported. Memory is as :func:`run_chunk`'s: one clip layer and two pieces."""
     if not jobs:
         return
+    size = _piece_frames(scene, jobs[0].skin)
+    pieces = [[min(size, len(j.times) - a) for a in range(0, len(j.times), size)] for j in jobs]
     writer = _sample_writer(scene, jobs[0])
-    stream = scene.skin_chunks(np.concatenate([j.times for j in jobs]), size, **jobs[0].skin)
+    stream = scene.skin_chunks(np.concatenate([j.times for j in jobs]),
+                               [n for p in pieces for n in p], **jobs[0].skin)
     pending = None  # (job, claim, digest future, start) of the exported, unrecorded layer
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-clip-hash") as hasher:
         try:
             t0 = time.perf_counter()
-            for job, (_, res) in zip(jobs, stream):
+            for job, p in zip(jobs, pieces):
                 layer = usd_clips.new_clip_layer(job.time_codes_per_second)
-                writer.write_chunks(layer, [res], lambda r: check_skinned(scene.path, r))
-                del res
+                writer.write_chunks(layer, (next(stream)[1] for _ in p),
+                                    lambda r: check_skinned(scene.path, r))
                 if pending is not None:
                     done(_commit(*pending))
                 pending = None

@@ -289,18 +289,25 @@ class Scene:
                                                              rest, deformer, out, rate, sign)
         return result
 
-    def skin_chunks(self, times: npt.ArrayLike, chunk: int,
+    def skin_chunks(self, times: npt.ArrayLike, chunk: "int | list[int]",
                     **skin_args) -> Iterator[tuple[slice, "SkinnedFrames"]]:
-        """Yield ``(slice, SkinnedFrames)`` for consecutive chunks of ``chunk`` frames, so memory
-        stays bounded; ``skin_args`` go to :meth:`skin`.
+        """Yield ``(slice, SkinnedFrames)`` for consecutive chunks of ``chunk`` frames (or of
+        the sizes in a list ``chunk``, which must add up to the frame count), so memory stays
+        bounded; ``skin_args`` go to :meth:`skin`.
 
         The next chunk is skinned on a worker thread while the caller consumes the current one
         (Warp launches and NumPy release the GIL, so the two overlap).
         """
         t = check_times(times)
-        if int(chunk) < 1:
+        if isinstance(chunk, (list, tuple)):
+            ends = np.cumsum(chunk, dtype=np.int64)
+            if not chunk or min(chunk) < 1 or ends[-1] != len(t):
+                raise ValueError(f"chunk sizes must be at least 1 and add up to {len(t)} frames")
+            slices = [slice(int(e - n), int(e)) for n, e in zip(chunk, ends)]
+        elif int(chunk) < 1:
             raise ValueError(f"--chunk {chunk}: must be at least 1")
-        slices = [slice(lo, min(lo + chunk, len(t))) for lo in range(0, len(t), chunk)]
+        else:
+            slices = [slice(lo, min(lo + chunk, len(t))) for lo in range(0, len(t), chunk)]
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-skin") as ex:
             fut = ex.submit(self.skin, t[slices[0]], **skin_args)
             for k, sl in enumerate(slices):

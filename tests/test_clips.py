@@ -328,3 +328,19 @@ def test_skinning_options_reach_the_clips_and_their_plan(humanoid, tmp_path):
                           probe_times(scene.times, CHUNK)[::3])
     with pytest.raises(ValueError, match="other settings"):
         bake(scene, shot, chunk=CHUNK, resume=True, **dict(opts, sign_reference="largest_weight"))
+
+
+def test_skin_chunks_of_given_sizes_cover_the_frames_in_order(humanoid):
+    """``Scene.skin_chunks`` with a list of sizes (what in-process clip bakes stream: each clip's
+    frames in pieces, across clips) gives those slices, each equal to skinning those frames."""
+    scene = humanoid["scene"]
+    t = np.asarray(scene.times[:9], np.float64)
+    got = list(scene.skin_chunks(t, [3, 1, 5], normals=False, velocities=False))
+    assert [sl for sl, _ in got] == [slice(0, 3), slice(3, 4), slice(4, 9)]
+    for sl, res in got:
+        want = scene.skin(t[sl], normals=False, velocities=False)
+        for name, p in want.points.items():
+            np.testing.assert_array_equal(res.points[name], p)
+    for bad in ([3, 1], [4, 0, 5], []):
+        with pytest.raises(ValueError, match="add up to 9 frames"):
+            list(scene.skin_chunks(t, bad))
