@@ -309,3 +309,32 @@ def test_rigid_fast_path_is_taken_and_equals_the_general_kernel(device, monkeypa
     monkeypatch.setattr(grid, "_launch", real)
     prep, _, _ = sk._prepare(M)
     np.testing.assert_allclose(fast, _launch_dqs(prep, sk), atol=1e-5)
+
+
+@pytest.mark.parametrize("layout", ["per_frame", "strided", "broadcast"])
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_point_launcher_reads_any_frame_layout(device, layout, method):
+    """The flat point kernels over two frame blocks (F = 20, one partial) with (F, V) rest points
+    contiguous, strided (every other row of a wider array: copied) or one row broadcast to every
+    frame (stride 0: read in place), against the float64 oracles."""
+    rng = np.random.default_rng(21)
+    F, V = 20, 37
+    points, idx, w, M, _ = random_rig(rng, V=V, F=F)
+    shapes = (points[None] + rng.normal(size=(F, V, 3)) * 0.1).astype(np.float32)
+    if layout == "broadcast":
+        shapes[:] = shapes[0]
+    sk = dqskin.Skinner(points, idx, w, device=device)
+    prep, _, _ = sk._prepare(M)
+    wide = wp.array(np.repeat(shapes, 2, axis=1), dtype=wp.vec3, device=device)  # (F, 2V)
+    src = {"per_frame": wp.array(shapes, dtype=wp.vec3, device=device),
+           "strided": wp.array(ptr=wide.ptr, shape=(F, V), strides=(24 * V, 24), dtype=wp.vec3,
+                               device=device),
+           "broadcast": wp.array(ptr=wide.ptr, shape=(F, V), strides=(0, 24), dtype=wp.vec3,
+                                 device=device)}[layout]
+    out = wp.empty((F, V), dtype=wp.vec3, device=device)
+    K.skin_points(method=K.LBS if method == "lbs" else K.DQS, points=src, influences=sk._inf,
+                  joints=prep["joints"], rigid=True, out=out, device=device)
+    oracle = numpy_lbs if method == "lbs" else numpy_dqs
+    got = out.numpy()
+    for f in range(F):
+        assert rel_err(got[f], oracle(shapes[f], idx, w, M[f])) <= 1e-5, f
