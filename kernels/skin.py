@@ -35,7 +35,7 @@ kernels share): one thread per vertex of a single frame, or per (frame block, ve
 frames read with the vertex's influences once (:func:`frame_rows`). A 1-D launch over 1-D arrays
 is what Warp compiles with constant strides and an inlined task loop on the CPU (2-D arrays or
 arrays inside structs cost 25-30% on one thread). The point kernels are specialized at compile
-time for the method, rigid frames and ``K <= 4``, and skin a single frame without a frame loop.
+time for the method and rigid frames, and skin a single frame without a frame loop.
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
 """
 
@@ -323,8 +323,8 @@ def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pi
                residuals: wp.array(dtype=wp.mat33), has_residual: wp.array(dtype=wp.int32),
                method: int, residual: bool):
     """Point ``p`` of vertex ``v`` skinned with ``method`` at frame ``f`` (its joints from ``o``);
-    ``method``, ``residual`` (the frame may have scale/shear) and, in the ``K <= 4`` kernels,
-    ``groups`` are compile-time constants, so only one method's code remains."""
+    ``method`` and ``residual`` (the frame may have scale/shear) are compile-time constants, so
+    only one method's code remains."""
     if method == LBS:
         return gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(
             p[0], p[1], p[2], 1.0)
@@ -353,10 +353,11 @@ def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pi
     return by_method(method, lbs, d, blend, v)
 
 
-def _skin_points_kernel(method, residual, four):
+def _skin_points_kernel(method, residual):
     """The point kernel of one method, specialized at compile time: ``residual=False`` drops the
-    scale/shear code (~18% faster on the CPU for rigid launches), ``four`` (``K <= 4``, one
-    influence group) drops the loops over groups."""
+    scale/shear code (~18% faster on the CPU for rigid launches). The influence-group count stays
+    a runtime argument: a kernel specialized for ``K <= 4`` measured no faster (one thread, 1M
+    points) and doubled the module's compile time."""
 
     def kernel(
         points: wp.array(dtype=wp.vec3),
@@ -380,8 +381,6 @@ def _skin_points_kernel(method, residual, four):
     ):
         t = wp.tid() + row_offset
         g = groups
-        if wp.static(four):
-            g = 1
         if frame_count == 1:  # one frame: vertex t, no frame loop
             iv = indices[t * g]
             wv = weights[t * g]
@@ -402,19 +401,18 @@ def _skin_points_kernel(method, residual, four):
                 dqs, residuals, has_residual, wp.static(method), wp.static(residual))
 
     rigid = "_rigid" if method in (DQS, COR) and not residual else ""
-    name = f"skin_{['lbs', 'dqs', 'blend', 'cor'][method]}{rigid}_kernel{'_k4' if four else ''}"
+    name = f"skin_{['lbs', 'dqs', 'blend', 'cor'][method]}{rigid}_kernel"
     kernel.__doc__ = (f"Skin flat ``points`` (Fp·V) bind space, Fp 1 or F, into ``out`` (F·V) "
                       f"with method {method}; thread ``t``: vertex ``t`` of one frame, or vertex "
                       f"``t mod V`` of frame block ``t div V``.")
     return wp.kernel(kernel, name=name)
 
 
-SKIN_POINTS_KERNELS = {(m, r, four): _skin_points_kernel(m, r, four)
+SKIN_POINTS_KERNELS = {(m, r): _skin_points_kernel(m, r)
                        for m, r in ((LBS, False), (DQS, True), (DQS, False), (BLEND, True),
-                                    (COR, True), (COR, False))
-                       for four in (False, True)}
-"""The point-skinning kernels by ``(method, residual code, K <= 4)``: LBS needs no residual code,
-BLEND always has it."""
+                                    (COR, True), (COR, False))}
+"""The point-skinning kernels by ``(method, residual code)``: LBS needs no residual code, BLEND
+always has it."""
 
 
 @wp.func
@@ -593,7 +591,7 @@ def skin_points(*, method, points, influences, joints, rigid, out, device):
     :data:`BLEND`, :data:`COR`). ``rigid`` (no frame has a residual) selects the DQS or COR
     kernel without the residual code."""
     residual = method == BLEND or (method != LBS and not rigid)
-    kernel = SKIN_POINTS_KERNELS[(method, residual, influences.indices.shape[1] == 1)]
+    kernel = SKIN_POINTS_KERNELS[(method, residual)]
     frames, verts = out.shape
     jn = joints
     launch_frames(kernel, verts, frames,
