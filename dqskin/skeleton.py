@@ -300,19 +300,6 @@ class Skeleton:
         return out if as_warp else out.numpy().reshape(*shape, 4, 4)
 
 
-def _check_pose(name, a, lead, joint_names=None):
-    """:func:`~dqskin.validation.check_finite`, after a one-pass test for contiguous float32
-    input: its dot product with itself is finite only when every value is finite and below
-    ~1.8e19 (float32 input holds nothing beyond float32 range); anything else, a huge value
-    included, takes the detailed check, which names the fault or passes."""
-    if a.dtype == np.float32 and a.flags.c_contiguous and a.size:
-        flat = a.reshape(-1)
-        with np.errstate(over="ignore", invalid="ignore"):
-            if np.isfinite(np.dot(flat, flat)):
-                return
-    check_finite(name, a, lead, joint_names)
-
-
 def _trs_arrays(pose, J, joint_names=None):
     """Checked float32 (translations, rotations, scales) of a TRS pose, and its batch shape."""
     if len(pose) != 3:
@@ -328,7 +315,7 @@ def _trs_arrays(pose, J, joint_names=None):
         if a.shape != batch + (J, 3):
             raise ValueError(f"{name}: expected {batch + (J, 3)}, got {a.shape}")
     for name, a in (("translations", tr), ("rotations", rot), ("scales", sc)):
-        _check_pose(name, a, len(batch), joint_names)
+        check_finite(name, a, len(batch), joint_names)
     tr, rot, sc = (np.ascontiguousarray(a, np.float32) for a in (tr, rot, sc))
     _check_quaternions(rot, len(batch), joint_names)
     return (tr, rot, sc), batch
@@ -341,7 +328,7 @@ def _matrix_array(local_transforms, J, joint_names=None):
     if loc.ndim < 3 or loc.shape[-3:] != (J, 4, 4):
         raise ValueError(f"local_transforms: expected (..., {J}, 4, 4), got {loc.shape}")
     batch = loc.shape[:-3]
-    _check_pose("local_transforms", loc, len(batch), joint_names)
+    check_finite("local_transforms", loc, len(batch), joint_names)
     return np.ascontiguousarray(loc, np.float32), batch
 
 

@@ -273,11 +273,11 @@ def test_local_matrix_non_finite_raises(value, message):
 @pytest.mark.parametrize("value,message", [
     (np.nan, "local_transforms: NaN at frame 1, joint 'Head'"),
     (-np.inf, "local_transforms: infinite value at frame 1, joint 'Head'"),
-    (3e30, None),  # finite, but its square overflows the one-pass test: the detailed check passes
+    (3e30, None),  # finite, its square beyond float32: a one-pass sum-of-squares test overflows
 ])
-def test_float32_pose_checked_in_one_pass(value, message):
-    """float32 poses take a one-pass finiteness test before the detailed check; a fault is
-    still named, and a huge but finite value still runs (against the float64 chain)."""
+def test_float32_pose_checked(value, message):
+    """float32 poses (read in place on the CPU) are checked as float64 ones: a fault is named,
+    and a huge but finite value still runs (against the float64 chain)."""
     local = np.tile(np.eye(4, dtype=np.float32), (2, 3, 1, 1))
     local[1, 2, 0, 3] = value
     skel = Skeleton(NAMES, CHAIN)
