@@ -117,15 +117,15 @@ def rigid_matrix(a: vec8):
 
 @wp.func
 def is_rigid(m: wp.mat44):
-    """:func:`~dqskin.kernels.dqmath.is_rotation` of the linear part of ``m``, written out over
-    its columns (orthonormal to ~1e-6, det > 0)."""
+    """True when the linear part of ``m`` is a rotation (to ~1e-6): columns ``c0``, ``c1``
+    orthonormal and ``c2 = c0 × c1`` (which makes it unit, orthogonal to both and det = +1; a
+    reflection has ``c2 = −c0 × c1``)."""
     c0 = wp.vec3(m[0, 0], m[1, 0], m[2, 0])
     c1 = wp.vec3(m[0, 1], m[1, 1], m[2, 1])
-    c2 = wp.vec3(m[0, 2], m[1, 2], m[2, 2])
-    err = (wp.abs(wp.dot(c0, c0) - 1.0) + wp.abs(wp.dot(c1, c1) - 1.0)
-           + wp.abs(wp.dot(c2, c2) - 1.0) + wp.abs(wp.dot(c0, c1)) + wp.abs(wp.dot(c0, c2))
-           + wp.abs(wp.dot(c1, c2)))
-    return err < 1.0e-6 and wp.dot(c0, wp.cross(c1, c2)) > 0.0
+    e = wp.vec3(m[0, 2], m[1, 2], m[2, 2]) - wp.cross(c0, c1)
+    err = (wp.abs(wp.dot(c0, c0) - 1.0) + wp.abs(wp.dot(c1, c1) - 1.0) + wp.abs(wp.dot(c0, c1))
+           + wp.abs(e[0]) + wp.abs(e[1]) + wp.abs(e[2]))
+    return err < 1.0e-6
 
 
 @wp.func

@@ -156,6 +156,13 @@ def test_fk_rigid_children_of_scaled_parents(device):
     assert np.abs(world - ref).max() / np.abs(ref).max() <= 1e-5
     rigid = np.all(np.abs(residual - np.eye(3)) <= 1e-6, axis=(-1, -2))
     assert rigid[:, :2].all() and not rigid[:, 2:].any()
+    # a mirror (orthonormal, det −1) is not a rotation: the residual carries the reflection
+    local = random_locals(rng, (3,), J)
+    local[:, 1, :3, :3] = local[:, 1, :3, :3] @ np.diag([1.0, -1.0, 1.0])
+    world, _, residual = forward_kinematics(parents, local, device=device, return_dq=True)
+    ref = chain_product(parents, local)
+    assert np.abs(world - ref).max() / np.abs(ref).max() <= 1e-5
+    np.testing.assert_allclose(np.linalg.det(residual[:, 1:]), -1.0, atol=1e-5)
 
 
 def test_fk_many_skeletons_in_one_launch(device):
