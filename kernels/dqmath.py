@@ -129,9 +129,15 @@ def dq_transform_point(a: vec8, p: wp.vec3):
 
 
 @wp.func
+def dq_real_dot(a: vec8, b: vec8):
+    """Dot product of the real (rotation) parts of ``a`` and ``b``."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
+
+
+@wp.func
 def dq_sign(a: vec8, pivot: vec8):
     """±1 putting ``a``'s real part on ``pivot``'s hemisphere (antipodality)."""
-    return wp.sign(a[0] * pivot[0] + a[1] * pivot[1] + a[2] * pivot[2] + a[3] * pivot[3])
+    return wp.sign(dq_real_dot(a, pivot))
 
 
 @wp.func

@@ -49,6 +49,7 @@ from .dqmath import (
     RESIDUAL_TOLERANCE,
     dq_blend_add,
     dq_from_rt,
+    dq_real_dot,
     dq_sign,
     is_identity33,
     mat34,
@@ -284,6 +285,18 @@ def dq_gather(dqs: wp.array(dtype=vec8), o: int, indices: wp.array(dtype=wp.vec4
     d0 = dqs[o + iv[0]]
     b = d0 * wv[0]
     if running_sum != 0:
+        if groups == 1:
+            # the running sum's signs from the pairwise dots of the four real parts: a chain of
+            # scalars instead of one of dual quaternions (b_k · d_k = Σ_{m<k} s_m·w_m·(d_m · d_k))
+            d1 = dqs[o + iv[1]]
+            d2 = dqs[o + iv[2]]
+            d3 = dqs[o + iv[3]]
+            w0 = wv[0]
+            s1 = wv[1] * wp.sign(w0 * dq_real_dot(d0, d1))
+            s2 = wv[2] * wp.sign(w0 * dq_real_dot(d0, d2) + s1 * dq_real_dot(d1, d2))
+            s3 = wv[3] * wp.sign(w0 * dq_real_dot(d0, d3) + s1 * dq_real_dot(d1, d3)
+                                 + s2 * dq_real_dot(d2, d3))
+            return b + d1 * s1 + d2 * s2 + d3 * s3
         for k in range(1, 4):
             b = dq_blend_add(b, dqs[o + iv[k]], wv[k], b)
         for c in range(1, groups):
