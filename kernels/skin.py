@@ -279,9 +279,9 @@ def dq_gather(dqs: wp.array(dtype=vec8), o: int, indices: wp.array(dtype=wp.vec4
               weights: wp.array(dtype=wp.vec4), v: int, groups: int, iv: wp.vec4i, wv: wp.vec4,
               pivot: int, unsorted: int, running_sum: int):
     """Sign-aligned weighted sum of the vertex's dual quaternions at the frame's joints ``o``
-    (antipodality; a zero sum flips nothing); ``pivot`` the vertex's
-    largest-weight joint (:func:`flat_pivot`: slot 0 unless ``unsorted``). The first term is set,
-    not added to zero; its sign is +1 against itself or against the running sum's zero."""
+    (antipodality; a zero sum flips nothing); ``pivot`` the vertex's largest-weight joint
+    (:func:`flat_pivot`: slot 0 unless ``unsorted``). The first term is set, not added to zero;
+    its sign is +1 against itself or against the running sum's zero."""
     d0 = dqs[o + iv[0]]
     b = d0 * wv[0]
     if running_sum != 0:
