@@ -42,10 +42,7 @@ value clips unless ``clips=False``: a single layer holds all of them in memory u
 
 def sample_bytes(scene: Scene, frames: int, normals: bool = True, velocities: bool = True) -> int:
     """Bytes of point, normal and velocity samples a USD cache of ``frames`` frames holds."""
-    per_frame = sum(len(m.points) * (2 if velocities else 1)
-                    + (len(m.normals) if normals and m.normals is not None else 0)
-                    for m in scene.meshes)
-    return 12 * per_frame * int(frames)
+    return usd_cache.frame_bytes(scene, normals, velocities) * int(frames)
 
 
 def output_kind(out: str | Path) -> str:

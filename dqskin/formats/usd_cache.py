@@ -29,12 +29,19 @@ from .atomic import atomic_path, check_parent
 from .usd import load_rigid_prims, rigid_transforms
 
 __all__ = ["CACHE_EXTENSIONS", "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter",
-           "export_layer", "write_usd_cache"]
+           "export_layer", "frame_bytes", "write_usd_cache"]
 
 CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
 """Extensions :func:`write_usd_cache` writes (``.usd`` is binary crate)."""
 
 _SKEL_API = "SkelBindingAPI"
+
+
+def frame_bytes(scene, normals: bool = True, velocities: bool = True) -> int:
+    """Bytes of one frame's point, normal and velocity samples of ``scene``'s meshes (float32)."""
+    return 12 * sum(len(m.points) * (2 if velocities else 1)
+                    + (len(m.normals) if normals and m.normals is not None else 0)
+                    for m in scene.meshes)
 
 
 def _frames(name, what, a, frames, count):
