@@ -72,6 +72,34 @@ def _transforms(name, skinning_transforms):
     raise ValueError(f"{name}: expected (J, 4, 4) or (F, J, 4, 4), got {x.shape}")
 
 
+_empties = {}
+
+
+def _empty(dtype, device):
+    """A zero-length array (an absent optional input), one per dtype and device: never written."""
+    key = (dtype, str(device))
+    a = _empties.get(key)
+    if a is None:
+        a = _empties[key] = wp.empty(0, dtype=dtype, device=device)
+    return a
+
+
+_scratch = threading.local()
+
+
+def _thread_buffers(device):
+    """The work buffers (transforms, per-joint data) of every :class:`_OneCall` on this thread and
+    device: each call refills them before use and they never leave it, so a one-shot call reuses
+    its predecessor's instead of allocating them. Cleared when it holds many shapes."""
+    caches = getattr(_scratch, "caches", None)
+    if caches is None:
+        caches = _scratch.caches = {}
+    cache = caches.setdefault(str(device), {})
+    if len(cache) > 64:
+        cache.clear()
+    return cache
+
+
 _BESIDE_MIN = 1 << 18
 """Point coordinates from which they are checked on another thread beside the influences."""
 
@@ -151,13 +179,13 @@ class Skinner:
         self.cor_cluster = cor_cluster
         self._centers = None
         if blend_weights is None:
-            self._blend = wp.zeros(0, dtype=wp.float32, device=d)
+            self._blend = _empty(wp.float32, d)
         else:
             b = np.asarray(blend_weights, dtype=np.float32).reshape(-1)
             if b.shape != (self.vertex_count,) or not np.all((b >= 0) & (b <= 1)):
                 raise ValueError(f"blend_weights: expected ({self.vertex_count},) values in [0, 1]")
             self._blend = wp.array(b, dtype=wp.float32, device=d)
-        self._no_centers = wp.zeros(0, dtype=wp.vec4, device=d)
+        self._no_centers = _empty(wp.vec4, d)
         order = self._layout_order
         self._layouts = {order: self.influences.upload(d, order, copy=self._copy_uploads)}
         self._inf = K.influences(blend=self._blend, centers=self._no_centers,
@@ -196,6 +224,10 @@ class Skinner:
             centers = self._centers[1]
         return K.influences(blend=self._blend, centers=centers, running_sum=running,
                             unsorted=order == "input", **self._layouts[order])
+
+    _reuse_output = True
+    """Small results (:data:`_SMALL_RESULT`) go through one reused output buffer and leave as a
+    copy (:class:`_OneCall`: a fresh output, returned as it is)."""
 
     _copy_uploads = True
     """False: CPU uploads alias the caller's float32 (and int32) arrays (:class:`_OneCall`)."""
@@ -372,7 +404,8 @@ class Skinner:
             prep, frames, batched = self._prepare(skinning_transforms)
             src = self._rest("points", points, frames)
             # small results go through one reused device buffer and leave as a NumPy copy
-            small = not as_warp and frames * self.vertex_count <= _SMALL_RESULT
+            small = (not as_warp and frames * self.vertex_count <= _SMALL_RESULT
+                     and self._reuse_output)
             out, view = self._cache.get(("out", frames), (None, None)) if small else (None, None)
             if out is None:
                 out = wp.empty((frames, self.vertex_count), dtype=wp.vec3, device=self.device)
@@ -584,3 +617,8 @@ class _OneCall(Skinner):
 
     _copy_uploads = False
     _layout_order = "input"
+    _reuse_output = False  # the result is the output array itself, not a copy
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._cache = _thread_buffers(self.device)

@@ -32,13 +32,12 @@ def within_float32(a):
     kind = a.dtype.char
     if a.flags.c_contiguous and (kind == "d" or kind == "f"):  # float64, float32
         flat = a.reshape(-1)
-        with np.errstate(over="ignore", invalid="ignore"):  # an overflow: look closer below
-            if kind == "f":
-                ok = bool(np.isfinite(np.add.reduce(flat)))
-            elif flat.size <= _BLAS_ONE_THREAD:
-                ok = float(flat @ flat) <= _SQUARES_MAX
-            else:
-                ok = float(np.einsum("i,i->", flat, flat)) <= _SQUARES_MAX
+        if kind == "d" and flat.size <= _BLAS_ONE_THREAD:  # overflows only beyond float32
+            ok = float(flat @ flat) <= _SQUARES_MAX
+        else:
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflow: look closer below
+                ok = (bool(np.isfinite(np.add.reduce(flat))) if kind == "f" else
+                      float(np.einsum("i,i->", flat, flat)) <= _SQUARES_MAX)
         if ok:
             return None
     lo, hi = a.min(), a.max()

@@ -377,3 +377,18 @@ def test_beside_runs_inline_on_a_pool_thread_and_raises_in_order():
         grid.beside(lambda: fail("other"), lambda: fail("main"))
     with pytest.raises(ValueError, match="other"):
         grid.beside(lambda: fail("other"), lambda: 5)
+
+
+def test_one_shot_calls_share_work_buffers_not_results():
+    """One-shot calls on a thread reuse their work buffers: results of earlier calls (other
+    vertex, joint and frame counts in between) are never overwritten."""
+    rng = np.random.default_rng(35)
+    kept = []
+    for V, J, F in [(30, 6, 0), (50, 6, 0), (30, 9, 2), (30, 6, 0), (30, 6, 3)]:
+        points, idx, w, _ = rig(rng, V=V, J=J)
+        Ms = [rig(rng, V=1, J=J)[3] for _ in range(max(F, 1))]
+        got = dqskin.skin_points(points, idx, w, np.stack(Ms) if F else Ms[0], "dqs")
+        want = np.stack([dqs64(points, idx, w, M) for M in Ms])
+        kept.append((got, want if F else want[0]))
+    for got, want in kept:
+        np.testing.assert_allclose(got, want, atol=5e-5)
