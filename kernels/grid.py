@@ -94,8 +94,16 @@ _warm_lock = threading.Lock()
 def _launch(kernel, dim, args, device):
     """:func:`_replay`, but the first launch of a kernel on a device holds a lock: Warp's
     ``Module.load`` is not thread-safe, and two pool threads loading one module at once can
-    unload the library the other is running (an intermittent segfault)."""
-    key = (kernel, str(device))
+    unload the library the other is running (an intermittent segfault). A launch this thread
+    recorded (its module loaded) is replayed straight away."""
+    name = device if type(device) is str else str(device)
+    launches = getattr(_recorded, "launches", None)
+    hit = None if launches is None else launches.pop((kernel, dim, name), None)
+    if hit is not None:
+        hit.launch(args)
+        launches[(kernel, dim, name)] = hit  # most recent last
+        return
+    key = (kernel, name)
     if key in _warm:
         _replay(kernel, dim, args, device)
         return
@@ -223,7 +231,8 @@ def _threads_for(work, device):
 
 def launch(kernel, dim, inputs, outputs, device):
     """``wp.launch`` for grids that need no chunking (per joint, per frame, small images)."""
-    dim = (dim,) if isinstance(dim, int) else tuple(int(d) for d in dim)
+    if type(dim) is not tuple:
+        dim = (dim,) if isinstance(dim, int) else tuple(int(d) for d in dim)
     if min(dim) > 0:
         _launch(kernel, dim, [*inputs, *outputs], device)
 
