@@ -191,6 +191,9 @@ class Skinner:
         self._inf = K.influences(blend=self._blend, centers=self._no_centers,
                                  unsorted=order == "input",
                                  **self._layouts[order])  # the default: UsdSkel's rule
+        # LBS needs no pivot: the same influences without its search
+        self._inf_lbs = self._inf if order != "input" else K.influences(
+            blend=self._blend, centers=self._no_centers, **self._layouts[order])
 
     def rotation_centers(self) -> np.ndarray:
         """(V, 3) float64 centers of rotation of ``method="cor"`` in bind space, NaN for vertices
@@ -213,6 +216,8 @@ class Skinner:
     def _influences(self, code, sign_reference):
         """The kernels' :class:`~dqskin.kernels.skin.Influences` for a method code and sign rule."""
         running = _check_sign_reference(sign_reference) == "running_sum"
+        if code == K.LBS:  # no sign rule, no pivot
+            return self._inf_lbs
         if not running and code != K.COR:
             return self._inf
         order = "input" if running else self._layout_order
@@ -248,6 +253,8 @@ class Skinner:
             if not linear:
                 flat += g[:3, 3]
             x = flat.reshape(x.shape)
+        elif x.flags.c_contiguous:  # plain strides (a (1, N, 3) view of (N, 3) has stride 0
+            x = x.reshape(-1, 3).reshape(x.shape)  # first: a non-contiguous Warp array)
         copy = self._copy_uploads or not self.device.is_cpu
         return wp.array(x, dtype=wp.vec3, device=self.device, copy=copy)
 
