@@ -253,8 +253,8 @@ class Skinner:
             if not linear:
                 flat += g[:3, 3]
             x = flat.reshape(x.shape)
-        elif x.flags.c_contiguous:  # plain strides (a (1, N, 3) view of (N, 3) has stride 0
-            x = x.reshape(-1, 3).reshape(x.shape)  # first: a non-contiguous Warp array)
+        elif x.flags.c_contiguous:  # plain strides: a (1, N, 3) view of (N, 3) has a 0 first
+            x = x.reshape(-1, 3).reshape(x.shape)  # stride, a non-contiguous Warp array
         copy = self._copy_uploads or not self.device.is_cpu
         return wp.array(x, dtype=wp.vec3, device=self.device, copy=copy)
 
