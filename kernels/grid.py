@@ -3,13 +3,15 @@ CPU.
 
 Warp runs a CPU launch on one thread but releases the GIL, so chunks launched from Python threads
 use every core. The launchers beside each kernel (``skin.skin_points``, ``fk.forward_kinematics``,
-``metrics.volumes``, ...) call :func:`launch_blocks` or :func:`launch_rows`; nothing outside
+``metrics.volumes``, ...) call :func:`launch` or :func:`launch_rows`; nothing outside
 ``dqskin.kernels`` calls ``wp.launch``.
 
-Grids over frames are (frame block, row): a thread handles one row (vertex, vector) for
-:data:`FRAME_BLOCK` frames, so its influences are read once per block and the block's joints stay
-in cache. Kernels on such a grid take a :class:`FrameBlocks` after their inputs and loop over
-:func:`block_frames`.
+Grids over frames (the flat point, vector and velocity kernels of :mod:`.skin` and
+:mod:`.velocity`) have one thread per row for a single frame, else one per (block of
+:data:`FRAME_BLOCK` frames, row), so a row's influences are read once per block and the block's
+joints stay in cache; they are launched as rows through :func:`launch_rows`.
+Small grids replay a recorded launch (:class:`_Recorded`): a few µs instead of ~40 µs of Warp's
+argument packing, which dominates small calls.
 """
 
 import ctypes
@@ -19,59 +21,16 @@ from concurrent.futures import ThreadPoolExecutor
 
 import warp as wp
 
-__all__ = ["CPU_ROW_BLOCK", "FRAME_BLOCK", "MIN_WORK", "FrameBlocks", "block_frames", "block_rows",
-           "beside", "cpu_threads", "launch", "launch_blocks", "launch_rows"]
+__all__ = ["FRAME_BLOCK", "MIN_WORK", "beside", "cpu_threads", "launch", "launch_rows"]
 
 FRAME_BLOCK = 16
 """Frames one thread handles on a (frame block, row) grid: the joints of 16 frames stay in L1
 while every vertex of the block is skinned, and influences are read once per block."""
 
 
-
-@wp.struct
-class FrameBlocks:
-    """The part of a (frame block, row) grid one launch covers (:func:`launch_blocks` fills it)."""
-
-    frame_block: int
-    """Frames per thread."""
-    block_offset: int
-    """First frame block of the launch."""
-    row_offset: int
-    """First row of the launch."""
-    row_block: int
-    """Rows per thread (:func:`block_rows`; 0 or 1: one)."""
-    row_end: int
-    """End of the launch's rows (:func:`block_rows`; 0: the grid's)."""
-
-
-@wp.func
-def block_frames(blocks: FrameBlocks, block: int, frame_count: int):
-    """``(first frame, end frame, row offset)`` of grid block ``block`` of a launch."""
-    first = (block + blocks.block_offset) * blocks.frame_block
-    return first, wp.min(first + blocks.frame_block, frame_count), blocks.row_offset
-
-
-@wp.func
-def block_rows(blocks: FrameBlocks, i: int, row_count: int):
-    """``(first row, end row)`` of grid column ``i`` of a launch whose threads handle
-    ``blocks.row_block`` rows each (``row_count``: the rows of the whole grid)."""
-    n = wp.max(blocks.row_block, 1)
-    start = blocks.row_offset + i * n
-    end = row_count
-    if blocks.row_end > 0:
-        end = blocks.row_end
-    return start, wp.min(start + n, end)
-
-
 MIN_WORK = 32768
-"""Row-frames below which :func:`launch_blocks` launches on one CPU thread (a pool round trip
+"""Row-frames below which a frame-grid launch runs on one CPU thread (a pool round trip
 costs more than it saves)."""
-
-
-CPU_ROW_BLOCK = 64
-"""Rows per thread of row-blocked kernels on the CPU: a Warp CPU launch calls the kernel once per
-thread, copying every argument (array descriptors, structs) and splitting the thread index, which
-costs as much as skinning a vertex; 64 rows per call amortize it. One row per thread on CUDA."""
 
 
 _pool = None
@@ -235,57 +194,6 @@ def launch(kernel, dim, inputs, outputs, device):
         dim = (dim,) if isinstance(dim, int) else tuple(int(d) for d in dim)
     if min(dim) > 0:
         _launch(kernel, dim, [*inputs, *outputs], device)
-
-
-_parts = {}  # FrameBlocks by their fields: building a Warp struct costs ~10 µs a call
-
-
-def _frame_blocks(block_offset, row_offset, row_block, row_end):
-    """The :class:`FrameBlocks` of a launch, built once per distinct value (never modified)."""
-    key = (block_offset, row_offset, row_block, row_end)
-    part = _parts.get(key)
-    if part is None:
-        if len(_parts) >= 256:
-            _parts.clear()
-        part = FrameBlocks()
-        part.frame_block, part.block_offset, part.row_offset = FRAME_BLOCK, block_offset, row_offset
-        part.row_block, part.row_end = row_block, row_end
-        _parts[key] = part
-    return part
-
-
-def launch_blocks(kernel, rows, frames, inputs, outputs, device, min_work=None,
-                  row_blocks=False):
-    """Launch ``kernel`` over ``ceil(frames / FRAME_BLOCK)`` frame blocks × ``rows``.
-
-    ``kernel`` takes ``inputs``, then a :class:`FrameBlocks`, then ``outputs``. With
-    ``row_blocks`` (a kernel looping over :func:`block_rows`) a CPU thread handles
-    :data:`CPU_ROW_BLOCK` rows.
-    On CUDA one launch covers the grid. On the CPU, above ``min_work`` row-frames
-    (:data:`MIN_WORK` by default), the grid is split along its longer axis into one piece per
-    core, launched from a thread pool.
-    """
-    if rows <= 0 or frames <= 0:
-        return
-    min_work = MIN_WORK if min_work is None else min_work
-    blocks = -(-frames // FRAME_BLOCK)
-
-    per_thread = CPU_ROW_BLOCK if row_blocks and _is_cpu(device) else 1
-
-    def run(block_offset, block_count, row_offset, row_count):
-        part = _frame_blocks(block_offset, row_offset, per_thread, row_offset + row_count)
-        _launch(kernel, (block_count, -(-row_count // per_thread)), [*inputs, part, *outputs],
-                device)
-
-    chunks = _threads_for(rows * frames // min_work, device)
-    if chunks <= 1:
-        run(0, blocks, 0, rows)
-    elif blocks >= chunks and blocks * FRAME_BLOCK >= rows:
-        cut = [blocks * c // chunks for c in range(chunks + 1)]
-        _pool_map([(run, cut[c], cut[c + 1] - cut[c], 0, rows) for c in range(chunks)])
-    else:
-        cut = [rows * c // chunks for c in range(chunks + 1)]
-        _pool_map([(run, 0, blocks, cut[c], cut[c + 1] - cut[c]) for c in range(chunks)])
 
 
 def launch_rows(kernel, count, inputs, outputs, device, min_chunk=4096, inner=()):

@@ -142,6 +142,27 @@ def test_fk_every_quaternion_case_and_near_half_turns(device):
     np.testing.assert_array_equal(residual, np.broadcast_to(np.eye(3), residual.shape))
 
 
+@pytest.mark.parametrize("rotate", [False, True], ids=["identity", "rotated"])
+def test_fk_translations_near_the_float32_limit(device, rotate):
+    """Translations up to 3e38 (float32 max 3.4e38) whose world position fits: no overflow
+    inside the dual-quaternion product (½·t·q with an unnormalized q would reach inf), from
+    matrices and from TRS, against the float64 chain."""
+    rng = np.random.default_rng(5)
+    parents = np.array([-1, 0, 1])
+    local = np.tile(np.eye(4), (3, 1, 1))
+    if rotate:  # the root rotates the chain's translations: still within range
+        local[0, :3, :3] = Rotation.random(random_state=rng).as_matrix()
+    local[1, 1, 3] = 3e38
+    local[2, :3, :3] = Rotation.from_rotvec([0.0, 0.0, np.pi]).as_matrix()  # Shepperd z case
+    ref = chain_product(parents, local)
+    world = forward_kinematics(parents, local.astype(np.float32), device=device)
+    assert np.isfinite(world).all()
+    np.testing.assert_allclose(world[:, :3, 3], ref[:, :3, 3], rtol=1e-5, atol=1e-6 * 3e38)
+    q = Rotation.from_matrix(local[:, :3, :3]).as_quat()[:, [3, 0, 1, 2]]
+    trs = forward_kinematics(parents, (local[:, :3, 3], q, None), device=device)
+    np.testing.assert_allclose(trs[:, :3, 3], ref[:, :3, 3], rtol=1e-5, atol=1e-6 * 3e38)
+
+
 def test_fk_rigid_children_of_scaled_parents(device):
     """A rigid joint under a scaled or sheared one takes the residual path; a rigid joint under
     a rigid child of a scaled one too (the residual is inherited), checked at every depth."""
