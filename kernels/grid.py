@@ -17,9 +17,11 @@ argument packing, which dominates small calls.
 import ctypes
 import os
 import threading
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 
 import warp as wp
+import warp._src.context as _context
 
 __all__ = ["FRAME_BLOCK", "MIN_WORK", "beside", "cpu_threads", "launch", "launch_rows"]
 
@@ -38,7 +40,7 @@ _pool_lock = threading.Lock()
 _CORES = os.cpu_count() or 1  # os.cpu_count() costs ~10 µs a call
 _recorded = threading.local()
 _RECORDED_MAX = 32
-_RECORDED_GRID = 1 << 16  # larger grids: the packing cost is noise, and no arrays are kept alive
+_RECORDED_GRID = 1 << 16  # larger grids: the packing cost is noise
 
 
 def cpu_threads():
@@ -59,8 +61,11 @@ def _launch(kernel, dim, args, device):
     launches = getattr(_recorded, "launches", None)
     hit = None if launches is None else launches.pop((kernel, dim, name), None)
     if hit is not None:
-        hit.launch(args)
         launches[(kernel, dim, name)] = hit  # most recent last
+        if _capturing():
+            wp.launch(kernel, dim=dim, inputs=args, device=device)
+        else:
+            hit.launch(args)
         return
     key = (kernel, name)
     if key in _warm:
@@ -71,19 +76,54 @@ def _launch(kernel, dim, args, device):
         _warm.add(key)
 
 
+class _Value:
+    """A by-value argument (int, float) held like a weak reference: ``held()`` returns it."""
+
+    __slots__ = ("value",)
+
+    def __init__(self, value):
+        self.value = value
+
+    def __call__(self):
+        return self.value
+
+
+def _held(a):
+    """A weak reference to argument ``a`` (arrays, structs), or ``a`` itself when it cannot have
+    one: a recorded launch must not keep a caller's arrays alive."""
+    try:
+        return weakref.ref(a)
+    except TypeError:
+        return _Value(a)
+
+
+_DIRECT = wp.__version__.split(".")[:2] == ["1", "19"]
+"""The direct entry-point call of :class:`_Recorded` copies Warp 1.19's private ``invoke``; other
+Warp versions take ``Launch.launch`` (correct, ~4 µs slower a launch)."""
+
+
+def _capturing():
+    """Whether a Warp graph capture is active (it records launches instead of running them:
+    those go through ``wp.launch``)."""
+    return getattr(getattr(_context, "runtime", None), "_apic_capture", None) is not None
+
+
 class _Recorded:
-    """A recorded ``wp.Launch`` and the arguments it was last given. On the CPU its ctypes
-    argument block is built once and only arguments that changed are packed into it again, then
-    the kernel's entry point is called directly (~0.3 µs; ``Launch.launch`` builds the block on
-    every call, ~4 µs). A struct argument given again is re-copied each launch (it may have been
-    changed in place). Without the Warp internals this needs, ``Launch.launch``."""
+    """A recorded ``wp.Launch`` and (weak references to) the arguments it was last given. On the
+    CPU with Warp 1.19 its ctypes argument block is built once and only arguments that changed
+    are packed into it again, then the kernel's entry point is called directly (~0.3 µs;
+    ``Launch.launch`` builds the block on every call, ~4 µs). A struct argument given again is
+    re-copied each launch (it may have been changed in place). The record keeps no argument
+    alive: the launch's own argument list is dropped, and an argument whose object died is
+    packed again. Elsewhere, ``Launch.launch``."""
 
     __slots__ = ("cmd", "last", "block", "names", "structs", "call")
 
     def __init__(self, cmd, args):
-        self.cmd, self.last, self.call = cmd, list(args), None
+        self.cmd, self.last, self.call = cmd, [_held(a) for a in args], None
+        cmd.fwd_args = cmd.adj_args = None  # only a capture reads them (none is active)
         try:
-            if not cmd.device.is_cpu or cmd.adjoint or cmd.block_dim > 1:
+            if not _DIRECT or not cmd.device.is_cpu or cmd.adjoint or cmd.block_dim > 1:
                 return
             params = cmd.params
             self.names = [a.label for a in cmd.kernel.adj.args]
@@ -95,15 +135,15 @@ class _Recorded:
             forward, bounds, block = cmd.hooks.forward, ctypes.byref(params[0]), \
                 ctypes.byref(self.block)
             self.call = lambda: forward(bounds, block)
-        except (AttributeError, TypeError):  # another Warp: its own launch
+        except (AttributeError, TypeError):  # internals moved: its own launch
             self.call = None
 
     def launch(self, args):
         cmd, last, call = self.cmd, self.last, self.call
         for i, a in enumerate(args):
-            if a is not last[i]:
+            if a is not last[i]():
                 cmd.set_param_at_index(i, a)
-                last[i] = a
+                last[i] = _held(a)
                 if call is not None:
                     setattr(self.block, self.names[i], cmd.params[1 + i])
         if call is None:
@@ -118,12 +158,12 @@ def _replay(kernel, dim, args, device):
     """One ``wp.launch`` of ``kernel`` on ``dim`` with ``args`` (inputs then outputs), replayed
     from a recorded launch of the same kernel, grid and device (per thread, :class:`_Recorded`):
     a few µs instead of ~40 µs of argument packing, which dominates small calls. Grids above
-    :data:`_RECORDED_GRID` threads launch directly (a recorded launch keeps its arrays alive
-    until it is replaced)."""
+    :data:`_RECORDED_GRID` threads (the packing is noise there) and launches during a graph
+    capture go through ``wp.launch``."""
     size = 1
     for d in dim:
         size *= d
-    if size > _RECORDED_GRID:
+    if size > _RECORDED_GRID or _capturing():
         wp.launch(kernel, dim=dim, inputs=args, device=device)
         return
     cache = getattr(_recorded, "launches", None)

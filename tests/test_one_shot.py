@@ -341,6 +341,32 @@ def test_recorded_launch_repacks_changed_arrays_and_mutated_structs():
         np.testing.assert_array_equal(other.numpy(), want)
 
 
+def test_recorded_launch_keeps_no_array_alive_and_repacks_a_new_one():
+    """A replayed launch holds its arguments weakly: arrays the caller drops are freed (a long
+    Dask worker must not keep the last call's buffers), and a new array at a reused address is
+    packed again, giving the right result."""
+    import gc
+    import weakref
+
+    from dqskin.kernels import grid
+
+    @wp.kernel
+    def add_one(src: wp.array(dtype=float), row_offset: int, out: wp.array(dtype=float)):
+        i = wp.tid() + row_offset
+        out[i] = src[i] + 1.0
+
+    refs = []
+    for step in range(3):
+        src = wp.array(np.full(16, float(step), np.float32), dtype=float, device="cpu")
+        out = wp.zeros(16, dtype=float, device="cpu")
+        grid.launch_rows(add_one, 16, [src], [out], "cpu")
+        np.testing.assert_array_equal(out.numpy(), np.full(16, step + 1.0, np.float32))
+        refs += [weakref.ref(src), weakref.ref(out)]
+        del src, out
+        gc.collect()
+        assert all(r() is None for r in refs), f"step {step}: a launch kept an array alive"
+
+
 def test_large_inputs_checked_on_two_threads_report_errors_in_order():
     """Above the size where points, indices and weights are checked on two threads, the errors
     are those of the one-thread order: points first, then indices, then weights."""
