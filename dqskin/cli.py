@@ -150,22 +150,31 @@ def cmd_skin(args):
     if args.cor_exact and (args.workers is not None or args.scheduler or args.resume):
         raise ValueError("--cor-exact cannot be combined with --workers, --scheduler or --resume "
                          "(clip workers compute the centers with the defaults)")
-    if args.workers is not None and not args.scheduler and output_kind(args.out) == "usd":
+    prestart = (args.workers is not None and not args.scheduler and output_kind(args.out) == "usd"
+                # else bake refuses the arguments: no worker would be forked
+                and args.workers >= 1 and args.clips is not False
+                and (args.chunk is None or args.chunk >= 1))
+    if prestart:
         from .distributed import prestart_workers
         prestart_workers()  # the workers' imports overlap loading INPUT
-    _checkpoint()
-    with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
-        scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
-        if args.cor_exact:
-            scene.cor_options = {"cluster": None}
+    try:
         _checkpoint()
-        times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
-                             args.substeps, max_frames=args.max_frames)
-        print(bake(scene, args.out, times, method=args.method, interp=args.interp,
-                   device=args.device, chunk=args.chunk, normals=args.normals,
-                   velocities=args.velocities, force=args.force, progress=True,
-                   clips=args.clips, workers=args.workers, scheduler=args.scheduler,
-                   resume=args.resume, sign_reference=args.sign_reference, inputs=inputs))
+        with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
+            scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
+            if args.cor_exact:
+                scene.cor_options = {"cluster": None}
+            _checkpoint()
+            times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
+                                 args.substeps, max_frames=args.max_frames)
+            print(bake(scene, args.out, times, method=args.method, interp=args.interp,
+                       device=args.device, chunk=args.chunk, normals=args.normals,
+                       velocities=args.velocities, force=args.force, progress=True,
+                       clips=args.clips, workers=args.workers, scheduler=args.scheduler,
+                       resume=args.resume, sign_reference=args.sign_reference, inputs=inputs))
+    finally:
+        if prestart:  # not reached by the bake (INPUT failed to load, ...): no process outlives it
+            from .distributed import stop_workers
+            stop_workers()
     return 0
 
 

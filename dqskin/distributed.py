@@ -32,12 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .formats import usd_clips
+from .formats import atomic, usd_clips
 from .formats.usd_cache import SampleWriter, frame_bytes
 from .validation import check_skinned
 
 __all__ = ["ChunkJob", "bake_clips", "prestart_workers", "run_chunk", "run_here",
-           "worker_threads"]
+           "stop_workers", "worker_threads"]
 
 SUBCHUNK = 32
 """Fewest frames a task skins at a time (the clip layer holds its whole chunk until written)."""
@@ -156,7 +156,8 @@ def prestart_workers() -> None:
     """Start the forkserver that the worker processes of a LocalCluster bake (``workers=N``) are
     forked from now, in the background, so that its imports (:data:`_PRELOAD`, 2-3 CPU-seconds)
     overlap the caller's own work, typically loading the asset (``dqskin skin --workers`` calls
-    it first). The bake stops it; else it ends with this process. No-op if it is running.
+    it first). The bake stops it (:func:`stop_workers`); else it ends with this process. No-op
+    if it is running (one started before dqskin touched it is then left running, never stopped).
 
     Like each Dask nanny before it starts a worker, it first sets the variables of
     ``distributed.nanny.pre-spawn-environ`` (one BLAS/OpenMP thread) that are not set yet in
@@ -168,23 +169,49 @@ def prestart_workers() -> None:
     with dask.config.set(config):
         env = dask.config.get("distributed.nanny.pre-spawn-environ")
     os.environ.update({k: str(v) for k, v in env.items() if v is not None and k not in os.environ})
-    multiprocessing.forkserver.ensure_running()
+    with _owning_forkserver():
+        multiprocessing.forkserver.ensure_running()
 
 
-def _stop_forkserver():
-    """Stop the forkserver once its workers are gone, so that no process outlives the bake (and
-    its CPU time, its workers' included, is reaped into this process's). It is killed first: it
-    holds nothing to save, and its orderly exit (tearing down USD, Warp and Dask) took 0.7-1.4 s
-    of every bake. ``_stop`` is multiprocessing's own (Python 3.10+), skipped when absent."""
+_own_forkservers = set()
+"""Pids of the forkservers dqskin started (:func:`prestart_workers`, a LocalCluster bake): the
+only ones :func:`stop_workers` stops. multiprocessing has one forkserver per process, shared with
+whatever else in it uses the ``forkserver`` start method."""
+
+
+def _forkserver_pid():
+    import multiprocessing.forkserver as fs
+    return getattr(getattr(fs, "_forkserver", None), "_forkserver_pid", None)
+
+
+@contextlib.contextmanager
+def _owning_forkserver():
+    """Count a forkserver started inside the block as dqskin's (not one running before it)."""
+    before = _forkserver_pid()
+    try:
+        yield
+    finally:
+        pid = _forkserver_pid()
+        if pid is not None and pid != before:
+            _own_forkservers.add(pid)
+
+
+def stop_workers() -> None:
+    """Stop the forkserver dqskin started (:func:`prestart_workers`, a LocalCluster bake), once
+    its workers are gone, so that no process outlives the bake (and its CPU time, its workers'
+    included, is reaped into this process's); one started by anything else is left running.
+    It is killed first: it holds nothing to save, and its orderly exit (tearing down USD, Warp and
+    Dask) took 0.7-1.4 s of every bake. ``_stop`` is multiprocessing's own (Python 3.10+),
+    skipped when absent."""
     import multiprocessing.forkserver as fs
     server = getattr(fs, "_forkserver", None)
     stop = getattr(server, "_stop", None)
-    if stop is None:
+    pid = _forkserver_pid()
+    if stop is None or pid not in _own_forkservers:
         return
-    pid = getattr(server, "_forkserver_pid", None)
-    if pid is not None:
-        with contextlib.suppress(OSError):
-            os.kill(pid, signal.SIGKILL)
+    _own_forkservers.discard(pid)
+    with contextlib.suppress(OSError):
+        os.kill(pid, signal.SIGKILL)
     stop()  # closes its pipe and reaps it
 
 
@@ -256,7 +283,11 @@ def run_here(jobs: list, scene, done) -> None:
     frames keeps skinning (the first piece of chunk ``k + 1`` while chunk ``k``'s layer is
     exported), and chunk ``k``'s layer is hashed on another thread while chunk ``k + 1``'s is
     filled, then recorded and renamed (:func:`~.formats.usd_clips.commit_clip`) before that one
-    is exported. Memory is as :func:`run_chunk`'s: one clip layer and two pieces."""
+    is exported. Memory is as :func:`run_chunk`'s: one clip layer and two pieces.
+
+    On an error or interrupt while chunk ``k + 1`` is filled, chunk ``k`` is still recorded and
+    renamed if its hash finished without error (as the one-by-one bake would have had it), then
+    the error raised; nothing else is left under a final name."""
     if not jobs:
         return
     size = _piece_frames(scene, jobs[0].skin)
@@ -273,24 +304,63 @@ def run_here(jobs: list, scene, done) -> None:
                 writer.write_chunks(layer, (next(stream)[1] for _ in p),
                                     lambda r: check_skinned(scene.path, r))
                 if pending is not None:
-                    done(_commit(*pending))
-                pending = None
+                    finished, pending = pending, None
+                    done(_commit(*finished))
                 claim = usd_clips.export_clip(layer, job.path, job.times)
                 del layer
                 pending = (job, claim, hasher.submit(usd_clips.sha256_file, claim.tmp), t0)
                 t0 = time.perf_counter()
             if pending is not None:
-                done(_commit(*pending))
-            pending = None
+                finished, pending = pending, None
+                done(_commit(*finished))
+        except BaseException:
+            if pending is not None:
+                finished, pending = pending, None
+                _commit_on_error(*finished)
+            raise
         finally:
             stream.close()
-            if pending is not None:
-                wait([pending[2]])
-                pending[1].discard()
 
 
 def _commit(job, claim, digest, t0):
-    return _result(job, usd_clips.commit_clip(claim, job.key, job.times, digest.result()), t0)
+    """Record and rename the exported layer in ``claim`` (removed if its hash failed)."""
+    try:
+        sha = digest.result()
+    except BaseException:
+        claim.discard()
+        raise
+    return _result(job, usd_clips.commit_clip(claim, job.key, job.times, sha), t0)
+
+
+def _commit_on_error(job, claim, digest, t0):
+    """:func:`_commit`, while :func:`run_here` is failing: an error of its own is dropped (the
+    failure being raised matters), the layer then removed. An interrupt the CLI recorded
+    (:func:`~.formats.atomic.interrupt`; nothing commits after one) is set aside for this one
+    complete, hashed file and raised again at the end."""
+    try:
+        wait([digest])
+        hashed = digest.exception() is None
+    except BaseException:  # a second interrupt while waiting
+        claim.discard()
+        raise
+    if not hashed:
+        claim.discard()
+        return
+    try:
+        atomic.check_interrupted()
+    except BaseException as exc:
+        recorded = exc
+    else:
+        recorded = None
+    with atomic.critical():  # a recorded interrupt is raised at the end of this block
+        atomic.reset_interrupt()
+        try:
+            _commit(job, claim, digest, t0)
+        except Exception:
+            pass  # commit_clip removed the layer
+        finally:
+            if recorded is not None:
+                atomic.interrupt(recorded)
 
 
 def bake_clips(scene, out, times, *, chunk, method=None, interp="trs", device=None,
@@ -378,10 +448,12 @@ def _dask(workers, scheduler, threads=None):
             threads = str(max(1, int(threads or (os.cpu_count() or 1) // int(workers))))
             # for the cluster's lifetime: a restarted worker is forked from the same server
             stack.enter_context(dask.config.set(_forkserver_context()))
-            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                                   host="127.0.0.1", dashboard_address=None,
-                                   silence_logs=logging.ERROR,
-                                   env=dict(PXR_WORK_THREAD_LIMIT=threads, DQSKIN_THREADS=threads))
+            with _owning_forkserver():  # its first worker starts it, unless running
+                cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
+                                       processes=True, host="127.0.0.1", dashboard_address=None,
+                                       silence_logs=logging.ERROR,
+                                       env=dict(PXR_WORK_THREAD_LIMIT=threads,
+                                                DQSKIN_THREADS=threads))
             client = Client(cluster)
         client.register_plugin(_worker_plugin())
         yield client
@@ -391,7 +463,7 @@ def _dask(workers, scheduler, threads=None):
         if cluster is not None:
             cluster.close()
         if not scheduler:  # started by the cluster or by prestart_workers
-            _stop_forkserver()
+            stop_workers()
         stack.close()
 
 

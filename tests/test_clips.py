@@ -344,3 +344,57 @@ def test_skin_chunks_of_given_sizes_cover_the_frames_in_order(humanoid):
     for bad in ([3, 1], [4, 0, 5], []):
         with pytest.raises(ValueError, match="add up to 9 frames"):
             list(scene.skin_chunks(t, bad))
+
+
+@pytest.mark.parametrize("failure", ["check", "interrupt", "hash"])
+def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_path, monkeypatch,
+                                                                 failure):
+    """In-process bake, chunk 1 fails while being filled (a failed check, or Ctrl-C as the CLI
+    records it, raised in the main thread): chunk 0, exported and hashed meanwhile, is recorded
+    and renamed, as the one-by-one bake had it; ``--resume`` keeps it. When chunk 0's hash failed
+    too, it is not kept. Never a temporary file left, nor chunk 1."""
+    import dqskin.distributed as distributed
+    from dqskin.formats import atomic, usd_clips
+    scene = humanoid["scene"]
+    shot = tmp_path / "shot.usd"
+    calls = []
+    if failure == "interrupt":
+        pieces = scene.skin_chunks
+
+        def skin_chunks(*args, **kwargs):
+            for i, item in enumerate(pieces(*args, **kwargs)):
+                if i == 1:  # the first piece of chunk 1 (one piece a chunk here)
+                    atomic.interrupt(KeyboardInterrupt())
+                yield item
+        monkeypatch.setattr(scene, "skin_chunks", skin_chunks)
+    else:
+        check = distributed.check_skinned
+
+        def failing_check(path, res):
+            calls.append(path)
+            if len(calls) == 2:
+                raise ValueError("NaN in chunk 1")
+            return check(path, res)
+        monkeypatch.setattr(distributed, "check_skinned", failing_check)
+    if failure == "hash":
+        def failing_hash(path):
+            raise OSError("cannot read")
+        monkeypatch.setattr(usd_clips, "sha256_file", failing_hash)
+    try:
+        with pytest.raises(KeyboardInterrupt if failure == "interrupt" else ValueError):
+            bake(scene, shot, chunk=CHUNK, clips=True)
+    finally:
+        atomic.reset_interrupt()
+    folder = clips_folder(shot)
+    assert not [p.name for p in folder.iterdir() if p.name.startswith(".")]
+    assert not (folder / "chunk_00001.usdc").exists()
+    layer, record = folder / "chunk_00000.usdc", folder / "chunk_00000.json"
+    if failure == "hash":
+        assert not layer.exists()
+        return
+    assert verify_chunk(layer, json.loads(record.read_text())["plan"])
+    monkeypatch.undo()
+    assert "1 kept from the earlier run" in bake(scene, shot, chunk=CHUNK, resume=True)
+    names = [m.name for m in scene.meshes]
+    assert_same_animation(Usd.Stage.Open(str(humanoid["single"])), Usd.Stage.Open(str(shot)),
+                          names, scene.times)

@@ -168,3 +168,54 @@ def test_a_worker_killed_mid_chunk_is_replaced_and_the_bake_completes(reference,
             client.unregister_worker_plugin(KillOnceMidChunk.name)
     assert "as 7 clips" in summary
     check(reference, shot)
+
+
+def _forkserver_pid():
+    import multiprocessing.forkserver
+    return getattr(multiprocessing.forkserver._forkserver, "_forkserver_pid", None)
+
+
+@pytest.mark.parametrize("args", [["--workers", "0"], ["--workers", "2", "--no-clips"],
+                                  ["--workers", "2", "--chunk", "0"]])
+def test_refused_worker_arguments_start_no_forkserver(tmp_path, monkeypatch, capsys, args):
+    """``--workers`` arguments the bake refuses fail before any worker process is prepared."""
+    import dqskin.distributed as distributed
+    from dqskin.cli import main
+    started = []
+    monkeypatch.setattr(distributed, "prestart_workers", lambda: started.append(1))
+    assert main(["skin", str(HUMANOID), "--out", str(tmp_path / "shot.usd"), *args]) != 0
+    assert "dqskin:" in capsys.readouterr().err
+    assert started == [] and _forkserver_pid() is None
+
+
+def test_forkserver_stopped_when_the_input_fails_to_load(tmp_path, monkeypatch, capsys):
+    """The CLI's prestarted forkserver (preloading only NumPy here) is stopped when the bake is
+    never reached."""
+    import dqskin.distributed as distributed
+    from dqskin.cli import main
+    monkeypatch.setattr(distributed, "_PRELOAD", ["numpy"])
+    bad = tmp_path / "bad.usda"
+    bad.write_text("#usda 1.0\n(\n")
+    assert main(["skin", str(bad), "--out", str(tmp_path / "shot.usd"), "--workers", "2"]) != 0
+    assert "bad.usda" in capsys.readouterr().err
+    assert _forkserver_pid() is None
+
+
+def test_a_forkserver_running_before_dqskin_is_left_running():
+    """multiprocessing's one forkserver, started by someone else: prestart_workers uses it and
+    the bake's clean-up (stop_workers) does not stop it."""
+    import multiprocessing
+    import multiprocessing.forkserver
+
+    from dqskin.distributed import prestart_workers, stop_workers
+    assert _forkserver_pid() is None
+    multiprocessing.get_context("forkserver").set_forkserver_preload([])
+    multiprocessing.forkserver.ensure_running()
+    pid = _forkserver_pid()
+    try:
+        prestart_workers()
+        stop_workers()
+        assert _forkserver_pid() == pid
+        os.kill(pid, 0)  # alive
+    finally:
+        multiprocessing.forkserver._forkserver._stop()
