@@ -209,9 +209,11 @@ def _forward_kinematics_kernel(trs, name):
             else:
                 m = poses.matrices[i]
                 q, t, rigid = split_matrix(m)
-            # q is the rotation times a positive factor (up to 4 from a matrix): normalized
-            # before the product, so a translation near the float32 limit cannot overflow ½·t·q
-            q = q * (1.0 / wp.sqrt(wp.dot(q, q)))
+            # q is the rotation times a positive factor (up to 4 from a matrix): scaled by ¼
+            # (exact) so ½·t·q cannot overflow for any float32 t, and normalized after the
+            # product, so the square root and division run beside it rather than before it
+            q = q * 0.25
+            n = 1.0 / wp.sqrt(wp.dot(q, q))
             eta = vec8()
             p = parents[j]
             k = -1
@@ -224,6 +226,7 @@ def _forward_kinematics_kernel(trs, name):
                     eta = dq_from_rt(q, t)
             else:
                 eta = dq_from_rt(q, t)
+            eta = eta * n
             if rigid and k < 0:
                 world_dqs[i] = eta
                 world_rigid[i] = wp.uint8(1)
@@ -234,8 +237,8 @@ def _forward_kinematics_kernel(trs, name):
                     if wp.static(trs):
                         res = wp.diag(poses.scales[i])
                     else:
-                        res = local_residual(m, q)
-                store_general(i, k, q, t, res, eta, world, world_dqs, world_residuals,
+                        res = local_residual(m, q * n)
+                store_general(i, k, q * n, t, res, eta, world, world_dqs, world_residuals,
                               world_rigid)
 
     kernel.__doc__ = (f"FK over (frame, skeleton) rows from local {'TRS' if trs else 'matrices'}.")
