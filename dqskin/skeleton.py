@@ -321,15 +321,23 @@ def _trs_arrays(pose, J, joint_names=None):
     return (tr, rot, sc), batch
 
 
-def _matrix_array(local_transforms, J, joint_names=None):
-    """Checked float32 contiguous (..., J, 4, 4) local matrices (the input itself when it is
-    one), and their batch shape."""
+def _matrix_array(local_transforms, J):
+    """float32 contiguous (..., J, 4, 4) local matrices (the input itself when it is one), their
+    batch shape, and the input as an array. Not checked for finite values: the FK kernel flags
+    them (:func:`_check_matrices_after`), which saves a host pass over every pose."""
     loc = as_real("local_transforms", local_transforms)
     if loc.ndim < 3 or loc.shape[-3:] != (J, 4, 4):
         raise ValueError(f"local_transforms: expected (..., {J}, 4, 4), got {loc.shape}")
-    batch = loc.shape[:-3]
-    check_finite("local_transforms", loc, len(batch), joint_names)
-    return np.ascontiguousarray(loc, np.float32), batch
+    with np.errstate(over="ignore"):  # beyond float32 becomes inf: flagged by the kernel
+        return np.ascontiguousarray(loc, np.float32), loc.shape[:-3], loc
+
+
+def _check_matrices_after(out, loc, batch, joint_names=None):
+    """Raise the host check's ValueError (naming the frame and joint) when the FK kernel
+    flagged a non-finite local matrix (NaN, inf, or a float64 value beyond float32)."""
+    if out.invalid.numpy()[0]:
+        check_finite("local_transforms", loc, len(batch), joint_names)
+        raise ValueError("local_transforms: NaN or infinite values")  # (not reached)
 
 
 def _device_array(a, dtype, device):
@@ -342,15 +350,16 @@ def _device_array(a, dtype, device):
 def _local_arrays(local_transforms, J, device, joint_names=None):
     """Check local poses and put them on the device, flat (B·J,): (..., J, 4, 4) matrices, or a
     (translations, rotations, scales) tuple of (..., J, 3), (..., J, 4) ``(w, x, y, z)``,
-    (..., J, 3) or None. Returns (arrays, batch). Every value is checked on the host first
-    (finite, within float32, non-zero quaternions): ValueError naming the argument, frame and
-    joint."""
+    (..., J, 3) or None. Returns (arrays, batch, matrices): TRS values are checked on the host
+    (finite, within float32, non-zero quaternions: ValueError naming the argument, frame and
+    joint); ``matrices``, the given matrices (None for TRS), are checked after the launch by
+    :func:`_check_matrices_after`."""
     if isinstance(local_transforms, (tuple, list)):
         host, batch = _trs_arrays(local_transforms, J, joint_names)
         return tuple(_device_array(a, t, device)
-                     for a, t in zip(host, (wp.vec3, wp.vec4, wp.vec3))), batch
-    loc, batch = _matrix_array(local_transforms, J, joint_names)
-    return _device_array(loc, wp.mat44, device), batch
+                     for a, t in zip(host, (wp.vec3, wp.vec4, wp.vec3))), batch, None
+    loc, batch, given = _matrix_array(local_transforms, J)
+    return _device_array(loc, wp.mat44, device), batch, given
 
 
 def _forward_kinematics(parents, local_transforms, device, joint_names=None):
@@ -361,12 +370,14 @@ def _forward_kinematics(parents, local_transforms, device, joint_names=None):
     if J == 0:
         raise ValueError("parents: no joints")
     d = device
-    local, batch = _local_arrays(local_transforms, J, d, joint_names)
+    local, batch, given = _local_arrays(local_transforms, J, d, joint_names)
     B = int(np.prod(batch, dtype=np.int64))
     out = FK.world_poses(B * J, d)
     par_w = wp.array(par, dtype=wp.int32, device=d)
     start = wp.array(np.array([0, J], np.int32), dtype=wp.int32, device=d)
     FK.forward_kinematics(parents=par_w, skeleton_start=start, local=local, out=out, device=d)
+    if given is not None:
+        _check_matrices_after(out, given, batch, joint_names)
     return out, batch + (J,)
 
 

@@ -194,12 +194,14 @@ def _forward_kinematics_kernel(trs, name):
         world_dqs: wp.array(dtype=vec8),
         world_residuals: wp.array(dtype=wp.mat33),
         world_rigid: wp.array(dtype=wp.uint8),
+        invalid: wp.array(dtype=wp.int32),
     ):
         r = wp.tid() + row_offset  # one row per (frame, skeleton), frame-major
         skeletons = skeleton_start.shape[0] - 1
         f = r // skeletons
         s = r - f * skeletons
         base = f * skeleton_start[skeletons]
+        bad = float(0.0)  # stays 0 unless a local matrix has a NaN or inf
         for j in range(skeleton_start[s], skeleton_start[s + 1]):
             i = base + j
             t = wp.vec3()
@@ -208,6 +210,8 @@ def _forward_kinematics_kernel(trs, name):
                 q, rigid = split_trs(poses.rotations[i], poses.scales[i])
             else:
                 m = poses.matrices[i]
+                z = m * 0.0  # 0 where finite, NaN at NaN/inf (also float64 beyond float32)
+                bad += wp.ddot(z, z)
                 q, t, rigid = split_matrix(m)
             # q is the rotation times a positive factor (up to 4 from a matrix): scaled by ¼
             # (exact) so ½·t·q cannot overflow for any float32 t, and normalized after the
@@ -240,6 +244,8 @@ def _forward_kinematics_kernel(trs, name):
                         res = local_residual(m, q * n)
                 store_general(i, k, q * n, t, res, eta, world, world_dqs, world_residuals,
                               world_rigid)
+        if bad != 0.0:  # one store per row, none in the joint loop
+            invalid[0] = 1
 
     kernel.__doc__ = (f"FK over (frame, skeleton) rows from local {'TRS' if trs else 'matrices'}.")
     return wp.kernel(kernel, name=name)
@@ -265,15 +271,18 @@ class WorldPoses:
     """FK outputs, flat (F·J,) (frame-major) device arrays: world ``matrices`` (``wp.mat44``),
     the rigid part ``dqs`` (``vec8``), and the scale/shear ``residuals`` (``wp.mat33``,
     ``matrix = [R·S | t]``), written only where ``rigid`` (``uint8``) is 0 (1: the residual is the
-    identity)."""
+    identity); ``invalid`` (1,) ``int32`` flags a non-finite local matrix."""
 
-    __slots__ = ("matrices", "dqs", "residuals", "rigid")
+    __slots__ = ("matrices", "dqs", "residuals", "rigid", "invalid")
 
     def __init__(self, count, device):
         self.matrices = wp.empty(count, dtype=wp.mat44, device=device)
         self.dqs = wp.empty(count, dtype=vec8, device=device)
         self.residuals = wp.empty(count, dtype=wp.mat33, device=device)
         self.rigid = wp.empty(count, dtype=wp.uint8, device=device)
+        self.invalid = wp.zeros(1, dtype=wp.int32, device=device)
+        """(1,) set to 1 when a local matrix is not finite (NaN, inf): the caller's host check
+        can then run only when needed, to name the frame and joint."""
 
 
 def world_poses(count, device):
@@ -296,7 +305,7 @@ def forward_kinematics(*, parents, skeleton_start, local, out, device):
     skeletons = skeleton_start.shape[0] - 1
     frames = (local[0] if trs else local).shape[0] // max(parents.shape[0], 1)
     launch_rows(kernel, frames * skeletons, [parents, skeleton_start, poses],
-                [out.matrices, out.dqs, out.residuals, out.rigid], device,
+                [out.matrices, out.dqs, out.residuals, out.rigid, out.invalid], device,
                 min_chunk=64)
 
 
