@@ -22,8 +22,8 @@ from .scene import Scene
 from .skinning import Method, SignReference
 from .validation import check_skinned
 
-__all__ = ["CHUNK", "CLIP_CHUNK", "CLIPS_AUTO_BYTES", "OUTPUT_SUFFIXES", "bake", "check_output",
-           "output_kind", "sample_bytes"]
+__all__ = ["CHUNK", "CLIP_CHUNK", "CLIPS_AUTO_BYTES", "OUTPUT_SUFFIXES", "bake",
+           "check_clip_arguments", "check_output", "output_kind", "sample_bytes"]
 
 OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXES
 """Suffixes :func:`bake` writes (mesh files take a per-frame pattern like ``f_{:04d}.obj``)."""
@@ -75,6 +75,23 @@ def check_output(out: str | Path, inputs: list, force: bool) -> Path:
 
 def _plural(n, word, plural=None):
     return f"{n} {word if n == 1 else plural or word + 's'}"
+
+
+def check_clip_arguments(out, *, chunk=None, clips=None, workers=None, scheduler=None,
+                         resume=False):
+    """Raise ValueError, naming the option, for settings :func:`bake` refuses: a chunk or
+    worker count below 1, clips or their options (``workers``, ``scheduler``, ``resume``) with a
+    non-USD ``out``, those options with ``clips=False``."""
+    if chunk is not None and int(chunk) < 1:
+        raise ValueError(f"--chunk {chunk}: must be at least 1")
+    asked = workers is not None or bool(scheduler) or resume
+    if output_kind(out) != "usd" and (clips or asked):
+        raise ValueError(f"--out {out}: value clips, --workers, --scheduler and --resume are for "
+                         "USD caches (.usd/.usdc/.usda)")
+    if workers is not None and int(workers) < 1:
+        raise ValueError(f"--workers {workers}: must be at least 1")
+    if clips is False and asked:
+        raise ValueError("--workers, --scheduler and --resume need value clips (not --no-clips)")
 
 
 def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None = None, *,
@@ -152,16 +169,9 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         scene = load(scene)
     t = scene.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
     kind = output_kind(out)
-    if chunk is not None and int(chunk) < 1:
-        raise ValueError(f"--chunk {chunk}: must be at least 1")
+    check_clip_arguments(out, chunk=chunk, clips=clips, workers=workers, scheduler=scheduler,
+                         resume=resume)
     asked = workers is not None or bool(scheduler) or resume
-    if kind != "usd" and (clips or asked):
-        raise ValueError(f"--out {out}: value clips, --workers, --scheduler and --resume are for "
-                         "USD caches (.usd/.usdc/.usda)")
-    if workers is not None and int(workers) < 1:
-        raise ValueError(f"--workers {workers}: must be at least 1")
-    if clips is False and asked:
-        raise ValueError("--workers, --scheduler and --resume need value clips (not --no-clips)")
     if clips is None and kind == "usd":
         clips = asked or sample_bytes(scene, len(t), normals, velocities) > CLIPS_AUTO_BYTES
     names = [m.name for m in scene.meshes]

@@ -135,7 +135,7 @@ def _clip(text):
 def cmd_skin(args):
     import tempfile
 
-    from .baking import bake, check_output, output_kind
+    from .baking import bake, check_clip_arguments, check_output, output_kind
     from .times import select_times
     output_kind(args.out)
     inputs = _inputs(args)
@@ -150,10 +150,13 @@ def cmd_skin(args):
     if args.cor_exact and (args.workers is not None or args.scheduler or args.resume):
         raise ValueError("--cor-exact cannot be combined with --workers, --scheduler or --resume "
                          "(clip workers compute the centers with the defaults)")
-    prestart = (args.workers is not None and not args.scheduler and output_kind(args.out) == "usd"
-                # else bake refuses the arguments: no worker would be forked
-                and args.workers >= 1 and args.clips is not False
-                and (args.chunk is None or args.chunk >= 1))
+    prestart = args.workers is not None and not args.scheduler
+    if prestart:
+        try:  # arguments bake refuses fork no worker (it raises them after loading INPUT)
+            check_clip_arguments(args.out, chunk=args.chunk, clips=args.clips,
+                                 workers=args.workers, resume=args.resume)
+        except ValueError:
+            prestart = False
     if prestart:
         from .distributed import prestart_workers
         prestart_workers()  # the workers' imports overlap loading INPUT
