@@ -53,7 +53,8 @@ _warm_lock = threading.Lock()
 
 
 def _launch(kernel, dim, args, device):
-    """:func:`_replay`, but the first launch of a kernel on a device holds a lock: Warp's
+    """Replay this thread's recorded launch of ``kernel`` on ``dim`` and ``device``, else
+    :func:`_record` one; the first launch of a kernel on a device holds a lock: Warp's
     ``Module.load`` is not thread-safe, and two pool threads loading one module at once can
     unload the library the other is running (an intermittent segfault). A launch this thread
     recorded (its module loaded) is replayed straight away."""
@@ -69,10 +70,10 @@ def _launch(kernel, dim, args, device):
         return
     key = (kernel, name)
     if key in _warm:
-        _replay(kernel, dim, args, device)
+        _record(kernel, dim, args, device)
         return
     with _warm_lock:
-        _replay(kernel, dim, args, device)
+        _record(kernel, dim, args, device)
         _warm.add(key)
 
 
@@ -154,12 +155,12 @@ class _Recorded:
         call()
 
 
-def _replay(kernel, dim, args, device):
-    """One ``wp.launch`` of ``kernel`` on ``dim`` with ``args`` (inputs then outputs), replayed
-    from a recorded launch of the same kernel, grid and device (per thread, :class:`_Recorded`):
-    a few µs instead of ~40 µs of argument packing, which dominates small calls. Grids above
-    :data:`_RECORDED_GRID` threads (the packing is noise there) and launches during a graph
-    capture go through ``wp.launch``."""
+def _record(kernel, dim, args, device):
+    """One ``wp.launch`` of ``kernel`` on ``dim`` with ``args`` (inputs then outputs), recorded
+    for this thread (:class:`_Recorded`) so that :func:`_launch` replays the next one of the same
+    kernel, grid and device in a few µs instead of ~40 µs of argument packing, which dominates
+    small calls. Grids above :data:`_RECORDED_GRID` threads (the packing is noise there) and
+    launches during a graph capture go through ``wp.launch`` unrecorded."""
     size = 1
     for d in dim:
         size *= d
@@ -169,17 +170,11 @@ def _replay(kernel, dim, args, device):
     cache = getattr(_recorded, "launches", None)
     if cache is None:
         cache = _recorded.launches = {}
-    key = (kernel, dim, str(device))
-    hit = cache.pop(key, None)
-    if hit is None:
-        if len(cache) >= _RECORDED_MAX:
-            cache.pop(next(iter(cache)))  # oldest first
-        hit = _Recorded(wp.launch(kernel, dim=dim, inputs=args, device=device, record_cmd=True),
-                        args)
-        hit.cmd.launch()
-    else:
-        hit.launch(args)
-    cache[key] = hit  # most recent last
+    if len(cache) >= _RECORDED_MAX:
+        cache.pop(next(iter(cache)))  # oldest first
+    hit = _Recorded(wp.launch(kernel, dim=dim, inputs=args, device=device, record_cmd=True), args)
+    hit.cmd.launch()
+    cache[(kernel, dim, str(device))] = hit  # most recent last
 
 
 def _get_pool():
