@@ -78,9 +78,10 @@ POINT_FRAME_BLOCK = wp.constant(FRAME_BLOCK)
 """Frames a point-kernel thread skins (one vertex, :data:`~dqskin.kernels.grid.FRAME_BLOCK`)."""
 
 
-@wp.struct
 class Influences:
     """A mesh's influences in the kernels' layout (see the module docstring)."""
+
+    __slots__ = ("indices", "weights", "blend", "centers", "running_sum", "unsorted")
 
     indices: wp.array2d(dtype=wp.vec4i)
     """(V, C) joint indices, four per group, largest weight first."""
@@ -99,9 +100,10 @@ class Influences:
     ``running_sum = 0`` is searched per vertex (:func:`flat_pivot`)."""
 
 
-@wp.struct
 class Joints:
     """Per (frame, joint) data of the skinning transforms, from :func:`prepare_points_kernel`."""
+
+    __slots__ = ("affines", "dqs", "residuals", "has_residual")
 
     affines: wp.array2d(dtype=mat34)
     """(F, J) top rows of the 4×4 transforms (LBS)."""
@@ -523,7 +525,7 @@ def transform_frames_kernel(
 
 
 def influences(*, indices, weights, blend, centers, running_sum=False, unsorted=False):
-    """The :class:`Influences` struct of a mesh's device arrays."""
+    """The :class:`Influences` of a mesh's device arrays."""
     s = Influences()
     s.indices, s.weights, s.blend, s.centers = indices, weights, blend, centers
     s.running_sum, s.unsorted = int(bool(running_sum)), int(bool(unsorted))
@@ -531,7 +533,7 @@ def influences(*, indices, weights, blend, centers, running_sum=False, unsorted=
 
 
 def joints(*, affines, dqs, residuals, has_residual):
-    """The :class:`Joints` struct of (F, J) work arrays."""
+    """The :class:`Joints` of (F, J) work arrays."""
     s = Joints()
     s.affines, s.dqs, s.residuals, s.has_residual = affines, dqs, residuals, has_residual
     return s
@@ -557,8 +559,9 @@ _flat_views = weakref.WeakKeyDictionary()
 def _flat(a):
     """A 1-D view of contiguous array ``a`` (itself when 1-D), made once per array: a view costs
     ~5 µs, a launch takes up to ten. The view does not own or reference ``a`` (a cached view
-    holding ``a`` would keep it alive); it is only passed to launches together with ``a``'s
-    struct, which does."""
+    holding ``a`` would keep it alive): it is launched only while its caller holds ``a`` (the
+    launches are synchronous), and the cache entry dies with ``a``; recorded launches keep
+    only weak references (:mod:`.grid`)."""
     if a.ndim == 1:
         return a
     view = _flat_views.get(a)

@@ -132,10 +132,11 @@ def dqs_apply_derivative(b: vec8, b_dot: vec8, x: wp.vec3, x_dot: wp.vec3):
     return x_dot + (2.0 / n2) * g_dot - (2.0 * n2_dot / (n2 * n2)) * g
 
 
-@wp.struct
 class JointRates:
     """Time derivatives of a :class:`~dqskin.kernels.skin.Joints`, from
     :func:`prepare_derivatives_kernel`."""
+
+    __slots__ = ("affines", "dqs", "residuals")
 
     affines: wp.array2d(dtype=mat34)
     """(F, J) ``Ȧ`` (top rows)."""
@@ -243,7 +244,7 @@ def velocity_kernel(
 
 
 def joint_rates(*, affines, dqs, residuals):
-    """The :class:`JointRates` struct of (F, J) work arrays."""
+    """The :class:`JointRates` of (F, J) work arrays."""
     r = JointRates()
     r.affines, r.dqs, r.residuals = affines, dqs, residuals
     return r
