@@ -191,9 +191,6 @@ class Skinner:
         self._inf = K.influences(blend=self._blend, centers=self._no_centers,
                                  unsorted=order == "input",
                                  **self._layouts[order])  # the default: UsdSkel's rule
-        # LBS needs no pivot: the same influences without its search
-        self._inf_lbs = self._inf if order != "input" else K.influences(
-            blend=self._blend, centers=self._no_centers, **self._layouts[order])
 
     def rotation_centers(self) -> np.ndarray:
         """(V, 3) float64 centers of rotation of ``method="cor"`` in bind space, NaN for vertices
@@ -215,10 +212,8 @@ class Skinner:
 
     def _influences(self, code, sign_reference):
         """The kernels' :class:`~dqskin.kernels.skin.Influences` for a method code and sign rule."""
-        running = _check_sign_reference(sign_reference) == "running_sum"
-        if code == K.LBS:  # no sign rule, no pivot
-            return self._inf_lbs
-        if not running and code != K.COR:
+        running = _check_sign_reference(sign_reference) == "running_sum" and code != K.LBS
+        if not running and code != K.COR:  # (LBS has no sign rule)
             return self._inf
         order = "input" if running else self._layout_order
         if order not in self._layouts:

@@ -399,7 +399,9 @@ def _skin_points_kernel(method, residual):
         if frame_count == 1:  # one frame: vertex t, no frame loop
             iv = indices[t * g]
             wv = weights[t * g]
-            pivot = flat_pivot(indices, weights, t, g, iv, wv, unsorted)
+            pivot = iv[0]  # LBS has no sign rule: no search
+            if wp.static(method != LBS):
+                pivot = flat_pivot(indices, weights, t, g, iv, wv, unsorted)
             out[t] = skin_frame(points[t], t, 0, 0, iv, wv, pivot, indices, weights, g, blend,
                                 centers, unsorted, running_sum, affines, dqs, residuals,
                                 has_residual, wp.static(method), wp.static(residual))
@@ -408,7 +410,9 @@ def _skin_points_kernel(method, residual):
         v, first, end = frame_rows(t, vertex_count, frame_count)
         iv = indices[v * g]
         wv = weights[v * g]
-        pivot = flat_pivot(indices, weights, v, g, iv, wv, unsorted)
+        pivot = iv[0]  # LBS has no sign rule: no search
+        if wp.static(method != LBS):
+            pivot = flat_pivot(indices, weights, v, g, iv, wv, unsorted)
         for f in range(first, end):
             out[wp.int64(f) * wp.int64(vertex_count) + wp.int64(v)] = skin_frame(
                 points[wp.int64(f) * wp.int64(point_stride) + wp.int64(v)], v, f, f * joint_count,
