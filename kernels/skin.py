@@ -30,12 +30,13 @@ and zero-padded, so slot 0 is the antipodality pivot (the largest weight, first 
 UsdSkel); or, ``unsorted``, in input order with the pivot searched per vertex (a one-shot call
 whose ``(V, 4k)`` int32/float32 arrays are read in place: no layout pass). Per-(frame, joint)
 data is a :class:`Joints` (from :func:`prepare_points`). The kernels read these arrays as flat 1-D
-views (:func:`influence_args`; the blends :func:`gather` and :func:`dq_gather`, which the velocity
-kernels share): one thread per vertex of a single frame, or per (frame block, vertex), a block of
-frames read with the vertex's influences once (:func:`frame_rows`). A 1-D launch over 1-D arrays
-is what Warp compiles with constant strides and an inlined task loop on the CPU (2-D arrays or
-arrays inside structs cost 25-30% on one thread). The point kernels are specialized at compile
-time for the method and rigid frames, and skin a single frame without a frame loop.
+views (:func:`influence_args`; the blends :func:`gather`, :func:`dq_gather` and
+:func:`~.blend.affine_gather`, which the velocity kernels share): one thread per vertex of a
+single frame, or per (frame block, vertex), a block of frames read with the vertex's influences
+once (:func:`frame_rows`). A 1-D launch over 1-D arrays is what Warp compiles with constant
+strides and an inlined task loop on the CPU (2-D arrays or arrays inside structs cost 25-30% on
+one thread). The point kernels are specialized at compile time for the method, rigid frames and
+a single frame (a kernel of its own, with no frame-block code).
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
 """
 
@@ -44,6 +45,7 @@ from typing import Any
 
 import warp as wp
 
+from .blend import affine_gather
 from .dqmath import (
     FACTOR_EPSILON,
     RESIDUAL_TOLERANCE,
@@ -341,7 +343,7 @@ def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pi
     ``method`` and ``residual`` (the frame may have scale/shear) are compile-time constants, so
     only one method's code remains."""
     if method == LBS:
-        return gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(
+        return affine_gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(
             p[0], p[1], p[2], 1.0)
     if method == COR:
         c4 = centers[v]
@@ -351,7 +353,7 @@ def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pi
             if residual:
                 if has_residual[f] != 0:
                     y = gather(residuals, o, indices, weights, v, groups, iv, wv) * y
-            lc = gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(
+            lc = affine_gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(
                 c[0], c[1], c[2], 1.0)
             return dqs_apply(rotation_only(dq_gather(dqs, o, indices, weights, v, groups, iv, wv,
                                                      pivot, unsorted, running_sum)), y) + lc
@@ -363,16 +365,18 @@ def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pi
                             running_sum), x)
     lbs = wp.vec3()
     if method == BLEND:
-        lbs = gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(p[0], p[1], p[2],
-                                                                               1.0)
+        lbs = affine_gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(
+            p[0], p[1], p[2], 1.0)
     return by_method(method, lbs, d, blend, v)
 
 
-def _skin_points_kernel(method, residual):
+def _skin_points_kernel(method, residual, single):
     """The point kernel of one method, specialized at compile time: ``residual=False`` drops the
-    scale/shear code (~18% faster on the CPU for rigid launches). The influence-group count stays
-    a runtime argument: a kernel specialized for ``K <= 4`` measured no faster (one thread, 1M
-    points) and doubled the module's compile time."""
+    scale/shear code (~18% faster on the CPU for rigid launches); ``single`` skins one frame
+    (``frame_count == 1``) with no frame-block code beside it (LBS ~1.2× on one thread, 1M points:
+    the unused frame loop in the same kernel slowed the one-frame path). The influence-group
+    count stays a runtime argument: a kernel specialized for ``K <= 4`` measured no faster (one
+    thread, 1M points) and doubled the module's compile time."""
 
     def kernel(
         points: wp.array(dtype=wp.vec3),
@@ -396,7 +400,7 @@ def _skin_points_kernel(method, residual):
     ):
         t = wp.tid() + row_offset
         g = groups
-        if frame_count == 1:  # one frame: vertex t, no frame loop
+        if wp.static(single):  # one frame: vertex t, no frame loop
             iv = indices[t * g]
             wv = weights[t * g]
             pivot = iv[0]  # LBS has no sign rule: no search
@@ -420,18 +424,21 @@ def _skin_points_kernel(method, residual):
                 dqs, residuals, has_residual, wp.static(method), wp.static(residual))
 
     rigid = "_rigid" if method in (DQS, COR) and not residual else ""
-    name = f"skin_{['lbs', 'dqs', 'blend', 'cor'][method]}{rigid}_kernel"
+    one = "_one_frame" if single else ""
+    name = f"skin_{['lbs', 'dqs', 'blend', 'cor'][method]}{rigid}_kernel{one}"
     kernel.__doc__ = (f"Skin flat ``points`` (Fp·V) bind space, Fp 1 or F, into ``out`` (F·V) "
-                      f"with method {method}; thread ``t``: vertex ``t`` of one frame, or vertex "
-                      f"``t mod V`` of frame block ``t div V``.")
+                      f"with method {method}; thread ``t``: vertex ``t`` of "
+                      + ("the only frame." if single else "frame block ``t div V``, vertex "
+                         "``t mod V``."))
     return wp.kernel(kernel, name=name)
 
 
-SKIN_POINTS_KERNELS = {(m, r): _skin_points_kernel(m, r)
+SKIN_POINTS_KERNELS = {(m, r, one): _skin_points_kernel(m, r, one)
                        for m, r in ((LBS, False), (DQS, True), (DQS, False), (BLEND, True),
-                                    (COR, True), (COR, False))}
-"""The point-skinning kernels by ``(method, residual code)``: LBS needs no residual code, BLEND
-always has it."""
+                                    (COR, True), (COR, False))
+                       for one in (True, False)}
+"""The point-skinning kernels by ``(method, residual code, one frame)``: LBS needs no residual
+code, BLEND always has it."""
 
 
 @wp.func
@@ -611,8 +618,8 @@ def skin_points(*, method, points, influences, joints, rigid, out, device):
     :data:`BLEND`, :data:`COR`). ``rigid`` (no frame has a residual) selects the DQS or COR
     kernel without the residual code."""
     residual = method == BLEND or (method != LBS and not rigid)
-    kernel = SKIN_POINTS_KERNELS[(method, residual)]
     frames, verts = out.shape
+    kernel = SKIN_POINTS_KERNELS[(method, residual, frames == 1)]
     jn = joints
     launch_frames(kernel, verts, frames,
                   [*frame_rows_array(points, verts), *influence_args(influences),

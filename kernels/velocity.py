@@ -23,6 +23,7 @@ skinning) and its derivative ``Rᵀ·Ȧ = [ω]×·S + Ṡ``: the skew part gives
 
 import warp as wp
 
+from .blend import affine_gather
 from .dqmath import (
     FACTOR_EPSILON,
     RESIDUAL_TOLERANCE,
@@ -213,9 +214,9 @@ def velocity_kernel(
         lbs = wp.vec3()
         dqs_v = wp.vec3()
         if method == LBS or method == BLEND:
-            lbs = (gather(affine_rates, o, indices, weights, v, g, iv, wv)
+            lbs = (affine_gather(affine_rates, o, indices, weights, v, g, iv, wv)
                    * wp.vec4(p[0], p[1], p[2], 1.0)
-                   + gather(affines, o, indices, weights, v, g, iv, wv)
+                   + affine_gather(affines, o, indices, weights, v, g, iv, wv)
                    * wp.vec4(pd[0], pd[1], pd[2], 0.0))
         if method != LBS:
             x = p
@@ -231,9 +232,9 @@ def velocity_kernel(
             bd = dq_gather_derivative(dqs, dq_rates, o, indices, weights, v, g, iv, wv, pivot,
                                       running_sum)
             if cor:
-                dqs_v = dqs_apply_derivative(rotation_only(b), rotation_only(bd), x, xd) + gather(
-                    affine_rates, o, indices, weights, v, g, iv, wv) * wp.vec4(c4[0], c4[1],
-                                                                               c4[2], 1.0)
+                dqs_v = dqs_apply_derivative(rotation_only(b), rotation_only(bd), x, xd) + (
+                    affine_gather(affine_rates, o, indices, weights, v, g, iv, wv)
+                    * wp.vec4(c4[0], c4[1], c4[2], 1.0))
             else:
                 dqs_v = dqs_apply_derivative(b, bd, x, xd)
         out[wp.int64(f) * wp.int64(rows) + wp.int64(v)] = by_method(method, lbs, dqs_v, blend, v)

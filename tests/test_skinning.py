@@ -62,12 +62,15 @@ def rel_err(a, b):
     return np.abs(np.asarray(a, np.float64) - b).max() / max(np.abs(b).max(), 1e-12)
 
 
+@pytest.mark.parametrize("F", [1, 3], ids=["one_frame", "frames"])
 @pytest.mark.parametrize("nonrigid", [False, True], ids=["rigid", "nonrigid"])
-@pytest.mark.parametrize("K", [1, 4, 8])
+@pytest.mark.parametrize("K", [1, 4, 8, 11])
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
-def test_points_match_usdskel(device, method, K, nonrigid):
-    rng = np.random.default_rng(100 + K + 10 * nonrigid)
-    points, idx, w, M, G = random_rig(rng, K=K, nonrigid=nonrigid)
+def test_points_match_usdskel(device, method, K, nonrigid, F):
+    """One frame (the one-frame kernels) and several (frame blocks); one to three influence
+    groups (the blends' straight-line group 0 and their loop over the others)."""
+    rng = np.random.default_rng(100 + K + 10 * nonrigid + 100 * F)
+    points, idx, w, M, G = random_rig(rng, K=K, nonrigid=nonrigid, F=F)
     ours = dqskin.skin_points(points, idx, w, M, method, geom_bind_transform=G, device=device)
     assert ours.shape == (M.shape[0], points.shape[0], 3) and ours.dtype == np.float32
     for f in range(M.shape[0]):
