@@ -370,11 +370,14 @@ def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pi
     return by_method(method, lbs, d, blend, v)
 
 
-def _skin_points_kernel(method, residual, single):
+def _skin_points_kernel(method, residual, single, plain=False):
     """The point kernel of one method, specialized at compile time: ``residual=False`` drops the
     scale/shear code (~18% faster on the CPU for rigid launches); ``single`` skins one frame
     (``frame_count == 1``) with no frame-block code beside it (LBS ~1.2× on one thread, 1M points:
-    the unused frame loop in the same kernel slowed the one-frame path). The influence-group
+    the unused frame loop in the same kernel slowed the one-frame path); ``plain`` (DQS) fixes the
+    sign rule at compile time to the sorted layout's pivot in slot 0, the Skinner's default (no
+    running-sum or pivot-search code: median 36 against 31.5 M points/s, one thread, 1M points,
+    40 interleaved launches; the best launches alike). The influence-group
     count stays a runtime argument: a kernel specialized for ``K <= 4`` measured no faster (one
     thread, 1M points) and doubled the module's compile time."""
 
@@ -400,14 +403,16 @@ def _skin_points_kernel(method, residual, single):
     ):
         t = wp.tid() + row_offset
         g = groups
+        rs = running_sum * wp.static(0 if plain else 1)  # 0 at compile time when plain
+        us = unsorted * wp.static(0 if plain else 1)
         if wp.static(single):  # one frame: vertex t, no frame loop
             iv = indices[t * g]
             wv = weights[t * g]
             pivot = iv[0]  # LBS has no sign rule: no search
             if wp.static(method != LBS):
-                pivot = flat_pivot(indices, weights, t, g, iv, wv, unsorted)
+                pivot = flat_pivot(indices, weights, t, g, iv, wv, us)
             out[t] = skin_frame(points[t], t, 0, 0, iv, wv, pivot, indices, weights, g, blend,
-                                centers, unsorted, running_sum, affines, dqs, residuals,
+                                centers, us, rs, affines, dqs, residuals,
                                 has_residual, wp.static(method), wp.static(residual))
             return
         vertex_count = out.shape[0] // frame_count
@@ -416,16 +421,17 @@ def _skin_points_kernel(method, residual, single):
         wv = weights[v * g]
         pivot = iv[0]  # LBS has no sign rule: no search
         if wp.static(method != LBS):
-            pivot = flat_pivot(indices, weights, v, g, iv, wv, unsorted)
+            pivot = flat_pivot(indices, weights, v, g, iv, wv, us)
         for f in range(first, end):
             out[wp.int64(f) * wp.int64(vertex_count) + wp.int64(v)] = skin_frame(
                 points[wp.int64(f) * wp.int64(point_stride) + wp.int64(v)], v, f, f * joint_count,
-                iv, wv, pivot, indices, weights, g, blend, centers, unsorted, running_sum, affines,
+                iv, wv, pivot, indices, weights, g, blend, centers, us, rs, affines,
                 dqs, residuals, has_residual, wp.static(method), wp.static(residual))
 
     rigid = "_rigid" if method in (DQS, COR) and not residual else ""
     one = "_one_frame" if single else ""
-    name = f"skin_{['lbs', 'dqs', 'blend', 'cor'][method]}{rigid}_kernel{one}"
+    sign = "_plain" if plain else ""
+    name = f"skin_{['lbs', 'dqs', 'blend', 'cor'][method]}{rigid}_kernel{one}{sign}"
     kernel.__doc__ = (f"Skin flat ``points`` (Fp·V) bind space, Fp 1 or F, into ``out`` (F·V) "
                       f"with method {method}; thread ``t``: vertex ``t`` of "
                       + ("the only frame." if single else "frame block ``t div V``, vertex "
@@ -433,12 +439,14 @@ def _skin_points_kernel(method, residual, single):
     return wp.kernel(kernel, name=name)
 
 
-SKIN_POINTS_KERNELS = {(m, r, one): _skin_points_kernel(m, r, one)
-                       for m, r in ((LBS, False), (DQS, True), (DQS, False), (BLEND, True),
-                                    (COR, True), (COR, False))
+SKIN_POINTS_KERNELS = {(m, r, one, plain): _skin_points_kernel(m, r, one, plain)
+                       for m, r, plain in ((LBS, False, False), (DQS, True, False),
+                                           (DQS, False, False), (DQS, True, True),
+                                           (DQS, False, True), (BLEND, True, False),
+                                           (COR, True, False), (COR, False, False))
                        for one in (True, False)}
-"""The point-skinning kernels by ``(method, residual code, one frame)``: LBS needs no residual
-code, BLEND always has it."""
+"""The point-skinning kernels by ``(method, residual code, one frame, plain sign rule)``: LBS
+needs no residual code, BLEND always has it; DQS has plain twins (the Skinner's default)."""
 
 
 @wp.func
@@ -619,7 +627,8 @@ def skin_points(*, method, points, influences, joints, rigid, out, device):
     kernel without the residual code."""
     residual = method == BLEND or (method != LBS and not rigid)
     frames, verts = out.shape
-    kernel = SKIN_POINTS_KERNELS[(method, residual, frames == 1)]
+    plain = method == DQS and not influences.running_sum and not influences.unsorted
+    kernel = SKIN_POINTS_KERNELS[(method, residual, frames == 1, plain)]
     jn = joints
     launch_frames(kernel, verts, frames,
                   [*frame_rows_array(points, verts), *influence_args(influences),

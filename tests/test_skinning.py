@@ -68,13 +68,18 @@ def rel_err(a, b):
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_points_match_usdskel(device, method, K, nonrigid, F):
     """One frame (the one-frame kernels) and several (frame blocks); one to three influence
-    groups (the blends' straight-line group 0 and their loop over the others)."""
+    groups (the blends' straight-line group 0 and their loop over the others); the one-shot
+    call (input order, pivot searched) and a Skinner (sorted layout: DQS's plain kernels)."""
     rng = np.random.default_rng(100 + K + 10 * nonrigid + 100 * F)
     points, idx, w, M, G = random_rig(rng, K=K, nonrigid=nonrigid, F=F)
     ours = dqskin.skin_points(points, idx, w, M, method, geom_bind_transform=G, device=device)
     assert ours.shape == (M.shape[0], points.shape[0], 3) and ours.dtype == np.float32
+    skinner = dqskin.Skinner(points, idx, w, geom_bind_transform=G, device=device)
+    sorted_layout = skinner.skin(M, method)
     for f in range(M.shape[0]):
-        assert rel_err(ours[f], usd_skin_points(method, G, M[f], idx, w, points)) <= 1e-5
+        usd = usd_skin_points(method, G, M[f], idx, w, points)
+        assert rel_err(ours[f], usd) <= 1e-5
+        assert rel_err(sorted_layout[f], usd) <= 1e-5
 
 
 @pytest.mark.parametrize("nonrigid", [False, True], ids=["rigid", "nonrigid"])
