@@ -35,8 +35,9 @@ views (:func:`influence_args`; the blends :func:`gather`, :func:`dq_gather` and
 single frame, or per (frame block, vertex), a block of frames read with the vertex's influences
 once (:func:`frame_rows`). A 1-D launch over 1-D arrays is what Warp compiles with constant
 strides and an inlined task loop on the CPU (2-D arrays or arrays inside structs cost 25-30% on
-one thread). The point kernels are specialized at compile time for the method, rigid frames and
-a single frame (a kernel of its own, with no frame-block code).
+one thread). The point kernels are specialized at compile time for the method, rigid frames, a
+single frame (a kernel of its own, with no frame-block code) and, for DQS, the sorted layout's
+sign rule (no running-sum or pivot-search code): code a launch does not run still slows it.
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
 """
 
