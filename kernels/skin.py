@@ -371,14 +371,21 @@ def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pi
     return by_method(method, lbs, d, blend, v)
 
 
-def _skin_points_kernel(method, residual, single, plain=False):
+SIGN_RULES = (None, "sorted", "searched", "running")
+"""A point kernel's sign rule: None read at run time (``Influences.running_sum`` and
+``unsorted``), or fixed at compile time (DQS): the pivot in slot 0 of the sorted layout (a
+Skinner's default), the pivot searched per vertex in input order (one-shot calls), the running
+sum in input order (no pivot to search)."""
+
+
+def _skin_points_kernel(method, residual, single, sign=None):
     """The point kernel of one method, specialized at compile time: ``residual=False`` drops the
     scale/shear code (~18% faster on the CPU for rigid launches); ``single`` skins one frame
     (``frame_count == 1``) with no frame-block code beside it (LBS ~1.2× on one thread, 1M points:
-    the unused frame loop in the same kernel slowed the one-frame path); ``plain`` (DQS) fixes the
-    sign rule at compile time to the sorted layout's pivot in slot 0, the Skinner's default (no
-    running-sum or pivot-search code: median 36 against 31.5 M points/s, one thread, 1M points,
-    40 interleaved launches; the best launches alike). The influence-group
+    the unused frame loop in the same kernel slowed the one-frame path); ``sign`` (DQS, one of
+    :data:`SIGN_RULES`) fixes the sign rule at compile time, so only its code remains (the sorted
+    rule: median 36 against 31.5 M points/s, one thread, 1M points, 40 interleaved launches; the
+    best launches alike). The influence-group
     count stays a runtime argument: a kernel specialized for ``K <= 4`` measured no faster (one
     thread, 1M points) and doubled the module's compile time."""
 
@@ -404,8 +411,9 @@ def _skin_points_kernel(method, residual, single, plain=False):
     ):
         t = wp.tid() + row_offset
         g = groups
-        rs = running_sum * wp.static(0 if plain else 1)  # 0 at compile time when plain
-        us = unsorted * wp.static(0 if plain else 1)
+        # the sign-rule flags, constants (folded by the C++ compiler) unless read at run time
+        rs = running_sum * wp.static(int(sign is None)) + wp.static(int(sign == "running"))
+        us = unsorted * wp.static(int(sign is None)) + wp.static(int(sign == "searched"))
         if wp.static(single):  # one frame: vertex t, no frame loop
             iv = indices[t * g]
             wv = weights[t * g]
@@ -431,8 +439,8 @@ def _skin_points_kernel(method, residual, single, plain=False):
 
     rigid = "_rigid" if method in (DQS, COR) and not residual else ""
     one = "_one_frame" if single else ""
-    sign = "_plain" if plain else ""
-    name = f"skin_{['lbs', 'dqs', 'blend', 'cor'][method]}{rigid}_kernel{one}{sign}"
+    rule = f"_{sign}" if sign else ""
+    name = f"skin_{['lbs', 'dqs', 'blend', 'cor'][method]}{rigid}_kernel{one}{rule}"
     kernel.__doc__ = (f"Skin flat ``points`` (Fp·V) bind space, Fp 1 or F, into ``out`` (F·V) "
                       f"with method {method}; thread ``t``: vertex ``t`` of "
                       + ("the only frame." if single else "frame block ``t div V``, vertex "
@@ -440,14 +448,16 @@ def _skin_points_kernel(method, residual, single, plain=False):
     return wp.kernel(kernel, name=name)
 
 
-SKIN_POINTS_KERNELS = {(m, r, one, plain): _skin_points_kernel(m, r, one, plain)
-                       for m, r, plain in ((LBS, False, False), (DQS, True, False),
-                                           (DQS, False, False), (DQS, True, True),
-                                           (DQS, False, True), (BLEND, True, False),
-                                           (COR, True, False), (COR, False, False))
+SKIN_POINTS_KERNELS = {(m, r, one, sign): _skin_points_kernel(m, r, one, sign)
+                       for m, r, sign in ((LBS, False, None), (DQS, True, "sorted"),
+                                          (DQS, False, "sorted"), (DQS, True, "searched"),
+                                          (DQS, False, "searched"), (DQS, True, "running"),
+                                          (DQS, False, "running"), (BLEND, True, None),
+                                          (COR, True, None), (COR, False, None))
                        for one in (True, False)}
-"""The point-skinning kernels by ``(method, residual code, one frame, plain sign rule)``: LBS
-needs no residual code, BLEND always has it; DQS has plain twins (the Skinner's default)."""
+"""The point-skinning kernels by ``(method, residual code, one frame, sign rule)``: LBS needs no
+residual code and has no sign rule, BLEND always has the residual code; DQS kernels have their
+sign rule fixed (:data:`SIGN_RULES`), BLEND and COR read it at run time."""
 
 
 @wp.func
@@ -628,8 +638,11 @@ def skin_points(*, method, points, influences, joints, rigid, out, device):
     kernel without the residual code."""
     residual = method == BLEND or (method != LBS and not rigid)
     frames, verts = out.shape
-    plain = method == DQS and not influences.running_sum and not influences.unsorted
-    kernel = SKIN_POINTS_KERNELS[(method, residual, frames == 1, plain)]
+    sign = None
+    if method == DQS:
+        sign = ("running" if influences.running_sum else
+                "searched" if influences.unsorted else "sorted")
+    kernel = SKIN_POINTS_KERNELS[(method, residual, frames == 1, sign)]
     jn = joints
     launch_frames(kernel, verts, frames,
                   [*frame_rows_array(points, verts), *influence_args(influences),
