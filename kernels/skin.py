@@ -385,9 +385,9 @@ def _skin_points_kernel(method, residual, single, sign=None):
     the unused frame loop in the same kernel slowed the one-frame path); ``sign`` (DQS, one of
     :data:`SIGN_RULES`) fixes the sign rule at compile time, so only its code remains (the sorted
     rule: median 36 against 31.5 M points/s, one thread, 1M points, 40 interleaved launches; the
-    best launches alike). The influence-group
-    count stays a runtime argument: a kernel specialized for ``K <= 4`` measured no faster (one
-    thread, 1M points) and doubled the module's compile time."""
+    best launches alike). The influence-group count stays a runtime argument: a kernel specialized
+    for ``K <= 4`` measured no faster (one thread, 1M points) and doubled the module's compile
+    time."""
 
     def kernel(
         points: wp.array(dtype=wp.vec3),
