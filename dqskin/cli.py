@@ -150,34 +150,21 @@ def cmd_skin(args):
     if args.cor_exact and (args.workers is not None or args.scheduler or args.resume):
         raise ValueError("--cor-exact cannot be combined with --workers, --scheduler or --resume "
                          "(clip workers compute the centers with the defaults)")
-    prestart = args.workers is not None and not args.scheduler
-    if prestart:
-        try:  # arguments bake refuses fork no worker (it raises them after loading INPUT)
-            check_clip_arguments(args.out, chunk=args.chunk, clips=args.clips,
-                                 workers=args.workers, resume=args.resume)
-        except ValueError:
-            prestart = False
-    if prestart:
-        from .distributed import prestart_workers
-        prestart_workers()  # the workers' imports overlap loading INPUT
-    try:
+    check_clip_arguments(args.out, chunk=args.chunk, clips=args.clips, workers=args.workers,
+                         scheduler=args.scheduler, resume=args.resume)  # before loading INPUT
+    _checkpoint()
+    with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
+        scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
+        if args.cor_exact:
+            scene.cor_options = {"cluster": None}
         _checkpoint()
-        with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
-            scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
-            if args.cor_exact:
-                scene.cor_options = {"cluster": None}
-            _checkpoint()
-            times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
-                                 args.substeps, max_frames=args.max_frames)
-            print(bake(scene, args.out, times, method=args.method, interp=args.interp,
-                       device=args.device, chunk=args.chunk, normals=args.normals,
-                       velocities=args.velocities, force=args.force, progress=True,
-                       clips=args.clips, workers=args.workers, scheduler=args.scheduler,
-                       resume=args.resume, sign_reference=args.sign_reference, inputs=inputs))
-    finally:
-        if prestart:  # not reached by the bake (INPUT failed to load, ...): no process outlives it
-            from .distributed import stop_workers
-            stop_workers()
+        times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
+                             args.substeps, max_frames=args.max_frames)
+        print(bake(scene, args.out, times, method=args.method, interp=args.interp,
+                   device=args.device, chunk=args.chunk, normals=args.normals,
+                   velocities=args.velocities, force=args.force, progress=True,
+                   clips=args.clips, workers=args.workers, scheduler=args.scheduler,
+                   resume=args.resume, sign_reference=args.sign_reference, inputs=inputs))
     return 0
 
 
@@ -624,7 +611,47 @@ def _hold_native_stderr():
     return release
 
 
+def _wants_workers(argv):
+    """Whether ``argv`` asks ``skin`` to bake on a LocalCluster: ``--workers N`` without
+    ``--scheduler`` or an option the bake refuses with it. Read before the full parser (whose
+    choices import dqskin's modules) by a parser of just these options: a hint only, the bake's
+    own checks decide."""
+    import argparse
+    if not argv or argv[0] != "skin":
+        return False
+    p = argparse.ArgumentParser(add_help=False, exit_on_error=False)
+    for flag in ("--workers", "--chunk"):
+        p.add_argument(flag, type=int)
+    for flag in ("--scheduler", "--skeleton", "--weights"):
+        p.add_argument(flag)
+    p.add_argument("--clips", action=argparse.BooleanOptionalAction)
+    p.add_argument("--cor-exact", action="store_true")
+    try:
+        a = p.parse_known_args(argv[1:])[0]
+    except (argparse.ArgumentError, SystemExit):
+        return False
+    return (a.workers is not None and a.workers >= 1 and not a.scheduler and a.clips is not False
+            and (a.chunk is None or a.chunk >= 1) and a.skeleton is None and a.weights is None
+            and not a.cor_exact)
+
+
 def _run(argv):
+    workers = _wants_workers(sys.argv[1:] if argv is None else argv)
+    if workers:  # first: the workers' forkserver imports beside dqskin's modules (~1.5 s a bake)
+        from .forkserver import prestart_workers
+        try:
+            prestart_workers()
+        except Exception:  # only a head start: the cluster starts it, or reports why it cannot
+            pass
+    try:
+        return _run_command(argv)
+    finally:
+        if workers:  # not reached by a bake (refused, INPUT failed to load, ...): no process
+            from .forkserver import stop_workers  # outlives the run
+            stop_workers()
+
+
+def _run_command(argv):
     try:
         args = build_parser().parse_args(argv)  # imports NumPy: an interrupt may land in there
         _quiet_libraries(args.verbose)

@@ -12,7 +12,8 @@ the same paths (one machine, or a shared file system).
   across chunks (:func:`run_here`).
 * ``workers=N``: a :class:`distributed.LocalCluster` of ``N`` worker processes (one task at a
   time each; USD's and dqskin's CPU threads limited to cores / ``N`` per process, or to
-  ``threads``) on 127.0.0.1, started and closed by the bake.
+  ``threads``) on 127.0.0.1, started and closed by the bake, forked from a forkserver that has
+  imported dqskin once (:mod:`dqskin.forkserver`).
 * ``scheduler="tcp://HOST:PORT"``: an existing cluster (``dask scheduler`` and ``dask worker``).
   Each worker process's thread budget is its ``--nthreads`` (:func:`worker_threads`), unless
   ``DQSKIN_THREADS`` / ``PXR_WORK_THREAD_LIMIT`` are set in its environment.
@@ -23,7 +24,6 @@ again on another worker (up to its ``allowed-failures``, 3 by default).
 
 import contextlib
 import os
-import signal
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor, wait
@@ -32,12 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
+from . import forkserver
 from .formats import atomic, usd_clips
 from .formats.usd_cache import SampleWriter, frame_bytes
 from .validation import check_skinned
 
-__all__ = ["ChunkJob", "bake_clips", "prestart_workers", "run_chunk", "run_here",
-           "stop_workers", "worker_threads"]
+__all__ = ["ChunkJob", "bake_clips", "run_chunk", "run_here", "worker_threads"]
 
 SUBCHUNK = 32
 """Fewest frames a task skins at a time (the clip layer holds its whole chunk until written)."""
@@ -125,94 +125,6 @@ def _worker_plugin():
             Work.SetConcurrencyLimitArgument(int(budget["PXR_WORK_THREAD_LIMIT"]))
 
     return DqskinWorker()
-
-
-_PRELOAD = ["distributed", "numpy", "dqskin.distributed", "dqskin.formats.usd"]
-"""Modules a LocalCluster's forkserver imports once; every worker process forked from it starts
-with them (importing them costs each spawned worker 2-3 CPU-seconds)."""
-
-
-def _forkserver_context():
-    """Make LocalCluster start its worker processes from a forkserver that has imported
-    :data:`_PRELOAD` (Dask's own default spawns each one afresh), without Dask's
-    ``MALLOC_TRIM_THRESHOLD_=65536``: glibc reads it once, when the forkserver starts, and with it
-    every worker hands each chunk's freed memory back to the system and faults it in again for
-    the next (twice the system time: 2.1-2.2 against 1.0-1.2 s, tasks 0.2-1.4 s longer, for
-    10,000 CesiumMan frames on one worker). Returns the dask config."""
-    import multiprocessing
-
-    import dask
-    from distributed.utils import get_mp_context
-
-    config = {"distributed.worker.multiprocessing-method": "forkserver",
-              "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
-    with dask.config.set(config):
-        get_mp_context()  # Dask's own preload list, set once per process; ours replaces it
-    multiprocessing.get_context("forkserver").set_forkserver_preload(_PRELOAD)
-    return config
-
-
-def prestart_workers() -> None:
-    """Start the forkserver that the worker processes of a LocalCluster bake (``workers=N``) are
-    forked from now, in the background, so that its imports (:data:`_PRELOAD`, 2-3 CPU-seconds)
-    overlap the caller's own work, typically loading the asset (``dqskin skin --workers`` calls
-    it first). The bake stops it (:func:`stop_workers`); else it ends with this process. No-op
-    if it is running (one started before dqskin touched it is then left running, never stopped).
-
-    Like each Dask nanny before it starts a worker, it first sets the variables of
-    ``distributed.nanny.pre-spawn-environ`` (one BLAS/OpenMP thread) that are not set yet in
-    this process's environment, which the forkserver then inherits."""
-    import multiprocessing.forkserver
-
-    import dask
-    config = _forkserver_context()
-    with dask.config.set(config):
-        env = dask.config.get("distributed.nanny.pre-spawn-environ")
-    os.environ.update({k: str(v) for k, v in env.items() if v is not None and k not in os.environ})
-    with _owning_forkserver():
-        multiprocessing.forkserver.ensure_running()
-
-
-_own_forkservers = set()
-"""Pids of the forkservers dqskin started (:func:`prestart_workers`, a LocalCluster bake): the
-only ones :func:`stop_workers` stops. multiprocessing has one forkserver per process, shared with
-whatever else in it uses the ``forkserver`` start method."""
-
-
-def _forkserver_pid():
-    import multiprocessing.forkserver as fs
-    return getattr(getattr(fs, "_forkserver", None), "_forkserver_pid", None)
-
-
-@contextlib.contextmanager
-def _owning_forkserver():
-    """Count a forkserver started inside the block as dqskin's (not one running before it)."""
-    before = _forkserver_pid()
-    try:
-        yield
-    finally:
-        pid = _forkserver_pid()
-        if pid is not None and pid != before:
-            _own_forkservers.add(pid)
-
-
-def stop_workers() -> None:
-    """Stop the forkserver dqskin started (:func:`prestart_workers`, a LocalCluster bake), once
-    its workers are gone, so that no process outlives the bake (and its CPU time, its workers'
-    included, is reaped into this process's); one started by anything else is left running.
-    It is killed first: it holds nothing to save, and its orderly exit (tearing down USD, Warp and
-    Dask) took 0.7-1.4 s of every bake. ``_stop`` is multiprocessing's own (Python 3.10+),
-    skipped when absent."""
-    import multiprocessing.forkserver as fs
-    server = getattr(fs, "_forkserver", None)
-    stop = getattr(server, "_stop", None)
-    pid = _forkserver_pid()
-    if stop is None or pid not in _own_forkservers:
-        return
-    _own_forkservers.discard(pid)
-    with contextlib.suppress(OSError):
-        os.kill(pid, signal.SIGKILL)
-    stop()  # closes its pipe and reaps it
 
 
 def _worker_scene(path):
@@ -447,8 +359,8 @@ def _dask(workers, scheduler, threads=None):
                 raise ValueError(f"--workers {workers}: must be at least 1")
             threads = str(max(1, int(threads or (os.cpu_count() or 1) // int(workers))))
             # for the cluster's lifetime: a restarted worker is forked from the same server
-            stack.enter_context(dask.config.set(_forkserver_context()))
-            with _owning_forkserver():  # its first worker starts it, unless running
+            stack.enter_context(dask.config.set(forkserver.dask_config()))
+            with forkserver.owning_forkserver():  # its first worker starts it, unless running
                 cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
                                        processes=True, host="127.0.0.1", dashboard_address=None,
                                        silence_logs=logging.ERROR,
@@ -463,7 +375,7 @@ def _dask(workers, scheduler, threads=None):
         if cluster is not None:
             cluster.close()
         if not scheduler:  # started by the cluster or by prestart_workers
-            stop_workers()
+            forkserver.stop_workers()
         stack.close()
 
 

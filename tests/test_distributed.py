@@ -179,10 +179,10 @@ def _forkserver_pid():
                                   ["--workers", "2", "--chunk", "0"]])
 def test_refused_worker_arguments_start_no_forkserver(tmp_path, monkeypatch, capsys, args):
     """``--workers`` arguments the bake refuses fail before any worker process is prepared."""
-    import dqskin.distributed as distributed
+    import dqskin.forkserver as forkserver
     from dqskin.cli import main
     started = []
-    monkeypatch.setattr(distributed, "prestart_workers", lambda: started.append(1))
+    monkeypatch.setattr(forkserver, "prestart_workers", lambda: started.append(1))
     assert main(["skin", str(HUMANOID), "--out", str(tmp_path / "shot.usd"), *args]) != 0
     assert "dqskin:" in capsys.readouterr().err
     assert started == [] and _forkserver_pid() is None
@@ -191,14 +191,30 @@ def test_refused_worker_arguments_start_no_forkserver(tmp_path, monkeypatch, cap
 def test_forkserver_stopped_when_the_input_fails_to_load(tmp_path, monkeypatch, capsys):
     """The CLI's prestarted forkserver (preloading only NumPy here) is stopped when the bake is
     never reached."""
-    import dqskin.distributed as distributed
+    import dqskin.forkserver as forkserver
     from dqskin.cli import main
-    monkeypatch.setattr(distributed, "_PRELOAD", ["numpy"])
+    monkeypatch.setattr(forkserver, "PRELOAD", ["numpy"])
     bad = tmp_path / "bad.usda"
     bad.write_text("#usda 1.0\n(\n")
     assert main(["skin", str(bad), "--out", str(tmp_path / "shot.usd"), "--workers", "2"]) != 0
     assert "bad.usda" in capsys.readouterr().err
     assert _forkserver_pid() is None
+
+
+def test_forkserver_started_first_is_stopped_when_the_output_is_refused(tmp_path, monkeypatch,
+                                                                      capsys):
+    """``dqskin skin --workers`` starts the forkserver before importing dqskin's modules, so an
+    output refused only after that (a clip bake to .npz) must stop it again."""
+    import dqskin.forkserver as forkserver
+    from dqskin.cli import main
+    started = []
+    monkeypatch.setattr(forkserver, "PRELOAD", ["numpy"])
+    real = forkserver.prestart_workers
+    monkeypatch.setattr(forkserver, "prestart_workers", lambda: (started.append(1), real()))
+    out = tmp_path / "shot.npz"
+    assert main(["skin", str(HUMANOID), "--out", str(out), "--workers", "2"]) != 0
+    assert "--out" in capsys.readouterr().err and not out.exists()
+    assert started == [1] and _forkserver_pid() is None
 
 
 def test_a_forkserver_running_before_dqskin_is_left_running():
@@ -207,7 +223,7 @@ def test_a_forkserver_running_before_dqskin_is_left_running():
     import multiprocessing
     import multiprocessing.forkserver
 
-    from dqskin.distributed import prestart_workers, stop_workers
+    from dqskin.forkserver import prestart_workers, stop_workers
     assert _forkserver_pid() is None
     multiprocessing.get_context("forkserver").set_forkserver_preload([])
     multiprocessing.forkserver.ensure_running()

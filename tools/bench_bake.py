@@ -138,9 +138,6 @@ def run_dqskin(src, dst, which):
     nv = which.endswith("+nv")
     kind = which.removesuffix("+nv")
     workers, _, threads = kind[5:].partition("t")
-    if kind.startswith("clips") and int(workers):
-        from dqskin.distributed import prestart_workers
-        prestart_workers()  # as `dqskin skin --workers` does: its imports overlap the load
     scene = load(src)
     if kind == "single":
         bake(scene, dst, method="lbs", normals=nv, velocities=nv, clips=False, force=True)
@@ -171,6 +168,10 @@ def peak_rss_mb():
 def child(which, src, dst):
     """Time imports and the bake separately, in this fresh process."""
     t0 = time.perf_counter()
+    kind = which.removesuffix("+nv")
+    if kind.startswith("clips") and int(kind[5:].partition("t")[0]):
+        from dqskin.forkserver import prestart_workers
+        prestart_workers()  # first, as `dqskin skin --workers`: its imports overlap dqskin's
     (import_usdskel if which == "usdskel" else import_dqskin)()
     t1 = time.perf_counter()
     extra = run_usdskel(src, dst) if which == "usdskel" else run_dqskin(src, dst, which)
@@ -392,15 +393,18 @@ def print_bake(rows):
     if not bake:
         return
     print("\nEnd-to-end bake to .usd (open + skin every frame + write), LBS; seconds exclude the "
-          "one-off module imports (shown apart), include Dask cluster start-up")
-    print("| asset | frames | impl | seconds | M point-frames/s | imports s | CPU s, all processes "
-          "| peak RSS MB, main | workers MB | output MB | max \\|Δp\\| vs UsdSkel |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "one-off module imports (shown apart, and with them: a worker bake's forkserver starts "
+          "first and imports beside them), include Dask cluster start-up")
+    print("| asset | frames | impl | seconds | M point-frames/s | imports s | with imports s "
+          "| CPU s, all processes | peak RSS MB, main | workers MB | output MB "
+          "| max \\|Δp\\| vs UsdSkel |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in bake:
         workers = ", ".join(f"{w:.0f}" for w in r.get("worker_peak_mb", [])) or "–"
         diff = r.get("max_point_diff")
         print(f"| {r.get('asset', '')} | {r['frames']} | {r['impl']} | {r['seconds']:.2f} "
               f"| {r['mpoint_frames_per_s']:.1f} | {r['import_seconds']:.2f} "
+              f"| {r['seconds'] + r['import_seconds']:.2f} "
               f"| {r.get('cpu_seconds', float('nan')):.1f} | {r['peak_mb']:.0f} "
               f"| {workers} | {r.get('output_mb', float('nan')):.0f} "
               f"| {'–' if diff is None else f'{diff:.1e}'} |")
@@ -412,7 +416,10 @@ def print_bake(rows):
                                ("clips0t1", "clips2t1", "2 one-thread workers / in-process, 1 "
                                 "thread")):
             if one in sel and two in sel:
-                line.append(f"{what} = {sel[one]['seconds'] / sel[two]['seconds']:.2f}×")
+                a, b = sel[one], sel[two]
+                total = (a["seconds"] + a["import_seconds"]) / (b["seconds"] + b["import_seconds"])
+                line.append(f"{what} = {a['seconds'] / b['seconds']:.2f}× (with imports "
+                            f"{total:.2f}×)")
         if "usdskel" in sel:
             for impl in ("single", "clips0", "clips2"):
                 if impl in sel:
