@@ -14,6 +14,10 @@ All argument parsing lives here; each command calls the library (:func:`dqskin.b
 * Outputs: atomic, never over an existing file without ``--force`` nor over the input; without
   ``--force`` the name is claimed exclusively (:mod:`dqskin.formats.atomic`), so of two runs
   writing the same output the one that finishes second fails.
+* Exit: :func:`main`, as the process's entry point, ends the process itself once Python's exit
+  handlers have run and the standard streams are flushed, skipping the interpreter's teardown of
+  USD's, Warp's and Dask's native libraries (0.5-0.8 s; the console script ``dqskin`` took
+  2.36-2.87 s against 2.10-2.38 s for a short ``skin``, five alternating runs).
 * Output: only dqskin's own lines. Warp's start-up messages (including its CUDA-driver notice,
   printed by native code), library warnings and log records are silenced unless ``--verbose``;
   progress bars only on a terminal.
@@ -535,9 +539,33 @@ def main(argv=None):
 
     Called without ``argv`` (the process's entry point) it keeps its signal handlers until the
     process exits and, unless ``--verbose``, holds what native code (Warp, USD) writes to stderr,
-    showing it only if dqskin itself crashes; with ``argv`` (from Python) it restores the previous
-    handlers when it returns and leaves stderr alone.
+    showing it only if dqskin itself crashes; it then ends the process when the command returns
+    (:func:`_exit`). With ``argv`` (from Python) it restores the previous handlers when it returns
+    and leaves stderr alone.
     """
+    code = _main(argv)
+    if argv is None:
+        _exit(code)
+    return code
+
+
+def _exit(code):
+    """End the process with ``code`` once Python's exit handlers have run and the standard
+    streams are flushed, without the interpreter's finalization: unloading USD's, Warp's and
+    Dask's native libraries took 0.5-0.8 s after every command, and everything dqskin writes is
+    complete and closed by then (outputs are renamed into place before a command returns)."""
+    import atexit
+    import os
+    atexit._run_exitfuncs()  # logging, weakref finalizers (temporary folders), ...
+    for stream in (sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__):
+        try:
+            stream.flush()
+        except (AttributeError, OSError, ValueError):  # closed, or a closed pipe
+            pass
+    os._exit(code)
+
+
+def _main(argv):
     previous = release = None
     crashed = False
     try:

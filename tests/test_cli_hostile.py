@@ -142,6 +142,26 @@ def test_ctrl_c_while_the_package_imports(tmp_path):
     assert stderr.strip().splitlines() == ["dqskin: interrupted"], stderr
 
 
+def test_entry_point_ends_the_process_after_exit_handlers_and_flushed_output(tmp_path):
+    """The console script's ``main()`` ends the process itself (skipping the interpreter's
+    finalization): exit handlers still run, in order, after everything the command printed, and
+    the command's exit status is the process's."""
+    script = ("import atexit, sys\n"
+              "atexit.register(lambda: print('handler ran', flush=True))\n"
+              "from dqskin.cli import main\n"
+              "sys.exit(main())  # not reached: main ends the process\n")
+    out = tmp_path / "x.npz"
+    for args, code in (([HUMANOID, "--out", out, "--frames", "0:3"], 0),
+                       ([tmp_path / "missing.usda", "--out", out], 2)):
+        proc = subprocess.run([sys.executable, "-c", script, "skin", *map(str, args)],
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == code, proc.stderr
+        lines = proc.stdout.splitlines()
+        assert lines[-1] == "handler ran", proc.stdout
+        assert (lines[0].startswith(f"wrote {out}") if code == 0 else len(lines) == 1)
+    assert out.is_file()
+
+
 # -- 3. concurrent writers --
 
 @pytest.mark.parametrize("out,last", [("same.npz", 1500), ("same.usdc", 300),
