@@ -2,16 +2,36 @@
 :mod:`dqskin.kernels.grid`; the package leaves Warp's global configuration alone (kernel modules
 set their own options; the CLI quiets Warp's console output)."""
 
+import threading
+
 import warp as wp
 
 Device = str | wp.Device | None
 """A Warp device or its name (``"cpu"``, ``"cuda:0"``); None picks CUDA when present."""
 
 
+_init_lock = threading.Lock()
+_initialized = False
+
+
+def init_warp() -> None:
+    """``wp.init()``, once per process and under a lock. Warp's own is not thread-safe: two
+    threads making their first dqskin call at once (a pipeline's worker threads, the concurrent
+    tasks of a ``dask worker --nthreads N``) each created a runtime, and the second one cleared
+    the module hashes the first was loading a kernel module with (``KeyError`` in
+    ``Module.load``, 1 run in 4 with four threads)."""
+    global _initialized
+    if not _initialized:
+        with _init_lock:
+            if not _initialized:
+                wp.init()
+                _initialized = True
+
+
 def resolve_device(device: Device = None) -> wp.Device:
     """Warp device for ``device`` (``None`` → CUDA when present, else CPU); ValueError if there
     is no such device."""
-    wp.init()
+    init_warp()
     if device is None:
         return wp.get_device("cuda:0" if wp.get_cuda_device_count() > 0 else "cpu")
     try:

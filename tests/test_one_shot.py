@@ -233,6 +233,53 @@ def test_replayed_launches_follow_every_call():
                                lbs64(points, idx, w, F[0]) + [1.0, 2.0, 3.0], atol=5e-5)
 
 
+def test_first_calls_from_threads_at_once_initialize_warp_once():
+    """Four threads making a fresh process's first dqskin calls at the same moment (a pipeline's
+    worker threads, a ``dask worker --nthreads 4``) make one Warp runtime, and every call
+    succeeds. Warp's own ``wp.init`` is not thread-safe: each thread created a runtime, which
+    cleared the module hashes another thread was loading kernels with (a ``KeyError`` in
+    ``Module.load``, 7 runs in 30 of four threads skinning a scene). Runtime creation is slowed
+    here so that every thread arrives while the first is still inside it."""
+    import subprocess
+    import sys
+    script = """if True:
+        import threading, time, traceback
+        import numpy as np
+        import warp as wp
+        import warp._src.context as context
+        wp.config.quiet = True
+        made = []
+        real = context.Runtime.__init__
+        def slow(self, *args, **kwargs):
+            made.append(threading.current_thread().name)
+            time.sleep(0.3)
+            real(self, *args, **kwargs)
+        context.Runtime.__init__ = slow
+        import dqskin
+        points = np.random.default_rng(0).normal(size=(50, 3))
+        idx, w = np.zeros((50, 1), np.int32), np.ones((50, 1), np.float32)
+        M = np.tile(np.eye(4), (2, 1, 1))
+        barrier, errors = threading.Barrier(4), []
+        def work():
+            barrier.wait()
+            try:
+                dqskin.forward_kinematics([-1, 0], M, device="cpu")
+                out = dqskin.skin_points(points, idx, w, M, "dqs", device="cpu")
+                assert np.allclose(out, points, atol=1e-5)
+            except Exception:
+                errors.append(traceback.format_exc())
+        threads = [threading.Thread(target=work) for _ in range(4)]
+        for t in threads: t.start()
+        for t in threads: t.join()
+        print("RUNTIMES", len(made), "ERRORS", len(errors))
+        print(errors[0] if errors else "")
+    """
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "RUNTIMES 1 ERRORS 0" in proc.stdout, proc.stdout
+
+
 def test_replayed_launches_from_two_threads():
     """Skinners replaying their launches on two threads at once (recorded launches are per
     thread); any exception in a thread fails the test."""
