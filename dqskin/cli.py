@@ -665,13 +665,13 @@ def _wants_workers(argv):
 
 def _run(argv):
     workers = _wants_workers(sys.argv[1:] if argv is None else argv)
-    if workers:  # first: the workers' forkserver imports beside dqskin's modules (~1.5 s a bake)
-        from .forkserver import prestart_workers
-        try:
-            prestart_workers()
-        except Exception:  # only a head start: the cluster starts it, or reports why it cannot
-            pass
     try:
+        if workers:  # first: the workers' forkserver imports beside dqskin's (~1.5 s a bake)
+            from .forkserver import prestart_workers
+            try:
+                prestart_workers()
+            except Exception:  # only a head start: the cluster starts it or says why it cannot
+                pass
         return _run_command(argv)
     finally:
         if workers:  # not reached by a bake (refused, INPUT failed to load, ...): no process
