@@ -553,15 +553,32 @@ def _exit(code):
     """End the process with ``code`` once Python's exit handlers have run and the standard
     streams are flushed, without the interpreter's finalization: unloading USD's, Warp's and
     Dask's native libraries took 0.5-0.8 s after every command, and everything dqskin writes is
-    complete and closed by then (outputs are renamed into place before a command returns)."""
+    complete and closed by then (outputs are renamed into place before a command returns). A
+    signal from here on is ignored (the command has finished). Output that cannot be written
+    (a full disk, a closed pipe) makes a successful command exit 120, as Python's own exit does;
+    the message names stdout, except for a reader that went away."""
     import atexit
     import os
+    for s in SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
     atexit._run_exitfuncs()  # logging, weakref finalizers (temporary folders), ...
-    for stream in (sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__):
+    failed = None
+    for stream in (sys.stdout, sys.__stdout__, sys.stderr, sys.__stderr__):
         try:
             stream.flush()
-        except (AttributeError, OSError, ValueError):  # closed, or a closed pipe
+        except BrokenPipeError:
+            failed = failed or "reader gone"
+        except OSError as exc:
+            failed = f"dqskin: error: writing {getattr(stream, 'name', 'output')}: {exc}"
+        except (AttributeError, ValueError):  # no stream, or a closed one
             pass
+    if failed is not None and code == 0:
+        if failed.startswith("dqskin:"):
+            try:
+                os.write(2, (failed + "\n").encode(errors="replace"))
+            except OSError:
+                pass
+        code = 120
     os._exit(code)
 
 
@@ -645,9 +662,17 @@ def _wants_workers(argv):
     choices import dqskin's modules) by a parser of just these options: a hint only, the bake's
     own checks decide."""
     import argparse
+
+    class Quiet(argparse.ArgumentParser):
+        def error(self, message):  # raised, not printed: the full parser reports errors
+            raise argparse.ArgumentError(None, message)
+
+    argv = list(argv)
+    while argv and argv[0] == "--verbose":
+        argv = argv[1:]
     if not argv or argv[0] != "skin":
         return False
-    p = argparse.ArgumentParser(add_help=False, exit_on_error=False)
+    p = Quiet(add_help=False, exit_on_error=False)
     for flag in ("--workers", "--chunk"):
         p.add_argument(flag, type=int)
     for flag in ("--scheduler", "--skeleton", "--weights"):

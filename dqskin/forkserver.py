@@ -70,12 +70,13 @@ def prestart_workers() -> None:
     """Start the forkserver now, in the background, so that its imports (:data:`PRELOAD`, 2-3
     CPU-seconds) overlap the caller's own work (``dqskin skin --workers`` calls it before
     importing dqskin's modules and loading the asset). The bake stops it (:func:`stop_workers`);
-    else it ends with this process. No-op if it is running (one started before dqskin touched it
-    is then left running, never stopped).
+    else it ends with this process. One already running is used as it is (one started before
+    dqskin touched it is then left running, never stopped).
 
-    Like each Dask nanny before it starts a worker, it first sets the variables of
-    ``distributed.nanny.pre-spawn-environ`` (one BLAS/OpenMP thread) that are not set yet in
-    this process's environment, which the forkserver then inherits."""
+    Like each Dask nanny before it starts a worker, it gives the forkserver the variables of
+    ``distributed.nanny.pre-spawn-environ`` (one BLAS/OpenMP thread) that are not set in this
+    process's environment; this process's own environment is left as it was (its NumPy, often
+    imported just after, keeps its BLAS threads)."""
     import multiprocessing
     import multiprocessing.forkserver
 
@@ -83,10 +84,15 @@ def prestart_workers() -> None:
     _distributed_defaults()
     with dask.config.set(_CONFIG):
         env = dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {}
-    os.environ.update({k: str(v) for k, v in env.items() if v is not None and k not in os.environ})
+    added = {k: str(v) for k, v in env.items() if v is not None and k not in os.environ}
     multiprocessing.get_context("forkserver").set_forkserver_preload(PRELOAD)
-    with owning_forkserver():
-        multiprocessing.forkserver.ensure_running()
+    os.environ.update(added)
+    try:
+        with owning_forkserver():
+            multiprocessing.forkserver.ensure_running()
+    finally:
+        for k in added:
+            os.environ.pop(k, None)
 
 
 _own_forkservers = set()

@@ -144,22 +144,34 @@ def test_ctrl_c_while_the_package_imports(tmp_path):
 
 def test_entry_point_ends_the_process_after_exit_handlers_and_flushed_output(tmp_path):
     """The console script's ``main()`` ends the process itself (skipping the interpreter's
-    finalization): exit handlers still run, in order, after everything the command printed, and
-    the command's exit status is the process's."""
+    finalization): it does not return, exit handlers still run after everything the command
+    printed (stdout block-buffered: a file or pipe, no ``PYTHONUNBUFFERED``), the command's exit
+    status is the process's, and output that cannot be written makes a success exit 120 with a
+    message, as Python's own exit does."""
     script = ("import atexit, sys\n"
-              "atexit.register(lambda: print('handler ran', flush=True))\n"
+              "atexit.register(lambda: print('handler ran'))\n"
               "from dqskin.cli import main\n"
-              "sys.exit(main())  # not reached: main ends the process\n")
+              "main()\n"
+              "print('main returned')\n")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
     out = tmp_path / "x.npz"
     for args, code in (([HUMANOID, "--out", out, "--frames", "0:3"], 0),
                        ([tmp_path / "missing.usda", "--out", out], 2)):
         proc = subprocess.run([sys.executable, "-c", script, "skin", *map(str, args)],
-                              capture_output=True, text=True, timeout=300)
+                              capture_output=True, text=True, timeout=300, env=env)
         assert proc.returncode == code, proc.stderr
         lines = proc.stdout.splitlines()
-        assert lines[-1] == "handler ran", proc.stdout
+        assert lines[-1] == "handler ran" and "main returned" not in lines, proc.stdout
         assert (lines[0].startswith(f"wrote {out}") if code == 0 else len(lines) == 1)
     assert out.is_file()
+    if os.path.exists("/dev/full"):  # Linux: every write fails with ENOSPC
+        with open("/dev/full", "w") as full:
+            proc = subprocess.run([sys.executable, "-c", script, "skin", str(HUMANOID), "--out",
+                                   str(tmp_path / "y.npz"), "--frames", "0:3"],
+                                  stdout=full, stderr=subprocess.PIPE, text=True, timeout=300,
+                                  env=env)
+        assert proc.returncode == 120, proc.stderr
+        assert "dqskin: error: writing" in proc.stderr and "Traceback" not in proc.stderr
 
 
 # -- 3. concurrent writers --
