@@ -5,7 +5,8 @@ All argument parsing lives here; each command calls the library (:func:`dqskin.b
 
 * Exit status: 0 done, 2 bad input or refused (one line ``dqskin: error: ...`` naming the file,
   prim or field; no traceback), 130 on SIGINT (Ctrl-C) and 143 on SIGTERM (one line
-  ``dqskin: interrupted``).
+  ``dqskin: interrupted``), 120 when a finished command's output could not be written (a full
+  disk; one line ``dqskin: error: writing <stdout>: ...``).
 * Signals: :func:`main` installs the handlers before anything else it does; the first SIGINT or
   SIGTERM raises :class:`Interrupted` in the main thread, so every ``with`` block unwinds and
   :mod:`dqskin.formats.atomic` removes its temporary files (its commit and clean-up steps finish
