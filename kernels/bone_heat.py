@@ -77,7 +77,6 @@ def heat_sources(*, mesh, points, heads, tails, epsilon, ray_offset, check_visib
     (V, B) int8 (1: within ``1 + epsilon`` of the nearest distance and visible) for ``points``
     (V,) ``wp.vec3`` and bone segments ``heads``/``tails`` (B,) ``wp.vec3``; ``mesh`` is the
     ``wp.Mesh`` id rays are cast against (visibility only with ``check_visibility``)."""
-    wp.load_module(device=device)  # before the chunks' threads: a module loads on one thread
     launch_rows(heat_sources_kernel, points.shape[0],
                 [mesh, points, heads, tails, float(epsilon), float(ray_offset),
                  int(check_visibility)], [min_distance, nearest, closest], device, min_chunk=2048)

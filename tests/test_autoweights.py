@@ -78,6 +78,65 @@ def arm():
     return skel, pts, faces, idx, w
 
 
+def test_first_calls_from_threads_load_the_kernel_module_once(tmp_path):
+    """Four threads making a fresh process's first ``automatic_weights`` calls at the same
+    moment: no thread loads the bone-heat kernel module while another is loading it (the
+    launcher had loaded it outside the first-launch lock: a segfault in 3 runs of 4), and every
+    thread gets the single-threaded result. Cold module loads are slowed here so that overlapping
+    ones are certain to be seen."""
+    import subprocess
+    import sys
+    script = """if True:
+        import threading, time, traceback
+        import numpy as np
+        import trimesh
+        import warp as wp
+        import warp._src.context as context
+        wp.config.quiet = True
+        real, guard, inside, overlaps = context.Module.load, threading.Lock(), {}, []
+        def load(self, *args, **kwargs):
+            cold = not self.execs
+            if cold:
+                with guard:
+                    if inside.get(self.name):
+                        overlaps.append(self.name)
+                    inside[self.name] = inside.get(self.name, 0) + 1
+                time.sleep(0.2)
+            try:
+                return real(self, *args, **kwargs)
+            finally:
+                if cold:
+                    with guard:
+                        inside[self.name] -= 1
+        context.Module.load = load
+        import dqskin
+        mesh = trimesh.creation.capsule(height=2.0, radius=0.3, count=[8, 8])
+        bind = np.tile(np.eye(4), (3, 1, 1))
+        bind[:, 2, 3] = [-1.0, 0.0, 1.0]
+        skel = dqskin.Skeleton(["a", "b", "c"], [-1, 0, 1], bind)
+        barrier, results, errors = threading.Barrier(4), [], []
+        def work():
+            barrier.wait()
+            try:
+                results.append(dqskin.automatic_weights(mesh.vertices, mesh.faces, skel,
+                                                        cache=False))
+            except Exception:
+                errors.append(traceback.format_exc())
+        threads = [threading.Thread(target=work) for _ in range(4)]
+        for t in threads: t.start()
+        for t in threads: t.join()
+        ref = dqskin.automatic_weights(mesh.vertices, mesh.faces, skel, cache=False)
+        same = all(np.array_equal(r[0], ref[0]) and np.array_equal(r[1], ref[1])
+                   for r in results)
+        print("OVERLAPS", sorted(set(overlaps)), "ERRORS", len(errors), "SAME", same)
+        print(errors[0] if errors else "")
+    """
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=300, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "OVERLAPS [] ERRORS 0 SAME True" in proc.stdout, proc.stdout
+
+
 def test_partition_of_unity_sparse_non_negative(arm):
     skel, pts, faces, idx, w = arm
     assert idx.shape == (len(pts), 4) and w.dtype == np.float32 and idx.dtype == np.int32
