@@ -92,6 +92,42 @@ def humanoid(tmp_path_factory):
     return dict(scene=scene, ref=ref, single=single, shot=shot, summary=summary, tmp=tmp)
 
 
+def test_two_clip_bakes_to_one_output_one_wins_whole(tmp_path):
+    """Two clip bakes to the same output at once without force (an LBS and a DQS one): exactly
+    one finishes and the other fails with FileExistsError, and the cache holds only the winner's
+    samples. (Both used to pass the existence check, then write each other's chunks: 7 runs in 10
+    left frames of the loser's method in the winner's file.)"""
+    import threading
+    scene = load(HUMANOID)
+    times = scene.times[:12]
+    out = tmp_path / "shot.usda"
+    barrier, outcome = threading.Barrier(2), {}
+
+    def run(method):
+        barrier.wait()
+        try:
+            bake(scene, out, times, method=method, chunk=2, clips=True, normals=False,
+                 velocities=False)
+            outcome[method] = "ok"
+        except FileExistsError as exc:
+            outcome[method] = exc
+    threads = [threading.Thread(target=run, args=(m,)) for m in ("lbs", "dqs")]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    winners = [m for m, r in outcome.items() if r == "ok"]
+    assert len(winners) == 1 and len(outcome) == 2, outcome
+    loser = next(r for r in outcome.values() if r != "ok")
+    assert "clip bake" in str(loser) and "--force" in str(loser), loser
+    ref = tmp_path / "ref.usda"
+    bake(load(HUMANOID), ref, times, method=winners[0], clips=False, normals=False,
+         velocities=False)
+    ref_stage = Usd.Stage.Open(str(ref))
+    names = [str(p.GetPath()) for p in ref_stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    assert assert_same_animation(ref_stage, Usd.Stage.Open(str(out)), names, times) > 0
+
+
 def test_clips_equal_oracle_and_single_layer_at_frames_and_sub_frames(humanoid):
     scene, ref, shot = humanoid["scene"], humanoid["ref"], humanoid["shot"]
     t = scene.times

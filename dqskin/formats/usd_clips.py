@@ -214,9 +214,22 @@ class ClipBake:
             return True
         if not force:
             self.check_free(self.out)
+            self._claim(plan_file)
         elif self.folder.is_dir():
             self._remove(_OURS)
         return False
+
+    def _claim(self, plan_file):
+        """Write the plan exclusively: of two runs baking to one output without ``force``, the
+        second to get here fails (the check before it is not enough: both can pass it, then
+        write each other's chunks and remove each other's temporary files)."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        try:
+            _write_json(plan_file, self.plan, overwrite=False)
+        except (FileExistsError, FileNotFoundError):  # (the other run's start-up clears temporary
+            # files in the folder, this run's plan being written among them)
+            raise FileExistsError(f"{self.folder}: another clip bake is there or being written; "
+                                  "use --resume to complete it or --force to start over") from None
 
     @staticmethod
     def check_free(out, *, force=False, resume=False):
