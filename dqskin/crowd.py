@@ -17,6 +17,7 @@ their skeleton's bind space, joint indices offset onto the concatenated joints, 
 """
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -245,11 +246,11 @@ def skin_meshes(scene, times, method: Method | None = None, *, device: Device = 
     points, nrm, vel = {}, {}, {}
     for meth, meshes in groups.items():
         key = ("meshes", tuple(m.name for m in meshes), dev)
-        if key not in cache:
-            cache[key] = MeshBatch(meshes, [where[m.skeleton].start for m in meshes],
-                                   [scene.skeletons[m.skeleton].joint_count for m in meshes],
-                                   device)
-        batch: MeshBatch = cache[key]
+        batch = cache.get(key)  # one look-up: Scene.invalidate may drop it from another thread
+        if batch is None:
+            batch = cache[key] = MeshBatch(
+                meshes, [where[m.skeleton].start for m in meshes],
+                [scene.skeletons[m.skeleton].joint_count for m in meshes], device)
         deformers = {i: m.deformer for i, m in enumerate(meshes)
                      if blend_shapes and m.deformer is not None}
         rest = {i: d.points_at(t) for i, d in deformers.items()}
@@ -297,6 +298,16 @@ def skin_meshes(scene, times, method: Method | None = None, *, device: Device = 
     return points, nrm, vel
 
 
+class _Batch(NamedTuple):
+    """A :class:`Crowd`'s instances as launched: the list they were built from, every skeleton
+    (:class:`JointBatch`), every mesh (:class:`MeshBatch`) and the ``"instance/mesh"`` names."""
+
+    instances: list
+    joints: "JointBatch"
+    meshes: "MeshBatch"
+    names: list
+
+
 @dataclass(frozen=True)
 class Instance:
     """One placed character of a :class:`Crowd`."""
@@ -337,7 +348,8 @@ class Crowd:
     def __init__(self, device: Device = None) -> None:
         self.device = resolve_device(device)
         self.instances: list[Instance] = []
-        self._joints = self._meshes = None
+        self._batch = None  # _Batch of the instances, built on first use after a change
+        self._version = 0  # add() count: a batch built from an older list is not kept
 
     def add(self, character, *, time_offset: float = 0.0,
             root_transform: npt.ArrayLike | None = None, name: str | None = None) -> str:
@@ -356,17 +368,23 @@ class Crowd:
         name = f"i{len(self.instances)}" if name is None else str(name)
         if any(i.name == name for i in self.instances):
             raise ValueError(f"instance name {name!r} used twice")
-        self.instances.append(Instance(name, character, off, root))
-        self._joints = self._meshes = None
+        self.instances = [*self.instances, Instance(name, character, off, root)]
+        self._version += 1
+        self._batch = None
         return name
 
     def _build(self):
-        if self._meshes is not None:
-            return
-        if not self.instances:
+        """The :class:`_Batch` of the current instances (built once after a change). One
+        object, replaced whole: a call that took it keeps a consistent set of instances, skeletons
+        and meshes while another thread adds instances."""
+        batch, version = self._batch, self._version
+        if batch is not None:
+            return batch
+        instances = self.instances
+        if not instances:
             raise ValueError("crowd: no instances (add some first)")
         skeletons, meshes, offsets, counts, names = [], [], [], [], []
-        for inst in self.instances:
+        for inst in instances:
             first = len(skeletons)
             skeletons.extend(inst.character.skeletons)
             for m in inst.character.meshes:
@@ -374,26 +392,26 @@ class Crowd:
                 offsets.append(first + m.skeleton)
                 counts.append(inst.character.skeletons[m.skeleton].joint_count)
                 names.append(f"{inst.name}/{m.name}")
-        self._joints = JointBatch(skeletons, self.device)
-        self._meshes = MeshBatch(meshes, [self._joints.joints[s].start for s in offsets],
-                                 counts, self.device)
-        self._names = names
+        joints = JointBatch(skeletons, self.device)
+        batch = _Batch(instances, joints, MeshBatch(
+            meshes, [joints.joints[s].start for s in offsets], counts, self.device), names)
+        if self._version == version:  # (else an add() came meanwhile: used once, not kept)
+            self._batch = batch
+        return batch
 
     @property
     def vertex_count(self) -> int:
-        self._build()
-        return self._meshes.vertex_count
+        return self._build().meshes.vertex_count
 
     @property
     def joint_count(self) -> int:
-        self._build()
-        return self._joints.joint_count
+        return self._build().joints.joint_count
 
     @property
     def slices(self) -> dict:
         """``"instance/mesh"`` → slice of the vertex axis of :meth:`skin`'s result."""
-        self._build()
-        return dict(zip(self._names, self._meshes.vertices))
+        batch = self._build()
+        return dict(zip(batch.names, batch.meshes.vertices))
 
     def split(self, points: np.ndarray) -> dict:
         """``"instance/mesh"`` → (F, Vm, 3) views of a (F, V, 3) result of :meth:`skin`."""
@@ -403,41 +421,49 @@ class Crowd:
         """Every instance skeleton's (F, J, 4, 4) local transforms at ``times`` (each at ``t −
         time_offset``), root transforms composed onto root joints. Instances of the same
         character skeleton are sampled in one call."""
+        return self._local_transforms(times, self.instances, interp)
+
+    @staticmethod
+    def _local_transforms(times, instances, interp):
         t = check_times(times)
         F = t.shape[0]
         groups = {}
-        for k, inst in enumerate(self.instances):
+        for k, inst in enumerate(instances):
             for s in range(len(inst.character.skeletons)):
                 groups.setdefault((id(inst.character), s), []).append(k)
         per = {}
         for (_, s), ks in groups.items():
-            character = self.instances[ks[0]].character
-            tt = np.concatenate([t - self.instances[k].time_offset for k in ks])
+            character = instances[ks[0]].character
+            tt = np.concatenate([t - instances[k].time_offset for k in ks])
             local = np.asarray(character.local_transforms(tt, s, interp=interp), np.float64)
             roots = character.skeletons[s].parents < 0
             for n, k in enumerate(ks):
                 loc = local[n * F:(n + 1) * F]
-                root = self.instances[k].root_transform
+                root = instances[k].root_transform
                 if not np.array_equal(root, np.eye(4)):
                     loc = loc.copy()
                     loc[:, roots] = root @ loc[:, roots]
                 per[(k, s)] = loc
-        return [per[(k, s)] for k, inst in enumerate(self.instances)
+        return [per[(k, s)] for k, inst in enumerate(instances)
                 for s in range(len(inst.character.skeletons))]
 
     def pose(self, local_transforms: list) -> wp.array:
         """(F, ΣJ) ``wp.mat44`` skinning transforms on the device from :meth:`local_transforms`'
         list, in one FK launch."""
-        self._build()
-        if len(local_transforms) != len(self._joints.skeletons):
+        return self._pose(self._build(), local_transforms)
+
+    @staticmethod
+    def _pose(batch, local_transforms):
+        if len(local_transforms) != len(batch.joints.skeletons):
             raise ValueError(f"local_transforms: {len(local_transforms)} skeletons for "
-                             f"{len(self._joints.skeletons)}")
-        return self._joints.skinning_transforms(local_transforms)
+                             f"{len(batch.joints.skeletons)}")
+        return batch.joints.skinning_transforms(local_transforms)
 
     def skinning_transforms(self, times: npt.ArrayLike, *, interp="trs") -> wp.array:
         """(F, ΣJ) ``wp.mat44`` skinning transforms of every instance skeleton, crowd space:
         :meth:`local_transforms` then :meth:`pose`."""
-        return self.pose(self.local_transforms(times, interp=interp))
+        batch = self._build()
+        return self._pose(batch, self._local_transforms(times, batch.instances, interp))
 
     def skin(self, times: npt.ArrayLike, method: Method = "dqs", *, interp="trs",
              as_warp: bool = False) -> np.ndarray | wp.array:
@@ -457,16 +483,16 @@ class Crowd:
             Every instance's points in crowd space, in :attr:`slices` order.
         """
         self._check_method(method)
-        return self.skin_transforms(self.skinning_transforms(times, interp=interp), method,
-                                    as_warp=as_warp)
+        batch = self._build()  # one set of instances for the transforms and the skinning
+        xforms = self._pose(batch, self._local_transforms(times, batch.instances, interp))
+        return batch.meshes.skinner.skin(xforms, method, as_warp=as_warp)
 
     def skin_transforms(self, skinning_transforms: wp.array, method: Method = "dqs", *,
                         as_warp: bool = False) -> np.ndarray | wp.array:
         """Skin every instance with given (F, ΣJ) skinning transforms (:meth:`pose`,
         :meth:`skinning_transforms`, or a (F, ΣJ, 4, 4) array): one launch."""
         self._check_method(method)
-        self._build()
-        return self._meshes.skinner.skin(skinning_transforms, method, as_warp=as_warp)
+        return self._build().meshes.skinner.skin(skinning_transforms, method, as_warp=as_warp)
 
     @staticmethod
     def _check_method(method):

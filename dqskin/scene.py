@@ -156,9 +156,9 @@ class Scene:
 
     def invalidate(self, name: str | None = None) -> None:
         """Drop the uploaded skinner of mesh ``name`` (every mesh when None)."""
-        for key in [k for k in self._skinners if name is None or k[0] == name
+        for key in [k for k in list(self._skinners) if name is None or k[0] == name
                     or (k[0] == "meshes" and name in k[1])]:  # batches (dqskin.crowd) too
-            del self._skinners[key]
+            self._skinners.pop(key, None)  # (list, pop: other threads may skin meanwhile)
 
     def skinner(self, mesh: Mesh, device: Device = None) -> Skinner:
         """The :class:`dqskin.Skinner` of ``mesh`` on ``device``, uploaded once and reused."""

@@ -231,3 +231,49 @@ def test_crowd_refuses_bad_input(characters):
         crowd.skin([0.0], "cor")
     with pytest.raises(ValueError, match="no instances"):
         Crowd().skin([0.0])
+
+
+def test_instances_added_and_skinners_dropped_while_other_threads_skin():
+    """One thread adds instances to a Crowd (and drops a Scene's skinners) while two others skin
+    them: no call fails, each result has the points of some whole set of instances, and the
+    crowd is usable afterwards. (``add`` used to reset the batches while another thread built
+    them: a crowd could stay broken for good; ``Scene.invalidate`` iterated the cache while
+    other threads filled it.)"""
+    import threading
+    assets = Path(__file__).resolve().parents[1] / "assets"
+    arm = dqskin.load(assets / "bending_arm.usda")
+    scene = dqskin.load(assets / "humanoid.usda")  # several meshes: the batched path
+    crowd = Crowd(device="cpu")
+    crowd.add(arm)
+    per_instance = sum(len(m.points) for m in arm.meshes)
+    stop, errors, counts = threading.Event(), [], set()
+
+    def change():
+        try:
+            for k in range(30):
+                xf = np.eye(4)
+                xf[:3, 3] = [k, 0.0, 0.0]
+                crowd.add(arm, root_transform=xf)
+                scene.invalidate()
+                stop.wait(0.005)
+        finally:
+            stop.set()
+
+    def skin():
+        while not stop.is_set():
+            try:
+                points = crowd.skin([0.0, 0.5], "dqs")
+                assert points.shape[1] % per_instance == 0, points.shape
+                counts.add(points.shape[1] // per_instance)
+                scene.skin(scene.times[:2], "lbs")
+            except Exception as exc:  # noqa: BLE001  (reported below, not lost in the thread)
+                errors.append(repr(exc))
+    threads = [threading.Thread(target=change)] + [threading.Thread(target=skin)
+                                                   for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors[:3]
+    assert len(counts) > 1  # the skinning threads saw the crowd grow
+    assert crowd.skin([0.0], "dqs").shape == (1, 31 * per_instance, 3)
