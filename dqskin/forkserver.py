@@ -24,12 +24,16 @@ PRELOAD = ["distributed", "numpy", "dqskin.distributed", "dqskin.formats.usd"]
 (importing them costs each spawned worker 2-3 CPU-seconds)."""
 
 _CONFIG = {"distributed.worker.multiprocessing-method": "forkserver",
-           "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+           "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+           "distributed.worker.profile.enabled": False}
 """Dask settings of a LocalCluster bake: workers from the forkserver, and without Dask's
 ``MALLOC_TRIM_THRESHOLD_=65536``: glibc reads it once, when the forkserver starts, and with it
 every worker hands each chunk's freed memory back to the system and faults it in again for the
 next (twice the system time: 2.1-2.2 against 1.0-1.2 s, tasks 0.2-1.4 s longer, for 10,000
-CesiumMan frames on one worker)."""
+CesiumMan frames on one worker); and without Dask's statistical profiler, which samples every
+thread's stack each 10 ms: two bakes in about 100 stalled for ~10 minutes with every thread of a
+worker waiting for the GIL, the profiler's thread among them while each chunk's short-lived
+threads exited (not confirmed as the cause: too rare to reproduce at will)."""
 
 
 def _distributed_defaults():

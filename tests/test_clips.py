@@ -92,6 +92,34 @@ def humanoid(tmp_path_factory):
     return dict(scene=scene, ref=ref, single=single, shot=shot, summary=summary, tmp=tmp)
 
 
+def test_unsorted_and_repeated_times_give_the_sorted_cache(tmp_path):
+    """Times in any order, some repeated: the clip cache equals the single-layer one (a cache is
+    keyed by time) at every frame and sub-frame, chunk boundaries included. (The clip metadata was
+    built in the given order: wrong at almost every time, or no values at all.)"""
+    scene = load(HUMANOID)
+    t = scene.times[:13]
+    shuffled = np.concatenate([t[::-1][:5], t[3:9], t[:4], t[10:]])  # reversed, repeated
+    single, clipped = tmp_path / "single.usda", tmp_path / "clips.usda"
+    bake(scene, single, t, method="dqs", clips=False)
+    bake(scene, clipped, shuffled, method="dqs", chunk=3, clips=True)
+    a = Usd.Stage.Open(str(single))
+    names = [str(p.GetPath()) for p in a.Traverse() if p.IsA(UsdGeom.Mesh)]
+    probe = np.concatenate([t, t[:-1] + 0.5])
+    assert assert_same_animation(a, Usd.Stage.Open(str(clipped)), names, probe) > 0
+
+
+def test_force_removes_the_top_level_reading_the_clips_it_replaces(tmp_path):
+    """A ``--force`` clip bake over an earlier one removes the earlier top level as it clears the
+    clip layers that file reads: interrupted, it leaves no file showing a mix of two bakes."""
+    from dqskin.formats.usd_clips import ClipBake
+    scene = load(HUMANOID)
+    out = tmp_path / "shot.usd"
+    bake(scene, out, scene.times[:6], method="lbs", chunk=3, clips=True)
+    assert out.is_file()
+    ClipBake(scene, out, scene.times[:6], 3, {"method": "dqs"}, force=True)
+    assert not out.exists() and not list(clips_folder(out).glob("chunk_*"))
+
+
 def test_two_clip_bakes_to_one_output_one_wins_whole(tmp_path):
     """Two clip bakes to the same output at once without force (an LBS and a DQS one): exactly
     one finishes and the other fails with FileExistsError, and the cache holds only the winner's

@@ -156,14 +156,15 @@ class ClipBake:
     out : str or Path
         ``SHOT.usd/.usdc/.usda``; the clips go to :func:`clips_folder`.
     times : (F,) float64
-        Time codes to bake.
+        Time codes to bake (in any order; baked sorted, each once).
     chunk : int
         Frames each clip layer owns.
     options : dict
         Skinning options that change the result (method, interp, normals, velocities); part of
         the plan key.
     force : bool
-        Start over: an existing ``out`` and the clip files of an earlier bake are replaced.
+        Start over: an existing ``out`` and the clip files of an earlier bake are replaced (the
+        ``out`` of an earlier clip bake is removed at once: it reads those clip files).
     resume : bool
         Keep the chunks of an earlier bake of the same plan that verify; redo the rest.
 
@@ -179,7 +180,9 @@ class ClipBake:
         normals, velocities = options.get("normals", True), options.get("velocities", True)
         self.cache = CacheLayer(scene, out)
         self.out, self.folder = Path(out), clips_folder(out)
-        self.times = np.asarray(times, np.float64)
+        # a cache is keyed by time: sorted, each once (the clip metadata's "active" and "times"
+        # need increasing times: unsorted --frames gave a cache wrong at almost every time)
+        self.times = np.unique(np.asarray(times, np.float64))
         self.bounds = chunk_bounds(len(self.times), chunk)
         self.targets = self.cache.all_targets(normals=normals, velocities=velocities)
         src = Path(self.cache.src).resolve()
@@ -216,6 +219,8 @@ class ClipBake:
             self.check_free(self.out)
             self._claim(plan_file)
         elif self.folder.is_dir():
+            if earlier and self.out.is_file():  # it reads the clips about to be replaced: an
+                self.out.unlink()  # interrupted --force left it showing a mix of two bakes
             self._remove(_OURS)
         return False
 
