@@ -89,14 +89,15 @@ def _quiet_libraries(verbose):
     wp.config.quiet = not verbose
     if not verbose:
         wp.config.log_level = wp.LOG_ERROR
-    _init_warp(wp, verbose)
+    _init_warp(verbose)
 
 
-def _init_warp(wp, verbose):
-    """``wp.init()``; without ``verbose`` what its native code writes to stderr is captured and
-    shown only if it fails."""
+def _init_warp(verbose):
+    """Warp's initialization (:func:`dqskin._warp.init_warp`, once, under its lock); without
+    ``verbose`` what its native code writes to stderr is captured and shown only if it fails."""
+    from ._warp import init_warp
     if verbose:
-        wp.init()
+        init_warp()
         return
     import os
     import tempfile
@@ -106,7 +107,7 @@ def _init_warp(wp, verbose):
         try:
             os.dup2(capture.fileno(), 2)
             try:
-                wp.init()
+                init_warp()
             finally:
                 os.dup2(saved, 2)
         except Exception:
