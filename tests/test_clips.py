@@ -120,6 +120,18 @@ def test_force_removes_the_top_level_reading_the_clips_it_replaces(tmp_path):
     assert not out.exists() and not list(clips_folder(out).glob("chunk_*"))
 
 
+def test_flatten_refuses_to_overwrite_one_of_its_clip_layers(tmp_path):
+    """A clip layer is an input of the cache too (opened only when values are read): flattening
+    onto one is refused and leaves it as it was."""
+    out = tmp_path / "shot.usd"
+    bake(load(HUMANOID), out, chunk=8, clips=True, normals=False, velocities=False)
+    layer = sorted(clips_folder(out).glob("chunk_*.usdc"))[1]
+    before = layer.read_bytes()
+    with pytest.raises(ValueError, match="refusing to overwrite an input"):
+        flatten(out, layer, overwrite=True)
+    assert layer.read_bytes() == before
+
+
 def test_two_clip_bakes_to_one_output_one_wins_whole(tmp_path):
     """Two clip bakes to the same output at once without force (an LBS and a DQS one): exactly
     one finishes and the other fails with FileExistsError, and the cache holds only the winner's

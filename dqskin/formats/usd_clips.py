@@ -330,13 +330,14 @@ def flatten(src, out, *, overwrite: bool = False) -> Path:
     stage = Usd.Stage.Open(str(src)) if Path(src).is_file() else None
     if stage is None:
         raise ValueError(f"{src}: cannot open the stage")
+    flat = stage.Flatten()  # opens every clip layer: only then are all the inputs known
     for layer in stage.GetUsedLayers():
         real = layer.realPath and layer.realPath.split("[", 1)[0]
         if real and out.exists() and os.path.samefile(real, out):
             raise ValueError(f"{out}: refusing to overwrite an input of {src}")
     claim = atomic_path(out, overwrite=overwrite)
     try:
-        export_layer(stage.Flatten(), claim)
+        export_layer(flat, claim)
     except BaseException:
         claim.discard()
         raise
