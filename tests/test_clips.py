@@ -132,6 +132,25 @@ def test_flatten_refuses_to_overwrite_one_of_its_clip_layers(tmp_path):
     assert layer.read_bytes() == before
 
 
+@pytest.mark.parametrize("force", [False, True])
+def test_two_outputs_sharing_a_clip_folder_are_refused(tmp_path, force):
+    """``shot.usda`` beside a clip bake of ``shot.usd`` would use the same ``shot.clips/``: the
+    second is refused (with ``--force`` too, which would have turned the first file's clips into
+    the second bake's), naming the first, which keeps reading its own samples."""
+    scene = load(HUMANOID)
+    first, second = tmp_path / "shot.usd", tmp_path / "shot.usda"
+    bake(scene, first, scene.times[:6], method="lbs", chunk=3, clips=True)
+    ref = tmp_path / "ref.usda"
+    bake(scene, ref, scene.times[:6], method="lbs", clips=False)
+    with pytest.raises(ValueError, match="shot.usd, another output"):
+        bake(scene, second, scene.times[:6], method="dqs", chunk=3, clips=True, force=force)
+    assert not second.exists()
+    ref_stage = Usd.Stage.Open(str(ref))
+    names = [str(p.GetPath()) for p in ref_stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    assert assert_same_animation(ref_stage, Usd.Stage.Open(str(first)), names,
+                                 scene.times[:6]) > 0
+
+
 def test_two_clip_bakes_to_one_output_one_wins_whole(tmp_path):
     """Two clip bakes to the same output at once without force (an LBS and a DQS one): exactly
     one finishes and the other fails with FileExistsError, and the cache holds only the winner's

@@ -195,7 +195,7 @@ class ClipBake:
                 "options": {k: options[k] for k in sorted(options)},
                 "attributes": sorted(t.attr for t in self.targets.values())}
         self.key = hashlib.sha256(json.dumps(plan, sort_keys=True).encode()).hexdigest()
-        self.plan = dict(plan, key=self.key)
+        self.plan = dict(plan, key=self.key, out=self.out.name)  # (the name: not in the key)
         self.resumed = self._check_existing(force, resume)
         self.overwrite = force or self.resumed
 
@@ -205,6 +205,7 @@ class ClipBake:
         if self.folder.exists() and not self.folder.is_dir():
             raise NotADirectoryError(f"{self.folder}: exists and is not a folder")
         earlier = plan_file.exists()
+        self._check_owner(self.out)
         if earlier and resume and not force:
             try:
                 key = json.loads(plan_file.read_text()).get("key")
@@ -224,6 +225,20 @@ class ClipBake:
             self._remove(_OURS)
         return False
 
+    @staticmethod
+    def _check_owner(out):
+        """ValueError when ``out``'s clip folder holds an earlier bake of another top-level
+        file (``shot.usda`` beside ``shot.usd``: one ``shot.clips/``), ``force`` or not."""
+        out, folder = Path(out), clips_folder(out)
+        try:
+            owner = json.loads((folder / "plan.json").read_text()).get("out")
+        except (OSError, ValueError, AttributeError):
+            return
+        if isinstance(owner, str) and owner != out.name:
+            raise ValueError(f"{folder}: holds the clips of {owner}, another output; bake "
+                             f"{out.name} under another name (or remove {owner} and "
+                             f"{folder.name}/ first)")
+
     def _claim(self, plan_file):
         """Write the plan exclusively: of two runs baking to one output without ``force``, the
         second to get here fails (the check before it is not enough: both can pass it, then
@@ -239,7 +254,9 @@ class ClipBake:
     @staticmethod
     def check_free(out, *, force=False, resume=False):
         """The refusals that need no plan (before starting workers): FileExistsError when
-        ``out`` or an unfinished clip bake exists, unless ``force`` or ``resume``."""
+        ``out`` or an unfinished clip bake exists, unless ``force`` or ``resume``; ValueError
+        when its clip folder belongs to another output (:meth:`_check_owner`)."""
+        ClipBake._check_owner(out)
         if force or resume:
             return
         out, folder = Path(out), clips_folder(out)
