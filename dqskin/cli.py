@@ -560,26 +560,26 @@ def _exit(code):
     (a full disk, a closed pipe) makes a successful command exit 120, as Python's own exit does;
     the message names stdout, except for a reader that went away."""
     import atexit
+    import contextlib
     import os
     for s in SIGNALS:
         signal.signal(s, signal.SIG_IGN)
     atexit._run_exitfuncs()  # logging, weakref finalizers (temporary folders), ...
-    failed = None
+    failed, message = False, None
     for stream in (sys.stdout, sys.__stdout__, sys.stderr, sys.__stderr__):
         try:
             stream.flush()
-        except BrokenPipeError:
-            failed = failed or "reader gone"
+        except BrokenPipeError:  # the reader went away: nobody to tell
+            failed = True
         except OSError as exc:
-            failed = f"dqskin: error: writing {getattr(stream, 'name', 'output')}: {exc}"
+            failed = True
+            message = f"dqskin: error: writing {getattr(stream, 'name', 'output')}: {exc}\n"
         except (AttributeError, ValueError):  # no stream, or a closed one
             pass
-    if failed is not None and code == 0:
-        if failed.startswith("dqskin:"):
-            try:
-                os.write(2, (failed + "\n").encode(errors="replace"))
-            except OSError:
-                pass
+    if failed and code == 0:
+        if message is not None:
+            with contextlib.suppress(OSError):
+                os.write(2, message.encode(errors="replace"))
         code = 120
     os._exit(code)
 

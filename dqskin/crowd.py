@@ -462,7 +462,9 @@ class Crowd:
     def skinning_transforms(self, times: npt.ArrayLike, *, interp="trs") -> wp.array:
         """(F, ΣJ) ``wp.mat44`` skinning transforms of every instance skeleton, crowd space:
         :meth:`local_transforms` then :meth:`pose`."""
-        batch = self._build()
+        return self._skinning_transforms(self._build(), times, interp)
+
+    def _skinning_transforms(self, batch, times, interp):
         return self._pose(batch, self._local_transforms(times, batch.instances, interp))
 
     def skin(self, times: npt.ArrayLike, method: Method = "dqs", *, interp="trs",
@@ -484,8 +486,8 @@ class Crowd:
         """
         self._check_method(method)
         batch = self._build()  # one set of instances for the transforms and the skinning
-        xforms = self._pose(batch, self._local_transforms(times, batch.instances, interp))
-        return batch.meshes.skinner.skin(xforms, method, as_warp=as_warp)
+        return batch.meshes.skinner.skin(self._skinning_transforms(batch, times, interp), method,
+                                         as_warp=as_warp)
 
     def skin_transforms(self, skinning_transforms: wp.array, method: Method = "dqs", *,
                         as_warp: bool = False) -> np.ndarray | wp.array:
