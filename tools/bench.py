@@ -295,7 +295,8 @@ def bench_crowd(devices, rows, counts=(100, 1000), frames=16, repeat=3):
             single = dqskin.Skinner(mesh.points, mesh.joint_indices, mesh.joint_weights,
                                     geom_bind_transform=mesh.geom_bind_transform, device=dev)
             host = xf.numpy()
-            per_instance = [np.ascontiguousarray(host[:, sl]) for sl in crowd._joints.joints]
+            per_instance = [np.ascontiguousarray(host[:, sl])
+                            for sl in crowd._build().joints.joints]
             for method in ("lbs", "dqs"):
                 fns = {
                     "one mesh": lambda: (one.skin(M, method), wp.synchronize()),
