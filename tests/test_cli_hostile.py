@@ -402,10 +402,10 @@ def test_out_under_a_file(tmp_path):
 
 
 def test_write_error_names_the_output_not_the_temporary_file(tmp_path):
-    """A name of 250 characters is legal, its temporary sibling (10 longer) is not."""
+    """A name of 254 characters is legal, its temporary folder (``.STEM.XXXXXXXX``) is not."""
     src = usda(tmp_path)
     for suffix in (".npz", ".usda"):
-        out = tmp_path / ("n" * (250 - len(suffix)) + suffix)
+        out = tmp_path / ("n" * (254 - len(suffix)) + suffix)
         rc, _, err = run("skin", src, "--out", out)
         assert_clean_error(rc, err, out.name)
         line = err.strip().splitlines()[-1]

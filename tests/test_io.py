@@ -43,6 +43,29 @@ def test_atomic_path_keeps_old_file_on_error(tmp_path):
     assert (tmp_path / "sub" / "new.txt").read_text() == "new"
 
 
+def test_atomic_path_leaves_the_file_to_its_writer(tmp_path):
+    """The temporary file does not exist until the writer creates it, in a private folder beside
+    the target. USD's Export saves through its own temporary file and a rename; renamed onto an
+    existing (empty) file, ext4 writes the whole new file to disk before the rename returns. Its
+    own temporary files land in the private folder, which commit and discard remove."""
+    from pxr import Sdf
+    claim = atomic_path(tmp_path / "out.usdc")
+    tmp = claim.open()
+    assert not tmp.exists() and tmp.name == "out.usdc" and tmp.parent.parent == tmp_path
+    layer = Sdf.Layer.CreateAnonymous(".usdc")
+    Sdf.CreatePrimInLayer(layer, "/a")
+    assert layer.Export(str(tmp))
+    assert claim.commit() == tmp_path / "out.usdc"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.usdc"]
+    assert Sdf.Layer.OpenAsAnonymous(str(tmp_path / "out.usdc")).GetPrimAtPath("/a")
+    claim = atomic_path(tmp_path / "b.usdc")
+    tmp = claim.open()
+    tmp.write_text("half")
+    (tmp.parent / ".b.usdc.tmp123").write_text("a writer's own temporary file")
+    claim.discard()
+    assert [p.name for p in tmp_path.iterdir()] == ["out.usdc"]
+
+
 def test_atomic_path_exclusive_claim(tmp_path):
     """overwrite=False: of two writers of one new file, the one committing second fails and
     leaves the first one's file; its temporary file is removed."""
@@ -84,7 +107,7 @@ def test_atomic_errors_name_the_target(tmp_path):
     with pytest.raises(NotADirectoryError, match="file is not a directory"):
         with atomic_path(blocker / "sub" / "out.txt"):
             pass
-    long_name = tmp_path / ("n" * 250)  # legal; its temporary sibling is 10 characters longer
+    long_name = tmp_path / ("n" * 250)  # legal; its temporary folder is 10 characters longer
     with pytest.raises(OSError) as info:
         with atomic_path(long_name):
             pass

@@ -286,6 +286,7 @@ def breakdown(frames, asset=DEFAULT_ASSET):
         make_long_clip(asset, frames, src)
         tables = {}
         for which in ("usdskel", "dqskin"):
+            os.sync()  # no dirty pages from the run before (see bench_one)
             proc = subprocess.run([sys.executable, __file__, "--child-breakdown", which, str(src),
                                    str(tmp / f"{which}.usd")], capture_output=True, text=True)
             if proc.returncode:
@@ -337,6 +338,10 @@ def bench_one(rows, label, src, impls, tmp):
     dsts = {}
     for which in impls:
         dst = tmp / f"{label}_{which.replace('+', '_')}.usd"
+        # every bake starts with no dirty pages: the kernel throttles a writer once earlier
+        # runs' outputs (hundreds of MB, not yet on disk) pass its dirty limit, which would
+        # charge one implementation for the writeback of the one run before it
+        os.sync()
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         proc = subprocess.run([sys.executable, __file__, "--child", which, str(src), str(dst)],
                               capture_output=True, text=True)

@@ -29,6 +29,7 @@ import hashlib
 import json
 import os
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -267,10 +268,14 @@ class ClipBake:
                                   "complete it or --force to start over")
 
     def _remove(self, pattern):
+        """Remove this folder's files (and temporary folders, :mod:`.atomic`) that match."""
         for p in self.folder.iterdir():
-            if pattern.match(p.name) and p.is_file():
-                with contextlib.suppress(OSError):
-                    p.unlink()
+            if pattern.match(p.name):
+                if p.is_dir() and not p.is_symlink():
+                    shutil.rmtree(p, ignore_errors=True)
+                elif p.is_file():
+                    with contextlib.suppress(OSError):
+                        p.unlink()
 
     def clip_path(self, index) -> Path:
         return self.folder / (_chunk_name(index, len(self.bounds)) + ".usdc")
