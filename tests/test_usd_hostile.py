@@ -166,16 +166,17 @@ def test_bad_animations(tmp_path, capfd, case):
 
 class _WarningQuery:
     """A skeleton query whose UsdSkel posts a warning and falls back, as it does when it cannot
-    compose an animation."""
-
-    def __init__(self, query):
-        self.query = query
+    compose an animation (at every time, or only at time ``at``)."""
 
     def __getattr__(self, name):
         return getattr(self.query, name)
 
+    def __init__(self, query, at=None):
+        self.query, self.at = query, at
+
     def ComputeJointLocalTransforms(self, time):  # noqa: N802 (UsdSkel's name)
-        Tf.Warn("failed composing transforms from components.")
+        if self.at is None or time.GetValue() == self.at:
+            Tf.Warn("failed composing transforms from components.")
         return self.query.ComputeJointLocalTransforms(time)
 
 
@@ -188,6 +189,11 @@ def test_animation_usdskel_cannot_compose_later(tmp_path, capfd):
     with pytest.raises(ValueError, match=r"rig.usda: /Root/Rig/Skel/Anim: cannot compute joint "
                                          r"transforms at time 2 \(USD: failed composing"):
         anim.local_transforms([2.0])
+    assert capfd.readouterr().err == ""
+    anim._query = _WarningQuery(anim._query.query, at=3.0)  # warnings are checked per call
+    with pytest.raises(ValueError, match=r"Anim: cannot compute joint transforms at time 3 "
+                                         r"\(USD: failed composing"):
+        anim.local_transforms([1.0, 2.0, 3.0, 4.0])
     assert capfd.readouterr().err == ""
 
 

@@ -342,16 +342,32 @@ class UsdSkelAnimation(Animation):
             rest pose); the message names the file, the ``SkelAnimation`` and the time.
         """
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-        out = np.empty((t.shape[0], self.joint_count, 4, 4))
+        J = self.joint_count
+        rows = np.empty((t.shape[0], J, 4, 4))  # USD's row-vector matrices, one copy each
+        compute = self._query.ComputeJointLocalTransforms
         with _usd_diagnostics() as warnings:
-            for i, ti in enumerate(t):
-                xf = self._query.ComputeJointLocalTransforms(Usd.TimeCode(float(ti)))
-                trapped = warnings()  # only this time's: an earlier warning has raised
-                if xf is None or len(xf) != self.joint_count or trapped:
+            for i, ti in enumerate(t.tolist()):
+                xf = compute(Usd.TimeCode(ti))
+                if xf is None or len(xf) != J:
                     self._fail(f"cannot compute joint transforms at time {ti:g}"
-                               f"{_first(trapped)}")
-                out[i] = _matrices(xf)
-        return out
+                               f"{_first(warnings())}")
+                rows[i] = xf
+            # warnings are checked once per call, not per frame (that doubled the sampling)
+            trapped = warnings()
+        if trapped:
+            self._fail(self._warned_at(t, trapped))
+        return np.ascontiguousarray(rows.transpose(0, 1, 3, 2))
+
+    def _warned_at(self, t, trapped):
+        """Why sampling at ``t`` posted USD warnings (UsdSkel falls back to the rest pose): the
+        first time that warns again, sampled one by one."""
+        with _usd_diagnostics() as warnings:
+            for ti in t.tolist():
+                self._query.ComputeJointLocalTransforms(Usd.TimeCode(ti))
+                if warnings():
+                    return f"cannot compute joint transforms at time {ti:g}{_first(warnings())}"
+        return (f"cannot compute joint transforms at a time from {t[0]:g} to {t[-1]:g}"
+                f"{_first(trapped)}")
 
     def blend_shape_weight_rates(self, times):
         """``(F, S)`` float64 time derivatives of :meth:`blend_shape_weights` (USD interpolates
