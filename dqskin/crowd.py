@@ -25,6 +25,7 @@ import warp as wp
 
 from ._warp import Device, resolve_device
 from .animation import check_times
+from .kernels import buffers as KB
 from .kernels import fk as FK
 from .motion import skinning_transforms_with_derivative
 from .skinning import Method, Skinner
@@ -86,7 +87,7 @@ class JointBatch:
         FK.forward_kinematics(parents=self._parents, skeleton_start=self._starts, local=local,
                               out=poses, device=d)
         world = poses.matrices.reshape(shape)
-        out = wp.empty(shape, dtype=wp.mat44, device=d)
+        out = KB.empty(shape, wp.mat44, d)
         FK.bind_relative(world=world, inverse_bind=self._inverse_bind, skinning=out, device=d)
         return out
 

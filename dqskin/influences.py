@@ -4,6 +4,7 @@
 import numpy as np
 import warp as wp
 
+from .kernels import buffers as KB
 from .kernels import layout as KL
 from .kernels.grid import beside
 from .shapes import as_real
@@ -169,8 +170,8 @@ class Influences:
         no host sort, gather or pad (several times the cost of skinning the points once)."""
         idx, wts = self._input
         V, groups = self.vertex_count, max(1, -(-self.influence_count // 4))
-        out = {"indices": wp.empty((V, groups), dtype=wp.vec4i, device=device),
-               "weights": wp.empty((V, groups), dtype=wp.vec4, device=device)}
+        out = {"indices": KB.empty((V, groups), wp.vec4i, device),
+               "weights": KB.empty((V, groups), wp.vec4, device)}
         if self.influence_count == 0:
             out["indices"].zero_()
             out["weights"].zero_()

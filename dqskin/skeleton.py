@@ -8,6 +8,7 @@ import numpy.typing as npt
 import warp as wp
 
 from ._warp import Device, resolve_device
+from .kernels import buffers as KB
 from .kernels import fk as FK
 from .shapes import as_real
 from .validation import FLOAT32_MAX, check_finite, location
@@ -295,7 +296,7 @@ class Skeleton:
         poses, shape = _forward_kinematics(self.parents, local, d, joint_names=self.joint_names)
         world = poses.matrices.reshape((-1, self.joint_count))
         inv = wp.array(inverse_bind, dtype=wp.mat44, device=d)
-        out = wp.empty(world.shape, dtype=wp.mat44, device=d)
+        out = KB.empty(world.shape, wp.mat44, d)
         FK.bind_relative(world=world, inverse_bind=inv, skinning=out, device=d)
         return out if as_warp else out.numpy().reshape(*shape, 4, 4)
 

@@ -17,6 +17,7 @@ import warp as wp
 from ._warp import Device, resolve_device
 from .cor import SIGMA, check_faces, rotation_centers
 from .influences import Influences
+from .kernels import buffers as KB
 from .kernels import grid as KG
 from .kernels import skin as K
 from .kernels import velocity as KV
@@ -410,7 +411,7 @@ class Skinner:
                      and self._reuse_output)
             out, view = self._cache.get(("out", frames), (None, None)) if small else (None, None)
             if out is None:
-                out = wp.empty((frames, self.vertex_count), dtype=wp.vec3, device=self.device)
+                out = KB.empty((frames, self.vertex_count), wp.vec3, self.device)
                 if small and self.device.is_cpu:  # its NumPy view, made once
                     view = out.numpy()
                 if small:
@@ -485,7 +486,7 @@ class Skinner:
                                  prep["normal_residuals"])
             else:
                 lin, rot, res = prep["linears"], prep["rotations"], prep["joints"].residuals
-            out = wp.empty((frames, n), dtype=wp.vec3, device=d)
+            out = KB.empty((frames, n), wp.vec3, d)
             K.skin_vectors(method=code, vectors=src,
                            vector_vertex=wp.array(vv.astype(np.int32), dtype=wp.int32, device=d),
                            influences=inf,
@@ -534,7 +535,7 @@ class Skinner:
             vel = (wp.zeros((1, self.vertex_count), dtype=wp.vec3, device=self.device)
                    if point_velocities is None else
                    self._rest("point_velocities", point_velocities, frames, linear=True))
-            out = wp.empty((frames, self.vertex_count), dtype=wp.vec3, device=self.device)
+            out = KB.empty((frames, self.vertex_count), wp.vec3, self.device)
             KV.velocities(method=code, points=src, point_velocities=vel, influences=inf,
                           out=out, device=self.device, **prep)
             return self._result(out, batched, as_warp)

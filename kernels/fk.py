@@ -24,6 +24,7 @@ non-rigid joints, and only their descendants take the residual composition.
 
 import warp as wp
 
+from .buffers import empty
 from .dqmath import dq_from_rt, dq_mul, dq_translation, mat44_linear, polar_rotation, vec8
 from .grid import launch, launch_rows
 
@@ -276,9 +277,9 @@ class WorldPoses:
     __slots__ = ("matrices", "dqs", "residuals", "rigid", "invalid")
 
     def __init__(self, count, device):
-        self.matrices = wp.empty(count, dtype=wp.mat44, device=device)
-        self.dqs = wp.empty(count, dtype=vec8, device=device)
-        self.residuals = wp.empty(count, dtype=wp.mat33, device=device)
+        self.matrices = empty(count, wp.mat44, device)
+        self.dqs = empty(count, vec8, device)
+        self.residuals = empty(count, wp.mat33, device)
         self.rigid = wp.empty(count, dtype=wp.uint8, device=device)
         self.invalid = wp.zeros(1, dtype=wp.int32, device=device)
         """(1,) set to 1 when a local matrix is not finite (NaN, inf): the caller's host check
