@@ -24,6 +24,7 @@ non-rigid joints, and only their descendants take the residual composition.
 
 import warp as wp
 
+from . import fk_native as native
 from .buffers import empty
 from .dqmath import dq_from_rt, dq_mul, dq_translation, mat44_linear, polar_rotation, vec8
 from .grid import launch, launch_rows
@@ -211,8 +212,24 @@ def _forward_kinematics_kernel(trs, name):
                 q, rigid = split_trs(poses.rotations[i], poses.scales[i])
             else:
                 m = poses.matrices[i]
-                z = m * 0.0  # 0 where finite, NaN at NaN/inf (also float64 beyond float32)
-                bad += wp.ddot(z, z)
+                ck = native.local_check(m)
+                bad += ck[0]  # 0 where finite, NaN at NaN/inf (also float64 beyond float32)
+                if ck[1] < 1.0e-6:
+                    # the common case, a rotation under a rigid parent (or none), as native
+                    # snippets (SIMD on the CPU: kernels/fk_native.py)
+                    pj = parents[j]
+                    above = vec8()
+                    has = int(0)
+                    if pj >= 0:
+                        has = int(world_rigid[base + pj])
+                        if has != 0:
+                            above = world_dqs[base + pj]
+                    if pj < 0 or has != 0:
+                        e = native.rigid_step(m, above, has)
+                        world_dqs[i] = e
+                        world_rigid[i] = wp.uint8(1)
+                        world[i] = native.rigid_matrix(e)
+                        continue
                 q, t, rigid = split_matrix(m)
             # q is the rotation times a positive factor (up to 4 from a matrix): scaled by ¼
             # (exact) so ½·t·q cannot overflow for any float32 t, and normalized after the

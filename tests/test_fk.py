@@ -377,3 +377,59 @@ def test_non_finite_bind_rest_and_world_raise():
     _raises(lambda: Skeleton(NAMES, CHAIN, world_transform=np.full((4, 4), np.inf)),
             "world_transform: NaN or infinite entries")
     _raises(lambda: Skeleton(NAMES, CHAIN, {"not": "matrices"}), "bind_transforms")
+
+
+def test_native_fk_steps_both_branches_against_float64():
+    """kernels/fk_native.py: the CPU (vector) branch and the CUDA (scalar) branch, both compiled
+    for the CPU, against float64 dual quaternions: the rigid step ``parent·η(R, t)``, the matrix
+    of a unit DQ, and the local check (finite; rotation error of rotations, reflections,
+    scales). Rotations cover every Shepperd case (trace, then each diagonal term largest)."""
+    import warp as wp
+    from fk_scalar_twin import both_branches  # tests/ is on the path of its tests
+
+    from dqskin import dq
+    from dqskin._warp import init_warp
+    from dqskin.kernels.dqmath import vec8
+
+    init_warp()
+    rng = np.random.default_rng(7)
+    n = 400
+    rot = Rotation.random(n, random_state=rng)
+    half_turns = Rotation.from_rotvec(np.pi * np.eye(3))  # x, y, z diagonal terms largest
+    rot = Rotation.concatenate([rot, half_turns, Rotation.identity()])
+    n = len(rot)
+    m = np.tile(np.eye(4), (n, 1, 1))
+    m[:, :3, :3] = rot.as_matrix()
+    m[:, :3, 3] = rng.normal(scale=5.0, size=(n, 3))
+    q_par = Rotation.random(n, random_state=rng).as_quat()[:, [3, 0, 1, 2]]
+    parent = dq.from_rt(q_par, rng.normal(size=(n, 3)))
+    has = (np.arange(n) % 3 != 0).astype(np.int32)  # every third joint a root
+    step, matrix, check = (wp.empty((2, n), dtype=t, device="cpu")
+                           for t in (vec8, wp.mat44, wp.vec2))
+    wp.launch(both_branches, dim=n, device="cpu", inputs=[
+        wp.array(m.astype(np.float32), dtype=wp.mat44, device="cpu"),
+        wp.array(parent.astype(np.float32), dtype=vec8, device="cpu"),
+        wp.array(has, dtype=int, device="cpu"), step, matrix, check])
+    local = dq.from_matrix(m)
+    expected = np.where(has[:, None] == 1, dq.mul(parent, local), local)
+    got = step.numpy()
+    sign = np.sign(np.sum(got[:, :, :4] * expected[None, :, :4], -1, keepdims=True))
+    for branch in (0, 1):
+        np.testing.assert_allclose(got[branch] * sign[branch], expected, atol=5e-6)
+        np.testing.assert_allclose(matrix.numpy()[branch], dq.to_matrix(parent), atol=5e-6)
+    ck = check.numpy()
+    assert np.all(ck[:, :, 0] == 0) and np.all(ck[:, :, 1] < 1e-6)  # finite rotations
+    bad = m[:8].copy()
+    bad[0, 1, 2] = np.nan
+    bad[1, 0, 3] = np.inf
+    bad[2, :3, 0] *= -1  # a reflection
+    bad[3, :3, :3] *= 1.001  # a uniform scale
+    bad[4, :3, 1] += 1e-3 * bad[4, :3, 0]  # a shear
+    wp.launch(both_branches, dim=8, device="cpu", inputs=[
+        wp.array(bad.astype(np.float32), dtype=wp.mat44, device="cpu"),
+        wp.array(parent[:8].astype(np.float32), dtype=vec8, device="cpu"),
+        wp.array(has[:8], dtype=int, device="cpu"), step[:, :8], matrix[:, :8],
+        check[:, :8]])
+    ck = check.numpy()[:, :8]
+    assert np.all(np.isnan(ck[:, :2, 0])) and np.all(ck[:, 2:, 0] == 0)
+    assert np.all(ck[:, 2:5, 1] > 1e-3) and np.all(ck[:, 5:, 1] < 1e-6)
