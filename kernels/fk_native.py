@@ -184,7 +184,7 @@ _VECTOR_CHECK = _VECTOR_TYPES + """
     __builtin_memcpy(&R1, &m.data[1][0], 16);
     __builtin_memcpy(&R2, &m.data[2][0], 16);
     __builtin_memcpy(&R3, &m.data[3][0], 16);
-    const f4 Z = (R0 + R1 + R2 + R3) * 0.0f;
+    const f4 Z = R0 * 0.0f + R1 * 0.0f + R2 * 0.0f + R3 * 0.0f;  // no sum can overflow first
     const f4 n = R0 * R0 + R1 * R1 + R2 * R2;
     const f4 o = R0 * R0.yzxw + R1 * R1.yzxw + R2 * R2.yzxw;
     const f4 x = R1.yzxw * R2.zxyw - R1.zxyw * R2.yzxw;

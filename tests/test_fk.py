@@ -163,6 +163,15 @@ def test_fk_translations_near_the_float32_limit(device, rotate):
     np.testing.assert_allclose(trs[:, :3, 3], ref[:, :3, 3], rtol=1e-5, atol=1e-6 * 3e38)
 
 
+def test_fk_large_finite_translations_are_not_flagged(device):
+    """A local matrix whose entries are finite but whose column sums pass float32 max is not
+    flagged as NaN/inf (the finiteness check scales each entry by 0 before summing)."""
+    local = np.eye(4)[None]
+    local[0, :2, 3] = 3e38
+    world = forward_kinematics([-1], local.astype(np.float32), device=device)
+    np.testing.assert_allclose(world[0, :2, 3], 3e38, rtol=1e-6)
+
+
 def test_fk_rigid_children_of_scaled_parents(device):
     """A rigid joint under a scaled or sheared one takes the residual path; a rigid joint under
     a rigid child of a scaled one too (the residual is inherited), checked at every depth."""
@@ -425,6 +434,7 @@ def test_native_fk_steps_both_branches_against_float64():
     bad[2, :3, 0] *= -1  # a reflection
     bad[3, :3, :3] *= 1.001  # a uniform scale
     bad[4, :3, 1] += 1e-3 * bad[4, :3, 0]  # a shear
+    bad[5, :3, 3] = 3e38  # finite, though a sum of its entries is not
     wp.launch(both_branches, dim=8, device="cpu", inputs=[
         wp.array(bad.astype(np.float32), dtype=wp.mat44, device="cpu"),
         wp.array(parent[:8].astype(np.float32), dtype=vec8, device="cpu"),

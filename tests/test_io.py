@@ -64,6 +64,10 @@ def test_atomic_path_leaves_the_file_to_its_writer(tmp_path):
     (tmp.parent / ".b.usdc.tmp123").write_text("a writer's own temporary file")
     claim.discard()
     assert [p.name for p in tmp_path.iterdir()] == ["out.usdc"]
+    with pytest.raises(OSError, match=r"c.usdc: cannot write \(the writer created no file\)"):
+        with atomic_path(tmp_path / "c.usdc"):
+            pass
+    assert [p.name for p in tmp_path.iterdir()] == ["out.usdc"]
 
 
 def test_atomic_path_exclusive_claim(tmp_path):

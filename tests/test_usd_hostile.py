@@ -171,12 +171,14 @@ class _WarningQuery:
     def __getattr__(self, name):
         return getattr(self.query, name)
 
-    def __init__(self, query, at=None):
-        self.query, self.at = query, at
+    def __init__(self, query, at=None, none_at=None):
+        self.query, self.at, self.none_at = query, at, none_at
 
     def ComputeJointLocalTransforms(self, time):  # noqa: N802 (UsdSkel's name)
         if self.at is None or time.GetValue() == self.at:
             Tf.Warn("failed composing transforms from components.")
+        if time.GetValue() == self.none_at:
+            return None
         return self.query.ComputeJointLocalTransforms(time)
 
 
@@ -193,6 +195,13 @@ def test_animation_usdskel_cannot_compose_later(tmp_path, capfd):
     anim._query = _WarningQuery(anim._query.query, at=3.0)  # warnings are checked per call
     with pytest.raises(ValueError, match=r"Anim: cannot compute joint transforms at time 3 "
                                          r"\(USD: failed composing"):
+        anim.local_transforms([1.0, 2.0, 3.0, 4.0])
+    assert capfd.readouterr().err == ""
+    anim._query = _WarningQuery(anim._query.query, at=2.0, none_at=3.0)  # the warning came first
+    with pytest.raises(ValueError, match=r"Anim: cannot compute joint transforms at time 2 "):
+        anim.local_transforms([1.0, 2.0, 3.0, 4.0])
+    anim._query = _WarningQuery(anim._query.query, at=-1.0, none_at=3.0)  # no warning
+    with pytest.raises(ValueError, match=r"Anim: cannot compute joint transforms at time 3$"):
         anim.local_transforms([1.0, 2.0, 3.0, 4.0])
     assert capfd.readouterr().err == ""
 

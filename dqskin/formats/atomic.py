@@ -10,8 +10,9 @@ complete, and a failed or interrupted write leaves nothing behind.
   file, and ext4 (``auto_da_alloc``) then writes the whole new file to disk before the rename
   returns: 2-3x the time of a 378 MB crate export (0.7-0.9 s against 0.3-0.4 s,
   ``tools/bench_bake.py``'s measurements). Their own temporary files land in the private folder
-  too, so a killed writer leaves one folder for :meth:`~atomic_path.discard` or a later run to
-  remove.
+  too, so an error leaves nothing (:meth:`~atomic_path.discard` removes the folder) and a killed
+  process one folder (clip bakes remove their own when they resume or finish). Replacing an
+  existing target (``overwrite``) still pays the flush once, in the final rename.
 * Exclusive claim (``overwrite=False``): the temporary file is put in place with ``os.link``,
   which fails if the target exists. Of two runs writing the same new file, the one that finishes
   second gets :class:`FileExistsError` instead of silently replacing the other's finished file,
@@ -166,6 +167,8 @@ class atomic_path:
             tmp, path = self.tmp, self.path
             try:
                 check_interrupted()  # nothing commits after an interrupt
+                if not tmp.exists():
+                    raise OSError(errno.ENOENT, "the writer created no file")
                 os.chmod(tmp, 0o666 & ~_umask())  # the usual file mode (USD's temporary is 0600)
                 if self.overwrite:
                     os.replace(tmp, path)

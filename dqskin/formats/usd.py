@@ -349,8 +349,9 @@ class UsdSkelAnimation(Animation):
             for i, ti in enumerate(t.tolist()):
                 xf = compute(Usd.TimeCode(ti))
                 if xf is None or len(xf) != J:
-                    self._fail(f"cannot compute joint transforms at time {ti:g}"
-                               f"{_first(warnings())}")
+                    trapped = warnings()  # from this time or an earlier one
+                    self._fail(self._warned_at(t[:i + 1], trapped) if trapped else
+                               f"cannot compute joint transforms at time {ti:g}")
                 rows[i] = xf
             # warnings are checked once per call, not per frame (that doubled the sampling)
             trapped = warnings()

@@ -505,8 +505,9 @@ class UsdCacheWriter:
         Replace an existing ``out_path`` (the last writer wins). False claims it exclusively:
         :meth:`close` raises FileExistsError if it exists by then (another run finished first).
 
-    As a context manager the writer claims its temporary file on entry (``.NAME.XXXXXXXX.usdc``
-    beside ``out_path``) and removes it on an exception or interrupt.
+    As a context manager the writer claims its temporary folder on entry
+    (``.STEM.XXXXXXXX/`` beside ``out_path``, :mod:`.atomic`) and removes it on an exception or
+    interrupt.
     """
 
     def __init__(self, scene, out_path, *, source_path=None, method=None, device=None,
