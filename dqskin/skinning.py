@@ -317,8 +317,9 @@ class Skinner:
             buf[0].assign(np.ascontiguousarray(xs, dtype=np.float32))
         return buf[0], batched
 
-    def _prepare(self, skinning_transforms, kind="points", derivatives=None):
-        """Per-joint data for ``kind`` ("points", "vectors", "derivatives" with ``derivatives``)."""
+    def _prepare(self, skinning_transforms, kind="points", derivatives=None, affines_only=False):
+        """Per-joint data for ``kind`` ("points", "vectors", "derivatives" with ``derivatives``);
+        ``affines_only``: only the 3×4 affines of ``prep["joints"]`` (LBS points)."""
         x, batched = self._upload_transforms("skinning_transforms", skinning_transforms)
         frames, joints = x.shape
         self.influences.check_joint_count(joints)
@@ -332,7 +333,7 @@ class Skinner:
             prep["rates"] = self._buffers("rates", frames, joints)
             KV.prepare(xforms=x, xform_derivatives=xd, device=self.device, **prep)
             return prep, frames, batched
-        K.prepare_points(xforms=x, device=self.device, **prep)
+        K.prepare_points(xforms=x, device=self.device, affines_only=affines_only, **prep)
         if kind == "vectors":
             vec = self._buffers("vectors", frames, joints)
             K.prepare_vectors(xforms=x, device=self.device, **vec)
@@ -404,7 +405,8 @@ class Skinner:
         with self._lock:  # the per-shape work buffers are shared between calls
             code = self._check_method(method)
             inf = self._influences(code, sign_reference)
-            prep, frames, batched = self._prepare(skinning_transforms)
+            prep, frames, batched = self._prepare(skinning_transforms,
+                                                  affines_only=code == K.LBS)
             src = self._rest("points", points, frames)
             # small results go through one reused device buffer and leave as a NumPy copy
             small = (not as_warp and frames * self.vertex_count <= _SMALL_RESULT

@@ -118,25 +118,46 @@ class Joints:
     """(F,) nonzero on frames where some ``S ≠ I``."""
 
 
-@wp.kernel
-def prepare_points_kernel(
-    xforms: wp.array2d(dtype=wp.mat44),
-    # outputs
-    affines: wp.array2d(dtype=mat34),
-    dqs: wp.array2d(dtype=vec8),
-    residuals: wp.array2d(dtype=wp.mat33),
-    has_residual: wp.array(dtype=wp.int32),
-):
-    """Per (frame, joint): 3×4 affine for LBS; polar split ``A = R·S`` into a unit dual
-    quaternion and the residual ``S`` for DQS. ``has_residual`` must be
-    zeroed before the launch; it is set for frames where some ``S ≠ I`` (1e-6, as UsdSkel).
-    A (near-)singular ``A`` (``|det A| <`` :data:`FACTOR_EPSILON`) gets a zero dual quaternion
-    and ``S = I``, as UsdSkel's DQS; a non-finite one NaN, so it propagates in every method."""
-    f, j = wp.tid()
-    m = xforms[f, j]
-    affines[f, j] = mat34(m[0, 0], m[0, 1], m[0, 2], m[0, 3],
-                          m[1, 0], m[1, 1], m[1, 2], m[1, 3],
-                          m[2, 0], m[2, 1], m[2, 2], m[2, 3])
+def _prepare_points_kernel(affines_only, name):
+    """The per-(frame, joint) preparation, with (False) or without (True, all LBS needs) the
+    polar split, fixed at compile time."""
+
+    def kernel(
+        xforms: wp.array2d(dtype=wp.mat44),
+        row_offset: int,
+        # outputs
+        affines: wp.array2d(dtype=mat34),
+        dqs: wp.array2d(dtype=vec8),
+        residuals: wp.array2d(dtype=wp.mat33),
+        has_residual: wp.array(dtype=wp.int32),
+    ):
+        r = wp.tid() + row_offset  # one row per (frame, joint), frame-major
+        f = r // xforms.shape[1]
+        j = r - f * xforms.shape[1]
+        m = xforms[f, j]
+        affines[f, j] = mat34(m[0, 0], m[0, 1], m[0, 2], m[0, 3],
+                              m[1, 0], m[1, 1], m[1, 2], m[1, 3],
+                              m[2, 0], m[2, 1], m[2, 2], m[2, 3])
+        if wp.static(not affines_only):
+            prepare_split(f, j, m, dqs, residuals, has_residual)
+
+    kernel.__doc__ = _PREPARE_DOC + (" Affines only." if affines_only else "")
+    return wp.kernel(kernel, name=name)
+
+
+_PREPARE_DOC = """Per (frame, joint): 3×4 affine for LBS; polar split ``A = R·S`` into a unit dual
+quaternion and the residual ``S`` for DQS. ``has_residual`` must be zeroed before the launch; it
+is set for frames where some ``S ≠ I`` (1e-6, as UsdSkel). A (near-)singular ``A`` (``|det A| <``
+:data:`FACTOR_EPSILON`) gets a zero dual quaternion and ``S = I``, as UsdSkel's DQS; a non-finite
+one NaN, so it propagates in every method. One thread per (frame, joint), frame-major rows: a
+crowd's 16 frames × 19,000 joints are split across the CPU threads (single-threaded, with the
+polar split for every method, they took 175 ms a call)."""
+
+
+@wp.func
+def prepare_split(f: int, j: int, m: wp.mat44, dqs: wp.array2d(dtype=vec8),
+                  residuals: wp.array2d(dtype=wp.mat33), has_residual: wp.array(dtype=wp.int32)):
+    """The DQS part of the preparation (see :data:`_PREPARE_DOC`)."""
     a = mat44_linear(m)
     if not wp.isfinite(m):  # device input is not checked on the host: NaN in every method
         dqs[f, j] = vec8(wp.nan, wp.nan, wp.nan, wp.nan, wp.nan, wp.nan, wp.nan, wp.nan)
@@ -154,6 +175,10 @@ def prepare_points_kernel(
     residuals[f, j] = s
     if not is_identity33(s, RESIDUAL_TOLERANCE):
         wp.atomic_max(has_residual, f, 1)
+
+
+prepare_points_kernel = _prepare_points_kernel(False, "prepare_points_kernel")
+prepare_affines_kernel = _prepare_points_kernel(True, "prepare_affines_kernel")
 
 
 @wp.kernel
@@ -569,11 +594,14 @@ def joints(*, affines, dqs, residuals, has_residual):
     return s
 
 
-def prepare_points(*, xforms, joints, device):
-    """Fill ``joints`` (a :class:`Joints` of (F, J) arrays) from ``xforms`` (F, J) ``wp.mat44``."""
-    joints.has_residual.zero_()
-    launch(prepare_points_kernel, xforms.shape, [xforms],
-           [joints.affines, joints.dqs, joints.residuals, joints.has_residual], device)
+def prepare_points(*, xforms, joints, device, affines_only=False):
+    """Fill ``joints`` (a :class:`Joints` of (F, J) arrays) from ``xforms`` (F, J) ``wp.mat44``;
+    ``affines_only``: only ``joints.affines`` (all LBS reads), the rest left as it was."""
+    kernel = prepare_affines_kernel if affines_only else prepare_points_kernel
+    if not affines_only:
+        joints.has_residual.zero_()
+    launch_rows(kernel, xforms.shape[0] * xforms.shape[1], [xforms],
+                [joints.affines, joints.dqs, joints.residuals, joints.has_residual], device)
 
 
 def prepare_vectors(*, xforms, linears, rotations, normal_linears, normal_residuals,

@@ -350,3 +350,29 @@ def test_point_launcher_reads_any_frame_layout(device, layout, method):
     got = out.numpy()
     for f in range(F):
         assert rel_err(got[f], oracle(shapes[f], idx, w, M[f])) <= 1e-5, f
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_joint_preparation_split_across_threads(device, monkeypatch, method):
+    """Many (frame, joint) transforms (a crowd's) are prepared in chunks on several threads; one
+    scaled joint in one frame sets that frame's residual flag only (DQS then takes the residual
+    kernel for it), whichever chunk it falls in. Against UsdSkel's C++ SkinPoints per frame."""
+    monkeypatch.setenv("DQSKIN_THREADS", "3")
+    tasks = []
+    real = grid._pool_map
+    monkeypatch.setattr(grid, "_pool_map", lambda t: (tasks.append(len(t)), real(t)))
+    rng = np.random.default_rng(31)
+    F, J = 4, 4000
+    points, idx, w, M, G = random_rig(rng, V=3000, K=4, J=J, F=F)
+    M[2, 1234, :3, :3] *= 1.5  # frame 2 has a residual, in the middle chunk
+    idx[:50, 0] = 1234
+    skinner = dqskin.Skinner(points, idx, w, geom_bind_transform=G, device=device)
+    ours = skinner.skin(M, method)
+    if device == "cpu":
+        assert tasks[:1] == [3]  # the preparation (16,000 rows) was split three ways
+    for f in range(F):
+        assert rel_err(ours[f], usd_skin_points(method, G, M[f], idx, w, points)) <= 1e-5, f
+    if method == "dqs":
+        flags = skinner._cache[("has_residual", F, J)]
+        flags = flags if isinstance(flags, np.ndarray) else flags.numpy()
+        assert list(np.asarray(flags) != 0) == [False, False, True, False]
