@@ -5,10 +5,13 @@ of first touch cost as much as the skinning itself (a 100 MB chunk of frames: 24
 80-95 ms, against 22-24 ms with 2 MiB pages; freeing it 14 ms against 1-2 ms). NumPy asks the
 kernel for huge pages for its own large arrays (``madvise(MADV_HUGEPAGE)``, Linux); Warp's CPU
 allocator does not, so :func:`empty` does the same for the Warp arrays the launchers fill. Where
-transparent huge pages are off, or not on Linux, it is a plain ``wp.empty``.
+transparent huge pages are off, or not on Linux, it is a plain ``wp.empty``; NumPy's switch,
+``NUMPY_MADVISE_HUGEPAGE=0`` in the environment, turns it off here too (a first touch of huge pages
+can stall on memory compaction when free memory is fragmented: rare, but a latency spike).
 """
 
 import ctypes
+import os
 import sys
 
 import warp as wp
@@ -23,8 +26,8 @@ _MADV_HUGEPAGE = 14
 
 
 def _madvise():
-    """libc's ``madvise`` (Linux), else None."""
-    if not sys.platform.startswith("linux"):
+    """libc's ``madvise`` (Linux, unless ``NUMPY_MADVISE_HUGEPAGE=0``), else None."""
+    if not sys.platform.startswith("linux") or os.environ.get("NUMPY_MADVISE_HUGEPAGE") == "0":
         return None
     try:
         fn = ctypes.CDLL(None, use_errno=True).madvise

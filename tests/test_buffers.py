@@ -35,3 +35,11 @@ def test_large_cpu_buffers_ask_for_huge_pages():
     assert "hg" not in _vm_flags(plain.ptr + plain.capacity // 2)
     big.numpy()[:] = 1.0  # an ordinary buffer otherwise
     assert np.all(big.numpy() == 1.0)
+
+
+def test_numpy_switch_turns_huge_pages_off(monkeypatch):
+    """``NUMPY_MADVISE_HUGEPAGE=0`` (NumPy's own switch) turns the advice off here too."""
+    monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", "0")
+    assert KB._madvise() is None
+    monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE")
+    assert (KB._madvise() is None) == (not sys.platform.startswith("linux"))

@@ -268,10 +268,10 @@ class ClipBake:
                                   "complete it or --force to start over")
 
     def _remove(self, pattern):
-        """Remove this folder's files (and temporary folders, :mod:`.atomic`) that match."""
+        """Remove this folder's files that match, and its temporary folders (:mod:`.atomic`)."""
         for p in self.folder.iterdir():
             if pattern.match(p.name):
-                if p.is_dir() and not p.is_symlink():
+                if _TEMP.match(p.name) and p.is_dir() and not p.is_symlink():
                     shutil.rmtree(p, ignore_errors=True)
                 elif p.is_file():
                     with contextlib.suppress(OSError):
