@@ -123,6 +123,7 @@ def _worker_plugin():
             budget = worker_threads(getattr(state, "nthreads", 1))
             os.environ.update(budget)  # read by dqskin.kernels.grid.cpu_threads at each launch
             Work.SetConcurrencyLimitArgument(int(budget["PXR_WORK_THREAD_LIMIT"]))
+            forkserver.keep_freed_memory()  # a chunk reuses what the one before freed
 
     return DqskinWorker()
 
