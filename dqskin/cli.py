@@ -159,8 +159,6 @@ def cmd_skin(args):
     check_clip_arguments(args.out, chunk=args.chunk, clips=args.clips, workers=args.workers,
                          scheduler=args.scheduler, resume=args.resume)  # before loading INPUT
     _checkpoint()
-    from .forkserver import keep_freed_memory
-    keep_freed_memory()  # this process bakes, chunk after chunk, then exits
     with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
         scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
         if args.cor_exact:

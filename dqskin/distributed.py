@@ -102,13 +102,14 @@ def worker_threads(nthreads: int, environ=os.environ) -> dict:
     return {k: environ.get(k) or budget for k in ("DQSKIN_THREADS", "PXR_WORK_THREAD_LIMIT")}
 
 
-def _worker_plugin():
+def _worker_plugin(own_cluster: bool):
     """A Dask worker plugin, for every worker process (restarted ones too): Warp's banner and
     module-load messages off (the worker's stdout is the caller's), and the process's thread
     budget (:func:`worker_threads`) applied to dqskin's launch pool and USD's thread pool (a
     worker forked from a forkserver that imported USD before its environment was set would
-    otherwise use every core). (Made here so that importing this module does not import Dask; a
-    local class travels by value.)"""
+    otherwise use every core); on the workers of a LocalCluster the bake started
+    (``own_cluster``), :func:`~.forkserver.keep_freed_memory` (not on a caller's cluster). (Made
+    here so that importing this module does not import Dask; a local class travels by value.)"""
     from distributed import WorkerPlugin
 
     class DqskinWorker(WorkerPlugin):
@@ -123,7 +124,8 @@ def _worker_plugin():
             budget = worker_threads(getattr(state, "nthreads", 1))
             os.environ.update(budget)  # read by dqskin.kernels.grid.cpu_threads at each launch
             Work.SetConcurrencyLimitArgument(int(budget["PXR_WORK_THREAD_LIMIT"]))
-            forkserver.keep_freed_memory()  # a chunk reuses what the one before freed
+            if own_cluster:  # our own processes: a chunk reuses what the one before freed
+                forkserver.keep_freed_memory()
 
     return DqskinWorker()
 
@@ -368,7 +370,7 @@ def _dask(workers, scheduler, threads=None):
                                        env=dict(PXR_WORK_THREAD_LIMIT=threads,
                                                 DQSKIN_THREADS=threads))
             client = Client(cluster)
-        client.register_plugin(_worker_plugin())
+        client.register_plugin(_worker_plugin(own_cluster=not scheduler))
         yield client
     finally:
         if client is not None:

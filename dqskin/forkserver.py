@@ -59,30 +59,41 @@ RETAIN_BYTES = 256 << 20
 """Freed memory at the top of a bake process's heap that glibc keeps for reuse
 (:func:`keep_freed_memory`)."""
 
-HEAP_BELOW_BYTES = 64 << 20
-"""Allocations below this size come from the heap (reused), larger ones are mapped apart."""
+HEAP_BELOW_BYTES = 32 << 20
+"""Allocations below this size come from the heap (reused), larger ones are mapped apart (32 MiB:
+the largest ``M_MMAP_THRESHOLD`` every 64-bit glibc accepts)."""
 
 
 def keep_freed_memory() -> bool:
     """Make glibc's malloc keep freed memory for reuse in this process: each chunk of a bake
     frees its samples (a clip layer's ``Vt`` arrays, tens of MB) and the next one allocates as
     much again. With glibc's defaults the heap was trimmed after every chunk and the next one
-    faulted its memory in again, 4 KiB at a time: one process baking 10 CesiumMen × 1,292 frames
-    as 11 clip layers took 133,000 page faults and 0.8-1.1 s of system time, with this 26,000 and
-    0.2-0.4 s (3.4-3.9 → 2.8-3.2 s in all), its peak RSS 411 → 462 MB; a one-thread Dask worker
-    baking CesiumMan × 10,000 frames as 79 layers, 6.5-7.2 → 5.5-5.8 s for the whole bake, its
-    peak RSS 301 → 307 MB (``tools/bench_bake.py``, two runs each). Peak memory still follows the
-    chunk size, not the clip length. Called by bake processes only (the CLI's ``skin``, the
-    Dask workers): never by a library call, whose caller's process it would change. Returns
-    whether it applied (glibc only)."""
-    import ctypes
+    faulted its memory in again, 4 KiB at a time: a process baking 10 CesiumMen × 1,292 frames
+    chunk by chunk as 11 clip layers took 133,000 page faults and 0.8-1.1 s of system time, with
+    this 26,000 and 0.2-0.4 s; one-thread Dask workers baking CesiumMan × 10,000 frames as 79
+    layers, 6.7-7.0 → 5.9-6.5 s for the whole bake with one worker, 5.2-5.3 → 4.3-4.6 s with two,
+    their peak RSS 302 → 307 MB (``tools/bench_bake.py --frames 10000 --no-standin --impls
+    clips1t1,clips2t1``, two runs each). Peak memory still follows the chunk size, not the clip
+    length; freed memory stays with the process until it exits.
+
+    Called only on the workers of the LocalCluster a bake starts (dqskin's own processes): never
+    by a library call nor on the workers of a cluster given as ``--scheduler``, whose processes
+    are the caller's. The pipelined in-process bake measured no gain (3.3-3.4 against 3.5-3.6 s),
+    so the ``dqskin`` program leaves its own malloc alone.
+    Returns whether it applied: glibc on Linux only (the mmap threshold first; the trim threshold,
+    which turns glibc's adaptive thresholds off, only when that was accepted)."""
+    if not sys.platform.startswith("linux"):
+        return False
     try:
+        if not os.confstr("CS_GNU_LIBC_VERSION").startswith("glibc"):
+            return False
+        import ctypes
         mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):
+    except (OSError, ValueError, AttributeError, TypeError):
         return False
     m_trim_threshold, m_mmap_threshold = -1, -3
-    return bool(mallopt(m_trim_threshold, RETAIN_BYTES)
-                and mallopt(m_mmap_threshold, HEAP_BELOW_BYTES))
+    return bool(mallopt(m_mmap_threshold, HEAP_BELOW_BYTES)
+                and mallopt(m_trim_threshold, RETAIN_BYTES))
 
 
 def dask_config() -> dict:

@@ -1,6 +1,9 @@
 """Output buffers (:mod:`dqskin.kernels.buffers`): large CPU buffers ask for huge pages."""
 
+import os
+import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,22 +27,41 @@ def _vm_flags(address):
     raise AssertionError(f"no mapping holds {address:#x}")
 
 
+_FLAGS = """
+import sys
+import warp as wp
+from dqskin._warp import init_warp
+from dqskin.kernels import buffers as KB
+from test_buffers import _vm_flags
+wp.config.quiet = True
+init_warp()
+n = 3 * KB.HUGE_PAGE // 12  # vec3: 3 huge pages
+big = KB.empty((2, n), wp.vec3, "cpu")
+assert big.shape == (2, n) and big.dtype == wp.vec3
+plain = wp.empty((2, n), dtype=wp.vec3, device="cpu")  # what Warp alone does
+print(*("hg" in _vm_flags(a.ptr + a.capacity // 2) for a in (big, plain)))
+"""
+
+
+def _huge_flags(**env):
+    """Whether a :func:`KB.empty` buffer and a plain ``wp.empty`` one carry MADV_HUGEPAGE, in a
+    fresh process (in this one, freed memory keeps the flag of an earlier buffer)."""
+    run_env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    run_env.update(env, PYTHONPATH=os.pathsep.join([str(Path(__file__).parent),
+                                                    run_env.get("PYTHONPATH", "")]))
+    out = subprocess.run([sys.executable, "-c", _FLAGS], capture_output=True, text=True,
+                         env=run_env, check=True).stdout.strip().splitlines()[-1].split()
+    return out[0] == "True", out[1] == "True"
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="madvise and smaps are Linux's")
 def test_large_cpu_buffers_ask_for_huge_pages():
+    assert _huge_flags() == (True, False)
+    assert _huge_flags(NUMPY_MADVISE_HUGEPAGE="0") == (False, False)  # NumPy's switch, here too
+
+
+def test_cpu_buffers_are_ordinary_buffers():
     init_warp()
-    n = 3 * KB.HUGE_PAGE // 12  # vec3: 3 huge pages
-    big = KB.empty((2, n), wp.vec3, "cpu")
-    assert big.shape == (2, n) and big.dtype == wp.vec3
-    assert "hg" in _vm_flags(big.ptr + big.capacity // 2)  # MADV_HUGEPAGE on its interior
-    plain = wp.empty((2, n), dtype=wp.vec3, device="cpu")  # what Warp alone does
-    assert "hg" not in _vm_flags(plain.ptr + plain.capacity // 2)
-    big.numpy()[:] = 1.0  # an ordinary buffer otherwise
+    big = KB.empty((2, 3 * KB.HUGE_PAGE // 12), wp.vec3, "cpu")
+    big.numpy()[:] = 1.0
     assert np.all(big.numpy() == 1.0)
-
-
-def test_numpy_switch_turns_huge_pages_off(monkeypatch):
-    """``NUMPY_MADVISE_HUGEPAGE=0`` (NumPy's own switch) turns the advice off here too."""
-    monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", "0")
-    assert KB._madvise() is None
-    monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE")
-    assert (KB._madvise() is None) == (not sys.platform.startswith("linux"))

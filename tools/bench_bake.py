@@ -134,9 +134,7 @@ def run_dqskin(src, dst, which):
     worker), ``+nv`` for normals and velocities."""
     from dqskin.baking import CLIP_CHUNK, bake
     from dqskin.distributed import bake_clips
-    from dqskin.forkserver import keep_freed_memory
     from dqskin.formats import load
-    keep_freed_memory()  # as `dqskin skin` does in its process (workers do it themselves)
     nv = which.endswith("+nv")
     kind = which.removesuffix("+nv")
     workers, _, threads = kind[5:].partition("t")
