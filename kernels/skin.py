@@ -104,7 +104,9 @@ class Influences:
 
 
 class Joints:
-    """Per (frame, joint) data of the skinning transforms, from :func:`prepare_points_kernel`."""
+    """Per (frame, joint) data of the skinning transforms, from :func:`prepare_points_kernel`;
+    after :func:`prepare_affines_kernel` (LBS points) only ``affines`` is current, the rest is
+    what the previous full preparation left (every call prepares before it reads)."""
 
     __slots__ = ("affines", "dqs", "residuals", "has_residual")
 
@@ -141,7 +143,9 @@ def _prepare_points_kernel(affines_only, name):
         if wp.static(not affines_only):
             prepare_split(f, j, m, dqs, residuals, has_residual)
 
-    kernel.__doc__ = _PREPARE_DOC + (" Affines only." if affines_only else "")
+    kernel.__doc__ = (_PREPARE_DOC if not affines_only else
+                      "Per (frame, joint): the 3×4 affines only (what LBS reads); ``dqs``, "
+                      "``residuals`` and ``has_residual`` are left as they were.")
     return wp.kernel(kernel, name=name)
 
 
