@@ -26,7 +26,7 @@ import warp as wp
 
 from . import fk_native as native
 from .buffers import empty
-from .dqmath import dq_from_rt, dq_mul, dq_translation, mat44_linear, polar_rotation, vec8
+from .dqmath import dq_from_rt, dq_mul, mat44_linear, polar_rotation, vec8
 from .grid import launch, launch_rows
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
@@ -95,29 +95,6 @@ def compose(a: vec8, q: wp.quat, t: wp.vec3):
 
 
 @wp.func
-def rigid_matrix(a: vec8):
-    """4×4 rigid matrix (column-vector convention) of unit dual quaternion ``a``, written out
-    (``wp.quat_to_matrix`` rotates three basis vectors: three times the work)."""
-    x2 = a[1] + a[1]
-    y2 = a[2] + a[2]
-    z2 = a[3] + a[3]
-    xx = a[1] * x2
-    yy = a[2] * y2
-    zz = a[3] * z2
-    xy = a[1] * y2
-    xz = a[1] * z2
-    yz = a[2] * z2
-    wx = a[0] * x2
-    wy = a[0] * y2
-    wz = a[0] * z2
-    t = dq_translation(a)
-    return wp.mat44(1.0 - yy - zz, xy - wz, xz + wy, t[0],
-                    xy + wz, 1.0 - xx - zz, yz - wx, t[1],
-                    xz - wy, yz + wx, 1.0 - xx - yy, t[2],
-                    0.0, 0.0, 0.0, 1.0)
-
-
-@wp.func
 def is_rigid(m: wp.mat44):
     """True when the linear part of ``m`` is a rotation (to ~1e-6): columns ``c0``, ``c1``
     orthonormal and ``c2 = c0 × c1`` (which makes it unit, orthogonal to both and det = +1; a
@@ -173,7 +150,7 @@ def store_general(i: int, k: int, q: wp.quat, t: wp.vec3, res: wp.mat33, eta: ve
     world_dqs[i] = e
     world_residuals[i] = s
     world_rigid[i] = wp.uint8(0)
-    x = rigid_matrix(e)
+    x = native.rigid_matrix(e)
     lin = mat44_linear(x) * s
     world[i] = wp.mat44(lin[0, 0], lin[0, 1], lin[0, 2], x[0, 3],
                         lin[1, 0], lin[1, 1], lin[1, 2], x[1, 3],
@@ -252,7 +229,7 @@ def _forward_kinematics_kernel(trs, name):
             if rigid and k < 0:
                 world_dqs[i] = eta
                 world_rigid[i] = wp.uint8(1)
-                world[i] = rigid_matrix(eta)
+                world[i] = native.rigid_matrix(eta)
             else:
                 res = wp.identity(n=3, dtype=float)
                 if not rigid:
