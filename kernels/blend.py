@@ -11,7 +11,9 @@ table, which reports the same comparison). On CUDA (``__CUDA_ARCH__``) it is the
 
 The dual-quaternion blend stays a ``@wp.func`` (:func:`~.skin.dq_gather`): the same treatment
 measured within noise (45.2 against 44.6 M points/s), its cost being the sign tests and the
-transform rather than the sum.
+transform rather than the sum. On the CPU, LBS and rigid DQS of one group of four influences run
+eight vertices at a time instead (:mod:`.packets`); this blend serves the other cases (more
+influences, COR, velocities) and CUDA.
 
 Influence layout of :mod:`.skin`: ``groups`` groups of four per vertex in flat ``indices`` /
 ``weights``, group 0 already read as ``iv`` / ``wv``. The sum runs joint 0 to 3 of group 0, then

@@ -23,7 +23,7 @@ from concurrent.futures import ThreadPoolExecutor
 import warp as wp
 import warp._src.context as _context
 
-__all__ = ["FRAME_BLOCK", "MIN_WORK", "beside", "cpu_threads", "launch", "launch_rows"]
+__all__ = ["FRAME_BLOCK", "MIN_WORK", "beside", "cpu_threads", "is_cpu", "launch", "launch_rows"]
 
 FRAME_BLOCK = 16
 """Frames one thread handles on a (frame block, row) grid: the joints of 16 frames stay in L1
@@ -208,7 +208,7 @@ def beside(fn, main):
     return fut.result(), second
 
 
-def _is_cpu(device):
+def is_cpu(device):
     """Whether ``device`` (a ``wp.Device``, a name or None) is the CPU; a Device without a
     look-up."""
     cpu = getattr(device, "is_cpu", None)
@@ -218,7 +218,7 @@ def _is_cpu(device):
 def _threads_for(work, device):
     """CPU threads for ``work`` pieces of at least the minimum size: one (the environment not
     read) when there are fewer than two pieces."""
-    if work < 2 or not _is_cpu(device):
+    if work < 2 or not is_cpu(device):
         return 1
     return min(cpu_threads(), work)
 

@@ -37,7 +37,10 @@ once (:func:`frame_rows`). A 1-D launch over 1-D arrays is what Warp compiles wi
 strides and an inlined task loop on the CPU (2-D arrays or arrays inside structs cost 25-30% on
 one thread). The point kernels are specialized at compile time for the method, rigid frames, a
 single frame (a kernel of its own, with no frame-block code) and, for DQS, the sorted layout's
-sign rule (no running-sum or pivot-search code): code a launch does not run still slows it.
+sign rule (no running-sum or pivot-search code): code a launch does not run still slows it. On
+the CPU, LBS and rigid DQS (sorted or searched pivot) of one group of four influences launch
+packet kernels instead: a thread skins eight vertices in the lanes of clang vectors
+(:mod:`.packets`; 2-3× the one-vertex kernels on one thread).
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
 """
 
@@ -46,6 +49,7 @@ from typing import Any
 
 import warp as wp
 
+from . import packets
 from .blend import affine_gather
 from .dqmath import (
     FACTOR_EPSILON,
@@ -65,6 +69,7 @@ from .dqmath import (
 from .grid import (
     FRAME_BLOCK,
     MIN_WORK,
+    is_cpu,
     launch,
     launch_rows,
 )
@@ -407,7 +412,7 @@ Skinner's default), the pivot searched per vertex in input order (one-shot calls
 sum in input order (no pivot to search)."""
 
 
-def _skin_points_kernel(method, residual, single, sign=None):
+def _skin_points_kernel(method, residual, single, sign=None, packet=False):
     """The point kernel of one method, specialized at compile time: ``residual=False`` drops the
     scale/shear code (~18% faster on the CPU for rigid launches); ``single`` skins one frame
     (``frame_count == 1``) with no frame-block code beside it (LBS ~1.2× on one thread, 1M points:
@@ -416,7 +421,10 @@ def _skin_points_kernel(method, residual, single, sign=None):
     rule: median 36 against 31.5 M points/s, one thread, 1M points, 40 interleaved launches; the
     best launches alike). The influence-group count stays a runtime argument: a kernel specialized
     for ``K <= 4`` measured no faster (one thread, 1M points) and doubled the module's compile
-    time."""
+    time. ``packet`` (CPU; LBS, or rigid DQS with the sorted or searched rule; one group of four
+    influences): thread ``t`` skins eight vertices at once (:mod:`.packets`), row ``t`` of
+    ``ceil(V / 8)`` per frame."""
+    packet_func = packets.PACKETS.get((method, sign)) if packet else None
 
     def kernel(
         points: wp.array(dtype=wp.vec3),
@@ -439,6 +447,27 @@ def _skin_points_kernel(method, residual, single, sign=None):
         out: wp.array(dtype=wp.vec3),
     ):
         t = wp.tid() + row_offset
+        if wp.static(packet):  # eight vertices a thread
+            vertex_count = out.shape[0] // frame_count
+            if wp.static(single):
+                if wp.static(method == LBS):
+                    packet_func(points, wp.int64(0), indices, weights, affines, 0, t * 8,
+                                vertex_count, out, wp.int64(0))
+                else:
+                    packet_func(points, wp.int64(0), indices, weights, dqs, 0, t * 8,
+                                vertex_count, out, wp.int64(0))
+                return
+            pr, pfirst, pend = frame_rows(t, (vertex_count + 7) // 8, frame_count)
+            for f in range(pfirst, pend):
+                pbase = wp.int64(f) * wp.int64(point_stride)
+                obase = wp.int64(f) * wp.int64(vertex_count)
+                if wp.static(method == LBS):
+                    packet_func(points, pbase, indices, weights, affines, f * joint_count,
+                                pr * 8, vertex_count, out, obase)
+                else:
+                    packet_func(points, pbase, indices, weights, dqs, f * joint_count, pr * 8,
+                                vertex_count, out, obase)
+            return
         g = groups
         # the sign-rule flags, constants (folded by the C++ compiler) unless read at run time
         rs = running_sum * wp.static(int(sign is None)) + wp.static(int(sign == "running"))
@@ -469,7 +498,8 @@ def _skin_points_kernel(method, residual, single, sign=None):
     rigid = "_rigid" if method in (DQS, COR) and not residual else ""
     one = "_one_frame" if single else ""
     rule = f"_{sign}" if sign else ""
-    name = f"skin_{['lbs', 'dqs', 'blend', 'cor'][method]}{rigid}_kernel{one}{rule}"
+    eight = "_packet" if packet else ""
+    name = f"skin_{['lbs', 'dqs', 'blend', 'cor'][method]}{rigid}_kernel{one}{rule}{eight}"
     kernel.__doc__ = (f"Skin flat ``points`` (Fp·V) bind space, Fp 1 or F, into ``out`` (F·V) "
                       f"with method {method}; thread ``t``: vertex ``t`` of "
                       + ("the only frame." if single else "frame block ``t div V``, vertex "
@@ -477,16 +507,20 @@ def _skin_points_kernel(method, residual, single, sign=None):
     return wp.kernel(kernel, name=name)
 
 
-SKIN_POINTS_KERNELS = {(m, r, one, sign): _skin_points_kernel(m, r, one, sign)
-                       for m, r, sign in ((LBS, False, None), (DQS, True, "sorted"),
-                                          (DQS, False, "sorted"), (DQS, True, "searched"),
-                                          (DQS, False, "searched"), (DQS, True, "running"),
-                                          (DQS, False, "running"), (BLEND, True, None),
-                                          (COR, True, None), (COR, False, None))
+SKIN_POINTS_KERNELS = {(m, r, one, sign, packet): _skin_points_kernel(m, r, one, sign, packet)
+                       for m, r, sign, packet in (
+                           (LBS, False, None, False), (LBS, False, None, True),
+                           (DQS, True, "sorted", False), (DQS, False, "sorted", False),
+                           (DQS, False, "sorted", True), (DQS, True, "searched", False),
+                           (DQS, False, "searched", False), (DQS, False, "searched", True),
+                           (DQS, True, "running", False), (DQS, False, "running", False),
+                           (BLEND, True, None, False), (COR, True, None, False),
+                           (COR, False, None, False))
                        for one in (True, False)}
-"""The point-skinning kernels by ``(method, residual code, one frame, sign rule)``: LBS needs no
-residual code and has no sign rule, BLEND always has the residual code; DQS kernels have their
-sign rule fixed (:data:`SIGN_RULES`), BLEND and COR read it at run time."""
+"""The point-skinning kernels by ``(method, residual code, one frame, sign rule, packet)``: LBS
+needs no residual code and has no sign rule, BLEND always has the residual code; DQS kernels have
+their sign rule fixed (:data:`SIGN_RULES`), BLEND and COR read it at run time; packet kernels
+(:mod:`.packets`, the CPU's) for LBS and the rigid sorted and searched DQS."""
 
 
 @wp.func
@@ -644,7 +678,8 @@ def frame_rows_array(values, rows):
     row serves every frame (also a row broadcast with stride 0)."""
     stride = rows if values.shape[0] > 1 else 0
     if stride and values.strides[0] == 0:
-        return values[0], 0
+        row = values[0]  # contiguous, as the packet kernels read it (a copy of one row if not)
+        return (row if row.is_contiguous else row.contiguous()), 0
     if not values.is_contiguous:  # a copy: flattened with a reference to it
         return values.contiguous().flatten(), stride
     return _flat(values), stride
@@ -657,11 +692,12 @@ def influence_args(influences):
             inf.running_sum, inf.unsorted]
 
 
-def launch_frames(kernel, rows, frames, inputs, outputs, device):
+def launch_frames(kernel, rows, frames, inputs, outputs, device, row_size=1):
     """Launch a flat kernel (:func:`frame_rows`) over ``rows`` × ``frames``: one thread per row
-    of a single frame, else per (frame block, row); chunks of threads on the CPU cores."""
+    of a single frame, else per (frame block, row); chunks of threads on the CPU cores.
+    ``row_size``: the rows (vertices) a thread's row stands for, to size the chunks."""
     launch_rows(kernel, rows * -(-frames // FRAME_BLOCK), inputs, [_flat(o) for o in outputs],
-                device, min_chunk=-(-MIN_WORK // min(frames, FRAME_BLOCK)))
+                device, min_chunk=-(-MIN_WORK // (min(frames, FRAME_BLOCK) * row_size)))
 
 
 def skin_points(*, method, points, influences, joints, rigid, out, device):
@@ -674,12 +710,17 @@ def skin_points(*, method, points, influences, joints, rigid, out, device):
     if method == DQS:
         sign = ("running" if influences.running_sum else
                 "searched" if influences.unsorted else "sorted")
-    kernel = SKIN_POINTS_KERNELS[(method, residual, frames == 1, sign)]
     jn = joints
-    launch_frames(kernel, verts, frames,
+    # eight vertices a thread on the CPU where a packet kernel exists (one group of influences)
+    packet = ((method == LBS or (method == DQS and not residual and sign != "running"))
+              and influences.indices.shape[1] == 1 and jn.affines.shape[1] > 0
+              and is_cpu(device))
+    kernel = SKIN_POINTS_KERNELS[(method, residual, frames == 1, sign, packet)]
+    size = packets.VERTICES if packet else 1
+    launch_frames(kernel, -(-verts // size), frames,
                   [*frame_rows_array(points, verts), *influence_args(influences),
                    _flat(jn.affines), _flat(jn.dqs), _flat(jn.residuals), jn.has_residual,
-                   jn.affines.shape[1], frames], [out], device)
+                   jn.affines.shape[1], frames], [out], device, row_size=size)
 
 
 def skin_vectors(*, method, vectors, vector_vertex, influences, linears, rotations, residuals,

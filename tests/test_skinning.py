@@ -328,7 +328,8 @@ def test_rigid_fast_path_is_taken_and_equals_the_general_kernel(device, monkeypa
 def test_point_launcher_reads_any_frame_layout(device, layout, method):
     """The flat point kernels over two frame blocks (F = 20, one partial) with (F, V) rest points
     contiguous, strided (every other row of a wider array: copied) or one row broadcast to every
-    frame (stride 0: read in place), against the float64 oracles."""
+    frame (stride 0: the row read for every frame; copied, as it is strided here), against the
+    float64 oracles. V = 37: the packet kernels' last packet of every frame has five vertices."""
     rng = np.random.default_rng(21)
     F, V = 20, 37
     points, idx, w, M, _ = random_rig(rng, V=V, F=F)

@@ -1,0 +1,122 @@
+"""The eight-vertex packet snippets (``dqskin.kernels.packets``): the CPU's vector branch and the
+scalar branch CUDA compiles (built for the CPU by ``packet_twin.py``) against float64 NumPy
+written from the equations; tails of fewer than eight vertices, frames, the searched pivot's
+ties, zero and NaN inputs. The launcher's use of them (chunks, frame blocks, layouts) is tested
+through ``skin_points`` / ``Skinner`` against UsdSkel in ``test_skinning.py``."""
+
+import numpy as np
+import pytest
+import warp as wp
+from scipy.spatial.transform import Rotation
+from test_skinning import numpy_dqs, numpy_lbs, rel_err  # tests/ is on the path of its tests
+
+from dqskin._warp import init_warp
+
+J = 9
+
+
+def dual_quaternions(M):
+    """float64 unit dual quaternions (w, x, y, z, dw, dx, dy, dz) of rigid (..., 4, 4)."""
+    q = Rotation.from_matrix(M[..., :3, :3].reshape(-1, 3, 3)).as_quat()[:, [3, 0, 1, 2]]
+    t = M[..., :3, 3].reshape(-1, 3)
+    w, v = q[:, :1], q[:, 1:]
+    dual = 0.5 * np.concatenate([-np.sum(t * v, 1, keepdims=True), w * t + np.cross(t, v)], 1)
+    return np.concatenate([q, dual], 1).reshape(M.shape[:-2] + (8,))
+
+
+def run_both(rule, points, idx, w, M):
+    """(vector, scalar) outputs (F, V, 3) of the snippet of ``rule`` on (F, V, 3) points."""
+    init_warp()
+    from packet_twin import BOTH
+
+    F, V = points.shape[:2]
+    joints = (M[..., :3, :].astype(np.float32) if rule == "lbs"
+              else dual_quaternions(M).astype(np.float32))
+    dtype = wp.types.matrix(shape=(3, 4), dtype=wp.float32) if rule == "lbs" else None
+    arr = (wp.array(joints.reshape(-1, 3, 4), dtype=dtype, device="cpu") if rule == "lbs"
+           else wp.array(joints.reshape(-1, 8), dtype=wp.types.vector(8, wp.float32),
+                         device="cpu"))
+    outs = [wp.full(F * V, wp.vec3(7.0, 7.0, 7.0), dtype=wp.vec3, device="cpu")
+            for _ in range(2)]
+    wp.launch(BOTH[rule], dim=-(-V // 8),
+              inputs=[wp.array(points.reshape(-1, 3), dtype=wp.vec3, device="cpu"),
+                      wp.array(idx, dtype=wp.vec4i, device="cpu"),
+                      wp.array(w, dtype=wp.vec4, device="cpu"), arr, J, F, V, *outs],
+              device="cpu")
+    return [o.numpy().reshape(F, V, 3) for o in outs]
+
+
+def rig(rng, V, F=2):
+    points = (rng.normal(size=(F, V, 3)) * 2).astype(np.float32)
+    idx = rng.integers(0, J, size=(V, 4)).astype(np.int32)
+    w = rng.random((V, 4)) + 0.05
+    w = (w / w.sum(1, keepdims=True)).astype(np.float32)
+    M = np.tile(np.eye(4), (F, J, 1, 1))
+    M[..., :3, :3] = Rotation.random(F * J, random_state=rng).as_matrix().reshape(F, J, 3, 3)
+    M[..., :3, 3] = rng.normal(size=(F, J, 3))
+    return points, idx, w, M
+
+
+@pytest.mark.parametrize("V", [1, 7, 8, 9, 203])
+@pytest.mark.parametrize("rule", ["lbs", "sorted", "searched"])
+def test_packets_match_float64(rule, V):
+    """Both branches against the float64 oracles, every frame; the sorted rule gets weights in
+    descending order (its pivot is slot 0), the others input order. Lanes past the last vertex
+    are not written (the output's sentinel after V is not part of any frame: checked by the
+    frame-by-frame comparison of an output with no padding)."""
+    rng = np.random.default_rng(V + len(rule))
+    points, idx, w, M = rig(rng, V)
+    if rule == "sorted":
+        order = np.argsort(-w, axis=1, kind="stable")
+        idx, w = np.take_along_axis(idx, order, 1), np.take_along_axis(w, order, 1)
+    vector, scalar = run_both(rule, points, idx, w, M)
+    oracle = numpy_lbs if rule == "lbs" else numpy_dqs
+    for f in range(points.shape[0]):
+        want = oracle(points[f], idx, w, M[f])
+        assert rel_err(vector[f], want) <= 1e-5, f
+        assert rel_err(scalar[f], want) <= 1e-5, f
+    np.testing.assert_allclose(vector, scalar, rtol=0, atol=1e-5)
+
+
+def test_searched_pivot_is_the_first_largest_weight():
+    """Two equal largest weights on joints whose rotations lie on opposite hemispheres, a third
+    joint between them: the signs differ with the pivot, and the first of the two must win (as
+    UsdSkel's and the scalar kernels' search); joint 3 has weight zero."""
+    half = Rotation.from_rotvec
+    rots = [half([0, 0, 0.2 * np.pi]),  # between the two below
+            half([0, 0, -0.75 * np.pi]),
+            half([0, 0, 1.15 * np.pi]),  # q1 · q2 < 0, both on q0's side
+            half([1.0, 0, 0])]
+    q = np.array([r.as_quat()[[3, 0, 1, 2]] for r in rots])
+    assert q[1] @ q[2] < 0 < min(q[0] @ q[1], q[0] @ q[2])
+    M = np.tile(np.eye(4), (1, J, 1, 1))
+    for j, r in enumerate(rots):
+        M[0, j, :3, :3] = r.as_matrix()
+        M[0, j, :3, 3] = [j, -j, 0.5 * j]
+    points = np.array([[[0.3, 1.0, -2.0]]], np.float32).repeat(11, axis=1)
+    w = np.array([[0.2, 0.4, 0.4, 0.0]], np.float32).repeat(11, axis=0)
+    idx = np.array([[0, 1, 2, 3]], np.int32).repeat(11, axis=0)
+    vector, scalar = run_both("searched", points, idx, w, M)
+    first = numpy_dqs(points[0], idx, w, M[0])  # argmax: the first of equal weights
+    swapped = numpy_dqs(points[0], idx[:, [0, 2, 1, 3]], w, M[0])  # the other one as pivot
+    assert np.abs(first - swapped).max() > 0.1  # the pivot matters here
+    for out in (vector, scalar):
+        assert rel_err(out[0], first) <= 1e-5
+
+
+@pytest.mark.parametrize("rule", ["lbs", "sorted", "searched"])
+def test_zero_weights_and_nan_joints(rule):
+    """All-zero weights: DQS leaves the point where it was (a zero blend normalizes to the
+    identity, as Gf), LBS gives the origin (Σ 0·M·p); a NaN joint makes only its vertices NaN."""
+    rng = np.random.default_rng(3)
+    points, idx, w, M = rig(rng, 13, F=1)
+    w[2] = 0.0
+    idx[5:] = np.where(idx[5:] == 4, 5, idx[5:])
+    idx[5, 1] = 4
+    M[0, 4, :3, 3] = np.nan
+    for out in run_both(rule, points, idx, w, M):
+        want = np.zeros(3) if rule == "lbs" else points[0, 2]
+        np.testing.assert_allclose(out[0, 2], want, atol=1e-6)
+        assert np.isnan(out[0, 5]).all()
+        rest = np.delete(np.arange(13), [2, 5])
+        assert np.isfinite(out[0, rest]).all()
