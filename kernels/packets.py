@@ -42,6 +42,24 @@ wp.set_module_options({"enable_backward": False})  # forward-only kernels
 # the arithmetic, over V (f8 or float). LOAD(k, T) fills T[] with influence k's joint data;
 # x, y, z, w0..w3 (and for searched DQS the pivot's real part p0..p3) are loaded before.
 
+# frames with scale/shear: p_s = Σ wₖ·Sₖ·p first (Sₖ the 3×3 residuals, from element o)
+_DQS_RESIDUAL = """
+        if (scaled) {
+            V S[9], U[9];
+            LOADS(0, S);
+            for (int c = 0; c < 9; ++c) S[c] = S[c] * w0;
+            const V ws[3] = {w1, w2, w3};
+            for (int k = 1; k < 4; ++k) {
+                LOADS(k, U);
+                for (int c = 0; c < 9; ++c) S[c] += U[c] * ws[k - 1];
+            }
+            const V sx = S[0] * x + S[1] * y + S[2] * z;
+            const V sy = S[3] * x + S[4] * y + S[5] * z;
+            z = S[6] * x + S[7] * y + S[8] * z;
+            x = sx;
+            y = sy;
+        }"""
+
 _DQS_SORTED = """
         V D0[8], T[8], B[8];
         LOAD(0, D0);
@@ -104,12 +122,15 @@ _SCALAR = """
         const int* I = (const int*)indices.data + 4 * (v0 + i);
         const float* W = (const float*)weights.data + 4 * (v0 + i);
         const float* J = (const float*)joints.data + WIDTH * (long long)o;
-        const V x = P[0], y = P[1], z = P[2];
+        RESIDUAL_BASE
+        V x = P[0], y = P[1], z = P[2];
         const V w0 = W[0], w1 = W[1], w2 = W[2], w3 = W[3];
         PIVOT
 #define LOAD(K, OUT) for (int c = 0; c < WIDTH; ++c) OUT[c] = J[WIDTH * I[K] + c]
+#define LOADS(K, OUT) for (int c = 0; c < 9; ++c) OUT[c] = RS[9 * I[K] + c]
         MATH
 #undef LOAD
+#undef LOADS
         float* O = (float*)out.data + 3 * (out_base + v0 + i);
         O[0] = ox; O[1] = oy; O[2] = oz;
     }
@@ -132,6 +153,7 @@ _VECTOR = """
     const int* I = (const int*)indices.data + 4 * v0;
     const float* W = (const float*)weights.data + 4 * v0;
     const char* J = (const char*)joints.data + 4 * WIDTH * (long long)o;
+    RESIDUAL_BASE
     float pbuf[24], wbuf[32];
     int ibuf[32];
     if (n < 8) {  // the last packet: missing lanes read lane 0's joints with zero weights
@@ -178,11 +200,11 @@ _VECTOR = """
     __builtin_memcpy(&pa, P, 32);
     __builtin_memcpy(&pb, P + 8, 32);
     __builtin_memcpy(&pc, P + 16, 32);
-    const V x = SHUF(SHUF(pa, pb, 0, 3, 6, 9, 12, 15, -1, -1),
+    V x = SHUF(SHUF(pa, pb, 0, 3, 6, 9, 12, 15, -1, -1),
                                         pc, 0, 1, 2, 3, 4, 5, 10, 13);
-    const V y = SHUF(SHUF(pa, pb, 1, 4, 7, 10, 13, -1, -1, -1),
+    V y = SHUF(SHUF(pa, pb, 1, 4, 7, 10, 13, -1, -1, -1),
                                         pc, 0, 1, 2, 3, 4, 8, 11, 14);
-    const V z = SHUF(SHUF(pa, pb, 2, 5, 8, 11, 14, -1, -1, -1),
+    V z = SHUF(SHUF(pa, pb, 2, 5, 8, 11, 14, -1, -1, -1),
                                         pc, 0, 1, 2, 3, 4, 9, 12, 15);
     f4 wq[8];
     for (int i = 0; i < 8; ++i) __builtin_memcpy(&wq[i], W + 4 * i, 16);
@@ -229,6 +251,13 @@ _VECTOR_LOAD_DQ = """
         for (int i = 0; i < 8; ++i) __builtin_memcpy(&r_[i], J + 32 * I[4 * i + (K)], 32); \\
         transpose8(r_, OUT); } while (0)"""
 
+_VECTOR_LOAD_RESIDUAL = """
+#define LOADS(K, OUT) do { f8 r_[8]; \\
+        for (int i = 0; i < 8; ++i) __builtin_memcpy(&r_[i], RS + 36 * I[4 * i + (K)], 32); \\
+        transpose8(r_, OUT); \\
+        for (int i = 0; i < 8; ++i) OUT[8][i] = ((const float*)(RS + 36 * I[4 * i + (K)]))[8]; \\
+        } while (0)"""
+
 _VECTOR_LOAD_AFFINE = """
 #define LOAD(K, OUT) do { f8 r_[8]; f4 q_[8]; \\
         for (int i = 0; i < 8; ++i) { \\
@@ -243,14 +272,20 @@ def packet_source(method, searched=False, scalar_on_cpu=False):
     the CPU too (the tests' twin)."""
     if method == "lbs":
         math, width, load = _LBS, 12, _VECTOR_LOAD_AFFINE
+        scalar_base = vector_base = ""
+        undef = "\n#undef LOAD"
     else:
-        math = (_DQS_SEARCHED if searched else _DQS_SORTED) + _DQS_APPLY
-        width, load = 8, _VECTOR_LOAD_DQ
+        math = (_DQS_RESIDUAL + (_DQS_SEARCHED if searched else _DQS_SORTED) + _DQS_APPLY)
+        width, load = 8, _VECTOR_LOAD_DQ + _VECTOR_LOAD_RESIDUAL
+        scalar_base = "const float* RS = (const float*)residuals.data + 9 * (long long)o;"
+        vector_base = "const char* RS = (const char*)residuals.data + 36 * (long long)o;"
+        undef = "\n#undef LOAD\n#undef LOADS"
     scalar_pivot = _SCALAR_PIVOT if searched else ""
     vector_pivot = _VECTOR_PIVOT if searched else ""
-    scalar = _SCALAR.replace("PIVOT", scalar_pivot).replace("MATH", math)
-    vector = (_VECTOR.replace("PIVOT", vector_pivot)
-              .replace("    MATH", load + math + "\n#undef LOAD"))
+    scalar = (_SCALAR.replace("PIVOT", scalar_pivot).replace("MATH", math)
+              .replace("RESIDUAL_BASE", scalar_base))
+    vector = (_VECTOR.replace("PIVOT", vector_pivot).replace("RESIDUAL_BASE", vector_base)
+              .replace("    MATH", load + math + undef))
     cond = "1" if scalar_on_cpu else "defined(__CUDA_ARCH__)"
     body = f"""
     const int n = count - v0 < 8 ? count - v0 : 8;
@@ -276,18 +311,21 @@ def lbs_packet(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
 @wp.func_native(packet_source("dqs"))
 def dqs_sorted_packet(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                       indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
-                      joints: wp.array(dtype=vec8), o: int, v0: int, count: int,
+                      joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
+                      scaled: int, o: int, v0: int, count: int,
                       out: wp.array(dtype=wp.vec3), out_base: wp.int64) -> int:
-    """Rigid DQS, pivot in slot 0 (sorted layout), of the vertices of :func:`lbs_packet`."""
+    """DQS, pivot in slot 0 (sorted layout), of the vertices of :func:`lbs_packet`; ``scaled``:
+    the frame has scale/shear, the points first blended through ``residuals`` (from ``o``)."""
     ...
 
 
 @wp.func_native(packet_source("dqs", searched=True))
 def dqs_searched_packet(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                         indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
-                        joints: wp.array(dtype=vec8), o: int, v0: int, count: int,
+                        joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
+                        scaled: int, o: int, v0: int, count: int,
                         out: wp.array(dtype=wp.vec3), out_base: wp.int64) -> int:
-    """Rigid DQS, pivot searched (input order), of the vertices of :func:`lbs_packet`."""
+    """DQS, pivot searched (input order), otherwise as :func:`dqs_sorted_packet`."""
     ...
 
 

@@ -38,7 +38,7 @@ strides and an inlined task loop on the CPU (2-D arrays or arrays inside structs
 one thread). The point kernels are specialized at compile time for the method, rigid frames, a
 single frame (a kernel of its own, with no frame-block code) and, for DQS, the sorted layout's
 sign rule (no running-sum or pivot-search code): code a launch does not run still slows it. On
-the CPU, LBS and rigid DQS (sorted or searched pivot) of one group of four influences launch
+the CPU, LBS and DQS (sorted or searched pivot) of one group of four influences launch
 packet kernels instead: a thread skins eight vertices in the lanes of clang vectors
 (:mod:`.packets`; 2-3× the one-vertex kernels on one thread).
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
@@ -421,9 +421,9 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
     rule: median 36 against 31.5 M points/s, one thread, 1M points, 40 interleaved launches; the
     best launches alike). The influence-group count stays a runtime argument: a kernel specialized
     for ``K <= 4`` measured no faster (one thread, 1M points) and doubled the module's compile
-    time. ``packet`` (CPU; LBS, or rigid DQS with the sorted or searched rule; one group of four
+    time. ``packet`` (CPU; LBS, or DQS with the sorted or searched rule; one group of four
     influences): thread ``t`` skins eight vertices at once (:mod:`.packets`), row ``t`` of
-    ``ceil(V / 8)`` per frame."""
+    ``ceil(V / 8)`` per frame (one frame or a frame block alike)."""
     packet_func = packets.PACKETS.get((method, sign)) if packet else None
 
     def kernel(
@@ -449,24 +449,16 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
         t = wp.tid() + row_offset
         if wp.static(packet):  # eight vertices a thread
             vertex_count = out.shape[0] // frame_count
-            if wp.static(single):
-                if wp.static(method == LBS):
-                    packet_func(points, wp.int64(0), indices, weights, affines, 0, t * 8,
-                                vertex_count, out, wp.int64(0))
-                else:
-                    packet_func(points, wp.int64(0), indices, weights, dqs, 0, t * 8,
-                                vertex_count, out, wp.int64(0))
-                return
             pr, pfirst, pend = frame_rows(t, (vertex_count + 7) // 8, frame_count)
-            for f in range(pfirst, pend):
+            for f in range(pfirst, pend):  # one frame: pfirst 0, pend 1
                 pbase = wp.int64(f) * wp.int64(point_stride)
                 obase = wp.int64(f) * wp.int64(vertex_count)
                 if wp.static(method == LBS):
                     packet_func(points, pbase, indices, weights, affines, f * joint_count,
                                 pr * 8, vertex_count, out, obase)
-                else:
-                    packet_func(points, pbase, indices, weights, dqs, f * joint_count, pr * 8,
-                                vertex_count, out, obase)
+                else:  # DQS: the frame's residual flag read, set on frames with scale/shear
+                    packet_func(points, pbase, indices, weights, dqs, residuals, has_residual[f],
+                                f * joint_count, pr * 8, vertex_count, out, obase)
             return
         g = groups
         # the sign-rule flags, constants (folded by the C++ compiler) unless read at run time
@@ -507,20 +499,30 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
     return wp.kernel(kernel, name=name)
 
 
-SKIN_POINTS_KERNELS = {(m, r, one, sign, packet): _skin_points_kernel(m, r, one, sign, packet)
-                       for m, r, sign, packet in (
-                           (LBS, False, None, False), (LBS, False, None, True),
-                           (DQS, True, "sorted", False), (DQS, False, "sorted", False),
-                           (DQS, False, "sorted", True), (DQS, True, "searched", False),
-                           (DQS, False, "searched", False), (DQS, False, "searched", True),
-                           (DQS, True, "running", False), (DQS, False, "running", False),
-                           (BLEND, True, None, False), (COR, True, None, False),
-                           (COR, False, None, False))
-                       for one in (True, False)}
+def _point_kernels(specs):
+    """:data:`SKIN_POINTS_KERNELS` of ``(method, residual, sign, packet)`` specs, one frame and
+    frame blocks; a packet kernel serves both (one kernel object under both keys)."""
+    table = {}
+    for m, r, sign, packet in specs:
+        for one in (True, False):
+            key = (m, r, one, sign, packet)
+            table[key] = (table[(m, r, True, sign, True)] if packet and not one
+                          else _skin_points_kernel(m, r, one and not packet, sign, packet))
+    return table
+
+
+SKIN_POINTS_KERNELS = _point_kernels((
+    (LBS, False, None, False), (LBS, False, None, True),
+    (DQS, True, "sorted", False), (DQS, False, "sorted", False), (DQS, True, "sorted", True),
+    (DQS, True, "searched", False), (DQS, False, "searched", False),
+    (DQS, True, "searched", True), (DQS, True, "running", False), (DQS, False, "running", False),
+    (BLEND, True, None, False), (COR, True, None, False), (COR, False, None, False)))
 """The point-skinning kernels by ``(method, residual code, one frame, sign rule, packet)``: LBS
 needs no residual code and has no sign rule, BLEND always has the residual code; DQS kernels have
 their sign rule fixed (:data:`SIGN_RULES`), BLEND and COR read it at run time; packet kernels
-(:mod:`.packets`, the CPU's) for LBS and the rigid sorted and searched DQS."""
+(:mod:`.packets`, the CPU's) for LBS and the sorted and searched DQS, which read each frame's
+residual flag (one kernel for rigid and scaled launches: the flag is one load per eight
+vertices) and have no one-frame variant (a packet's frame loop costs nothing measurable)."""
 
 
 @wp.func
@@ -712,10 +714,11 @@ def skin_points(*, method, points, influences, joints, rigid, out, device):
                 "searched" if influences.unsorted else "sorted")
     jn = joints
     # eight vertices a thread on the CPU where a packet kernel exists (one group of influences)
-    packet = ((method == LBS or (method == DQS and not residual and sign != "running"))
+    packet = ((method == LBS or (method == DQS and sign != "running"))
               and influences.indices.shape[1] == 1 and jn.affines.shape[1] > 0
               and is_cpu(device))
-    kernel = SKIN_POINTS_KERNELS[(method, residual, frames == 1, sign, packet)]
+    kernel = SKIN_POINTS_KERNELS[(method, residual or (packet and method == DQS), frames == 1,
+                                  sign, packet)]
     size = packets.VERTICES if packet else 1
     launch_frames(kernel, -(-verts // size), frames,
                   [*frame_rows_array(points, verts), *influence_args(influences),

@@ -20,7 +20,8 @@ def scalar_lbs(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
 @wp.func_native(P.packet_source("dqs", scalar_on_cpu=True))
 def scalar_sorted(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                   indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
-                  joints: wp.array(dtype=vec8), o: int, v0: int, count: int,
+                  joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
+                  scaled: int, o: int, v0: int, count: int,
                   out: wp.array(dtype=wp.vec3), out_base: wp.int64) -> int:
     ...
 
@@ -28,31 +29,39 @@ def scalar_sorted(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
 @wp.func_native(P.packet_source("dqs", searched=True, scalar_on_cpu=True))
 def scalar_searched(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                     indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
-                    joints: wp.array(dtype=vec8), o: int, v0: int, count: int,
+                    joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
+                    scaled: int, o: int, v0: int, count: int,
                     out: wp.array(dtype=wp.vec3), out_base: wp.int64) -> int:
     ...
 
 
-def _kernel(vector, scalar, joint_type, name):
+def _kernel(vector, scalar, joint_type, name, dqs):
     def kernel(points: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.vec4i),
                weights: wp.array(dtype=wp.vec4), joints: wp.array(dtype=joint_type),
+               residuals: wp.array(dtype=wp.mat33), scaled: wp.array(dtype=int),
                joint_count: int, frames: int, vertices: int,
                out_vector: wp.array(dtype=wp.vec3), out_scalar: wp.array(dtype=wp.vec3)):
         """Packet ``tid`` of every frame (points, joints and outputs frame-major) through both
-        branches."""
+        branches; the DQS snippets blend frame ``f``'s points through ``residuals`` when
+        ``scaled[f]``."""
         v0 = wp.tid() * 8
         for f in range(frames):
             base = wp.int64(f) * wp.int64(vertices)
-            vector(points, base, indices, weights, joints, f * joint_count, v0, vertices,
-                   out_vector, base)
-            scalar(points, base, indices, weights, joints, f * joint_count, v0, vertices,
-                   out_scalar, base)
+            o = f * joint_count
+            if wp.static(dqs):
+                vector(points, base, indices, weights, joints, residuals, scaled[f], o, v0,
+                       vertices, out_vector, base)
+                scalar(points, base, indices, weights, joints, residuals, scaled[f], o, v0,
+                       vertices, out_scalar, base)
+            else:
+                vector(points, base, indices, weights, joints, o, v0, vertices, out_vector, base)
+                scalar(points, base, indices, weights, joints, o, v0, vertices, out_scalar, base)
 
     return wp.kernel(kernel, name=name)
 
 
-BOTH = {"lbs": _kernel(P.lbs_packet, scalar_lbs, mat34, "both_lbs"),
-        "sorted": _kernel(P.dqs_sorted_packet, scalar_sorted, vec8, "both_sorted"),
-        "searched": _kernel(P.dqs_searched_packet, scalar_searched, vec8, "both_searched")}
+BOTH = {"lbs": _kernel(P.lbs_packet, scalar_lbs, mat34, "both_lbs", False),
+        "sorted": _kernel(P.dqs_sorted_packet, scalar_sorted, vec8, "both_sorted", True),
+        "searched": _kernel(P.dqs_searched_packet, scalar_searched, vec8, "both_searched", True)}
 """Kernels running both branches of each snippet, by rule (``"lbs"``, ``"sorted"``,
 ``"searched"``)."""

@@ -24,26 +24,40 @@ def dual_quaternions(M):
     return np.concatenate([q, dual], 1).reshape(M.shape[:-2] + (8,))
 
 
-def run_both(rule, points, idx, w, M):
-    """(vector, scalar) outputs (F, V, 3) of the snippet of ``rule`` on (F, V, 3) points."""
+PAD = 24  # output entries after the last frame: a sentinel that no lane may overwrite
+SENTINEL = 7.0
+
+
+def run_both(rule, points, idx, w, M, residuals=None):
+    """(vector, scalar) outputs (F, V, 3) of the snippet of ``rule`` on (F, V, 3) points; DQS
+    frames with ``residuals`` (F, J, 3, 3) blend the points through them first. Checks that the
+    entries after the last frame kept their sentinel."""
     init_warp()
     from packet_twin import BOTH
 
     F, V = points.shape[:2]
-    joints = (M[..., :3, :].astype(np.float32) if rule == "lbs"
-              else dual_quaternions(M).astype(np.float32))
-    dtype = wp.types.matrix(shape=(3, 4), dtype=wp.float32) if rule == "lbs" else None
-    arr = (wp.array(joints.reshape(-1, 3, 4), dtype=dtype, device="cpu") if rule == "lbs"
-           else wp.array(joints.reshape(-1, 8), dtype=wp.types.vector(8, wp.float32),
-                         device="cpu"))
-    outs = [wp.full(F * V, wp.vec3(7.0, 7.0, 7.0), dtype=wp.vec3, device="cpu")
-            for _ in range(2)]
+    if rule == "lbs":
+        arr = wp.array(M[..., :3, :].astype(np.float32).reshape(-1, 3, 4),
+                       dtype=wp.types.matrix(shape=(3, 4), dtype=wp.float32), device="cpu")
+    else:
+        arr = wp.array(dual_quaternions(M).astype(np.float32).reshape(-1, 8),
+                       dtype=wp.types.vector(8, wp.float32), device="cpu")
+    scaled = np.zeros(F, np.int32) if residuals is None else np.ones(F, np.int32)
+    res = np.tile(np.eye(3), (F, J, 1, 1)) if residuals is None else residuals
+    outs = [wp.full(F * V + PAD, wp.vec3(SENTINEL, SENTINEL, SENTINEL), dtype=wp.vec3,
+                    device="cpu") for _ in range(2)]
     wp.launch(BOTH[rule], dim=-(-V // 8),
               inputs=[wp.array(points.reshape(-1, 3), dtype=wp.vec3, device="cpu"),
                       wp.array(idx, dtype=wp.vec4i, device="cpu"),
-                      wp.array(w, dtype=wp.vec4, device="cpu"), arr, J, F, V, *outs],
+                      wp.array(w, dtype=wp.vec4, device="cpu"), arr,
+                      wp.array(res.reshape(-1, 3, 3).astype(np.float32), dtype=wp.mat33,
+                               device="cpu"),
+                      wp.array(scaled, dtype=int, device="cpu"), J, F, V, *outs],
               device="cpu")
-    return [o.numpy().reshape(F, V, 3) for o in outs]
+    got = [o.numpy() for o in outs]
+    for g in got:
+        assert (g[F * V:] == SENTINEL).all(), "a lane past the last vertex was stored"
+    return [g[:F * V].reshape(F, V, 3) for g in got]
 
 
 def rig(rng, V, F=2):
@@ -62,8 +76,7 @@ def rig(rng, V, F=2):
 def test_packets_match_float64(rule, V):
     """Both branches against the float64 oracles, every frame; the sorted rule gets weights in
     descending order (its pivot is slot 0), the others input order. Lanes past the last vertex
-    are not written (the output's sentinel after V is not part of any frame: checked by the
-    frame-by-frame comparison of an output with no padding)."""
+    are not stored (:func:`run_both`'s sentinel after the last frame)."""
     rng = np.random.default_rng(V + len(rule))
     points, idx, w, M = rig(rng, V)
     if rule == "sorted":
@@ -120,3 +133,57 @@ def test_zero_weights_and_nan_joints(rule):
         assert np.isnan(out[0, 5]).all()
         rest = np.delete(np.arange(13), [2, 5])
         assert np.isfinite(out[0, rest]).all()
+
+
+@pytest.mark.parametrize("V", [5, 203])
+@pytest.mark.parametrize("rule", ["sorted", "searched"])
+def test_scaled_frames_blend_through_residuals(rule, V):
+    """A frame with scale/shear (UsdSkel's DQS): ``p_s = Σ wₖ·Sₖ·p``, then the rigid blend
+    (rotation and translation of the polar split) applied to ``p_s``; float64 oracle."""
+    rng = np.random.default_rng(40 + V)
+    points, idx, w, M = rig(rng, V)
+    if rule == "sorted":
+        order = np.argsort(-w, axis=1, kind="stable")
+        idx, w = np.take_along_axis(idx, order, 1), np.take_along_axis(w, order, 1)
+    S = np.eye(3) + 0.2 * rng.normal(size=(2, J, 3, 3))
+    vector, scalar = run_both(rule, points, idx, w, M, residuals=S)
+    for f in range(2):
+        blended = np.einsum("vk,vkij,vj->vi", w.astype(np.float64), S[f][idx], points[f])
+        want = numpy_dqs(blended, idx, w, M[f])
+        assert rel_err(vector[f], want) <= 1e-5, f
+        assert rel_err(scalar[f], want) <= 1e-5, f
+        assert rel_err(vector[f], numpy_dqs(points[f], idx, w, M[f])) > 1e-2  # S mattered
+
+
+@pytest.mark.parametrize("case,packet", [
+    ("lbs", True), ("dqs", True), ("dqs scaled", True), ("dqs one-shot", True),
+    ("dqs blender", False), ("dqs 5 influences", False), ("blend", False)])
+def test_launcher_picks_packet_kernels(monkeypatch, case, packet):
+    """On the CPU, LBS and DQS (the sorted layout, the one-shot's searched pivot, frames with
+    scale) of at most four influences launch the packet kernels; the running-sum rule, more
+    influences and the other methods launch the one-vertex kernels. Results against UsdSkel are
+    in ``test_skinning.py``."""
+    import dqskin
+    from dqskin.kernels import grid
+
+    names = []
+    real = grid._launch
+    monkeypatch.setattr(grid, "_launch", lambda kernel, *a: (names.append(kernel.key),
+                                                              real(kernel, *a)))
+    rng = np.random.default_rng(5)
+    K = 5 if "5" in case else 4
+    points = rng.normal(size=(50, 3)).astype(np.float32)
+    idx = rng.integers(0, J, size=(50, K))
+    w = rng.random((50, K)) + 0.1
+    M = np.tile(np.eye(4), (J, 1, 1))
+    M[:, :3, :3] = Rotation.random(J, random_state=rng).as_matrix()
+    if "scaled" in case:
+        M[:, 0, 0] = 1.5
+    method = case.split()[0]
+    if "one-shot" in case:
+        dqskin.skin_points(points, idx, w, M, method, device="cpu")
+    else:
+        sk = dqskin.Skinner(points, idx, w, blend_weights=np.full(50, 0.5), device="cpu")
+        sk.skin(M, method, sign_reference="running_sum" if "blender" in case else "largest_weight")
+    skins = [n for n in names if n.startswith("skin_")]
+    assert skins and all(n.endswith("_packet") == packet for n in skins), skins

@@ -178,11 +178,14 @@ def test_twist_keeps_radius_with_dqs_and_collapses_with_lbs(device, theta):
 
 
 def _launch_dqs(prep, sk):
-    """The general DQS kernel (residual path compiled in)."""
+    """The general one-vertex DQS kernel (residual path compiled in; not the CPU's packets)."""
     j = prep["joints"]
-    out = wp.empty((j.dqs.shape[0], sk.vertex_count), dtype=wp.vec3, device=sk.device)
-    K.skin_points(method=K.DQS, points=sk._points, influences=sk._inf, joints=j, rigid=False,
-                  out=out, device=sk.device)
+    F, V = j.dqs.shape[0], sk.vertex_count
+    out = wp.empty((F, V), dtype=wp.vec3, device=sk.device)
+    kernel = K.SKIN_POINTS_KERNELS[(K.DQS, True, F == 1, "sorted", False)]
+    K.launch_frames(kernel, V, F, [*K.frame_rows_array(sk._points, V), *K.influence_args(sk._inf),
+                                   K._flat(j.affines), K._flat(j.dqs), K._flat(j.residuals),
+                                   j.has_residual, j.affines.shape[1], F], [out], sk.device)
     return out.numpy()
 
 
@@ -303,8 +306,9 @@ def test_frame_blocks_and_threads_cover_the_grid(device, monkeypatch, V, F, meth
 
 
 def test_rigid_fast_path_is_taken_and_equals_the_general_kernel(device, monkeypatch):
-    """Launches without scale/shear use skin_dqs_rigid_kernel; it gives the float64 DQS of the
-    equations, as the general kernel (residual path compiled in) does on the same data."""
+    """Launches without scale/shear use skin_dqs_rigid_kernel (on the CPU the packet kernel,
+    which skips the residual blend by the frame's flag); it gives the float64 DQS of the
+    equations, as the general one-vertex kernel (residual path compiled in) does."""
     rng = np.random.default_rng(12)
     points, idx, w, M, _ = random_rig(rng, F=2)
     sk = dqskin.Skinner(points, idx, w, device=device)
@@ -313,7 +317,8 @@ def test_rigid_fast_path_is_taken_and_equals_the_general_kernel(device, monkeypa
     monkeypatch.setattr(grid, "_launch",
                         lambda k, *a, **kw: (launched.append(k.key), real(k, *a, **kw)))
     fast = sk.skin(M, "dqs")
-    assert any("skin_dqs_rigid_kernel" in name for name in launched)
+    fast_kernel = "_packet" if wp.get_device(device).is_cpu else "skin_dqs_rigid_kernel"
+    assert any(fast_kernel in name for name in launched)
     monkeypatch.setattr(grid, "_launch", real)
     prep, _, _ = sk._prepare(M)
     general = _launch_dqs(prep, sk)
