@@ -144,26 +144,11 @@ _SCALAR_PIVOT = """int m = 0;
 # ---------------------------------------------------------------------------------------------
 # vector branch: eight vertices in the lanes of f8
 
-_VECTOR = """
+VECTOR_PRELUDE = """
     typedef float f8 __attribute__((ext_vector_type(8)));
     typedef float f4 __attribute__((ext_vector_type(4)));
-    typedef f8 V;
+    typedef int i8 __attribute__((ext_vector_type(8)));
 #define SHUF __builtin_shufflevector
-    const float* P = (const float*)points.data + 3 * (point_base + v0);
-    const int* I = (const int*)indices.data + 4 * v0;
-    const float* W = (const float*)weights.data + 4 * v0;
-    const char* J = (const char*)joints.data + 4 * WIDTH * (long long)o;
-    RESIDUAL_BASE
-    float pbuf[24], wbuf[32];
-    int ibuf[32];
-    if (n < 8) {  // the last packet: missing lanes read lane 0's joints with zero weights
-        for (int e = 0; e < 24; ++e) pbuf[e] = e < 3 * n ? P[e] : 0.0f;
-        for (int e = 0; e < 32; ++e) ibuf[e] = e < 4 * n ? I[e] : I[e & 3];
-        for (int e = 0; e < 32; ++e) wbuf[e] = e < 4 * n ? W[e] : 0.0f;
-        P = pbuf;
-        I = ibuf;
-        W = wbuf;
-    }
     // lane i of column c = component c of row i, eight rows of eight floats (AVX's 8x8 transpose)
     auto transpose8 = [](const f8* r, f8* c) {
         f8 t[8], s[8];
@@ -173,10 +158,9 @@ _VECTOR = """
         }
         for (int i = 0; i < 2; ++i)
             for (int h = 0; h < 2; ++h) {
-                s[4 * i + 2 * h] = SHUF(t[4 * i + h], t[4 * i + h + 2],
-                                                           0, 1, 8, 9, 4, 5, 12, 13);
+                s[4 * i + 2 * h] = SHUF(t[4 * i + h], t[4 * i + h + 2], 0, 1, 8, 9, 4, 5, 12, 13);
                 s[4 * i + 2 * h + 1] = SHUF(t[4 * i + h], t[4 * i + h + 2],
-                                                               2, 3, 10, 11, 6, 7, 14, 15);
+                                            2, 3, 10, 11, 6, 7, 14, 15);
             }
         for (int i = 0; i < 4; ++i) {
             c[i] = SHUF(s[i], s[i + 4], 0, 1, 2, 3, 8, 9, 10, 11);
@@ -196,16 +180,40 @@ _VECTOR = """
         c[2] = SHUF(t[1], t[3], 0, 1, 8, 9, 4, 5, 12, 13);
         c[3] = SHUF(t[1], t[3], 2, 3, 10, 11, 6, 7, 14, 15);
     };
+"""
+"""C++ opening a vector branch: the clang vector types ``f8``, ``f4``, ``i8``, ``SHUF`` and the
+lambdas ``transpose8(rows, columns)`` (eight rows of eight floats) and ``transpose4(rows,
+columns)`` (eight rows of four floats into four ``f8``); close it with :data:`VECTOR_END`."""
+
+VECTOR_END = "\n#undef SHUF\n"
+
+_VECTOR = """
+    typedef f8 V;
+    const float* P = (const float*)points.data + 3 * (point_base + v0);
+    const int* I = (const int*)indices.data + 4 * v0;
+    const float* W = (const float*)weights.data + 4 * v0;
+    const char* J = (const char*)joints.data + 4 * WIDTH * (long long)o;
+    RESIDUAL_BASE
+    float pbuf[24], wbuf[32];
+    int ibuf[32];
+    if (n < 8) {  // the last packet: missing lanes read lane 0's joints with zero weights
+        for (int e = 0; e < 24; ++e) pbuf[e] = e < 3 * n ? P[e] : 0.0f;
+        for (int e = 0; e < 32; ++e) ibuf[e] = e < 4 * n ? I[e] : I[e & 3];
+        for (int e = 0; e < 32; ++e) wbuf[e] = e < 4 * n ? W[e] : 0.0f;
+        P = pbuf;
+        I = ibuf;
+        W = wbuf;
+    }
     f8 pa, pb, pc;
     __builtin_memcpy(&pa, P, 32);
     __builtin_memcpy(&pb, P + 8, 32);
     __builtin_memcpy(&pc, P + 16, 32);
     V x = SHUF(SHUF(pa, pb, 0, 3, 6, 9, 12, 15, -1, -1),
-                                        pc, 0, 1, 2, 3, 4, 5, 10, 13);
+               pc, 0, 1, 2, 3, 4, 5, 10, 13);
     V y = SHUF(SHUF(pa, pb, 1, 4, 7, 10, 13, -1, -1, -1),
-                                        pc, 0, 1, 2, 3, 4, 8, 11, 14);
+               pc, 0, 1, 2, 3, 4, 8, 11, 14);
     V z = SHUF(SHUF(pa, pb, 2, 5, 8, 11, 14, -1, -1, -1),
-                                        pc, 0, 1, 2, 3, 4, 9, 12, 15);
+               pc, 0, 1, 2, 3, 4, 9, 12, 15);
     f4 wq[8];
     for (int i = 0; i < 8; ++i) __builtin_memcpy(&wq[i], W + 4 * i, 16);
     f8 wc[4];
@@ -215,11 +223,11 @@ _VECTOR = """
     MATH
     // interleave x, y, z back into 24 floats
     const f8 o0 = SHUF(SHUF(ox, oy, 0, 8, -1, 1, 9, -1, 2, 10),
-                                          oz, 0, 1, 8, 3, 4, 9, 6, 7);
+                       oz, 0, 1, 8, 3, 4, 9, 6, 7);
     const f8 o1 = SHUF(SHUF(ox, oy, -1, 3, 11, -1, 4, 12, -1, 5),
-                                          oz, 10, 1, 2, 11, 4, 5, 12, 7);
+                       oz, 10, 1, 2, 11, 4, 5, 12, 7);
     const f8 o2 = SHUF(SHUF(ox, oy, 13, -1, 6, 14, -1, 7, 15, -1),
-                                          oz, 0, 13, 2, 3, 14, 5, 6, 15);
+                       oz, 0, 13, 2, 3, 14, 5, 6, 15);
     float* O = (float*)out.data + 3 * (out_base + v0);
     if (n == 8) {
         __builtin_memcpy(O, &o0, 32);
@@ -232,7 +240,6 @@ _VECTOR = """
         __builtin_memcpy(ob + 16, &o2, 32);
         for (int e = 0; e < 3 * n; ++e) O[e] = ob[e];
     }
-#undef SHUF
     return 0;"""
 
 _VECTOR_PIVOT = """f4 pq[8];
@@ -284,8 +291,9 @@ def packet_source(method, searched=False, scalar_on_cpu=False):
     vector_pivot = _VECTOR_PIVOT if searched else ""
     scalar = (_SCALAR.replace("PIVOT", scalar_pivot).replace("MATH", math)
               .replace("RESIDUAL_BASE", scalar_base))
-    vector = (_VECTOR.replace("PIVOT", vector_pivot).replace("RESIDUAL_BASE", vector_base)
-              .replace("    MATH", load + math + undef))
+    vector = VECTOR_PRELUDE + (_VECTOR.replace("PIVOT", vector_pivot)
+                               .replace("RESIDUAL_BASE", vector_base)
+                               .replace("    MATH", load + math + undef)) + VECTOR_END
     cond = "1" if scalar_on_cpu else "defined(__CUDA_ARCH__)"
     body = f"""
     const int n = count - v0 < 8 ? count - v0 : 8;

@@ -443,3 +443,83 @@ def test_native_fk_steps_both_branches_against_float64():
     ck = check.numpy()[:, :8]
     assert np.all(np.isnan(ck[:, :2, 0])) and np.all(ck[:, 2:, 0] == 0)
     assert np.all(ck[:, 2:5, 1] > 1e-3) and np.all(ck[:, 5:, 1] < 1e-6)
+
+
+def _fk_by_path(parents, local, monkeypatch, path):
+    """``forward_kinematics(..., return_dq=True)`` on the CPU through the packet kernel, the packet
+    kernel over its CUDA branch (every frame left to the one-frame path: ``fk_packet_twin.py``), or
+    the one-frame kernel."""
+    from dqskin.kernels import fk as FK
+
+    with monkeypatch.context() as m:
+        if path == "one-frame":
+            m.setattr(FK, "PACKET_MIN_FRAMES", 10**9)
+        elif path == "no lane":
+            from fk_packet_twin import fallback_kernel  # tests/ is on the path of its tests
+
+            m.setattr(FK, "forward_kinematics_packet_kernel", fallback_kernel)
+        return forward_kinematics(parents, local, device="cpu", return_dq=True)
+
+
+def test_fk_packets_with_mixed_lanes(monkeypatch):
+    """13 frames (packets of eight and five) of a 20-joint hierarchy where one joint's lanes
+    split between the packet and the one-frame path: joint 3 scaled in three frames, joint 7 a
+    reflection in one, a child of a scaled parent (rigid itself) in frames 8-12. Each path
+    against the float64 chain, and the packet kernel's dual quaternions and residuals against
+    the one-frame kernel's."""
+    rng = np.random.default_rng(11)
+    J, F = 20, 13
+    parents = random_hierarchy(rng, J)
+    local = random_locals(rng, (F,), J)
+    local[[0, 5, 9], 3, :3, :3] *= 1.3
+    local[2, 7, :3, :3] = local[2, 7, :3, :3] @ np.diag([1.0, 1.0, -1.0])
+    child = int(np.flatnonzero(parents > 0)[-1])
+    local[8:, parents[child], :3, :3] *= np.array([1.2, 0.9, 1.1])
+    ref = chain_product(parents, local)
+    out = {p: _fk_by_path(parents, local, monkeypatch, p)
+           for p in ("packet", "no lane", "one-frame")}
+    for path, (world, _, _) in out.items():
+        assert np.abs(world - ref).max() / np.abs(ref).max() <= 1e-5, path
+    for path in ("no lane", "one-frame"):
+        np.testing.assert_allclose(out["packet"][1], out[path][1], atol=1e-5, err_msg=path)
+        np.testing.assert_allclose(out["packet"][2], out[path][2], atol=1e-5, err_msg=path)
+    assert not np.allclose(out["packet"][2][:, 3], np.eye(3))  # scaled lanes kept a residual
+
+
+def test_fk_packets_flag_a_nan_in_one_lane():
+    """A NaN in frame 9 of 12 (the second packet) is named by frame and joint, as the one-frame
+    kernel's check does."""
+    rng = np.random.default_rng(12)
+    parents = random_hierarchy(rng, 6)
+    local = random_locals(rng, (12,), 6)
+    local[9, 4, 1, 2] = np.nan
+    with pytest.raises(ValueError, match=r"local_transforms: NaN at frame 9, joint 4"):
+        forward_kinematics(parents, local, device="cpu")
+
+
+def test_fk_packets_crowd_of_skeletons():
+    """Three skeletons of 5, 11 and 1 joints, 9 frames, in one packet launch (rows of eight and
+    one frames per skeleton) against the float64 chain of each."""
+    import warp as wp
+
+    from dqskin._warp import init_warp
+    from dqskin.kernels import fk as FK
+
+    init_warp()
+    rng = np.random.default_rng(13)
+    sizes, F = (5, 11, 1), 9
+    hierarchies = [random_hierarchy(rng, n) for n in sizes]
+    starts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32)
+    parents = np.concatenate([h + np.where(h >= 0, s, 0) for h, s in zip(hierarchies, starts)])
+    local = random_locals(rng, (F,), int(starts[-1]), scale=False)
+    out = FK.world_poses(F * int(starts[-1]), "cpu")
+    FK.forward_kinematics(parents=wp.array(parents, dtype=wp.int32, device="cpu"),
+                          skeleton_start=wp.array(starts, dtype=wp.int32, device="cpu"),
+                          local=wp.array(local.reshape(-1, 4, 4).astype(np.float32),
+                                         dtype=wp.mat44, device="cpu"),
+                          out=out, device="cpu")
+    world = out.matrices.numpy().reshape(F, -1, 4, 4)
+    for h, a, b in zip(hierarchies, starts[:-1], starts[1:]):
+        ref = chain_product(h, local[:, a:b])
+        assert np.abs(world[:, a:b] - ref).max() / np.abs(ref).max() <= 1e-5
+    assert out.rigid.numpy().all()
