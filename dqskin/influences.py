@@ -17,10 +17,11 @@ _BESIDE_MIN = 1 << 18
 """Influences from which indices and weights are checked on two threads at once."""
 
 
-def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None):
+def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None, values=True):
     """:func:`check_influences` without its int64 copy: ``(indices (V, K) in their integer dtype,
     weights (V, K) float32, largest index or -1)``; one pass over each array
-    (:func:`~dqskin.validation.nonnegative_max`), the two at once when large."""
+    (:func:`~dqskin.validation.nonnegative_max`), the two at once when large; ``values=False``:
+    shapes and dtypes only (the largest index then reads -1)."""
     idx = as_real("joint_indices", joint_indices)
     wts = as_real("joint_weights", joint_weights, np.float32)
     if idx.ndim == 1:
@@ -32,7 +33,7 @@ def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None
                          f"{want}")
     if not np.issubdtype(idx.dtype, np.integer):
         raise ValueError(f"joint_indices: expected integers, got {idx.dtype}")
-    if not idx.size:
+    if not idx.size or not values:
         return idx, wts, -1
     if idx.size >= _BESIDE_MIN:  # the weights on another core
         weights_ok, hi = beside(lambda: nonnegative_max(wts) is not None,
@@ -93,15 +94,25 @@ class Influences:
     vertex_count, influence_count : int
         V and K.
     joint_count_min : int
-        Joints the skinning transforms must at least have (largest index + 1).
+        Joints the skinning transforms must at least have (largest index + 1; 0 until
+        :meth:`check_values` with ``check_values=False``).
+    check_values : bool
+        False: shapes and dtypes only; the values are checked by a kernel (a one-shot call's
+        packet launch) or by :meth:`check_values`.
     """
 
-    def __init__(self, joint_indices, joint_weights, *, vertex_count=None):
-        idx, wts, hi = _validated(joint_indices, joint_weights, vertex_count)
+    def __init__(self, joint_indices, joint_weights, *, vertex_count=None, check_values=True):
+        idx, wts, hi = _validated(joint_indices, joint_weights, vertex_count,
+                                  values=check_values)
         self.vertex_count, self.influence_count = idx.shape
         self._input = idx, wts  # indices in the caller's integer dtype (no copy)
         self._sorted = None  # (order, indices, weights) on the host, computed when first asked
         self.joint_count_min = hi + 1
+
+    def check_values(self):
+        """Check the values of indices and weights (``check_values=False`` left them to a
+        kernel): ValueError as the constructor raises."""
+        self.joint_count_min = _validated(*self._input)[2] + 1
 
     def _host_layout(self):
         if self._sorted is None:

@@ -26,6 +26,9 @@ sign is +1) or the first largest weight of the input-order slots (``searched=Tru
 slot 0 included, is signed against it). A dot product of exactly ``-0.0`` or NaN flips nothing, as
 ``wp.sign``. A zero blend leaves the point unchanged. The last packet of a frame may hold fewer
 than eight vertices: its missing lanes read lane 0's joints with zero weights and are not stored.
+With ``check`` the snippets also check their inputs (a one-shot call's, unchecked on the host:
+one pass over the caller's arrays fewer) and flag what the host checks would refuse; an index
+out of range never reads outside the joints.
 
 Arrays are the flat 1-D views of :mod:`.skin` (contiguous): ``points`` / ``out`` element
 ``base + v``, ``indices`` / ``weights`` one ``vec4i`` / ``vec4`` per vertex (one group), joint data
@@ -121,6 +124,22 @@ _SCALAR = """
         const float* P = (const float*)points.data + 3 * (point_base + v0 + i);
         const int* I = (const int*)indices.data + 4 * (v0 + i);
         const float* W = (const float*)weights.data + 4 * (v0 + i);
+        float pv[3], wv[4];
+        int iv[4], bad = 0;  // copies, indices out of range read as joint 0
+        for (int e = 0; e < 3; ++e) {
+            pv[e] = P[e];
+            bad |= !(pv[e] - pv[e] == 0.0f);
+        }
+        for (int e = 0; e < 4; ++e) {
+            const bool outside = (unsigned)I[e] >= (unsigned)joint_count;
+            iv[e] = outside ? 0 : I[e];
+            wv[e] = W[e];
+            bad |= outside | !(wv[e] >= 0.0f && wv[e] <= 3.40282347e38f);
+        }
+        if (check && bad) *(volatile int*)flags.data = 1;
+        P = pv;
+        I = iv;
+        W = wv;
         const float* J = (const float*)joints.data + WIDTH * (long long)o;
         RESIDUAL_BASE
         V x = P[0], y = P[1], z = P[2];
@@ -196,13 +215,28 @@ _VECTOR = """
     RESIDUAL_BASE
     float pbuf[24], wbuf[32];
     int ibuf[32];
-    if (n < 8) {  // the last packet: missing lanes read lane 0's joints with zero weights
-        for (int e = 0; e < 24; ++e) pbuf[e] = e < 3 * n ? P[e] : 0.0f;
+    if (n < 8) {  // the last packet: copies, the missing lanes read lane 0's joints with zero
+        for (int e = 0; e < 24; ++e) pbuf[e] = e < 3 * n ? P[e] : 0.0f;  // weights
         for (int e = 0; e < 32; ++e) ibuf[e] = e < 4 * n ? I[e] : I[e & 3];
         for (int e = 0; e < 32; ++e) wbuf[e] = e < 4 * n ? W[e] : 0.0f;
         P = pbuf;
         I = ibuf;
         W = wbuf;
+    }
+    i8 bad = 0;  // lanes with a value the host checks refuse (with check)
+    if (check) {  // indices outside the joints read joint 0
+        typedef unsigned int u8 __attribute__((ext_vector_type(8)));
+        const u8 joints_u = (unsigned)joint_count;
+        const i8 zero = 0;
+        for (int q = 0; q < 4; ++q) {
+            i8 iv;
+            __builtin_memcpy(&iv, I + 8 * q, 32);
+            const i8 outside = __builtin_convertvector(iv, u8) >= joints_u;
+            bad |= outside;
+            iv = outside ? zero : iv;
+            __builtin_memcpy(ibuf + 8 * q, &iv, 32);
+        }
+        I = ibuf;
     }
     f8 pa, pb, pc;
     __builtin_memcpy(&pa, P, 32);
@@ -219,6 +253,13 @@ _VECTOR = """
     f8 wc[4];
     transpose4(wq, wc);
     const V w0 = wc[0], w1 = wc[1], w2 = wc[2], w3 = wc[3];
+    if (check) {  // points finite, weights finite and non-negative (-0.0 too)
+        bad |= ~(x - x == 0.0f) | ~(y - y == 0.0f) | ~(z - z == 0.0f);
+        for (int k = 0; k < 4; ++k) bad |= ~((wc[k] >= 0.0f) & (wc[k] <= 3.40282347e38f));
+        int any = 0;
+        for (int l = 0; l < 8; ++l) any |= bad[l];
+        if (any) *(volatile int*)flags.data = 1;
+    }
     PIVOT
     MATH
     // interleave x, y, z back into 24 floats
@@ -310,9 +351,12 @@ def packet_source(method, searched=False, scalar_on_cpu=False):
 def lbs_packet(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
                joints: wp.array(dtype=mat34), o: int, v0: int, count: int,
-               out: wp.array(dtype=wp.vec3), out_base: wp.int64) -> int:
+               out: wp.array(dtype=wp.vec3), out_base: wp.int64, joint_count: int,
+               check: int, flags: wp.array(dtype=wp.int32)) -> int:
     """LBS of vertices ``v0 .. min(v0 + 8, count) - 1`` (points ``point_base + v``, out
-    ``out_base + v``) with the affines from element ``o``."""
+    ``out_base + v``) with the affines from element ``o``. With ``check``, an index outside
+    ``0 .. joint_count - 1`` reads joint 0 and, as a non-finite point or a negative or non-finite
+    weight, sets ``flags[0] = 1`` (the caller then names the problem)."""
     ...
 
 
@@ -321,7 +365,8 @@ def dqs_sorted_packet(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                       indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
                       joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
                       scaled: int, o: int, v0: int, count: int,
-                      out: wp.array(dtype=wp.vec3), out_base: wp.int64) -> int:
+                      out: wp.array(dtype=wp.vec3), out_base: wp.int64, joint_count: int,
+                      check: int, flags: wp.array(dtype=wp.int32)) -> int:
     """DQS, pivot in slot 0 (sorted layout), of the vertices of :func:`lbs_packet`; ``scaled``:
     the frame has scale/shear, the points first blended through ``residuals`` (from ``o``)."""
     ...
@@ -332,7 +377,8 @@ def dqs_searched_packet(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                         indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
                         joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
                         scaled: int, o: int, v0: int, count: int,
-                        out: wp.array(dtype=wp.vec3), out_base: wp.int64) -> int:
+                        out: wp.array(dtype=wp.vec3), out_base: wp.int64, joint_count: int,
+                        check: int, flags: wp.array(dtype=wp.int32)) -> int:
     """DQS, pivot searched (input order), otherwise as :func:`dqs_sorted_packet`."""
     ...
 

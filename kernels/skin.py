@@ -442,9 +442,11 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
         has_residual: wp.array(dtype=wp.int32),
         joint_count: int,
         frame_count: int,
+        check: int,
         row_offset: int,
         # outputs
         out: wp.array(dtype=wp.vec3),
+        flags: wp.array(dtype=wp.int32),
     ):
         t = wp.tid() + row_offset
         if wp.static(packet):  # eight vertices a thread
@@ -455,10 +457,11 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
                 obase = wp.int64(f) * wp.int64(vertex_count)
                 if wp.static(method == LBS):
                     packet_func(points, pbase, indices, weights, affines, f * joint_count,
-                                pr * 8, vertex_count, out, obase)
+                                pr * 8, vertex_count, out, obase, joint_count, check, flags)
                 else:  # DQS: the frame's residual flag read, set on frames with scale/shear
                     packet_func(points, pbase, indices, weights, dqs, residuals, has_residual[f],
-                                f * joint_count, pr * 8, vertex_count, out, obase)
+                                f * joint_count, pr * 8, vertex_count, out, obase, joint_count,
+                                check, flags)
             return
         g = groups
         # the sign-rule flags, constants (folded by the C++ compiler) unless read at run time
@@ -704,10 +707,22 @@ def launch_frames(kernel, rows, frames, inputs, outputs, device, row_size=1):
                 device, min_chunk=-(-MIN_WORK // (min(frames, FRAME_BLOCK) * row_size)))
 
 
-def skin_points(*, method, points, influences, joints, rigid, out, device):
+def takes_packets(method, running_sum, groups, joint_count, device):
+    """Whether :func:`skin_points` runs a packet kernel (:mod:`.packets`): on the CPU, LBS or DQS
+    (not the running-sum rule) of one group of four influences, with at least one joint."""
+    return ((method == LBS or (method == DQS and not running_sum)) and groups == 1
+            and joint_count > 0 and is_cpu(device))
+
+
+_no_flags = {}
+
+
+def skin_points(*, method, points, influences, joints, rigid, out, device, flags=None):
     """Skin ``points`` (Fp, V) into ``out`` (F, V) with ``method`` (:data:`LBS`, :data:`DQS`,
     :data:`BLEND`, :data:`COR`). ``rigid`` (no frame has a residual) selects the DQS or COR
-    kernel without the residual code."""
+    kernel without the residual code. ``flags``: a zeroed (1,) ``int32`` array that a packet
+    launch (:func:`takes_packets`; others raise) sets to 1 when a point is not finite, an index
+    is outside the joints or a weight is negative or not finite: inputs unchecked on the host."""
     residual = method == BLEND or (method != LBS and not rigid)
     frames, verts = out.shape
     sign = None
@@ -715,17 +730,25 @@ def skin_points(*, method, points, influences, joints, rigid, out, device):
         sign = ("running" if influences.running_sum else
                 "searched" if influences.unsorted else "sorted")
     jn = joints
-    # eight vertices a thread on the CPU where a packet kernel exists (one group of influences)
-    packet = ((method == LBS or (method == DQS and sign != "running"))
-              and influences.indices.shape[1] == 1 and jn.affines.shape[1] > 0
-              and is_cpu(device))
+    packet = takes_packets(method, influences.running_sum, influences.indices.shape[1],
+                           jn.affines.shape[1], device)
+    if flags is None:
+        key = str(device)
+        flags = _no_flags.get(key)
+        if flags is None:
+            flags = _no_flags[key] = wp.empty(0, dtype=wp.int32, device=device)
+        check = 0
+    elif not packet:
+        raise RuntimeError("skin_points: inputs can be checked by packet launches only")
+    else:
+        check = 1
     kernel = SKIN_POINTS_KERNELS[(method, residual or (packet and method == DQS), frames == 1,
                                   sign, packet)]
     size = packets.VERTICES if packet else 1
     launch_frames(kernel, -(-verts // size), frames,
                   [*frame_rows_array(points, verts), *influence_args(influences),
                    _flat(jn.affines), _flat(jn.dqs), _flat(jn.residuals), jn.has_residual,
-                   jn.affines.shape[1], frames], [out], device, row_size=size)
+                   jn.affines.shape[1], frames, check], [out, flags], device, row_size=size)
 
 
 def skin_vectors(*, method, vectors, vector_vertex, influences, linears, rotations, residuals,

@@ -13,7 +13,8 @@ wp.set_module_options({"enable_backward": False})
 def scalar_lbs(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
                joints: wp.array(dtype=mat34), o: int, v0: int, count: int,
-               out: wp.array(dtype=wp.vec3), out_base: wp.int64) -> int:
+               out: wp.array(dtype=wp.vec3), out_base: wp.int64, joint_count: int,
+                  check: int, flags: wp.array(dtype=wp.int32)) -> int:
     ...
 
 
@@ -22,7 +23,8 @@ def scalar_sorted(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                   indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
                   joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
                   scaled: int, o: int, v0: int, count: int,
-                  out: wp.array(dtype=wp.vec3), out_base: wp.int64) -> int:
+                  out: wp.array(dtype=wp.vec3), out_base: wp.int64, joint_count: int,
+                  check: int, flags: wp.array(dtype=wp.int32)) -> int:
     ...
 
 
@@ -31,7 +33,8 @@ def scalar_searched(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                     indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
                     joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
                     scaled: int, o: int, v0: int, count: int,
-                    out: wp.array(dtype=wp.vec3), out_base: wp.int64) -> int:
+                    out: wp.array(dtype=wp.vec3), out_base: wp.int64, joint_count: int,
+                  check: int, flags: wp.array(dtype=wp.int32)) -> int:
     ...
 
 
@@ -39,23 +42,26 @@ def _kernel(vector, scalar, joint_type, name, dqs):
     def kernel(points: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.vec4i),
                weights: wp.array(dtype=wp.vec4), joints: wp.array(dtype=joint_type),
                residuals: wp.array(dtype=wp.mat33), scaled: wp.array(dtype=int),
-               joint_count: int, frames: int, vertices: int,
-               out_vector: wp.array(dtype=wp.vec3), out_scalar: wp.array(dtype=wp.vec3)):
+               joint_count: int, frames: int, vertices: int, check: int,
+               out_vector: wp.array(dtype=wp.vec3), out_scalar: wp.array(dtype=wp.vec3),
+               flags_vector: wp.array(dtype=wp.int32), flags_scalar: wp.array(dtype=wp.int32)):
         """Packet ``tid`` of every frame (points, joints and outputs frame-major) through both
         branches; the DQS snippets blend frame ``f``'s points through ``residuals`` when
-        ``scaled[f]``."""
+        ``scaled[f]``; with ``check``, each branch flags its own array."""
         v0 = wp.tid() * 8
         for f in range(frames):
             base = wp.int64(f) * wp.int64(vertices)
             o = f * joint_count
             if wp.static(dqs):
                 vector(points, base, indices, weights, joints, residuals, scaled[f], o, v0,
-                       vertices, out_vector, base)
+                       vertices, out_vector, base, joint_count, check, flags_vector)
                 scalar(points, base, indices, weights, joints, residuals, scaled[f], o, v0,
-                       vertices, out_scalar, base)
+                       vertices, out_scalar, base, joint_count, check, flags_scalar)
             else:
-                vector(points, base, indices, weights, joints, o, v0, vertices, out_vector, base)
-                scalar(points, base, indices, weights, joints, o, v0, vertices, out_scalar, base)
+                vector(points, base, indices, weights, joints, o, v0, vertices, out_vector, base,
+                       joint_count, check, flags_vector)
+                scalar(points, base, indices, weights, joints, o, v0, vertices, out_scalar, base,
+                       joint_count, check, flags_scalar)
 
     return wp.kernel(kernel, name=name)
 

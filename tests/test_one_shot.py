@@ -465,3 +465,46 @@ def test_one_shot_calls_share_work_buffers_not_results():
         kept.append((got, want if F else want[0]))
     for got, want in kept:
         np.testing.assert_allclose(got, want, atol=5e-5)
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+@pytest.mark.parametrize("bad", ["nan point", "inf point", "negative index", "index J",
+                                 "negative weight", "nan weight", "inf weight", "none"])
+def test_values_checked_by_the_kernel_raise_as_the_host_does(monkeypatch, method, bad):
+    """float32 points, (V, 4) int32 indices and float32 weights are read in place and their
+    values checked by the packet kernel (no host pass): a bad value, in the last vertex of a
+    tail packet, raises the ValueError the host checks raise for the same values given as
+    float64 / int64; nothing is modified; good values give the float64 result."""
+    from dqskin.kernels import skin as K
+
+    rng = np.random.default_rng(31)
+    points, idx, w, M = rig(rng, V=205)
+    J = M.shape[0]
+    if bad.endswith("point"):
+        points[204, 1] = np.nan if bad == "nan point" else np.inf
+    elif bad.endswith("index") or bad == "index J":
+        idx[204, 2] = -1 if bad == "negative index" else J
+    elif bad != "none":
+        w[204, 3] = {"negative weight": -0.5, "nan weight": np.nan, "inf weight": np.inf}[bad]
+    given = [a.copy() for a in (points, idx, w)]
+    checked = []
+    real = K.skin_points
+    monkeypatch.setattr(K, "skin_points", lambda **kw: (checked.append(kw["flags"] is not None),
+                                                        real(**kw))[1])
+    if bad == "none":
+        got = dqskin.skin_points(points, idx, w, M, method, device="cpu")
+        if method == "lbs":
+            np.testing.assert_allclose(got, lbs64(points, idx, w, M), atol=2e-5)
+        assert checked == [True]
+        return
+    with pytest.raises(ValueError) as kernel_checked:
+        dqskin.skin_points(points, idx, w, M, method, device="cpu")
+    assert checked == [True]  # the packet kernel checked them
+    with pytest.raises(ValueError) as host_checked:
+        dqskin.skin_points(points.astype(np.float64), idx.astype(np.int64), w.astype(np.float64),
+                           M, method, device="cpu")
+    assert checked == [True]  # the host's checks raised before any launch
+    assert str(kernel_checked.value) == str(host_checked.value)
+    assert str(kernel_checked.value).split(":")[0] in ("points", "joint_indices", "joint_weights")
+    for a, b in zip((points, idx, w), given):
+        np.testing.assert_array_equal(a, b)

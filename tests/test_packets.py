@@ -28,10 +28,11 @@ PAD = 24  # output entries after the last frame: a sentinel that no lane may ove
 SENTINEL = 7.0
 
 
-def run_both(rule, points, idx, w, M, residuals=None):
+def run_both(rule, points, idx, w, M, residuals=None, check=False):
     """(vector, scalar) outputs (F, V, 3) of the snippet of ``rule`` on (F, V, 3) points; DQS
     frames with ``residuals`` (F, J, 3, 3) blend the points through them first. Checks that the
-    entries after the last frame kept their sentinel."""
+    entries after the last frame kept their sentinel. With ``check``, also the two branches'
+    input flags."""
     init_warp()
     from packet_twin import BOTH
 
@@ -44,6 +45,7 @@ def run_both(rule, points, idx, w, M, residuals=None):
                        dtype=wp.types.vector(8, wp.float32), device="cpu")
     scaled = np.zeros(F, np.int32) if residuals is None else np.ones(F, np.int32)
     res = np.tile(np.eye(3), (F, J, 1, 1)) if residuals is None else residuals
+    flags = [wp.zeros(1, dtype=wp.int32, device="cpu") for _ in range(2)]
     outs = [wp.full(F * V + PAD, wp.vec3(SENTINEL, SENTINEL, SENTINEL), dtype=wp.vec3,
                     device="cpu") for _ in range(2)]
     wp.launch(BOTH[rule], dim=-(-V // 8),
@@ -52,12 +54,14 @@ def run_both(rule, points, idx, w, M, residuals=None):
                       wp.array(w, dtype=wp.vec4, device="cpu"), arr,
                       wp.array(res.reshape(-1, 3, 3).astype(np.float32), dtype=wp.mat33,
                                device="cpu"),
-                      wp.array(scaled, dtype=int, device="cpu"), J, F, V, *outs],
+                      wp.array(scaled, dtype=int, device="cpu"), J, F, V, int(check), *outs,
+                      *flags],
               device="cpu")
     got = [o.numpy() for o in outs]
     for g in got:
         assert (g[F * V:] == SENTINEL).all(), "a lane past the last vertex was stored"
-    return [g[:F * V].reshape(F, V, 3) for g in got]
+    got = [g[:F * V].reshape(F, V, 3) for g in got]
+    return (got, [int(f.numpy()[0]) for f in flags]) if check else got
 
 
 def rig(rng, V, F=2):
@@ -187,3 +191,35 @@ def test_launcher_picks_packet_kernels(monkeypatch, case, packet):
         sk.skin(M, method, sign_reference="running_sum" if "blender" in case else "largest_weight")
     skins = [n for n in names if n.startswith("skin_")]
     assert skins and all(n.endswith("_packet") == packet for n in skins), skins
+
+
+@pytest.mark.parametrize("V", [13, 16])
+@pytest.mark.parametrize("rule", ["lbs", "sorted", "searched"])
+@pytest.mark.parametrize("bad", ["none", "nan point", "inf point", "index -1", "index J",
+                                 "negative weight", "nan weight", "inf weight", "-0.0 weight"])
+def test_checked_packets_flag_what_the_host_refuses(rule, bad, V):
+    """``check``: a one-shot call's inputs, unchecked on the host, are checked by the snippets as
+    the host would (points finite, ``0 <= index < J``, weights finite and non-negative; -0.0 is
+    a valid weight); the bad value in the last vertex of a tail packet (V = 13), or of a full
+    packet (V = 16). An index out of range then reads joint 0 (no read outside the joints), in
+    both branches."""
+    rng = np.random.default_rng(9)
+    points, idx, w, M = rig(rng, V, F=1)
+    where = (0, V - 1)
+    if bad == "nan point":
+        points[where + (1,)] = np.nan
+    elif bad == "inf point":
+        points[where + (2,)] = -np.inf
+    elif bad.startswith("index"):
+        idx[where[1], 3] = -1 if bad == "index -1" else J
+    elif bad != "none":
+        w[where[1], 2] = {"negative weight": -0.25, "nan weight": np.nan, "inf weight": np.inf,
+                          "-0.0 weight": -0.0}[bad]
+    outs, flagged = run_both(rule, points, idx, w, M, check=True)
+    want = int(bad not in ("none", "-0.0 weight"))
+    assert flagged == [want, want]
+    if bad.startswith("index"):  # read as joint 0: the outputs are what joint 0 gives
+        fixed = idx.copy()
+        fixed[where[1], 3] = 0
+        for a, b in zip(outs, run_both(rule, points, fixed, w, M)):
+            np.testing.assert_array_equal(a, b)
