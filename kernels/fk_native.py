@@ -251,7 +251,11 @@ _PACKET_VECTOR = """
     const f8 e1 = __builtin_elementwise_abs(n1 - 1.0f) + __builtin_elementwise_abs(o1);
     const f8 e2 = __builtin_elementwise_abs(n2 - 1.0f) + __builtin_elementwise_abs(o2);
     const f8 err = e0 + e1 + e2 + __builtin_elementwise_abs(det - 1.0f);
-    i8 take = err < 1.0e-6f;
+    // and local_check's finiteness: 0 times every entry, summed (NaN at a NaN or inf entry,
+    // then the frame goes back to the one-frame code, which names it)
+    f8 zero = M[0] * 0.0f;
+    for (int c = 1; c < 16; ++c) zero += M[c] * 0.0f;
+    i8 take = (err < 1.0e-6f) & (zero == 0.0f);
     f8 P[8];
     if (pj >= 0) {  // the parents' unit dual quaternions, where rigid
         f8 pr[8];
@@ -344,9 +348,9 @@ def rigid_packet(matrices: wp.array(dtype=wp.mat44), world: wp.array(dtype=wp.ma
                  world_dqs: wp.array(dtype=vec8), world_rigid: wp.array(dtype=wp.uint8),
                  f0: int, n: int, stride: int, j: int, pj: int) -> int:
     """Joint ``j`` (parent ``pj``, −1 for a root) of frames ``f0 .. f0 + n − 1`` (``n ≤ 8``; a
-    frame's joints start at ``f·stride`` in the flat arrays): each lane whose local matrix is a
-    rotation (as :func:`local_check`) under a rigid parent (or none) gets its world dual
-    quaternion, matrix and rigid flag stored, as :func:`rigid_step` and :func:`rigid_matrix` would
-    give; returns the bit mask of the other lanes (bit ``l``: frame ``f0 + l``), for the one-joint
-    path."""
+    frame's joints start at ``f·stride`` in the flat arrays): each lane whose local matrix is
+    finite and a rotation (as :func:`local_check`) under a rigid parent (or none) gets its world
+    dual quaternion, matrix and rigid flag stored, as :func:`rigid_step` and
+    :func:`rigid_matrix` would give; returns the bit mask of the other lanes (bit ``l``: frame
+    ``f0 + l``), for the one-frame path."""
     ...

@@ -703,6 +703,8 @@ def launch_frames(kernel, rows, frames, inputs, outputs, device, row_size=1):
     """Launch a flat kernel (:func:`frame_rows`) over ``rows`` × ``frames``: one thread per row
     of a single frame, else per (frame block, row); chunks of threads on the CPU cores.
     ``row_size``: the rows (vertices) a thread's row stands for, to size the chunks."""
+    if rows <= 0 or frames <= 0:
+        return
     launch_rows(kernel, rows * -(-frames // FRAME_BLOCK), inputs, [_flat(o) for o in outputs],
                 device, min_chunk=-(-MIN_WORK // (min(frames, FRAME_BLOCK) * row_size)))
 

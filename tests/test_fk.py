@@ -464,9 +464,11 @@ def _fk_by_path(parents, local, monkeypatch, path):
 def test_fk_packets_with_mixed_lanes(monkeypatch):
     """13 frames (packets of eight and five) of a 20-joint hierarchy where one joint's lanes
     split between the packet and the one-frame path: joint 3 scaled in three frames, joint 7 a
-    reflection in one, a child of a scaled parent (rigid itself) in frames 8-12. Each path
-    against the float64 chain, and the packet kernel's dual quaternions and residuals against
-    the one-frame kernel's."""
+    reflection in one, a child of a scaled parent (rigid itself) in frames 8-12, joint 9's
+    rotation error around the 1e-6 threshold of the rigid path. Each path against the float64
+    chain; the packet kernel equals the one-frame kernel bit for bit (a bake must not depend on
+    how its frames are chunked), and the packet kernel over its CUDA branch (every frame on the
+    one-frame path's general code) to float32 precision."""
     rng = np.random.default_rng(11)
     J, F = 20, 13
     parents = random_hierarchy(rng, J)
@@ -475,25 +477,35 @@ def test_fk_packets_with_mixed_lanes(monkeypatch):
     local[2, 7, :3, :3] = local[2, 7, :3, :3] @ np.diag([1.0, 1.0, -1.0])
     child = int(np.flatnonzero(parents > 0)[-1])
     local[8:, parents[child], :3, :3] *= np.array([1.2, 0.9, 1.1])
+    local[:, 9, :3, :3] *= (1.0 + np.linspace(-8e-7, 8e-7, F))[:, None, None] ** 0.5
     ref = chain_product(parents, local)
     out = {p: _fk_by_path(parents, local, monkeypatch, p)
            for p in ("packet", "no lane", "one-frame")}
     for path, (world, _, _) in out.items():
         assert np.abs(world - ref).max() / np.abs(ref).max() <= 1e-5, path
-    for path in ("no lane", "one-frame"):
-        np.testing.assert_allclose(out["packet"][1], out[path][1], atol=1e-5, err_msg=path)
-        np.testing.assert_allclose(out["packet"][2], out[path][2], atol=1e-5, err_msg=path)
+    for a, b in zip(out["packet"], out["one-frame"]):  # bit for bit: chunking changes nothing
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(out["packet"][1:], out["no lane"][1:]):
+        np.testing.assert_allclose(a, b, atol=1e-5)
     assert not np.allclose(out["packet"][2][:, 3], np.eye(3))  # scaled lanes kept a residual
 
 
-def test_fk_packets_flag_a_nan_in_one_lane():
-    """A NaN in frame 9 of 12 (the second packet) is named by frame and joint, as the one-frame
-    kernel's check does."""
+@pytest.mark.parametrize("entry,value,message", [
+    ((1, 2), np.nan, "NaN"), ((0, 3), np.nan, "NaN"), ((2, 3), np.inf, "infinite value"),
+    ((3, 1), np.nan, "NaN"), ((1, 3), 1e39, "1e+39")])
+def test_fk_packets_flag_a_bad_value_in_one_lane(entry, value, message):
+    """A NaN, inf or beyond-float32 value in frame 9 of 12 (the second packet), in the rotation,
+    the translation or the bottom row of an otherwise rigid joint, is named by frame and joint,
+    as the one-frame kernel's check does (the packet's rigid test reads the 3×3 part only: the
+    finiteness of all sixteen entries must send the frame back)."""
     rng = np.random.default_rng(12)
     parents = random_hierarchy(rng, 6)
     local = random_locals(rng, (12,), 6)
-    local[9, 4, 1, 2] = np.nan
-    with pytest.raises(ValueError, match=r"local_transforms: NaN at frame 9, joint 4"):
+    local[(9, 4) + entry] = value
+    import re
+
+    with pytest.raises(ValueError, match=rf"local_transforms: {re.escape(message)} at frame 9, "
+                                         r"joint 4"):
         forward_kinematics(parents, local, device="cpu")
 
 

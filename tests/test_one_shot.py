@@ -481,7 +481,7 @@ def test_values_checked_by_the_kernel_raise_as_the_host_does(monkeypatch, method
     points, idx, w, M = rig(rng, V=205)
     J = M.shape[0]
     if bad.endswith("point"):
-        points[204, 1] = np.nan if bad == "nan point" else np.inf
+        points[204, 0 if bad == "nan point" else 1] = np.nan if bad == "nan point" else np.inf
     elif bad.endswith("index") or bad == "index J":
         idx[204, 2] = -1 if bad == "negative index" else J
     elif bad != "none":
@@ -508,3 +508,14 @@ def test_values_checked_by_the_kernel_raise_as_the_host_does(monkeypatch, method
     assert str(kernel_checked.value).split(":")[0] in ("points", "joint_indices", "joint_weights")
     for a, b in zip((points, idx, w), given):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_zero_frames_give_an_empty_result(method):
+    """(0, J, 4, 4) transforms: an empty (0, V, 3) result from the one-shot call and a Skinner
+    (the frame-block launch once divided by the frame count)."""
+    points, idx, w, M = rig(np.random.default_rng(2), V=20)
+    none = np.zeros((0,) + M.shape)
+    assert dqskin.skin_points(points, idx, w, none, method, device="cpu").shape == (0, 20, 3)
+    sk = dqskin.Skinner(points, idx, w, device="cpu")
+    assert sk.skin(none, method).shape == (0, 20, 3)

@@ -207,7 +207,7 @@ def test_checked_packets_flag_what_the_host_refuses(rule, bad, V):
     points, idx, w, M = rig(rng, V, F=1)
     where = (0, V - 1)
     if bad == "nan point":
-        points[where + (1,)] = np.nan
+        points[where + (0,)] = np.nan
     elif bad == "inf point":
         points[where + (2,)] = -np.inf
     elif bad.startswith("index"):
