@@ -298,12 +298,16 @@ def bench_crowd(devices, rows, counts=(100, 1000), frames=16, repeat=3):
             per_instance = [np.ascontiguousarray(host[:, sl])
                             for sl in crowd._build().joints.joints]
             for method in ("lbs", "dqs"):
+                # rounds run in this order: the two the ratio compares ("one mesh, residual",
+                # "crowd skin") each follow a call with an output of the same size, not the
+                # per-instance loop, whose thousand small outputs slowed whichever came next
+                # (in three runs "crowd FK+skin", which does more, beat the "crowd skin" after it)
                 fns = {
                     "one mesh": lambda: (one.skin(M, method), wp.synchronize()),
                     "one mesh, residual": lambda: (one.skin(M_res, method), wp.synchronize()),
+                    "crowd skin": lambda: (crowd.skin_transforms(xf, method), wp.synchronize()),
                     "per-instance loop": lambda: ([single.skin(x, method) for x in per_instance],
                                                   wp.synchronize()),
-                    "crowd skin": lambda: (crowd.skin_transforms(xf, method), wp.synchronize()),
                     "crowd FK+skin": lambda: (crowd.skin_transforms(crowd.pose(local), method),
                                               wp.synchronize()),
                 }
