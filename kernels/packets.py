@@ -75,9 +75,9 @@ _DQS_SORTED = """
             for (int c = 0; c < 8; ++c) B[c] += T[c] * s;
         }"""
 
-# the vector branch: the four joints first, the pivot's real part selected among them (no
-# loads of its own: ~1.3x the pivot loaded lane by lane, one thread, 1M points)
-_DQS_SEARCHED_VECTOR = """
+# the four joints first, the pivot's real part selected among them by ``slot`` (no loads of its
+# own: ~1.3x the pivot loaded lane by lane, one thread, 1M points)
+_DQS_SEARCHED = """
         V T[4][8], B[8], p[4];
         for (int k = 0; k < 4; ++k) LOAD(k, T[k]);
         const i8 s1 = 1, s2 = 2, s3 = 3;
@@ -91,19 +91,6 @@ _DQS_SEARCHED_VECTOR = """
                 for (int c = 0; c < 8; ++c) B[c] = T[k][c] * s;
             else
                 for (int c = 0; c < 8; ++c) B[c] += T[k][c] * s;
-        }"""
-
-_DQS_SEARCHED = """
-        V T[8], B[8];
-        const V wk[4] = {w0, w1, w2, w3};
-        for (int k = 0; k < 4; ++k) {
-            LOAD(k, T);
-            const V dot = p0 * T[0] + p1 * T[1] + p2 * T[2] + p3 * T[3];
-            const V s = dot < 0.0f ? -wk[k] : wk[k];
-            if (k == 0)
-                for (int c = 0; c < 8; ++c) B[c] = T[c] * s;
-            else
-                for (int c = 0; c < 8; ++c) B[c] += T[c] * s;
         }"""
 
 # dqs_apply: x + 2·(r⃗×(r⃗×x + r_w·x) + r_w·d⃗ − d_w·r⃗ + r⃗×d⃗)/|r|²
@@ -173,10 +160,16 @@ _SCALAR = """
     }
     return 0;"""
 
-_SCALAR_PIVOT = """int m = 0;
-        for (int k = 1; k < 4; ++k) if (W[k] > W[m]) m = k;
-        const float* R = J + WIDTH * I[m];
-        const V p0 = R[0], p1 = R[1], p2 = R[2], p3 = R[3];"""
+_SCALAR_PIVOT = """typedef int i8;
+        i8 slot = 0;  // the first largest weight's slot
+        V best = w0;
+        const V wc[4] = {w0, w1, w2, w3};
+        for (int k = 1; k < 4; ++k) {
+            if (wc[k] > best) {
+                slot = k;
+                best = wc[k];
+            }
+        }"""
 
 # ---------------------------------------------------------------------------------------------
 # vector branch: eight vertices in the lanes of f8
@@ -335,14 +328,12 @@ def packet_source(method, searched=False, scalar_on_cpu=False):
     pivot rule (see the module docstring); ``scalar_on_cpu`` compiles the scalar (CUDA) branch for
     the CPU too (the tests' twin)."""
     if method == "lbs":
-        math = vector_math = _LBS
+        math = _LBS
         width, load = 12, _VECTOR_LOAD_AFFINE
         scalar_base = vector_base = ""
         undef = "\n#undef LOAD"
     else:
         math = (_DQS_RESIDUAL + (_DQS_SEARCHED if searched else _DQS_SORTED) + _DQS_APPLY)
-        vector_math = (_DQS_RESIDUAL + (_DQS_SEARCHED_VECTOR if searched else _DQS_SORTED)
-                       + _DQS_APPLY)
         width, load = 8, _VECTOR_LOAD_DQ + _VECTOR_LOAD_RESIDUAL
         scalar_base = "const float* RS = (const float*)residuals.data + 9 * (long long)o;"
         vector_base = "const char* RS = (const char*)residuals.data + 36 * (long long)o;"
@@ -353,7 +344,7 @@ def packet_source(method, searched=False, scalar_on_cpu=False):
               .replace("RESIDUAL_BASE", scalar_base))
     vector = VECTOR_PRELUDE + (_VECTOR.replace("PIVOT", vector_pivot)
                                .replace("RESIDUAL_BASE", vector_base)
-                               .replace("    MATH", load + vector_math + undef)) + VECTOR_END
+                               .replace("    MATH", load + math + undef)) + VECTOR_END
     cond = "1" if scalar_on_cpu else "defined(__CUDA_ARCH__)"
     body = f"""
     const int n = count - v0 < 8 ? count - v0 : 8;
