@@ -27,7 +27,7 @@ from ._warp import Device, resolve_device
 from .animation import check_times
 from .kernels import buffers as KB
 from .kernels import fk as FK
-from .motion import skinning_transforms_with_derivative
+from .motion import moved_velocities, per_second, skinning_transforms_with_derivative
 from .skinning import Method, Skinner
 from .validation import check_transforms
 
@@ -282,20 +282,16 @@ def skin_meshes(scene, times, method: Method | None = None, *, device: Device = 
         if velocities:
             rest_dot = {i: d.point_velocities_at(t) for i, d in deformers.items()}
             rest_dot = {i: v for i, v in rest_dot.items() if v is not None}
-            v_all = batch.skinner.skin_velocities(
-                xforms, rates, meth, points=bind_rest,
-                point_velocities=batch.bind_velocities(rest_dot, F))
             tcps = float(scene.time_codes_per_second)
+            rates_s, rest_dot_s = per_second(tcps, rates, batch.bind_velocities(rest_dot, F))
+            v_all = batch.skinner.skin_velocities(xforms, rates_s, meth, points=bind_rest,
+                                                  point_velocities=rest_dot_s)
             for i, m in enumerate(meshes):
-                v = v_all[:, batch.vertices[i]].astype(np.float64)
+                v = v_all[:, batch.vertices[i]]
                 if i in outs:
-                    o, o_dot = outs[i]
-                    v = np.einsum("fij,fvj->fvi", o[:, :3, :3], v)
-                    if np.any(o_dot):
-                        p = skel[:, batch.vertices[i]]
-                        v += (np.einsum("fij,fvj->fvi", o_dot[:, :3, :3], p)
-                              + o_dot[:, None, :3, 3])
-                vel[m.name] = (v * tcps).astype(np.float32)
+                    v = moved_velocities(v, *outs[i], tcps,
+                                         lambda i=i: skel[:, batch.vertices[i]])
+                vel[m.name] = v
     return points, nrm, vel
 
 

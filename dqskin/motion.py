@@ -34,8 +34,29 @@ from .shapes import as_real, frames_of
 from .skeleton import Skeleton, check_parents
 from .skinning import Method, SignReference, Skinner
 
-__all__ = ["forward_kinematics_derivative", "joint_twists", "skinned_velocities",
-           "skinning_transforms_with_derivative"]
+__all__ = ["forward_kinematics_derivative", "joint_twists", "moved_velocities", "per_second",
+           "skinned_velocities", "skinning_transforms_with_derivative"]
+
+
+def per_second(rate: float, *derivatives):
+    """Each of ``derivatives`` (per unit of animation time; None stays None) times ``rate``
+    (time units per second), in its own float dtype. Skinned velocities are linear in the
+    derivatives of the joints and of the rest points, so scaling those inputs before the kernel
+    gives velocities per second without a float64 pass over every skinned point."""
+    return tuple(None if d is None else np.asarray(d) * rate for d in derivatives)
+
+
+def moved_velocities(v, out, out_rate, rate, skinned_points):
+    """(F, V, 3) float32 velocities per second in a moving output space: ``O·v + rate·(Ȯ·p +
+    ȯ)`` for per-second ``v`` (F, V, 3) in skeleton space, output transforms ``out`` (F, 4, 4),
+    their derivatives per unit of time ``out_rate`` and ``skinned_points()`` (called only when
+    the output transform moves) the skinned points ``p`` in skeleton space."""
+    v = np.einsum("fij,fvj->fvi", out[:, :3, :3], np.asarray(v, dtype=np.float64))
+    if out_rate is not None and np.any(out_rate):
+        p = skinned_points()
+        v += rate * (np.einsum("fij,fvj->fvi", out_rate[:, :3, :3], p)
+                     + out_rate[:, None, :3, 3])
+    return v.astype(np.float32)
 
 
 def forward_kinematics_derivative(parents: npt.ArrayLike, local: npt.ArrayLike,

@@ -16,7 +16,7 @@ import numpy.typing as npt
 from ._warp import Device, resolve_device
 from .animation import Deformer, Interpolation, TransformTrack, check_times, sample
 from .crowd import BATCH_METHODS, skin_meshes
-from .motion import skinning_transforms_with_derivative
+from .motion import moved_velocities, per_second, skinning_transforms_with_derivative
 from .skeleton import Skeleton
 from .skinning import Method, SignReference, Skinner
 from .validation import check_transforms
@@ -319,16 +319,15 @@ class Scene:
     def _velocities(self, skinner, t, method, xforms, rates, rest, deformer, out, out_rate, sign):
         """(F, V, 3) float32 velocities per second of one mesh, the chain rule through every
         time-varying input: joints, the deformer's rest points, the output transform."""
+        tcps = float(self.time_codes_per_second)
         rest_dot = None if deformer is None else deformer.point_velocities_at(t)
-        v = skinner.skin_velocities(xforms, rates, method, points=rest,
-                                    point_velocities=rest_dot, **sign).astype(np.float64)
-        if out is not None:
-            o, o_dot = out, out_rate
-            v = np.einsum("fij,fvj->fvi", o[:, :3, :3], v)
-            if np.any(o_dot):
-                p = skinner.skin(xforms, method, points=rest, **sign)
-                v += np.einsum("fij,fvj->fvi", o_dot[:, :3, :3], p) + o_dot[:, None, :3, 3]
-        return (v * float(self.time_codes_per_second)).astype(np.float32)
+        rates, rest_dot = per_second(tcps, rates, rest_dot)
+        v = skinner.skin_velocities(xforms, rates, method, points=rest, point_velocities=rest_dot,
+                                    **sign)
+        if out is None:
+            return v
+        return moved_velocities(v, out, out_rate, tcps,
+                                lambda: skinner.skin(xforms, method, points=rest, **sign))
 
 
 @dataclass
