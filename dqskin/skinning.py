@@ -573,8 +573,7 @@ class Skinner:
             prep, frames, batched = self._prepare(skinning_transforms, "derivatives",
                                                   skinning_transform_derivatives)
             src = self._rest("points", points, frames)
-            vel = (wp.zeros((1, self.vertex_count), dtype=wp.vec3, device=self.device)
-                   if point_velocities is None else
+            vel = (None if point_velocities is None else
                    self._rest("point_velocities", point_velocities, frames, linear=True))
             out = KB.empty((frames, self.vertex_count), wp.vec3, self.device)
             KV.velocities(method=code, points=src, point_velocities=vel, influences=inf,
