@@ -260,3 +260,25 @@ def test_exclusive_writer_and_temporary_file(shared_assets, tmp_path):
     assert os.listdir(tmp_path) == ["cache.usdc"]
     with pytest.raises(NotADirectoryError, match="is not a directory"):
         write_usd_cache(scene, out / "x.usdc", [4.0], points)
+
+
+def test_pipelined_chunks_are_checked_once_by_the_check(shared_assets, tmp_path):
+    """write_chunks with a check: a NaN (or infinite) value of a later chunk is refused by that
+    check (its message names the time), which the values then rely on; without a check the
+    values are checked all the same; nothing is written either way."""
+    from dqskin.scene import SkinnedFrames
+    from dqskin.validation import check_skinned
+
+    scene = load_usd(shared_assets / BAKE / "lbs.usda")
+    chunks = []
+    for k, t in enumerate((1.0, 2.0, 3.0)):
+        p, n, v = random_frames(scene, [t], seed=k)
+        chunks.append(SkinnedFrames(np.array([t]), p, n, v))
+    name = scene.meshes[0].name
+    chunks[2].velocities[name][0, 5, 1] = np.inf
+    for check, want in ((lambda r: check_skinned("SRC", r), "SRC: .*skinned velocities are NaN "
+                         "or infinite at time 3"), (None, r"velocities\[.*NaN or infinite")):
+        with pytest.raises(ValueError, match=want):
+            with UsdCacheWriter(scene, tmp_path / "cache.usdc") as writer:
+                writer.write_chunks(iter(chunks), check)
+        assert os.listdir(tmp_path) == []

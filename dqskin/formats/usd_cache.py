@@ -44,9 +44,10 @@ def frame_bytes(scene, normals: bool = True, velocities: bool = True) -> int:
                     for m in scene.meshes)
 
 
-def _frames(name, what, a, frames, count):
-    """``a`` as finite float32 ``(frames, count, 3)``; ValueError naming ``what[name]``."""
-    return frames_of(f"{what}[{name!r}]", a, frames, count, dtype=np.float32, finite=True,
+def _frames(name, what, a, frames, count, finite=True):
+    """``a`` as float32 ``(frames, count, 3)``, finite unless ``finite`` is False (checked by
+    the caller); ValueError naming ``what[name]``."""
+    return frames_of(f"{what}[{name!r}]", a, frames, count, dtype=np.float32, finite=finite,
                      broadcast=False)[0]
 
 
@@ -120,17 +121,23 @@ def _memcpy_works():
 _MEMCPY = _memcpy_works()
 
 
+SMALL_ARRAY = 16
+"""Elements up to which :func:`vec3f_arrays` converts with ``Vt.Vec3fArray.FromNumpy``."""
+
+
 def vec3f_arrays(frames):
     """One new ``Vt.Vec3fArray`` per frame of (F, N, 3) float32 ``frames``.
 
     Each is allocated by Vt and filled with one ``memmove`` (which releases the GIL):
-    ``Vt.Vec3fArray.FromNumpy`` converts element by element, 3-5x slower. A new array is never
+    ``Vt.Vec3fArray.FromNumpy`` converts element by element, 3-5x slower (3,273 points), but
+    takes one call: arrays of up to :data:`SMALL_ARRAY` elements (extents) use it (2 elements:
+    1.8 against 8-9 µs an array). A new array is never
     shared, so writing into its storage is safe; :data:`_MEMCPY` checks once that the buffer Vt
     exposes is that storage, else ``FromNumpy`` is used.
     """
     frames = np.ascontiguousarray(frames, dtype=np.float32)
     F, N = frames.shape[:2]
-    if not _MEMCPY or N == 0:
+    if not _MEMCPY or N <= SMALL_ARRAY:
         return [Vt.Vec3fArray.FromNumpy(f) for f in frames]
     out = [Vt.Vec3fArray(N) for _ in range(F)]
     base, stride, size = frames.ctypes.data, frames.strides[0], N * 12
@@ -383,10 +390,12 @@ class SampleWriter:
             pad = self._pads[name] = self.target(name, "points").pad
         return pad
 
-    def prepare(self, times, points, normals=None, velocities=None):
+    def prepare(self, times, points, normals=None, velocities=None, checked=False):
         """Check a chunk (see :meth:`UsdCacheWriter.write`) and turn it into USD values, touching
         no layer (so it can run on another thread than :meth:`apply`): returns the checked
-        float64 times and ``[((prim, what), values)]``, one Vt array or Gf matrix per time."""
+        float64 times and ``[((prim, what), values)]``, one Vt array or Gf matrix per time.
+        ``checked``: the caller has checked that every value is finite
+        (:func:`dqskin.validation.check_skinned`); shapes are still checked."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)):
             raise ValueError(f"times: expected a non-empty 1-D array of finite time codes, "
@@ -399,13 +408,15 @@ class SampleWriter:
             if unknown:
                 raise ValueError(f"{what}: no mesh {unknown[0]!r} in {self.scene.path}; meshes: "
                                  f"{sorted(meshes)}")
-        pts = {n: _frames(n, "points", p, F, meshes[n].points.shape[0]) for n, p in points.items()}
+        finite = not checked
+        pts = {n: _frames(n, "points", p, F, meshes[n].points.shape[0], finite)
+               for n, p in points.items()}
         nrm = {}
         for n, v in normals.items():
             if meshes[n].normals is None:
                 raise ValueError(f"normals[{n!r}]: the mesh has no rest normals to replace")
-            nrm[n] = _frames(n, "normals", v, F, meshes[n].normals.shape[0])
-        vel = {n: _frames(n, "velocities", v, F, meshes[n].points.shape[0])
+            nrm[n] = _frames(n, "normals", v, F, meshes[n].normals.shape[0], finite)
+        vel = {n: _frames(n, "velocities", v, F, meshes[n].points.shape[0], finite)
                for n, v in velocities.items()}
         values = []
         for name in sorted(set(pts) | set(nrm) | set(vel)):
@@ -443,12 +454,15 @@ class SampleWriter:
         """Write every :class:`dqskin.scene.SkinnedFrames` of the iterable ``chunks`` to
         ``layer``, pipelined: chunk ``k + 1`` is checked (``check(frames)``, then
         :meth:`prepare`) on a helper thread while chunk ``k``'s samples are set here (NumPy and
-        the copies into Vt arrays release the GIL; setting samples does not). Returns the
-        ``(min, max)`` time written (``(inf, -inf)`` for no chunk)."""
+        the copies into Vt arrays release the GIL; setting samples does not). A ``check`` must
+        raise for a NaN or infinite value (:func:`dqskin.validation.check_skinned`): the values
+        are then not checked for it again. Returns the ``(min, max)`` time written
+        (``(inf, -inf)`` for no chunk)."""
         def prep(res):
             if check is not None:
                 check(res)
-            return self.prepare(res.times, res.points, res.normals, res.velocities)
+            return self.prepare(res.times, res.points, res.normals, res.velocities,
+                                checked=check is not None)
 
         lo, hi = np.inf, -np.inf
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values") as ex:
