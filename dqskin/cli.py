@@ -6,7 +6,8 @@ All argument parsing lives here; each command calls the library (:func:`dqskin.b
 * Exit status: 0 done, 2 bad input or refused (one line ``dqskin: error: ...`` naming the file,
   prim or field; no traceback), 130 on SIGINT (Ctrl-C) and 143 on SIGTERM (one line
   ``dqskin: interrupted``), 120 when a finished command's output could not be written (a full
-  disk; one line ``dqskin: error: writing <stdout>: ...``).
+  disk; one line ``dqskin: error: writing <stdout>: ...``), 141 without a message when the
+  reader of stdout goes away (``dqskin info X | head``), as a tool ended by SIGPIPE.
 * Signals: :func:`main` installs the handlers before anything else it does; the first SIGINT or
   SIGTERM raises :class:`Interrupted` in the main thread, so every ``with`` block unwinds and
   :mod:`dqskin.formats.atomic` removes its temporary files (its commit and clean-up steps finish
@@ -557,8 +558,8 @@ def _exit(code):
     Dask's native libraries took 0.5-0.8 s after every command, and everything dqskin writes is
     complete and closed by then (outputs are renamed into place before a command returns). A
     signal from here on is ignored (the command has finished). Output that cannot be written
-    (a full disk, a closed pipe) makes a successful command exit 120, as Python's own exit does;
-    the message names stdout, except for a reader that went away."""
+    (a full disk) makes a successful command exit 120, as Python's own exit does, with a message
+    naming stdout; a reader that went away makes it exit 141 silently (:func:`_reader_gone`)."""
     import atexit
     import contextlib
     import os
@@ -570,7 +571,8 @@ def _exit(code):
         try:
             stream.flush()
         except BrokenPipeError:  # the reader went away: nobody to tell
-            failed = True
+            if code == 0:
+                code = _reader_gone()
         except OSError as exc:
             failed = True
             message = f"dqskin: error: writing {getattr(stream, 'name', 'output')}: {exc}\n"
@@ -706,12 +708,39 @@ def _run(argv):
             stop_workers()
 
 
+def _stdout_is_pipe():
+    import os
+    import stat
+    try:
+        return stat.S_ISFIFO(os.fstat(sys.stdout.fileno()).st_mode)
+    except (AttributeError, OSError, ValueError):
+        return False
+
+
+def _reader_gone():
+    """The reader of stdout went away (``dqskin info X | head``): no message, stdout pointed at
+    the null device (what is still buffered goes nowhere), the status of a process ended by
+    SIGPIPE, as ``cat`` and ``grep`` end."""
+    import os
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, sys.stdout.fileno())
+        os.close(null)
+    except (AttributeError, OSError, ValueError):
+        pass
+    return 128 + signal.SIGPIPE
+
+
 def _run_command(argv):
     try:
         args = build_parser().parse_args(argv)  # imports NumPy: an interrupt may land in there
         _quiet_libraries(args.verbose)
         _checkpoint()
         code = args.run(args)
+    except BrokenPipeError:
+        if not _stdout_is_pipe():
+            raise
+        return _reader_gone()
     except (ValueError, FileExistsError, KeyError, OSError) as exc:
         _checkpoint()  # an error caused by an interrupt some library turned into another type
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc

@@ -174,6 +174,22 @@ def test_entry_point_ends_the_process_after_exit_handlers_and_flushed_output(tmp
         assert "dqskin: error: writing" in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_a_reader_that_goes_away_ends_the_command_silently(tmp_path):
+    """``dqskin info X | head``: when the reader of stdout has gone, the command ends as a tool
+    ended by SIGPIPE (status 141) without a message or traceback, whether the pipe breaks while
+    it prints (output beyond the stream's buffer) or at its final flush."""
+    big = tmp_path / "many.usda"  # an info of more than the 8 KiB a pipe's stream buffers
+    big.write_text("#usda 1.0\n" + "".join(
+        f'def "C{i:03d}" (references = @{HUMANOID}@) {{}}\n' for i in range(60)))
+    for src in (big, HUMANOID):
+        proc = subprocess.Popen([sys.executable, "-m", "dqskin.cli", "info", str(src)],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        proc.stdout.close()  # the reader goes away before anything is written
+        stderr = proc.stderr.read().decode()
+        assert proc.wait(timeout=300) == 128 + signal.SIGPIPE, stderr
+        assert stderr == "", stderr
+
+
 # -- 3. concurrent writers --
 
 @pytest.mark.parametrize("out,last", [("same.npz", 1500), ("same.usdc", 300),
