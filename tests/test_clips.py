@@ -120,6 +120,29 @@ def test_force_removes_the_top_level_reading_the_clips_it_replaces(tmp_path):
     assert not out.exists() and not list(clips_folder(out).glob("chunk_*"))
 
 
+@pytest.mark.parametrize("kind", ["folder", "symlink"])
+def test_a_non_file_named_like_a_clip_file_is_refused_before_anything_is_removed(tmp_path, kind):
+    """A folder (or a link) in the clip folder named like a layer of the bake: ``--force`` and
+    ``--resume`` refuse it at the start, naming it, and leave the earlier bake as it was (it was
+    removed, then the bake failed on that chunk)."""
+    scene = load(HUMANOID)
+    out = tmp_path / "shot.usd"
+    bake(scene, out, scene.times[:6], method="lbs", chunk=3, clips=True)
+    folder = clips_folder(out)
+    layers = sorted(folder.glob("chunk_*.usdc"))
+    before = {p.name: p.read_bytes() for p in folder.iterdir()} | {out.name: out.read_bytes()}
+    odd = folder / layers[0].name.replace("00", "01", 1)  # a chunk of a longer bake
+    if kind == "folder":
+        odd.mkdir()
+    else:
+        odd.symlink_to(layers[0])
+    for opts in ({"force": True}, {"resume": True}):
+        with pytest.raises(ValueError, match=f"{odd.name}: not a file"):
+            bake(scene, out, scene.times[:20], method="lbs", chunk=3, clips=True, **opts)
+        now = {p.name: p.read_bytes() for p in folder.iterdir() if p != odd}
+        assert now | {out.name: out.read_bytes()} == before
+
+
 def test_flatten_refuses_to_overwrite_one_of_its_clip_layers(tmp_path):
     """A clip layer is an input of the cache too (opened only when values are read): flattening
     onto one is refused and leaves it as it was."""
