@@ -120,27 +120,40 @@ def test_force_removes_the_top_level_reading_the_clips_it_replaces(tmp_path):
     assert not out.exists() and not list(clips_folder(out).glob("chunk_*"))
 
 
-@pytest.mark.parametrize("kind", ["folder", "symlink"])
-def test_a_non_file_named_like_a_clip_file_is_refused_before_anything_is_removed(tmp_path, kind):
-    """A folder (or a link) in the clip folder named like a layer of the bake: ``--force`` and
-    ``--resume`` refuse it at the start, naming it, and leave the earlier bake as it was (it was
-    removed, then the bake failed on that chunk)."""
+@pytest.mark.parametrize("kind", ["folder", "link to a folder"])
+def test_a_non_file_where_the_bake_writes_is_refused_before_anything_is_removed(tmp_path, kind):
+    """A folder (or a link to one) in the clip folder where the bake writes a layer: ``--force``
+    and ``--resume`` refuse it at the start, naming it, and leave the earlier bake as it was (it
+    was removed, then the bake failed on that chunk with IsADirectoryError). A folder named like a
+    layer this bake does not write, and layers that are links to files, are fine."""
     scene = load(HUMANOID)
     out = tmp_path / "shot.usd"
     bake(scene, out, scene.times[:6], method="lbs", chunk=3, clips=True)
     folder = clips_folder(out)
     layers = sorted(folder.glob("chunk_*.usdc"))
+    assert len(layers) == 2
     before = {p.name: p.read_bytes() for p in folder.iterdir()} | {out.name: out.read_bytes()}
-    odd = folder / layers[0].name.replace("00", "01", 1)  # a chunk of a longer bake
+    odd = layers[1].with_name(layers[1].name.replace("1", "2"))  # chunk 2 of a longer bake
     if kind == "folder":
         odd.mkdir()
     else:
-        odd.symlink_to(layers[0])
+        (tmp_path / "elsewhere").mkdir()
+        odd.symlink_to(tmp_path / "elsewhere")
     for opts in ({"force": True}, {"resume": True}):
         with pytest.raises(ValueError, match=f"{odd.name}: not a file"):
-            bake(scene, out, scene.times[:20], method="lbs", chunk=3, clips=True, **opts)
+            bake(scene, out, scene.times[:9], method="lbs", chunk=3, clips=True, **opts)
         now = {p.name: p.read_bytes() for p in folder.iterdir() if p != odd}
         assert now | {out.name: out.read_bytes()} == before
+    odd.rename(tmp_path / "moved")  # out of the way: a folder past the bake's chunks is kept
+    stray = folder / layers[1].name.replace("1", "9")
+    stray.mkdir()
+    keep = tmp_path / "kept"
+    keep.mkdir()
+    for p in layers:  # layers as links to files (an annexed or deduplicated folder)
+        p.rename(keep / p.name)
+        p.symlink_to(keep / p.name)
+    done = bake(scene, out, scene.times[:6], method="lbs", chunk=3, clips=True, resume=True)
+    assert "2 kept" in done and stray.is_dir()
 
 
 def test_flatten_refuses_to_overwrite_one_of_its_clip_layers(tmp_path):

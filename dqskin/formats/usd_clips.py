@@ -206,11 +206,12 @@ class ClipBake:
         if self.folder.exists() and not self.folder.is_dir():
             raise NotADirectoryError(f"{self.folder}: exists and is not a folder")
         if self.folder.is_dir():  # before anything is removed: a bake would fail on it midway
-            for p in sorted(self.folder.iterdir()):
-                if _OURS.match(p.name) and not _TEMP.match(p.name) and (
-                        p.is_symlink() or not p.is_file()):
-                    raise ValueError(f"{p}: not a file, where the clip bake keeps one of its "
-                                     f"files; move it out of {self.folder.name}/")
+            layers = [self.clip_path(k) for k in range(len(self.bounds))]
+            for p in [plan_file, self.folder / "manifest.usda", *layers,
+                      *(q.with_suffix(".json") for q in layers)]:
+                if p.exists() and not p.is_file():  # (a link to a file is one)
+                    raise ValueError(f"{p}: not a file, where this clip bake writes one; move it "
+                                     f"out of {self.folder.name}/")
         earlier = plan_file.exists()
         self._check_owner(self.out)
         if earlier and resume and not force:
