@@ -571,7 +571,9 @@ def _exit(code):
         try:
             stream.flush()
         except BrokenPipeError:  # the reader went away: nobody to tell
-            if code == 0:
+            if stream not in (sys.stdout, sys.__stdout__):
+                failed = True
+            elif code == 0:
                 code = _reader_gone()
         except OSError as exc:
             failed = True
@@ -708,26 +710,36 @@ def _run(argv):
             stop_workers()
 
 
-def _stdout_is_pipe():
+def _stdout_reader_gone():
+    """Whether stdout is a pipe whose reading end is closed (``poll`` reports an error on it):
+    a broken pipe elsewhere (a socket, a child process) is an error like any other."""
     import os
+    import select
     import stat
     try:
-        return stat.S_ISFIFO(os.fstat(sys.stdout.fileno()).st_mode)
+        fd = sys.stdout.fileno()
+        if not stat.S_ISFIFO(os.fstat(fd).st_mode):
+            return False
+        poller = select.poll()
+        poller.register(fd, select.POLLOUT)
+        return any(ev & select.POLLERR for _, ev in poller.poll(0))
     except (AttributeError, OSError, ValueError):
         return False
 
 
-def _reader_gone():
-    """The reader of stdout went away (``dqskin info X | head``): no message, stdout pointed at
-    the null device (what is still buffered goes nowhere), the status of a process ended by
-    SIGPIPE, as ``cat`` and ``grep`` end."""
+def _reader_gone(redirect=True):
+    """The reader of stdout went away (``dqskin info X | head``): no message, the status of a
+    process ended by SIGPIPE, as ``cat`` and ``grep`` end; with ``redirect`` (the process's own
+    run, not a call from Python) stdout's descriptor is pointed at the null device, so what is
+    still buffered goes nowhere."""
     import os
-    try:
-        null = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(null, sys.stdout.fileno())
-        os.close(null)
-    except (AttributeError, OSError, ValueError):
-        pass
+    if redirect:
+        try:
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, sys.stdout.fileno())
+            os.close(null)
+        except (AttributeError, OSError, ValueError):
+            pass
     return 128 + signal.SIGPIPE
 
 
@@ -737,12 +749,10 @@ def _run_command(argv):
         _quiet_libraries(args.verbose)
         _checkpoint()
         code = args.run(args)
-    except BrokenPipeError:
-        if not _stdout_is_pipe():
-            raise
-        return _reader_gone()
     except (ValueError, FileExistsError, KeyError, OSError) as exc:
         _checkpoint()  # an error caused by an interrupt some library turned into another type
+        if isinstance(exc, BrokenPipeError) and _stdout_reader_gone():
+            return _reader_gone(redirect=argv is None)
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"dqskin: error: {msg}", file=sys.stderr)
         code = EXIT_INPUT

@@ -4,6 +4,7 @@ format, SIGINT/SIGTERM mid-write, concurrent writers, per-frame file rules, mess
 Exit status 0 done, 2 bad input or refused, 130 SIGINT, 143 SIGTERM; one line on stderr.
 """
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -188,6 +189,38 @@ def test_a_reader_that_goes_away_ends_the_command_silently(tmp_path):
         stderr = proc.stderr.read().decode()
         assert proc.wait(timeout=300) == 128 + signal.SIGPIPE, stderr
         assert stderr == "", stderr
+
+
+def test_a_broken_pipe_elsewhere_is_an_error_and_python_callers_keep_their_stdout(
+        tmp_path, monkeypatch, capsys):
+    """A broken pipe that is not stdout's (a socket, a child process), stdout being a pipe with
+    a reader or not, is an error like any other (one line, status 2); called from Python with a
+    closed stdout, ``main`` returns 141 and leaves the caller's file descriptors alone."""
+    from dqskin import cli
+
+    def broken(args):
+        raise BrokenPipeError(32, "Broken pipe")
+    monkeypatch.setattr(cli, "cmd_info", broken)
+    assert cli.main(["info", str(HUMANOID)]) == 2  # stdout: pytest's capture (not a pipe)
+    assert capsys.readouterr().err.strip() == "dqskin: error: [Errno 32] Broken pipe"
+    read, write = os.pipe()  # a pipe with its reader
+    with capsys.disabled(), open(write, "w") as pipe, open(read):
+        monkeypatch.setattr(sys, "stdout", pipe)
+        assert cli.main(["info", str(HUMANOID)]) == 2
+    monkeypatch.undo()
+    read, write = os.pipe()
+    os.close(read)  # a pipe without one: the reader went away
+    pipe = open(write, "w", buffering=1)
+    try:
+        before = os.fstat(pipe.fileno())
+        monkeypatch.setattr(sys, "stdout", pipe)
+        assert cli.main(["info", str(HUMANOID)]) == 128 + signal.SIGPIPE
+        after = os.fstat(pipe.fileno())
+        monkeypatch.undo()
+    finally:
+        with contextlib.suppress(BrokenPipeError):
+            pipe.close()
+    assert (after.st_ino, after.st_dev) == (before.st_ino, before.st_dev)
 
 
 # -- 3. concurrent writers --
