@@ -204,7 +204,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args, **sign) as writer:
             writer.write_chunks((res for _, res in _chunks(
                 scene, t, chunk or CHUNK, progress, normals=normals, velocities=velocities,
-                **args, **sign)), check)
+                **args, **sign)), check, checked=True)
         return (f"wrote {out}: {counts} "
                 f"({method or 'asset method'}{', velocities' if wrote_velocities else ''})")
     if kind == "npz":

@@ -185,7 +185,7 @@ def run_chunk(job: ChunkJob, scene=None) -> dict:
     _sample_writer(scene, job).write_chunks(
         layer, (res for _, res in scene.skin_chunks(job.times, _piece_frames(scene, job.skin),
                                                      **job.skin)),
-        lambda res: check_skinned(scene.path, res))
+        lambda res: check_skinned(scene.path, res), checked=True)
     digest = usd_clips.write_clip(layer, job.path, job.key, job.times)
     del layer
     return _result(job, digest, t0)
@@ -217,7 +217,7 @@ def run_here(jobs: list, scene, done) -> None:
             for job, p in zip(jobs, pieces):
                 layer = usd_clips.new_clip_layer(job.time_codes_per_second)
                 writer.write_chunks(layer, (next(stream)[1] for _ in p),
-                                    lambda r: check_skinned(scene.path, r))
+                                    lambda r: check_skinned(scene.path, r), checked=True)
                 if pending is not None:
                     finished, pending = pending, None
                     done(_commit(*finished))

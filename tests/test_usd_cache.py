@@ -262,10 +262,12 @@ def test_exclusive_writer_and_temporary_file(shared_assets, tmp_path):
         write_usd_cache(scene, out / "x.usdc", [4.0], points)
 
 
+@pytest.mark.filterwarnings("ignore:overflow encountered in cast:RuntimeWarning")  # 1e39 → inf
 def test_pipelined_chunks_are_checked_once_by_the_check(shared_assets, tmp_path):
-    """write_chunks with a check: a NaN (or infinite) value of a later chunk is refused by that
-    check (its message names the time), which the values then rely on; without a check the
-    values are checked all the same; nothing is written either way."""
+    """write_chunks with a check that finds non-finite values (``checked``): an infinite value of
+    a later chunk is refused by that check (its message names the time), which the values then
+    rely on; without a check, or with one that checks nothing, the values are checked all the
+    same, and float64 values beyond float32 too; nothing is written in any case."""
     from dqskin.scene import SkinnedFrames
     from dqskin.validation import check_skinned
 
@@ -276,9 +278,18 @@ def test_pipelined_chunks_are_checked_once_by_the_check(shared_assets, tmp_path)
         chunks.append(SkinnedFrames(np.array([t]), p, n, v))
     name = scene.meshes[0].name
     chunks[2].velocities[name][0, 5, 1] = np.inf
-    for check, want in ((lambda r: check_skinned("SRC", r), "SRC: .*skinned velocities are NaN "
-                         "or infinite at time 3"), (None, r"velocities\[.*NaN or infinite")):
+    late = r"velocities\[.*NaN or infinite"
+    for check, checked, want in (
+            (lambda r: check_skinned("SRC", r), True,
+             "SRC: .*skinned velocities are NaN or infinite at time 3"),
+            (None, True, late), (lambda r: None, False, late)):
         with pytest.raises(ValueError, match=want):
             with UsdCacheWriter(scene, tmp_path / "cache.usdc") as writer:
-                writer.write_chunks(iter(chunks), check)
+                writer.write_chunks(iter(chunks), check, checked)
         assert os.listdir(tmp_path) == []
+    chunks[2].velocities[name] = chunks[2].velocities[name].astype(np.float64)
+    chunks[2].velocities[name][0, 5, 1] = 1e39  # finite, but not as float32
+    with pytest.raises(ValueError, match=late):
+        with UsdCacheWriter(scene, tmp_path / "cache.usdc") as writer:
+            writer.write_chunks(iter(chunks), lambda r: check_skinned("SRC", r), True)
+    assert os.listdir(tmp_path) == []

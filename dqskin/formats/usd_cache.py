@@ -395,7 +395,8 @@ class SampleWriter:
         no layer (so it can run on another thread than :meth:`apply`): returns the checked
         float64 times and ``[((prim, what), values)]``, one Vt array or Gf matrix per time.
         ``checked``: the caller has checked that every value is finite
-        (:func:`dqskin.validation.check_skinned`); shapes are still checked."""
+        (:func:`dqskin.validation.check_skinned`): float32 arrays are not checked again (others
+        are, as float32); shapes are always checked."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)):
             raise ValueError(f"times: expected a non-empty 1-D array of finite time codes, "
@@ -408,15 +409,17 @@ class SampleWriter:
             if unknown:
                 raise ValueError(f"{what}: no mesh {unknown[0]!r} in {self.scene.path}; meshes: "
                                  f"{sorted(meshes)}")
-        finite = not checked
-        pts = {n: _frames(n, "points", p, F, meshes[n].points.shape[0], finite)
+        def finite(a):  # checked float32 values need no second pass (others may overflow)
+            return not (checked and getattr(a, "dtype", None) == np.float32)
+
+        pts = {n: _frames(n, "points", p, F, meshes[n].points.shape[0], finite(p))
                for n, p in points.items()}
         nrm = {}
         for n, v in normals.items():
             if meshes[n].normals is None:
                 raise ValueError(f"normals[{n!r}]: the mesh has no rest normals to replace")
-            nrm[n] = _frames(n, "normals", v, F, meshes[n].normals.shape[0], finite)
-        vel = {n: _frames(n, "velocities", v, F, meshes[n].points.shape[0], finite)
+            nrm[n] = _frames(n, "normals", v, F, meshes[n].normals.shape[0], finite(v))
+        vel = {n: _frames(n, "velocities", v, F, meshes[n].points.shape[0], finite(v))
                for n, v in velocities.items()}
         values = []
         for name in sorted(set(pts) | set(nrm) | set(vel)):
@@ -450,19 +453,19 @@ class SampleWriter:
         checked times as float64."""
         return self.apply(layer, self.prepare(times, points, normals, velocities))
 
-    def write_chunks(self, layer, chunks, check=None):
+    def write_chunks(self, layer, chunks, check=None, checked=False):
         """Write every :class:`dqskin.scene.SkinnedFrames` of the iterable ``chunks`` to
         ``layer``, pipelined: chunk ``k + 1`` is checked (``check(frames)``, then
         :meth:`prepare`) on a helper thread while chunk ``k``'s samples are set here (NumPy and
-        the copies into Vt arrays release the GIL; setting samples does not). A ``check`` must
-        raise for a NaN or infinite value (:func:`dqskin.validation.check_skinned`): the values
-        are then not checked for it again. Returns the ``(min, max)`` time written
-        (``(inf, -inf)`` for no chunk)."""
+        the copies into Vt arrays release the GIL; setting samples does not). ``checked``:
+        ``check`` raises for every NaN or infinite value
+        (:func:`dqskin.validation.check_skinned`), so :meth:`prepare` does not look again.
+        Returns the ``(min, max)`` time written (``(inf, -inf)`` for no chunk)."""
         def prep(res):
             if check is not None:
                 check(res)
             return self.prepare(res.times, res.points, res.normals, res.velocities,
-                                checked=check is not None)
+                                checked=checked and check is not None)
 
         lo, hi = np.inf, -np.inf
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values") as ex:
@@ -565,10 +568,10 @@ class UsdCacheWriter:
         t = self.samples.write(self.layer, times, points, normals, velocities)
         self._t_min, self._t_max = min(self._t_min, t.min()), max(self._t_max, t.max())
 
-    def write_chunks(self, chunks, check=None):
+    def write_chunks(self, chunks, check=None, checked=False):
         """:meth:`write` every :class:`dqskin.scene.SkinnedFrames` of ``chunks``, checking and
         converting the next on a helper thread (:meth:`SampleWriter.write_chunks`)."""
-        lo, hi = self.samples.write_chunks(self.layer, chunks, check)
+        lo, hi = self.samples.write_chunks(self.layer, chunks, check, checked)
         self._t_min, self._t_max = min(self._t_min, lo), max(self._t_max, hi)
 
     def close(self):
