@@ -284,8 +284,13 @@ def skin_meshes(scene, times, method: Method | None = None, *, device: Device = 
             rest_dot = {i: v for i, v in rest_dot.items() if v is not None}
             tcps = float(scene.time_codes_per_second)
             rates_s, rest_dot_s = per_second(tcps, rates, batch.bind_velocities(rest_dot, F))
-            v_all = batch.skinner.skin_velocities(xforms, rates_s, meth, points=bind_rest,
-                                                  point_velocities=rest_dot_s)
+            try:
+                v_all = batch.skinner.skin_velocities(xforms, rates_s, meth, points=bind_rest,
+                                                      point_velocities=rest_dot_s)
+            except ValueError as exc:  # per-second rates beyond float32
+                more = f" and {len(meshes) - 1} more" if len(meshes) > 1 else ""
+                raise ValueError(f"{scene.path}: {meshes[0].name}{more}: velocities: "
+                                 f"{exc}") from None
             for i, m in enumerate(meshes):
                 v = v_all[:, batch.vertices[i]]
                 if i in outs:

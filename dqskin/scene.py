@@ -285,8 +285,11 @@ class Scene:
                 result.tangents[m.name] = sk.skin_vectors(xforms[s], rt, meth, kind="tangent",
                                                           output_transforms=out, **sign)
             if velocities:
-                result.velocities[m.name] = self._velocities(sk, t, meth, xforms[s], rates[s],
-                                                             rest, deformer, out, rate, sign)
+                try:
+                    result.velocities[m.name] = self._velocities(
+                        sk, t, meth, xforms[s], rates[s], rest, deformer, out, rate, sign)
+                except ValueError as exc:  # per-second rates beyond float32
+                    raise ValueError(f"{self.path}: {m.name}: velocities: {exc}") from None
         return result
 
     def skin_chunks(self, times: npt.ArrayLike, chunk: "int | list[int]",

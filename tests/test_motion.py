@@ -562,3 +562,23 @@ def test_bad_input():
     before = local.copy()
     animation.sample(anim, kt, "spline")
     assert np.array_equal(local, before)
+
+
+@pytest.mark.parametrize("meshes", [1, 2])  # one mesh: the per-mesh loop; two: the batched one
+def test_velocities_beyond_float32_per_second_name_file_and_mesh(meshes):
+    """Joint rates finite per time code but beyond float32 per second are refused with the file,
+    the mesh and the field named (not a bare argument name, nor infinite velocities)."""
+    from dqskin.scene import Mesh, Scene
+    from dqskin.skeleton import Skeleton
+    kt = np.array([0.0, 1.0])
+    local = np.tile(np.eye(4), (2, 1, 1, 1))
+    local[1, 0, 0, 3] = 1e37  # the root moves 1e37 units in one time code
+    skel = Skeleton(["a"], [-1], bind_transforms=np.eye(4)[None],
+                    animation=animation.KeyedAnimation(kt, local))
+    parts = [Mesh(f"m{i}", np.zeros((3, 3), np.float32), np.zeros((0, 3), np.int32),
+                  np.zeros((3, 1), np.int32), np.ones((3, 1), np.float32), skinning_method="lbs")
+             for i in range(meshes)]
+    scene = Scene("rig.usda", parts, [skel], kt, time_codes_per_second=100.0)
+    assert np.isfinite(scene.skin(np.array([0.5])).points["m0"]).all()
+    with pytest.raises(ValueError, match=r"^rig\.usda: m0.*: velocities: .*overflows float32"):
+        scene.skin(np.array([0.5]), velocities=True)
