@@ -386,6 +386,28 @@ def test_velocities_through_blend_shapes_and_animated_parents(tmp_path, method, 
     assert np.abs(vel - fd).max() <= 2e-3 * speed, np.abs(vel - fd).max() / speed
 
 
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_batched_velocities_equal_the_per_mesh_ones(tmp_path, method, device):
+    """Two meshes skin in one batched launch (:func:`dqskin.crowd.skin_meshes`): their velocities
+    through blend shapes, a moving skeleton parent and a rotating gprim parent (output transforms)
+    equal the per-mesh loop's, which the central-difference test above checks."""
+    import dataclasses
+    path = build_rig(tmp_path / "rig.usda", method=TOKENS[method], normal_offsets=True)
+    scene = load_usd(path)
+    (m,) = scene.meshes
+    twin = dataclasses.replace(m, name=m.name + "_twin", output_transforms=None)
+    pair = dataclasses.replace(scene, meshes=[m, twin])
+    pair._skinners = {}
+    t = np.array([0.3, 1.6, 2.45, 3.7])
+    one = scene.skin(t, device=device, velocities=True).velocities[m.name]
+    both = pair.skin(t, device=device, velocities=True).velocities
+    skeleton_space = scene.skin(t, device=device, velocities=True, space="skeleton")
+    assert m.output_transforms is not None and np.abs(one).max() > 0.1
+    np.testing.assert_allclose(both[m.name], one, atol=2e-5 * np.abs(one).max())
+    np.testing.assert_allclose(both[twin.name], skeleton_space.velocities[m.name],
+                               atol=2e-5 * np.abs(one).max())
+
+
 def test_blend_shape_rest_points_follow_the_definition(tmp_path):
     """Sub-shape weights as the UsdSkel docs define them, summed with NumPy.
 
