@@ -171,15 +171,18 @@ def _sample_writer(scene, job):
                         sign_reference=opts.get("sign_reference", "largest_weight"))
 
 
-def _result(job, digest, t0):
+def _result(job, digest, t0, c0):
     return dict(index=job.index, sha256=digest, seconds=time.perf_counter() - t0,
-                pid=os.getpid(), peak_rss_mb=_peak_rss_mb())
+                cpu_seconds=time.process_time() - c0, pid=os.getpid(),
+                peak_rss_mb=_peak_rss_mb())
 
 
 def run_chunk(job: ChunkJob, scene=None) -> dict:
     """Skin one chunk and write its clip layer; ``scene`` defaults to the worker's copy of
-    ``job.source``. Returns ``index``, ``sha256``, ``seconds``, ``pid`` and ``peak_rss_mb``."""
-    t0 = time.perf_counter()
+    ``job.source``. Returns ``index``, ``sha256``, ``seconds``, ``cpu_seconds`` (of the whole
+    process while the task ran: all its threads, a worker running one task at a time), ``pid``
+    and ``peak_rss_mb``."""
+    t0, c0 = time.perf_counter(), time.process_time()
     scene = _worker_scene(job.source) if scene is None else scene
     layer = usd_clips.new_clip_layer(job.time_codes_per_second)
     _sample_writer(scene, job).write_chunks(
@@ -188,7 +191,7 @@ def run_chunk(job: ChunkJob, scene=None) -> dict:
         lambda res: check_skinned(scene.path, res), checked=True)
     digest = usd_clips.write_clip(layer, job.path, job.key, job.times)
     del layer
-    return _result(job, digest, t0)
+    return _result(job, digest, t0, c0)
 
 
 def run_here(jobs: list, scene, done) -> None:
@@ -213,7 +216,7 @@ def run_here(jobs: list, scene, done) -> None:
     pending = None  # (job, claim, digest future, start) of the exported, unrecorded layer
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-clip-hash") as hasher:
         try:
-            t0 = time.perf_counter()
+            start = time.perf_counter(), time.process_time()
             for job, p in zip(jobs, pieces):
                 layer = usd_clips.new_clip_layer(job.time_codes_per_second)
                 writer.write_chunks(layer, (next(stream)[1] for _ in p),
@@ -223,8 +226,8 @@ def run_here(jobs: list, scene, done) -> None:
                     done(_commit(*finished))
                 claim = usd_clips.export_clip(layer, job.path, job.times)
                 del layer
-                pending = (job, claim, hasher.submit(usd_clips.sha256_file, claim.tmp), t0)
-                t0 = time.perf_counter()
+                pending = (job, claim, hasher.submit(usd_clips.sha256_file, claim.tmp), start)
+                start = time.perf_counter(), time.process_time()
             if pending is not None:
                 finished, pending = pending, None
                 done(_commit(*finished))
@@ -237,17 +240,17 @@ def run_here(jobs: list, scene, done) -> None:
             stream.close()
 
 
-def _commit(job, claim, digest, t0):
+def _commit(job, claim, digest, start):
     """Record and rename the exported layer in ``claim`` (removed if its hash failed)."""
     try:
         sha = digest.result()
     except BaseException:
         claim.discard()
         raise
-    return _result(job, usd_clips.commit_clip(claim, job.key, job.times, sha), t0)
+    return _result(job, usd_clips.commit_clip(claim, job.key, job.times, sha), *start)
 
 
-def _commit_on_error(job, claim, digest, t0):
+def _commit_on_error(job, claim, digest, start):
     """:func:`_commit`, while :func:`run_here` is failing: an error of its own is dropped (the
     failure being raised matters), the layer then removed. An interrupt the CLI recorded
     (:func:`~.formats.atomic.interrupt`; nothing commits after one) is set aside for this one
@@ -270,7 +273,7 @@ def _commit_on_error(job, claim, digest, t0):
     with atomic.critical():  # a recorded interrupt is raised at the end of this block
         atomic.reset_interrupt()
         try:
-            _commit(job, claim, digest, t0)
+            _commit(job, claim, digest, start)
         except Exception:
             pass  # commit_clip removed the layer
         finally:

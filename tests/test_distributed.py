@@ -279,3 +279,23 @@ def test_bake_processes_keep_freed_memory_for_the_next_chunk():
     _, plain = freed_mb("plain")
     assert applied == "True"
     assert min(plain) > 80 and max(kept) < 10, (plain, kept)
+
+
+def test_a_task_reports_its_wall_and_process_cpu_seconds(tmp_path):
+    """What a chunk task returns for the benchmark's per-task figures: its wall seconds and the
+    CPU seconds of its process while it ran, each within what was measured around the call."""
+    from dqskin import distributed
+    from dqskin.formats.usd_clips import ClipBake
+    scene = load(HUMANOID)
+    opts = dict(method="lbs", interp="trs", normals=False, velocities=False)
+    plan = ClipBake(scene, tmp_path / "shot.usd", scene.times[:40], 40, opts)
+    plan.pending()
+    job = distributed.ChunkJob(0, str(HUMANOID.resolve()), plan.chunk_times(0),
+                               str(plan.clip_path(0)), plan.key, plan.targets, plan.cache.rigid,
+                               dict(opts, device=None), float(scene.time_codes_per_second))
+    distributed.run_chunk(job, scene)  # warm: kernels loaded
+    w0, c0 = time.perf_counter(), time.process_time()
+    result = distributed.run_chunk(job, scene)
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    assert 0 < result["seconds"] <= wall and 0 < result["cpu_seconds"] <= cpu
+    assert result["pid"] == os.getpid() and Path(job.path).is_file()

@@ -152,7 +152,11 @@ def run_dqskin(src, dst, which):
     peaks = {}
     for task in done["tasks"]:
         peaks[task["pid"]] = max(peaks.get(task["pid"], 0.0), task["peak_rss_mb"])
-    return dict(worker_peak_mb=sorted(peaks.values()), chunks=done["chunks"])
+    tasks = done["tasks"]
+    return dict(worker_peak_mb=sorted(peaks.values()), chunks=done["chunks"],
+                task_seconds=float(np.mean([t["seconds"] for t in tasks])) if tasks else None,
+                task_cpu_seconds=(float(np.mean([t["cpu_seconds"] for t in tasks]))
+                                  if tasks and int(workers) else None))
 
 
 def peak_rss_mb():
@@ -357,6 +361,8 @@ def bench_one(rows, label, src, impls, tmp):
                          seconds=r["seconds"], import_seconds=r["import_seconds"],
                          cpu_seconds=cpu,
                          peak_mb=r["peak_mb"], worker_peak_mb=r.get("worker_peak_mb", []),
+                         task_seconds=r.get("task_seconds"),
+                         task_cpu_seconds=r.get("task_cpu_seconds"),
                          mpoint_frames_per_s=points * frames / r["seconds"] / 1e6,
                          output_mb=output_mb(dst)))
         print(f"  {label} {frames} frames {which}: {r['seconds']:.2f} s", file=sys.stderr)
@@ -425,6 +431,12 @@ def print_bake(rows):
                 total = (a["seconds"] + a["import_seconds"]) / (b["seconds"] + b["import_seconds"])
                 line.append(f"{what} = {a['seconds'] / b['seconds']:.2f}× (with imports "
                             f"{total:.2f}×)")
+        for impl in ("clips1t1", "clips2t1", "clips1", "clips2"):
+            r = sel.get(impl, {})
+            if r.get("task_cpu_seconds"):  # a worker runs one task at a time: its process CPU
+                line.append(f"{impl} task {1e3 * r['task_seconds']:.0f} ms, worker CPU "
+                            f"{1e3 * r['task_cpu_seconds']:.0f} ms "
+                            f"({r['task_cpu_seconds'] / r['task_seconds']:.2f} cores)")
         if "usdskel" in sel:
             for impl in ("single", "clips0", "clips2"):
                 if impl in sel:
