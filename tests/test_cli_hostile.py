@@ -204,10 +204,11 @@ def test_a_broken_pipe_elsewhere_is_an_error_and_python_callers_keep_their_stdou
     assert cli.main(["info", str(HUMANOID)]) == 2  # stdout: pytest's capture (not a pipe)
     assert capsys.readouterr().err.strip() == "dqskin: error: [Errno 32] Broken pipe"
     read, write = os.pipe()  # a pipe with its reader
-    with capsys.disabled(), open(write, "w") as pipe, open(read):
+    with open(write, "w") as pipe, open(read):
         monkeypatch.setattr(sys, "stdout", pipe)
         assert cli.main(["info", str(HUMANOID)]) == 2
     monkeypatch.undo()
+    assert capsys.readouterr().err.strip() == "dqskin: error: [Errno 32] Broken pipe"
     read, write = os.pipe()
     os.close(read)  # a pipe without one: the reader went away
     pipe = open(write, "w", buffering=1)
