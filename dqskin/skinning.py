@@ -251,13 +251,15 @@ class Skinner:
             flags.zero_()
         return flags
 
-    def _check_values(self, joint_count):
-        """The host checks of the constructor and of the joint count, for unchecked inputs:
-        ValueError naming the array and what is wrong."""
+    def _check_values(self, joint_count=None):
+        """The host checks of the constructor and of the joint count (unless None), for
+        unchecked inputs: ValueError naming the array and what is wrong."""
         problem = within_float32(self._rest_points)
         if problem:
             raise ValueError(f"points: {problem} coordinates")
         self.influences.check_values()
+        if joint_count is None:
+            return
         self.influences.check_joint_count(joint_count)
         self._unchecked = False
 
@@ -440,8 +442,13 @@ class Skinner:
         with self._lock:  # the per-shape work buffers are shared between calls
             code = self._check_method(method)
             inf = self._influences(code, sign_reference)
-            prep, frames, batched = self._prepare(skinning_transforms,
-                                                  affines_only=code == K.LBS)
+            try:
+                prep, frames, batched = self._prepare(skinning_transforms,
+                                                      affines_only=code == K.LBS)
+            except ValueError:
+                if self._unchecked:  # a bad value is named first, as the constructor would
+                    self._check_values()
+                raise
             src = self._rest("points", points, frames)
             # small results go through one reused device buffer and leave as a NumPy copy
             small = (not as_warp and frames * self.vertex_count <= _SMALL_RESULT

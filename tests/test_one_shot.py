@@ -510,6 +510,28 @@ def test_values_checked_by_the_kernel_raise_as_the_host_does(monkeypatch, method
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("transforms", ["nan", "too few joints"])
+def test_several_bad_inputs_name_the_same_one_whatever_checks_them(transforms):
+    """A bad point and bad transforms in one call: the kernel-checked call (float32 in place)
+    names the one the host-checked call names (the points, checked first as the constructor
+    does), not the transforms it uploads first."""
+    rng = np.random.default_rng(8)
+    points, idx, w, M = rig(rng, V=64)
+    points[5, 1] = np.nan
+    M = M.copy()
+    if transforms == "nan":
+        M[1, 0, 3] = np.nan
+    else:
+        M = M[:1]
+    with pytest.raises(ValueError) as kernel_checked:
+        dqskin.skin_points(points, idx, w, M, "lbs", device="cpu")
+    with pytest.raises(ValueError) as host_checked:
+        dqskin.skin_points(points.astype(np.float64), idx.astype(np.int64),
+                           w.astype(np.float64), M, "lbs", device="cpu")
+    assert str(kernel_checked.value) == str(host_checked.value)
+    assert str(kernel_checked.value).startswith("points:")
+
+
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_zero_frames_give_an_empty_result(method):
     """(0, J, 4, 4) transforms: an empty (0, V, 3) result from the one-shot call and a Skinner
