@@ -293,3 +293,21 @@ def test_pipelined_chunks_are_checked_once_by_the_check(shared_assets, tmp_path)
         with UsdCacheWriter(scene, tmp_path / "cache.usdc") as writer:
             writer.write_chunks(iter(chunks), lambda r: check_skinned("SRC", r), True)
     assert os.listdir(tmp_path) == []
+
+
+def test_vt_arrays_hold_each_frame_exactly():
+    """vec3f_arrays (copies into Vt's own storage through the buffer protocol; FromNumpy for
+    small arrays): each array equals its frame, for small and large, strided and float64 input,
+    and the arrays are independent of the input and of each other."""
+    from dqskin.formats.usd_cache import SMALL_ARRAY, vec3f_arrays
+    rng = np.random.default_rng(4)
+    for n in (0, 1, SMALL_ARRAY, SMALL_ARRAY + 1, 580):
+        frames = rng.normal(size=(5, n, 3))
+        for given in (frames.astype(np.float32), frames, frames.astype(np.float32)[::2]):
+            arrays = vec3f_arrays(given)
+            want = np.asarray(given, np.float32).copy()
+            given[...] = 7  # the arrays are copies
+            assert len(arrays) == len(want)
+            for a, w in zip(arrays, want):
+                assert isinstance(a, Vt.Vec3fArray) and len(a) == n
+                np.testing.assert_array_equal(np.asarray(a).reshape(n, 3), w)
