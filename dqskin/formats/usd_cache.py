@@ -113,20 +113,26 @@ class _Buffer(ctypes.Structure):
 
 
 def _buffer_api():
-    get, release = ctypes.pythonapi.PyObject_GetBuffer, ctypes.pythonapi.PyBuffer_Release
+    """``(PyObject_GetBuffer, PyBuffer_Release)`` through ctypes, or None (not CPython)."""
+    try:
+        get, release = ctypes.pythonapi.PyObject_GetBuffer, ctypes.pythonapi.PyBuffer_Release
+    except AttributeError:
+        return None
     get.argtypes, get.restype = [ctypes.py_object, ctypes.c_void_p, ctypes.c_int], ctypes.c_int
     release.argtypes, release.restype = [ctypes.c_void_p], None
     return get, release
+
+
+_BUFFER_API = _buffer_api()
 
 
 def _vt_addresses():
     """``address(array)`` of a Vt array's first element (its buffer is read-only to Python):
     through ``PyObject_GetBuffer`` (2 µs), else NumPy's view of it (4-5 µs); one per call of
     :func:`vec3f_arrays` (its ``Py_buffer`` is not shared between threads)."""
-    try:
-        get, release = _buffer_api()
-    except (AttributeError, TypeError):
+    if _BUFFER_API is None:
         return lambda array: np.asarray(array).__array_interface__["data"][0]
+    get, release = _BUFFER_API
     view = _Buffer()
     ref = ctypes.addressof(view)
 
