@@ -444,8 +444,9 @@ def _keys_of(animation):
     return keys
 
 
-def _motion(animation, times, interp):
-    """Local transforms, derivatives, DQs and DQ derivatives of ``animation`` at ``times``."""
+def _motion(animation, times, interp, player=None):
+    """Local transforms, derivatives, DQs and DQ derivatives of ``animation`` at ``times``;
+    ``player``: ``animation.local_transforms(times)`` when the caller has it ("trs")."""
     _check_interp(interp)
     t = check_times(times)
     local, local_dot, eta, eta_dot = _keys_of(animation).local(t, interp)
@@ -455,7 +456,8 @@ def _motion(animation, times, interp):
                          "interp='sclerp', 'dlb', 'spline' or 'catmull-rom'")
     if interp == "trs" and not isinstance(animation, KeyedAnimation):
         name = _name(animation)
-        player = np.asarray(animation.local_transforms(t), dtype=np.float64)
+        player = np.asarray(animation.local_transforms(t) if player is None else player,
+                            dtype=np.float64)
         if player.shape != local.shape:
             raise ValueError(f"{name}: local_transforms returned {player.shape}, expected "
                              f"{local.shape}")
@@ -500,7 +502,8 @@ def sample(animation: Animation, times: npt.ArrayLike,
 
 
 def sample_with_derivative(animation: Animation, times: npt.ArrayLike,
-                           interp: Interpolation = "trs") -> tuple[np.ndarray, np.ndarray]:
+                           interp: Interpolation = "trs", *, local: npt.ArrayLike | None = None
+                           ) -> tuple[np.ndarray, np.ndarray]:
     """Local joint transforms and their analytic time derivatives.
 
     Parameters
@@ -508,6 +511,9 @@ def sample_with_derivative(animation: Animation, times: npt.ArrayLike,
     animation, times, interp
         As :func:`sample`. For "trs" the animation must interpolate linearly in TRS between its
         ``key_times`` (glTF LINEAR, USD); otherwise ``ValueError``.
+    local : (F, J, 4, 4) float, optional
+        ``sample(animation, times, "trs")`` when the caller already has it (not sampled again;
+        other interpolations ignore it).
 
     Returns
     -------
@@ -516,7 +522,7 @@ def sample_with_derivative(animation: Animation, times: npt.ArrayLike,
     local_dot : (F, J, 4, 4) float64
         ``d local / dt`` per unit of the animation's time; zero outside the key range.
     """
-    local, local_dot, _, _ = _motion(animation, times, interp)
+    local, local_dot, _, _ = _motion(animation, times, interp, local)
     return local, local_dot
 
 

@@ -230,15 +230,15 @@ def skin_meshes(scene, times, method: Method | None = None, *, device: Device = 
         cache[jkey] = JointBatch([scene.skeletons[s] for s in used], device)
     joints: JointBatch = cache[jkey]
     where = dict(zip(used, joints.joints))
-    xforms = joints.skinning_transforms([scene.local_transforms(t, s, interp=interp)
-                                         for s in used])
+    local = [scene.local_transforms(t, s, interp=interp) for s in used]
+    xforms = joints.skinning_transforms(local)
     rates = None
     if velocities:
         rates = np.empty((F, joints.joint_count, 4, 4), np.float64)
-        for s in used:
+        for s, loc in zip(used, local):
             try:
                 rates[:, where[s]] = skinning_transforms_with_derivative(
-                    scene.skeletons[s], scene.skeletons[s].animation, t, interp)[1]
+                    scene.skeletons[s], scene.skeletons[s].animation, t, interp, local=loc)[1]
             except ValueError as exc:
                 raise ValueError(f"{scene.path}: {exc}") from None
     groups = {}

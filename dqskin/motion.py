@@ -139,7 +139,8 @@ def joint_twists(animation: Animation, times: npt.ArrayLike, interp: Interpolati
 
 
 def skinning_transforms_with_derivative(skeleton: Skeleton, animation: Animation | None,
-                                        times: npt.ArrayLike, interp: Interpolation = "trs"
+                                        times: npt.ArrayLike, interp: Interpolation = "trs", *,
+                                        local: npt.ArrayLike | None = None
                                         ) -> tuple[np.ndarray, np.ndarray]:
     """Bind-relative skinning transforms ``W·B⁻¹`` and their derivatives ``Ẇ·B⁻¹``, float64.
 
@@ -151,6 +152,9 @@ def skinning_transforms_with_derivative(skeleton: Skeleton, animation: Animation
     times : (F,) float
     interp : str
         As :func:`sample`.
+    local : (F, J, 4, 4) float, optional
+        The animation's local transforms at ``times`` when the caller has them
+        (:func:`~dqskin.animation.sample_with_derivative`).
 
     Returns
     -------
@@ -163,7 +167,7 @@ def skinning_transforms_with_derivative(skeleton: Skeleton, animation: Animation
         local = np.broadcast_to(rest, (t.shape[0],) + rest.shape)
         local_dot = np.zeros(local.shape)
     else:
-        local, local_dot = sample_with_derivative(animation, t, interp)
+        local, local_dot = sample_with_derivative(animation, t, interp, local=local)
     world, world_dot = forward_kinematics_derivative(skeleton.parents, local, local_dot)
     inv = skeleton.inverse_bind_transforms
     return world @ inv, world_dot @ inv

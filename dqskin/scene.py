@@ -255,11 +255,13 @@ class Scene:
         for m in self.meshes:
             s = m.skeleton
             if s not in xforms:
-                xforms[s] = self.skinning_transforms(t, s, device=device, interp=interp)
+                skel = self.skeletons[s]
+                local = self.local_transforms(t, s, interp=interp)
+                xforms[s] = skel.skinning_transforms(local, device=device)
                 if velocities:
                     try:
                         rates[s] = skinning_transforms_with_derivative(
-                            self.skeletons[s], self.skeletons[s].animation, t, interp)[1]
+                            skel, skel.animation, t, interp, local=local)[1]
                     except ValueError as exc:
                         raise ValueError(f"{self.path}: {exc}") from None
             meth = method or m.skinning_method

@@ -408,6 +408,30 @@ def test_batched_velocities_equal_the_per_mesh_ones(tmp_path, method, device):
                                atol=2e-5 * np.abs(one).max())
 
 
+def test_velocities_sample_the_animation_once(tmp_path):
+    """Scene.skin with velocities samples each skeleton's animation once per call (the joint
+    derivatives take the transforms already sampled), one mesh or two, with the same result."""
+    import dataclasses
+    path = build_rig(tmp_path / "rig.usda", normal_offsets=True)
+    scene = load_usd(path)
+    (m,) = scene.meshes
+    pair = dataclasses.replace(scene, meshes=[m, dataclasses.replace(m, name=m.name + "_2")])
+    pair._skinners = {}
+    t = np.array([0.3, 1.0, 2.45])
+    want = scene.skin(t, velocities=True).velocities[m.name]  # (the keys decomposed once)
+    for sc in (scene, pair):
+        anim = sc.skeletons[0].animation
+        calls = []
+        real = anim.local_transforms
+        anim.local_transforms = lambda times: calls.append(len(times)) or real(times)
+        try:
+            vel = sc.skin(t, velocities=True).velocities[m.name]
+        finally:
+            del anim.local_transforms
+        assert calls == [3]
+        np.testing.assert_allclose(vel, want, rtol=1e-6, atol=1e-6)
+
+
 def test_blend_shape_rest_points_follow_the_definition(tmp_path):
     """Sub-shape weights as the UsdSkel docs define them, summed with NumPy.
 
