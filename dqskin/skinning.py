@@ -445,10 +445,14 @@ class Skinner:
             try:
                 prep, frames, batched = self._prepare(skinning_transforms,
                                                       affines_only=code == K.LBS)
-            except ValueError:
-                if self._unchecked:  # a bad value is named first, as the constructor would
-                    self._check_values()
-                raise
+            except ValueError as exc:
+                if not self._unchecked:
+                    raise
+                # in the host-checked order: a bad value first (as the constructor names it),
+                # then the transforms and the joint count they give (index range now known)
+                self._check_values()
+                self._prepare(skinning_transforms, affines_only=code == K.LBS)
+                raise exc
             src = self._rest("points", points, frames)
             # small results go through one reused device buffer and leave as a NumPy copy
             small = (not as_warp and frames * self.vertex_count <= _SMALL_RESULT

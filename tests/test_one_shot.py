@@ -510,26 +510,31 @@ def test_values_checked_by_the_kernel_raise_as_the_host_does(monkeypatch, method
         np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("transforms", ["nan", "too few joints"])
-def test_several_bad_inputs_name_the_same_one_whatever_checks_them(transforms):
-    """A bad point and bad transforms in one call: the kernel-checked call (float32 in place)
-    names the one the host-checked call names (the points, checked first as the constructor
-    does), not the transforms it uploads first."""
+@pytest.mark.parametrize("point", ["nan", "fine"])
+@pytest.mark.parametrize("transforms", ["nan", "too few joints", "no joints"])
+def test_several_bad_inputs_name_the_same_one_whatever_checks_them(transforms, point):
+    """Bad transforms, with or without a bad point, in one call: the kernel-checked call
+    (float32 in place) names what the host-checked call names (a bad point first, as the
+    constructor does; then the transforms; then the index range they leave), not the transforms
+    it uploads first nor its own joint-count message."""
     rng = np.random.default_rng(8)
     points, idx, w, M = rig(rng, V=64)
-    points[5, 1] = np.nan
+    if point == "nan":
+        points[5, 1] = np.nan
     M = M.copy()
     if transforms == "nan":
         M[1, 0, 3] = np.nan
     else:
-        M = M[:1]
+        M = M[:1] if transforms == "too few joints" else M[:0]
     with pytest.raises(ValueError) as kernel_checked:
         dqskin.skin_points(points, idx, w, M, "lbs", device="cpu")
     with pytest.raises(ValueError) as host_checked:
         dqskin.skin_points(points.astype(np.float64), idx.astype(np.int64),
                            w.astype(np.float64), M, "lbs", device="cpu")
     assert str(kernel_checked.value) == str(host_checked.value)
-    assert str(kernel_checked.value).startswith("points:")
+    first = {"nan": "points:"}.get(point) or {"nan": "skinning_transforms:"}.get(transforms,
+                                                                               "joint_indices:")
+    assert str(kernel_checked.value).startswith(first)
 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])

@@ -295,11 +295,17 @@ def test_pipelined_chunks_are_checked_once_by_the_check(shared_assets, tmp_path)
     assert os.listdir(tmp_path) == []
 
 
-def test_vt_arrays_hold_each_frame_exactly():
+def test_vt_arrays_hold_each_frame_exactly(monkeypatch):
     """vec3f_arrays (copies into Vt's own storage through the buffer protocol; FromNumpy for
     small arrays): each array equals its frame, for small and large, strided and float64 input,
-    and the arrays are independent of the input and of each other."""
+    and the arrays are independent of the input and of each other; another module typing
+    ctypes.pythonapi's buffer functions its own way changes nothing."""
+    import ctypes
+
     from dqskin.formats.usd_cache import SMALL_ARRAY, vec3f_arrays
+    shared = ctypes.pythonapi.PyObject_GetBuffer
+    monkeypatch.setattr(shared, "argtypes", [ctypes.py_object, ctypes.POINTER(ctypes.c_char),
+                                             ctypes.c_int])
     rng = np.random.default_rng(4)
     for n in (0, 1, SMALL_ARRAY, SMALL_ARRAY + 1, 580):
         frames = rng.normal(size=(5, n, 3))

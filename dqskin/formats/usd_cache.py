@@ -113,13 +113,15 @@ class _Buffer(ctypes.Structure):
 
 
 def _buffer_api():
-    """``(PyObject_GetBuffer, PyBuffer_Release)`` through ctypes, or None (not CPython)."""
+    """``(PyObject_GetBuffer, PyBuffer_Release)`` through ctypes prototypes of our own (typing
+    the shared ``ctypes.pythonapi`` functions would change them for every other module), or
+    None (not CPython)."""
     try:
-        get, release = ctypes.pythonapi.PyObject_GetBuffer, ctypes.pythonapi.PyBuffer_Release
-    except AttributeError:
+        get = ctypes.PYFUNCTYPE(ctypes.c_int, ctypes.py_object, ctypes.c_void_p, ctypes.c_int)(
+            ("PyObject_GetBuffer", ctypes.pythonapi))
+        release = ctypes.PYFUNCTYPE(None, ctypes.c_void_p)(("PyBuffer_Release", ctypes.pythonapi))
+    except (AttributeError, TypeError):
         return None
-    get.argtypes, get.restype = [ctypes.py_object, ctypes.c_void_p, ctypes.c_int], ctypes.c_int
-    release.argtypes, release.restype = [ctypes.c_void_p], None
     return get, release
 
 
