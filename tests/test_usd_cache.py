@@ -317,3 +317,18 @@ def test_vt_arrays_hold_each_frame_exactly(monkeypatch):
             for a, w in zip(arrays, want):
                 assert isinstance(a, Vt.Vec3fArray) and len(a) == n
                 np.testing.assert_array_equal(np.asarray(a).reshape(n, 3), w)
+
+
+def test_vt_arrays_from_several_threads_at_once():
+    """vec3f_arrays on four threads at once (a bake's values thread beside other writers): each
+    call's arrays hold exactly its own frames."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from dqskin.formats.usd_cache import vec3f_arrays
+    rng = np.random.default_rng(9)
+    inputs = [rng.normal(size=(200, 700, 3)).astype(np.float32) for _ in range(8)]
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(vec3f_arrays, inputs))
+    for frames, arrays in zip(inputs, results):
+        got = np.stack([np.asarray(a).reshape(700, 3) for a in arrays])
+        np.testing.assert_array_equal(got, frames)
