@@ -356,7 +356,8 @@ class Skinner:
 
     def _prepare(self, skinning_transforms, kind="points", derivatives=None, affines_only=False):
         """Per-joint data for ``kind`` ("points", "vectors", "derivatives" with ``derivatives``);
-        ``affines_only``: only the 3×4 affines of ``prep["joints"]`` (LBS points)."""
+        ``affines_only``: only what LBS reads (the 3×4 affines of ``prep["joints"]`` and of the
+        rates, the linear parts and their inverse transposes for directions)."""
         x, batched = self._upload_transforms("skinning_transforms", skinning_transforms)
         frames, joints = x.shape
         self.influences.check_joint_count(joints)
@@ -368,12 +369,13 @@ class Skinner:
                                  f"skinning_transform_derivatives {xd.shape} must have the same "
                                  "shape")
             prep["rates"] = self._buffers("rates", frames, joints)
-            KV.prepare(xforms=x, xform_derivatives=xd, device=self.device, **prep)
+            KV.prepare(xforms=x, xform_derivatives=xd, device=self.device,
+                       affines_only=affines_only, **prep)
             return prep, frames, batched
         K.prepare_points(xforms=x, device=self.device, affines_only=affines_only, **prep)
         if kind == "vectors":
             vec = self._buffers("vectors", frames, joints)
-            K.prepare_vectors(xforms=x, device=self.device, **vec)
+            K.prepare_vectors(xforms=x, device=self.device, linears_only=affines_only, **vec)
             prep.update(vec)
         return prep, frames, batched
 
@@ -513,7 +515,8 @@ class Skinner:
         with self._lock:
             code = self._check_method(method, points=False)
             inf = self._influences(K.DQS if code == K.COR else code, sign_reference)
-            prep, frames, batched = self._prepare(skinning_transforms, "vectors")
+            prep, frames, batched = self._prepare(skinning_transforms, "vectors",
+                                                  affines_only=code == K.LBS)
             vec, _ = frames_of("vectors", vectors, frames, finite=True)
             n = vec.shape[1]
             if vector_vertex is None:
@@ -582,7 +585,8 @@ class Skinner:
             code = self._check_method(method)
             inf = self._influences(code, sign_reference)
             prep, frames, batched = self._prepare(skinning_transforms, "derivatives",
-                                                  skinning_transform_derivatives)
+                                                  skinning_transform_derivatives,
+                                                  affines_only=code == K.LBS)
             src = self._rest("points", points, frames)
             vel = (None if point_velocities is None else
                    self._rest("point_velocities", point_velocities, frames, linear=True))

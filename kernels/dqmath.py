@@ -195,6 +195,14 @@ def dq_to_matrix(a: vec8):
 
 
 @wp.func
+def mat44_affine(m: wp.mat44):
+    """The top three rows of ``m`` (a 3×4 affine)."""
+    return mat34(m[0, 0], m[0, 1], m[0, 2], m[0, 3],
+                 m[1, 0], m[1, 1], m[1, 2], m[1, 3],
+                 m[2, 0], m[2, 1], m[2, 2], m[2, 3])
+
+
+@wp.func
 def mat44_linear(m: wp.mat44):
     """Upper-left 3×3 (linear part) of a 4×4 matrix."""
     return wp.mat33(m[0, 0], m[0, 1], m[0, 2],

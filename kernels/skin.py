@@ -60,6 +60,7 @@ from .dqmath import (
     dq_sign,
     is_identity33,
     mat34,
+    mat44_affine,
     mat44_linear,
     orthonormalize_columns,
     polar_rotation,
@@ -142,9 +143,7 @@ def _prepare_points_kernel(affines_only, name):
         f = r // xforms.shape[1]
         j = r - f * xforms.shape[1]
         m = xforms[f, j]
-        affines[f, j] = mat34(m[0, 0], m[0, 1], m[0, 2], m[0, 3],
-                              m[1, 0], m[1, 1], m[1, 2], m[1, 3],
-                              m[2, 0], m[2, 1], m[2, 2], m[2, 3])
+        affines[f, j] = mat44_affine(m)
         if wp.static(not affines_only):
             prepare_split(f, j, m, dqs, residuals, has_residual)
 
@@ -190,35 +189,47 @@ prepare_points_kernel = _prepare_points_kernel(False, "prepare_points_kernel")
 prepare_affines_kernel = _prepare_points_kernel(True, "prepare_affines_kernel")
 
 
-@wp.kernel
-def prepare_vectors_kernel(
-    xforms: wp.array2d(dtype=wp.mat44),
-    # outputs
-    linears: wp.array2d(dtype=wp.mat33),
-    rotations: wp.array2d(dtype=wp.quat),
-    normal_linears: wp.array2d(dtype=wp.mat33),
-    normal_residuals: wp.array2d(dtype=wp.mat33),
-    normal_rotations: wp.array2d(dtype=wp.quat),
-):
-    """Per (frame, joint) matrices for directions. Tangents: the linear part ``A`` and its polar
-    rotation (Warp quaternion). Normals:
-    ``N = A⁻ᵀ`` split as UsdSkel does, ``N = Rn·(Rnᵀ·N)`` with ``Rn`` from
-    :func:`orthonormalize_columns`."""
-    f, j = wp.tid()
-    a = mat44_linear(xforms[f, j])
-    linears[f, j] = a
-    if wp.abs(wp.determinant(a)) < FACTOR_EPSILON:  # no inverse: adds nothing, as for points
-        rotations[f, j] = wp.quat(0.0, 0.0, 0.0, 0.0)
-        normal_linears[f, j] = wp.mat33()
-        normal_residuals[f, j] = wp.identity(n=3, dtype=float)
-        normal_rotations[f, j] = wp.quat(0.0, 0.0, 0.0, 0.0)
-        return
-    rotations[f, j] = quat_from_rotation(polar_rotation(a))
-    n = wp.transpose(wp.inverse(a))
-    rn = orthonormalize_columns(n)
-    normal_linears[f, j] = n
-    normal_residuals[f, j] = wp.transpose(rn) * n
-    normal_rotations[f, j] = quat_from_rotation(rn)
+def _prepare_vectors_kernel(linears_only, name):
+    """The per-(frame, joint) matrices for directions, with (False) or without (True, all LBS
+    reads: ``A`` and ``A⁻ᵀ``) the rotations, fixed at compile time."""
+
+    def kernel(
+        xforms: wp.array2d(dtype=wp.mat44),
+        # outputs
+        linears: wp.array2d(dtype=wp.mat33),
+        rotations: wp.array2d(dtype=wp.quat),
+        normal_linears: wp.array2d(dtype=wp.mat33),
+        normal_residuals: wp.array2d(dtype=wp.mat33),
+        normal_rotations: wp.array2d(dtype=wp.quat),
+    ):
+        f, j = wp.tid()
+        a = mat44_linear(xforms[f, j])
+        linears[f, j] = a
+        if wp.abs(wp.determinant(a)) < FACTOR_EPSILON:  # no inverse: adds nothing, as points
+            normal_linears[f, j] = wp.mat33()
+            if wp.static(not linears_only):
+                rotations[f, j] = wp.quat(0.0, 0.0, 0.0, 0.0)
+                normal_residuals[f, j] = wp.identity(n=3, dtype=float)
+                normal_rotations[f, j] = wp.quat(0.0, 0.0, 0.0, 0.0)
+            return
+        n = wp.transpose(wp.inverse(a))
+        normal_linears[f, j] = n
+        if wp.static(not linears_only):
+            rotations[f, j] = quat_from_rotation(polar_rotation(a))
+            rn = orthonormalize_columns(n)
+            normal_residuals[f, j] = wp.transpose(rn) * n
+            normal_rotations[f, j] = quat_from_rotation(rn)
+
+    kernel.__doc__ = ("""Per (frame, joint) matrices for directions. Tangents: the linear part
+    ``A`` and its polar rotation (Warp quaternion). Normals: ``N = A⁻ᵀ`` split as UsdSkel does,
+    ``N = Rn·(Rnᵀ·N)`` with ``Rn`` from :func:`orthonormalize_columns`.""" if not linears_only
+                      else "Per (frame, joint): ``A`` and ``N = A⁻ᵀ`` only (what LBS reads); the "
+                      "rotations and normal residuals are left as they were.")
+    return wp.kernel(kernel, name=name)
+
+
+prepare_vectors_kernel = _prepare_vectors_kernel(False, "prepare_vectors_kernel")
+prepare_linears_kernel = _prepare_vectors_kernel(True, "prepare_linears_kernel")
 
 
 @wp.func
@@ -650,9 +661,11 @@ def prepare_points(*, xforms, joints, device, affines_only=False):
 
 
 def prepare_vectors(*, xforms, linears, rotations, normal_linears, normal_residuals,
-                    normal_rotations, device):
-    """Per (frame, joint) data of :func:`skin_vectors` (see :func:`prepare_vectors_kernel`)."""
-    launch(prepare_vectors_kernel, xforms.shape, [xforms],
+                    normal_rotations, device, linears_only=False):
+    """Per (frame, joint) data of :func:`skin_vectors` (see :func:`prepare_vectors_kernel`);
+    ``linears_only``: ``linears`` and ``normal_linears`` only (all LBS reads)."""
+    kernel = prepare_linears_kernel if linears_only else prepare_vectors_kernel
+    launch(kernel, xforms.shape, [xforms],
            [linears, rotations, normal_linears, normal_residuals, normal_rotations], device)
 
 

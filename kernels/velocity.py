@@ -31,6 +31,7 @@ from .dqmath import (
     dq_sign,
     is_identity33,
     mat34,
+    mat44_affine,
     mat44_linear,
     polar_rotation,
     quat_from_rotation,
@@ -82,9 +83,7 @@ def prepare_derivatives_kernel(
     f, j = wp.tid()
     m = xforms[f, j]
     md = xform_derivatives[f, j]
-    affine_derivatives[f, j] = mat34(md[0, 0], md[0, 1], md[0, 2], md[0, 3],
-                                     md[1, 0], md[1, 1], md[1, 2], md[1, 3],
-                                     md[2, 0], md[2, 1], md[2, 2], md[2, 3])
+    affine_derivatives[f, j] = mat44_affine(md)
     a = mat44_linear(m)
     if wp.abs(wp.determinant(a)) < FACTOR_EPSILON:  # a zero DQ in the blend, as skinning
         dq_derivatives[f, j] = vec8()
@@ -109,6 +108,18 @@ def prepare_derivatives_kernel(
     residual_derivatives[f, j] = s_dot
     if not is_identity33(s_dot + wp.identity(n=3, dtype=float), RESIDUAL_TOLERANCE):
         wp.atomic_max(has_residual, f, 1)
+
+
+@wp.kernel
+def prepare_affine_rates_kernel(
+    xform_derivatives: wp.array2d(dtype=wp.mat44),
+    # outputs
+    affine_derivatives: wp.array2d(dtype=mat34),
+):
+    """Per (frame, joint): ``Ȧ`` as 3×4 only, all LBS reads (the DQS rates are left as they
+    were)."""
+    f, j = wp.tid()
+    affine_derivatives[f, j] = mat44_affine(xform_derivatives[f, j])
 
 
 @wp.func
@@ -253,9 +264,14 @@ def joint_rates(*, affines, dqs, residuals):
     return r
 
 
-def prepare(*, xforms, xform_derivatives, joints, rates, device):
-    """Fill ``joints`` and ``rates`` from the (F, J) ``wp.mat44`` transforms and derivatives."""
-    prepare_points(xforms=xforms, joints=joints, device=device)
+def prepare(*, xforms, xform_derivatives, joints, rates, device, affines_only=False):
+    """Fill ``joints`` and ``rates`` from the (F, J) ``wp.mat44`` transforms and derivatives;
+    ``affines_only``: their 3×4 affines only (all LBS reads)."""
+    prepare_points(xforms=xforms, joints=joints, device=device, affines_only=affines_only)
+    if affines_only:
+        launch(prepare_affine_rates_kernel, xforms.shape, [xform_derivatives], [rates.affines],
+               device)
+        return
     launch(prepare_derivatives_kernel, xforms.shape, [xforms, xform_derivatives],
            [rates.affines, rates.dqs, rates.residuals, joints.has_residual], device)
 
