@@ -184,13 +184,13 @@ def run_chunk(job: ChunkJob, scene=None) -> dict:
     and ``peak_rss_mb``."""
     t0, c0 = time.perf_counter(), time.process_time()
     scene = _worker_scene(job.source) if scene is None else scene
-    layer = usd_clips.new_clip_layer(job.time_codes_per_second)
-    _sample_writer(scene, job).write_chunks(
-        layer, (res for _, res in scene.skin_chunks(job.times, _piece_frames(scene, job.skin),
-                                                     **job.skin)),
-        lambda res: check_skinned(scene.path, res), checked=True)
-    digest = usd_clips.write_clip(layer, job.path, job.key, job.times)
-    del layer
+    with usd_clips.ClipLayer(job.path, job.time_codes_per_second) as layer:
+        _sample_writer(scene, job).write_chunks(
+            layer.samples,
+            (res for _, res in scene.skin_chunks(job.times, _piece_frames(scene, job.skin),
+                                                 **job.skin)),
+            lambda res: check_skinned(scene.path, res), checked=True)
+        digest = usd_clips.write_clip(layer, job.key, job.times)
     return _result(job, digest, t0, c0)
 
 
@@ -199,9 +199,10 @@ def run_here(jobs: list, scene, done) -> None:
     :func:`run_chunk`'s), pipelined across chunks instead of :func:`run_chunk` one by one: one
     :meth:`dqskin.Scene.skin_chunks` stream of pieces (:data:`PIECE_BYTES`) over all their
     frames keeps skinning (the first piece of chunk ``k + 1`` while chunk ``k``'s layer is
-    exported), and chunk ``k``'s layer is hashed on another thread while chunk ``k + 1``'s is
+    finished), and chunk ``k``'s layer is hashed on another thread while chunk ``k + 1``'s is
     filled, then recorded and renamed (:func:`~.formats.usd_clips.commit_clip`) before that one
-    is exported. Memory is as :func:`run_chunk`'s: one clip layer and two pieces.
+    is finished. Memory is as :func:`run_chunk`'s: two pieces (a clip layer goes to its file as
+    it fills).
 
     On an error or interrupt while chunk ``k + 1`` is filled, chunk ``k`` is still recorded and
     renamed if its hash finished without error (as the one-by-one bake would have had it), then
@@ -214,18 +215,19 @@ def run_here(jobs: list, scene, done) -> None:
     stream = scene.skin_chunks(np.concatenate([j.times for j in jobs]),
                                [n for p in pieces for n in p], **jobs[0].skin)
     pending = None  # (job, claim, digest future, start) of the exported, unrecorded layer
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-clip-hash") as hasher:
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-clip-hash") as hasher, \
+            ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values") as values:
         try:
             start = time.perf_counter(), time.process_time()
             for job, p in zip(jobs, pieces):
-                layer = usd_clips.new_clip_layer(job.time_codes_per_second)
-                writer.write_chunks(layer, (next(stream)[1] for _ in p),
-                                    lambda r: check_skinned(scene.path, r), checked=True)
-                if pending is not None:
-                    finished, pending = pending, None
-                    done(_commit(*finished))
-                claim = usd_clips.export_clip(layer, job.path, job.times)
-                del layer
+                with usd_clips.ClipLayer(job.path, job.time_codes_per_second) as layer:
+                    writer.write_chunks(layer.samples, (next(stream)[1] for _ in p),
+                                        lambda r: check_skinned(scene.path, r), checked=True,
+                                        executor=values)
+                    if pending is not None:
+                        finished, pending = pending, None
+                        done(_commit(*finished))
+                    claim = layer.finish(job.times)
                 pending = (job, claim, hasher.submit(usd_clips.sha256_file, claim.tmp), start)
                 start = time.perf_counter(), time.process_time()
             if pending is not None:

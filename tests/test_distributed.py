@@ -129,7 +129,7 @@ def test_external_scheduler_and_workers_on_localhost(reference, external_cluster
 
 def test_a_worker_killed_mid_chunk_is_replaced_and_the_bake_completes(reference, external_cluster,
                                                                        tmp_path):
-    """A worker plugin makes the first worker that has exported a clip layer to its temporary
+    """A worker plugin makes the first worker that has finished a clip layer in its temporary
     file SIGKILL itself before the rename; its nanny starts a new worker process and Dask reruns
     that chunk. (The plugin is removed afterwards, its patch undone.)"""
     from distributed import Client, WorkerPlugin
@@ -140,21 +140,21 @@ def test_a_worker_killed_mid_chunk_is_replaced_and_the_bake_completes(reference,
         name = "kill-once-mid-chunk"
 
         def setup(self, worker):
-            from dqskin.formats import usd_clips
-            export = self.export = usd_clips.export_layer
+            from dqskin.formats.usd_clips import ClipLayer
+            finish = self.finish = ClipLayer.finish
 
-            def export_then_die(layer, claim, out=None):
-                tmp = export(layer, claim, out)
+            def finish_then_die(layer, times):
+                claim = finish(layer, times)
                 try:
                     os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
                 except FileExistsError:
-                    return tmp
+                    return claim
                 os.kill(os.getpid(), signal.SIGKILL)  # the layer is only in its temporary file
-            usd_clips.export_layer = export_then_die
+            ClipLayer.finish = finish_then_die
 
         def teardown(self, worker):
-            from dqskin.formats import usd_clips
-            usd_clips.export_layer = self.export
+            from dqskin.formats.usd_clips import ClipLayer
+            ClipLayer.finish = self.finish
 
     shot = tmp_path / "shot.usd"
     with Client(external_cluster, timeout="30s") as client:

@@ -16,6 +16,7 @@ source and where each skinned value goes in it, as picklable :class:`Target` rec
 own, or a clip layer made on a worker that never opens the source stage).
 """
 
+import contextlib
 import ctypes
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -26,6 +27,7 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
 from ..shapes import frames_of
 from .atomic import atomic_path, check_parent
+from .crate import CrateSamples
 from .usd import load_rigid_prims, rigid_transforms
 
 __all__ = ["CACHE_EXTENSIONS", "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter",
@@ -402,7 +404,9 @@ def export_layer(layer, claim, out=None):
 
 
 class SampleWriter:
-    """Checked chunks of skinned frames → time samples in a layer.
+    """Checked chunks of skinned frames → time samples in a layer: an ``Sdf.Layer`` (the
+    single-layer cache: one ``Vt`` array per frame and attribute, set under the GIL) or a
+    :class:`~.crate.CrateSamples` (a clip layer: the frames go to its file as they come).
 
     Parameters
     ----------
@@ -431,13 +435,14 @@ class SampleWriter:
             pad = self._pads[name] = self.target(name, "points").pad
         return pad
 
-    def prepare(self, times, points, normals=None, velocities=None, checked=False):
+    def prepare(self, times, points, normals=None, velocities=None, checked=False, raw=False):
         """Check a chunk (see :meth:`UsdCacheWriter.write`) and turn it into USD values, touching
         no layer (so it can run on another thread than :meth:`apply`): returns the checked
-        float64 times and ``[((prim, what), values)]``, one Vt array or Gf matrix per time.
-        ``checked``: the caller has checked that every value is finite
-        (:func:`dqskin.validation.check_skinned`): float32 arrays are not checked again (others
-        are, as float32); shapes are always checked."""
+        float64 times and ``[((prim, what), values)]``, one Vt array or Gf matrix per time, or
+        with ``raw`` the frames as arrays ((F, N, 3) float32; (F, 4, 4) float64 column-vector
+        matrices) for a :class:`~.crate.CrateSamples`. ``checked``: the caller has checked that
+        every value is finite (:func:`dqskin.validation.check_skinned`): float32 arrays are not
+        checked again (others are, as float32); shapes are always checked."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)):
             raise ValueError(f"times: expected a non-empty 1-D array of finite time codes, "
@@ -462,25 +467,33 @@ class SampleWriter:
             nrm[n] = _frames(n, "normals", v, F, meshes[n].normals.shape[0], finite(v))
         vel = {n: _frames(n, "velocities", v, F, meshes[n].points.shape[0], finite(v))
                for n, v in velocities.items()}
+        convert = (lambda a: a) if raw else vec3f_arrays
         values = []
         for name in sorted(set(pts) | set(nrm) | set(vel)):
             if name in pts:
                 p = pts[name]
-                values.append(((name, "points"), vec3f_arrays(p)))
-                values.append(((name, "extent"), vec3f_arrays(_extents(p, self._pad(name)))))
+                values.append(((name, "points"), convert(p)))
+                values.append(((name, "extent"), convert(_extents(p, self._pad(name)))))
             if name in nrm:
-                values.append(((name, "normals"), vec3f_arrays(nrm[name])))
+                values.append(((name, "normals"), convert(nrm[name])))
             if name in vel:
-                values.append(((name, "velocities"), vec3f_arrays(vel[name])))
+                values.append(((name, "velocities"), convert(vel[name])))
         for r in self.rigid:
             xf = rigid_transforms(self.scene, r, t, self.method, device=self.device,
                                   interp=self.interp, sign_reference=self.sign_reference)
-            values.append(((r.name, "xformOp:transform"), [Gf.Matrix4d(m.T.tolist()) for m in xf]))
+            values.append(((r.name, "xformOp:transform"),
+                           xf if raw else [Gf.Matrix4d(m.T.tolist()) for m in xf]))
         return t, values
 
     def apply(self, layer, prepared):
-        """Set the samples :meth:`prepare` made in ``layer``; returns their times."""
+        """Set the samples :meth:`prepare` made in ``layer`` (raw for a
+        :class:`~.crate.CrateSamples`); returns their times."""
         t, values = prepared
+        if isinstance(layer, CrateSamples):
+            for (name, what), vals in values:
+                target = self.target(name, what)
+                layer.add(target.attr, target.type_name, t, vals, target.info)
+            return t
         times = t.tolist()
         with Sdf.ChangeBlock():
             for (name, what), vals in values:
@@ -492,24 +505,32 @@ class SampleWriter:
     def write(self, layer, times, points, normals=None, velocities=None):
         """Add samples at ``times`` to ``layer`` (see :meth:`UsdCacheWriter.write`); returns the
         checked times as float64."""
-        return self.apply(layer, self.prepare(times, points, normals, velocities))
+        return self.apply(layer, self.prepare(times, points, normals, velocities,
+                                              raw=isinstance(layer, CrateSamples)))
 
-    def write_chunks(self, layer, chunks, check=None, checked=False):
+    def write_chunks(self, layer, chunks, check=None, checked=False, executor=None):
         """Write every :class:`dqskin.scene.SkinnedFrames` of the iterable ``chunks`` to
         ``layer``, pipelined: chunk ``k + 1`` is checked (``check(frames)``, then
         :meth:`prepare`) on a helper thread while chunk ``k``'s samples are set here (NumPy and
-        the copies into Vt arrays release the GIL; setting samples does not). ``checked``:
+        the copies into Vt arrays release the GIL; setting samples in an Sdf layer does not,
+        writing them to a crate file does). ``checked``:
         ``check`` raises for every NaN or infinite value
         (:func:`dqskin.validation.check_skinned`), so :meth:`prepare` does not look again.
+        ``executor``: a one-thread executor for the helper (a caller writing many layers passes
+        its own: starting a thread per layer costs a GIL hand-over); by default one is made.
         Returns the ``(min, max)`` time written (``(inf, -inf)`` for no chunk)."""
+        raw = isinstance(layer, CrateSamples)
+
         def prep(res):
             if check is not None:
                 check(res)
             return self.prepare(res.times, res.points, res.normals, res.velocities,
-                                checked=checked and check is not None)
+                                checked=checked and check is not None, raw=raw)
 
         lo, hi = np.inf, -np.inf
-        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values") as ex:
+        with contextlib.ExitStack() as stack:
+            ex = executor or stack.enter_context(
+                ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values"))
             pending = None
             try:
                 for res in chunks:

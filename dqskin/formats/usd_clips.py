@@ -7,7 +7,9 @@ For ``--out SHOT.usd`` (any of ``.usd/.usdc/.usda``) a clip bake writes::
                                  ``clips`` metadata on each root prim above a skinned prim
     SHOT.clips/plan.json         what is baked: source, times, chunking, options, and their key
     SHOT.clips/manifest.usda     the clip manifest: the attributes the clips hold
-    SHOT.clips/chunk_00000.usdc  one chunk's time samples (:class:`~.usd_cache.SampleWriter`)
+    SHOT.clips/chunk_00000.usdc  one chunk's time samples, streamed into a crate file as they
+                                 are skinned (:class:`~.usd_cache.SampleWriter` into a
+                                 :class:`~.crate.CrateSamples`: no Sdf layer, no Vt arrays)
     SHOT.clips/chunk_00000.json  its SHA-256, size and the plan key
 
 USD never interpolates across clips: between the last sample of one clip and the first of the
@@ -18,10 +20,10 @@ two chunks is interpolated within clip ``k`` exactly as in one layer. The top le
 default value on the clip-driven attributes (a default authored there would be stronger than
 every clip), so those attributes have no value at the ``Default`` time code.
 
-Each clip layer is written beside its final name and renamed into place only when complete,
-after its checksum record (:func:`write_clip`); :meth:`ClipBake.pending` verifies the chunks a
-previous run left (``resume``). :func:`flatten` turns a clip cache into one layer for tools that
-do not read clips.
+Each clip layer is written beside its final name (:class:`ClipLayer`) and renamed into place
+only when complete, after its checksum record (:func:`write_clip`); :meth:`ClipBake.pending`
+verifies the chunks a previous run left (``resume``). :func:`flatten` turns a clip cache into
+one layer for tools that do not read clips.
 """
 
 import contextlib
@@ -36,10 +38,11 @@ import numpy as np
 from pxr import Sdf, Usd, Vt
 
 from .atomic import atomic_path, check_interrupted
+from .crate import CrateSamples
 from .usd_cache import CacheLayer, export_layer
 
-__all__ = ["CLIPS_FOLDER_SUFFIX", "ClipBake", "chunk_bounds", "clips_folder", "commit_clip",
-           "export_clip", "flatten", "new_clip_layer", "sha256_file", "verify_chunk", "write_clip"]
+__all__ = ["CLIPS_FOLDER_SUFFIX", "ClipBake", "ClipLayer", "chunk_bounds", "clips_folder",
+           "commit_clip", "flatten", "sha256_file", "verify_chunk", "write_clip"]
 
 CLIPS_FOLDER_SUFFIX = ".clips"
 """``SHOT.usd`` → ``SHOT.clips/``."""
@@ -82,40 +85,58 @@ def _write_json(path, data, overwrite=True):
         Path(tmp).write_text(json.dumps(data, indent=1) + "\n")
 
 
-def new_clip_layer(time_codes_per_second: float):
-    """An empty in-memory layer for one chunk (same frame rate as the top level)."""
-    layer = Sdf.Layer.CreateAnonymous(".usdc")
-    layer.timeCodesPerSecond = layer.framesPerSecond = float(time_codes_per_second)
-    return layer
+class ClipLayer:
+    """One chunk's clip layer while it is written: its :class:`~.crate.CrateSamples` (``samples``,
+    for :meth:`~.usd_cache.SampleWriter.write_chunks`) in the temporary file of its claim
+    (``claim``, an :class:`~.atomic.atomic_path` beside ``path``).
+
+    :meth:`finish` completes the file and returns the claim for :func:`commit_clip`;
+    :meth:`discard` (or leaving the ``with`` block on an exception) removes it."""
+
+    def __init__(self, path, time_codes_per_second: float):
+        self.claim = atomic_path(Path(path), overwrite=True)
+        try:
+            self.samples = CrateSamples(self.claim.open(), time_codes_per_second)
+        except BaseException:
+            self.claim.discard()
+            raise
+
+    def finish(self, times):
+        """Close the layer (its time range from ``times``); returns the claim holding it."""
+        times = np.asarray(times, np.float64)
+        try:
+            self.samples.close(times[0], times[-1])
+        except BaseException:
+            self.discard()
+            raise
+        return self.claim
+
+    def discard(self) -> None:
+        """Close and remove the unfinished layer."""
+        self.samples.abort()
+        self.claim.discard()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is not None:
+            self.discard()
+        return False
 
 
-def write_clip(layer, path, key: str, times) -> str:
-    """Write one chunk's ``layer`` to ``path``: export beside it, record its SHA-256 in
-    ``path.json``, then rename it into place (:func:`export_clip`, then :func:`commit_clip`).
-    Returns the checksum.
+def write_clip(layer: ClipLayer, key: str, times) -> str:
+    """Finish one chunk's ``layer``, record its SHA-256 in ``path.json``, then rename it into
+    place (:meth:`ClipLayer.finish`, then :func:`commit_clip`). Returns the checksum.
 
     A process killed at any point leaves either no layer under ``path`` or one whose record
     does not match it (the record was replaced first), which :func:`verify_chunk` rejects.
     """
-    return commit_clip(export_clip(layer, path, times), key, times)
-
-
-def export_clip(layer, path, times):
-    """Export one chunk's ``layer`` beside ``path`` (its time range set from ``times``); returns
-    the claim (:class:`~.atomic.atomic_path`) holding it, for :func:`commit_clip`."""
-    times = np.asarray(times, np.float64)
-    layer.startTimeCode, layer.endTimeCode = float(times[0]), float(times[-1])
-    claim = atomic_path(Path(path), overwrite=True)
-    try:
-        export_layer(layer, claim)
-    except BaseException:
-        claim.discard()
-        raise
-    return claim
+    return commit_clip(layer.finish(times), key, times)
 
 
 def commit_clip(claim, key: str, times, digest: str | None = None) -> str:
-    """Record the SHA-256 of the layer :func:`export_clip` left in ``claim`` (``path.json``,
+    """Record the SHA-256 of the layer :meth:`ClipLayer.finish` left in ``claim`` (``path.json``,
     with ``key``), then rename it into place. ``digest``: that file's SHA-256 if already known
     (:func:`sha256_file`, which needs no layer nor the main thread, so it can run while the next
     chunk is baked). Returns the checksum."""

@@ -1,0 +1,169 @@
+"""dqskin.formats.crate: crate files written without Sdf, read back by usd-core (the oracle):
+the same layer built with Sdf and exported must read identically, as text and value by value."""
+
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+
+from dqskin.formats.crate import VALUE_TYPES, CrateSamples
+
+RNG = np.random.default_rng(7)
+
+
+def _sdf_layer(tcps, start, end, attrs):
+    """The same samples written through Sdf (what the writer replaces)."""
+    layer = Sdf.Layer.CreateAnonymous(".usdc")
+    layer.timeCodesPerSecond = layer.framesPerSecond = tcps
+    layer.startTimeCode, layer.endTimeCode = start, end
+    for path, type_name, times, values, info in attrs:
+        p = Sdf.Path(path)
+        prim = (layer.GetPrimAtPath(p.GetPrimPath())
+                or Sdf.CreatePrimInLayer(layer, p.GetPrimPath()))
+        spec = (layer.GetAttributeAtPath(p)
+                or Sdf.AttributeSpec(prim, p.name, Sdf.ValueTypeNames.Find(type_name)))
+        for key, value in info:
+            spec.SetInfo(key, value)
+        for t, v in zip(times, values):
+            if type_name == "matrix4d":
+                v = Gf.Matrix4d(v.T.tolist())
+            else:
+                v = Vt.Vec3fArray.FromNumpy(v)
+            layer.SetTimeSample(p, float(t), v)
+    return layer
+
+
+def _samples(n_frames, n_points):
+    return RNG.normal(size=(n_frames, n_points, 3)).astype(np.float32) * 10
+
+
+# Prims with children and properties, siblings at several depths, namespaced and odd-sized
+# (padded) arrays, empty arrays, 2-element extents, matrices, an attribute added in blocks.
+ATTRS = [
+    ("/Root/Body/Mesh.points", "point3f[]", np.arange(1.0, 8.0), _samples(7, 5), ()),
+    ("/Root/Body/Mesh.extent", "float3[]", np.arange(1.0, 8.0), _samples(7, 2), ()),
+    ("/Root/Body/Mesh.primvars:normals", "normal3f[]", np.arange(1.0, 8.0), _samples(7, 5),
+     (("interpolation", "faceVarying"),)),
+    ("/Root/Body/Mesh.velocities", "vector3f[]", np.arange(1.0, 8.0), _samples(7, 700), ()),
+    ("/Root/Body.xformOp:transform", "matrix4d", np.arange(1.0, 8.0),
+     RNG.normal(size=(7, 4, 4)), ()),
+    ("/Root/Body/Other.points", "point3f[]", np.array([1.0, 2.5, 4.0]), _samples(3, 0), ()),
+    ("/Second.points", "point3f[]", np.array([-2.0, 0.0]), _samples(2, 4), ()),
+]
+
+
+@pytest.fixture
+def written(tmp_path):
+    path = tmp_path / "samples.usdc"
+    crate = CrateSamples(path, 30.0)
+    for attr, type_name, times, values, info in ATTRS:
+        if attr.endswith(".velocities"):  # in blocks, the way a bake adds them
+            for a, b in ((0, 3), (3, 4), (4, 7)):
+                crate.add(attr, type_name, times[a:b], values[a:b], info)
+        else:
+            crate.add(attr, type_name, times, values, info)
+    assert crate.close(-2.0, 7.0) == path
+    return path
+
+
+def test_reads_as_the_same_layer_written_by_sdf(written):
+    ours = Sdf.Layer.FindOrOpen(str(written))
+    ref = _sdf_layer(30.0, -2.0, 7.0, ATTRS)
+    assert ours.ExportToString() == ref.ExportToString()
+    for attr, type_name, times, values, _ in ATTRS:
+        assert ours.ListTimeSamplesForPath(attr) == list(times)
+        for t, v in zip(times, values):
+            got = ours.QueryTimeSample(attr, float(t))
+            if type_name == "matrix4d":
+                np.testing.assert_array_equal(np.array(got), v.T)
+            else:
+                assert isinstance(got, Vt.Vec3fArray)
+                np.testing.assert_array_equal(np.asarray(got).reshape(-1, 3), v)
+
+
+def test_a_stage_reads_it_and_interpolates_between_samples(written):
+    stage = Usd.Stage.Open(str(written))
+    assert stage.GetTimeCodesPerSecond() == 30.0
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (-2.0, 7.0)
+    mesh = stage.GetPrimAtPath("/Root/Body/Mesh")
+    assert mesh.GetSpecifier() == Sdf.SpecifierOver
+    _, _, times, values, _ = ATTRS[0]
+    got = np.asarray(UsdGeom.Mesh(mesh).GetPointsAttr().Get(2.25))
+    np.testing.assert_allclose(got, 0.75 * values[1] + 0.25 * values[2], rtol=1e-6, atol=1e-6)
+    normals = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("normals")
+    assert normals.GetInterpolation() == "faceVarying"
+
+
+def test_large_arrays_exact(tmp_path):
+    """Arrays large enough for the reader to map them in place (≥ 2 KiB), odd and even sizes."""
+    path = tmp_path / "big.usdc"
+    crate = CrateSamples(path, 24.0)
+    data = {n: _samples(4, n) for n in (4097, 10000)}
+    for n, v in data.items():
+        crate.add(f"/M{n}.points", "point3f[]", np.arange(4.0), v)
+    crate.close(0, 3)
+    layer = Sdf.Layer.FindOrOpen(str(path))
+    for n, v in data.items():
+        for f in range(4):
+            np.testing.assert_array_equal(
+                np.asarray(layer.QueryTimeSample(f"/M{n}.points", float(f))), v[f])
+
+
+@pytest.mark.parametrize("args, match", [
+    (("/A.points", "int[]", [0.0], np.zeros((1, 2, 3))), "cannot write type"),
+    (("/A", "point3f[]", [0.0], np.zeros((1, 2, 3))), "not an attribute path"),
+    (("/A.points", "point3f[]", [0.0, 1.0], np.zeros((1, 2, 3))), "expected 2 frames"),
+    (("/A.points", "point3f[]", [0.0], np.zeros((1, 2, 4))), "expected 1 frames"),
+    (("/A.points", "point3f[]", [1.0, 0.0], np.zeros((2, 2, 3))), "increasing"),
+    (("/A.points", "point3f[]", [np.nan], np.zeros((1, 2, 3))), "finite"),
+    (("/A.xformOp:transform", "matrix4d", [0.0], np.zeros((1, 3, 3))), r"\(4, 4\)"),
+])
+def test_bad_samples_are_refused(tmp_path, args, match):
+    crate = CrateSamples(tmp_path / "bad.usdc", 24.0)
+    with pytest.raises(ValueError, match=match):
+        crate.add(*args)
+    crate.abort()
+
+
+def test_samples_must_follow_earlier_ones_and_keep_their_type(tmp_path):
+    crate = CrateSamples(tmp_path / "order.usdc", 24.0)
+    crate.add("/A.points", "point3f[]", [0.0, 1.0], np.zeros((2, 2, 3)))
+    with pytest.raises(ValueError, match="after 1.0"):
+        crate.add("/A.points", "point3f[]", [1.0], np.zeros((1, 2, 3)))
+    with pytest.raises(ValueError, match="added as point3f"):
+        crate.add("/A.points", "normal3f[]", [2.0], np.zeros((1, 2, 3)))
+    crate.close(0, 1)
+    with pytest.raises(ValueError, match="closed"):
+        crate.add("/A.points", "point3f[]", [2.0], np.zeros((1, 2, 3)))
+
+
+def test_every_value_type_is_one_sdf_knows():
+    for name in VALUE_TYPES:
+        assert Sdf.ValueTypeNames.Find(name), name
+
+
+@pytest.mark.parametrize("writev", ["short", "missing"])
+def test_short_writes_and_no_writev_give_the_same_file(tmp_path, monkeypatch, writev):
+    """``os.writev`` may write less than asked (and is absent on some systems): the rest is
+    written buffer by buffer, the file byte for byte the same."""
+    import os
+
+    def build(path):
+        crate = CrateSamples(path, 24.0)
+        crate.add("/A/B.points", "point3f[]", np.arange(5.0), _samples(5, 3))
+        crate.add("/A.xformOp:transform", "matrix4d", np.arange(5.0), RNG.normal(size=(5, 4, 4)))
+        crate.close(0, 4)
+        return path.read_bytes()
+
+    state = RNG.bit_generator.state
+    expected = build(tmp_path / "plain.usdc")
+    RNG.bit_generator.state = state
+    if writev == "short":
+        monkeypatch.setattr(os, "writev", lambda fd, bufs: os.write(
+            fd, memoryview(bufs[0]).cast("B")[:max(1, _nbytes(bufs[0]) // 2)]))
+    else:
+        monkeypatch.delattr(os, "writev")
+    assert build(tmp_path / "other.usdc") == expected
+
+
+def _nbytes(b):
+    return b.nbytes if isinstance(b, np.ndarray) else len(b)
