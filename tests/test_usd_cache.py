@@ -332,3 +332,33 @@ def test_vt_arrays_from_several_threads_at_once():
     for frames, arrays in zip(inputs, results):
         got = np.stack([np.asarray(a).reshape(700, 3) for a in arrays])
         np.testing.assert_array_equal(got, frames)
+
+
+def test_crate_cache_streams_what_the_sdf_layer_holds(shared_assets, tmp_path):
+    """A .usdc cache (the source's copy exported once, the samples streamed after it) reads as
+    the .usda cache written through Sdf: every spec and value, the time range included, with
+    chunks written out of order and a time written twice (the later wins in both); a value the
+    first chunk did not hold is refused for .usdc only (its spec is in the exported copy)."""
+    scene = load_usd(shared_assets / BAKE / "lbs.usda")
+    writes = []
+    for k, t in enumerate(([3.0, 4.0], [1.0, 2.0], [4.0])):
+        writes.append((t,) + random_frames(scene, t, seed=k))
+    layers = {}
+    for ext in (".usda", ".usdc", ".usd"):
+        with UsdCacheWriter(scene, tmp_path / f"cache{ext}") as writer:
+            for t, p, n, v in writes:
+                writer.write(t, p, n, v)
+        layers[ext] = Sdf.Layer.FindOrOpen(str(tmp_path / f"cache{ext}"))
+    assert open(tmp_path / "cache.usdc", "rb").read(8) == b"PXR-USDC"
+    assert open(tmp_path / "cache.usd", "rb").read(8) == b"PXR-USDC"
+    text = layers[".usda"].ExportToString()
+    assert "4: [" in text and layers[".usda"].endTimeCode == 4.0
+    assert layers[".usdc"].ExportToString() == text
+    assert layers[".usd"].ExportToString() == text
+    t, p, n, v = writes[0]
+    with pytest.raises(ValueError, match="late.usdc: .*: normals was not in the first chunk"):
+        with UsdCacheWriter(scene, tmp_path / "late.usdc") as writer:
+            writer.write(t, p)
+            writer.write([5.0], *random_frames(scene, [5.0])[:2])
+    assert not (tmp_path / "late.usdc").exists()
+    assert sorted(os.listdir(tmp_path)) == ["cache.usd", "cache.usda", "cache.usdc"]

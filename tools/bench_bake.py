@@ -3,6 +3,7 @@ clips in this process and on a Dask LocalCluster of 1 and 2 worker processes.
 
     python tools/bench_bake.py [--frames 1000,10000] [--asset PATH] [--brainstem PATH]
                                [--impls usdskel,single,clips0,clips1,clips2,clips1t1,...]
+                               [--repeat N]
     python tools/bench_bake.py --breakdown 10000
 
 Assets: the looped CesiumMan (its 48-key walk looped over each ``--frames`` count, with root
@@ -20,6 +21,10 @@ own; the clip bakes also report the peak of every worker process. Implementation
   thread budget of one each (dqskin's launch pool and USD's; what ``dask worker --nthreads 1``
   per core gives on a farm): process scaling without the threads a lone worker also uses;
 * ``single+nv``, ``clips2+nv``: with skinned normals and velocities (dqskin's default).
+
+``--repeat N`` runs N rounds of every impl, interleaved, and reports each impl's median run
+(with the range) and the median of the per-round ratios: on a VM a run's speed swings by up to
+2× from one minute to the next, and runs of one round see the same machine.
 
 Reports wall seconds of the bake (module imports excluded, shown apart), point-frames/s, the CPU
 seconds of the whole process tree (imports and worker start-up included: on a machine shared
@@ -332,71 +337,104 @@ def output_mb(dst):
     return sum(f.stat().st_size for f in files) / 2**20
 
 
-def bench_one(rows, label, src, impls, tmp):
+def _remove_output(dst):
+    """Remove an earlier run's output (and its clips folder) before the next run writes it."""
+    for f in (dst, dst.with_name(dst.stem + ".clips")):
+        if f.is_dir():
+            shutil.rmtree(f)
+        elif f.exists():
+            f.unlink()
+
+
+def bench_one(rows, label, src, impls, tmp, repeat=1):
+    """Run every impl ``repeat`` times, interleaved (round 1: each impl once, round 2: ...):
+    one row per impl, from its median run, with the range of all runs and, against UsdSkel,
+    the median of the per-round ratios (on a VM, a run's speed swings by 2x between minutes;
+    runs side by side in one round see the same machine)."""
     from pxr import Usd, UsdGeom
     stage = Usd.Stage.Open(str(src))
     points = sum(len(UsdGeom.Mesh(p).GetPointsAttr().Get()) for p in stage.Traverse()
                  if p.IsA(UsdGeom.Mesh))
     t0, t1 = stage.GetStartTimeCode(), stage.GetEndTimeCode()
     frames = int(round(t1 - t0)) + 1
-    dsts = {}
-    for which in impls:
-        dst = tmp / f"{label}_{which.replace('+', '_')}.usd"
-        # every bake starts with no dirty pages: the kernel throttles a writer once earlier
-        # runs' outputs (hundreds of MB, not yet on disk) pass its dirty limit, which would
-        # charge one implementation for the writeback of the one run before it
-        os.sync()
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
-        proc = subprocess.run([sys.executable, __file__, "--child", which, str(src), str(dst)],
-                              capture_output=True, text=True)
-        after = resource.getrusage(resource.RUSAGE_CHILDREN)  # the whole process tree, reaped
-        cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
-        if proc.returncode:
-            print(f"  {label} {which}: failed (exit {proc.returncode}):\n{proc.stderr[-1000:]}",
-                  file=sys.stderr)
+    dsts, runs = {}, {which: [] for which in impls}
+    for _ in range(repeat):
+        for which in impls:
+            dst = tmp / f"{label}_{which.replace('+', '_')}.usd"
+            _remove_output(dst)
+            # every bake starts with no dirty pages: the kernel throttles a writer once earlier
+            # runs' outputs (hundreds of MB, not yet on disk) pass its dirty limit, which would
+            # charge one implementation for the writeback of the one run before it
+            os.sync()
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            proc = subprocess.run([sys.executable, __file__, "--child", which, str(src),
+                                   str(dst)], capture_output=True, text=True)
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)  # the process tree, reaped
+            cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+            if proc.returncode:
+                print(f"  {label} {which}: failed (exit {proc.returncode}):\n"
+                      f"{proc.stderr[-1000:]}", file=sys.stderr)
+                continue
+            r = json.loads(proc.stdout.strip().splitlines()[-1])
+            dsts[which] = dst
+            runs[which].append(dict(
+                kind="bake", asset=label, frames=frames, points=points, impl=which,
+                seconds=r["seconds"], import_seconds=r["import_seconds"], cpu_seconds=cpu,
+                peak_mb=r["peak_mb"], worker_peak_mb=r.get("worker_peak_mb", []),
+                task_seconds=r.get("task_seconds"), task_cpu_seconds=r.get("task_cpu_seconds"),
+                mpoint_frames_per_s=points * frames / r["seconds"] / 1e6,
+                output_mb=output_mb(dst)))
+            print(f"  {label} {frames} frames {which}: {r['seconds']:.2f} s", file=sys.stderr)
+    new = []
+    for which, rs in runs.items():
+        if not rs:
             continue
-        r = json.loads(proc.stdout.strip().splitlines()[-1])
-        dsts[which] = dst
-        rows.append(dict(kind="bake", asset=label, frames=frames, points=points, impl=which,
-                         seconds=r["seconds"], import_seconds=r["import_seconds"],
-                         cpu_seconds=cpu,
-                         peak_mb=r["peak_mb"], worker_peak_mb=r.get("worker_peak_mb", []),
-                         task_seconds=r.get("task_seconds"),
-                         task_cpu_seconds=r.get("task_cpu_seconds"),
-                         mpoint_frames_per_s=points * frames / r["seconds"] / 1e6,
-                         output_mb=output_mb(dst)))
-        print(f"  {label} {frames} frames {which}: {r['seconds']:.2f} s", file=sys.stderr)
+        secs = [r["seconds"] for r in rs]
+        new.append(dict(sorted(rs, key=lambda r: r["seconds"])[(len(rs) - 1) // 2],
+                        seconds_range=(min(secs), max(secs)), runs=len(rs), all_seconds=secs))
+    rows.extend(new)
     if "usdskel" in dsts:
         probes = [t0, t0 + (t1 - t0) // 2, t1, t0 + 0.5]
-        for r in rows:
-            if r.get("asset") == label and r["impl"] in dsts and r["impl"] != "usdskel":
+        for r in new:
+            if r["impl"] in dsts and r["impl"] != "usdskel":
                 r["max_point_diff"] = compare_caches(dsts["usdskel"], dsts[r["impl"]], probes)
 
 
 def bench_bake(rows, frames=(1000, 10000), asset=DEFAULT_ASSET, brainstem=None, impls=IMPLS,
-               standin=True):
+               standin=True, repeat=1):
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         brainstem = brainstem or find_brainstem()
         if brainstem and Path(brainstem).is_file():
-            bench_one(rows, "BrainStem", Path(brainstem), impls, tmp)
+            bench_one(rows, "BrainStem", Path(brainstem), impls, tmp, repeat)
         elif Path(asset).is_file() and standin:
             print("bake: BrainStem.usdz not found under ../shared/assets; a stand-in of the "
                   "same size instead: 10 CesiumMen × 1,292 frames (32,730 points)")
             make_long_clip(asset, 1292, tmp / "long_1292.usdc")
             make_crowd(tmp / "long_1292.usdc", 10, tmp / "crowd.usda")
-            bench_one(rows, "10×CesiumMan", tmp / "crowd.usda", impls, tmp)
+            bench_one(rows, "10×CesiumMan", tmp / "crowd.usda", impls, tmp, repeat)
         if not Path(asset).is_file():
             print(f"bake: skipped, {asset} not found")
         else:
             for n in frames:
                 src = tmp / f"long_{n}.usdc"
                 make_long_clip(asset, n, src)
-                bench_one(rows, f"CesiumMan×{n}", src, impls, tmp)
+                bench_one(rows, f"CesiumMan×{n}", src, impls, tmp, repeat)
                 src.unlink()
                 for f in tmp.glob(f"CesiumMan×{n}*"):  # keep /tmp small between sizes
                     shutil.rmtree(f) if f.is_dir() else f.unlink()
     print_bake(rows)
+
+
+def _ratio(a, b):
+    """``a``'s seconds / ``b``'s: with several rounds, the median of the per-round ratios (and
+    their range), since runs in one round see the same machine."""
+    sa, sb = a.get("all_seconds", [a["seconds"]]), b.get("all_seconds", [b["seconds"]])
+    if len(sa) < 2 or len(sa) != len(sb):
+        return f"{a['seconds'] / b['seconds']:.2f}×"
+    ratios = sorted(x / y for x, y in zip(sa, sb))
+    return (f"{ratios[(len(ratios) - 1) // 2]:.2f}× (median of {len(ratios)} rounds, "
+            f"{ratios[0]:.2f}–{ratios[-1]:.2f}×)")
 
 
 def print_bake(rows):
@@ -413,7 +451,10 @@ def print_bake(rows):
     for r in bake:
         workers = ", ".join(f"{w:.0f}" for w in r.get("worker_peak_mb", [])) or "–"
         diff = r.get("max_point_diff")
-        print(f"| {r.get('asset', '')} | {r['frames']} | {r['impl']} | {r['seconds']:.2f} "
+        secs = f"{r['seconds']:.2f}"
+        if r.get("runs", 1) > 1:
+            secs += f" ({r['seconds_range'][0]:.2f}–{r['seconds_range'][1]:.2f})"
+        print(f"| {r.get('asset', '')} | {r['frames']} | {r['impl']} | {secs} "
               f"| {r['mpoint_frames_per_s']:.1f} | {r['import_seconds']:.2f} "
               f"| {r['seconds'] + r['import_seconds']:.2f} "
               f"| {r.get('cpu_seconds', float('nan')):.1f} | {r['peak_mb']:.0f} "
@@ -429,8 +470,7 @@ def print_bake(rows):
             if one in sel and two in sel:
                 a, b = sel[one], sel[two]
                 total = (a["seconds"] + a["import_seconds"]) / (b["seconds"] + b["import_seconds"])
-                line.append(f"{what} = {a['seconds'] / b['seconds']:.2f}× (with imports "
-                            f"{total:.2f}×)")
+                line.append(f"{what} = {_ratio(a, b)} (with imports {total:.2f}×)")
         for impl in ("clips1t1", "clips2t1", "clips1", "clips2"):
             r = sel.get(impl, {})
             if r.get("task_cpu_seconds"):  # a worker runs one task at a time: its process CPU
@@ -438,10 +478,10 @@ def print_bake(rows):
                             f"{1e3 * r['task_cpu_seconds']:.0f} ms "
                             f"({r['task_cpu_seconds'] / r['task_seconds']:.2f} cores)")
         if "usdskel" in sel:
-            for impl in ("single", "clips0", "clips2"):
+            for impl in ("single", "clips0", "clips2", "single+nv"):
                 if impl in sel:
                     line.append(f"{impl} / UsdSkel throughput = "
-                                f"{sel['usdskel']['seconds'] / sel[impl]['seconds']:.2f}×")
+                                f"{_ratio(sel['usdskel'], sel[impl])}")
         print(f"  {key[0]}: " + "; ".join(line))
 
 
@@ -460,6 +500,8 @@ if __name__ == "__main__":
     ap.add_argument("--impls", default=",".join(IMPLS))
     ap.add_argument("--no-standin", action="store_true", help="no BrainStem stand-in")
     ap.add_argument("--json", help="also write the rows here")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="rounds of every impl, interleaved; rows from each impl's median run")
     ap.add_argument("--breakdown", type=int, metavar="FRAMES",
                     help="only the step-by-step CPU-seconds breakdown of a FRAMES-frame bake")
     a = ap.parse_args()
@@ -468,6 +510,6 @@ if __name__ == "__main__":
         sys.exit(0)
     out_rows = []
     bench_bake(out_rows, [int(x) for x in a.frames.split(",")], a.asset, a.brainstem,
-               [x for x in a.impls.split(",") if x], not a.no_standin)
+               [x for x in a.impls.split(",") if x], not a.no_standin, a.repeat)
     if a.json:
         Path(a.json).write_text(json.dumps(out_rows, indent=1))

@@ -21,6 +21,14 @@ The file is crate version 0.8.0, what usd-core writes by default, laid out as
   any LZ4 decoder reads; the sections are a few hundred bytes);
 * the table of contents (name, start, size of each section).
 
+With a ``base`` (a crate file usd-core wrote: the single-layer cache's topology, UVs, materials
+and attribute specs, without samples) the new file starts with the base's values, byte for byte
+at the same offsets so every reference into them stays valid, then the samples; at
+:meth:`CrateSamples.close` the base's structural sections are read (their LZ4 blocks and integer
+codes decoded here), each baked attribute spec gets its ``timeSamples`` field, the time range is
+replaced, and the sections are written again (tokens, fields, field sets and specs re-encoded;
+strings and paths copied).
+
 A file is complete only after :meth:`CrateSamples.close`; the caller writes it under a temporary
 name and renames it (:class:`~.atomic.atomic_path`). ``tests/test_crate.py`` reads every file
 back with usd-core and compares it, value by value and as text, with the same layer written
@@ -90,6 +98,162 @@ def _nbytes(buffer) -> int:
     return buffer.nbytes if isinstance(buffer, np.ndarray) else len(buffer)
 
 
+def _lz4_decode(src: bytes) -> bytes:
+    """``TfFastCompression`` output back to its bytes: a zero chunk-count byte (one chunk: the
+    only kind a structural section is), then an LZ4 block (literal runs and back-references)."""
+    if not src or src[0] != 0:
+        raise ValueError("not a one-chunk LZ4 buffer")
+    out, i, n = bytearray(), 1, len(src)
+    while i < n:
+        token = src[i]
+        i += 1
+        length = token >> 4
+        if length == 15:
+            while True:
+                length += src[i]
+                i += 1
+                if src[i - 1] != 255:
+                    break
+        out += src[i:i + length]
+        i += length
+        if i >= n:
+            break
+        offset = src[i] | src[i + 1] << 8
+        i += 2
+        length = token & 15
+        if length == 15:
+            while True:
+                length += src[i]
+                i += 1
+                if src[i - 1] != 255:
+                    break
+        length += 4
+        if not 0 < offset <= len(out):
+            raise ValueError("LZ4 offset out of range")
+        start = len(out) - offset
+        if offset >= length:
+            out += out[start:start + length]
+        else:  # overlapping: the last `offset` bytes repeat
+            period = out[start:]
+            out += (period * (length // offset + 1))[:length]
+    return bytes(out)
+
+
+_INT_WIDTHS = {1: "<b", 2: "<h", 3: "<i"}
+
+
+def _decode_ints(data: bytes, pos: int, count: int):
+    """``count`` integers coded by ``Sdf_IntegerCompression`` at ``data[pos:]`` (``uint64`` size
+    first); returns them (wrapped to signed 32 bits) and the position after them."""
+    size = struct.unpack_from("<Q", data, pos)[0]
+    end = pos + 8 + size
+    if not count:
+        return [], end
+    enc = _lz4_decode(data[pos + 8:end])
+    common = struct.unpack_from("<i", enc, 0)[0]
+    at = 4 + (count * 2 + 7) // 8
+    values, prev = [], 0
+    for k in range(count):
+        code = enc[4 + k // 4] >> (2 * (k % 4)) & 3
+        if code:
+            fmt = _INT_WIDTHS[code]
+            delta = struct.unpack_from(fmt, enc, at)[0]
+            at += struct.calcsize(fmt)
+        else:
+            delta = common
+        prev = (prev + delta + 2**31) % 2**32 - 2**31
+        values.append(prev)
+    return values, end
+
+
+class _Base:
+    """The structure of a crate file usd-core wrote (the sections :class:`CrateSamples` merges
+    with its samples): version, where its values end, tokens, fields, field sets, specs, the
+    path of each path index, and the raw STRINGS and PATHS sections."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        data = self.path.read_bytes()
+        self.data = data
+        if data[:8] != _IDENT:
+            raise ValueError(f"{path}: not a USD crate file")
+        self.version = tuple(data[8:11])
+        if not (0, 7, 0) <= self.version < (1, 0, 0):
+            raise ValueError(f"{path}: crate version {self.version} is not one this writer can "
+                             "extend (0.7.0 or later)")
+        toc = struct.unpack_from("<q", data, 16)[0]
+        count = struct.unpack_from("<Q", data, toc)[0]
+        sections = {}
+        for k in range(count):
+            name, start, size = struct.unpack_from("<16sqq", data, toc + 8 + 32 * k)
+            sections[name.rstrip(b"\0").decode()] = (start, size)
+        self.data_end = min(start for start, _ in sections.values())
+        self.sections = sections
+
+        pos = sections["TOKENS"][0]
+        n, size, packed = struct.unpack_from("<QQQ", data, pos)
+        names = _lz4_decode(data[pos + 24:pos + 24 + packed])
+        if len(names) != size:
+            raise ValueError(f"{path}: tokens do not decode")
+        self.tokens = [t.decode() for t in names.split(b"\0")[:n]]
+
+        pos = sections["FIELDS"][0]
+        n = struct.unpack_from("<Q", data, pos)[0]
+        names, pos = _decode_ints(data, pos + 8, n)
+        size = struct.unpack_from("<Q", data, pos)[0]
+        reps = np.frombuffer(_lz4_decode(data[pos + 8:pos + 8 + size]), "<u8", count=n)
+        self.fields = [(t & 0xFFFFFFFF, int(r)) for t, r in zip(names, reps)]
+
+        pos = sections["FIELDSETS"][0]
+        n = struct.unpack_from("<Q", data, pos)[0]
+        self.fieldsets = [v & 0xFFFFFFFF for v in _decode_ints(data, pos + 8, n)[0]]
+
+        pos = sections["PATHS"][0]
+        total, n = struct.unpack_from("<QQ", data, pos)
+        index, pos = _decode_ints(data, pos + 16, n)
+        element, pos = _decode_ints(data, pos, n)
+        jumps, pos = _decode_ints(data, pos, n)
+        self.paths = [None] * total
+        stack = [(0, None)]  # (item, parent path) of each sibling run still to walk
+        while stack:
+            item, parent = stack.pop()
+            while True:
+                here = item
+                item += 1
+                if parent is None:
+                    path = Sdf.Path.absoluteRootPath
+                elif element[here] < 0:
+                    path = parent.AppendProperty(self.tokens[-element[here]])
+                else:
+                    path = parent.AppendElementString(self.tokens[element[here]])
+                self.paths[index[here]] = path
+                has_child, has_sibling = jumps[here] > 0 or jumps[here] == -1, jumps[here] >= 0
+                if has_child and has_sibling:
+                    stack.append((here + jumps[here], parent))
+                if has_child:
+                    parent = path
+                elif not has_sibling:
+                    break
+
+        pos = sections["SPECS"][0]
+        n = struct.unpack_from("<Q", data, pos)[0]
+        paths, pos = _decode_ints(data, pos + 8, n)
+        sets, pos = _decode_ints(data, pos, n)
+        kinds, _ = _decode_ints(data, pos, n)
+        self.specs = [list(spec) for spec in zip(paths, sets, kinds)]
+        self.spec_of = {self.paths[p]: k for k, (p, _, _) in enumerate(self.specs)}
+
+    def section(self, name) -> bytes:
+        start, size = self.sections[name]
+        return self.data[start:start + size]
+
+    def spec_fields(self, spec) -> list:
+        """Field indices of spec number ``spec`` (its field set, up to the terminator)."""
+        start = self.specs[spec][1]
+        end = self.fieldsets.index(_NO_FIELD, start)
+        return self.fieldsets[start:end]
+
+
 def _writev(fd, buffers) -> int:
     """Write ``buffers`` (bytes, or C-contiguous arrays), in order, at the file position;
     returns the bytes written. No Python object per buffer (a bake writes one per frame: GC-
@@ -133,18 +297,31 @@ class CrateSamples:
     time_codes_per_second : float
         The layer's ``timeCodesPerSecond`` and ``framesPerSecond``.
 
+    base : str or os.PathLike, optional
+        A crate file usd-core wrote (crate version 0.7.0 or later) that already holds a spec,
+        without samples, for every attribute that will be added: the new file is that layer
+        with the samples (its ``timeCodesPerSecond`` and every other field kept; the time range
+        replaced by :meth:`close`'s). Without it, prims above the attributes are ``over`` specs.
+
     Use :meth:`add` for each block of frames of each attribute, then :meth:`close` with the
-    layer's time range (or :meth:`abort`). Prims above the attributes are ``over`` specs.
+    layer's time range (or :meth:`abort`).
     """
 
-    def __init__(self, path, time_codes_per_second: float):
+    def __init__(self, path, time_codes_per_second: float, *, base=None):
         self.path = Path(path)
         self.time_codes_per_second = float(time_codes_per_second)
+        self._base = None if base is None else _Base(base)
         self._attrs = {}  # attribute path → _Attribute, in first-added order
         self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC
                            | getattr(os, "O_CLOEXEC", 0), 0o666)
         self._pos = 0
-        self._write([bytes(_BOOTSTRAP)])
+        try:
+            self._write([bytes(_BOOTSTRAP)])
+            if self._base is not None:  # its values at their own offsets
+                self._write([memoryview(self._base.data)[_BOOTSTRAP:self._base.data_end]])
+        except BaseException:
+            self.abort()
+            raise
 
     def _write(self, buffers):
         self._pos += _writev(self._fd, buffers)
@@ -160,11 +337,13 @@ class CrateSamples:
         Parameters
         ----------
         attr : str
-            Attribute path; the same attribute may be added again with later times.
+            Attribute path; the same attribute may be added again (a sample at a time already
+            added replaces the earlier one, as ``Sdf.Layer.SetTimeSample`` does).
         type_name : str
-            Its Sdf value type, one of :data:`VALUE_TYPES`.
+            Its Sdf value type, one of :data:`VALUE_TYPES` (with a ``base``, the one its spec
+            declares).
         times : (F,) float
-            Time codes, increasing, after any added earlier for ``attr``.
+            Time codes, finite, in any order.
         values : (F, N, 3) float32 for the ``*3f[]`` types, (F, 4, 4) float64 for ``matrix4d``
             (column-vector convention: ``p' = M @ [p, 1]``; stored transposed, as Gf's
             row-vector matrices).
@@ -193,14 +372,13 @@ class CrateSamples:
             path = Sdf.Path(attr)
             if not path.IsPrimPropertyPath():
                 raise ValueError(f"{attr}: not an attribute path (/Prim.name)")
+            if self._base is not None:
+                self._check_base_spec(path, type_name)
             rec = self._attrs[attr] = _Attribute(type_name, tuple(info))
         elif rec.type_name != type_name:
             raise ValueError(f"{attr}: added as {rec.type_name} before, now {type_name}")
-        last = rec.times[-1][-1] if rec.times else -np.inf
-        if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0) or (t.size and t[0] <= last):
-            raise ValueError(f"{attr}: sample times must be finite and increasing, after "
-                             f"{last} (got {t.min() if t.size else '-'}..."
-                             f"{t.max() if t.size else '-'})")
+        if not np.all(np.isfinite(t)):
+            raise ValueError(f"{attr}: sample times must be finite")
         if not t.size:
             return
         F = len(t)
@@ -226,6 +404,20 @@ class CrateSamples:
         rec.times.append(t)
         rec.reps.append(reps)
 
+    def _check_base_spec(self, path, type_name):
+        base = self._base
+        spec = base.spec_of.get(path)
+        if spec is None or base.specs[spec][2] != _SPEC_ATTRIBUTE:
+            raise ValueError(f"{path}: the base layer has no attribute spec for it (only "
+                             "attributes it declares take samples)")
+        for f in base.spec_fields(spec):
+            name, rep = base.fields[f]
+            if base.tokens[name] == "typeName":
+                declared = base.tokens[rep & 0xFFFFFFFF]
+                if declared != type_name:
+                    raise ValueError(f"{path}: declared {declared} in the base layer "
+                                     f"{base.path}, not {type_name}")
+
     def abort(self) -> None:
         """Close the file unfinished (the caller removes it)."""
         if self._fd is not None:
@@ -246,33 +438,103 @@ class CrateSamples:
     # -- the layer's structure -------------------------------------------------------------
 
     def _finish(self, start, end):
-        tokens = {"": 0}  # the root's element token; index 0 is never a property name
+        base = self._base
+        tokens = {t: i for i, t in enumerate(base.tokens)} if base else {"": 0}
+        # without a base, token 0 is the root's element token, never a property name
 
         def token(s):
             return tokens.setdefault(s, len(tokens))
 
-        # Values: sample times (each distinct vector once) and TimeSamples records.
+        # Values: sample times (each distinct vector once), TimeSamples records, the time range.
         self._align()
         times_reps, samples = {}, {}
         for attr, rec in self._attrs.items():
-            t = np.concatenate(rec.times)
+            t, reps = np.concatenate(rec.times), np.concatenate(rec.reps)
+            order = np.argsort(t, kind="stable")
+            t, reps = t[order], reps[order]
+            last = np.append(t[1:] != t[:-1], True)  # a time added again: the later sample
+            t, reps = t[last], reps[last]
             key = t.tobytes()
             if key not in times_reps:
                 times_reps[key] = _rep(_DOUBLE_VECTOR, self._pos)
                 self._write([struct.pack("<Q", len(t)), t.astype("<f8")])
-            reps = np.concatenate(rec.reps)
             samples[attr] = _rep(_TIME_SAMPLES, self._pos)
             # _RecursiveWrite offsets of 8: nothing nested after either.
             self._write([np.array([8, times_reps[key], 8, len(reps)], "<u8"), reps.astype("<u8")])
-
         doubles = {}
         for name, value in (("startTimeCode", start), ("endTimeCode", end),
                             ("framesPerSecond", self.time_codes_per_second),
                             ("timeCodesPerSecond", self.time_codes_per_second)):
-            doubles[name] = _rep(_DOUBLE, self._pos)
-            self._write([struct.pack("<d", value)])
+            if base is None or name.endswith("TimeCode"):  # a base keeps its rate
+                doubles[name] = _rep(_DOUBLE, self._pos)
+                self._write([struct.pack("<d", value)])
 
-        # The namespace: prims in first-used order, their children and properties.
+        fields = list(base.fields) if base else []
+        field_index = {f: i for i, f in enumerate(fields)}
+        fieldsets = list(base.fieldsets) if base else []
+        fieldset_index = {}
+
+        def fieldset(pairs):
+            ids = []
+            for name, rep in pairs:
+                key = (token(name), rep) if isinstance(name, str) else (name, rep)
+                if key not in field_index:
+                    field_index[key] = len(fields)
+                    fields.append(key)
+                ids.append(field_index[key])
+            key = tuple(ids)
+            if key not in fieldset_index:
+                fieldset_index[key] = len(fieldsets)
+                fieldsets.extend(ids + [_NO_FIELD])
+            return fieldset_index[key]
+
+        if base is None:
+            specs, paths = self._new_namespace(token, fieldset, samples, doubles)
+        else:
+            specs, paths = [list(spec) for spec in base.specs], base.section("PATHS")
+            replaced = {token(name) for name in doubles} | {token("timeSamples")}
+            for k, (path, _, kind) in enumerate(specs):
+                attr = str(base.paths[path])
+                if kind == _SPEC_PSEUDO_ROOT:
+                    extra = list(doubles.items())
+                elif attr in samples:
+                    extra = [("timeSamples", samples[attr])]
+                else:
+                    continue
+                kept = [fields[f] for f in base.spec_fields(k) if fields[f][0] not in replaced]
+                specs[k][1] = fieldset(kept + extra)
+
+        # Structural sections, then the table of contents, then the bootstrap.
+        self._align()
+        sections = []
+
+        def section(name, *parts):
+            sections.append((name, self._pos, sum(len(p) for p in parts)))
+            self._write(list(parts))
+
+        names = b"".join(t.encode() + b"\0" for t in tokens)
+        packed = _lz4_literals(names)
+        section(b"TOKENS", struct.pack("<QQQ", len(tokens), len(names), len(packed)), packed)
+        section(b"STRINGS", base.section("STRINGS") if base else struct.pack("<Q", 0))
+        reps = np.array([r for _, r in fields], "<u8").tobytes()
+        packed_reps = _lz4_literals(reps)
+        section(b"FIELDS", struct.pack("<Q", len(fields)),
+                _compressed_ints([t for t, _ in fields]),
+                struct.pack("<Q", len(packed_reps)), packed_reps)
+        section(b"FIELDSETS", struct.pack("<Q", len(fieldsets)), _compressed_ints(fieldsets))
+        section(b"PATHS", paths)
+        section(b"SPECS", struct.pack("<Q", len(specs)),
+                *(_compressed_ints(c) for c in zip(*specs)))
+        toc = self._pos
+        self._write([struct.pack("<Q", len(sections))]
+                    + [struct.pack("<16sqq", n, s, z) for n, s, z in sections])
+        version = base.version if base else VERSION
+        boot = struct.pack("<8s8Bq", _IDENT, *version, 0, 0, 0, 0, 0, toc) + bytes(64)
+        os.lseek(self._fd, 0, os.SEEK_SET)
+        _write_all(self._fd, memoryview(boot))
+
+    def _new_namespace(self, token, fieldset, samples, doubles):
+        """Specs and the PATHS section of a layer of ``over`` prims holding the attributes."""
         root = Sdf.Path.absoluteRootPath
         children, props = {root: []}, {}
         for attr in self._attrs:
@@ -290,22 +552,6 @@ class CrateSamples:
             self._write([struct.pack("<Q", len(ids)), ids])
             self._align()
             return rep
-
-        fields, field_index, fieldsets, fieldset_index = [], {}, [], {}
-
-        def fieldset(pairs):
-            ids = []
-            for name, rep in pairs:
-                key = (token(name), rep)
-                if key not in field_index:
-                    field_index[key] = len(fields)
-                    fields.append(key)
-                ids.append(field_index[key])
-            key = tuple(ids)
-            if key not in fieldset_index:
-                fieldset_index[key] = len(fieldsets)
-                fieldsets.extend(ids + [_NO_FIELD])
-            return fieldset_index[key]
 
         paths = [root] + [p for p in children if p != root] + [a for ps in props.values()
                                                                for a in ps]
@@ -336,7 +582,7 @@ class CrateSamples:
             specs.append((path_index[Sdf.Path(attr)], fieldset(pairs), _SPEC_ATTRIBUTE))
 
         # The path tree, depth first: (path index, element token, jump) per node.
-        tree_paths, tree_tokens, jumps = [], [], []
+        tree_paths, tree_tokens, jumps = [0], [0], [-1 if len(paths) > 1 else -2]
 
         def walk(node):
             kids = list(children.get(node, ())) + list(props.get(node, ()))
@@ -353,37 +599,7 @@ class CrateSamples:
                 jumps[here] = (len(tree_paths) - here if has_child and has_sibling else
                                0 if has_sibling else -1 if has_child else -2)
 
-        tree_paths.append(0)
-        tree_tokens.append(0)
-        jumps.append(-1 if len(paths) > 1 else -2)
         walk(root)
-
-        # Structural sections, then the table of contents, then the bootstrap.
-        self._align()
-        sections = []
-
-        def section(name, *parts):
-            sections.append((name, self._pos, sum(len(p) for p in parts)))
-            self._write(list(parts))
-
-        names = b"".join(s.encode() + b"\0" for s in tokens)
-        packed = _lz4_literals(names)
-        section(b"TOKENS", struct.pack("<QQQ", len(tokens), len(names), len(packed)), packed)
-        section(b"STRINGS", struct.pack("<Q", 0))
-        reps = np.array([r for _, r in fields], "<u8").tobytes()
-        packed_reps = _lz4_literals(reps)
-        section(b"FIELDS", struct.pack("<Q", len(fields)),
-                _compressed_ints([t for t, _ in fields]),
-                struct.pack("<Q", len(packed_reps)), packed_reps)
-        section(b"FIELDSETS", struct.pack("<Q", len(fieldsets)), _compressed_ints(fieldsets))
-        section(b"PATHS", struct.pack("<QQ", len(paths), len(tree_paths)),
-                _compressed_ints(tree_paths), _compressed_ints(tree_tokens),
-                _compressed_ints(jumps))
-        spec_cols = list(zip(*specs))
-        section(b"SPECS", struct.pack("<Q", len(specs)), *(_compressed_ints(c) for c in spec_cols))
-        toc = self._pos
-        self._write([struct.pack("<Q", len(sections))]
-                    + [struct.pack("<16sqq", n, s, z) for n, s, z in sections])
-        boot = struct.pack("<8s8Bq", _IDENT, *VERSION, 0, 0, 0, 0, 0, toc) + bytes(64)
-        os.lseek(self._fd, 0, os.SEEK_SET)
-        _write_all(self._fd, memoryview(boot))
+        return specs, b"".join([struct.pack("<QQ", len(paths), len(tree_paths)),
+                                _compressed_ints(tree_paths), _compressed_ints(tree_tokens),
+                                _compressed_ints(jumps)])

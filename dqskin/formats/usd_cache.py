@@ -18,9 +18,12 @@ own, or a clip layer made on a worker that never opens the source stage).
 
 import contextlib
 import ctypes
+import itertools
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
@@ -387,12 +390,13 @@ class CacheLayer:
             layer.documentation = f"dqskin {note} of {self.src}"
 
 
-def export_layer(layer, claim, out=None):
+def export_layer(layer, claim, out=None, tmp=None):
     """Write ``layer`` to the temporary file of ``claim`` (an :class:`~.atomic.atomic_path`, not
-    committed here); ``.usd`` is crate. ValueError naming ``out`` (default the claimed path)."""
+    committed here), or to ``tmp`` in its folder; ``.usd`` is crate. ValueError naming ``out``
+    (default the claimed path)."""
     out = os.fspath(claim.path if out is None else out)
-    tmp = claim.open()
-    args = {"format": "usdc"} if claim.path.suffix.lower() == ".usd" else {}
+    tmp = claim.open() if tmp is None else tmp
+    args = {"format": "usdc"} if Path(tmp).suffix.lower() == ".usd" else {}
     try:
         ok = layer.Export(str(tmp), args=args)
     except Tf.ErrorException as exc:
@@ -553,10 +557,14 @@ class SampleWriter:
 class UsdCacheWriter:
     """Incremental USD point-cache writer: open once, :meth:`write` chunks of frames, :meth:`close`.
 
-    Use as a context manager; on an exception nothing is written. Memory holds the new layer
-    (which keeps every sample until export) but no copy of the caller's arrays, so a clip can be
-    skinned and written chunk by chunk (for clips too long for one layer in memory, see
-    :mod:`dqskin.formats.usd_clips`).
+    Use as a context manager; on an exception nothing is written. A ``.usdc``/``.usd`` cache is
+    written as it goes: on the first :meth:`write` the flattened, unbound copy of the source
+    (:class:`CacheLayer`, with the spec of every value that chunk holds) is exported once, and
+    every chunk's samples are streamed after it into the temporary file
+    (:class:`~.crate.CrateSamples` with that ``base``): memory holds the copy of the source but
+    no sample. Every later chunk must hold the same meshes and values as the first. A ``.usda``
+    layer keeps every sample in memory until it is written. (For clips too long for one file,
+    see :mod:`dqskin.formats.usd_clips`.)
 
     Parameters
     ----------
@@ -598,6 +606,7 @@ class UsdCacheWriter:
                                     device=device, interp=interp, sign_reference=sign_reference)
         self._t_min, self._t_max = np.inf, -np.inf
         self._claim = atomic_path(self.out, overwrite=overwrite)
+        self._sink = None  # the layer or CrateSamples samples go to, chosen by the first chunk
 
     def __enter__(self):
         self._claim.open()
@@ -607,8 +616,64 @@ class UsdCacheWriter:
         if exc_type is None:
             self.close()
         else:
-            self._claim.discard()
+            self._discard()
         return False
+
+    def _discard(self):
+        if isinstance(self._sink, CrateSamples):
+            self._sink.abort()
+        self._claim.discard()
+
+    def _sink_for(self, first):
+        """Where samples go (chosen once, from the first chunk ``first``): the layer for
+        ``.usda``; else a :class:`~.crate.CrateSamples` in the claimed temporary file over the
+        layer exported once with the spec of every value ``first`` holds (and of every rigid
+        prim's transform). A base usd-core wrote in a crate version older than 0.7.0
+        (``USD_WRITE_NEW_USDC_FILES_AS_VERSION``) keeps the layer."""
+        if self._sink is not None:
+            return self._sink
+        self._sink = self.layer
+        if Path(self.out).suffix.lower() not in (".usdc", ".usd"):
+            return self._sink
+        meshes, target = self.samples.meshes, self.cache.target
+        for what, names in (("points", first.points), ("normals", first.normals or {}),
+                            ("velocities", first.velocities or {})):
+            for name in names:
+                mesh = meshes.get(name)
+                if mesh is None or (what == "normals" and mesh.normals is None):
+                    continue  # refused by SampleWriter.prepare, naming it
+                target(name, what)
+                if what == "points":
+                    target(name, "extent")
+        for r in self.cache.rigid:
+            target(r.name, "xformOp:transform")
+        t = np.atleast_1d(np.asarray(first.times, np.float64))
+        if t.size and np.all(np.isfinite(t)):
+            self.cache.set_metadata(t.min(), t.max())  # the range is replaced by close()
+        tmp = self._claim.open()
+        base = tmp.with_name(".base.usdc")
+        export_layer(self.layer, self._claim, tmp=base)
+        try:
+            self._sink = CrateSamples(tmp, self.scene.time_codes_per_second, base=base)
+        except ValueError:
+            if not base.is_file() or base.read_bytes()[:8] != b"PXR-USDC":
+                raise
+        finally:
+            base.unlink(missing_ok=True)
+        if isinstance(self._sink, CrateSamples):
+            self.samples.target = self._frozen_target(dict(self.cache.targets))
+        return self._sink
+
+    def _frozen_target(self, targets):
+        """The target lookup once the copy is exported: only what it declares."""
+        def target(name, what):
+            try:
+                return targets[name, what]
+            except KeyError:
+                raise ValueError(f"{self.out}: {name}: {what} was not in the first chunk; a "
+                                 ".usdc/.usd cache takes the meshes and values of its first "
+                                 "chunk in every later one (.usda takes any)") from None
+        return target
 
     def write(self, times, points, normals=None, velocities=None):
         """Add samples for ``times``.
@@ -627,13 +692,21 @@ class UsdCacheWriter:
         velocities : dict str → (F, V, 3) float, optional
             Point velocities in prim-space units per second, written to ``velocities``.
         """
-        t = self.samples.write(self.layer, times, points, normals, velocities)
+        sink = self._sink_for(SimpleNamespace(times=times, points=points, normals=normals,
+                                              velocities=velocities))
+        t = self.samples.write(sink, times, points, normals, velocities)
         self._t_min, self._t_max = min(self._t_min, t.min()), max(self._t_max, t.max())
 
     def write_chunks(self, chunks, check=None, checked=False):
         """:meth:`write` every :class:`dqskin.scene.SkinnedFrames` of ``chunks``, checking and
         converting the next on a helper thread (:meth:`SampleWriter.write_chunks`)."""
-        lo, hi = self.samples.write_chunks(self.layer, chunks, check, checked)
+        chunks = iter(chunks)
+        first = next(chunks, None)
+        if first is None:
+            return
+        sink = self._sink_for(first)
+        lo, hi = self.samples.write_chunks(sink, itertools.chain([first], chunks), check,
+                                           checked)
         self._t_min, self._t_max = min(self._t_min, lo), max(self._t_max, hi)
 
     def close(self):
@@ -642,10 +715,13 @@ class UsdCacheWriter:
         try:
             if not np.isfinite(self._t_min):
                 raise ValueError(f"{self.out}: no frames were written")
-            self.cache.set_metadata(self._t_min, self._t_max)
-            export_layer(self.layer, claim)
+            if isinstance(self._sink, CrateSamples):
+                self._sink.close(self._t_min, self._t_max)
+            else:
+                self.cache.set_metadata(self._t_min, self._t_max)
+                export_layer(self.layer, claim)
         except BaseException:
-            claim.discard()
+            self._discard()
             raise
         claim.commit()
         return self.out
