@@ -255,3 +255,18 @@ def test_a_base_needs_the_spec_and_its_type(tmp_path):
     crate.abort()
     with pytest.raises(ValueError, match="not a USD crate file"):
         CrateSamples(tmp_path / "x.usdc", 30.0, base=tmp_path / "out.usdc")
+
+
+def test_lz4_blocks_with_overlapping_matches_and_long_lengths_decode():
+    """The LZ4 decoder (for the structural sections usd-core compressed) against hand-made
+    blocks: a back-reference longer than its offset repeats the bytes; lengths of 15 and more
+    take extension bytes (255 = another byte follows)."""
+    from dqskin.formats.crate import _lz4_decode, _lz4_literals
+
+    block = bytes([0x00, 0x38]) + b"abc" + bytes([3, 0, 0x50]) + b"defgh"
+    assert _lz4_decode(block) == b"abc" + b"abc" * 4 + b"defgh"
+    run = bytes([0x00, 0x1F, ord("z"), 1, 0, 255, 2, 0x50]) + b"12345"
+    assert _lz4_decode(run) == b"z" * (1 + 15 + 255 + 2 + 4) + b"12345"
+    for n in (0, 14, 15, 269, 270, 271, 1000):
+        data = bytes(range(256)) * (n // 256 + 1)
+        assert _lz4_decode(_lz4_literals(data[:n])) == data[:n]

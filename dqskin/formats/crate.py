@@ -106,27 +106,13 @@ def _lz4_decode(src: bytes) -> bytes:
     out, i, n = bytearray(), 1, len(src)
     while i < n:
         token = src[i]
-        i += 1
-        length = token >> 4
-        if length == 15:
-            while True:
-                length += src[i]
-                i += 1
-                if src[i - 1] != 255:
-                    break
+        length, i = _lz4_length(src, i + 1, token >> 4)
         out += src[i:i + length]
         i += length
         if i >= n:
             break
         offset = src[i] | src[i + 1] << 8
-        i += 2
-        length = token & 15
-        if length == 15:
-            while True:
-                length += src[i]
-                i += 1
-                if src[i - 1] != 255:
-                    break
+        length, i = _lz4_length(src, i + 2, token & 15)
         length += 4
         if not 0 < offset <= len(out):
             raise ValueError("LZ4 offset out of range")
@@ -137,6 +123,17 @@ def _lz4_decode(src: bytes) -> bytes:
             period = out[start:]
             out += (period * (length // offset + 1))[:length]
     return bytes(out)
+
+
+def _lz4_length(src, i, length):
+    """A 4-bit LZ4 length and its extension bytes at ``src[i:]`` (each 255 means another)."""
+    if length == 15:
+        while True:
+            length += src[i]
+            i += 1
+            if src[i - 1] != 255:
+                break
+    return length, i
 
 
 _INT_WIDTHS = {1: "<b", 2: "<h", 3: "<i"}
