@@ -270,3 +270,22 @@ def test_lz4_blocks_with_overlapping_matches_and_long_lengths_decode():
     for n in (0, 14, 15, 269, 270, 271, 1000):
         data = bytes(range(256)) * (n // 256 + 1)
         assert _lz4_decode(_lz4_literals(data[:n])) == data[:n]
+
+
+def test_a_failed_write_on_the_writer_thread_is_raised_here(tmp_path, monkeypatch):
+    """Samples are written on a writer thread: its error (a full disk) comes back from a later
+    ``add`` or from ``close``, and ``abort`` still closes the file."""
+    import errno
+    import os
+
+    def full(fd, bufs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    crate = CrateSamples(tmp_path / "full.usdc", 24.0)
+    monkeypatch.setattr(os, "writev", full)
+    with pytest.raises(OSError, match="No space left"):
+        for k in range(10):
+            crate.add("/A.points", "point3f[]", [float(k)], np.zeros((1, 4, 3), np.float32))
+        crate.close(0, 9)
+    crate.abort()
+    assert crate._fd is None

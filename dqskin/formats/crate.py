@@ -35,8 +35,11 @@ back with usd-core and compares it, value by value and as text, with the same la
 by Sdf.
 """
 
+import collections
 import os
 import struct
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -272,6 +275,31 @@ def _writev(fd, buffers) -> int:
     return total
 
 
+WRITES_AHEAD = 2
+"""Blocks of samples a :class:`CrateSamples` may have queued for the writer thread before
+:meth:`~CrateSamples.add` waits (each holds its frames in memory until written)."""
+
+_WRITER = {"executor": None, "lock": threading.Lock()}
+
+
+def _writer():
+    """The process's one writer thread (created on first use; a forked child makes its own):
+    file writes release the GIL, so the caller skins and checks the next frames meanwhile."""
+    with _WRITER["lock"]:
+        if _WRITER["executor"] is None:
+            _WRITER["executor"] = ThreadPoolExecutor(max_workers=1,
+                                                     thread_name_prefix="dqskin-crate-write")
+        return _WRITER["executor"]
+
+
+def _forget_writer():
+    _WRITER["executor"], _WRITER["lock"] = None, threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_writer)
+
+
 def _write_all(fd, data):
     while data.nbytes:
         data = data[os.write(fd, data):]
@@ -312,6 +340,7 @@ class CrateSamples:
         self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC
                            | getattr(os, "O_CLOEXEC", 0), 0o666)
         self._pos = 0
+        self._queued = collections.deque()  # writes of add() not yet known done
         try:
             self._write([bytes(_BOOTSTRAP)])
             if self._base is not None:  # its values at their own offsets
@@ -321,7 +350,21 @@ class CrateSamples:
             raise
 
     def _write(self, buffers):
+        self._drain()
         self._pos += _writev(self._fd, buffers)
+
+    def _write_later(self, buffers):
+        """Queue ``buffers`` for the writer thread (in order after the queued ones); waits while
+        :data:`WRITES_AHEAD` are queued. An error of a queued write is raised here or later."""
+        while len(self._queued) >= WRITES_AHEAD:
+            self._queued.popleft().result()
+        self._queued.append(_writer().submit(_writev, self._fd, buffers))
+        self._pos += sum(map(_nbytes, buffers))
+
+    def _drain(self):
+        """Wait for every queued write (raising the first error)."""
+        while self._queued:
+            self._queued.popleft().result()
 
     def _align(self):
         pad = -self._pos % 8
@@ -391,11 +434,11 @@ class CrateSamples:
                 buffers = [bytes(pad)] * (per * F)
                 buffers[0::per] = [struct.pack("<Q", n)] * F
                 buffers[1::per] = list(v.reshape(F, -1))
-                self._write(buffers)
+                self._write_later(buffers)
                 offsets = self._pos - F * stride + stride * np.arange(F, dtype=np.uint64)
                 reps = np.uint64(_rep(_VEC3F, array=True)) | offsets
         else:
-            self._write([v])
+            self._write_later([v])
             offsets = self._pos - F * 128 + 128 * np.arange(F, dtype=np.uint64)
             reps = np.uint64(_rep(_MATRIX4D)) | offsets
         rec.times.append(t)
@@ -416,8 +459,14 @@ class CrateSamples:
                                      f"{base.path}, not {type_name}")
 
     def abort(self) -> None:
-        """Close the file unfinished (the caller removes it)."""
+        """Close the file unfinished (the caller removes it), once its queued writes ended."""
         if self._fd is not None:
+            for done in self._queued:
+                try:
+                    done.result()
+                except Exception:
+                    pass
+            self._queued.clear()
             os.close(self._fd)
             self._fd = None
 
