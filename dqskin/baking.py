@@ -37,7 +37,9 @@ CLIP_CHUNK = 128
 
 CLIPS_AUTO_BYTES = 512 << 20
 """A USD cache whose samples would exceed this many bytes (:func:`sample_bytes`) is written as
-value clips unless ``clips=False``: a single layer holds all of them in memory until saved."""
+value clips unless ``clips=False``: a long bake then runs chunk by chunk, resumable, on Dask
+workers if asked (a ``.usda`` layer would also hold every sample in memory until saved; a
+``.usdc``/``.usd`` one streams them to its file)."""
 
 
 def sample_bytes(scene: Scene, frames: int, normals: bool = True, velocities: bool = True) -> int:

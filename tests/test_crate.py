@@ -115,6 +115,9 @@ def test_large_arrays_exact(tmp_path):
     (("/A.points", "point3f[]", [0.0], np.zeros((1, 2, 4))), "expected 1 frames"),
     (("/A.points", "point3f[]", [np.nan], np.zeros((1, 2, 3))), "finite"),
     (("/A.xformOp:transform", "matrix4d", [0.0], np.zeros((1, 3, 3))), r"\(4, 4\)"),
+    (("/A.xformOp:transform", "matrix4d", [0.0], np.zeros(16)), r"\(4, 4\)"),
+    (("A.points", "point3f[]", [0.0], np.zeros((1, 2, 3))), "not an attribute path"),
+    (("/A{v=x}B.points", "point3f[]", [0.0], np.zeros((1, 2, 3))), "variant"),
 ])
 def test_bad_samples_are_refused(tmp_path, args, match):
     crate = CrateSamples(tmp_path / "bad.usdc", 24.0)
@@ -196,6 +199,8 @@ def _base_layer():
     pts = Sdf.AttributeSpec(mesh, "points", Sdf.ValueTypeNames.Point3fArray)
     pts.default = Vt.Vec3fArray.FromNumpy(np.arange(15, dtype=np.float32).reshape(5, 3))
     Sdf.AttributeSpec(mesh, "extent", Sdf.ValueTypeNames.Float3Array)
+    acc = Sdf.AttributeSpec(mesh, "accelerations", Sdf.ValueTypeNames.Vector3fArray)
+    layer.SetTimeSample(acc.path, 0.0, Vt.Vec3fArray(5))
     nrm = Sdf.AttributeSpec(mesh, "primvars:normals", Sdf.ValueTypeNames.Normal3fArray)
     nrm.SetInfo("interpolation", "vertex")
     Sdf.AttributeSpec(mesh, "faceVertexCounts", Sdf.ValueTypeNames.IntArray).default = \
@@ -250,8 +255,11 @@ def test_a_base_needs_the_spec_and_its_type(tmp_path):
     crate = CrateSamples(tmp_path / "out.usdc", 30.0, base=base)
     with pytest.raises(ValueError, match="the base layer has no attribute spec"):
         crate.add("/Root/Mesh.velocities", "vector3f[]", [1.0], np.zeros((1, 5, 3)))
-    with pytest.raises(ValueError, match="declared normal3f"):
-        crate.add("/Root/Mesh.primvars:normals", "vector3f[]", [1.0], np.zeros((1, 5, 3)))
+    with pytest.raises(ValueError, match="declared matrix4d in the base layer, which "
+                                         "normal3f"):
+        crate.add("/Root/Rigid.xformOp:transform", "normal3f[]", [1.0], np.zeros((1, 5, 3)))
+    with pytest.raises(ValueError, match="has time samples in the base layer already"):
+        crate.add("/Root/Mesh.accelerations", "vector3f[]", [1.0], np.zeros((1, 5, 3)))
     crate.abort()
     with pytest.raises(ValueError, match="not a USD crate file"):
         CrateSamples(tmp_path / "x.usdc", 30.0, base=tmp_path / "out.usdc")
@@ -289,3 +297,116 @@ def test_a_failed_write_on_the_writer_thread_is_raised_here(tmp_path, monkeypatc
         crate.close(0, 9)
     crate.abort()
     assert crate._fd is None
+
+
+def test_a_base_type_stored_as_the_samples_takes_them(tmp_path):
+    """A primvar declared ``float3[]`` (or ``vector3f[]``) takes ``normal3f[]`` samples, as
+    Sdf's SetTimeSample does: the declared type is kept."""
+    layer = Sdf.Layer.CreateAnonymous(".usdc")
+    mesh = Sdf.PrimSpec(layer, "Mesh", Sdf.SpecifierDef, "Mesh")
+    for name, type_name in (("primvars:normals", Sdf.ValueTypeNames.Float3Array),
+                            ("velocities", Sdf.ValueTypeNames.Vector3fArray)):
+        Sdf.AttributeSpec(mesh, name, type_name)
+    layer.Export(str(tmp_path / "base.usdc"))
+    values = _samples(2, 3)
+    crate = CrateSamples(tmp_path / "out.usdc", 24.0, base=tmp_path / "base.usdc")
+    crate.add("/Mesh.primvars:normals", "normal3f[]", [0.0, 1.0], values)
+    crate.add("/Mesh.velocities", "normal3f[]", [0.0, 1.0], values)
+    crate.close(0, 1)
+    for name, type_name in (("/Mesh.primvars:normals", "float3[]"),
+                            ("/Mesh.velocities", "vector3f[]")):
+        layer.SetTimeSample(name, 0.0, Vt.Vec3fArray.FromNumpy(values[0]))
+        layer.SetTimeSample(name, 1.0, Vt.Vec3fArray.FromNumpy(values[1]))
+    layer.startTimeCode, layer.endTimeCode = 0, 1
+    ours = Sdf.Layer.FindOrOpen(str(tmp_path / "out.usdc"))
+    assert ours.ExportToString() == layer.ExportToString()
+    assert ours.GetAttributeAtPath("/Mesh.primvars:normals").typeName == "float3[]"
+
+
+def test_refused_and_empty_adds_leave_a_valid_layer(tmp_path):
+    """An add refused (non-finite times) or of no frames records nothing: close still writes a
+    layer with the other attributes."""
+    crate = CrateSamples(tmp_path / "x.usdc", 24.0)
+    with pytest.raises(ValueError, match="finite"):
+        crate.add("/A.points", "point3f[]", [np.inf], np.zeros((1, 2, 3)))
+    crate.add("/B.points", "point3f[]", [], np.zeros((0, 2, 3)))
+    crate.add("/C.points", "point3f[]", [1.0], np.ones((1, 2, 3)))
+    crate.close(1, 1)
+    layer = Sdf.Layer.FindOrOpen(str(tmp_path / "x.usdc"))
+    assert [p.path for p in layer.rootPrims] == [Sdf.Path("/C")]
+
+
+def test_deep_hierarchies_need_no_recursion(tmp_path):
+    """Prims 1,500 levels deep (past Python's recursion limit), with siblings at every level."""
+    deep = "".join(f"/P{k}" for k in range(1500))
+    attrs = [(deep + ".points", "point3f[]", [0.0], _samples(1, 2), ()),
+             ("/P0/Q.points", "point3f[]", [0.0], _samples(1, 2), ()),
+             ("/P0/P1/R.points", "point3f[]", [0.0], _samples(1, 2), ()),
+             ("/P0/P1.extent", "float3[]", [0.0], _samples(1, 2), ())]
+    crate = CrateSamples(tmp_path / "deep.usdc", 24.0)
+    for attr in attrs:
+        crate.add(*attr)
+    crate.close(0, 0)
+    ours = Sdf.Layer.FindOrOpen(str(tmp_path / "deep.usdc"))
+    for attr, _, _, values, _ in attrs:
+        np.testing.assert_array_equal(np.asarray(ours.QueryTimeSample(attr, 0.0)), values[0])
+    assert ours.GetPrimAtPath(deep).specifier == Sdf.SpecifierOver
+
+
+def test_an_unclosed_writer_closes_its_file_when_dropped(tmp_path):
+    import gc
+    import os
+    crate = CrateSamples(tmp_path / "dropped.usdc", 24.0)
+    fd = crate._fd
+    assert os.readlink(f"/proc/self/fd/{fd}") == str(tmp_path / "dropped.usdc")
+    del crate
+    gc.collect()
+    assert not os.path.exists(f"/proc/self/fd/{fd}") or \
+        os.readlink(f"/proc/self/fd/{fd}") != str(tmp_path / "dropped.usdc")
+
+
+def test_integer_codes_of_every_width_decode():
+    """Sdf_IntegerCompression's four codes (the common delta, 8, 16 and 32 bits), by hand:
+    deltas from the previous value, wrapping at 32 bits."""
+    import struct
+
+    from dqskin.formats.crate import _compressed_ints, _decode_ints, _lz4_literals
+
+    deltas = [7, -3, 300, -70000, 7, 2**31 - 1, 5]  # common 7; 8, 16, 32, common, 32, 8 bits
+    codes = [0, 1, 2, 3, 0, 3, 1]
+    packed = bytes([codes[0] | codes[1] << 2 | codes[2] << 4 | codes[3] << 6,
+                    codes[4] | codes[5] << 2 | codes[6] << 4])
+    body = (struct.pack("<i", 7) + packed + struct.pack("<b", -3) + struct.pack("<h", 300)
+            + struct.pack("<i", -70000) + struct.pack("<i", 2**31 - 1) + struct.pack("<b", 5))
+    blob = _lz4_literals(body)
+    values, end = _decode_ints(struct.pack("<Q", len(blob)) + blob, 0, len(deltas))
+    expected = (np.cumsum(deltas) + 2**31) % 2**32 - 2**31
+    np.testing.assert_array_equal(values, expected)
+    assert end == 8 + len(blob)
+    ours = np.array([0, 5, -1, 2**31 - 1, -2**31, 12], np.int64)
+    np.testing.assert_array_equal(_decode_ints(_compressed_ints(ours), 0, len(ours))[0], ours)
+
+
+def test_a_large_base_usd_compressed(tmp_path):
+    """A base of 2,000 prims: usd-core's sections use LZ4 back-references and short integer
+    codes; the merged file reads as Sdf's."""
+    layer = Sdf.Layer.CreateAnonymous(".usdc")
+    root = Sdf.PrimSpec(layer, "World", Sdf.SpecifierDef, "Xform")
+    attrs = []
+    for k in range(2000):
+        prim = Sdf.PrimSpec(root, f"Mesh_{k}", Sdf.SpecifierDef, "Mesh")
+        Sdf.AttributeSpec(prim, "points", Sdf.ValueTypeNames.Point3fArray)
+        Sdf.AttributeSpec(prim, "doubleSided", Sdf.ValueTypeNames.Bool).default = k % 2 == 0
+        if k % 97 == 0:
+            attrs.append((f"/World/Mesh_{k}.points", _samples(2, 3)))
+    layer.Export(str(tmp_path / "base.usdc"))
+    crate = CrateSamples(tmp_path / "out.usdc", 24.0, base=tmp_path / "base.usdc")
+    for attr, values in attrs:
+        crate.add(attr, "point3f[]", [0.0, 1.0], values)
+    crate.close(0, 1)
+    for attr, values in attrs:
+        for t, v in enumerate(values):
+            layer.SetTimeSample(attr, float(t), Vt.Vec3fArray.FromNumpy(v))
+    layer.startTimeCode, layer.endTimeCode = 0, 1
+    assert Sdf.Layer.FindOrOpen(str(tmp_path / "out.usdc")).ExportToString() == \
+        layer.ExportToString()

@@ -362,3 +362,8 @@ def test_crate_cache_streams_what_the_sdf_layer_holds(shared_assets, tmp_path):
             writer.write([5.0], *random_frames(scene, [5.0])[:2])
     assert not (tmp_path / "late.usdc").exists()
     assert sorted(os.listdir(tmp_path)) == ["cache.usd", "cache.usda", "cache.usdc"]
+    odd = tmp_path / "odd" / ".base.usdc"  # the name of nothing the writer uses itself
+    write_usd_cache(scene, odd, t, p, n, velocities=v)
+    assert sorted(os.listdir(odd.parent)) == [".base.usdc"]
+    assert Sdf.Layer.FindOrOpen(str(odd)).ListTimeSamplesForPath(
+        f"{scene.meshes[0].name}.points") == t

@@ -1,11 +1,12 @@
 """Time samples streamed straight into a USD crate file (``.usdc``), without an Sdf layer.
 
 A layer that holds nothing but time samples (a clip layer of :mod:`.usd_clips`) is written here
-as its arrays arrive: :meth:`CrateSamples.add` writes a block of frames of one attribute to the
-file at once (one ``writev``, the GIL released, no ``Vt`` array per frame, nothing kept but
-their file offsets), and :meth:`CrateSamples.close` writes what makes it a layer: the prims (as
-``over``), the attributes with their sample tables, the layer's time range and rate, the
-structural sections and the table of contents. Memory holds one block, not the layer.
+as its arrays arrive: :meth:`CrateSamples.add` queues a block of frames of one attribute for
+the writer thread (``writev`` calls, the GIL released, no ``Vt`` array per frame, nothing kept
+but their file offsets once written), and :meth:`CrateSamples.close` writes what makes it a
+layer: the prims (as ``over``), the attributes with their sample tables, the layer's time range
+and rate, the structural sections and the table of contents. Memory holds a few blocks, not the
+layer.
 
 The file is crate version 0.8.0, what usd-core writes by default, laid out as
 ``pxr/usd/sdf/crateFile.cpp`` reads it:
@@ -39,6 +40,7 @@ import collections
 import os
 import struct
 import threading
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -139,30 +141,32 @@ def _lz4_length(src, i, length):
     return length, i
 
 
-_INT_WIDTHS = {1: "<b", 2: "<h", 3: "<i"}
+_INT_WIDTHS = np.array([0, 1, 2, 4])  # bytes of a delta by its 2-bit code
 
 
 def _decode_ints(data: bytes, pos: int, count: int):
     """``count`` integers coded by ``Sdf_IntegerCompression`` at ``data[pos:]`` (``uint64`` size
-    first); returns them (wrapped to signed 32 bits) and the position after them."""
+    first); returns them (int64, wrapped to signed 32 bits) and the position after them."""
     size = struct.unpack_from("<Q", data, pos)[0]
     end = pos + 8 + size
     if not count:
-        return [], end
-    enc = _lz4_decode(data[pos + 8:end])
-    common = struct.unpack_from("<i", enc, 0)[0]
-    at = 4 + (count * 2 + 7) // 8
-    values, prev = [], 0
-    for k in range(count):
-        code = enc[4 + k // 4] >> (2 * (k % 4)) & 3
-        if code:
-            fmt = _INT_WIDTHS[code]
-            delta = struct.unpack_from(fmt, enc, at)[0]
-            at += struct.calcsize(fmt)
-        else:
-            delta = common
-        prev = (prev + delta + 2**31) % 2**32 - 2**31
-        values.append(prev)
+        return np.zeros(0, np.int64), end
+    enc = np.frombuffer(_lz4_decode(data[pos + 8:end]), np.uint8)
+    common = int(enc[:4].view("<i4")[0])
+    n_codes = (count * 2 + 7) // 8
+    codes = ((enc[4:4 + n_codes, None] >> np.array([0, 2, 4, 6], np.uint8)) & 3).ravel()[:count]
+    widths = _INT_WIDTHS[codes]
+    at = 4 + n_codes + np.cumsum(widths) - widths  # where each delta's bytes start
+    if at.size and at[-1] + widths[-1] > enc.size:
+        raise ValueError("integer codes run past their buffer")
+    deltas = np.full(count, common, np.int64)
+    for code, dtype in ((1, np.int8), (2, np.int16), (3, np.int32)):
+        sel = codes == code
+        if sel.any():
+            little = np.dtype(dtype).newbyteorder("<")
+            raw = enc[at[sel, None] + np.arange(little.itemsize)]  # (k, width) bytes
+            deltas[sel] = np.ascontiguousarray(raw).view(little).ravel()
+    values = (np.cumsum(deltas) + 2**31) % 2**32 - 2**31
     return values, end
 
 
@@ -202,17 +206,18 @@ class _Base:
         names, pos = _decode_ints(data, pos + 8, n)
         size = struct.unpack_from("<Q", data, pos)[0]
         reps = np.frombuffer(_lz4_decode(data[pos + 8:pos + 8 + size]), "<u8", count=n)
-        self.fields = [(t & 0xFFFFFFFF, int(r)) for t, r in zip(names, reps)]
+        self.fields = [(int(t) & 0xFFFFFFFF, int(r)) for t, r in zip(names, reps)]
 
         pos = sections["FIELDSETS"][0]
         n = struct.unpack_from("<Q", data, pos)[0]
-        self.fieldsets = [v & 0xFFFFFFFF for v in _decode_ints(data, pos + 8, n)[0]]
+        self.fieldsets = (_decode_ints(data, pos + 8, n)[0] & 0xFFFFFFFF).tolist()
 
         pos = sections["PATHS"][0]
         total, n = struct.unpack_from("<QQ", data, pos)
         index, pos = _decode_ints(data, pos + 16, n)
         element, pos = _decode_ints(data, pos, n)
         jumps, pos = _decode_ints(data, pos, n)
+        index, element, jumps = index.tolist(), element.tolist(), jumps.tolist()
         self.paths = [None] * total
         stack = [(0, None)]  # (item, parent path) of each sibling run still to walk
         while stack:
@@ -240,7 +245,7 @@ class _Base:
         paths, pos = _decode_ints(data, pos + 8, n)
         sets, pos = _decode_ints(data, pos, n)
         kinds, _ = _decode_ints(data, pos, n)
-        self.specs = [list(spec) for spec in zip(paths, sets, kinds)]
+        self.specs = [list(spec) for spec in zip(paths.tolist(), sets.tolist(), kinds.tolist())]
         self.spec_of = {self.paths[p]: k for k, (p, _, _) in enumerate(self.specs)}
 
     def section(self, name) -> bytes:
@@ -320,11 +325,13 @@ class CrateSamples:
     path : str or os.PathLike
         The file to create (a temporary name: the layer is valid only after :meth:`close`).
     time_codes_per_second : float
-        The layer's ``timeCodesPerSecond`` and ``framesPerSecond``.
+        The layer's ``timeCodesPerSecond`` and ``framesPerSecond`` (unused with a ``base``,
+        whose own are kept).
 
     base : str or os.PathLike, optional
         A crate file usd-core wrote (crate version 0.7.0 or later) that already holds a spec,
-        without samples, for every attribute that will be added: the new file is that layer
+        without time samples and of a type stored as the samples are (``float3[]`` takes
+        ``normal3f[]`` samples), for every attribute that will be added: the new file is that layer
         with the samples (its ``timeCodesPerSecond`` and every other field kept; the time range
         replaced by :meth:`close`'s). Without it, prims above the attributes are ``over`` specs.
 
@@ -339,6 +346,7 @@ class CrateSamples:
         self._attrs = {}  # attribute path → _Attribute, in first-added order
         self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC
                            | getattr(os, "O_CLOEXEC", 0), 0o666)
+        self._closer = weakref.finalize(self, os.close, self._fd)  # if never closed
         self._pos = 0
         self._queued = collections.deque()  # writes of add() not yet known done
         try:
@@ -401,26 +409,32 @@ class CrateSamples:
             v = np.ascontiguousarray(values, dtype=np.float32)
             ok = v.ndim == 3 and v.shape[2] == 3
         else:
-            v = np.ascontiguousarray(np.swapaxes(values, -1, -2), dtype=np.float64)
-            ok = v.shape[1:] == (4, 4)
-        if not ok or v.shape[0] != t.shape[0] or t.ndim != 1:
+            v = np.asarray(values, dtype=np.float64)
+            ok = v.ndim == 3 and v.shape[1:] == (4, 4)
+            if ok:
+                v = np.ascontiguousarray(v.transpose(0, 2, 1))
+        if not ok or t.ndim != 1 or v.shape[0] != t.shape[0]:
             raise ValueError(f"{attr}: expected {len(t)} frames of "
                              f"{'(N, 3)' if kind == 'vec3f[]' else '(4, 4)'} values, got "
                              f"{np.shape(values)}")
+        if not np.all(np.isfinite(t)):
+            raise ValueError(f"{attr}: sample times must be finite")
         rec = self._attrs.get(attr)
         if rec is None:
             path = Sdf.Path(attr)
-            if not path.IsPrimPropertyPath():
+            if not (path.IsAbsolutePath() and path.IsPrimPropertyPath()):
                 raise ValueError(f"{attr}: not an attribute path (/Prim.name)")
             if self._base is not None:
                 self._check_base_spec(path, type_name)
-            rec = self._attrs[attr] = _Attribute(type_name, tuple(info))
+            elif path.ContainsPrimVariantSelection():
+                raise ValueError(f"{attr}: a variant's attribute needs a base layer that "
+                                 "declares it")
+            rec = _Attribute(type_name, tuple(info))
         elif rec.type_name != type_name:
             raise ValueError(f"{attr}: added as {rec.type_name} before, now {type_name}")
-        if not np.all(np.isfinite(t)):
-            raise ValueError(f"{attr}: sample times must be finite")
         if not t.size:
             return
+        self._attrs.setdefault(attr, rec)
         F = len(t)
         self._align()
         if kind == "vec3f[]":
@@ -454,9 +468,12 @@ class CrateSamples:
             name, rep = base.fields[f]
             if base.tokens[name] == "typeName":
                 declared = base.tokens[rep & 0xFFFFFFFF]
-                if declared != type_name:
-                    raise ValueError(f"{path}: declared {declared} in the base layer "
-                                     f"{base.path}, not {type_name}")
+                if VALUE_TYPES.get(declared) != VALUE_TYPES[type_name]:  # same storage: ok
+                    raise ValueError(f"{path}: declared {declared} in the base layer, which "
+                                     f"{type_name} samples cannot fill")
+            elif base.tokens[name] == "timeSamples":
+                raise ValueError(f"{path}: has time samples in the base layer already (they "
+                                 "would be replaced, not merged)")
 
     def abort(self) -> None:
         """Close the file unfinished (the caller removes it), once its queued writes ended."""
@@ -467,7 +484,7 @@ class CrateSamples:
                 except Exception:
                     pass
             self._queued.clear()
-            os.close(self._fd)
+            self._closer()
             self._fd = None
 
     def close(self, start: float, end: float) -> Path:
@@ -494,6 +511,7 @@ class CrateSamples:
         # Values: sample times (each distinct vector once), TimeSamples records, the time range.
         self._align()
         times_reps, samples = {}, {}
+        self._attrs = {a: rec for a, rec in self._attrs.items() if rec.times}
         for attr, rec in self._attrs.items():
             t, reps = np.concatenate(rec.times), np.concatenate(rec.reps)
             order = np.argsort(t, kind="stable")
@@ -627,25 +645,29 @@ class CrateSamples:
             pairs.append(("timeSamples", samples[attr]))
             specs.append((path_index[Sdf.Path(attr)], fieldset(pairs), _SPEC_ATTRIBUTE))
 
-        # The path tree, depth first: (path index, element token, jump) per node.
-        tree_paths, tree_tokens, jumps = [0], [0], [-1 if len(paths) > 1 else -2]
-
-        def walk(node):
+        # The path tree, depth first: (path index, element token, jump) per node; a node with
+        # a child and a sibling jumps to the sibling, written after the child's subtree.
+        tree_paths, tree_tokens, jumps = [], [], []
+        stack = [(root, False)]  # (path, has a sibling after it)
+        open_jumps = []  # (node index, depth) of nodes whose sibling is not written yet
+        depth = {root: 0}
+        while stack:
+            node, has_sibling = stack.pop()
+            here = len(tree_paths)
+            while open_jumps and open_jumps[-1][1] >= depth[node]:
+                at, _ = open_jumps.pop()
+                jumps[at] = here - at  # this node is that one's next sibling
+            tree_paths.append(path_index[node])
+            name = 0 if node == root else token(node.name)
+            tree_tokens.append(-name if node.IsPropertyPath() else name)
             kids = list(children.get(node, ())) + list(props.get(node, ()))
-            for i, child in enumerate(kids):
-                here = len(tree_paths)
-                tree_paths.append(path_index[child])
-                name = token(child.name)
-                tree_tokens.append(-name if child.IsPropertyPath() else name)
-                jumps.append(None)
-                has_child = bool(children.get(child) or props.get(child))
-                if has_child:
-                    walk(child)
-                has_sibling = i + 1 < len(kids)
-                jumps[here] = (len(tree_paths) - here if has_child and has_sibling else
-                               0 if has_sibling else -1 if has_child else -2)
-
-        walk(root)
+            jumps.append(0 if has_sibling and not kids else -1 if kids and not has_sibling
+                         else -2 if not kids else None)
+            if kids and has_sibling:
+                open_jumps.append((here, depth[node]))
+            for i, kid in reversed(list(enumerate(kids))):
+                depth[kid] = depth[node] + 1
+                stack.append((kid, i + 1 < len(kids)))
         return specs, b"".join([struct.pack("<QQ", len(paths), len(tree_paths)),
                                 _compressed_ints(tree_paths), _compressed_ints(tree_tokens),
                                 _compressed_ints(jumps)])

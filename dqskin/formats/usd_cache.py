@@ -20,7 +20,7 @@ import contextlib
 import ctypes
 import itertools
 import os
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
@@ -408,9 +408,10 @@ def export_layer(layer, claim, out=None, tmp=None):
 
 
 class SampleWriter:
-    """Checked chunks of skinned frames → time samples in a layer: an ``Sdf.Layer`` (the
-    single-layer cache: one ``Vt`` array per frame and attribute, set under the GIL) or a
-    :class:`~.crate.CrateSamples` (a clip layer: the frames go to its file as they come).
+    """Checked chunks of skinned frames → time samples in a layer: an ``Sdf.Layer`` (a
+    ``.usda`` cache: one ``Vt`` array per frame and attribute, set under the GIL) or a
+    :class:`~.crate.CrateSamples` (every crate file: a clip layer, or a ``.usdc``/``.usd``
+    cache after its copy of the source; the frames go to the file as they come).
 
     Parameters
     ----------
@@ -535,22 +536,24 @@ class SampleWriter:
         with contextlib.ExitStack() as stack:
             ex = executor or stack.enter_context(
                 ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values"))
-            pending = None
+            queued = []  # the preparations submitted and not applied: at most two
             try:
                 for res in chunks:
                     for name in set(res.points) & set(self.meshes):  # targets made here only
                         self._pad(name)
-                    nxt = ex.submit(prep, res)
-                    if pending is not None:
-                        t = self.apply(layer, pending.result())
+                    queued.append(ex.submit(prep, res))
+                    if len(queued) == 2:
+                        t = self.apply(layer, queued[0].result())
+                        queued.pop(0)
                         lo, hi = min(lo, t.min()), max(hi, t.max())
-                    pending = nxt
-                if pending is not None:
-                    t = self.apply(layer, pending.result())
+                while queued:
+                    t = self.apply(layer, queued[0].result())
+                    queued.pop(0)
                     lo, hi = min(lo, t.min()), max(hi, t.max())
             finally:
-                if pending is not None:
-                    pending.cancel()
+                for f in queued:  # on an error: none left running for a shared executor
+                    if not f.cancel():
+                        wait([f])
         return lo, hi
 
 
@@ -628,8 +631,8 @@ class UsdCacheWriter:
         """Where samples go (chosen once, from the first chunk ``first``): the layer for
         ``.usda``; else a :class:`~.crate.CrateSamples` in the claimed temporary file over the
         layer exported once with the spec of every value ``first`` holds (and of every rigid
-        prim's transform). A base usd-core wrote in a crate version older than 0.7.0
-        (``USD_WRITE_NEW_USDC_FILES_AS_VERSION``) keeps the layer."""
+        prim's transform). A crate file this writer cannot extend (usd-core wrote a version
+        older than 0.7.0: ``USD_WRITE_NEW_USDC_FILES_AS_VERSION``) keeps the layer."""
         if self._sink is not None:
             return self._sink
         self._sink = self.layer
@@ -651,7 +654,7 @@ class UsdCacheWriter:
         if t.size and np.all(np.isfinite(t)):
             self.cache.set_metadata(t.min(), t.max())  # the range is replaced by close()
         tmp = self._claim.open()
-        base = tmp.with_name(".base.usdc")
+        base = tmp.with_name(tmp.name + ".base.usdc")  # never the output's own name
         export_layer(self.layer, self._claim, tmp=base)
         try:
             self._sink = CrateSamples(tmp, self.scene.time_codes_per_second, base=base)
