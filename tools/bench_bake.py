@@ -236,11 +236,10 @@ def breakdown_dqskin(src, dst, chunk=256):
     every frame before the next (no overlap), then the clip bake's extra step (hashing)."""
     ph = _Phases()
     with ph("imports"):
-        from pxr import Sdf, Vt
-
         from dqskin.formats import load
         from dqskin.formats.atomic import atomic_path
-        from dqskin.formats.usd_cache import CacheLayer, _extents, export_layer, vec3f_arrays
+        from dqskin.formats.crate import CrateSamples
+        from dqskin.formats.usd_cache import CacheLayer, _extents, export_layer
         from dqskin.formats.usd_clips import sha256_file
         from dqskin.validation import check_skinned
         import_dqskin()
@@ -259,28 +258,24 @@ def breakdown_dqskin(src, dst, chunk=256):
     names = [m.name for m in scene.meshes]
     with ph("extents"):
         ext = [{n: _extents(r.points[n], 0.0) for n in names} for r in res]
-    with ph("Vt arrays (Vt.Vec3fArray(N) + memmove), points + extent"):
-        vts = [{n: (vec3f_arrays(r.points[n]), vec3f_arrays(e[n])) for n in names}
-               for r, e in zip(res, ext)]
-    with ph("(apart) of which new Vt arrays alone: first touch of fresh memory"):
-        fresh = [Vt.Vec3fArray(len(m.points)) for m in scene.meshes for _ in scene.times]
-    del fresh
-    layer = cache.layer
-    paths = {n: (cache.target(n, "points").spec(layer).path,
-                 cache.target(n, "extent").spec(layer).path) for n in names}
-    with ph("layer.SetTimeSample under Sdf.ChangeBlock, points + extent"):
-        with Sdf.ChangeBlock():
-            for r, v in zip(res, vts):
-                times = r.times.tolist()
-                for n in names:
-                    for ti, p, e in zip(times, *v[n]):
-                        layer.SetTimeSample(paths[n][0], ti, p)
-                        layer.SetTimeSample(paths[n][1], ti, e)
-    del vts, res
+    targets = {n: (cache.target(n, "points"), cache.target(n, "extent")) for n in names}
     cache.set_metadata(scene.times.min(), scene.times.max())
     claim = atomic_path(dst, overwrite=True)
-    with ph("Export (crate)"):
-        tmp = export_layer(layer, claim)
+    tmp = claim.open()
+    base = tmp.with_name(".base.usdc")
+    with ph("export the source's copy (the base: topology, UVs, specs)"):
+        export_layer(cache.layer, claim, tmp=base)
+    with ph("crate: base values copied, then every frame written (writer thread)"):
+        crate = CrateSamples(tmp, scene.time_codes_per_second, base=base)
+        for r, e in zip(res, ext):
+            for n in names:
+                for target, values in zip(targets[n], (r.points[n], e[n])):
+                    crate.add(target.attr, target.type_name, r.times, values)
+        crate._drain()
+    with ph("crate: the base's sections decoded, merged and written"):
+        crate.close(scene.times.min(), scene.times.max())
+    base.unlink()
+    del res, ext
     with ph("(clips only) SHA-256 of the layer"):
         sha256_file(tmp)
     claim.commit()
