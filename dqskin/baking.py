@@ -30,7 +30,8 @@ OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXE
 
 
 CHUNK = 256
-"""Default frames skinned at a time (single-layer caches, .npz, per-frame files)."""
+"""Default frames skinned at a time (.npz, per-frame files; single-layer USD caches skin fewer
+when 256 frames of samples exceed :data:`dqskin.distributed.PIECE_BYTES`)."""
 
 CLIP_CHUNK = 128
 """Default frames per clip layer."""
@@ -128,8 +129,9 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     interp : str
         Joint interpolation (:data:`dqskin.animation.INTERPOLATIONS`).
     chunk : int, optional
-        Frames skinned at a time (default 256); with clips, frames per clip layer (default
-        :data:`CLIP_CHUNK`, 128).
+        Frames skinned at a time (default 256, fewer for a USD cache when 256 frames of its
+        samples exceed 64 MB); with clips, frames per clip layer (default :data:`CLIP_CHUNK`,
+        128).
     sign_reference : {"largest_weight", "running_sum"}
         Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`), for meshes and
         rigidly bound prims.
@@ -203,9 +205,11 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
             check_skinned(src, res)
             wrote_velocities |= bool(res.velocities)
 
+        from .distributed import piece_frames  # (imports no Dask)
+        size = chunk or piece_frames(scene, normals, velocities, most=CHUNK)
         with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args, **sign) as writer:
             writer.write_chunks((res for _, res in _chunks(
-                scene, t, chunk or CHUNK, progress, normals=normals, velocities=velocities,
+                scene, t, size, progress, normals=normals, velocities=velocities,
                 **args, **sign)), check, checked=True)
         return (f"wrote {out}: {counts} "
                 f"({method or 'asset method'}{', velocities' if wrote_velocities else ''})")

@@ -37,7 +37,7 @@ from .formats import atomic, usd_clips
 from .formats.usd_cache import SampleWriter, frame_bytes
 from .validation import check_skinned
 
-__all__ = ["ChunkJob", "bake_clips", "run_chunk", "run_here", "worker_threads"]
+__all__ = ["ChunkJob", "bake_clips", "piece_frames", "run_chunk", "run_here", "worker_threads"]
 
 SUBCHUNK = 32
 """Fewest frames a task skins at a time (the clip layer holds its whole chunk until written)."""
@@ -49,10 +49,18 @@ PIECE_BYTES = 64 << 20
 3,273-point mesh cost 0.8 of 4.2 CPU-s of a 10,000-frame bake)."""
 
 
+def piece_frames(scene, normals=True, velocities=True, most=None) -> int:
+    """Frames per piece skinned at a time (:data:`PIECE_BYTES` of samples, at least
+    :data:`SUBCHUNK`, at most ``most``): the clip tasks' pieces, and the chunks of a
+    single-layer USD bake (which streams them to its file, so this is what it holds)."""
+    per_frame = frame_bytes(scene, normals, velocities)
+    n = max(SUBCHUNK, PIECE_BYTES // max(per_frame, 1))
+    return n if most is None else min(n, int(most))
+
+
 def _piece_frames(scene, opts):
-    """Frames per piece for :meth:`dqskin.Scene.skin` options ``opts`` (:data:`PIECE_BYTES`)."""
-    per_frame = frame_bytes(scene, opts.get("normals", True), opts.get("velocities", True))
-    return max(SUBCHUNK, PIECE_BYTES // max(per_frame, 1))
+    """:func:`piece_frames` for :meth:`dqskin.Scene.skin` options ``opts``."""
+    return piece_frames(scene, opts.get("normals", True), opts.get("velocities", True))
 
 
 _scenes = {}  # this worker process's loaded asset: {(path, mtime, size): Scene}

@@ -2,6 +2,7 @@
 
 import hashlib
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -367,3 +368,27 @@ def test_crate_cache_streams_what_the_sdf_layer_holds(shared_assets, tmp_path):
     assert sorted(os.listdir(odd.parent)) == [".base.usdc"]
     assert Sdf.Layer.FindOrOpen(str(odd)).ListTimeSamplesForPath(
         f"{scene.meshes[0].name}.points") == t
+
+
+def test_a_single_layer_bake_skins_pieces_of_bounded_bytes(tmp_path, monkeypatch):
+    """A single-layer USD bake streams its chunks to the file, so the chunk is what it holds:
+    256 frames, or fewer when they would exceed ``distributed.PIECE_BYTES`` of samples (at least
+    ``SUBCHUNK``); a given ``chunk`` is used as given."""
+    import dqskin.distributed as distributed
+    from dqskin import bake
+    from dqskin.scene import Scene
+
+    sizes = []
+    real = Scene.skin_chunks
+
+    def spy(self, times, chunk, **kw):
+        sizes.append(chunk)
+        return real(self, times, chunk, **kw)
+
+    monkeypatch.setattr(Scene, "skin_chunks", spy)
+    src = Path(__file__).resolve().parents[1] / "assets" / "humanoid.usda"
+    bake(src, tmp_path / "a.usdc", clips=False)
+    monkeypatch.setattr(distributed, "PIECE_BYTES", 1)
+    bake(src, tmp_path / "b.usdc", clips=False)
+    bake(src, tmp_path / "c.usdc", clips=False, chunk=5)
+    assert sizes == [256, distributed.SUBCHUNK, 5]

@@ -88,9 +88,13 @@ def make_long_clip(asset, frames, out, stride=0.5):
     long_stage.GetRootLayer().Export(str(out))
 
 
-def make_crowd(long_clip, copies, out):
+def make_crowd(long_clip, copies, out, offset=1.1):
     """A stage of ``copies`` references to ``long_clip``'s default prim side by side: a
-    BrainStem-sized stand-in (BrainStem.usdz: 59 meshes, 34k points, 1,292 frames)."""
+    BrainStem-sized stand-in (BrainStem.usdz: 59 meshes, 34k points, 1,292 frames). Copy ``i``
+    plays the clip ``i * offset`` frames later (a layer offset on its reference; 1.1: each copy
+    samples between the clip's frames at its own tenth), so no copy holds an array another
+    one holds at any time: BrainStem's meshes all differ, and a crate file stores each distinct
+    array once (identical copies let usd-core's export write a tenth of the data)."""
     from pxr import Sdf, Usd, UsdGeom
     clip = Usd.Stage.Open(str(long_clip))
     stage = Usd.Stage.CreateNew(str(out))
@@ -104,7 +108,8 @@ def make_crowd(long_clip, copies, out):
     src = clip.GetDefaultPrim().GetPath()
     for i in range(copies):
         x = UsdGeom.Xform.Define(stage, f"/Crowd/C{i:02d}")
-        x.GetPrim().GetReferences().AddReference(Sdf.Reference(str(long_clip), src))
+        x.GetPrim().GetReferences().AddReference(
+            Sdf.Reference(str(long_clip), src, Sdf.LayerOffset(offset * i)))
         x.AddTranslateOp().Set((0.0, 2.0 * i, 0.0))
     stage.Save()
 
