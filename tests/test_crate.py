@@ -410,3 +410,34 @@ def test_a_large_base_usd_compressed(tmp_path):
     layer.startTimeCode, layer.endTimeCode = 0, 1
     assert Sdf.Layer.FindOrOpen(str(tmp_path / "out.usdc")).ExportToString() == \
         layer.ExportToString()
+
+
+def test_held_frames_are_stored_once(tmp_path):
+    """A frame equal to the one added before it (a held pose, a static mesh or transform) is
+    stored once and shared, as usd-core's crate writer shares equal arrays: every time still
+    reads its values, and the file holds each distinct frame once."""
+    a, b = _samples(2, 1000)
+    d = a.copy()
+    d[0, 1] += 1.0  # equal to ``a`` at every probed element (a sample of 64), not at one other
+    frames = np.stack([a, a, d, b, b, b])
+    m = RNG.normal(size=(2, 4, 4))
+    mats = np.stack([m[0], m[0], m[0], m[1], m[1], m[1]])
+
+    def write(path, hold):
+        crate = CrateSamples(path, 24.0)
+        for lo, hi in ((0, 3), (3, 4), (4, 6)):  # holds across blocks too
+            crate.add("/A.points", "point3f[]", np.arange(lo, hi, dtype=float),
+                      frames[lo:hi] if hold else frames[lo:hi] + np.arange(lo, hi)[:, None, None])
+            crate.add("/B.xformOp:transform", "matrix4d", np.arange(lo, hi, dtype=float),
+                      mats[lo:hi])
+        crate.close(0, 5)
+        return path.stat().st_size
+
+    held, moving = write(tmp_path / "held.usdc", True), write(tmp_path / "moving.usdc", False)
+    assert moving - held == 3 * (8 + 12_000)  # a held once, b twice; d (one float off) written
+    layer = Sdf.Layer.FindOrOpen(str(tmp_path / "held.usdc"))
+    for f in range(6):
+        np.testing.assert_array_equal(np.asarray(layer.QueryTimeSample("/A.points", f)),
+                                      frames[f])
+        np.testing.assert_array_equal(np.array(layer.QueryTimeSample("/B.xformOp:transform", f)),
+                                      mats[f].T)

@@ -311,10 +311,29 @@ def _write_all(fd, data):
 
 
 class _Attribute:
-    __slots__ = ("type_name", "info", "times", "reps")
+    __slots__ = ("type_name", "info", "times", "reps", "last")
 
     def __init__(self, type_name, info):
         self.type_name, self.info, self.times, self.reps = type_name, info, [], []
+        self.last = None  # (copy of the last frame added, its rep)
+
+
+def _holds(rows, last):
+    """Which frames of ``rows`` (F, K) equal the frame before them (the first: ``last``, a
+    (K,) array or None), as a crate file stores an array once: a few elements of every
+    frame are compared first, the whole frame only when they match (a hold, not a move)."""
+    F, K = rows.shape
+    same = np.zeros(F, bool)
+    if F == 0 or K == 0:
+        return same
+    probe = np.unique(np.linspace(0, K - 1, min(K, 64)).astype(np.intp))
+    same[1:] = (rows[1:, probe] == rows[:-1, probe]).all(axis=1)
+    if last is not None and last.shape == (K,):
+        same[0] = bool((rows[0, probe] == last[probe]).all())
+    for f in np.flatnonzero(same):
+        before = rows[f - 1] if f else last
+        same[f] = np.array_equal(rows[f], before)
+    return same
 
 
 class CrateSamples:
@@ -437,26 +456,36 @@ class CrateSamples:
         self._attrs.setdefault(attr, rec)
         F = len(t)
         self._align()
+        n = v.shape[1] if kind == "vec3f[]" else 1
+        if n == 0:  # an empty array is inlined: payload 0, nothing in the file
+            rec.times.append(t)
+            rec.reps.append(np.full(F, _rep(_VEC3F, array=True), np.uint64))
+            return
+        rows = v.reshape(F, -1)
+        last = rec.last
+        held = _holds(rows, None if last is None else last[0])
+        written = np.flatnonzero(~held)
         if kind == "vec3f[]":
-            n = v.shape[1]
-            if n == 0:  # an empty array is inlined: payload 0, nothing in the file
-                reps = np.full(F, _rep(_VEC3F, array=True), np.uint64)
-            else:
-                pad = -(12 * n) % 8
-                stride = 8 + 12 * n + pad
-                per = 3 if pad else 2  # count, floats[, padding] per frame
-                buffers = [bytes(pad)] * (per * F)
-                buffers[0::per] = [struct.pack("<Q", n)] * F
-                buffers[1::per] = list(v.reshape(F, -1))
-                self._write_later(buffers)
-                offsets = self._pos - F * stride + stride * np.arange(F, dtype=np.uint64)
-                reps = np.uint64(_rep(_VEC3F, array=True)) | offsets
+            pad = -(12 * n) % 8
+            stride, head = 8 + 12 * n + pad, _rep(_VEC3F, array=True)
+            per = 3 if pad else 2  # count, floats[, padding] per frame
+            buffers = [bytes(pad)] * (per * len(written))
+            buffers[0::per] = [struct.pack("<Q", n)] * len(written)
+            buffers[1::per] = [rows[f] for f in written]
         else:
-            self._write_later([v])
-            offsets = self._pos - F * 128 + 128 * np.arange(F, dtype=np.uint64)
-            reps = np.uint64(_rep(_MATRIX4D)) | offsets
+            stride, head = 128, _rep(_MATRIX4D)
+            buffers = [rows[f] for f in written] if held.any() else [rows]
+        if written.size:
+            self._write_later(buffers)
+        offsets = self._pos - stride * len(written) + stride * np.arange(len(written),
+                                                                         dtype=np.uint64)
+        reps = np.uint64(head) | offsets
+        index = np.cumsum(~held) - 1  # each frame's written frame (a hold: the one before it)
+        frame_reps = np.where(index >= 0, reps[np.maximum(index, 0)] if reps.size else 0,
+                              np.uint64(0 if last is None else last[1])).astype(np.uint64)
+        rec.last = (rows[-1].copy(), int(frame_reps[-1]))
         rec.times.append(t)
-        rec.reps.append(reps)
+        rec.reps.append(frame_reps)
 
     def _check_base_spec(self, path, type_name):
         base = self._base
