@@ -441,3 +441,44 @@ def test_held_frames_are_stored_once(tmp_path):
                                       frames[f])
         np.testing.assert_array_equal(np.array(layer.QueryTimeSample("/B.xformOp:transform", f)),
                                       mats[f].T)
+
+
+def test_one_attribute_however_its_path_is_spelled(tmp_path):
+    """A variant selection written with spaces is the same attribute (its samples kept)."""
+    layer = Sdf.Layer.CreateAnonymous(".usdc")
+    prim = Sdf.PrimSpec(layer, "A", Sdf.SpecifierDef)
+    variant = Sdf.VariantSpec(Sdf.VariantSetSpec(prim, "v"), "x")
+    mesh = Sdf.PrimSpec(variant.primSpec, "B", Sdf.SpecifierDef, "Mesh")
+    Sdf.AttributeSpec(mesh, "points", Sdf.ValueTypeNames.Point3fArray)
+    layer.Export(str(tmp_path / "base.usdc"))
+    crate = CrateSamples(tmp_path / "out.usdc", 24.0, base=tmp_path / "base.usdc")
+    crate.add("/A{ v = x }B.points", "point3f[]", [0.0], np.ones((1, 2, 3)))
+    crate.add("/A{v=x}B.points", "point3f[]", [1.0], np.zeros((1, 2, 3)))
+    crate.close(0, 1)
+    ours = Sdf.Layer.FindOrOpen(str(tmp_path / "out.usdc"))
+    assert ours.ListTimeSamplesForPath("/A{v=x}B.points") == [0.0, 1.0]
+
+
+def test_a_dropped_writer_closes_only_after_its_queued_writes(tmp_path, monkeypatch):
+    """The writer thread may still hold an unclosed writer's writes when it is dropped: the
+    descriptor closes after them (closed earlier, its number could be reused by another file,
+    which the late writes would then fill)."""
+    import gc
+    import os
+    import threading
+
+    import dqskin.formats.crate as crate_mod
+
+    gate, real = threading.Event(), crate_mod._writev
+    crate = CrateSamples(tmp_path / "dropped.usdc", 24.0)
+    monkeypatch.setattr(crate_mod, "_writev", lambda fd, bufs: (gate.wait(5), real(fd, bufs))[1])
+    crate.add("/A.points", "point3f[]", [0.0], np.ones((1, 1000, 3), np.float32))
+    fd = crate._fd
+    del crate
+    gc.collect()
+    assert os.readlink(f"/proc/self/fd/{fd}") == str(tmp_path / "dropped.usdc")  # not yet
+    gate.set()
+    crate_mod._writer().submit(lambda: None).result()  # the writer thread's queue ran
+    assert not os.path.exists(f"/proc/self/fd/{fd}") or \
+        os.readlink(f"/proc/self/fd/{fd}") != str(tmp_path / "dropped.usdc")
+    assert (tmp_path / "dropped.usdc").stat().st_size == 88 + 8 + 12_000  # its write, done

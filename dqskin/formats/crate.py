@@ -305,6 +305,26 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_writer)
 
 
+def _close_after(fd, queued, wait=True):
+    """Close ``fd`` after the writes ``queued`` for it (their errors dropped): now, after
+    waiting for them, or (``wait=False``, a writer dropped unclosed) as the writer thread's next
+    task, behind them."""
+    pending = [f for f in queued if not f.done()]
+    queued.clear()
+    if pending and not wait:
+        try:
+            _writer().submit(os.close, fd)
+            return
+        except RuntimeError:  # the interpreter is shutting the thread down: wait instead
+            pass
+    for done in pending:
+        try:
+            done.result()
+        except Exception:
+            pass
+    os.close(fd)
+
+
 def _write_all(fd, data):
     while data.nbytes:
         data = data[os.write(fd, data):]
@@ -365,9 +385,11 @@ class CrateSamples:
         self._attrs = {}  # attribute path → _Attribute, in first-added order
         self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC
                            | getattr(os, "O_CLOEXEC", 0), 0o666)
-        self._closer = weakref.finalize(self, os.close, self._fd)  # if never closed
         self._pos = 0
         self._queued = collections.deque()  # writes of add() not yet known done
+        # if never closed: close once the queued writes ended (the descriptor's number could
+        # otherwise be reused by another file while they wait for the writer thread)
+        self._closer = weakref.finalize(self, _close_after, self._fd, self._queued, False)
         try:
             self._write([bytes(_BOOTSTRAP)])
             if self._base is not None:  # its values at their own offsets
@@ -438,9 +460,10 @@ class CrateSamples:
                              f"{np.shape(values)}")
         if not np.all(np.isfinite(t)):
             raise ValueError(f"{attr}: sample times must be finite")
-        rec = self._attrs.get(attr)
+        path = Sdf.Path(attr) if attr else Sdf.Path()
+        key = str(path)  # one spelling per attribute (a variant selection's spaces)
+        rec = self._attrs.get(key)
         if rec is None:
-            path = Sdf.Path(attr)
             if not (path.IsAbsolutePath() and path.IsPrimPropertyPath()):
                 raise ValueError(f"{attr}: not an attribute path (/Prim.name)")
             if self._base is not None:
@@ -453,7 +476,7 @@ class CrateSamples:
             raise ValueError(f"{attr}: added as {rec.type_name} before, now {type_name}")
         if not t.size:
             return
-        self._attrs.setdefault(attr, rec)
+        self._attrs.setdefault(key, rec)
         F = len(t)
         self._align()
         n = v.shape[1] if kind == "vec3f[]" else 1
@@ -507,13 +530,8 @@ class CrateSamples:
     def abort(self) -> None:
         """Close the file unfinished (the caller removes it), once its queued writes ended."""
         if self._fd is not None:
-            for done in self._queued:
-                try:
-                    done.result()
-                except Exception:
-                    pass
-            self._queued.clear()
-            self._closer()
+            self._closer.detach()
+            _close_after(self._fd, self._queued)  # the queued writes end first
             self._fd = None
 
     def close(self, start: float, end: float) -> Path:
