@@ -40,7 +40,7 @@ from .validation import check_skinned
 __all__ = ["ChunkJob", "bake_clips", "piece_frames", "run_chunk", "run_here", "worker_threads"]
 
 SUBCHUNK = 32
-"""Fewest frames a task skins at a time (the clip layer holds its whole chunk until written)."""
+"""Fewest frames skinned at a time (a piece: see :data:`PIECE_BYTES`)."""
 
 PIECE_BYTES = 64 << 20
 """Skinned points, normals and velocities a task holds per piece it skins: pieces are

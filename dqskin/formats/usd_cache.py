@@ -518,9 +518,9 @@ class SampleWriter:
         ``layer``, pipelined: chunk ``k + 1`` is checked (``check(frames)``, then
         :meth:`prepare`) on a helper thread while chunk ``k``'s samples are set here (NumPy and
         the copies into Vt arrays release the GIL; setting samples in an Sdf layer does not,
-        writing them to a crate file does). ``checked``:
-        ``check`` raises for every NaN or infinite value
-        (:func:`dqskin.validation.check_skinned`), so :meth:`prepare` does not look again.
+        writing them to a crate file does). ``checked``: ``check`` raises for every NaN or
+        infinite value (:func:`dqskin.validation.check_skinned`), so :meth:`prepare` does not
+        look again.
         ``executor``: a one-thread executor for the helper (a caller writing many layers passes
         its own: starting a thread per layer costs a GIL hand-over); by default one is made.
         Returns the ``(min, max)`` time written (``(inf, -inf)`` for no chunk)."""
