@@ -209,8 +209,8 @@ def run_here(jobs: list, scene, done) -> None:
     frames keeps skinning (the first piece of chunk ``k + 1`` while chunk ``k``'s layer is
     finished), and chunk ``k``'s layer is hashed on another thread while chunk ``k + 1``'s is
     filled, then recorded and renamed (:func:`~.formats.usd_clips.commit_clip`) before that one
-    is finished. Memory is as :func:`run_chunk`'s: two pieces (a clip layer goes to its file as
-    it fills).
+    is finished. Memory is as :func:`run_chunk`'s: a few pieces (the one being skinned, two
+    being checked, one being written), no layer (each goes to its file as it fills).
 
     On an error or interrupt while chunk ``k + 1`` is filled, chunk ``k`` is still recorded and
     renamed if its hash finished without error (as the one-by-one bake would have had it), then
