@@ -8,18 +8,20 @@ layer: the prims (as ``over``), the attributes with their sample tables, the lay
 and rate, the structural sections and the table of contents. Memory holds a few blocks, not the
 layer.
 
-The file is crate version 0.8.0, what usd-core writes by default, laid out as
-``pxr/usd/sdf/crateFile.cpp`` reads it:
+The file is crate version 0.8.0, what usd-core writes by default (with a ``base``, the base's
+version), laid out as ``pxr/usd/sdf/crateFile.cpp`` reads it:
 
 * an 88-byte bootstrap (``PXR-USDC``, version, table-of-contents offset);
 * values: each ``Vec3f`` array at an 8-byte aligned offset as a ``uint64`` count and the floats
   (uncompressed, so readers map them without a copy), each ``Matrix4d`` as 16 row-major doubles
-  (Gf's row-vector layout), the sample times of each attribute once as a ``vector<double>``, and
-  each attribute's ``TimeSamples`` record (times rep, count, one value rep per time);
+  (Gf's row-vector layout), a frame equal to the one added before it once (its times share
+  the value, as usd-core's writer shares equal arrays), each distinct vector of sample times
+  once as a ``vector<double>``, and each attribute's ``TimeSamples`` record (times rep, count,
+  one value rep per time);
 * the structural sections ``TOKENS``, ``STRINGS``, ``FIELDS``, ``FIELDSETS``, ``PATHS``,
   ``SPECS``: their integer lists coded as ``Sdf_IntegerCompression`` reads them (every delta as
   32 bits) and wrapped, as every compressed section, in one LZ4 block of literals (valid LZ4 that
-  any LZ4 decoder reads; the sections are a few hundred bytes);
+  any LZ4 decoder reads; the sections are small beside the samples);
 * the table of contents (name, start, size of each section).
 
 With a ``base`` (a crate file usd-core wrote: the single-layer cache's topology, UVs, materials
@@ -178,7 +180,7 @@ class _Base:
     def __init__(self, path):
         self.path = Path(path)
         data = self.path.read_bytes()
-        self.data = data
+        self.data, self.kept = data, {}
         if data[:8] != _IDENT:
             raise ValueError(f"{path}: not a USD crate file")
         self.version = tuple(data[8:11])
@@ -249,8 +251,15 @@ class _Base:
         self.spec_of = {self.paths[p]: k for k, (p, _, _) in enumerate(self.specs)}
 
     def section(self, name) -> bytes:
+        """The raw bytes of section ``name`` (kept by :meth:`release` for STRINGS and PATHS)."""
         start, size = self.sections[name]
-        return self.data[start:start + size]
+        return self.data[start:start + size] if self.data is not None else self.kept[name]
+
+    def release(self):
+        """Drop the file's bytes once its values are copied, keeping the sections written
+        again as they are."""
+        self.kept = {name: self.section(name) for name in ("STRINGS", "PATHS")}
+        self.data = None
 
     def spec_fields(self, spec) -> list:
         """Field indices of spec number ``spec`` (its field set, up to the terminator)."""
@@ -366,7 +375,6 @@ class CrateSamples:
     time_codes_per_second : float
         The layer's ``timeCodesPerSecond`` and ``framesPerSecond`` (unused with a ``base``,
         whose own are kept).
-
     base : str or os.PathLike, optional
         A crate file usd-core wrote (crate version 0.7.0 or later) that already holds a spec,
         without time samples and of a type stored as the samples are (``float3[]`` takes
@@ -394,6 +402,7 @@ class CrateSamples:
             self._write([bytes(_BOOTSTRAP)])
             if self._base is not None:  # its values at their own offsets
                 self._write([memoryview(self._base.data)[_BOOTSTRAP:self._base.data_end]])
+                self._base.release()
         except BaseException:
             self.abort()
             raise
