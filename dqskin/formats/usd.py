@@ -581,7 +581,39 @@ class _Loader:
     def check_animation_array(self, where, attr, samples, names, key):
         """Every ``(time, value)`` of a ``SkelAnimation`` array (its default value, or each time
         sample): one finite entry per name of ``key`` (``joints`` or ``blendShapes``), no zero
-        rotation. Checked all at once: an animation may have thousands of samples."""
+        rotation. Checked all at once: an animation may have thousands of samples (their
+        buffers joined in one call when they all hold one entry per name in one layout; one by
+        one, to name the bad one, when not)."""
+        times = [time for time, value in samples if value is not None]
+        values = None
+        if times and names:
+            arrays = [v for _, v in samples if v is not None]
+            kind = type(arrays[0])
+            try:
+                if all(type(v) is kind and len(v) == len(names) for v in arrays):
+                    first = memoryview(arrays[0])
+                    raw = b"".join(arrays)  # (a Vt array type has one layout)
+                    if first.shape and first.shape[0] == len(names) and \
+                            len(raw) == len(arrays) * first.nbytes:
+                        values = np.frombuffer(raw, np.dtype(first.format)).reshape(
+                            (len(arrays),) + first.shape).astype(np.float64)
+            except (TypeError, ValueError):
+                values = None
+        if values is None:
+            values = self._animation_arrays(where, attr, samples, names, key)
+            if values is None:
+                return
+        values = values.reshape(len(times), len(names), -1)  # (samples, names, components)
+        finite = np.isfinite(values).all(axis=2)
+        ok = finite & np.any(values != 0, axis=2) if attr == "rotations" else finite
+        if not ok.all():
+            s, n = (int(i) for i in np.argwhere(~ok)[0])
+            what = "NaN or infinite values" if not finite[s, n] else "a zero quaternion"
+            self.fail(where, f"{attr} has {what} for {key[:-1]} {names[n]!r}{_at_time(times[s])}")
+
+    def _animation_arrays(self, where, attr, samples, names, key):
+        """:meth:`check_animation_array`'s values one sample at a time, failing on the first
+        that is not one array of numbers per name; None when there is nothing to check."""
         times, arrays = [], []
         for time, value in samples:
             if value is None:  # a blocked time sample
@@ -596,14 +628,8 @@ class _Loader:
             times.append(time)
             arrays.append(a.reshape(len(names), -1))
         if not arrays or not names:
-            return
-        values = np.stack(arrays)  # (samples, names, components)
-        finite = np.isfinite(values).all(axis=2)
-        ok = finite & np.any(values != 0, axis=2) if attr == "rotations" else finite
-        if not ok.all():
-            s, n = (int(i) for i in np.argwhere(~ok)[0])
-            what = "NaN or infinite values" if not finite[s, n] else "a zero quaternion"
-            self.fail(where, f"{attr} has {what} for {key[:-1]} {names[n]!r}{_at_time(times[s])}")
+            return None
+        return np.stack(arrays)
 
     # -- skinned prims ---------------------------------------------------------------------
 
