@@ -485,8 +485,9 @@ def build_parser():
                    "write them to .obj/.ply/.glb files")
     s.add_argument("--clip", help="glTF animation name or index")
     s.add_argument("--device", help="cpu or cuda (default: cuda when present)")
-    s.add_argument("--chunk", type=int, help="frames per chunk (bounds memory; default 256) or "
-                   "per clip layer with --clips (default 128)")
+    s.add_argument("--chunk", type=int, help="frames per chunk (bounds memory; default 256, "
+                   "fewer for a USD cache whose 256 frames exceed 64 MB) or per clip layer with "
+                   "--clips (default 128)")
     s.add_argument("--clips", action=argparse.BooleanOptionalAction, default=None,
                    help="USD caches as value clips: OUT plus one layer per chunk in OUT's .clips "
                    "folder (default: when the samples exceed 512 MiB, or with --workers, "

@@ -222,7 +222,7 @@ def run_here(jobs: list, scene, done) -> None:
     writer = _sample_writer(scene, jobs[0])
     stream = scene.skin_chunks(np.concatenate([j.times for j in jobs]),
                                [n for p in pieces for n in p], **jobs[0].skin)
-    pending = None  # (job, claim, digest future, start) of the exported, unrecorded layer
+    pending = None  # (job, claim, digest future, start) of the finished, unrecorded layer
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-clip-hash") as hasher, \
             ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values") as values:
         try:
@@ -251,7 +251,7 @@ def run_here(jobs: list, scene, done) -> None:
 
 
 def _commit(job, claim, digest, start):
-    """Record and rename the exported layer in ``claim`` (removed if its hash failed)."""
+    """Record and rename the finished layer in ``claim`` (removed if its hash failed)."""
     try:
         sha = digest.result()
     except BaseException:

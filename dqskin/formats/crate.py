@@ -2,8 +2,9 @@
 
 A layer that holds nothing but time samples (a clip layer of :mod:`.usd_clips`) is written here
 as its arrays arrive: :meth:`CrateSamples.add` queues a block of frames of one attribute for
-the writer thread (``writev`` calls, the GIL released, no ``Vt`` array per frame, nothing kept
-but their file offsets once written), and :meth:`CrateSamples.close` writes what makes it a
+the writer thread (``writev`` calls, the GIL released, no ``Vt`` array per frame; once written,
+nothing kept but each sample's time and file offset, and a copy of each attribute's last
+frame), and :meth:`CrateSamples.close` writes what makes it a
 layer: the prims (as ``over``), the attributes with their sample tables, the layer's time range
 and rate, the structural sections and the table of contents. Memory holds a few blocks, not the
 layer.

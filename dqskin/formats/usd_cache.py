@@ -12,8 +12,10 @@ be drawn in the rest pose); ``SkelAnimation`` prims stay as inert data.
 Two pieces serve both USD outputs, the single layer (:class:`UsdCacheWriter`) and the value
 clips of :mod:`dqskin.formats.usd_clips`: :class:`CacheLayer` (the flattened, unbound copy of the
 source and where each skinned value goes in it, as picklable :class:`Target` records) and
-:class:`SampleWriter` (checked chunks of skinned frames → time samples in any layer: the cache's
-own, or a clip layer made on a worker that never opens the source stage).
+:class:`SampleWriter` (checked chunks of skinned frames → time samples: streamed into a crate
+file by :class:`~.crate.CrateSamples`, after the cache's copy of the source exported once or as
+a clip layer made on a worker that never opens the source stage; set in the cache's own Sdf
+layer for ``.usda``).
 """
 
 import contextlib
@@ -575,8 +577,10 @@ class UsdCacheWriter:
         What :func:`dqskin.formats.usd.load_usd` returned; its metadata (``time_codes_per_second``,
         ``up_axis``, ``meters_per_unit``) is written and its meshes' rest data checks the shapes.
     out_path : str or os.PathLike
-        ``.usda``, ``.usdc`` or ``.usd``. Written atomically (temporary file in the same folder,
-        then ``os.replace``) by :meth:`close`. Must not be the source file or any layer it reads.
+        ``.usda``, ``.usdc`` or ``.usd``. Written atomically: into a temporary file in a private
+        folder beside it (from the first :meth:`write` for crate outputs; by :meth:`close` for
+        ``.usda``), moved into place by :meth:`close` (``os.replace``, or ``os.link`` without
+        ``overwrite``). Must not be the source file or any layer it reads.
     source_path : str or os.PathLike, optional
         The stage to copy; ``scene.path`` by default.
     method : {"lbs", "dqs", "blend", "cor"} or None

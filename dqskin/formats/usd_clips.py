@@ -126,8 +126,9 @@ class ClipLayer:
 
 
 def write_clip(layer: ClipLayer, key: str, times) -> str:
-    """Finish one chunk's ``layer``, record its SHA-256 in ``path.json``, then rename it into
-    place (:meth:`ClipLayer.finish`, then :func:`commit_clip`). Returns the checksum.
+    """Finish one chunk's ``layer``, record its SHA-256 beside its final name (``chunk_k.json``
+    for ``chunk_k.usdc``), then rename it into place (:meth:`ClipLayer.finish`, then
+    :func:`commit_clip`). Returns the checksum.
 
     A process killed at any point leaves either no layer under ``path`` or one whose record
     does not match it (the record was replaced first), which :func:`verify_chunk` rejects.
