@@ -512,10 +512,10 @@ class CrateSamples:
             self._write_later(buffers)
         offsets = self._pos - stride * len(written) + stride * np.arange(len(written),
                                                                          dtype=np.uint64)
-        reps = np.uint64(head) | offsets
-        index = np.cumsum(~held) - 1  # each frame's written frame (a hold: the one before it)
-        frame_reps = np.where(index >= 0, reps[np.maximum(index, 0)] if reps.size else 0,
-                              np.uint64(0 if last is None else last[1])).astype(np.uint64)
+        # each frame's rep: that of the last frame written up to it (before this block: last's)
+        prior = np.array([0 if last is None else last[1]], np.uint64)
+        reps = np.concatenate([prior, np.uint64(head) | offsets])
+        frame_reps = reps[np.cumsum(~held)]
         rec.last = (rows[-1].copy(), int(frame_reps[-1]))
         rec.times.append(t)
         rec.reps.append(frame_reps)
