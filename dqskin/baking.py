@@ -31,7 +31,7 @@ OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXE
 
 CHUNK = 256
 """Default frames skinned at a time (.npz, per-frame files; single-layer USD caches skin fewer
-when 256 frames of samples exceed :data:`dqskin.distributed.PIECE_BYTES`)."""
+when 256 frames of samples exceed :data:`dqskin.formats.usd_cache.PIECE_BYTES`)."""
 
 CLIP_CHUNK = 128
 """Default frames per clip layer."""
@@ -205,8 +205,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
             check_skinned(src, res)
             wrote_velocities |= bool(res.velocities)
 
-        from .distributed import piece_frames  # (imports no Dask)
-        size = chunk or piece_frames(scene, normals, velocities, most=CHUNK)
+        size = chunk or usd_cache.piece_frames(scene, normals, velocities, most=CHUNK)
         with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args, **sign) as writer:
             writer.write_chunks((res for _, res in _chunks(
                 scene, t, size, progress, normals=normals, velocities=velocities,
@@ -266,15 +265,18 @@ def _frame_numbers(scene, times):
 
 
 def _chunks(scene, times, chunk, progress, **skin_args):
-    """:meth:`Scene.skin_chunks` with a progress bar over frames (only on a terminal)."""
-    from tqdm import tqdm
-
-    bar = tqdm(total=len(times), unit="frame", desc="skinning", file=sys.stderr,
-               disable=not progress or len(times) <= 2 * chunk or not sys.stderr.isatty())
+    """:meth:`Scene.skin_chunks` with a progress bar over frames (only on a terminal; tqdm is
+    imported only then)."""
+    bar = None
+    if progress and len(times) > 2 * chunk and sys.stderr.isatty():
+        from tqdm import tqdm
+        bar = tqdm(total=len(times), unit="frame", desc="skinning", file=sys.stderr)
     try:
         for sl, res in scene.skin_chunks(times, chunk, **skin_args):
             check_interrupted()  # in case a library swallowed it
             yield sl, res
-            bar.update(sl.stop - sl.start)
+            if bar is not None:
+                bar.update(sl.stop - sl.start)
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()

@@ -34,29 +34,10 @@ import numpy as np
 
 from . import forkserver
 from .formats import atomic, usd_clips
-from .formats.usd_cache import SampleWriter, frame_bytes
+from .formats.usd_cache import SampleWriter, piece_frames
 from .validation import check_skinned
 
-__all__ = ["ChunkJob", "bake_clips", "piece_frames", "run_chunk", "run_here", "worker_threads"]
-
-SUBCHUNK = 32
-"""Fewest frames skinned at a time (a piece: see :data:`PIECE_BYTES`)."""
-
-PIECE_BYTES = 64 << 20
-"""Skinned points, normals and velocities a task holds per piece it skins: pieces are
-:data:`SUBCHUNK` frames or as many more as fit (a whole chunk of a small mesh), since each
-:meth:`dqskin.Scene.skin` call costs milliseconds whatever its size (32-frame pieces of a
-3,273-point mesh cost 0.8 of 4.2 CPU-s of a 10,000-frame bake)."""
-
-
-def piece_frames(scene, normals=True, velocities=True, most=None) -> int:
-    """Frames per piece skinned at a time (:data:`PIECE_BYTES` of samples, at least
-    :data:`SUBCHUNK`, at most ``most``): the clip tasks' pieces, and the chunks of a
-    single-layer USD bake (which streams them to its file, so this is what it holds)."""
-    per_frame = frame_bytes(scene, normals, velocities)
-    n = max(SUBCHUNK, PIECE_BYTES // max(per_frame, 1))
-    return n if most is None else min(n, int(most))
-
+__all__ = ["ChunkJob", "bake_clips", "run_chunk", "run_here", "worker_threads"]
 
 def _piece_frames(scene, opts):
     """:func:`piece_frames` for :meth:`dqskin.Scene.skin` options ``opts``."""
@@ -205,12 +186,13 @@ def run_chunk(job: ChunkJob, scene=None) -> dict:
 def run_here(jobs: list, scene, done) -> None:
     """Every job, in order, in this process (``done(result)`` after each; results as
     :func:`run_chunk`'s), pipelined across chunks instead of :func:`run_chunk` one by one: one
-    :meth:`dqskin.Scene.skin_chunks` stream of pieces (:data:`PIECE_BYTES`) over all their
-    frames keeps skinning (the first piece of chunk ``k + 1`` while chunk ``k``'s layer is
-    finished), and chunk ``k``'s layer is hashed on another thread while chunk ``k + 1``'s is
-    filled, then recorded and renamed (:func:`~.formats.usd_clips.commit_clip`) before that one
-    is finished. Memory is as :func:`run_chunk`'s: a few pieces (the one being skinned, two
-    being checked, one being written), no layer (each goes to its file as it fills).
+    :meth:`dqskin.Scene.skin_chunks` stream of pieces
+    (:data:`~.formats.usd_cache.PIECE_BYTES`) over all their frames keeps skinning (the first
+    piece of chunk ``k + 1`` while chunk ``k``'s layer is finished), and chunk ``k``'s layer is
+    hashed on another thread while chunk ``k + 1``'s is filled, then recorded and renamed
+    (:func:`~.formats.usd_clips.commit_clip`) before that one is finished. Memory is as
+    :func:`run_chunk`'s: a few pieces (the one being skinned, two being checked, one being
+    written), no layer (each goes to its file as it fills).
 
     On an error or interrupt while chunk ``k + 1`` is filled, chunk ``k`` is still recorded and
     renamed if its hash finished without error (as the one-by-one bake would have had it), then

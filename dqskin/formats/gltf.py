@@ -41,7 +41,6 @@ from collections import Counter
 from urllib.parse import unquote, urlsplit
 
 import numpy as np
-import pygltflib
 
 from .. import quat
 from ..animation import Animation, Deformer, check_times
@@ -683,7 +682,10 @@ class _Reader:
 
         Everything pygltflib warns about in the file (GLB container version, odd chunks, bad
         members) was checked before, so on this input its warnings carry nothing to report.
+        (Imported here: a USD bake never pays for it.)
         """
+        import pygltflib
+
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
