@@ -487,7 +487,8 @@ def build_parser():
     s.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     s.add_argument("--chunk", type=int, help="frames per chunk (bounds memory; default 256, "
                    "fewer for a USD cache whose 256 frames exceed 64 MB) or per clip layer with "
-                   "--clips (default 128)")
+                   "--clips (default 128, more for a small mesh: at least 32 MB of samples "
+                   "per layer)")
     s.add_argument("--clips", action=argparse.BooleanOptionalAction, default=None,
                    help="USD caches as value clips: OUT plus one layer per chunk in OUT's .clips "
                    "folder (default: when the samples exceed 512 MiB, or with --workers, "

@@ -379,6 +379,23 @@ def test_long_ranges_default_to_clips(humanoid, tmp_path, monkeypatch):
     assert not clips_folder(tmp_path / "one.usd").exists()
 
 
+def test_default_clip_length_holds_clip_bytes_of_samples(humanoid, tmp_path, monkeypatch):
+    """Without ``chunk``, a clip holds ``CLIP_CHUNK`` frames, or as many more as make
+    ``CLIP_BYTES`` of samples (closed form: the layers' frame counts)."""
+    import dqskin.baking as baking
+    scene = humanoid["scene"]
+    F = len(scene.times)
+    per_frame = baking.sample_bytes(scene, 1)
+    monkeypatch.setattr(baking, "CLIP_CHUNK", 3)
+    for fit, expect in ((7, 7), (2, 3)):  # frames CLIP_BYTES holds → frames per clip
+        monkeypatch.setattr(baking, "CLIP_BYTES", fit * per_frame + per_frame // 2)
+        out = tmp_path / f"fit{fit}.usd"
+        assert f"as {-(-F // expect)} clips" in bake(scene, out, clips=True)
+        records = sorted(clips_folder(out).glob("chunk_*.json"))
+        frames = [json.loads(r.read_text())["frames"] for r in records]
+        assert frames == [min(expect, F - a) + (a + expect < F) for a in range(0, F, expect)]
+
+
 def test_rigid_prims_match_pixars_baseline(shared_assets, tmp_path):
     """``lbs.usda``: skinned meshes and rigidly bound prims (Cube, Sphere, Cylinder) through
     clips of 4 frames equal UsdSkel's own bake (``baseline/lbs.baked.usda``) at every frame."""

@@ -35,8 +35,9 @@ from .atomic import atomic_path, check_parent
 from .crate import CrateSamples
 from .usd import load_rigid_prims, rigid_transforms
 
-__all__ = ["CACHE_EXTENSIONS", "PIECE_BYTES", "SUBCHUNK", "CacheLayer", "SampleWriter", "Target",
-           "UsdCacheWriter", "export_layer", "frame_bytes", "piece_frames", "write_usd_cache"]
+__all__ = ["CACHE_EXTENSIONS", "PIECE_BYTES", "PIECE_FRAMES", "SUBCHUNK", "CacheLayer",
+           "SampleWriter", "Target", "UsdCacheWriter", "export_layer", "frame_bytes",
+           "piece_frames", "write_usd_cache"]
 
 CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
 """Extensions :func:`write_usd_cache` writes (``.usd`` is binary crate)."""
@@ -54,20 +55,23 @@ def frame_bytes(scene, normals: bool = True, velocities: bool = True) -> int:
 SUBCHUNK = 32
 """Fewest frames skinned at a time (a piece: see :data:`PIECE_BYTES`)."""
 
+PIECE_FRAMES = 256
+"""Most frames skinned at a time (a piece: see :data:`PIECE_BYTES`): a task keeps pieces of a
+small mesh this short, so that skinning one overlaps writing the one before."""
+
 PIECE_BYTES = 64 << 20
 """Skinned points, normals and velocities a task holds per piece it skins: pieces are
-:data:`SUBCHUNK` frames or as many more as fit (a whole chunk of a small mesh), since each
+:data:`SUBCHUNK` frames or as many more as fit, up to :data:`PIECE_FRAMES`, since each
 :meth:`dqskin.Scene.skin` call costs milliseconds whatever its size (32-frame pieces of a
 3,273-point mesh cost 0.8 of 4.2 CPU-s of a 10,000-frame bake)."""
 
 
-def piece_frames(scene, normals=True, velocities=True, most=None) -> int:
+def piece_frames(scene, normals=True, velocities=True, most=PIECE_FRAMES) -> int:
     """Frames per piece skinned at a time (:data:`PIECE_BYTES` of samples, at least
     :data:`SUBCHUNK`, at most ``most``): the clip tasks' pieces, and the chunks of a
     single-layer USD bake (which streams them to its file, so this is what it holds)."""
     per_frame = frame_bytes(scene, normals, velocities)
-    n = max(SUBCHUNK, PIECE_BYTES // max(per_frame, 1))
-    return n if most is None else min(n, int(most))
+    return min(max(SUBCHUNK, PIECE_BYTES // max(per_frame, 1)), int(most))
 
 
 def _frames(name, what, a, frames, count, finite=True):
