@@ -161,16 +161,17 @@ def _sample_writer(scene, job):
 
 
 def _result(job, digest, t0, c0):
-    return dict(index=job.index, sha256=digest, seconds=time.perf_counter() - t0,
+    seconds, ended = time.perf_counter() - t0, time.time()
+    return dict(index=job.index, sha256=digest, seconds=seconds,
                 cpu_seconds=time.process_time() - c0, pid=os.getpid(),
-                peak_rss_mb=_peak_rss_mb())
+                peak_rss_mb=_peak_rss_mb(), started=ended - seconds, ended=ended)
 
 
 def run_chunk(job: ChunkJob, scene=None) -> dict:
     """Skin one chunk and write its clip layer; ``scene`` defaults to the worker's copy of
     ``job.source``. Returns ``index``, ``sha256``, ``seconds``, ``cpu_seconds`` (of the whole
-    process while the task ran: all its threads, a worker running one task at a time), ``pid``
-    and ``peak_rss_mb``."""
+    process while the task ran: all its threads, a worker running one task at a time), ``pid``,
+    ``peak_rss_mb``, and ``started`` and ``ended`` (``time.time()`` seconds)."""
     t0, c0 = time.perf_counter(), time.process_time()
     scene = _worker_scene(job.source) if scene is None else scene
     with usd_clips.ClipLayer(job.path, job.time_codes_per_second) as layer:

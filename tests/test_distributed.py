@@ -283,7 +283,9 @@ def test_bake_processes_keep_freed_memory_for_the_next_chunk():
 
 def test_a_task_reports_its_wall_and_process_cpu_seconds(tmp_path):
     """What a chunk task returns for the benchmark's per-task figures: its wall seconds and the
-    CPU seconds of its process while it ran, each within what was measured around the call."""
+    CPU seconds of its process while it ran, each within what was measured around the call, and
+    its start and end on the system clock (the benchmark's span from the first task's start to
+    the last one's end)."""
     from dqskin import distributed
     from dqskin.formats.usd_clips import ClipBake
     scene = load(HUMANOID)
@@ -294,8 +296,10 @@ def test_a_task_reports_its_wall_and_process_cpu_seconds(tmp_path):
                                str(plan.clip_path(0)), plan.key, plan.targets, plan.cache.rigid,
                                dict(opts, device=None), float(scene.time_codes_per_second))
     distributed.run_chunk(job, scene)  # warm: kernels loaded
-    w0, c0 = time.perf_counter(), time.process_time()
+    w0, c0, t0 = time.perf_counter(), time.process_time(), time.time()
     result = distributed.run_chunk(job, scene)
-    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    wall, cpu, t1 = time.perf_counter() - w0, time.process_time() - c0, time.time()
     assert 0 < result["seconds"] <= wall and 0 < result["cpu_seconds"] <= cpu
+    assert t0 <= result["started"] < result["ended"] <= t1
+    assert abs(result["ended"] - result["started"] - result["seconds"]) < 1e-3
     assert result["pid"] == os.getpid() and Path(job.path).is_file()

@@ -165,6 +165,8 @@ def run_dqskin(src, dst, which):
         peaks[task["pid"]] = max(peaks.get(task["pid"], 0.0), task["peak_rss_mb"])
     tasks = done["tasks"]
     return dict(worker_peak_mb=sorted(peaks.values()), chunks=done["chunks"],
+                task_span=(max(t["ended"] for t in tasks) - min(t["started"] for t in tasks)
+                           if tasks else None),
                 task_seconds=float(np.mean([t["seconds"] for t in tasks])) if tasks else None,
                 task_cpu_seconds=(float(np.mean([t["cpu_seconds"] for t in tasks]))
                                   if tasks and int(workers) else None))
@@ -387,6 +389,7 @@ def bench_one(rows, label, src, impls, tmp, repeat=1):
                 seconds=r["seconds"], import_seconds=r["import_seconds"], cpu_seconds=cpu,
                 peak_mb=r["peak_mb"], worker_peak_mb=r.get("worker_peak_mb", []),
                 task_seconds=r.get("task_seconds"), task_cpu_seconds=r.get("task_cpu_seconds"),
+                task_span=r.get("task_span"),
                 mpoint_frames_per_s=points * frames / r["seconds"] / 1e6,
                 output_mb=output_mb(dst)))
             print(f"  {label} {frames} frames {which}: {r['seconds']:.2f} s", file=sys.stderr)
@@ -396,7 +399,8 @@ def bench_one(rows, label, src, impls, tmp, repeat=1):
             continue
         secs = [r["seconds"] for r in rs]
         new.append(dict(sorted(rs, key=lambda r: r["seconds"])[(len(rs) - 1) // 2],
-                        seconds_range=(min(secs), max(secs)), runs=len(rs), all_seconds=secs))
+                        seconds_range=(min(secs), max(secs)), runs=len(rs), all_seconds=secs,
+                        all_task_spans=[r.get("task_span") for r in rs]))
     rows.extend(new)
     if "usdskel" in dsts:
         probes = [t0, t0 + (t1 - t0) // 2, t1, t0 + 0.5]
@@ -475,7 +479,13 @@ def print_bake(rows):
             if one in sel and two in sel:
                 a, b = sel[one], sel[two]
                 total = (a["seconds"] + a["import_seconds"]) / (b["seconds"] + b["import_seconds"])
-                line.append(f"{what} = {_ratio(a, b)} (with imports {total:.2f}×)")
+                line.append(f"{what} = {_ratio(a, b)} (with imports {total:.2f}×")
+                if a.get("task_span") and b.get("task_span"):  # the tasks alone: no start-up
+                    spans = [dict(seconds=a["task_span"], all_seconds=a["all_task_spans"]),
+                             dict(seconds=b["task_span"], all_seconds=b["all_task_spans"])]
+                    line[-1] += (f"; first task's start to last task's end "
+                                 f"{_ratio(*spans)}")
+                line[-1] += ")"
         for impl in ("clips1t1", "clips2t1", "clips1", "clips2"):
             r = sel.get(impl, {})
             if r.get("task_cpu_seconds"):  # a worker runs one task at a time: its process CPU
