@@ -22,8 +22,8 @@ from .scene import Scene
 from .skinning import Method, SignReference
 from .validation import check_skinned
 
-__all__ = ["CHUNK", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_AUTO_BYTES", "OUTPUT_SUFFIXES", "bake",
-           "check_clip_arguments", "check_output", "clip_frames", "output_kind", "sample_bytes"]
+__all__ = ["CHUNK", "CLIPS_AUTO_BYTES", "OUTPUT_SUFFIXES", "bake", "check_clip_arguments",
+           "check_output", "output_kind", "sample_bytes"]
 
 OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXES
 """Suffixes :func:`bake` writes (mesh files take a per-frame pattern like ``f_{:04d}.obj``)."""
@@ -32,22 +32,6 @@ OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXE
 CHUNK = usd_cache.PIECE_FRAMES
 """Default frames skinned at a time, 256 (.npz, per-frame files; single-layer USD caches skin
 fewer when 256 frames of samples exceed :data:`dqskin.formats.usd_cache.PIECE_BYTES`)."""
-
-CLIP_CHUNK = 128
-"""Fewest frames per clip layer by default (:func:`clip_frames`)."""
-
-CLIP_BYTES = 32 << 20
-"""Samples a clip layer holds at least by default (:func:`clip_frames`): a small mesh gets
-longer clips than :data:`CLIP_CHUNK` frames, since each clip costs milliseconds beyond its frames
-(a layer, its record, its checksum, a task; 128-frame clips of a 3,273-point mesh took 13-20 ms
-each, of which its frames' share of a single-layer bake is 8)."""
-
-
-def clip_frames(scene: Scene, normals: bool = True, velocities: bool = True) -> int:
-    """Default frames per clip layer: :data:`CLIP_CHUNK`, or as many more as hold
-    :data:`CLIP_BYTES` of samples (CesiumMan's 3,273 points: 854 frames points only, 284 with
-    normals and velocities; a 30,000-point character: 128)."""
-    return max(CLIP_CHUNK, CLIP_BYTES // max(sample_bytes(scene, 1, normals, velocities), 1))
 
 CLIPS_AUTO_BYTES = 512 << 20
 """A USD cache whose samples would exceed this many bytes (:func:`sample_bytes`) is written as
@@ -143,8 +127,10 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         Joint interpolation (:data:`dqskin.animation.INTERPOLATIONS`).
     chunk : int, optional
         Frames skinned at a time (default 256, fewer for a USD cache when 256 frames of its
-        samples exceed 64 MB); with clips, frames per clip layer (default :func:`clip_frames`:
-        128, more for a mesh whose 128 frames hold under 32 MB of samples).
+        samples exceed 64 MB); with clips, frames per clip layer (default
+        :func:`dqskin.formats.usd_clips.clip_frames`: 128, more for a mesh whose 128 frames hold
+        under 32 MB of samples while each worker still gets four clips; with ``resume``, the
+        earlier bake's).
     sign_reference : {"largest_weight", "running_sum"}
         Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`), for meshes and
         rigidly bound prims.
@@ -203,11 +189,9 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
                              "a USD input; for glTF write .npz or per-frame .obj/.ply/.glb files")
         if clips:
             from .distributed import bake_clips
-            done = bake_clips(scene, out, t,
-                              chunk=chunk or clip_frames(scene, normals, velocities),
-                              normals=normals, velocities=velocities, workers=workers,
-                              scheduler=scheduler, resume=resume, force=force,
-                              progress=progress, **args, **sign)
+            done = bake_clips(scene, out, t, chunk=chunk, normals=normals,
+                              velocities=velocities, workers=workers, scheduler=scheduler,
+                              resume=resume, force=force, progress=progress, **args, **sign)
             kept = f", {done['kept']} kept from the earlier run" if done["kept"] else ""
             return (f"wrote {out}: {counts} ({method or 'asset method'}"
                     f"{', velocities' if velocities else ''}) as {_plural(done['chunks'], 'clip')} "

@@ -274,7 +274,7 @@ def _commit_on_error(job, claim, digest, start):
                 atomic.interrupt(recorded)
 
 
-def bake_clips(scene, out, times, *, chunk, method=None, interp="trs", device=None,
+def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", device=None,
                normals=True, velocities=True, workers=None, scheduler=None, resume=False,
                force=False, progress=False, threads=None, **skin_options) -> dict:
     """Bake ``scene`` at ``times`` to the value-clip cache ``out``
@@ -302,6 +302,10 @@ def bake_clips(scene, out, times, *, chunk, method=None, interp="trs", device=No
         preload = [] if client is None else [
             client.submit(_preload, source, pure=False, workers=[w], allow_other_workers=False)
             for w in client.scheduler_info()["workers"]]
+        if chunk is None:  # the earlier bake's when resuming, else by size and worker count
+            chunk = (resume and not force and usd_clips.recorded_chunk(out)) or \
+                usd_clips.clip_frames(scene, len(np.unique(times)), normals, velocities,
+                                      _worker_count(client))
         bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=force, resume=resume)
         todo = bake.pending()
         skin = dict(options, device=None if device is None else str(device))
@@ -324,6 +328,14 @@ def bake_clips(scene, out, times, *, chunk, method=None, interp="trs", device=No
     bake.finish()
     return dict(chunks=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
                 folder=str(bake.folder), tasks=tasks)
+
+
+def _worker_count(client):
+    """Worker processes of ``client``'s cluster (at least 1), None for no cluster (in this
+    process)."""
+    if client is None:
+        return None
+    return max(1, len(client.scheduler_info().get("workers", {})))
 
 
 def _bar(total, done, progress):

@@ -382,18 +382,50 @@ def test_long_ranges_default_to_clips(humanoid, tmp_path, monkeypatch):
 def test_default_clip_length_holds_clip_bytes_of_samples(humanoid, tmp_path, monkeypatch):
     """Without ``chunk``, a clip holds ``CLIP_CHUNK`` frames, or as many more as make
     ``CLIP_BYTES`` of samples (closed form: the layers' frame counts)."""
-    import dqskin.baking as baking
+    from dqskin.formats import usd_clips
     scene = humanoid["scene"]
     F = len(scene.times)
-    per_frame = baking.sample_bytes(scene, 1)
-    monkeypatch.setattr(baking, "CLIP_CHUNK", 3)
+    per_frame = 12 * (2 * sum(len(m.points) for m in scene.meshes)
+                      + sum(len(m.normals) for m in scene.meshes if m.normals is not None))
+    monkeypatch.setattr(usd_clips, "CLIP_CHUNK", 3)
     for fit, expect in ((7, 7), (2, 3)):  # frames CLIP_BYTES holds → frames per clip
-        monkeypatch.setattr(baking, "CLIP_BYTES", fit * per_frame + per_frame // 2)
+        monkeypatch.setattr(usd_clips, "CLIP_BYTES", fit * per_frame + per_frame // 2)
         out = tmp_path / f"fit{fit}.usd"
         assert f"as {-(-F // expect)} clips" in bake(scene, out, clips=True)
         records = sorted(clips_folder(out).glob("chunk_*.json"))
         frames = [json.loads(r.read_text())["frames"] for r in records]
         assert frames == [min(expect, F - a) + (a + expect < F) for a in range(0, F, expect)]
+
+
+def test_default_clip_length_leaves_each_worker_four_clips(humanoid, monkeypatch):
+    """``clip_frames``: points only counts 12 bytes a point, normals and velocities add theirs;
+    with N workers a clip is at most ``ceil(F / 4N)`` frames, never under ``CLIP_CHUNK``."""
+    from dqskin.formats import usd_clips
+    from dqskin.formats.usd_clips import clip_frames
+    scene = humanoid["scene"]
+    points = sum(len(m.points) for m in scene.meshes)
+    monkeypatch.setattr(usd_clips, "CLIP_CHUNK", 2)
+    monkeypatch.setattr(usd_clips, "CLIP_BYTES", 12 * points * 100)
+    assert clip_frames(scene, 1000, normals=False, velocities=False) == 100
+    assert clip_frames(scene, 1000, normals=False, velocities=True) == 50
+    assert clip_frames(scene, 1000, normals=False, velocities=False, workers=2) == 100
+    assert clip_frames(scene, 1000, normals=False, velocities=False, workers=3) == 84
+    assert clip_frames(scene, 10, normals=False, velocities=False, workers=2) == 2
+
+
+def test_resume_without_chunk_continues_with_the_earlier_bakes_chunks(humanoid, tmp_path):
+    """A bake started with ``chunk=4`` and interrupted (its top level missing, one layer lost)
+    is completed by ``resume`` without ``chunk``, though the default would differ now."""
+    scene = humanoid["scene"]
+    out = tmp_path / "shot.usd"
+    bake(scene, out, clips=True, chunk=4)
+    out.unlink()
+    layers = sorted(clips_folder(out).glob("chunk_*.usdc"))
+    layers[1].unlink()
+    summary = bake(scene, out, resume=True)
+    assert f"{len(layers) - 1} kept" in summary, summary
+    assert_same_animation(Usd.Stage.Open(str(out)), Usd.Stage.Open(str(humanoid["shot"])),
+                          [m.name for m in scene.meshes], scene.times)
 
 
 def test_rigid_prims_match_pixars_baseline(shared_assets, tmp_path):

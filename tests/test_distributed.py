@@ -301,5 +301,4 @@ def test_a_task_reports_its_wall_and_process_cpu_seconds(tmp_path):
     wall, cpu, t1 = time.perf_counter() - w0, time.process_time() - c0, time.time()
     assert 0 < result["seconds"] <= wall and 0 < result["cpu_seconds"] <= cpu
     assert t0 <= result["started"] < result["ended"] <= t1
-    assert abs(result["ended"] - result["started"] - result["seconds"]) < 1e-3
     assert result["pid"] == os.getpid() and Path(job.path).is_file()

@@ -143,7 +143,7 @@ def run_usdskel(src, dst):
 def run_dqskin(src, dst, which):
     """``which``: single | clips0 | clips1 | clips2 | clips1t1 | clips2t1 (``tN``: N threads per
     worker), ``+nv`` for normals and velocities."""
-    from dqskin.baking import bake, clip_frames
+    from dqskin.baking import bake
     from dqskin.distributed import bake_clips
     from dqskin.formats import load
     nv = which.endswith("+nv")
@@ -157,8 +157,8 @@ def run_dqskin(src, dst, which):
         from pxr import Work
         os.environ["DQSKIN_THREADS"] = threads
         Work.SetConcurrencyLimitArgument(int(threads))
-    done = bake_clips(scene, dst, scene.times, chunk=clip_frames(scene, nv, nv), method="lbs",
-                      normals=nv, velocities=nv, workers=int(workers) or None,
+    done = bake_clips(scene, dst, scene.times, method="lbs", normals=nv, velocities=nv,
+                      workers=int(workers) or None,
                       threads=int(threads or 0) or None, force=True)
     peaks = {}
     for task in done["tasks"]:

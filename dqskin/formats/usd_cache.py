@@ -68,10 +68,11 @@ PIECE_BYTES = 64 << 20
 
 def piece_frames(scene, normals=True, velocities=True, most=PIECE_FRAMES) -> int:
     """Frames per piece skinned at a time (:data:`PIECE_BYTES` of samples, at least
-    :data:`SUBCHUNK`, at most ``most``): the clip tasks' pieces, and the chunks of a
-    single-layer USD bake (which streams them to its file, so this is what it holds)."""
-    per_frame = frame_bytes(scene, normals, velocities)
-    return min(max(SUBCHUNK, PIECE_BYTES // max(per_frame, 1)), int(most))
+    :data:`SUBCHUNK`, at most ``most``, None for no bound): the clip tasks' pieces, and the
+    chunks of a single-layer USD bake (which streams them to its file, so this is what it
+    holds)."""
+    n = max(SUBCHUNK, PIECE_BYTES // max(frame_bytes(scene, normals, velocities), 1))
+    return n if most is None else min(n, int(most))
 
 
 def _frames(name, what, a, frames, count, finite=True):
