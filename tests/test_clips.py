@@ -399,7 +399,8 @@ def test_default_clip_length_holds_clip_bytes_of_samples(humanoid, tmp_path, mon
 
 def test_default_clip_length_leaves_each_worker_four_clips(humanoid, monkeypatch):
     """``clip_frames``: points only counts 12 bytes a point, normals and velocities add theirs;
-    with N workers a clip is at most ``ceil(F / 4N)`` frames, never under ``CLIP_CHUNK``."""
+    with N workers a clip is at most ``ceil(F / 4N)`` frames, then shortened so that the clips
+    are of one length and their count is a multiple of N."""
     from dqskin.formats import usd_clips
     from dqskin.formats.usd_clips import clip_frames
     scene = humanoid["scene"]
@@ -409,8 +410,13 @@ def test_default_clip_length_leaves_each_worker_four_clips(humanoid, monkeypatch
     assert clip_frames(scene, 1000, normals=False, velocities=False) == 100
     assert clip_frames(scene, 1000, normals=False, velocities=True) == 50
     assert clip_frames(scene, 1000, normals=False, velocities=False, workers=2) == 100
-    assert clip_frames(scene, 1000, normals=False, velocities=False, workers=3) == 84
+    assert clip_frames(scene, 1000, normals=False, velocities=False, workers=3) == 84  # 12 × 84
     assert clip_frames(scene, 10, normals=False, velocities=False, workers=2) == 2
+    monkeypatch.setattr(usd_clips, "CLIP_BYTES", 12 * points * 90)
+    assert clip_frames(scene, 1000, normals=False, velocities=False) == 90  # in one process
+    assert clip_frames(scene, 1000, normals=False, velocities=False, workers=1) == 84  # 12 clips
+    assert clip_frames(scene, 1000, normals=False, velocities=False, workers=5) == 50  # 20 clips
+    assert clip_frames(scene, 1292, normals=False, velocities=False, workers=2) == 81  # 15 → 16
 
 
 def test_resume_without_chunk_continues_with_the_earlier_bakes_chunks(humanoid, tmp_path):
