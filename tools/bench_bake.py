@@ -410,8 +410,10 @@ def bench_one(rows, label, src, impls, tmp, repeat=1):
 
 
 def bench_bake(rows, frames=(1000, 10000), asset=DEFAULT_ASSET, brainstem=None, impls=IMPLS,
-               standin=True, repeat=1):
-    with tempfile.TemporaryDirectory() as tmp:
+               standin=True, repeat=1, work_dir=None):
+    """``work_dir``: where the sources and outputs go (a temporary folder in it; default the
+    system's), e.g. a tmpfs to take the disk's file system out of the figures."""
+    with tempfile.TemporaryDirectory(dir=work_dir) as tmp:
         tmp = Path(tmp)
         brainstem = brainstem or find_brainstem()
         if brainstem and Path(brainstem).is_file():
@@ -517,6 +519,9 @@ if __name__ == "__main__":
     ap.add_argument("--json", help="also write the rows here")
     ap.add_argument("--repeat", type=int, default=1,
                     help="rounds of every impl, interleaved; rows from each impl's median run")
+    ap.add_argument("--work-dir", help="folder for the sources and outputs (default: the "
+                    "system's temporary folder), e.g. /dev/shm to leave the disk's file system "
+                    "out")
     ap.add_argument("--breakdown", type=int, metavar="FRAMES",
                     help="only the step-by-step CPU-seconds breakdown of a FRAMES-frame bake")
     a = ap.parse_args()
@@ -525,6 +530,6 @@ if __name__ == "__main__":
         sys.exit(0)
     out_rows = []
     bench_bake(out_rows, [int(x) for x in a.frames.split(",")], a.asset, a.brainstem,
-               [x for x in a.impls.split(",") if x], not a.no_standin, a.repeat)
+               [x for x in a.impls.split(",") if x], not a.no_standin, a.repeat, a.work_dir)
     if a.json:
         Path(a.json).write_text(json.dumps(out_rows, indent=1))
