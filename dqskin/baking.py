@@ -129,8 +129,8 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         Frames skinned at a time (default 256, fewer for a USD cache when 256 frames of its
         samples exceed 64 MB); with clips, frames per clip layer (default
         :func:`dqskin.formats.usd_clips.clip_frames`: 128, more for a mesh whose 128 frames hold
-        under 32 MB of samples while each worker still gets four clips; with ``resume``, the
-        earlier bake's).
+        under 32 MB of samples; with workers, shorter for four or more a task slot and evened
+        out over them, so possibly fewer than 128; with ``resume``, the earlier bake's).
     sign_reference : {"largest_weight", "running_sum"}
         Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`), for meshes and
         rigidly bound prims.

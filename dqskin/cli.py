@@ -488,7 +488,8 @@ def build_parser():
     s.add_argument("--chunk", type=int, help="frames per chunk (bounds memory; default 256, "
                    "fewer for a USD cache whose 256 frames exceed 64 MB) or per clip layer with "
                    "--clips (default 128, more for a small mesh: at least 32 MB of samples "
-                   "per layer)")
+                   "per layer; with workers, shorter for four or more a worker and evened "
+                   "out over them; with --resume, the earlier bake's)")
     s.add_argument("--clips", action=argparse.BooleanOptionalAction, default=None,
                    help="USD caches as value clips: OUT plus one layer per chunk in OUT's .clips "
                    "folder (default: when the samples exceed 512 MiB, or with --workers, "

@@ -301,7 +301,7 @@ def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", devi
         # released future is cancelled)
         preload = [] if client is None else [
             client.submit(_preload, source, pure=False, workers=[w], allow_other_workers=False)
-            for w in client.scheduler_info()["workers"]]
+            for w in client.nthreads()]  # (scheduler_info() lists at most 5 in some versions)
         if chunk is None:  # the earlier bake's when resuming, else by size and worker count
             chunk = (resume and not force and usd_clips.recorded_chunk(out)) or \
                 usd_clips.clip_frames(scene, len(np.unique(times)), normals, velocities,
@@ -331,11 +331,11 @@ def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", devi
 
 
 def _worker_count(client):
-    """Worker processes of ``client``'s cluster (at least 1), None for no cluster (in this
-    process)."""
+    """Task slots of ``client``'s cluster (its workers' threads, at least 1: a ``dask worker
+    --nthreads 4`` bakes four chunks at once), None for no cluster (in this process)."""
     if client is None:
         return None
-    return max(1, len(client.scheduler_info().get("workers", {})))
+    return max(1, sum(client.nthreads().values()))
 
 
 def _bar(total, done, progress):

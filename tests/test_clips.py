@@ -399,8 +399,8 @@ def test_default_clip_length_holds_clip_bytes_of_samples(humanoid, tmp_path, mon
 
 def test_default_clip_length_leaves_each_worker_four_clips(humanoid, monkeypatch):
     """``clip_frames``: points only counts 12 bytes a point, normals and velocities add theirs;
-    with N workers a clip is at most ``ceil(F / 4N)`` frames, then shortened so that the clips
-    are of one length and their count is a multiple of N."""
+    with N slots a clip is at most ``ceil(F / 4N)`` frames (not under ``CLIP_CHUNK``), then
+    shortened to share the frames evenly among the clips that makes."""
     from dqskin.formats import usd_clips
     from dqskin.formats.usd_clips import clip_frames
     scene = humanoid["scene"]
@@ -417,6 +417,32 @@ def test_default_clip_length_leaves_each_worker_four_clips(humanoid, monkeypatch
     assert clip_frames(scene, 1000, normals=False, velocities=False, workers=1) == 84  # 12 clips
     assert clip_frames(scene, 1000, normals=False, velocities=False, workers=5) == 50  # 20 clips
     assert clip_frames(scene, 1292, normals=False, velocities=False, workers=2) == 81  # 15 → 16
+
+
+def test_default_clip_length_fills_every_wave_of_workers(humanoid, monkeypatch):
+    """With the real ``CLIP_CHUNK`` (128) and ``CLIP_BYTES``: the slot with the most clips
+    (``k``) bakes fewer than ``F / N + k`` frames (the last wave is full, to within a frame a
+    clip), the clips are never longer than without workers, and never under ``CLIP_CHUNK``
+    frames unless evened out."""
+    from dqskin.formats import usd_clips
+    from dqskin.formats.usd_clips import CLIP_CHUNK, clip_frames
+    scene = humanoid["scene"]
+    for F in (*range(1, 3000, 7), 1292, 10000, 123457):
+        alone = clip_frames(scene, F, normals=False, velocities=False)
+        for n in (1, 2, 3, 4, 8, 64):
+            size = clip_frames(scene, F, normals=False, velocities=False, workers=n)
+            clips = -(-F // size)
+            k = -(-clips // n)
+            assert 1 <= size <= alone and k * size < F / n + k, (F, n, size)
+            if F >= 4 * n * CLIP_CHUNK:  # long enough for four clips a slot
+                assert k >= 4 and size > CLIP_CHUNK * (k - 1) / k, (F, n, size)
+    # 63,624 bytes a frame: 527 frames hold 32 MB, four clips a slot cap them at 162
+    assert clip_frames(scene, 1292, normals=False, velocities=False, workers=2) == 162
+    # 1,000 frames on 4 slots: four clips each would be 63 frames, under CLIP_CHUNK: 8 of 125
+    assert clip_frames(scene, 1000, normals=False, velocities=False, workers=4) == 125
+    monkeypatch.setattr(usd_clips, "CLIP_BYTES", 1)  # a mesh of 128-frame clips: 11 → 12 of 108
+    assert clip_frames(scene, 1292, normals=False, velocities=False) == 128
+    assert clip_frames(scene, 1292, normals=False, velocities=False, workers=2) == 108
 
 
 def test_resume_without_chunk_continues_with_the_earlier_bakes_chunks(humanoid, tmp_path):

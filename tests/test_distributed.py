@@ -127,6 +127,26 @@ def test_external_scheduler_and_workers_on_localhost(reference, external_cluster
         assert set(client.run(budget).values()) == {(1, 1)}
 
 
+def test_default_clips_are_sized_for_the_clusters_task_slots(external_cluster, tmp_path):
+    """Without ``chunk``, a bake on a cluster of two one-thread workers cuts the clips for two
+    slots (``clip_frames(..., workers=2)``: two clips of the humanoid's frames, where one
+    process bakes one), and equals the same bake in one process."""
+    from dqskin.formats.usd_clips import clip_frames
+    scene = load(HUMANOID)
+    F = len(scene.times)
+    assert -(-F // clip_frames(scene, F)) == 1
+    size = clip_frames(scene, F, workers=2)
+    assert -(-F // size) == 2
+    shot, here = tmp_path / "shot.usd", tmp_path / "here.usd"
+    assert "as 2 clips" in bake(HUMANOID, shot, scheduler=external_cluster)
+    assert "as 1 clip " in bake(HUMANOID, here, clips=True)
+    plan = json.loads((clips_folder(shot) / "plan.json").read_text())
+    assert plan["chunk"] == size
+    names = [m.name for m in scene.meshes]
+    assert assert_same_animation(Usd.Stage.Open(str(here)), Usd.Stage.Open(str(shot)), names,
+                                 probe_times(scene.times, size)) > 0
+
+
 def test_a_worker_killed_mid_chunk_is_replaced_and_the_bake_completes(reference, external_cluster,
                                                                        tmp_path):
     """A worker plugin makes the first worker that has finished a clip layer in its temporary

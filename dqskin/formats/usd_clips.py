@@ -61,7 +61,8 @@ def clips_folder(out) -> Path:
 
 
 CLIP_CHUNK = 128
-"""Fewest frames per clip layer by default (:func:`clip_frames`)."""
+"""Fewest frames per clip layer by default, before the clips are evened out over workers
+(:func:`clip_frames`)."""
 
 CLIP_BYTES = 32 << 20
 """Samples a clip layer holds at least by default, workers permitting (:func:`clip_frames`): a
@@ -74,20 +75,25 @@ def clip_frames(scene, frames: int, normals: bool = True, velocities: bool = Tru
                 workers: int | None = None) -> int:
     """Default frames per clip layer of a bake of ``frames`` frames: :data:`CLIP_CHUNK`, or as
     many more as hold :data:`CLIP_BYTES` of samples (CesiumMan's 3,273 points: 854 frames
-    points only, 284 with normals and velocities; a 30,000-point character: 128). With
-    ``workers`` processes, so that they share the work evenly: no more than leave each four
-    clips (``ceil(frames / (4 workers))``), then a little fewer so that the clips are of one
-    length and their count a multiple of ``workers`` (1,292 frames of 128 on 2 workers: 12
-    clips of 108 frames instead of 11, six each instead of six and five)."""
+    points only, 284 with normals and velocities; a 30,000-point character: 128).
+
+    With ``workers`` task slots, so that they share the work evenly: no more than
+    ``ceil(frames / (4 workers))`` frames (but not under :data:`CLIP_CHUNK`, so each slot gets
+    four clips only from ``512 workers`` frames on); then, for the ``k`` clips per slot that
+    makes, ``ceil(frames / (k workers))`` frames: every slot gets ``k`` clips or one fewer, all
+    of one length but the last (a mesh of 128-frame clips, 1,292 frames on 2 slots: 12 clips of
+    108 frames, six each, instead of 11 of 128, six and five); with fewer frames than slots,
+    one frame per clip."""
     F = int(frames)
     n = max(1, CLIP_BYTES // max(frame_bytes(scene, normals, velocities), 1))
     if not workers or F < 1:
         return max(CLIP_CHUNK, n)
     w = int(workers)
+    if F < w:
+        return 1
     n = max(CLIP_CHUNK, min(n, -(-F // (4 * w))))
-    clips = -(-F // n)
-    clips = -(-clips // w) * w
-    return -(-F // clips)
+    k = -(-(-(-F // n)) // w)  # clips per slot
+    return -(-F // (k * w))
 
 
 def recorded_chunk(out) -> int | None:
