@@ -39,6 +39,7 @@ from .validation import check_skinned
 
 __all__ = ["ChunkJob", "bake_clips", "run_chunk", "run_here", "worker_threads"]
 
+
 def _piece_frames(scene, opts):
     """:func:`piece_frames` for :meth:`dqskin.Scene.skin` options ``opts``."""
     return piece_frames(scene, opts.get("normals", True), opts.get("velocities", True))
@@ -305,7 +306,7 @@ def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", devi
         if chunk is None:  # the earlier bake's when resuming, else by size and worker count
             chunk = (resume and not force and usd_clips.recorded_chunk(out)) or \
                 usd_clips.clip_frames(scene, len(np.unique(times)), normals, velocities,
-                                      _worker_count(client))
+                                      _task_slots(client))
         bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=force, resume=resume)
         todo = bake.pending()
         skin = dict(options, device=None if device is None else str(device))
@@ -330,7 +331,7 @@ def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", devi
                 folder=str(bake.folder), tasks=tasks)
 
 
-def _worker_count(client):
+def _task_slots(client):
     """Task slots of ``client``'s cluster (its workers' threads, at least 1: a ``dask worker
     --nthreads 4`` bakes four chunks at once), None for no cluster (in this process)."""
     if client is None:
