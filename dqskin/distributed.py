@@ -300,13 +300,14 @@ def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", devi
     with _dask(workers, scheduler, threads) as client:
         # the workers load the asset while this process flattens it (kept until the end: a
         # released future is cancelled)
-        preload = [] if client is None else [
-            client.submit(_preload, source, pure=False, workers=[w], allow_other_workers=False)
-            for w in client.nthreads()]  # (scheduler_info() lists at most 5 in some versions)
-        if chunk is None:  # the earlier bake's when resuming, else by size and worker count
+        # each worker's task slots (scheduler_info() lists at most 5 workers in some versions)
+        slots = {} if client is None else client.nthreads()
+        preload = [client.submit(_preload, source, pure=False, workers=[w],
+                                 allow_other_workers=False) for w in slots]
+        if chunk is None:  # the earlier bake's when resuming, else by size and task slots
             chunk = (resume and not force and usd_clips.recorded_chunk(out)) or \
                 usd_clips.clip_frames(scene, len(np.unique(times)), normals, velocities,
-                                      _task_slots(client))
+                                      None if client is None else max(1, sum(slots.values())))
         bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=force, resume=resume)
         todo = bake.pending()
         skin = dict(options, device=None if device is None else str(device))
@@ -329,14 +330,6 @@ def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", devi
     bake.finish()
     return dict(chunks=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
                 folder=str(bake.folder), tasks=tasks)
-
-
-def _task_slots(client):
-    """Task slots of ``client``'s cluster (its workers' threads, at least 1: a ``dask worker
-    --nthreads 4`` bakes four chunks at once), None for no cluster (in this process)."""
-    if client is None:
-        return None
-    return max(1, sum(client.nthreads().values()))
 
 
 def _bar(total, done, progress):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
-from dqskin.formats.crate import VALUE_TYPES, CrateSamples
+from dqskin.formats.crate import VALUE_TYPES, CrateSamples, _nbytes
 
 RNG = np.random.default_rng(7)
 
@@ -172,10 +172,6 @@ def test_short_writes_and_no_writev_give_the_same_file(tmp_path, monkeypatch, wr
     else:
         monkeypatch.delattr(os, "writev")
     assert build(tmp_path / "other.usdc") == expected
-
-
-def _nbytes(b):
-    return b.nbytes if isinstance(b, np.ndarray) else len(b)
 
 
 def _base_layer():
@@ -482,3 +478,23 @@ def test_a_dropped_writer_closes_only_after_its_queued_writes(tmp_path, monkeypa
     assert not os.path.exists(f"/proc/self/fd/{fd}") or \
         os.readlink(f"/proc/self/fd/{fd}") != str(tmp_path / "dropped.usdc")
     assert (tmp_path / "dropped.usdc").stat().st_size == 88 + 8 + 12_000  # its write, done
+
+
+@pytest.mark.parametrize("version", [(0, 6, 0), (1, 0, 0)])
+def test_a_base_of_another_crate_version_is_refused_as_unsupported(tmp_path, version):
+    """A base whose crate version this writer cannot extend raises ``UnsupportedCrate`` (which
+    a caller can write another way), leaving no output; a file that is not a crate raises a
+    plain ValueError."""
+    from dqskin.formats.crate import UnsupportedCrate
+    base = tmp_path / "base.usdc"
+    assert _base_layer().Export(str(base))
+    data = bytearray(base.read_bytes())
+    data[8:11] = bytes(version)
+    base.write_bytes(bytes(data))
+    with pytest.raises(UnsupportedCrate, match="crate version"):
+        CrateSamples(tmp_path / "out.usdc", 30.0, base=base)
+    assert not (tmp_path / "out.usdc").exists()
+    (tmp_path / "text.usdc").write_text("#usda 1.0\n")
+    with pytest.raises(ValueError, match="not a USD crate file") as err:
+        CrateSamples(tmp_path / "out2.usdc", 30.0, base=tmp_path / "text.usdc")
+    assert not isinstance(err.value, UnsupportedCrate)

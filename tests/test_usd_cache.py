@@ -412,3 +412,27 @@ def test_a_usd_bake_imports_only_what_it_uses(tmp_path):
         "\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.splitlines()[-1] == "imported:", out.stdout
+
+
+def test_a_base_usd_core_writes_in_another_crate_version_falls_back_to_sdf(tmp_path, monkeypatch):
+    """When usd-core's copy of the source is a crate version the writer cannot extend, the cache
+    is written through Sdf and reads the same; any other error of the writer is raised."""
+    from dqskin import bake
+    from dqskin.formats import crate
+
+    src = Path(__file__).resolve().parents[1] / "assets" / "humanoid.usda"
+    bake(src, tmp_path / "crate.usdc", clips=False)
+
+    def unsupported(*args, **kwargs):
+        raise crate.UnsupportedCrate("crate version (0, 6, 0)")
+    monkeypatch.setattr(crate.CrateSamples, "__init__", unsupported)
+    bake(src, tmp_path / "sdf.usdc", clips=False)
+    a, b = (Sdf.Layer.FindOrOpen(str(tmp_path / n)) for n in ("crate.usdc", "sdf.usdc"))
+    assert a.ExportToString() == b.ExportToString()
+
+    def broken(*args, **kwargs):
+        raise ValueError("tokens do not decode")
+    monkeypatch.setattr(crate.CrateSamples, "__init__", broken)
+    with pytest.raises(ValueError, match="tokens do not decode"):
+        bake(src, tmp_path / "broken.usdc", clips=False)
+    assert not (tmp_path / "broken.usdc").exists()

@@ -339,14 +339,16 @@ def compare_caches(a, b, probe_times):
 
 def output_mb(dst):
     """Size of a cache: the file and, for clips, its ``.clips`` folder."""
-    folder = dst.with_name(dst.stem + ".clips")
+    from dqskin.formats.usd_clips import clips_folder  # (here: a child times its own imports)
+    folder = clips_folder(dst)
     files = [dst] + (list(folder.iterdir()) if folder.is_dir() else [])
     return sum(f.stat().st_size for f in files) / 2**20
 
 
 def _remove_output(dst):
     """Remove an earlier run's output (and its clips folder) before the next run writes it."""
-    for f in (dst, dst.with_name(dst.stem + ".clips")):
+    from dqskin.formats.usd_clips import clips_folder
+    for f in (dst, clips_folder(dst)):
         if f.is_dir():
             shutil.rmtree(f)
         elif f.exists():

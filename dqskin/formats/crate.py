@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf
 
-__all__ = ["CrateSamples", "VERSION", "VALUE_TYPES"]
+__all__ = ["CrateSamples", "UnsupportedCrate", "VERSION", "VALUE_TYPES"]
 
 VERSION = (0, 8, 0)
 """Crate file version written (usd-core's default for new files)."""
@@ -173,21 +173,25 @@ def _decode_ints(data: bytes, pos: int, count: int):
     return values, end
 
 
+class UnsupportedCrate(ValueError):
+    """A base crate file of a version :class:`CrateSamples` cannot extend (before 0.7.0, or
+    1.0 and later): the caller can write the layer another way."""
+
+
 class _Base:
     """The structure of a crate file usd-core wrote (the sections :class:`CrateSamples` merges
     with its samples): version, where its values end, tokens, fields, field sets, specs, the
     path of each path index, and the raw STRINGS and PATHS sections."""
 
     def __init__(self, path):
-        self.path = Path(path)
-        data = self.path.read_bytes()
+        data = Path(path).read_bytes()
         self.data, self.kept = data, {}
         if data[:8] != _IDENT:
             raise ValueError(f"{path}: not a USD crate file")
         self.version = tuple(data[8:11])
         if not (0, 7, 0) <= self.version < (1, 0, 0):
-            raise ValueError(f"{path}: crate version {self.version} is not one this writer can "
-                             "extend (0.7.0 or later)")
+            raise UnsupportedCrate(f"{path}: crate version {self.version} is not one this "
+                                   "writer can extend (0.7.0 or later)")
         toc = struct.unpack_from("<q", data, 16)[0]
         count = struct.unpack_from("<Q", data, toc)[0]
         sections = {}

@@ -614,7 +614,7 @@ class _Loader:
     def _animation_arrays(self, where, attr, samples, names, key):
         """:meth:`check_animation_array`'s values one sample at a time, failing on the first
         that is not one array of numbers per name; None when there is nothing to check."""
-        times, arrays = [], []
+        arrays = []
         for time, value in samples:
             if value is None:  # a blocked time sample
                 continue
@@ -625,7 +625,6 @@ class _Loader:
             if a.ndim == 0 or a.shape[0] != len(names):
                 self.fail(where, f"{attr} has {a.shape[0] if a.ndim else 'no array of'} values "
                                  f"for {len(names)} {key}{_at_time(time)}")
-            times.append(time)
             arrays.append(a.reshape(len(names), -1))
         if not arrays or not names:
             return None

@@ -32,7 +32,7 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
 from ..shapes import frames_of
 from .atomic import atomic_path, check_parent
-from .crate import CrateSamples
+from .crate import CrateSamples, UnsupportedCrate
 from .usd import load_rigid_prims, rigid_transforms
 
 __all__ = ["CACHE_EXTENSIONS", "PIECE_BYTES", "PIECE_FRAMES", "SUBCHUNK", "CacheLayer",
@@ -66,13 +66,12 @@ PIECE_BYTES = 64 << 20
 3,273-point mesh cost 0.8 of 4.2 CPU-s of a 10,000-frame bake)."""
 
 
-def piece_frames(scene, normals=True, velocities=True, most=PIECE_FRAMES) -> int:
+def piece_frames(scene, normals=True, velocities=True) -> int:
     """Frames per piece skinned at a time (:data:`PIECE_BYTES` of samples, at least
-    :data:`SUBCHUNK`, at most ``most``, None for no bound): the clip tasks' pieces, and the
-    chunks of a single-layer USD bake (which streams them to its file, so this is what it
-    holds)."""
+    :data:`SUBCHUNK`, at most :data:`PIECE_FRAMES`): the clip tasks' pieces, and the chunks of a
+    single-layer USD bake (which streams them to its file, so this is what it holds)."""
     n = max(SUBCHUNK, PIECE_BYTES // max(frame_bytes(scene, normals, velocities), 1))
-    return n if most is None else min(n, int(most))
+    return min(n, PIECE_FRAMES)
 
 
 def _frames(name, what, a, frames, count, finite=True):
@@ -686,9 +685,8 @@ class UsdCacheWriter:
         export_layer(self.layer, self._claim, tmp=base)
         try:
             self._sink = CrateSamples(tmp, self.scene.time_codes_per_second, base=base)
-        except ValueError:
-            if not base.is_file() or base.read_bytes()[:8] != b"PXR-USDC":
-                raise
+        except UnsupportedCrate:  # a usd-core writing another crate version: through Sdf
+            pass
         finally:
             base.unlink(missing_ok=True)
         if isinstance(self._sink, CrateSamples):

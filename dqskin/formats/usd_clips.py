@@ -96,14 +96,20 @@ def clip_frames(scene, frames: int, normals: bool = True, velocities: bool = Tru
     return -(-F // (k * w))
 
 
-def recorded_chunk(out) -> int | None:
-    """The frames per clip of the earlier bake in ``out``'s clip folder (its ``plan.json``), or
-    None: ``--resume`` without ``--chunk`` continues with the chunks that bake was started with,
-    whatever the default would be now."""
+def _recorded(out, key):
+    """``key`` of the plan of the earlier bake in ``out``'s clip folder (its ``plan.json``), None
+    without one (or an unreadable one)."""
     try:
-        chunk = json.loads((clips_folder(out) / "plan.json").read_text()).get("chunk")
+        return json.loads((clips_folder(out) / "plan.json").read_text()).get(key)
     except (OSError, ValueError, AttributeError):
         return None
+
+
+def recorded_chunk(out) -> int | None:
+    """The frames per clip of the earlier bake in ``out``'s clip folder, or None: ``--resume``
+    without ``--chunk`` continues with the chunks that bake was started with, whatever the
+    default would be now."""
+    chunk = _recorded(out, "chunk")
     return chunk if isinstance(chunk, int) and not isinstance(chunk, bool) and chunk >= 1 \
         else None
 
@@ -286,11 +292,7 @@ class ClipBake:
         earlier = plan_file.exists()
         self._check_owner(self.out)
         if earlier and resume and not force:
-            try:
-                key = json.loads(plan_file.read_text()).get("key")
-            except (OSError, ValueError, AttributeError):
-                key = None
-            if key != self.key:
+            if _recorded(self.out, "key") != self.key:
                 raise ValueError(f"{self.folder}: an earlier bake of another input or with other "
                                  "settings (frames, chunk, method, normals, velocities); rerun "
                                  "it with those, or use --force to start over")
@@ -309,10 +311,7 @@ class ClipBake:
         """ValueError when ``out``'s clip folder holds an earlier bake of another top-level
         file (``shot.usda`` beside ``shot.usd``: one ``shot.clips/``), ``force`` or not."""
         out, folder = Path(out), clips_folder(out)
-        try:
-            owner = json.loads((folder / "plan.json").read_text()).get("out")
-        except (OSError, ValueError, AttributeError):
-            return
+        owner = _recorded(out, "out")
         if isinstance(owner, str) and owner != out.name:
             raise ValueError(f"{folder}: holds the clips of {owner}, another output; bake "
                              f"{out.name} under another name (or remove {owner} and "
