@@ -163,16 +163,17 @@ def _sample_writer(scene, job):
 
 def _result(job, digest, t0, c0):
     seconds, ended = time.perf_counter() - t0, time.time()
-    return dict(index=job.index, sha256=digest, seconds=seconds,
+    return dict(index=job.index, checksum=digest, seconds=seconds,
                 cpu_seconds=time.process_time() - c0, pid=os.getpid(),
                 peak_rss_mb=_peak_rss_mb(), started=ended - seconds, ended=ended)
 
 
 def run_chunk(job: ChunkJob, scene=None) -> dict:
     """Skin one chunk and write its clip layer; ``scene`` defaults to the worker's copy of
-    ``job.source``. Returns ``index``, ``sha256``, ``seconds``, ``cpu_seconds`` (of the whole
-    process while the task ran: all its threads, a worker running one task at a time), ``pid``,
-    ``peak_rss_mb``, and ``started`` and ``ended`` (``time.time()`` seconds)."""
+    ``job.source``. Returns ``index``, ``checksum`` (:data:`~.formats.usd_clips.CHECKSUM`),
+    ``seconds``, ``cpu_seconds`` (of the whole process while the task ran: all its threads, a
+    worker running one task at a time), ``pid``, ``peak_rss_mb``, and ``started`` and ``ended``
+    (``time.time()`` seconds)."""
     t0, c0 = time.perf_counter(), time.process_time()
     scene = _worker_scene(job.source) if scene is None else scene
     with usd_clips.ClipLayer(job.path, job.time_codes_per_second) as layer:
@@ -220,7 +221,7 @@ def run_here(jobs: list, scene, done) -> None:
                         finished, pending = pending, None
                         done(_commit(*finished))
                     claim = layer.finish(job.times)
-                pending = (job, claim, hasher.submit(usd_clips.sha256_file, claim.tmp), start)
+                pending = (job, claim, hasher.submit(usd_clips.file_checksum, claim.tmp), start)
                 start = time.perf_counter(), time.process_time()
             if pending is not None:
                 finished, pending = pending, None

@@ -321,6 +321,31 @@ def test_flatten_gives_one_layer_with_the_same_animation(humanoid, tmp_path):
         flatten(humanoid["shot"], flat)
 
 
+def test_records_hold_the_layers_xxh128_and_older_sha256_records_verify(humanoid, tmp_path):
+    """Each record holds its layer's XXH3-128 (as ``xxh128sum`` prints it), computed here from
+    the whole file at once; a record of an earlier bake holding ``sha256`` verifies by that; a
+    record with neither, or a wrong digest, does not."""
+    import hashlib
+    import shutil
+
+    import xxhash
+    src = clips_folder(humanoid["shot"])
+    plan = json.loads((src / "plan.json").read_text())
+    records = sorted(src.glob("chunk_*.json"))
+    assert records
+    for record in records:
+        data = (src / json.loads(record.read_text())["layer"]).read_bytes()
+        assert json.loads(record.read_text())["xxh3_128"] == xxhash.xxh3_128(data).hexdigest()
+    layer, record = tmp_path / "chunk_00000.usdc", tmp_path / "chunk_00000.json"
+    shutil.copy(src / layer.name, layer)
+    old = json.loads((src / record.name).read_text())
+    del old["xxh3_128"]
+    for digest, ok in ((hashlib.sha256(layer.read_bytes()).hexdigest(), True),
+                       (hashlib.sha256(b"another file").hexdigest(), False), (None, False)):
+        record.write_text(json.dumps(old if digest is None else dict(old, sha256=digest)))
+        assert verify_chunk(layer, plan["key"]) is ok, digest
+
+
 def test_resume_keeps_verified_chunks_and_redoes_missing_or_corrupt(humanoid, tmp_path):
     scene = humanoid["scene"]
     shot = tmp_path / "shot.usdc"
@@ -591,7 +616,7 @@ def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_p
     if failure == "hash":
         def failing_hash(path):
             raise OSError("cannot read")
-        monkeypatch.setattr(usd_clips, "sha256_file", failing_hash)
+        monkeypatch.setattr(usd_clips, "file_checksum", failing_hash)
     try:
         with pytest.raises(KeyboardInterrupt if failure == "interrupt" else ValueError):
             bake(scene, shot, chunk=CHUNK, clips=True)

@@ -252,7 +252,7 @@ def breakdown_dqskin(src, dst, chunk=256):
         from dqskin.formats.atomic import atomic_path
         from dqskin.formats.crate import CrateSamples
         from dqskin.formats.usd_cache import CacheLayer, _extents, export_layer
-        from dqskin.formats.usd_clips import sha256_file
+        from dqskin.formats.usd_clips import file_checksum
         from dqskin.validation import check_skinned
         import_dqskin()
     with ph("load (dqskin.formats.load)"):
@@ -288,8 +288,8 @@ def breakdown_dqskin(src, dst, chunk=256):
         crate.close(scene.times.min(), scene.times.max())
     base.unlink()
     del res, ext
-    with ph("(clips only) SHA-256 of the layer"):
-        sha256_file(tmp)
+    with ph("(clips only) checksum of the layer"):
+        file_checksum(tmp)
     claim.commit()
     return ph.rows
 

@@ -10,7 +10,8 @@ For ``--out SHOT.usd`` (any of ``.usd/.usdc/.usda``) a clip bake writes::
     SHOT.clips/chunk_00000.usdc  one chunk's time samples, streamed into a crate file as they
                                  are skinned (:class:`~.usd_cache.SampleWriter` into a
                                  :class:`~.crate.CrateSamples`: no Sdf layer, no Vt arrays)
-    SHOT.clips/chunk_00000.json  its SHA-256, size and the plan key
+    SHOT.clips/chunk_00000.json  its checksum (XXH3-128, as ``xxh128sum`` prints it), size and
+                                 the plan key
 
 USD never interpolates across clips: between the last sample of one clip and the first of the
 next it holds the earlier one. So chunk ``k`` owns frames ``[lo_k, lo_{k+1})`` but its layer also
@@ -35,15 +36,16 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import xxhash
 from pxr import Sdf, Usd, Vt
 
 from .atomic import atomic_path, check_interrupted
 from .crate import CrateSamples
 from .usd_cache import CacheLayer, export_layer, frame_bytes
 
-__all__ = ["CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "ClipBake", "ClipLayer",
+__all__ = ["CHECKSUM", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "ClipBake", "ClipLayer",
            "chunk_bounds", "clip_frames", "clips_folder", "commit_clip", "flatten",
-           "recorded_chunk", "sha256_file", "verify_chunk", "write_clip"]
+           "file_checksum", "recorded_chunk", "verify_chunk", "write_clip"]
 
 CLIPS_FOLDER_SUFFIX = ".clips"
 """``SHOT.usd`` → ``SHOT.clips/``."""
@@ -126,12 +128,25 @@ def _chunk_name(index, count):
     return f"chunk_{index:0{max(5, len(str(count - 1)))}d}"
 
 
-def sha256_file(path) -> str:
-    """Hex SHA-256 of a file (hashlib releases the GIL while hashing)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
+CHECKSUM = "xxh3_128"
+"""The checksum a clip layer's record holds, under this key: XXH3-128 in hex, as ``xxh128sum``
+prints it (``xxh128sum -c`` checks a layer by hand). It guards against torn and damaged files,
+not against tampering, at 10× the speed of SHA-256 (0.04 s against 0.39 s for 393 MB here).
+Records of earlier bakes hold ``sha256`` instead and are verified by that (:func:`verify_chunk`)."""
+
+_HASHES = {"xxh3_128": xxhash.xxh3_128, "sha256": hashlib.sha256}
+_BLOCK = 1 << 20
+
+
+def file_checksum(path, algorithm: str = CHECKSUM) -> str:
+    """Hex digest of a file (``algorithm``: ``"xxh3_128"`` or ``"sha256"``), read in 1 MB blocks
+    (the GIL is released while hashing)."""
+    h = _HASHES[algorithm]()
+    block = bytearray(_BLOCK)
+    view = memoryview(block)
+    with open(path, "rb", buffering=0) as fh:
+        while n := fh.readinto(block):
+            h.update(view[:n])
     return h.hexdigest()
 
 
@@ -181,9 +196,9 @@ class ClipLayer:
 
 
 def write_clip(layer: ClipLayer, key: str, times) -> str:
-    """Finish one chunk's ``layer``, record its SHA-256 beside its final name (``chunk_k.json``
-    for ``chunk_k.usdc``), then rename it into place (:meth:`ClipLayer.finish`, then
-    :func:`commit_clip`). Returns the checksum.
+    """Finish one chunk's ``layer``, record its checksum (:data:`CHECKSUM`) beside its final
+    name (``chunk_k.json`` for ``chunk_k.usdc``), then rename it into place
+    (:meth:`ClipLayer.finish`, then :func:`commit_clip`). Returns the checksum.
 
     A process killed at any point leaves either no layer under ``path`` or one whose record
     does not match it (the record was replaced first), which :func:`verify_chunk` rejects.
@@ -192,16 +207,16 @@ def write_clip(layer: ClipLayer, key: str, times) -> str:
 
 
 def commit_clip(claim, key: str, times, digest: str | None = None) -> str:
-    """Record the SHA-256 of the layer :meth:`ClipLayer.finish` left in ``claim`` (``path.json``,
-    with ``key``), then rename it into place. ``digest``: that file's SHA-256 if already known
-    (:func:`sha256_file`, which needs no layer nor the main thread, so it can run while the next
-    chunk is baked). Returns the checksum."""
+    """Record the checksum (:data:`CHECKSUM`) of the layer :meth:`ClipLayer.finish` left in
+    ``claim`` (``path.json``, with ``key``), then rename it into place. ``digest``: that file's
+    checksum if already known (:func:`file_checksum`, which needs no layer nor the main thread,
+    so it can run while the next chunk is baked). Returns the checksum."""
     path, times = claim.path, np.asarray(times, np.float64)
     try:
         tmp = claim.open()
-        digest = digest or sha256_file(tmp)
+        digest = digest or file_checksum(tmp)
         _write_json(path.with_suffix(".json"), {
-            "layer": path.name, "sha256": digest, "bytes": os.path.getsize(tmp), "plan": key,
+            "layer": path.name, CHECKSUM: digest, "bytes": os.path.getsize(tmp), "plan": key,
             "first": float(times[0]), "last": float(times[-1]), "frames": int(len(times))})
         claim.commit()
     except BaseException:
@@ -212,13 +227,14 @@ def commit_clip(claim, key: str, times, digest: str | None = None) -> str:
 
 def verify_chunk(path, key: str) -> bool:
     """True when the clip layer ``path`` exists and matches its record (same plan key, size
-    and SHA-256)."""
+    and checksum: :data:`CHECKSUM`, or ``sha256`` in the records of earlier bakes)."""
     path = Path(path)
     try:
         record = json.loads(path.with_suffix(".json").read_text())
-        return (record.get("plan") == key and path.is_file()
+        algorithm = next((a for a in _HASHES if a in record), None)
+        return (record.get("plan") == key and algorithm is not None and path.is_file()
                 and path.stat().st_size == record.get("bytes")
-                and sha256_file(path) == record.get("sha256"))
+                and file_checksum(path, algorithm) == record[algorithm])
     except (OSError, ValueError, AttributeError):
         return False
 
