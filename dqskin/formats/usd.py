@@ -294,6 +294,10 @@ class UsdSkelAnimation(Animation):
         Kept alive as long as the animation is.
     path : str, optional
         The file, for messages (default: the stage's root layer).
+    tracks : JointTracks, optional
+        The animation's samples, read and checked by the loader: :meth:`local_transforms`
+        samples them for all times at once as UsdSkel does (:mod:`.usd_anim`) instead of asking
+        UsdSkel frame by frame (7 µs a frame).
 
     Attributes
     ----------
@@ -307,9 +311,10 @@ class UsdSkelAnimation(Animation):
         The animation's ``blendShapes`` tokens (order of :meth:`blend_shape_weights`).
     """
 
-    def __init__(self, skel_query, stage, path=None):
+    def __init__(self, skel_query, stage, path=None, tracks=None):
         self._stage = stage
         self._query = skel_query
+        self._tracks = tracks
         self._anim = skel_query.GetAnimQuery()
         layer = stage.GetRootLayer()
         self.path = os.fspath(path) if path is not None else (layer.realPath or layer.identifier)
@@ -342,6 +347,12 @@ class UsdSkelAnimation(Animation):
             rest pose); the message names the file, the ``SkelAnimation`` and the time.
         """
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        if self._tracks is not None:
+            return self._tracks.local_transforms(t)
+        return self._usdskel_local_transforms(t)
+
+    def _usdskel_local_transforms(self, t):
+        """:meth:`local_transforms` asking UsdSkel at each time."""
         J = self.joint_count
         rows = np.empty((t.shape[0], J, 4, 4))  # USD's row-vector matrices, one copy each
         compute = self._query.ComputeJointLocalTransforms
@@ -571,21 +582,55 @@ class _Loader:
                 dups = _duplicates(tokens)
                 if dups:
                     self.fail(where, f"{key} has duplicate names {', '.join(map(repr, dups))}")
-            for attr, key in ANIMATION_ARRAYS.items():
-                self.check_animation_array(where, attr, _authored_values(prim.GetAttribute(attr)),
-                                           names[key], key)
+            arrays = {attr: self.check_animation_array(
+                          where, attr, _authored_values(prim.GetAttribute(attr)), names[key], key)
+                      for attr, key in ANIMATION_ARRAYS.items()}
             anim = UsdSkelAnimation(query, self.stage, self.path)
-            anim.local_transforms(anim.key_times[:1] if anim.key_times.size else [0.0])
+            first = anim.key_times[:1] if anim.key_times.size else np.zeros(1)
+            composed = anim.local_transforms(first)
+            anim._tracks = self.joint_tracks(query, prim, arrays, first, composed)
         return anim
+
+    def joint_tracks(self, query, prim, arrays, first, composed):
+        """The :class:`~.usd_anim.JointTracks` of the animation ``prim`` from its checked
+        ``arrays`` (:meth:`check_animation_array`'s), or None where it might not sample as
+        UsdSkel does: an array unauthored, blocked or of another layout, values from value
+        clips, held interpolation, a sparse animation without rest transforms, or a result
+        that differs from UsdSkel's ``composed`` at time ``first``."""
+        from .usd_anim import JointTracks
+        kinds = ("translations", "rotations", "scales")
+        if any(arrays.get(a) is None for a in kinds) or \
+                self.stage.GetInterpolationType() != Usd.InterpolationTypeLinear:
+            return None
+        sources = (Usd.ResolveInfoSourceTimeSamples, Usd.ResolveInfoSourceDefault)
+        if any(prim.GetAttribute(a).GetResolveInfo().GetSource() not in sources for a in kinds):
+            return None
+        skel_joints = {str(j): i for i, j in enumerate(query.GetJointOrder())}
+        joints = [skel_joints.get(str(j), -1) for j in query.GetAnimQuery().GetJointOrder()]
+        rest = query.ComputeJointLocalTransforms(Usd.TimeCode.Default(), True)
+        if rest is None or len(rest) != len(skel_joints):
+            if sorted(joints) != list(range(len(skel_joints))):
+                return None
+            rest = np.zeros((len(skel_joints), 4, 4))  # every joint driven: rest unused
+        else:
+            rest = _matrices(rest)
+        try:
+            tracks = JointTracks(*(arrays[a] for a in kinds), joints, rest)
+            same = np.array_equal(tracks.local_transforms(first), composed)
+        except (TypeError, ValueError):
+            return None
+        return tracks if same else None
 
     def check_animation_array(self, where, attr, samples, names, key):
         """Every ``(time, value)`` of a ``SkelAnimation`` array (its default value, or each time
         sample): one finite entry per name of ``key`` (``joints`` or ``blendShapes``), no zero
         rotation. Checked all at once: an animation may have thousands of samples (their
         buffers joined in one call when they all hold one entry per name in one layout; one by
-        one, to name the bad one, when not)."""
+        one, to name the bad one, when not). Returns ``(times, values)`` (times None for a
+        default value; values ``(K, names, components)`` in the attribute's own scalar type)
+        when every sample is an array of that one layout, else None."""
         times = [time for time, value in samples if value is not None]
-        values = None
+        values = native = None
         if times and names:
             arrays = [v for _, v in samples if v is not None]
             kind = type(arrays[0])
@@ -595,14 +640,15 @@ class _Loader:
                     raw = b"".join(arrays)  # (a Vt array type has one layout)
                     if first.shape and first.shape[0] == len(names) and \
                             len(raw) == len(arrays) * first.nbytes:
-                        values = np.frombuffer(raw, np.dtype(first.format)).reshape(
-                            (len(arrays),) + first.shape).astype(np.float64)
+                        native = np.frombuffer(raw, np.dtype(first.format)).reshape(
+                            (len(arrays),) + first.shape)
+                        values = native.astype(np.float64)
             except (TypeError, ValueError):
-                values = None
+                values = native = None
         if values is None:
             values = self._animation_arrays(where, attr, samples, names, key)
             if values is None:
-                return
+                return None
         values = values.reshape(len(times), len(names), -1)  # (samples, names, components)
         finite = np.isfinite(values).all(axis=2)
         ok = finite & np.any(values != 0, axis=2) if attr == "rotations" else finite
@@ -610,6 +656,9 @@ class _Loader:
             s, n = (int(i) for i in np.argwhere(~ok)[0])
             what = "NaN or infinite values" if not finite[s, n] else "a zero quaternion"
             self.fail(where, f"{attr} has {what} for {key[:-1]} {names[n]!r}{_at_time(times[s])}")
+        if native is None or len(times) != len(samples):  # another layout, or blocked samples
+            return None
+        return (None if times[0] is None else np.asarray(times, np.float64)), native
 
     def _animation_arrays(self, where, attr, samples, names, key):
         """:meth:`check_animation_array`'s values one sample at a time, failing on the first
