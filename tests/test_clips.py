@@ -324,7 +324,7 @@ def test_flatten_gives_one_layer_with_the_same_animation(humanoid, tmp_path):
 def test_records_hold_the_layers_xxh128_and_older_sha256_records_verify(humanoid, tmp_path):
     """Each record holds its layer's XXH3-128 (as ``xxh128sum`` prints it), computed here from
     the whole file at once; a record of an earlier bake holding ``sha256`` verifies by that; a
-    record with neither, or a wrong digest, does not."""
+    record with neither, a wrong digest, or damaged, does not."""
     import hashlib
     import shutil
 
@@ -344,6 +344,9 @@ def test_records_hold_the_layers_xxh128_and_older_sha256_records_verify(humanoid
                        (hashlib.sha256(b"another file").hexdigest(), False), (None, False)):
         record.write_text(json.dumps(old if digest is None else dict(old, sha256=digest)))
         assert verify_chunk(layer, plan["key"]) is ok, digest
+    for damaged in ("5", "null", '["xxh3_128"]', '{"xxh3_128": null}', "{"):
+        record.write_text(damaged)
+        assert verify_chunk(layer, plan["key"]) is False, damaged
 
 
 def test_resume_keeps_verified_chunks_and_redoes_missing_or_corrupt(humanoid, tmp_path):

@@ -43,7 +43,7 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
-from pxr import Tf, Usd, UsdGeom, UsdSkel, Vt
+from pxr import Sdf, Tf, Usd, UsdGeom, UsdSkel, Vt
 
 from ..animation import Animation, Deformer, TransformTrack, segment_rates
 from ..scene import Mesh, Scene
@@ -347,7 +347,7 @@ class UsdSkelAnimation(Animation):
             rest pose); the message names the file, the ``SkelAnimation`` and the time.
         """
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-        if self._tracks is not None:
+        if self._tracks is not None and not np.isnan(t).any():  # USD: NaN is Default
             return self._tracks.local_transforms(t)
         return self._usdskel_local_transforms(t)
 
@@ -596,15 +596,21 @@ class _Loader:
         ``arrays`` (:meth:`check_animation_array`'s), or None where it might not sample as
         UsdSkel does: an array unauthored, blocked or of another layout, values from value
         clips, held interpolation, a sparse animation without rest transforms, or a result
-        that differs from UsdSkel's ``composed`` at time ``first``."""
+        that differs from UsdSkel's ``composed`` at time ``first``; or an array not of its
+        schema type (``float3[]``, ``quatf[]``, ``half3[]``: UsdSkel then gives the rest pose)."""
         from .usd_anim import JointTracks
-        kinds = ("translations", "rotations", "scales")
-        if any(arrays.get(a) is None for a in kinds) or \
-                self.stage.GetInterpolationType() != Usd.InterpolationTypeLinear:
+        kinds = {"translations": (Sdf.ValueTypeNames.Float3Array, "f", 3),
+                 "rotations": (Sdf.ValueTypeNames.QuatfArray, "f", 4),
+                 "scales": (Sdf.ValueTypeNames.Half3Array, "e", 3)}
+        if self.stage.GetInterpolationType() != Usd.InterpolationTypeLinear:
             return None
         sources = (Usd.ResolveInfoSourceTimeSamples, Usd.ResolveInfoSourceDefault)
-        if any(prim.GetAttribute(a).GetResolveInfo().GetSource() not in sources for a in kinds):
-            return None
+        for a, (type_name, char, width) in kinds.items():
+            attr = prim.GetAttribute(a)
+            if (arrays.get(a) is None or attr.GetTypeName() != type_name  # UsdSkel: rest pose
+                    or arrays[a][1].dtype.char != char or arrays[a][1].shape[2:] != (width,)
+                    or attr.GetResolveInfo().GetSource() not in sources):
+                return None
         skel_joints = {str(j): i for i, j in enumerate(query.GetJointOrder())}
         joints = [skel_joints.get(str(j), -1) for j in query.GetAnimQuery().GetJointOrder()]
         rest = query.ComputeJointLocalTransforms(Usd.TimeCode.Default(), True)
