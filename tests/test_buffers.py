@@ -65,3 +65,41 @@ def test_cpu_buffers_are_ordinary_buffers():
     big = KB.empty((2, 3 * KB.HUGE_PAGE // 12), wp.vec3, "cpu")
     big.numpy()[:] = 1.0
     assert np.all(big.numpy() == 1.0)
+
+
+def _mappings():
+    """``(lo, hi, name)`` of every mapping of this process (``/proc/self/maps``)."""
+    with open("/proc/self/maps") as fh:
+        for line in fh:
+            fields = line.split()
+            lo, hi = (int(x, 16) for x in fields[0].split("-"))
+            yield lo, hi, fields[5] if len(fields) > 5 else ""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc/self/maps is Linux's")
+def test_large_cpu_buffers_are_mappings_of_their_own_unmapped_with_them():
+    """Not from the heap, whose holes a bake's pieces of unequal sizes fragmented; alive while
+    a NumPy view of it is; unmapped once the last reference goes."""
+    import gc
+    init_warp()
+    if KB._MAPPER is None:
+        pytest.skip("huge pages turned off (NUMPY_MADVISE_HUGEPAGE=0): plain wp.empty buffers")
+    shape = (2, 3 * KB.HUGE_PAGE // 12 + 5)
+    first = KB.empty(shape, wp.vec3, "cpu")
+    del first  # glibc would now serve this size from the heap
+    gc.collect()
+    big = KB.empty(shape, wp.vec3, "cpu")
+    lo, hi = big.ptr, big.ptr + big.capacity
+    assert lo % 4096 == 0 and big.capacity >= shape[0] * shape[1] * 12
+    holding = sorted(m for m in _mappings() if m[0] < hi and lo < m[1])  # split by madvise
+    assert holding[0][0] <= lo and holding[-1][1] >= hi, holding
+    assert all(a[1] == b[0] for a, b in zip(holding, holding[1:])), holding
+    assert "[heap]" not in [m[2] for m in holding], holding
+    view = big.numpy()
+    del big
+    gc.collect()
+    view[:] = 2.0  # the view keeps the buffer
+    assert np.all(view == 2.0)
+    del view
+    gc.collect()
+    assert not [m for m in _mappings() if m[0] < hi and lo < m[1]]
