@@ -238,11 +238,11 @@ def run_here(jobs: list, scene, done) -> None:
 def _commit(job, claim, digest, start):
     """Record and rename the finished layer in ``claim`` (removed if its hash failed)."""
     try:
-        sha = digest.result()
+        checksum = digest.result()
     except BaseException:
         claim.discard()
         raise
-    return _result(job, usd_clips.commit_clip(claim, job.key, job.times, sha), *start)
+    return _result(job, usd_clips.commit_clip(claim, job.key, job.times, checksum), *start)
 
 
 def _commit_on_error(job, claim, digest, start):

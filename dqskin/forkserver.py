@@ -61,7 +61,9 @@ RETAIN_BYTES = 256 << 20
 
 HEAP_BELOW_BYTES = 32 << 20
 """Allocations below this size come from the heap (reused), larger ones are mapped apart (32 MiB:
-the largest ``M_MMAP_THRESHOLD`` every 64-bit glibc accepts)."""
+the largest ``M_MMAP_THRESHOLD`` every 64-bit glibc accepts). The skinning outputs of 4 MiB or
+more are mappings of their own in any case, where huge pages are on
+(:func:`dqskin.kernels.buffers.empty`): pieces of unequal sizes fragmented the heap."""
 
 
 def keep_freed_memory() -> bool:

@@ -83,7 +83,8 @@ def test_large_cpu_buffers_are_mappings_of_their_own_unmapped_with_them():
     import gc
     init_warp()
     if KB._MAPPER is None:
-        pytest.skip("huge pages turned off (NUMPY_MADVISE_HUGEPAGE=0): plain wp.empty buffers")
+        pytest.skip("transparent huge pages off (the kernel's setting or "
+                    "NUMPY_MADVISE_HUGEPAGE=0): buffers are plain wp.empty ones")
     shape = (2, 3 * KB.HUGE_PAGE // 12 + 5)
     first = KB.empty(shape, wp.vec3, "cpu")
     del first  # glibc would now serve this size from the heap
@@ -103,3 +104,12 @@ def test_large_cpu_buffers_are_mappings_of_their_own_unmapped_with_them():
     del view
     gc.collect()
     assert not [m for m in _mappings() if m[0] < hi and lo < m[1]]
+
+
+def test_huge_pages_on_reads_the_kernels_mode(tmp_path):
+    mode = tmp_path / "enabled"
+    for text, on in (("always [madvise] never\n", True), ("[always] madvise never\n", True),
+                     ("always madvise [never]\n", False)):
+        mode.write_text(text)
+        assert KB._huge_pages_on(str(mode)) is on, text
+    assert KB._huge_pages_on(str(tmp_path / "missing")) is False

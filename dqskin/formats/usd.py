@@ -280,11 +280,14 @@ def _rest_value(attr):
 
 
 class UsdSkelAnimation(Animation):
-    """Joint transforms (and blend-shape weights) of one skeleton, sampled through UsdSkel.
+    """Joint transforms (and blend-shape weights) of one skeleton, sampled as UsdSkel does.
 
     ``UsdSkel.SkeletonQuery.ComputeJointLocalTransforms`` samples the ``SkelAnimation``
     (translations, rotations, scales; interpolated between time samples as USD does) and maps the
     animation's joint order onto the skeleton's, giving undriven joints their rest transform.
+    The loader gives most animations a :class:`~.usd_anim.JointTracks` of their checked samples
+    (``_tracks``), which does the same for all the times of a call at once in NumPy; the others
+    (and NaN times) are sampled through UsdSkel, time by time (7 µs a frame).
 
     Parameters
     ----------
@@ -294,10 +297,6 @@ class UsdSkelAnimation(Animation):
         Kept alive as long as the animation is.
     path : str, optional
         The file, for messages (default: the stage's root layer).
-    tracks : JointTracks, optional
-        The animation's samples, read and checked by the loader: :meth:`local_transforms`
-        samples them for all times at once as UsdSkel does (:mod:`.usd_anim`) instead of asking
-        UsdSkel frame by frame (7 µs a frame).
 
     Attributes
     ----------
@@ -311,10 +310,10 @@ class UsdSkelAnimation(Animation):
         The animation's ``blendShapes`` tokens (order of :meth:`blend_shape_weights`).
     """
 
-    def __init__(self, skel_query, stage, path=None, tracks=None):
+    def __init__(self, skel_query, stage, path=None):
         self._stage = stage
         self._query = skel_query
-        self._tracks = tracks
+        self._tracks = None  # the loader's JointTracks, when it can sample as UsdSkel does
         self._anim = skel_query.GetAnimQuery()
         layer = stage.GetRootLayer()
         self.path = os.fspath(path) if path is not None else (layer.realPath or layer.identifier)
@@ -534,7 +533,7 @@ class _Loader:
                                 rest, name=key, world_transform=world)
         except ValueError as exc:
             raise ValueError(f"{self.path}: {_usd_names(key, str(exc))}") from None
-        animation = self.animation(query)  # after the skeleton's own checks
+        animation = self.animation(query, rest)  # after the skeleton's own checks
         return skeleton.with_animation(animation), animation
 
     def joints(self, key, skel):
@@ -566,11 +565,12 @@ class _Loader:
 
     # -- animations ------------------------------------------------------------------------
 
-    def animation(self, query):
+    def animation(self, query, rest=None):
         """The skeleton's :class:`UsdSkelAnimation`, or None without one. Its arrays are checked
         at every time sample, then UsdSkel composes the first key time, to see that it can (it
         warns and falls back to the rest pose when, say, a sparse animation meets a skeleton
-        without restTransforms)."""
+        without restTransforms). ``rest``: the skeleton's (J, 4, 4) local rest transforms
+        (:meth:`bind_and_rest`'s; None when it has none), for the joints it does not drive."""
         if not query.GetAnimQuery():
             return None
         prim = query.GetAnimQuery().GetPrim()
@@ -588,10 +588,10 @@ class _Loader:
             anim = UsdSkelAnimation(query, self.stage, self.path)
             first = anim.key_times[:1] if anim.key_times.size else np.zeros(1)
             composed = anim.local_transforms(first)
-            anim._tracks = self.joint_tracks(query, prim, arrays, first, composed)
+            anim._tracks = self.joint_tracks(query, prim, arrays, first, composed, rest)
         return anim
 
-    def joint_tracks(self, query, prim, arrays, first, composed):
+    def joint_tracks(self, query, prim, arrays, first, composed, rest=None):
         """The :class:`~.usd_anim.JointTracks` of the animation ``prim`` from its checked
         ``arrays`` (:meth:`check_animation_array`'s), or None where it might not sample as
         UsdSkel does: an array unauthored, blocked or of another layout, values from value
@@ -613,13 +613,10 @@ class _Loader:
                 return None
         skel_joints = {str(j): i for i, j in enumerate(query.GetJointOrder())}
         joints = [skel_joints.get(str(j), -1) for j in query.GetAnimQuery().GetJointOrder()]
-        rest = query.ComputeJointLocalTransforms(Usd.TimeCode.Default(), True)
-        if rest is None or len(rest) != len(skel_joints):
+        if rest is None:  # (J, 4, 4) from bind_and_rest, None when UsdSkel has none
             if sorted(joints) != list(range(len(skel_joints))):
                 return None
             rest = np.zeros((len(skel_joints), 4, 4))  # every joint driven: rest unused
-        else:
-            rest = _matrices(rest)
         try:
             tracks = JointTracks(*(arrays[a] for a in kinds), joints, rest)
             same = np.array_equal(tracks.local_transforms(first), composed)
