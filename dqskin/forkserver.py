@@ -59,11 +59,18 @@ RETAIN_BYTES = 256 << 20
 """Freed memory at the top of a bake process's heap that glibc keeps for reuse
 (:func:`keep_freed_memory`)."""
 
-HEAP_BELOW_BYTES = 32 << 20
-"""Allocations below this size come from the heap (reused), larger ones are mapped apart (32 MiB:
-the largest ``M_MMAP_THRESHOLD`` every 64-bit glibc accepts). The skinning outputs of 4 MiB or
-more are mappings of their own in any case, where huge pages are on
-(:func:`dqskin.kernels.buffers.empty`): pieces of unequal sizes fragmented the heap."""
+HEAP_BELOW_BYTES = 8 << 20
+"""Allocations below this size come from the heap (reused); larger ones that the heap has no
+free room for are mapped apart and handed back when freed. Pieces of skinned frames (at least
+256 frames: 10 MB of CesiumMan's points; on huge pages, :mod:`dqskin.kernels.buffers` and
+NumPy's own) are such blocks: in the heap, pieces of unequal sizes (a clip's last piece is
+shorter) left holes that small allocations filled, and a worker's heap grew by 45-60 MB over
+its first tasks, all of it free
+(one-thread worker, CesiumMan × 10,000 in 854-frame clips, six runs each: peak RSS 370-399 →
+335-341 MB; CPU for the 12 clips 0.67-0.88 → 0.70-0.96 s, medians 0.81 and 0.74 s). It was
+32 MiB, glibc's largest, which kept such pieces in the heap. (In a library call's process,
+NumPy and glibc's defaults stand: mapping each large output afresh there cost the kernel's
+zeroing of its pages on every call, 1M points 274 → 160 M points/s.)"""
 
 
 def keep_freed_memory() -> bool:
@@ -75,8 +82,9 @@ def keep_freed_memory() -> bool:
     this 26,000 and 0.2-0.4 s; one-thread Dask workers baking CesiumMan × 10,000 frames as 79
     layers, 6.7-7.0 → 5.9-6.5 s for the whole bake with one worker, 5.2-5.3 → 4.3-4.6 s with two,
     their peak RSS 302 → 307 MB (``tools/bench_bake.py --frames 10000 --no-standin --impls
-    clips1t1,clips2t1``, two runs each). Peak memory still follows the chunk size, not the clip
-    length; freed memory stays with the process until it exits.
+    clips1t1,clips2t1``, two runs each). Pieces of frames are mapped apart
+    (:data:`HEAP_BELOW_BYTES`). Peak memory still follows the chunk size, not the clip length;
+    freed memory stays with the process until it exits.
 
     Called only on the workers of the LocalCluster a bake starts (dqskin's own processes): never
     by a library call nor on the workers of a cluster given as ``--scheduler``, whose processes

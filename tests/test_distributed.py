@@ -265,8 +265,10 @@ def rss():
     with open("/proc/self/status") as fh:
         return next(int(ln.split()[1]) for ln in fh if ln.startswith("VmRSS:")) / 1024
 drops = []
-for size, count in ((40_000, 2_500), (8_000_000, 12)):  # a clip layer's Vt arrays; pieces
-    blocks = [bytearray(size) for _ in range(count)]  # 100 MB, 96 MB
+# pieces first (glibc maps a large block apart only when the heap has no room for it), then
+# a clip layer's Vt arrays and blocks just under the threshold
+for size, count in ((12_000_000, 8), (40_000, 2_500), (8_000_000, 12)):
+    blocks = [bytearray(size) for _ in range(count)]  # 96 MB, 100 MB, 96 MB
     full = rss()
     del blocks
     drops.append(full - rss())
@@ -285,9 +287,10 @@ def _glibc():
                     reason="glibc's malloc settings")
 def test_bake_processes_keep_freed_memory_for_the_next_chunk():
     """A bake's LocalCluster worker keeps what a chunk freed, small arrays and large, for the
-    next one instead of handing it back and faulting it in again;
-    a process with glibc's defaults hands both back (the control: without it this test could not
-    fail). glibc's own malloc variables are cleared for both."""
+    next one instead of handing it back and faulting it in again, but not blocks of
+    :data:`~dqskin.forkserver.HEAP_BELOW_BYTES` or more (pieces of skinned frames), which would
+    fragment its heap; a process with glibc's defaults hands all back (the control: without it
+    this test could not fail). glibc's own malloc variables are cleared for both."""
     env = {k: v for k, v in os.environ.items()
            if k != "GLIBC_TUNABLES" and not k.startswith("MALLOC_")}
 
@@ -298,7 +301,7 @@ def test_bake_processes_keep_freed_memory_for_the_next_chunk():
     applied, kept = freed_mb("keep")
     _, plain = freed_mb("plain")
     assert applied == "True"
-    assert min(plain) > 80 and max(kept) < 10, (plain, kept)
+    assert min(plain) > 80 and kept[0] > 80 and max(kept[1:]) < 10, (plain, kept)
 
 
 def test_a_task_reports_its_wall_and_process_cpu_seconds(tmp_path):
