@@ -395,6 +395,12 @@ def main(argv=None):
     wp.config.quiet = True
     wp.config.log_level = wp.LOG_ERROR
     wp.init()
+    import dqskin.kernels
+    # which trees are measured: an A/B against an old worktree on PYTHONPATH still gets this
+    # checkout's kernels through the editable install unless the worktree links dqskin/kernels
+    sources = dict(dqskin=str(Path(dqskin.__file__).parent),
+                   kernels=str(Path(dqskin.kernels.__file__).parent))
+    print(f"dqskin from {sources['dqskin']}, its kernels from {sources['kernels']}")
     devices = ["cpu"] + (["cuda:0"] if wp.get_cuda_device_count() > 0 else [])
     skip = set(filter(None, args.skip.split(",")))
     unknown = skip - {"skin", "kernel", "overhead", "fk", "crowd", "bake"}
@@ -420,7 +426,7 @@ def main(argv=None):
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = dict(python=sys.version.split()[0], warp=wp.__version__, numpy=np.__version__,
                 machine=platform.machine(), cpus=os.cpu_count(),
-                threads=int(os.environ.get("DQSKIN_THREADS", os.cpu_count() or 1)))
+                threads=int(os.environ.get("DQSKIN_THREADS", os.cpu_count() or 1)), **sources)
     tmp = out.with_suffix(".tmp")
     tmp.write_text(json.dumps(dict(meta=meta, rows=rows), indent=1))
     os.replace(tmp, out)

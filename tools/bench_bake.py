@@ -530,6 +530,9 @@ if __name__ == "__main__":
     if a.breakdown:
         breakdown(a.breakdown, a.asset)
         sys.exit(0)
+    import dqskin.kernels  # which trees the child processes import (see tools/bench.py)
+    print(f"dqskin from {Path(dqskin.__file__).parent}, its kernels from "
+          f"{Path(dqskin.kernels.__file__).parent}")
     out_rows = []
     bench_bake(out_rows, [int(x) for x in a.frames.split(",")], a.asset, a.brainstem,
                [x for x in a.impls.split(",") if x], not a.no_standin, a.repeat, a.work_dir)
