@@ -12,9 +12,11 @@ frame, 30% of skinning CesiumMan's 3,273 points; :class:`JointTracks` does the s
 times of a chunk in NumPy, from the samples the loader has read and checked.
 
 It follows USD's arithmetic: lerps and slerps rounded to float32 (half for scales) after each
-operation as ``GfVec3f``, ``GfQuatf`` and ``GfVec3h`` do, matrices in float64 as
-``GfMatrix4d``. ``tests/test_usd_anim.py`` compares it with UsdSkel at every sample and at
-sub-frames of every animation of the shared assets.
+operation as ``GfVec3f``, ``GfQuatf`` and ``GfVec3h`` do, each rotation-scale entry computed in
+float32 from the quaternion as given (UsdSkel does; :mod:`dqskin.quat`'s float64 conversion of
+unit ``(w, x, y, z)`` quaternions would differ in the last bits), stored as float64.
+``tests/test_usd_anim.py`` compares it with UsdSkel at every sample and at sub-frames of the
+animations of seven shared assets, sparse and random ones.
 """
 
 import numpy as np
@@ -114,8 +116,7 @@ def _slerp(a, q0, q1):
     flip = cos < 0
     cos = np.abs(cos)
     linear = 1.0 - cos.astype(np.float64) <= _SLERP_LINEAR_BELOW
-    theta = np.arccos(np.where(linear, 0.5, cos).astype(np.float64)).astype(f4)
-    theta = theta.astype(np.float64)
+    theta = np.arccos(np.where(linear, 0.5, cos).astype(np.float64)).astype(f4).astype(np.float64)
     sin = np.sin(theta).astype(f4).astype(np.float64)  # float32 sin, correctly rounded
     s0 = np.where(linear, 1.0 - a, np.sin((1.0 - a) * theta) / sin).astype(f4)
     s1 = np.where(linear, a, np.sin(a * theta) / sin).astype(f4)
@@ -125,13 +126,14 @@ def _slerp(a, q0, q1):
 
 def _make_transforms(translations, rotations, scales):
     """``UsdSkelMakeTransforms``: (F, A, 4, 4) float64 column-vector matrices of scale, then
-    rotation (``GfMatrix3d`` of the quaternion as given, not normalized), then translation."""
+    rotation (the quaternion ``(x, y, z, w)`` as given, not normalized, each entry computed in
+    float32 as UsdSkel does: bit for bit with it), then translation."""
     q = rotations.astype(np.float32)
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     s = scales.astype(np.float32)
     one, two = np.float32(1.0), np.float32(2.0)
     m = np.zeros(q.shape[:-1] + (4, 4))
-    # GfMatrix3d::SetRot's rows (row-vector convention), row i scaled by scale i; stored
+    # the rotation matrix's rows (row-vector convention), row i scaled by scale i; stored
     # transposed for the column-vector convention: m[..., j, i] = row i, column j
     m[..., 0, 0] = (one - two * (y * y + z * z)) * s[..., 0]
     m[..., 1, 0] = (two * (x * y + z * w)) * s[..., 0]
