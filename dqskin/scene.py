@@ -16,6 +16,7 @@ import numpy.typing as npt
 from ._warp import Device, resolve_device
 from .animation import Deformer, Interpolation, TransformTrack, check_times, sample
 from .crowd import BATCH_METHODS, skin_meshes
+from .kernels import buffers as KB
 from .motion import moved_velocities, per_second, skinning_transforms_with_derivative
 from .skeleton import Skeleton
 from .skinning import Method, SignReference, Skinner
@@ -301,7 +302,9 @@ class Scene:
         bounded; ``skin_args`` go to :meth:`skin`.
 
         The next chunk is skinned on a worker thread while the caller consumes the current one
-        (Warp launches and NumPy release the GIL, so the two overlap).
+        (Warp launches and NumPy release the GIL, so the two overlap). The chunks' large arrays
+        are reused from one chunk to the next once the caller has dropped them
+        (:func:`dqskin.kernels.buffers.reusing`): results the caller keeps stay its own.
         """
         t = check_times(times)
         if isinstance(chunk, (list, tuple)):
@@ -313,13 +316,20 @@ class Scene:
             raise ValueError(f"--chunk {chunk}: must be at least 1")
         else:
             slices = [slice(lo, min(lo + chunk, len(t))) for lo in range(0, len(t), chunk)]
+        pool = {}
+
+        def skin(tt):
+            with KB.reusing(pool):
+                return self.skin(tt, **skin_args)
+
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-skin") as ex:
-            fut = ex.submit(self.skin, t[slices[0]], **skin_args)
+            fut = ex.submit(skin, t[slices[0]])
             for k, sl in enumerate(slices):
                 res = fut.result()
                 if k + 1 < len(slices):
-                    fut = ex.submit(self.skin, t[slices[k + 1]], **skin_args)
+                    fut = ex.submit(skin, t[slices[k + 1]])
                 yield sl, res
+                del res  # the caller's to keep or drop: its buffers can serve the next chunk
 
     def _velocities(self, skinner, t, method, xforms, rates, rest, deformer, out, out_rate, sign):
         """(F, V, 3) float32 velocities per second of one mesh, the chain rule through every

@@ -8,11 +8,20 @@ allocator does not, so :func:`empty` does the same for the Warp arrays the launc
 transparent huge pages are off, or not on Linux, it is a plain ``wp.empty``; NumPy's switch,
 ``NUMPY_MADVISE_HUGEPAGE=0`` in the environment, turns it off here too (a first touch of huge pages
 can stall on memory compaction when free memory is fragmented: rare, but a latency spike).
+
+Inside :func:`reusing` (what :meth:`dqskin.Scene.skin_chunks` does around each piece), a large
+CPU buffer whose array has been dropped is handed out again for the next one of its shape and
+dtype: a stream of equal pieces of frames then runs on the same few buffers instead of fresh
+memory for each piece (faulted in and zeroed by the kernel each time, or taken from a heap that
+the other allocations of a bake fragment until it grows by pieces).
 """
 
+import contextlib
+import contextvars
 import ctypes
 import os
 import sys
+import weakref
 
 import warp as wp
 
@@ -41,10 +50,50 @@ def _madvise():
 _MADVISE = _madvise()
 
 
+_POOL = contextvars.ContextVar("dqskin_buffer_pool", default=None)
+
+
+@contextlib.contextmanager
+def reusing(pool: dict):
+    """Within the block (this thread or task: a context variable), :func:`empty` reuses the CPU
+    buffers of :data:`MIN_BYTES` or more that it handed out from ``pool`` (a dict, empty at first,
+    kept by the caller across blocks) once nothing references their arrays any more: not the
+    array itself, nor a NumPy view of it (``.numpy()`` and its slices keep the array alive).
+    Buffers never in use at once are never shared; what the pool holds is freed with it (a buffer
+    still in use, when its array is dropped)."""
+    token = _POOL.set(pool)
+    try:
+        yield
+    finally:
+        _POOL.reset(token)
+
+
 def empty(shape, dtype, device) -> wp.array:
-    """``wp.empty(shape, dtype, device)``; on the CPU, a buffer of :data:`MIN_BYTES` or more
-    asks for huge pages over its aligned interior before anything touches it (a hint: a
-    refusal is ignored)."""
+    """``wp.empty(shape, dtype, device)`` (uninitialized); on the CPU, a buffer of
+    :data:`MIN_BYTES` or more asks for huge pages over its aligned interior before anything
+    touches it (a hint: a refusal is ignored), and inside :func:`reusing` is a free one of the
+    pool's when it has one of this shape and dtype."""
+    pool = _POOL.get()
+    if pool is None:
+        return _new(shape, dtype, device)
+    key = (tuple(shape) if isinstance(shape, (tuple, list)) else (int(shape),), dtype,
+           wp.get_device(device).alias)
+    free = pool.get(key)
+    if free:
+        base = free.pop()
+    else:
+        base = _new(shape, dtype, device)
+        if not (base.device.is_cpu and base.ptr and base.capacity >= MIN_BYTES):
+            return base
+        free = pool.setdefault(key, [])
+    # the caller gets an alias of the pool's buffer; when the alias goes, the buffer goes back
+    # (the finalizer holds it, so it lives as long as the alias whatever becomes of the pool)
+    alias = wp.array(ptr=base.ptr, dtype=dtype, shape=base.shape, device=base.device)
+    weakref.finalize(alias, free.append, base).atexit = False
+    return alias
+
+
+def _new(shape, dtype, device) -> wp.array:
     a = wp.empty(shape, dtype=dtype, device=device)
     if _MADVISE is not None and a.device.is_cpu and a.capacity >= MIN_BYTES:
         lo = (a.ptr + HUGE_PAGE - 1) & ~(HUGE_PAGE - 1)

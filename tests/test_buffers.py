@@ -1,5 +1,6 @@
 """Output buffers (:mod:`dqskin.kernels.buffers`): large CPU buffers ask for huge pages."""
 
+import gc
 import os
 import subprocess
 import sys
@@ -65,3 +66,42 @@ def test_cpu_buffers_are_ordinary_buffers():
     big = KB.empty((2, 3 * KB.HUGE_PAGE // 12), wp.vec3, "cpu")
     big.numpy()[:] = 1.0
     assert np.all(big.numpy() == 1.0)
+
+
+def test_reusing_hands_a_buffer_out_again_only_once_nothing_holds_it():
+    """Inside ``KB.reusing(pool)``, a large CPU buffer comes back for the next array of its shape
+    and dtype only once its array and every NumPy view of it are gone; other shapes and small
+    buffers get their own; outside the block, fresh buffers as ``wp.empty``'s; a buffer in use
+    outlives its pool."""
+    init_warp()
+    n = KB.MIN_BYTES // 12 + 1
+    pool = {}
+    with KB.reusing(pool):
+        a = KB.empty((1, n), wp.vec3, "cpu")
+        first = a.ptr
+        view = a.numpy()[0, 5:]
+        del a
+        b = KB.empty((1, n), wp.vec3, "cpu")  # `view` still holds the first buffer
+        assert b.ptr != first
+        del view
+        c = KB.empty((1, n), wp.vec3, "cpu")
+        assert c.ptr == first and c.shape == (1, n) and c.dtype == wp.vec3
+        assert KB.empty((2, n), wp.vec3, "cpu").ptr not in (first, b.ptr)  # another shape
+        small = KB.empty((1, 8), wp.vec3, "cpu")
+        assert small.shape == (1, 8)
+        assert not any(key[0] == (1, 8) for key in pool)  # small buffers are their own
+        del b
+    c.numpy()[:] = 7.0
+    held = {key: len(free) for key, free in pool.items()}
+    outside = KB.empty((1, n), wp.vec3, "cpu")
+    assert outside.ptr != first
+    del outside
+    assert {key: len(free) for key, free in pool.items()} == held  # not the pool's
+    with KB.reusing(pool):
+        assert KB.empty((1, n), wp.vec3, "cpu").ptr != first  # `c` holds it
+    # the pool goes while `c` lives: its buffer stays valid until `c` goes
+    del pool
+    gc.collect()
+    for _ in range(3):
+        KB.empty((1, n), wp.vec3, "cpu").numpy()[:] = 1.0
+    assert np.all(c.numpy() == 7.0)

@@ -586,6 +586,35 @@ def test_skin_chunks_of_given_sizes_cover_the_frames_in_order(humanoid):
             list(scene.skin_chunks(t, bad))
 
 
+def test_skin_chunks_reuse_the_buffers_of_chunks_the_caller_dropped(humanoid, monkeypatch):
+    """``Scene.skin_chunks`` skins each chunk into the buffers of chunks the caller has dropped
+    (:func:`dqskin.kernels.buffers.reusing`; every buffer pooled here): a stream of eight chunks
+    dropped one by one allocates as a few chunks do, and chunks the caller keeps are never
+    overwritten (each equals skinning its frames on its own)."""
+    from dqskin.kernels import buffers as KB
+    scene = humanoid["scene"]
+    t = np.asarray(scene.times[:24], np.float64)
+    opts = dict(method="dqs", normals=True, velocities=True)
+    made, new = [], KB._new
+    monkeypatch.setattr(KB, "MIN_BYTES", 1)
+    monkeypatch.setattr(KB, "_new", lambda *a: made.append(a) or new(*a))
+    scene.skin(t[:3], **opts)
+    per_chunk = len(made)
+    assert per_chunk >= 2
+    made.clear()
+    for _ in scene.skin_chunks(t, 3, **opts):
+        pass
+    assert len(made) <= 3 * per_chunk  # the one consumed, the one skinned ahead, one in passing
+    kept = list(scene.skin_chunks(t, 3, **opts))
+    for sl, res in kept:
+        want = scene.skin(t[sl], **opts)
+        for got, ref in ((res.points, want.points), (res.normals, want.normals),
+                         (res.velocities, want.velocities)):
+            assert got.keys() == ref.keys()
+            for name in ref:
+                np.testing.assert_array_equal(got[name], ref[name])
+
+
 @pytest.mark.parametrize("failure", ["check", "interrupt", "hash"])
 def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_path, monkeypatch,
                                                                  failure):
