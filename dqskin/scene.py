@@ -316,7 +316,7 @@ class Scene:
             raise ValueError(f"--chunk {chunk}: must be at least 1")
         else:
             slices = [slice(lo, min(lo + chunk, len(t))) for lo in range(0, len(t), chunk)]
-        pool = {}
+        pool = KB.BufferPool()
 
         def skin(tt):
             with KB.reusing(pool):

@@ -21,6 +21,7 @@ import contextvars
 import ctypes
 import os
 import sys
+import threading
 import weakref
 
 import warp as wp
@@ -50,17 +51,44 @@ def _madvise():
 _MADVISE = _madvise()
 
 
+class BufferPool:
+    """Large CPU buffers that :func:`empty` hands out again inside :func:`reusing`: each one
+    once nothing references the array it was given as (nor a NumPy view of it), to the next
+    request it is the smallest fit for (a shorter last piece of frames takes a buffer of the
+    longer ones). What the pool holds is freed with it; a buffer still in use, when its array
+    goes."""
+
+    def __init__(self):
+        self._free = []  # buffers (wp.array) nothing else references
+        self._lock = threading.Lock()
+
+    def take(self, nbytes: int, device) -> "wp.array | None":
+        """The smallest free buffer of ``nbytes`` or more on ``device``, or None."""
+        with self._lock:
+            fits = [b for b in self._free if b.capacity >= nbytes and b.device == device]
+            if not fits:
+                return None
+            best = min(fits, key=lambda b: b.capacity)
+            self._free.remove(best)
+            return best
+
+    def give(self, base: wp.array) -> None:
+        with self._lock:
+            self._free.append(base)
+
+    def __len__(self) -> int:
+        """Free buffers."""
+        return len(self._free)
+
+
 _POOL = contextvars.ContextVar("dqskin_buffer_pool", default=None)
 
 
 @contextlib.contextmanager
-def reusing(pool: dict):
-    """Within the block (this thread or task: a context variable), :func:`empty` reuses the CPU
-    buffers of :data:`MIN_BYTES` or more that it handed out from ``pool`` (a dict, empty at first,
-    kept by the caller across blocks) once nothing references their arrays any more: not the
-    array itself, nor a NumPy view of it (``.numpy()`` and its slices keep the array alive).
-    Buffers never in use at once are never shared; what the pool holds is freed with it (a buffer
-    still in use, when its array is dropped)."""
+def reusing(pool: BufferPool):
+    """Within the block (this thread or task: a context variable), :func:`empty` takes its CPU
+    buffers of :data:`MIN_BYTES` or more from ``pool`` (kept by the caller across blocks), and
+    they go back to it when their arrays go."""
     token = _POOL.set(pool)
     try:
         yield
@@ -72,24 +100,23 @@ def empty(shape, dtype, device) -> wp.array:
     """``wp.empty(shape, dtype, device)`` (uninitialized); on the CPU, a buffer of
     :data:`MIN_BYTES` or more asks for huge pages over its aligned interior before anything
     touches it (a hint: a refusal is ignored), and inside :func:`reusing` is a free one of the
-    pool's when it has one of this shape and dtype."""
+    pool's when it has one large enough."""
     pool = _POOL.get()
-    if pool is None:
+    device = wp.get_device(device)
+    if pool is None or not device.is_cpu:
         return _new(shape, dtype, device)
-    key = (tuple(shape) if isinstance(shape, (tuple, list)) else (int(shape),), dtype,
-           wp.get_device(device).alias)
-    free = pool.get(key)
-    if free:
-        base = free.pop()
-    else:
-        base = _new(shape, dtype, device)
-        if not (base.device.is_cpu and base.ptr and base.capacity >= MIN_BYTES):
-            return base
-        free = pool.setdefault(key, [])
+    shape = tuple(shape) if isinstance(shape, (tuple, list)) else (int(shape),)
+    nbytes = wp.types.type_size_in_bytes(dtype)
+    for n in shape:
+        nbytes *= n
+    if nbytes < MIN_BYTES:
+        return _new(shape, dtype, device)
+    base = pool.take(nbytes, device) or _new(shape, dtype, device)
     # the caller gets an alias of the pool's buffer; when the alias goes, the buffer goes back
     # (the finalizer holds it, so it lives as long as the alias whatever becomes of the pool)
-    alias = wp.array(ptr=base.ptr, dtype=dtype, shape=base.shape, device=base.device)
-    weakref.finalize(alias, free.append, base).atexit = False
+    alias = wp.array(ptr=base.ptr, dtype=dtype, shape=shape, capacity=base.capacity,
+                     device=device)
+    weakref.finalize(alias, pool.give, base).atexit = False
     return alias
 
 

@@ -69,38 +69,40 @@ def test_cpu_buffers_are_ordinary_buffers():
 
 
 def test_reusing_hands_a_buffer_out_again_only_once_nothing_holds_it():
-    """Inside ``KB.reusing(pool)``, a large CPU buffer comes back for the next array of its shape
-    and dtype only once its array and every NumPy view of it are gone; other shapes and small
-    buffers get their own; outside the block, fresh buffers as ``wp.empty``'s; a buffer in use
-    outlives its pool."""
+    """Inside ``KB.reusing(pool)``, a large CPU buffer comes back only once its array and every
+    NumPy view of it are gone, to the next request it is the smallest fit for (a shorter array
+    takes it, a longer one does not); small buffers are not the pool's, nor any outside the
+    block; a buffer in use outlives its pool."""
     init_warp()
     n = KB.MIN_BYTES // 12 + 1
-    pool = {}
+    pool = KB.BufferPool()
     with KB.reusing(pool):
-        a = KB.empty((1, n), wp.vec3, "cpu")
+        a = KB.empty((2, n), wp.vec3, "cpu")
         first = a.ptr
         view = a.numpy()[0, 5:]
         del a
-        b = KB.empty((1, n), wp.vec3, "cpu")  # `view` still holds the first buffer
-        assert b.ptr != first
+        b = KB.empty((2, n), wp.vec3, "cpu")  # `view` still holds the first buffer
+        assert b.ptr != first and len(pool) == 0
+        second = b.ptr
         del view
-        c = KB.empty((1, n), wp.vec3, "cpu")
+        assert len(pool) == 1
+        assert KB.empty((3, n), wp.vec3, "cpu").ptr != first  # too small for it
+        c = KB.empty((1, n), wp.vec3, "cpu")  # a shorter one takes it
         assert c.ptr == first and c.shape == (1, n) and c.dtype == wp.vec3
-        assert KB.empty((2, n), wp.vec3, "cpu").ptr not in (first, b.ptr)  # another shape
-        small = KB.empty((1, 8), wp.vec3, "cpu")
-        assert small.shape == (1, 8)
-        assert not any(key[0] == (1, 8) for key in pool)  # small buffers are their own
         del b
+        big = KB.empty((4, n), wp.vec3, "cpu")
+        d = KB.empty((1, n), wp.vec3, "cpu")  # the smallest fit: b's, not big's
+        assert d.ptr == second and d.shape == (1, n)
+        free = len(pool)
+        small = KB.empty((1, 8), wp.vec3, "cpu")
+        del small
+        assert len(pool) == free  # small buffers are their own
     c.numpy()[:] = 7.0
-    held = {key: len(free) for key, free in pool.items()}
-    outside = KB.empty((1, n), wp.vec3, "cpu")
-    assert outside.ptr != first
+    outside = KB.empty((2, n), wp.vec3, "cpu")
     del outside
-    assert {key: len(free) for key, free in pool.items()} == held  # not the pool's
-    with KB.reusing(pool):
-        assert KB.empty((1, n), wp.vec3, "cpu").ptr != first  # `c` holds it
+    assert len(pool) == free  # not the pool's
     # the pool goes while `c` lives: its buffer stays valid until `c` goes
-    del pool
+    del pool, big, d
     gc.collect()
     for _ in range(3):
         KB.empty((1, n), wp.vec3, "cpu").numpy()[:] = 1.0
