@@ -35,6 +35,7 @@ import numpy as np
 from . import forkserver
 from .formats import atomic, usd_clips
 from .formats.usd_cache import SampleWriter, piece_frames
+from .kernels import buffers as KB
 from .validation import check_skinned
 
 __all__ = ["ChunkJob", "bake_clips", "run_chunk", "run_here", "worker_threads"]
@@ -46,6 +47,7 @@ def _piece_frames(scene, opts):
 
 
 _scenes = {}  # this worker process's loaded asset: {(path, mtime, size): Scene}
+_buffers = KB.BufferPool()  # this process's pieces of frames, reused from task to task (run_chunk)
 
 
 @dataclass(frozen=True)
@@ -180,7 +182,7 @@ def run_chunk(job: ChunkJob, scene=None) -> dict:
         _sample_writer(scene, job).write_chunks(
             layer.samples,
             (res for _, res in scene.skin_chunks(job.times, _piece_frames(scene, job.skin),
-                                                 **job.skin)),
+                                                 buffers=_buffers, **job.skin)),
             lambda res: check_skinned(scene.path, res), checked=True)
         digest = usd_clips.write_clip(layer, job.key, job.times)
     return _result(job, digest, t0, c0)

@@ -295,7 +295,8 @@ class Scene:
                     raise ValueError(f"{self.path}: {m.name}: velocities: {exc}") from None
         return result
 
-    def skin_chunks(self, times: npt.ArrayLike, chunk: "int | list[int]",
+    def skin_chunks(self, times: npt.ArrayLike, chunk: "int | list[int]", *,
+                    buffers: "KB.BufferPool | None" = None,
                     **skin_args) -> Iterator[tuple[slice, "SkinnedFrames"]]:
         """Yield ``(slice, SkinnedFrames)`` for consecutive chunks of ``chunk`` frames (or of
         the sizes in a list ``chunk``, which must add up to the frame count), so memory stays
@@ -305,6 +306,8 @@ class Scene:
         (Warp launches and NumPy release the GIL, so the two overlap). The chunks' large arrays
         are reused from one chunk to the next once the caller has dropped them
         (:func:`dqskin.kernels.buffers.reusing`): results the caller keeps stay its own.
+        ``buffers``: the :class:`~dqskin.kernels.buffers.BufferPool` to take them from and give
+        them back to (e.g. one per process across many calls); default, one of this call's.
         """
         t = check_times(times)
         if isinstance(chunk, (list, tuple)):
@@ -316,7 +319,7 @@ class Scene:
             raise ValueError(f"--chunk {chunk}: must be at least 1")
         else:
             slices = [slice(lo, min(lo + chunk, len(t))) for lo in range(0, len(t), chunk)]
-        pool = KB.BufferPool()
+        pool = KB.BufferPool() if buffers is None else buffers
 
         def skin(tt):
             with KB.reusing(pool):

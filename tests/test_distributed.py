@@ -325,3 +325,30 @@ def test_a_task_reports_its_wall_and_process_cpu_seconds(tmp_path):
     assert 0 < result["seconds"] <= wall and 0 < result["cpu_seconds"] <= cpu
     assert t0 <= result["started"] < result["ended"] <= t1
     assert result["pid"] == os.getpid() and Path(job.path).is_file()
+
+
+def test_a_worker_reuses_its_buffers_from_task_to_task(tmp_path, monkeypatch):
+    """A worker process's chunk tasks skin into one pool of buffers (``distributed._buffers``):
+    the second task of a chunk's size allocates no new one, where a pool per task would
+    allocate all again (every buffer pooled here)."""
+    from dqskin import distributed
+    from dqskin.formats.usd_clips import ClipBake
+    from dqskin.kernels import buffers as KB
+    scene = load(HUMANOID)
+    opts = dict(method="dqs", interp="trs", normals=True, velocities=True)
+    plan = ClipBake(scene, tmp_path / "shot.usd", scene.times[:40], 20, opts)
+    plan.pending()
+    jobs = [distributed.ChunkJob(k, str(HUMANOID.resolve()), plan.chunk_times(k),
+                                 str(plan.clip_path(k)), plan.key, plan.targets,
+                                 plan.cache.rigid, dict(opts, device=None),
+                                 float(scene.time_codes_per_second)) for k in range(2)]
+    made, new = [], KB._new
+    monkeypatch.setattr(KB, "MIN_BYTES", 1)
+    monkeypatch.setattr(KB, "_new", lambda *a: made.append(a) or new(*a))
+    monkeypatch.setattr(distributed, "_buffers", KB.BufferPool())
+    distributed.run_chunk(jobs[0], scene)
+    assert made
+    made.clear()
+    distributed.run_chunk(jobs[1], scene)
+    assert made == []
+    assert all(Path(j.path).is_file() for j in jobs)
