@@ -60,17 +60,15 @@ class BufferPool:
 
     def __init__(self):
         self._free = []  # buffers (wp.array) nothing else references
-        self._lock = threading.Lock()
+        # reentrant: a collection inside take() may run a finalizer, which gives a buffer back
+        self._lock = threading.RLock()
 
     def take(self, nbytes: int, device) -> "wp.array | None":
         """The smallest free buffer of ``nbytes`` or more on ``device``, or None."""
         with self._lock:
-            fits = [b for b in self._free if b.capacity >= nbytes and b.device == device]
-            if not fits:
-                return None
-            best = min(fits, key=lambda b: b.capacity)
-            self._free.remove(best)
-            return best
+            fits = [(b.capacity, i) for i, b in enumerate(self._free)
+                    if b.capacity >= nbytes and b.device == device]
+            return self._free.pop(min(fits)[1]) if fits else None
 
     def give(self, base: wp.array) -> None:
         with self._lock:
