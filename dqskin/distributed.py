@@ -128,7 +128,9 @@ def _worker_scene(path):
     key = (path, st.st_mtime_ns, st.st_size)
     if key not in _scenes:
         from .formats import load
+        global _buffers
         _scenes.clear()
+        _buffers = KB.BufferPool()  # another asset's pieces: their own sizes
         _scenes[key] = load(path)
     return _scenes[key]
 

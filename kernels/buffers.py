@@ -54,9 +54,9 @@ _MADVISE = _madvise()
 class BufferPool:
     """Large CPU buffers that :func:`empty` hands out again inside :func:`reusing`: each one
     once nothing references the array it was given as (nor a NumPy view of it), to the next
-    request it is the smallest fit for (a shorter last piece of frames takes a buffer of the
-    longer ones). What the pool holds is freed with it; a buffer still in use, when its array
-    goes."""
+    request it is the smallest fit for, at most twice its size (a shorter last piece of frames
+    takes a buffer of the longer ones). What the pool holds is freed with it; a buffer still
+    in use, when its array goes."""
 
     def __init__(self):
         self._free = []  # buffers (wp.array) nothing else references
@@ -64,10 +64,12 @@ class BufferPool:
         self._lock = threading.RLock()
 
     def take(self, nbytes: int, device) -> "wp.array | None":
-        """The smallest free buffer of ``nbytes`` or more on ``device``, or None."""
+        """The smallest free buffer of ``nbytes`` to twice that on ``device``, or None (a small
+        request does not take, and keep, a much larger buffer: an array cached by its caller
+        keeps its buffer for good)."""
         with self._lock:
             fits = [(b.capacity, i) for i, b in enumerate(self._free)
-                    if b.capacity >= nbytes and b.device == device]
+                    if nbytes <= b.capacity <= 2 * nbytes and b.device == device]
             return self._free.pop(min(fits)[1]) if fits else None
 
     def give(self, base: wp.array) -> None:
@@ -109,7 +111,9 @@ def empty(shape, dtype, device) -> wp.array:
         nbytes *= n
     if nbytes < MIN_BYTES:
         return _new(shape, dtype, device)
-    base = pool.take(nbytes, device) or _new(shape, dtype, device)
+    base = pool.take(nbytes, device)
+    if base is None:
+        base = _new(shape, dtype, device)
     # the caller gets an alias of the pool's buffer; when the alias goes, the buffer goes back
     # (the finalizer holds it, so it lives as long as the alias whatever becomes of the pool)
     alias = wp.array(ptr=base.ptr, dtype=dtype, shape=shape, capacity=base.capacity,

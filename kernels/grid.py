@@ -142,7 +142,7 @@ class _Recorded:
     def launch(self, args):
         cmd, last, call = self.cmd, self.last, self.call
         for i, a in enumerate(args):
-            if a is not last[i]():
+            if a is None or a is not last[i]():  # (a dead argument's weakref gives None too)
                 cmd.set_param_at_index(i, a)
                 last[i] = _held(a)
                 if call is not None:

@@ -91,8 +91,10 @@ def test_reusing_hands_a_buffer_out_again_only_once_nothing_holds_it():
         assert c.ptr == first and c.shape == (1, n) and c.dtype == wp.vec3
         del b
         big = KB.empty((4, n), wp.vec3, "cpu")
-        d = KB.empty((1, n), wp.vec3, "cpu")  # the smallest fit: b's, not big's
+        d = KB.empty((1, n), wp.vec3, "cpu")  # the smallest fit: b's (2n), not the 3n one
         assert d.ptr == second and d.shape == (1, n)
+        e = KB.empty((1, n), wp.vec3, "cpu")  # the 3n one is free but over twice the size
+        assert e.shape == (1, n) and len(pool) == 1
         free = len(pool)
         small = KB.empty((1, 8), wp.vec3, "cpu")
         del small
@@ -101,8 +103,10 @@ def test_reusing_hands_a_buffer_out_again_only_once_nothing_holds_it():
     outside = KB.empty((2, n), wp.vec3, "cpu")
     del outside
     assert len(pool) == free  # not the pool's
+    with KB.reusing(pool):  # `c` still holds its buffer: never handed out
+        assert all(KB.empty((1, n), wp.vec3, "cpu").ptr != first for _ in range(3))
     # the pool goes while `c` lives: its buffer stays valid until `c` goes
-    del pool, big, d
+    del pool, big, d, e
     gc.collect()
     for _ in range(3):
         KB.empty((1, n), wp.vec3, "cpu").numpy()[:] = 1.0
