@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
-from dqskin.formats.crate import VALUE_TYPES, CrateSamples, _nbytes
+from dqskin.formats.crate import VALUE_TYPES, CrateSamples
+from dqskin.formats.direct import nbytes
 
 RNG = np.random.default_rng(7)
 
@@ -153,8 +154,10 @@ def test_every_value_type_is_one_sdf_knows():
 @pytest.mark.parametrize("writev", ["short", "missing"])
 def test_short_writes_and_no_writev_give_the_same_file(tmp_path, monkeypatch, writev):
     """``os.writev`` may write less than asked (and is absent on some systems): the rest is
-    written buffer by buffer, the file byte for byte the same."""
+    written buffer by buffer, the file byte for byte the same (buffered writes: direct I/O
+    off)."""
     import os
+    monkeypatch.setenv("DQSKIN_DIRECT_IO", "0")
 
     def build(path):
         crate = CrateSamples(path, 24.0)
@@ -168,7 +171,7 @@ def test_short_writes_and_no_writev_give_the_same_file(tmp_path, monkeypatch, wr
     RNG.bit_generator.state = state
     if writev == "short":
         monkeypatch.setattr(os, "writev", lambda fd, bufs: os.write(
-            fd, memoryview(bufs[0]).cast("B")[:max(1, _nbytes(bufs[0]) // 2)]))
+            fd, memoryview(bufs[0]).cast("B")[:max(1, nbytes(bufs[0]) // 2)]))
     else:
         monkeypatch.delattr(os, "writev")
     assert build(tmp_path / "other.usdc") == expected
@@ -276,23 +279,26 @@ def test_lz4_blocks_with_overlapping_matches_and_long_lengths_decode():
         assert _lz4_decode(_lz4_literals(data[:n])) == data[:n]
 
 
-def test_a_failed_write_on_the_writer_thread_is_raised_here(tmp_path, monkeypatch):
+@pytest.mark.parametrize("direct", ["1", "0"])
+def test_a_failed_write_on_the_writer_thread_is_raised_here(tmp_path, monkeypatch, direct):
     """Samples are written on a writer thread: its error (a full disk) comes back from a later
-    ``add`` or from ``close``, and ``abort`` still closes the file."""
+    ``add`` or from ``close``, and ``abort`` still closes the file (direct I/O or not)."""
     import errno
     import os
 
-    def full(fd, bufs):
+    def full(*args):
         raise OSError(errno.ENOSPC, "No space left on device")
 
+    monkeypatch.setenv("DQSKIN_DIRECT_IO", direct)
     crate = CrateSamples(tmp_path / "full.usdc", 24.0)
     monkeypatch.setattr(os, "writev", full)
+    monkeypatch.setattr(os, "pwrite", full)
     with pytest.raises(OSError, match="No space left"):
         for k in range(10):
             crate.add("/A.points", "point3f[]", [float(k)], np.zeros((1, 4, 3), np.float32))
         crate.close(0, 9)
     crate.abort()
-    assert crate._fd is None
+    assert crate._file is None
 
 
 def test_a_base_type_stored_as_the_samples_takes_them(tmp_path):
@@ -353,12 +359,14 @@ def test_an_unclosed_writer_closes_its_file_when_dropped(tmp_path):
     import gc
     import os
     crate = CrateSamples(tmp_path / "dropped.usdc", 24.0)
-    fd = crate._fd
-    assert os.readlink(f"/proc/self/fd/{fd}") == str(tmp_path / "dropped.usdc")
+    fds = [fd for fd in (crate._file._fd, crate._file._direct) if fd is not None]
+    for fd in fds:
+        assert os.readlink(f"/proc/self/fd/{fd}") == str(tmp_path / "dropped.usdc")
     del crate
     gc.collect()
-    assert not os.path.exists(f"/proc/self/fd/{fd}") or \
-        os.readlink(f"/proc/self/fd/{fd}") != str(tmp_path / "dropped.usdc")
+    for fd in fds:
+        assert not os.path.exists(f"/proc/self/fd/{fd}") or \
+            os.readlink(f"/proc/self/fd/{fd}") != str(tmp_path / "dropped.usdc")
 
 
 def test_integer_codes_of_every_width_decode():
@@ -455,29 +463,37 @@ def test_one_attribute_however_its_path_is_spelled(tmp_path):
     assert ours.ListTimeSamplesForPath("/A{v=x}B.points") == [0.0, 1.0]
 
 
-def test_a_dropped_writer_closes_only_after_its_queued_writes(tmp_path, monkeypatch):
-    """The writer thread may still hold an unclosed writer's writes when it is dropped: the
-    descriptor closes after them (closed earlier, its number could be reused by another file,
-    which the late writes would then fill)."""
+@pytest.mark.parametrize("direct", ["1", "0"])
+def test_a_dropped_writer_closes_only_after_its_queued_writes(tmp_path, monkeypatch, direct):
+    """The writer thread may still hold an unclosed writer's writes when it is dropped: its
+    descriptors (the direct one too) close after them (closed earlier, a number could be reused
+    by another file, which the late writes would then fill)."""
     import gc
     import os
     import threading
 
     import dqskin.formats.crate as crate_mod
+    from dqskin.formats.direct import AppendFile
 
-    gate, real = threading.Event(), crate_mod._writev
+    monkeypatch.setenv("DQSKIN_DIRECT_IO", direct)
+    gate, real = threading.Event(), AppendFile.append
     crate = CrateSamples(tmp_path / "dropped.usdc", 24.0)
-    monkeypatch.setattr(crate_mod, "_writev", lambda fd, bufs: (gate.wait(5), real(fd, bufs))[1])
+    monkeypatch.setattr(AppendFile, "append", lambda self, bufs: (gate.wait(5),
+                                                                  real(self, bufs))[1])
     crate.add("/A.points", "point3f[]", [0.0], np.ones((1, 1000, 3), np.float32))
-    fd = crate._fd
+    fds = [fd for fd in (crate._file._fd, crate._file._direct) if fd is not None]
+    assert len(fds) == (2 if direct == "1" else 1)
     del crate
     gc.collect()
-    assert os.readlink(f"/proc/self/fd/{fd}") == str(tmp_path / "dropped.usdc")  # not yet
+    for fd in fds:
+        assert os.readlink(f"/proc/self/fd/{fd}") == str(tmp_path / "dropped.usdc")  # not yet
     gate.set()
     crate_mod._writer().submit(lambda: None).result()  # the writer thread's queue ran
-    assert not os.path.exists(f"/proc/self/fd/{fd}") or \
-        os.readlink(f"/proc/self/fd/{fd}") != str(tmp_path / "dropped.usdc")
-    assert (tmp_path / "dropped.usdc").stat().st_size == 88 + 8 + 12_000  # its write, done
+    for fd in fds:
+        assert not os.path.exists(f"/proc/self/fd/{fd}") or \
+            os.readlink(f"/proc/self/fd/{fd}") != str(tmp_path / "dropped.usdc")
+    if direct == "0":
+        assert (tmp_path / "dropped.usdc").stat().st_size == 88 + 8 + 12_000  # its write, done
 
 
 @pytest.mark.parametrize("version", [(0, 6, 0), (1, 0, 0)])

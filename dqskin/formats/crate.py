@@ -50,6 +50,8 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf
 
+from .direct import AppendFile, nbytes
+
 __all__ = ["CrateSamples", "UnsupportedCrate", "VERSION", "VALUE_TYPES"]
 
 VERSION = (0, 8, 0)
@@ -71,7 +73,6 @@ VALUE_TYPES = {"point3f[]": "vec3f[]", "normal3f[]": "vec3f[]", "vector3f[]": "v
                "float3[]": "vec3f[]", "color3f[]": "vec3f[]", "matrix4d": "matrix4d"}
 """Sdf value type names :meth:`CrateSamples.add` writes, and how they are stored."""
 
-_WRITEV_MAX = 1024  # IOV_MAX on Linux
 
 
 def _rep(kind, payload=0, *, array=False, inlined=False):
@@ -100,10 +101,6 @@ def _compressed_ints(values) -> bytes:
                + deltas.astype("<u4").tobytes())
     packed = _lz4_literals(encoded)
     return struct.pack("<Q", len(packed)) + packed
-
-
-def _nbytes(buffer) -> int:
-    return buffer.nbytes if isinstance(buffer, np.ndarray) else len(buffer)
 
 
 def _lz4_decode(src: bytes) -> bytes:
@@ -273,27 +270,6 @@ class _Base:
         return self.fieldsets[start:end]
 
 
-def _writev(fd, buffers) -> int:
-    """Write ``buffers`` (bytes, or C-contiguous arrays), in order, at the file position;
-    returns the bytes written. No Python object per buffer (a bake writes one per frame: GC-
-    tracked objects there cost garbage-collector passes over the whole heap)."""
-    total = 0
-    for a in range(0, len(buffers), _WRITEV_MAX):
-        part = buffers[a:a + _WRITEV_MAX]
-        size = sum(map(_nbytes, part))
-        done = os.writev(fd, part) if hasattr(os, "writev") else 0
-        if done != size:  # a short write (or no writev): the rest one by one
-            for b in part:
-                n = _nbytes(b)
-                if done >= n:
-                    done -= n
-                    continue
-                _write_all(fd, memoryview(b).cast("B")[done:])
-                done = 0
-        total += size
-    return total
-
-
 WRITES_AHEAD = 2
 """Blocks of samples a :class:`CrateSamples` may have queued for the writer thread before
 :meth:`~CrateSamples.add` waits (each holds its frames in memory until written)."""
@@ -319,15 +295,15 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_writer)
 
 
-def _close_after(fd, queued, wait=True):
-    """Close ``fd`` after the writes ``queued`` for it (their errors dropped): now, after
-    waiting for them, or (``wait=False``, a writer dropped unclosed) as the writer thread's next
-    task, behind them."""
+def _close_after(file, queued, wait=True):
+    """Close ``file`` (an abandoned :class:`~.direct.AppendFile`: nothing staged is written)
+    after the writes ``queued`` for it (their errors dropped): now, after waiting for them, or
+    (``wait=False``, a writer dropped unclosed) as the writer thread's next task, behind them."""
     pending = [f for f in queued if not f.done()]
     queued.clear()
     if pending and not wait:
         try:
-            _writer().submit(os.close, fd)
+            _writer().submit(file.close, False)
             return
         except RuntimeError:  # the interpreter is shutting the thread down: wait instead
             pass
@@ -336,12 +312,7 @@ def _close_after(fd, queued, wait=True):
             done.result()
         except Exception:
             pass
-    os.close(fd)
-
-
-def _write_all(fd, data):
-    while data.nbytes:
-        data = data[os.write(fd, data):]
+    file.close(False)
 
 
 class _Attribute:
@@ -386,23 +357,25 @@ class CrateSamples:
         ``normal3f[]`` samples), for every attribute that will be added: the new file is that layer
         with the samples (its ``timeCodesPerSecond`` and every other field kept; the time range
         replaced by :meth:`close`'s). Without it, prims above the attributes are ``over`` specs.
+    direct : bool
+        Write past the page cache where the file system allows it (:mod:`.direct`): for a file
+        nothing reads soon. False for one read back at once (a clip layer is hashed).
 
     Use :meth:`add` for each block of frames of each attribute, then :meth:`close` with the
     layer's time range (or :meth:`abort`).
     """
 
-    def __init__(self, path, time_codes_per_second: float, *, base=None):
+    def __init__(self, path, time_codes_per_second: float, *, base=None, direct: bool = True):
         self.path = Path(path)
         self.time_codes_per_second = float(time_codes_per_second)
         self._base = None if base is None else _Base(base)
         self._attrs = {}  # attribute path → _Attribute, in first-added order
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC
-                           | getattr(os, "O_CLOEXEC", 0), 0o666)
+        self._file = AppendFile(self.path, direct=direct)
         self._pos = 0
         self._queued = collections.deque()  # writes of add() not yet known done
         # if never closed: close once the queued writes ended (the descriptor's number could
         # otherwise be reused by another file while they wait for the writer thread)
-        self._closer = weakref.finalize(self, _close_after, self._fd, self._queued, False)
+        self._closer = weakref.finalize(self, _close_after, self._file, self._queued, False)
         try:
             self._write([bytes(_BOOTSTRAP)])
             if self._base is not None:  # its values at their own offsets
@@ -414,15 +387,15 @@ class CrateSamples:
 
     def _write(self, buffers):
         self._drain()
-        self._pos += _writev(self._fd, buffers)
+        self._pos += self._file.append(buffers)
 
     def _write_later(self, buffers):
         """Queue ``buffers`` for the writer thread (in order after the queued ones); waits while
         :data:`WRITES_AHEAD` are queued. An error of a queued write is raised here or later."""
         while len(self._queued) >= WRITES_AHEAD:
             self._queued.popleft().result()
-        self._queued.append(_writer().submit(_writev, self._fd, buffers))
-        self._pos += sum(map(_nbytes, buffers))
+        self._queued.append(_writer().submit(self._file.append, buffers))
+        self._pos += sum(map(nbytes, buffers))
 
     def _drain(self):
         """Wait for every queued write (raising the first error)."""
@@ -453,7 +426,7 @@ class CrateSamples:
         info : tuple of (str, str)
             Token-valued metadata authored with the attribute (a primvar's ``interpolation``).
         """
-        if self._fd is None:
+        if self._file is None:
             raise ValueError(f"{self.path}: the layer is closed")
         kind = VALUE_TYPES.get(type_name)
         if kind is None:
@@ -505,10 +478,18 @@ class CrateSamples:
         if kind == "vec3f[]":
             pad = -(12 * n) % 8
             stride, head = 8 + 12 * n + pad, _rep(_VEC3F, array=True)
-            per = 3 if pad else 2  # count, floats[, padding] per frame
-            buffers = [bytes(pad)] * (per * len(written))
-            buffers[0::per] = [struct.pack("<Q", n)] * len(written)
-            buffers[1::per] = [rows[f] for f in written]
+            if self._file.direct:  # copied into its stage anyway: one block, one copy
+                block = np.empty((len(written), stride), np.uint8)
+                block[:, :8] = np.frombuffer(struct.pack("<Q", n), np.uint8)
+                block[:, 8 + 12 * n:] = 0
+                floats = rows.view(np.uint8)
+                block[:, 8:8 + 12 * n] = floats if len(written) == F else floats[written]
+                buffers = [block]
+            else:  # (count, floats[, padding]) per frame, written in place by writev
+                per = 3 if pad else 2
+                buffers = [bytes(pad)] * (per * len(written))
+                buffers[0::per] = [struct.pack("<Q", n)] * len(written)
+                buffers[1::per] = [rows[f] for f in written]
         else:
             stride, head = 128, _rep(_MATRIX4D)
             buffers = [rows[f] for f in written] if held.any() else [rows]
@@ -543,15 +524,15 @@ class CrateSamples:
 
     def abort(self) -> None:
         """Close the file unfinished (the caller removes it), once its queued writes ended."""
-        if self._fd is not None:
+        if self._file is not None:
             self._closer.detach()
-            _close_after(self._fd, self._queued)  # the queued writes end first
-            self._fd = None
+            _close_after(self._file, self._queued)  # the queued writes end first
+            self._file = None
 
     def close(self, start: float, end: float) -> Path:
         """Write the layer's structure (``startTimeCode`` ``start``, ``endTimeCode`` ``end``)
         and close the file; returns its path."""
-        if self._fd is None:
+        if self._file is None:
             raise ValueError(f"{self.path}: the layer is closed")
         try:
             self._finish(float(start), float(end))
@@ -655,8 +636,9 @@ class CrateSamples:
                     + [struct.pack("<16sqq", n, s, z) for n, s, z in sections])
         version = base.version if base else VERSION
         boot = struct.pack("<8s8Bq", _IDENT, *version, 0, 0, 0, 0, 0, toc) + bytes(64)
-        os.lseek(self._fd, 0, os.SEEK_SET)
-        _write_all(self._fd, memoryview(boot))
+        self._drain()
+        self._file.pwrite(boot, 0)
+        self._file.close()
 
     def _new_namespace(self, token, fieldset, samples, doubles):
         """Specs and the PATHS section of a layer of ``over`` prims holding the attributes."""

@@ -1,0 +1,155 @@
+"""Files written past the page cache (:mod:`dqskin.formats.direct`): the bytes are exactly those
+appended (and rewritten at an offset), direct or buffered, and a file system that refuses
+``O_DIRECT`` gets buffered writes instead."""
+
+import errno
+import os
+
+import numpy as np
+import pytest
+
+from dqskin.formats import direct
+from dqskin.formats.direct import AppendFile
+
+RNG = np.random.default_rng(7)
+
+
+def _takes_direct(path):
+    """Whether the file system of ``path`` (an existing file) opens it with O_DIRECT."""
+    fd = direct._open_direct(str(path), os.O_RDONLY)
+    if fd is None:
+        return False
+    os.close(fd)
+    return True
+
+
+def _pieces():
+    """Appends of every kind and size: bytes, float32 and uint8 arrays, empty ones, pieces
+    smaller and larger than a block and than the stage (patched to 3 blocks), in an order
+    that leaves the stage at every offset."""
+    sizes = [88, 0, 5, 4096, 4095, 1, 12_289, 3 * 4096, 7, 40_000, 4096 * 2 + 3, 100]
+    out = []
+    for k, n in enumerate(sizes):
+        if k % 3 == 0:
+            out.append(RNG.bytes(n))
+        elif k % 3 == 1:
+            out.append(RNG.integers(0, 256, n, dtype=np.uint8))
+        else:
+            out.append(RNG.normal(size=(n // 12 + 1, 3)).astype(np.float32))
+    return out
+
+
+def _expected(pieces, header):
+    data = bytearray(b"".join(memoryview(p).cast("B").tobytes() for p in pieces))
+    data[:len(header)] = header
+    return bytes(data)
+
+
+def _write(path, pieces, header, **kwargs):
+    f = AppendFile(path, **kwargs)
+    used = f.direct
+    for a in range(0, len(pieces), 3):
+        assert f.append(pieces[a:a + 3]) == sum(direct.nbytes(p) for p in pieces[a:a + 3])
+    f.pwrite(header, 0)
+    f.close()
+    return used
+
+
+@pytest.mark.parametrize("mode", ["direct", "buffered", "switched off"])
+def test_appended_bytes_and_a_header_written_last_are_the_file(tmp_path, monkeypatch, mode):
+    """The file holds what was appended, in order, with the header written over its start,
+    whether the bytes went past the page cache (a small stage: every piece crosses blocks and
+    stages), through it (``direct=False``), or through it because ``DQSKIN_DIRECT_IO=0``."""
+    monkeypatch.setattr(direct, "STAGE", 3 * direct.BLOCK)
+    if mode == "switched off":
+        monkeypatch.setenv("DQSKIN_DIRECT_IO", "0")
+    pieces, header = _pieces(), RNG.bytes(88)
+    used = _write(tmp_path / "f.bin", pieces, header, direct=mode == "direct")
+    assert (tmp_path / "f.bin").read_bytes() == _expected(pieces, header)
+    if mode != "direct":
+        assert not used
+    elif _takes_direct(tmp_path / "f.bin"):
+        assert used  # this file system takes O_DIRECT: the direct path was the one tested
+
+
+def test_a_refused_direct_open_writes_buffered(tmp_path, monkeypatch):
+    real = os.open
+
+    def no_direct(path, flags, *args):
+        if flags & direct._O_DIRECT:
+            raise OSError(errno.EINVAL, "Invalid argument")
+        return real(path, flags, *args)
+
+    monkeypatch.setattr(os, "open", no_direct)
+    pieces, header = _pieces(), b"head"
+    assert not _write(tmp_path / "f.bin", pieces, header)
+    assert (tmp_path / "f.bin").read_bytes() == _expected(pieces, header)
+
+
+@pytest.mark.parametrize("first", [True, False])
+def test_a_direct_write_refused_first_falls_back_and_a_later_failure_is_raised(
+        tmp_path, monkeypatch, first):
+    """A file system that opens with ``O_DIRECT`` but refuses the first direct write (EINVAL):
+    what was staged and the rest go through the page cache, the same bytes. A failure after
+    direct writes went through (a full disk) is the caller's error, not a fallback."""
+    if not direct.enabled():
+        pytest.skip("no O_DIRECT here")
+    monkeypatch.setattr(direct, "STAGE", 2 * direct.BLOCK)
+    real, calls = os.pwrite, []
+
+    def refuse(fd, data, offset):
+        calls.append(offset)
+        if fd == f._direct and (first or len(calls) > 1):
+            raise OSError(errno.EINVAL if first else errno.ENOSPC, "refused")
+        return real(fd, data, offset)
+
+    f = AppendFile(tmp_path / "f.bin")
+    if not f.direct:
+        f.close()
+        pytest.skip("this file system refuses O_DIRECT at open")
+    monkeypatch.setattr(os, "pwrite", refuse)
+    pieces = [RNG.bytes(5000), RNG.bytes(20_000), RNG.bytes(3)]
+    if first:
+        f.append(pieces)
+        assert not f.direct
+        f.pwrite(b"xy", 0)
+        f.close()
+        assert (tmp_path / "f.bin").read_bytes() == _expected(pieces, b"xy")
+    else:
+        with pytest.raises(OSError, match="refused"):
+            f.append(pieces)
+        f.close(flush=False)
+
+
+def test_pwrite_refuses_bytes_past_the_appended_ones(tmp_path):
+    f = AppendFile(tmp_path / "f.bin")
+    f.append([b"abc"])
+    with pytest.raises(ValueError, match="past the 3 bytes"):
+        f.pwrite(b"abcd", 0)
+    f.close()
+    assert (tmp_path / "f.bin").read_bytes() == b"abc"
+
+
+def test_a_crate_layer_written_past_the_cache_is_the_buffered_one(tmp_path, monkeypatch):
+    """:class:`~dqskin.formats.crate.CrateSamples` past the page cache (a stage of 3 blocks:
+    its sample blocks cross many) writes the bytes it writes through the cache, and usd-core
+    reads its samples back."""
+    from pxr import Sdf
+
+    from dqskin.formats.crate import CrateSamples
+    monkeypatch.setattr(direct, "STAGE", 3 * direct.BLOCK)
+    points = RNG.normal(size=(7, 500, 3)).astype(np.float32)
+    points[3] = points[2]  # a held frame: stored once
+    xf = RNG.normal(size=(7, 4, 4))
+    files = {}
+    for mode in (True, False):
+        crate = CrateSamples(tmp_path / f"{mode}.usdc", 24.0, direct=mode)
+        assert crate._file.direct == (mode and _takes_direct(tmp_path / f"{mode}.usdc"))
+        crate.add("/A/B.points", "point3f[]", np.arange(7.0), points)
+        crate.add("/A.xformOp:transform", "matrix4d", np.arange(7.0), xf)
+        files[mode] = crate.close(0, 6).read_bytes()
+    assert files[True] == files[False]
+    layer = Sdf.Layer.FindOrOpen(str(tmp_path / "True.usdc"))
+    for k in range(7):
+        np.testing.assert_array_equal(
+            np.asarray(layer.QueryTimeSample("/A/B.points", float(k))), points[k])
