@@ -476,10 +476,10 @@ def test_a_dropped_writer_closes_only_after_its_queued_writes(tmp_path, monkeypa
     from dqskin.formats.direct import AppendFile
 
     monkeypatch.setenv("DQSKIN_DIRECT_IO", direct)
-    gate, real = threading.Event(), AppendFile.append
+    gate, real = threading.Event(), AppendFile.append_records
     crate = CrateSamples(tmp_path / "dropped.usdc", 24.0)
-    monkeypatch.setattr(AppendFile, "append", lambda self, bufs: (gate.wait(5),
-                                                                  real(self, bufs))[1])
+    monkeypatch.setattr(AppendFile, "append_records",
+                        lambda self, *args: (gate.wait(5), real(self, *args))[1])
     crate.add("/A.points", "point3f[]", [0.0], np.ones((1, 1000, 3), np.float32))
     fds = [fd for fd in (crate._file._fd, crate._file._direct) if fd is not None]
     assert len(fds) == (2 if direct == "1" else 1)

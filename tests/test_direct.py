@@ -153,3 +153,49 @@ def test_a_crate_layer_written_past_the_cache_is_the_buffered_one(tmp_path, monk
     for k in range(7):
         np.testing.assert_array_equal(
             np.asarray(layer.QueryTimeSample("/A/B.points", float(k))), points[k])
+
+
+@pytest.mark.parametrize("mode", ["direct", "buffered"])
+@pytest.mark.parametrize("width", [12, 36, 3 * 4096 + 20])  # the last: a record over the stage
+def test_records_are_head_row_and_padding(tmp_path, monkeypatch, mode, width):
+    """``append_records``: per row (all, or the selected ones in their order), the head, the
+    row's bytes and the zero padding, after bytes already appended and before more, the stage
+    (3 blocks) crossed at every offset; records wider than the stage too."""
+    monkeypatch.setattr(direct, "STAGE", 3 * direct.BLOCK)
+    rows = RNG.integers(0, 256, (700, width), dtype=np.uint8)
+    select = np.array([5, 3, 3, 699, 0] + list(range(10, 400, 7)))
+    head = RNG.bytes(8)
+    f = AppendFile(tmp_path / "f.bin", direct=mode == "direct")
+    assert f.append([b"\x01" * 100]) == 100
+    assert f.append_records(head, rows, 4) == 700 * (8 + width + 4)
+    assert f.append_records(head, rows, 0, select) == len(select) * (8 + width)
+    f.append([b"\x02" * 5])
+    assert f.size == 100 + 700 * (8 + width + 4) + len(select) * (8 + width) + 5
+    f.close()
+    want = b"\x01" * 100 + b"".join(head + r.tobytes() + bytes(4) for r in rows) \
+        + b"".join(head + rows[i].tobytes() for i in select) + b"\x02" * 5
+    assert (tmp_path / "f.bin").read_bytes() == want
+
+
+def test_records_refused_midway_go_buffered(tmp_path, monkeypatch):
+    """The first direct write refused while records are staged: those and the rest go through
+    the page cache, the same bytes."""
+    monkeypatch.setattr(direct, "STAGE", 2 * direct.BLOCK)
+    f = AppendFile(tmp_path / "f.bin")
+    if not f.direct:
+        f.close()
+        pytest.skip("this file system refuses O_DIRECT at open")
+    real = os.pwrite
+
+    def refuse(fd, data, offset):
+        if fd == f._direct:
+            raise OSError(errno.EINVAL, "refused")
+        return real(fd, data, offset)
+
+    monkeypatch.setattr(os, "pwrite", refuse)
+    rows = RNG.integers(0, 256, (300, 40), dtype=np.uint8)
+    f.append_records(b"h", rows, 3)
+    assert not f.direct
+    f.close()
+    assert (tmp_path / "f.bin").read_bytes() == b"".join(b"h" + r.tobytes() + bytes(3)
+                                                         for r in rows)

@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf
 
-from .direct import AppendFile, nbytes
+from .direct import AppendFile
 
 __all__ = ["CrateSamples", "UnsupportedCrate", "VERSION", "VALUE_TYPES"]
 
@@ -389,13 +389,14 @@ class CrateSamples:
         self._drain()
         self._pos += self._file.append(buffers)
 
-    def _write_later(self, buffers):
-        """Queue ``buffers`` for the writer thread (in order after the queued ones); waits while
-        :data:`WRITES_AHEAD` are queued. An error of a queued write is raised here or later."""
+    def _write_later(self, write, *args, size):
+        """Queue ``write(*args)`` of ``size`` bytes (a method of the file) for the writer thread,
+        in order after the queued ones; waits while :data:`WRITES_AHEAD` are queued. An error
+        of a queued write is raised here or later."""
         while len(self._queued) >= WRITES_AHEAD:
             self._queued.popleft().result()
-        self._queued.append(_writer().submit(self._file.append, buffers))
-        self._pos += sum(map(nbytes, buffers))
+        self._queued.append(_writer().submit(write, *args))
+        self._pos += size
 
     def _drain(self):
         """Wait for every queued write (raising the first error)."""
@@ -478,23 +479,14 @@ class CrateSamples:
         if kind == "vec3f[]":
             pad = -(12 * n) % 8
             stride, head = 8 + 12 * n + pad, _rep(_VEC3F, array=True)
-            if self._file.direct:  # copied into its stage anyway: one block, one copy
-                block = np.empty((len(written), stride), np.uint8)
-                block[:, :8] = np.frombuffer(struct.pack("<Q", n), np.uint8)
-                block[:, 8 + 12 * n:] = 0
-                floats = rows.view(np.uint8)
-                block[:, 8:8 + 12 * n] = floats if len(written) == F else floats[written]
-                buffers = [block]
-            else:  # (count, floats[, padding]) per frame, written in place by writev
-                per = 3 if pad else 2
-                buffers = [bytes(pad)] * (per * len(written))
-                buffers[0::per] = [struct.pack("<Q", n)] * len(written)
-                buffers[1::per] = [rows[f] for f in written]
+            # one record (count, floats[, padding]) per frame written
+            write = (self._file.append_records, struct.pack("<Q", n), rows.view(np.uint8), pad,
+                     None if len(written) == F else written)
         else:
             stride, head = 128, _rep(_MATRIX4D)
-            buffers = [rows[f] for f in written] if held.any() else [rows]
+            write = (self._file.append, [rows[f] for f in written] if held.any() else [rows])
         if written.size:
-            self._write_later(buffers)
+            self._write_later(*write, size=stride * len(written))
         offsets = self._pos - stride * len(written) + stride * np.arange(len(written),
                                                                          dtype=np.uint64)
         # each frame's rep: that of the last frame written up to it (before this block: last's)

@@ -145,6 +145,41 @@ class AppendFile:
         self.size += total
         return total
 
+    def append_records(self, head: bytes, rows: np.ndarray, pad: int = 0, select=None) -> int:
+        """Append one record per row of ``rows`` ((K, M) uint8, C-contiguous; with ``select``,
+        only those row indices, in that order): ``head``, the row's M bytes, ``pad`` zero
+        bytes. Direct: the records are copied straight into the stage, many rows a copy (no
+        block of them made first); buffered: ``writev`` of the rows in place. Returns the bytes
+        appended."""
+        rows = np.asarray(rows)
+        index = np.arange(len(rows)) if select is None else np.asarray(select)
+        h, m = len(head), rows.shape[1]
+        stride = h + m + pad
+        total = stride * len(index)
+        hv = np.frombuffer(head, np.uint8)
+        a = 0
+        while a < len(index) and self._direct is not None:
+            room = (STAGE - self._fill) // stride
+            if not room:
+                self._write_stage()  # leaves less than a block staged
+                room = (STAGE - self._fill) // stride
+            if not room or self._direct is None:  # a record larger than the stage; refused
+                break
+            k = min(room, len(index) - a)
+            dst = self._view[self._fill:self._fill + k * stride].reshape(k, stride)
+            dst[:, :h] = hv
+            dst[:, h:h + m] = rows[a:a + k] if select is None else rows[index[a:a + k]]
+            dst[:, h + m:] = 0
+            self._fill += k * stride
+            a += k
+            if self._fill == STAGE:
+                self._write_stage()
+        self.size += stride * a
+        if a < len(index):  # the rest record by record (buffered, or each across stages)
+            zeros = bytes(pad)
+            self.append([part for i in index[a:] for part in (head, rows[i], zeros)])
+        return total
+
     def _append_buffered(self, buffers):
         os.lseek(self._fd, self._written, os.SEEK_SET)
         n = _writev(self._fd, list(buffers))
