@@ -307,12 +307,14 @@ def _close_after(file, queued, wait=True):
             return
         except RuntimeError:  # the interpreter is shutting the thread down: wait instead
             pass
-    for done in pending:
-        try:
-            done.result()
-        except Exception:
-            pass
-    file.close(False)
+    try:
+        for done in pending:
+            try:
+                done.result()
+            except Exception:
+                pass
+    finally:  # an interrupt while waiting still closes it
+        file.close(False)
 
 
 class _Attribute:

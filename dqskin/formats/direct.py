@@ -10,11 +10,12 @@ read back at once (a clip layer, hashed when done) is better off in the cache: r
 that read waits on the device.
 
 :class:`AppendFile` stages appended bytes in an aligned buffer and writes whole :data:`BLOCK`
-multiples of it directly; the unaligned tail and writes at an offset (a crate file's
-bootstrap, written last) go through an ordinary descriptor of the same file, which Linux keeps
-coherent with the direct writes. Where ``O_DIRECT`` is refused (``EINVAL`` at open or at the
-first write: some network or FUSE file systems, tmpfs before Linux 6.6), or
-``DQSKIN_DIRECT_IO=0`` is set, the writes are buffered.
+multiples of it directly; then its descriptor's ``O_DIRECT`` flag is cleared (``fcntl``) and
+the unaligned tail and writes at an offset (a crate file's bootstrap, written last) go through
+the page cache, which Linux keeps coherent with the direct writes. Where ``O_DIRECT`` is
+refused (``EINVAL`` setting the flag or at a direct write: some network or FUSE file systems,
+tmpfs before Linux 6.6), after a short direct write, or with ``DQSKIN_DIRECT_IO=0``, the
+writes are buffered from there on.
 """
 
 import errno
@@ -42,15 +43,16 @@ def enabled() -> bool:
     return bool(_O_DIRECT) and os.environ.get("DQSKIN_DIRECT_IO", "1") != "0"
 
 
-def _open_direct(path, flags):
-    if not enabled():
-        return None
+def _set_direct(fd, on: bool) -> bool:
+    """Set or clear ``O_DIRECT`` on ``fd``; whether it is now set (False where refused)."""
+    import fcntl
+    flags = fcntl.fcntl(fd, fcntl.F_GETFL)
     try:
-        return os.open(path, flags | _O_DIRECT | _CLOEXEC)
+        fcntl.fcntl(fd, fcntl.F_SETFL, flags | _O_DIRECT if on else flags & ~_O_DIRECT)
     except OSError as exc:
-        if exc.errno in _REFUSED:
-            return None
-        raise
+        if exc.errno not in _REFUSED:
+            raise
+    return bool(fcntl.fcntl(fd, fcntl.F_GETFL) & _O_DIRECT)
 
 
 def _pwrite_all(fd, data, offset):
@@ -96,8 +98,8 @@ class AppendFile:
     already appended (a header written last). Where direct I/O is taken, appended bytes are
     staged and written past the page cache in whole :data:`BLOCK` multiples; :meth:`flush`
     (called by :meth:`pwrite` and :meth:`close`) writes the partial block that remains through
-    the ordinary descriptor, and later appends are buffered. ``direct=False``: buffered
-    throughout. One writer at a time (calls may come from different threads in turn).
+    the page cache, and later appends are buffered. ``direct=False``: buffered throughout. One
+    writer at a time (calls may come from different threads in turn).
 
     Attributes
     ----------
@@ -107,27 +109,32 @@ class AppendFile:
 
     def __init__(self, path, mode=0o666, *, direct: bool = True):
         self.path = os.fspath(path)
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | _CLOEXEC, mode)
         self.size = 0
-        self._direct = _open_direct(self.path, os.O_WRONLY) if direct else None
         self._written = 0  # bytes of the file written (a BLOCK multiple while direct)
         self._stage = self._view = None
         self._fill = 0  # bytes staged
-        if self._direct is not None:
-            self._stage = mmap.mmap(-1, STAGE)  # page aligned
-            self._view = np.frombuffer(self._stage, np.uint8)
+        self._direct = False
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | _CLOEXEC, mode)
+        try:
+            if direct and enabled() and _set_direct(self._fd, True):
+                self._stage = mmap.mmap(-1, STAGE, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
+                self._view = np.frombuffer(self._stage, np.uint8)  # page aligned
+                self._direct = True
+        except BaseException:
+            self.close(flush=False)
+            raise
 
     @property
     def direct(self) -> bool:
         """Whether appends go past the page cache now."""
-        return self._direct is not None
+        return self._direct
 
     def append(self, buffers) -> int:
         """Append ``buffers`` (bytes-like: bytes, C-contiguous arrays), in order; returns the
         bytes appended."""
         total = 0
         for i, b in enumerate(buffers):
-            if self._direct is None:
+            if not self._direct:
                 total += self._append_buffered(buffers[i:])
                 break
             src = np.frombuffer(memoryview(b).cast("B"), np.uint8)
@@ -139,7 +146,7 @@ class AppendFile:
                 src = src[k:]
                 if self._fill == STAGE:
                     self._write_stage()
-                    if self._direct is None and src.nbytes:  # refused: the rest buffered
+                    if not self._direct and src.nbytes:  # refused: the rest buffered
                         self._append_buffered([src])
                         break
         self.size += total
@@ -158,12 +165,12 @@ class AppendFile:
         total = stride * len(index)
         hv = np.frombuffer(head, np.uint8)
         a = 0
-        while a < len(index) and self._direct is not None:
+        while a < len(index) and self._direct:
             room = (STAGE - self._fill) // stride
             if not room:
                 self._write_stage()  # leaves less than a block staged
                 room = (STAGE - self._fill) // stride
-            if not room or self._direct is None:  # a record larger than the stage; refused
+            if not room or not self._direct:  # a record larger than the stage; refused
                 break
             k = min(room, len(index) - a)
             dst = self._view[self._fill:self._fill + k * stride].reshape(k, stride)
@@ -187,37 +194,44 @@ class AppendFile:
         return n
 
     def _write_stage(self):
-        """Write the staged whole blocks directly and keep the partial one staged; refused (at
-        the file's first direct write): every staged byte buffered, and buffered from then on."""
+        """Write the staged whole blocks directly and keep the partial one staged. Refused
+        (EINVAL: an alignment this file system does not take) or short (the device filling
+        up): every staged byte is written through the page cache, and buffered from then on
+        (a full disk then reports itself)."""
         whole = self._fill - self._fill % BLOCK
         if not whole:
             return
         try:
-            _pwrite_all(self._direct, self._view[:whole], self._written)
+            n = os.pwrite(self._fd, self._view[:whole], self._written)
         except OSError as exc:
-            if exc.errno not in _REFUSED or self._written:
+            if exc.errno not in _REFUSED:
                 raise
-            staged = self._view[:self._fill].copy()
-            self._fill = 0
-            self._close_direct()
-            self._append_buffered([staged])
+            n = 0
+        if n != whole:
+            self._to_buffered()
             return
         self._written += whole
         rest = self._fill - whole
         self._view[:rest] = self._view[whole:self._fill]
         self._fill = rest
 
+    def _to_buffered(self):
+        """Clear O_DIRECT and write what is staged through the page cache."""
+        self._direct = False
+        _set_direct(self._fd, False)
+        staged, self._fill = self._view[:self._fill], 0
+        _pwrite_all(self._fd, staged, self._written)
+        self._written += staged.nbytes
+        # the staging memory goes with its last reference (not closed here: a traceback may
+        # still hold a view of it)
+        self._view = self._stage = None
+
     def flush(self) -> None:
         """Write everything staged; later appends are buffered."""
-        if self._direct is None:
-            return
-        self._write_stage()
-        if self._direct is not None:
-            if self._fill:
-                _pwrite_all(self._fd, self._view[:self._fill], self._written)
-                self._written += self._fill
-                self._fill = 0
-            self._close_direct()
+        if self._direct:
+            self._write_stage()
+            if self._direct:
+                self._to_buffered()
 
     def pwrite(self, data, offset: int) -> None:
         """Write ``data`` at ``offset``, within the bytes appended (after a :meth:`flush`)."""
@@ -227,21 +241,14 @@ class AppendFile:
         self.flush()
         _pwrite_all(self._fd, data, offset)
 
-    def _close_direct(self):
-        if self._direct is not None:
-            os.close(self._direct)
-            self._direct = None
-        # the staging memory goes with its last reference (not closed here: a traceback may
-        # still hold a view of it)
-        self._view = self._stage = None
-
     def close(self, flush: bool = True) -> None:
         """Flush (unless ``flush`` is False: the file is abandoned) and close; again: nothing."""
         try:
             if flush and self._fd is not None:
                 self.flush()
         finally:
-            self._close_direct()
-            if self._fd is not None:
-                os.close(self._fd)
-                self._fd = None
+            self._direct = False
+            self._view = self._stage = None
+            fd, self._fd = self._fd, None
+            if fd is not None:
+                os.close(fd)
