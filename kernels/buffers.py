@@ -10,10 +10,10 @@ transparent huge pages are off, or not on Linux, it is a plain ``wp.empty``; Num
 can stall on memory compaction when free memory is fragmented: rare, but a latency spike).
 
 Inside :func:`reusing` (what :meth:`dqskin.Scene.skin_chunks` does around each piece), a large
-CPU buffer whose array has been dropped is handed out again for the next one of its shape and
-dtype: a stream of equal pieces of frames then runs on the same few buffers instead of fresh
-memory for each piece (faulted in and zeroed by the kernel each time, or taken from a heap that
-the other allocations of a bake fragment until it grows by pieces).
+CPU buffer whose array has been dropped is handed out again (:class:`BufferPool`: to the next
+request it fits, down to half its size): a stream of pieces of frames then runs on the same few
+buffers instead of fresh memory for each piece (faulted in and zeroed by the kernel each time,
+or taken from a heap that the other allocations of a bake fragment until it grows by pieces).
 """
 
 import contextlib

@@ -2,9 +2,10 @@
 
 A layer that holds nothing but time samples (a clip layer of :mod:`.usd_clips`) is written here
 as its arrays arrive: :meth:`CrateSamples.add` queues a block of frames of one attribute for
-the writer thread (``writev`` calls, the GIL released, no ``Vt`` array per frame; once written,
-nothing kept but each sample's time and file offset, and a copy of each attribute's last
-frame), and :meth:`CrateSamples.close` writes what makes it a
+the writer thread (a :class:`~.direct.AppendFile`: the frames copied into its aligned stage and
+written past the page cache, or ``writev`` of the frames in place; the GIL released, no ``Vt``
+array per frame; once written, nothing kept but each sample's time and file offset, and a copy
+of each attribute's last frame), and :meth:`CrateSamples.close` writes what makes it a
 layer: the prims (as ``over``), the attributes with their sample tables, the layer's time range
 and rate, the structural sections and the table of contents. Memory holds a few blocks, not the
 layer.
@@ -72,7 +73,6 @@ _NO_FIELD = 0xFFFFFFFF  # ends each field set
 VALUE_TYPES = {"point3f[]": "vec3f[]", "normal3f[]": "vec3f[]", "vector3f[]": "vec3f[]",
                "float3[]": "vec3f[]", "color3f[]": "vec3f[]", "matrix4d": "matrix4d"}
 """Sdf value type names :meth:`CrateSamples.add` writes, and how they are stored."""
-
 
 
 def _rep(kind, payload=0, *, array=False, inlined=False):
