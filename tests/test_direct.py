@@ -210,3 +210,38 @@ def test_records_refused_midway_go_buffered(tmp_path, monkeypatch):
     f.close()
     assert (tmp_path / "f.bin").read_bytes() == b"".join(b"h" + r.tobytes() + bytes(3)
                                                          for r in rows)
+
+
+def test_a_failed_write_of_the_tail_keeps_it_staged(tmp_path, monkeypatch):
+    """The page-cache write of the staged tail fails once (a full disk): the error is raised and
+    the bytes stay staged, so a later flush (the disk freed) still writes the whole file."""
+    (tmp_path / "f.bin").touch()
+    if not _takes_direct(tmp_path / "f.bin"):
+        pytest.skip("this file system refuses O_DIRECT")
+    monkeypatch.setattr(direct, "STAGE", 2 * direct.BLOCK)
+    f = AppendFile(tmp_path / "f.bin")
+    pieces = [RNG.bytes(9000), RNG.bytes(77)]
+    f.append(pieces)
+    real, failed = os.pwrite, []
+
+    def full_once(fd, data, offset):
+        if not f.direct and not failed:
+            failed.append(offset)
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(fd, data, offset)
+
+    monkeypatch.setattr(os, "pwrite", full_once)
+    with pytest.raises(OSError, match="No space"):
+        f.flush()
+    f.append([b"more"])
+    f.close()
+    assert failed and (tmp_path / "f.bin").read_bytes() == b"".join(pieces) + b"more"
+
+
+def test_records_must_be_rows_of_bytes(tmp_path):
+    f = AppendFile(tmp_path / "f.bin")
+    with pytest.raises(ValueError, match="uint8 rows"):
+        f.append_records(b"h", np.zeros((2, 3), np.float32))
+    assert f.append_records(b"", np.zeros((5, 0), np.uint8)) == 0
+    f.close()
+    assert (tmp_path / "f.bin").read_bytes() == b""

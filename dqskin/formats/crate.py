@@ -313,8 +313,16 @@ def _close_after(file, queued, wait=True):
                 done.result()
             except Exception:
                 pass
-    finally:  # an interrupt while waiting still closes it
-        file.close(False)
+    except BaseException:  # interrupted while waiting: closed behind the writes still queued
+        if any(not f.done() for f in pending):
+            try:
+                _writer().submit(file.close, False)
+            except RuntimeError:
+                file.close(False)
+        else:
+            file.close(False)
+        raise
+    file.close(False)
 
 
 class _Attribute:

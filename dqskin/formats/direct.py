@@ -159,10 +159,15 @@ class AppendFile:
         block of them made first); buffered: ``writev`` of the rows in place. Returns the bytes
         appended."""
         rows = np.asarray(rows)
+        if rows.ndim != 2 or rows.dtype != np.uint8:
+            raise ValueError(f"append_records: expected (K, M) uint8 rows, got {rows.dtype} "
+                             f"{rows.shape}")
         index = np.arange(len(rows)) if select is None else np.asarray(select)
         h, m = len(head), rows.shape[1]
         stride = h + m + pad
         total = stride * len(index)
+        if not total:
+            return 0
         hv = np.frombuffer(head, np.uint8)
         a = 0
         while a < len(index) and self._direct:
@@ -188,6 +193,8 @@ class AppendFile:
         return total
 
     def _append_buffered(self, buffers):
+        if self._view is not None:  # bytes a failed switch left staged come first
+            self._to_buffered()
         os.lseek(self._fd, self._written, os.SEEK_SET)
         n = _writev(self._fd, list(buffers))
         self._written += n
@@ -216,12 +223,16 @@ class AppendFile:
         self._fill = rest
 
     def _to_buffered(self):
-        """Clear O_DIRECT and write what is staged through the page cache."""
-        self._direct = False
-        _set_direct(self._fd, False)
-        staged, self._fill = self._view[:self._fill], 0
+        """Clear O_DIRECT and write what is staged through the page cache (the state changes
+        only once that write succeeded: a failed one leaves the bytes staged)."""
+        if self._direct:
+            self._direct = False
+            if _set_direct(self._fd, False):
+                raise OSError(errno.EINVAL, f"{self.path}: cannot clear O_DIRECT")
+        staged = self._view[:self._fill]
         _pwrite_all(self._fd, staged, self._written)
         self._written += staged.nbytes
+        self._fill = 0
         # the staging memory goes with its last reference (not closed here: a traceback may
         # still hold a view of it)
         self._view = self._stage = None
@@ -230,8 +241,8 @@ class AppendFile:
         """Write everything staged; later appends are buffered."""
         if self._direct:
             self._write_stage()
-            if self._direct:
-                self._to_buffered()
+        if self._view is not None:  # staged bytes remain (or a failed switch left them)
+            self._to_buffered()
 
     def pwrite(self, data, offset: int) -> None:
         """Write ``data`` at ``offset``, within the bytes appended (after a :meth:`flush`)."""
