@@ -26,7 +26,7 @@ import contextlib
 import os
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor, wait
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -195,15 +195,15 @@ def run_here(jobs: list, scene, done) -> None:
     :func:`run_chunk`'s), pipelined across chunks instead of :func:`run_chunk` one by one: one
     :meth:`dqskin.Scene.skin_chunks` stream of pieces
     (:data:`~.formats.usd_cache.PIECE_BYTES`) over all their frames keeps skinning (the first
-    piece of chunk ``k + 1`` while chunk ``k``'s layer is finished), and chunk ``k``'s layer is
-    hashed on another thread while chunk ``k + 1``'s is filled, then recorded and renamed
-    (:func:`~.formats.usd_clips.commit_clip`) before that one is finished. Memory is as
+    piece of chunk ``k + 1`` while chunk ``k``'s layer is finished), and chunk ``k``'s layer
+    (hashed as it was written) is recorded and renamed
+    (:func:`~.formats.usd_clips.commit_clip`) once chunk ``k + 1``'s is filled. Memory is as
     :func:`run_chunk`'s: a few pieces (the one being skinned, two being checked, one being
     written), no layer (each goes to its file as it fills).
 
     On an error or interrupt while chunk ``k + 1`` is filled, chunk ``k`` is still recorded and
-    renamed if its hash finished without error (as the one-by-one bake would have had it), then
-    the error raised; nothing else is left under a final name."""
+    renamed (as the one-by-one bake would have had it), then the error raised; nothing else is
+    left under a final name."""
     if not jobs:
         return
     size = _piece_frames(scene, jobs[0].skin)
@@ -211,9 +211,8 @@ def run_here(jobs: list, scene, done) -> None:
     writer = _sample_writer(scene, jobs[0])
     stream = scene.skin_chunks(np.concatenate([j.times for j in jobs]),
                                [n for p in pieces for n in p], **jobs[0].skin)
-    pending = None  # (job, claim, digest future, start) of the finished, unrecorded layer
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-clip-hash") as hasher, \
-            ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values") as values:
+    pending = None  # (job, claim, checksum, start) of the finished, unrecorded layer
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values") as values:
         try:
             start = time.perf_counter(), time.process_time()
             for job, p in zip(jobs, pieces):
@@ -225,7 +224,7 @@ def run_here(jobs: list, scene, done) -> None:
                         finished, pending = pending, None
                         done(_commit(*finished))
                     claim = layer.finish(job.times)
-                pending = (job, claim, hasher.submit(usd_clips.file_checksum, claim.tmp), start)
+                pending = (job, claim, layer.digest, start)
                 start = time.perf_counter(), time.process_time()
             if pending is not None:
                 finished, pending = pending, None
@@ -240,29 +239,15 @@ def run_here(jobs: list, scene, done) -> None:
 
 
 def _commit(job, claim, digest, start):
-    """Record and rename the finished layer in ``claim`` (removed if its hash failed)."""
-    try:
-        checksum = digest.result()
-    except BaseException:
-        claim.discard()
-        raise
-    return _result(job, usd_clips.commit_clip(claim, job.key, job.times, checksum), *start)
+    """Record and rename the finished layer in ``claim`` (checksum ``digest``)."""
+    return _result(job, usd_clips.commit_clip(claim, job.key, job.times, digest), *start)
 
 
 def _commit_on_error(job, claim, digest, start):
     """:func:`_commit`, while :func:`run_here` is failing: an error of its own is dropped (the
-    failure being raised matters), the layer then removed. An interrupt the CLI recorded
+    failure being raised matters; commit_clip removed the layer). An interrupt the CLI recorded
     (:func:`~.formats.atomic.interrupt`; nothing commits after one) is set aside for this one
     complete, hashed file and raised again at the end."""
-    try:
-        wait([digest])
-        hashed = digest.exception() is None
-    except BaseException:  # a second interrupt while waiting
-        claim.discard()
-        raise
-    if not hashed:
-        claim.discard()
-        return
     try:
         atomic.check_interrupted()
     except BaseException as exc:

@@ -321,10 +321,12 @@ def test_flatten_gives_one_layer_with_the_same_animation(humanoid, tmp_path):
         flatten(humanoid["shot"], flat)
 
 
-def test_records_hold_the_layers_xxh128_and_older_sha256_records_verify(humanoid, tmp_path):
-    """Each record holds its layer's XXH3-128 (as ``xxh128sum`` prints it), computed here from
-    the whole file at once; a record of an earlier bake holding ``sha256`` verifies by that; a
-    record with neither, a wrong digest, or damaged, does not."""
+def test_records_hold_the_layers_checksum_and_older_records_verify(humanoid, tmp_path):
+    """Each record holds its layer's checksum, taken as the layer was written: XXH3-128 of the
+    bytes after the crate bootstrap, then the bootstrap, computed here from the whole file read
+    back. Records of earlier bakes holding ``xxh3_128`` (the whole file in order, as
+    ``xxh128sum`` prints it) or ``sha256`` verify by those; a record with none, a wrong digest,
+    or damaged, does not."""
     import hashlib
     import shutil
 
@@ -335,16 +337,22 @@ def test_records_hold_the_layers_xxh128_and_older_sha256_records_verify(humanoid
     assert records
     for record in records:
         data = (src / json.loads(record.read_text())["layer"]).read_bytes()
-        assert json.loads(record.read_text())["xxh3_128"] == xxhash.xxh3_128(data).hexdigest()
+        assert json.loads(record.read_text())["xxh3_128_crate"] == \
+            xxhash.xxh3_128(data[88:] + data[:88]).hexdigest()
     layer, record = tmp_path / "chunk_00000.usdc", tmp_path / "chunk_00000.json"
     shutil.copy(src / layer.name, layer)
     old = json.loads((src / record.name).read_text())
-    del old["xxh3_128"]
-    for digest, ok in ((hashlib.sha256(layer.read_bytes()).hexdigest(), True),
-                       (hashlib.sha256(b"another file").hexdigest(), False), (None, False)):
-        record.write_text(json.dumps(old if digest is None else dict(old, sha256=digest)))
-        assert verify_chunk(layer, plan["key"]) is ok, digest
-    for damaged in ("5", "null", '["xxh3_128"]', '{"xxh3_128": null}', "{"):
+    del old["xxh3_128_crate"]
+    data = layer.read_bytes()
+    for name, digest, ok in (("xxh3_128", xxhash.xxh3_128(data).hexdigest(), True),
+                             ("xxh3_128", xxhash.xxh3_128(data[88:] + data[:88]).hexdigest(),
+                              False),
+                             ("sha256", hashlib.sha256(data).hexdigest(), True),
+                             ("sha256", hashlib.sha256(b"another file").hexdigest(), False),
+                             (None, None, False)):
+        record.write_text(json.dumps(old if digest is None else dict(old, **{name: digest})))
+        assert verify_chunk(layer, plan["key"]) is ok, (name, digest)
+    for damaged in ("5", "null", '["xxh3_128_crate"]', '{"xxh3_128_crate": null}', "{"):
         record.write_text(damaged)
         assert verify_chunk(layer, plan["key"]) is False, damaged
 
@@ -615,13 +623,14 @@ def test_skin_chunks_reuse_the_buffers_of_chunks_the_caller_dropped(humanoid, mo
                 np.testing.assert_array_equal(got[name], ref[name])
 
 
-@pytest.mark.parametrize("failure", ["check", "interrupt", "hash"])
+@pytest.mark.parametrize("failure", ["check", "interrupt", "finish"])
 def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_path, monkeypatch,
                                                                  failure):
     """In-process bake, chunk 1 fails while being filled (a failed check, or Ctrl-C as the CLI
-    records it, raised in the main thread): chunk 0, exported and hashed meanwhile, is recorded
-    and renamed, as the one-by-one bake had it; ``--resume`` keeps it. When chunk 0's hash failed
-    too, it is not kept. Never a temporary file left, nor chunk 1."""
+    records it, raised in the main thread): chunk 0, finished and hashed as it was written, is
+    recorded and renamed, as the one-by-one bake had it; ``--resume`` keeps it. When finishing
+    chunk 0's layer fails (a full disk), nothing is kept. Never a temporary file left, nor
+    chunk 1."""
     import dqskin.distributed as distributed
     from dqskin.formats import atomic, usd_clips
     scene = humanoid["scene"]
@@ -645,12 +654,13 @@ def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_p
                 raise ValueError("NaN in chunk 1")
             return check(path, res)
         monkeypatch.setattr(distributed, "check_skinned", failing_check)
-    if failure == "hash":
-        def failing_hash(path):
-            raise OSError("cannot read")
-        monkeypatch.setattr(usd_clips, "file_checksum", failing_hash)
+    if failure == "finish":
+        def full(self, start, end):
+            raise OSError(28, "No space left on device")
+        monkeypatch.setattr(usd_clips.CrateSamples, "close", full)
+    errors = {"interrupt": KeyboardInterrupt, "finish": OSError}
     try:
-        with pytest.raises(KeyboardInterrupt if failure == "interrupt" else ValueError):
+        with pytest.raises(errors.get(failure, ValueError)):
             bake(scene, shot, chunk=CHUNK, clips=True)
     finally:
         atomic.reset_interrupt()
@@ -658,8 +668,8 @@ def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_p
     assert not [p.name for p in folder.iterdir() if p.name.startswith(".")]
     assert not (folder / "chunk_00001.usdc").exists()
     layer, record = folder / "chunk_00000.usdc", folder / "chunk_00000.json"
-    if failure == "hash":
-        assert not layer.exists()
+    if failure == "finish":
+        assert not layer.exists() and not record.exists()
         return
     assert verify_chunk(layer, json.loads(record.read_text())["plan"])
     monkeypatch.undo()

@@ -245,3 +245,36 @@ def test_records_must_be_rows_of_bytes(tmp_path):
     assert f.append_records(b"", np.zeros((5, 0), np.uint8)) == 0
     f.close()
     assert (tmp_path / "f.bin").read_bytes() == b""
+
+
+@pytest.mark.parametrize("mode", ["direct", "buffered", "refused midway"])
+def test_a_crate_layer_hashed_as_written_matches_its_bytes(tmp_path, monkeypatch, mode):
+    """``CrateSamples(hasher=)`` sees every byte after the bootstrap in file order, then the
+    bootstrap: its digest equals XXH3-128 of the finished file's bytes 88.. and 0..88 read back
+    here (records copied into a 3-block stage, held frames, matrices; direct, buffered, and
+    direct writes refused after some went through)."""
+    import xxhash
+
+    from dqskin.formats.crate import CrateSamples
+    monkeypatch.setattr(direct, "STAGE", 3 * direct.BLOCK)
+    if mode == "refused midway":
+        real, calls = os.pwrite, []
+
+        def refuse(fd, data, offset):
+            if direct.nbytes(data) % direct.BLOCK == 0 and offset % direct.BLOCK == 0:
+                calls.append(offset)
+                if len(calls) > 2:
+                    raise OSError(errno.EINVAL, "refused")
+            return real(fd, data, offset)
+        monkeypatch.setattr(os, "pwrite", refuse)
+    points = RNG.normal(size=(9, 400, 3)).astype(np.float32)
+    points[4] = points[3]
+    hasher = xxhash.xxh3_128()
+    crate = CrateSamples(tmp_path / "c.usdc", 24.0, direct=mode != "buffered", hasher=hasher)
+    crate.add("/A/B.points", "point3f[]", np.arange(5.0), points[:5])
+    crate.add("/A.xformOp:transform", "matrix4d", np.arange(9.0), RNG.normal(size=(9, 4, 4)))
+    crate.add("/A/B.points", "point3f[]", np.arange(5.0, 9.0), points[5:])
+    data = crate.close(0, 8).read_bytes()
+    assert hasher.hexdigest() == xxhash.xxh3_128(data[88:] + data[:88]).hexdigest()
+    from dqskin.formats.usd_clips import file_checksum
+    assert file_checksum(tmp_path / "c.usdc") == hasher.hexdigest()

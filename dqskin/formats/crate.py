@@ -53,13 +53,15 @@ from pxr import Sdf
 
 from .direct import AppendFile
 
-__all__ = ["CrateSamples", "UnsupportedCrate", "VERSION", "VALUE_TYPES"]
+__all__ = ["BOOTSTRAP", "CrateSamples", "UnsupportedCrate", "VERSION", "VALUE_TYPES"]
 
 VERSION = (0, 8, 0)
 """Crate file version written (usd-core's default for new files)."""
 
 _IDENT = b"PXR-USDC"
-_BOOTSTRAP = 88  # ident[8], version[8], tocOffset int64, reserved int64[8]
+BOOTSTRAP = 88
+"""Bytes of a crate file's bootstrap (ident[8], version[8], tocOffset int64, reserved
+int64[8]), at its start and written last."""
 
 # Value type enumerants (pxr/usd/sdf/crateDataTypes.h).
 _BOOL, _DOUBLE, _TOKEN, _MATRIX4D, _VEC3F = 1, 9, 11, 15, 24
@@ -368,14 +370,18 @@ class CrateSamples:
         with the samples (its ``timeCodesPerSecond`` and every other field kept; the time range
         replaced by :meth:`close`'s). Without it, prims above the attributes are ``over`` specs.
     direct : bool
-        Write past the page cache where the file system allows it (:mod:`.direct`): for a file
-        nothing reads soon. False for one read back at once (a clip layer is hashed).
+        Write past the page cache where the file system allows it (:mod:`.direct`).
+    hasher : hashlib-like object, optional
+        Fed every byte of the file as it is written: the bytes after the bootstrap (its first
+        :data:`BOOTSTRAP` bytes) in file order, then the bootstrap, written last. Its digest
+        is then the file's without reading it back (a clip layer's checksum).
 
     Use :meth:`add` for each block of frames of each attribute, then :meth:`close` with the
     layer's time range (or :meth:`abort`).
     """
 
-    def __init__(self, path, time_codes_per_second: float, *, base=None, direct: bool = True):
+    def __init__(self, path, time_codes_per_second: float, *, base=None, direct: bool = True,
+                 hasher=None):
         self.path = Path(path)
         self.time_codes_per_second = float(time_codes_per_second)
         self._base = None if base is None else _Base(base)
@@ -386,10 +392,13 @@ class CrateSamples:
         # if never closed: close once the queued writes ended (the descriptor's number could
         # otherwise be reused by another file while they wait for the writer thread)
         self._closer = weakref.finalize(self, _close_after, self._file, self._queued, False)
+        self._hasher = hasher
         try:
-            self._write([bytes(_BOOTSTRAP)])
+            self._write([bytes(BOOTSTRAP)])
+            if hasher is not None:  # what follows the bootstrap, as it is written
+                self._file.observe = hasher.update
             if self._base is not None:  # its values at their own offsets
-                self._write([memoryview(self._base.data)[_BOOTSTRAP:self._base.data_end]])
+                self._write([memoryview(self._base.data)[BOOTSTRAP:self._base.data_end]])
                 self._base.release()
         except BaseException:
             self.abort()
@@ -641,6 +650,8 @@ class CrateSamples:
         self._drain()
         self._file.pwrite(boot, 0)
         self._file.close()
+        if self._hasher is not None:
+            self._hasher.update(boot)
 
     def _new_namespace(self, token, fieldset, samples, doubles):
         """Specs and the PATHS section of a layer of ``over`` prims holding the attributes."""

@@ -105,11 +105,15 @@ class AppendFile:
     ----------
     size : int
         Bytes appended so far (the file's size once closed).
+    observe : callable or None
+        Called with every appended byte range, in file order (a bytes-like object, valid
+        during the call): e.g. a hash's ``update``. Not with :meth:`pwrite`'s bytes.
     """
 
     def __init__(self, path, mode=0o666, *, direct: bool = True):
         self.path = os.fspath(path)
         self.size = 0
+        self.observe = None
         self._written = 0  # bytes of the file written (a BLOCK multiple while direct)
         self._stage = self._view = None
         self._fill = 0  # bytes staged
@@ -132,6 +136,9 @@ class AppendFile:
     def append(self, buffers) -> int:
         """Append ``buffers`` (bytes-like: bytes, C-contiguous arrays), in order; returns the
         bytes appended."""
+        if self.observe is not None:
+            for b in buffers:
+                self.observe(b)
         total = 0
         for i, b in enumerate(buffers):
             if not self._direct:
@@ -182,6 +189,8 @@ class AppendFile:
             dst[:, :h] = hv
             dst[:, h:h + m] = rows[a:a + k] if select is None else rows[index[a:a + k]]
             dst[:, h + m:] = 0
+            if self.observe is not None:
+                self.observe(dst)
             self._fill += k * stride
             a += k
             if self._fill == STAGE:

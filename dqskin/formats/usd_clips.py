@@ -10,8 +10,8 @@ For ``--out SHOT.usd`` (any of ``.usd/.usdc/.usda``) a clip bake writes::
     SHOT.clips/chunk_00000.usdc  one chunk's time samples, streamed into a crate file as they
                                  are skinned (:class:`~.usd_cache.SampleWriter` into a
                                  :class:`~.crate.CrateSamples`: no Sdf layer, no Vt arrays)
-    SHOT.clips/chunk_00000.json  its checksum (XXH3-128, as ``xxh128sum`` prints it), size and
-                                 the plan key
+    SHOT.clips/chunk_00000.json  its checksum (XXH3-128, taken as it is written:
+                                 :data:`CHECKSUM`), size and the plan key
 
 USD never interpolates across clips: between the last sample of one clip and the first of the
 next it holds the earlier one. So chunk ``k`` owns frames ``[lo_k, lo_{k+1})`` but its layer also
@@ -40,7 +40,7 @@ import xxhash
 from pxr import Sdf, Usd, Vt
 
 from .atomic import atomic_path, check_interrupted
-from .crate import CrateSamples
+from .crate import BOOTSTRAP, CrateSamples
 from .usd_cache import CacheLayer, export_layer, frame_bytes
 
 __all__ = ["CHECKSUM", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "ClipBake", "ClipLayer",
@@ -128,25 +128,31 @@ def _chunk_name(index, count):
     return f"chunk_{index:0{max(5, len(str(count - 1)))}d}"
 
 
-CHECKSUM = "xxh3_128"
-"""The checksum a clip layer's record holds, under this key: XXH3-128 in hex, as ``xxh128sum
-FILE`` prints it. It guards against torn and damaged files, not against tampering, at 10× the
-speed of SHA-256 (0.04 s against 0.39 s for 393 MB here). Records of earlier bakes hold
-``sha256`` instead and are verified by that (:func:`verify_chunk`)."""
+CHECKSUM = "xxh3_128_crate"
+"""The checksum a clip layer's record holds, under this key: XXH3-128 in hex of the layer's
+bytes after its crate bootstrap (the first :data:`~.crate.BOOTSTRAP` = 88), then of the
+bootstrap: the order the writer writes them in (the bootstrap last), so it hashes the layer as
+it goes (:class:`~.crate.CrateSamples` ``hasher``) instead of reading it back. ``(tail -c +89
+FILE; head -c 88 FILE) | xxh128sum`` prints it. It guards against torn and damaged files, not
+against tampering. Records of earlier bakes hold ``xxh3_128`` (the whole file in order, as
+``xxh128sum FILE`` prints it) or ``sha256`` instead, and are verified by that
+(:func:`verify_chunk`)."""
 
-_HASHES = {"xxh3_128": xxhash.xxh3_128, "sha256": hashlib.sha256}
+_HASHES = {CHECKSUM: xxhash.xxh3_128, "xxh3_128": xxhash.xxh3_128, "sha256": hashlib.sha256}
 _BLOCK = 1 << 20
 
 
 def file_checksum(path, algorithm: str = CHECKSUM) -> str:
-    """Hex digest of a file (``algorithm``: ``"xxh3_128"`` or ``"sha256"``), read in 1 MB blocks
-    (the GIL is released while hashing)."""
+    """Hex digest of a file by ``algorithm`` (a key of a clip record: :data:`CHECKSUM`,
+    ``"xxh3_128"`` or ``"sha256"``), read in 1 MB blocks (the GIL is released while hashing)."""
     h = _HASHES[algorithm]()
     block = bytearray(_BLOCK)
     view = memoryview(block)
     with open(path, "rb", buffering=0) as fh:
+        head = fh.read(BOOTSTRAP) if algorithm == CHECKSUM else b""
         while n := fh.readinto(block):
             h.update(view[:n])
+    h.update(head)
     return h.hexdigest()
 
 
@@ -166,21 +172,24 @@ class ClipLayer:
     def __init__(self, path, time_codes_per_second: float):
         self.claim = atomic_path(Path(path), overwrite=True)
         try:
-            # through the page cache: the layer is read back and hashed as soon as it is done
-            # (past it, that read waits on the device: clip tasks took 30% longer)
-            self.samples = CrateSamples(self.claim.open(), time_codes_per_second, direct=False)
+            # hashed as it is written (never read back), so past the page cache too
+            self._hasher = _HASHES[CHECKSUM]()
+            self.samples = CrateSamples(self.claim.open(), time_codes_per_second,
+                                        hasher=self._hasher)
         except BaseException:
             self.claim.discard()
             raise
 
     def finish(self, times):
-        """Close the layer (its time range from ``times``); returns the claim holding it."""
+        """Close the layer (its time range from ``times``); returns the claim holding it. Its
+        checksum (:data:`CHECKSUM`) is then :attr:`digest`."""
         times = np.asarray(times, np.float64)
         try:
             self.samples.close(times[0], times[-1])
         except BaseException:
             self.discard()
             raise
+        self.digest = self._hasher.hexdigest()
         return self.claim
 
     def discard(self) -> None:
@@ -205,14 +214,15 @@ def write_clip(layer: ClipLayer, key: str, times) -> str:
     A process killed at any point leaves either no layer under ``path`` or one whose record
     does not match it (the record was replaced first), which :func:`verify_chunk` rejects.
     """
-    return commit_clip(layer.finish(times), key, times)
+    claim = layer.finish(times)
+    return commit_clip(claim, key, times, layer.digest)
 
 
 def commit_clip(claim, key: str, times, digest: str | None = None) -> str:
     """Record the checksum (:data:`CHECKSUM`) of the layer :meth:`ClipLayer.finish` left in
     ``claim`` (``path.json``, with ``key``), then rename it into place. ``digest``: that file's
-    checksum if already known (:func:`file_checksum`, which needs no layer nor the main thread,
-    so it can run while the next chunk is baked). Returns the checksum."""
+    checksum if already known (:attr:`ClipLayer.digest`), else read from the file
+    (:func:`file_checksum`). Returns the checksum."""
     path, times = claim.path, np.asarray(times, np.float64)
     try:
         tmp = claim.open()
