@@ -370,7 +370,8 @@ class CrateSamples:
         with the samples (its ``timeCodesPerSecond`` and every other field kept; the time range
         replaced by :meth:`close`'s). Without it, prims above the attributes are ``over`` specs.
     direct : bool
-        Write past the page cache where the file system allows it (:mod:`.direct`).
+        Write past the page cache where the file system allows it (:mod:`.direct`); False:
+        through it.
     hasher : hashlib-like object, optional
         Fed every byte of the file as it is written: the bytes after the bootstrap (its first
         :data:`BOOTSTRAP` bytes) in file order, then the bootstrap, written last. Its digest
