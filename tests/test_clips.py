@@ -627,10 +627,9 @@ def test_skin_chunks_reuse_the_buffers_of_chunks_the_caller_dropped(humanoid, mo
 def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_path, monkeypatch,
                                                                  failure):
     """In-process bake, chunk 1 fails while being filled (a failed check, or Ctrl-C as the CLI
-    records it, raised in the main thread): chunk 0, finished and hashed as it was written, is
-    recorded and renamed, as the one-by-one bake had it; ``--resume`` keeps it. When finishing
-    chunk 0's layer fails (a full disk), nothing is kept. Never a temporary file left, nor
-    chunk 1."""
+    records it, raised in the main thread; or its layer cannot be finished, a full disk): chunk
+    0, finished and hashed as it was written, is recorded and renamed, as the one-by-one bake
+    had it; ``--resume`` keeps it. Never a temporary file left, nor chunk 1."""
     import dqskin.distributed as distributed
     from dqskin.formats import atomic, usd_clips
     scene = humanoid["scene"]
@@ -645,7 +644,7 @@ def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_p
                     atomic.interrupt(KeyboardInterrupt())
                 yield item
         monkeypatch.setattr(scene, "skin_chunks", skin_chunks)
-    else:
+    elif failure == "check":
         check = distributed.check_skinned
 
         def failing_check(path, res):
@@ -654,9 +653,14 @@ def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_p
                 raise ValueError("NaN in chunk 1")
             return check(path, res)
         monkeypatch.setattr(distributed, "check_skinned", failing_check)
-    if failure == "finish":
+    if failure == "finish":  # chunk 1's layer cannot be finished: the disk is full
+        close, closed = usd_clips.CrateSamples.close, []
+
         def full(self, start, end):
-            raise OSError(28, "No space left on device")
+            closed.append(start)
+            if len(closed) == 2:
+                raise OSError(28, "No space left on device")
+            return close(self, start, end)
         monkeypatch.setattr(usd_clips.CrateSamples, "close", full)
     errors = {"interrupt": KeyboardInterrupt, "finish": OSError}
     try:
@@ -668,9 +672,6 @@ def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_p
     assert not [p.name for p in folder.iterdir() if p.name.startswith(".")]
     assert not (folder / "chunk_00001.usdc").exists()
     layer, record = folder / "chunk_00000.usdc", folder / "chunk_00000.json"
-    if failure == "finish":
-        assert not layer.exists() and not record.exists()
-        return
     assert verify_chunk(layer, json.loads(record.read_text())["plan"])
     monkeypatch.undo()
     assert "1 kept from the earlier run" in bake(scene, shot, chunk=CHUNK, resume=True)

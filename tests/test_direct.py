@@ -271,6 +271,7 @@ def test_a_crate_layer_hashed_as_written_matches_its_bytes(tmp_path, monkeypatch
     points[4] = points[3]
     hasher = xxhash.xxh3_128()
     crate = CrateSamples(tmp_path / "c.usdc", 24.0, direct=mode != "buffered", hasher=hasher)
+    assert crate._file.direct == (mode != "buffered" and _takes_direct(tmp_path / "c.usdc"))
     crate.add("/A/B.points", "point3f[]", np.arange(5.0), points[:5])
     crate.add("/A.xformOp:transform", "matrix4d", np.arange(9.0), RNG.normal(size=(9, 4, 4)))
     crate.add("/A/B.points", "point3f[]", np.arange(5.0, 9.0), points[5:])

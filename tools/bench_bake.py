@@ -245,7 +245,8 @@ def breakdown_usdskel(src, dst):
 
 def breakdown_dqskin(src, dst, chunk=256):
     """dqskin's points-only LBS single-layer bake (:func:`dqskin.bake`'s steps), each step over
-    every frame before the next (no overlap), then the clip bake's extra step (hashing)."""
+    every frame before the next (no overlap), then what ``--resume`` pays per clip layer
+    (reading one back to check its checksum: a clip bake hashes its layers as it writes them)."""
     ph = _Phases()
     with ph("imports"):
         from dqskin.formats import load
@@ -288,7 +289,7 @@ def breakdown_dqskin(src, dst, chunk=256):
         crate.close(scene.times.min(), scene.times.max())
     base.unlink()
     del res, ext
-    with ph("(clips only) checksum of the layer"):
+    with ph("(--resume only) checksum of a layer read back"):
         file_checksum(tmp)
     claim.commit()
     return ph.rows

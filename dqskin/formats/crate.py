@@ -414,14 +414,16 @@ class CrateSamples:
         in order after the queued ones; waits while :data:`WRITES_AHEAD` are queued. An error
         of a queued write is raised here or later."""
         while len(self._queued) >= WRITES_AHEAD:
-            self._queued.popleft().result()
+            self._queued[0].result()  # then dropped: an interrupt while waiting leaves it queued
+            self._queued.popleft()
         self._queued.append(_writer().submit(write, *args))
         self._pos += size
 
     def _drain(self):
         """Wait for every queued write (raising the first error)."""
         while self._queued:
-            self._queued.popleft().result()
+            self._queued[0].result()  # (abort then still waits for it before closing)
+            self._queued.popleft()
 
     def _align(self):
         pad = -self._pos % 8

@@ -149,7 +149,10 @@ def file_checksum(path, algorithm: str = CHECKSUM) -> str:
     block = bytearray(_BLOCK)
     view = memoryview(block)
     with open(path, "rb", buffering=0) as fh:
-        head = fh.read(BOOTSTRAP) if algorithm == CHECKSUM else b""
+        head = b""
+        while algorithm == CHECKSUM and len(head) < BOOTSTRAP and (
+                more := fh.read(BOOTSTRAP - len(head))):
+            head += more
         while n := fh.readinto(block):
             h.update(view[:n])
     h.update(head)
@@ -166,8 +169,11 @@ class ClipLayer:
     for :meth:`~.usd_cache.SampleWriter.write_chunks`) in the temporary file of its claim
     (``claim``, an :class:`~.atomic.atomic_path` beside ``path``).
 
-    :meth:`finish` completes the file and returns the claim for :func:`commit_clip`;
+    :meth:`finish` completes the file, sets :attr:`digest` (its checksum) and returns the claim
+    for :func:`commit_clip`;
     :meth:`discard` (or leaving the ``with`` block on an exception) removes it."""
+
+    digest = None
 
     def __init__(self, path, time_codes_per_second: float):
         self.claim = atomic_path(Path(path), overwrite=True)
@@ -239,7 +245,8 @@ def commit_clip(claim, key: str, times, digest: str | None = None) -> str:
 
 def verify_chunk(path, key: str) -> bool:
     """True when the clip layer ``path`` exists and matches its record (same plan key, size
-    and checksum: :data:`CHECKSUM`, or ``sha256`` in the records of earlier bakes)."""
+    and checksum: :data:`CHECKSUM`, or ``xxh3_128`` or ``sha256`` in the records of earlier
+    bakes; the first of these a record holds decides)."""
     path = Path(path)
     try:
         record = json.loads(path.with_suffix(".json").read_text())
