@@ -279,3 +279,11 @@ def test_a_crate_layer_hashed_as_written_matches_its_bytes(tmp_path, monkeypatch
     assert hasher.hexdigest() == xxhash.xxh3_128(data[88:] + data[:88]).hexdigest()
     from dqskin.formats.usd_clips import file_checksum
     assert file_checksum(tmp_path / "c.usdc") == hasher.hexdigest()
+
+
+def test_without_pwrite_the_buffered_path_writes_the_same(tmp_path, monkeypatch):
+    """Where ``os.pwrite`` does not exist (Windows), the buffered path seeks and writes."""
+    monkeypatch.delattr(os, "pwrite")
+    pieces, header = _pieces(), RNG.bytes(88)
+    assert not _write(tmp_path / "f.bin", pieces, header, direct=False)
+    assert (tmp_path / "f.bin").read_bytes() == _expected(pieces, header)

@@ -56,7 +56,14 @@ def _set_direct(fd, on: bool) -> bool:
 
 
 def _pwrite_all(fd, data, offset):
+    """Write all of ``data`` at ``offset`` (``os.pwrite``; where there is none, as on Windows,
+    a seek and writes: only the buffered path runs there)."""
     view = memoryview(data).cast("B")
+    if not hasattr(os, "pwrite"):
+        os.lseek(fd, offset, os.SEEK_SET)
+        while view.nbytes:
+            view = view[os.write(fd, view):]
+        return
     while view.nbytes:
         n = os.pwrite(fd, view, offset)
         view, offset = view[n:], offset + n
