@@ -142,6 +142,14 @@ _HASHES = {CHECKSUM: xxhash.xxh3_128, "xxh3_128": xxhash.xxh3_128, "sha256": has
 _BLOCK = 1 << 20
 
 
+def _read_up_to(fh, n: int) -> bytes:
+    """``n`` bytes of ``fh`` (fewer only at its end), whatever its reads return."""
+    data = b""
+    while len(data) < n and (more := fh.read(n - len(data))):
+        data += more
+    return data
+
+
 def file_checksum(path, algorithm: str = CHECKSUM) -> str:
     """Hex digest of a file by ``algorithm`` (a key of a clip record: :data:`CHECKSUM`,
     ``"xxh3_128"`` or ``"sha256"``), read in 1 MB blocks (the GIL is released while hashing)."""
@@ -149,10 +157,7 @@ def file_checksum(path, algorithm: str = CHECKSUM) -> str:
     block = bytearray(_BLOCK)
     view = memoryview(block)
     with open(path, "rb", buffering=0) as fh:
-        head = b""
-        while algorithm == CHECKSUM and len(head) < BOOTSTRAP and (
-                more := fh.read(BOOTSTRAP - len(head))):
-            head += more
+        head = _read_up_to(fh, BOOTSTRAP) if algorithm == CHECKSUM else b""
         while n := fh.readinto(block):
             h.update(view[:n])
     h.update(head)
