@@ -366,19 +366,19 @@ class _Keys:
 
         Without ``derivative`` only the transforms are computed (the rest is None). At an interior
         key, where piecewise interpolants have a kink, the derivatives are the mean of both sides
-        (what a renderer's shutter interval around the key sees).
+        (what a renderer's shutter interval around the key sees): the mean of ``η̇`` and of the
+        residual's ``Ṡ``, from which ``Ṁ`` follows linearly at the key's pose (a bake samples
+        at the keys: each side's matrices were computed before, for a third more time).
         """
-        m, m_dot, eta, eta_dot = self._local(t, interp, derivative, "right")
+        eta, eta_dot = self.dual_quaternions(t, interp, "right")
+        s, s_dot = self.residual_at(t, "right")
         at_key = np.isin(t, self.times[1:-1]) if derivative else np.zeros(0, bool)
         if at_key.any():
-            _, m_dot_l, _, eta_dot_l = self._local(t[at_key], interp, True, "left")
-            m_dot[at_key] = 0.5 * (m_dot[at_key] + m_dot_l)
-            eta_dot[at_key] = 0.5 * (eta_dot[at_key] + eta_dot_l)
-        return m, m_dot, eta, eta_dot
-
-    def _local(self, t, interp, derivative, side):
-        eta, eta_dot = self.dual_quaternions(t, interp, side)
-        s, s_dot = self.residual_at(t, side)
+            eta_dot = eta_dot.copy()  # (one key's may be a broadcast view)
+            s_dot = s_dot.copy()
+            eta_dot[at_key] = 0.5 * (eta_dot[at_key] +
+                                     self.dual_quaternions(t[at_key], interp, "left")[1])
+            s_dot[at_key] = 0.5 * (s_dot[at_key] + self.residual_at(t[at_key], "left")[1])
         q, tr = dq.to_rt(eta)
         rot = quat.to_matrix(q)
         m = np.zeros(eta.shape[:-1] + (4, 4))
@@ -387,7 +387,7 @@ class _Keys:
         m[..., 3, 3] = 1
         if not derivative:
             return m, None, None, None
-        omega, v = dq.twist(eta, eta_dot, "body")
+        omega, v = dq.twist(eta, eta_dot, "body")  # linear in η̇ at a pose
         m_dot = np.zeros_like(m)
         m_dot[..., :3, :3] = rot @ hat(omega) @ s + rot @ s_dot
         m_dot[..., :3, 3] = (rot @ v[..., None])[..., 0]

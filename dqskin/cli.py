@@ -37,6 +37,7 @@ __all__ = ["Interrupted", "build_parser", "install_signal_handlers", "main"]
 EXIT_INPUT = 2
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _signalled = []  # the signal numbers received while main runs (only the first one acts)
+_own_process = []  # [True] while main runs as the process's entry point (not from Python)
 
 
 class Interrupted(KeyboardInterrupt):
@@ -162,6 +163,9 @@ def cmd_skin(args):
     _checkpoint()
     with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
         scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
+        if _own_process:  # what is loaded lives to the end: no full collection walks it again
+            from .forkserver import freeze_heap
+            freeze_heap()
         if args.cor_exact:
             scene.cor_options = {"cluster": None}
         _checkpoint()
@@ -597,6 +601,7 @@ def _main(argv):
     try:
         previous = install_signal_handlers()  # first: Ctrl-C in start-up is an interrupt too
         del _signalled[:]  # (a new run, when called from Python again)
+        _own_process[:] = [True] if argv is None else []
         atomic = sys.modules.get("dqskin.formats.atomic")
         if atomic is not None:
             atomic.reset_interrupt()

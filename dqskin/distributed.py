@@ -100,7 +100,8 @@ def _worker_plugin(own_cluster: bool):
     budget (:func:`worker_threads`) applied to dqskin's launch pool and USD's thread pool (a
     worker forked from a forkserver that imported USD before its environment was set would
     otherwise use every core); on the workers of a LocalCluster the bake started
-    (``own_cluster``), :func:`~.forkserver.keep_freed_memory` (not on a caller's cluster). (Made
+    (``own_cluster``), :func:`~.forkserver.keep_freed_memory` and
+    :func:`~.forkserver.freeze_heap` (not on a caller's cluster). (Made
     here so that importing this module does not import Dask; a local class travels by value.)"""
     from distributed import WorkerPlugin
 
@@ -118,6 +119,7 @@ def _worker_plugin(own_cluster: bool):
             Work.SetConcurrencyLimitArgument(int(budget["PXR_WORK_THREAD_LIMIT"]))
             if own_cluster:  # our own processes: a chunk reuses what the one before freed
                 forkserver.keep_freed_memory()
+                forkserver.freeze_heap()
 
     return DqskinWorker()
 

@@ -150,6 +150,7 @@ def run_dqskin(src, dst, which):
     kind = which.removesuffix("+nv")
     workers, _, threads = kind[5:].partition("t")
     scene = load(src)
+    gc.freeze()  # as `dqskin skin` does once its input is loaded
     if kind == "single":
         bake(scene, dst, method="lbs", normals=nv, velocities=nv, clips=False, force=True)
         return {}
@@ -194,6 +195,7 @@ def child(which, src, dst):
     # of the load or bake (36 ms after dqskin's imports; where it fell moved with any change to
     # what is imported)
     gc.collect()
+    gc.freeze()  # and never walked again (the peers alike; `dqskin skin` freezes after its load)
     t1 = time.perf_counter()
     extra = run_usdskel(src, dst) if which == "usdskel" else run_dqskin(src, dst, which)
     t2 = time.perf_counter()
