@@ -373,9 +373,7 @@ class _Keys:
         eta, eta_dot = self.dual_quaternions(t, interp, "right")
         s, s_dot = self.residual_at(t, "right")
         at_key = np.isin(t, self.times[1:-1]) if derivative else np.zeros(0, bool)
-        if at_key.any():
-            eta_dot = eta_dot.copy()  # (one key's may be a broadcast view)
-            s_dot = s_dot.copy()
+        if at_key.any():  # (interior keys: at least 3 keys, so both are new arrays, not views)
             eta_dot[at_key] = 0.5 * (eta_dot[at_key] +
                                      self.dual_quaternions(t[at_key], interp, "left")[1])
             s_dot[at_key] = 0.5 * (s_dot[at_key] + self.residual_at(t[at_key], "left")[1])

@@ -135,6 +135,7 @@ def import_dqskin():
 def run_usdskel(src, dst):
     from pxr import Usd, UsdSkel
     stage = Usd.Stage.Open(str(src))
+    gc.freeze()  # as the dqskin runs do once loaded (UsdSkel's bake is C++: little to walk)
     UsdSkel.BakeSkinning(stage.Traverse())
     stage.GetRootLayer().Export(str(dst))
     return {}
