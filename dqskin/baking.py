@@ -81,7 +81,7 @@ def check_clip_arguments(out, *, chunk=None, clips=None, workers=None, scheduler
                          resume=False):
     """Raise ValueError, naming the option, for settings :func:`bake` refuses: a chunk or
     worker count below 1, clips or their options (``workers``, ``scheduler``, ``resume``) with a
-    non-USD ``out``, those options with ``clips=False``."""
+    non-USD ``out``, those options with ``clips=False``, ``workers`` with ``scheduler``."""
     if chunk is not None and int(chunk) < 1:
         raise ValueError(f"--chunk {chunk}: must be at least 1")
     asked = workers is not None or bool(scheduler) or resume
@@ -90,6 +90,9 @@ def check_clip_arguments(out, *, chunk=None, clips=None, workers=None, scheduler
                          "USD caches (.usd/.usdc/.usda)")
     if workers is not None and int(workers) < 1:
         raise ValueError(f"--workers {workers}: must be at least 1")
+    if workers is not None and scheduler:
+        raise ValueError("--workers and --scheduler: give one (--scheduler bakes on the workers "
+                         "of that cluster; --workers starts a cluster of its own)")
     if clips is False and asked:
         raise ValueError("--workers, --scheduler and --resume need value clips (not --no-clips)")
 
@@ -183,7 +186,9 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     src = scene.path
     sources = [src, *inputs]
     counts = f"{_plural(len(names), 'mesh', 'meshes')} × {_plural(len(t), 'frame')}"
-    if kind == "usd":
+    if kind == "usd":  # a USD cache holds each time once (np.unique would import numpy.ma)
+        once = int(np.count_nonzero(np.diff(np.sort(t)))) + 1 if len(t) else 0
+        counts = f"{_plural(len(names), 'mesh', 'meshes')} × {_plural(once, 'frame')}"
         if format_of(src) is not usd:
             raise ValueError(f"--out {out}: a USD point cache copies the input stage, so it needs "
                              "a USD input; for glTF write .npz or per-frame .obj/.ply/.glb files")

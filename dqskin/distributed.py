@@ -286,7 +286,22 @@ def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", devi
     """
     options = dict(skin_options, method=method, interp=interp, normals=bool(normals),
                    velocities=bool(velocities))
-    usd_clips.ClipBake.check_free(out, force=force, resume=resume)  # before starting workers
+    with usd_clips.bake_lock(out):  # one bake of ``out`` at a time, --resume and --force too
+        usd_clips.ClipBake.check_free(out, force=force, resume=resume)  # before starting workers
+        made = []
+        try:
+            return _bake_clips(scene, out, times, chunk, options, device, workers, scheduler,
+                               resume, force, progress, threads, made)
+        except BaseException:
+            if made:  # failed before any chunk was kept: nothing for --resume to complete
+                made[0].abandon()
+            raise
+
+
+def _bake_clips(scene, out, times, chunk, options, device, workers, scheduler, resume, force,
+                progress, threads, made):
+    """:func:`bake_clips` once ``out`` is locked and free; ``made`` gets the ClipBake."""
+    normals, velocities = options["normals"], options["velocities"]
     source = str(Path(scene.path).resolve())
     tasks = []
     with _dask(workers, scheduler, threads) as client:
@@ -301,6 +316,7 @@ def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", devi
                 usd_clips.clip_frames(scene, len(np.unique(times)), normals, velocities,
                                       None if client is None else max(1, sum(slots.values())))
         bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=force, resume=resume)
+        made.append(bake)
         todo = bake.pending()
         skin = dict(options, device=None if device is None else str(device))
         jobs = [ChunkJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()),

@@ -113,7 +113,9 @@ def select_times(times, time_codes_per_second, frames=None, fps=None, substeps=1
         raise ValueError("--frames: no frames selected")
     if substeps < 1:
         raise ValueError(f"--substeps {substeps}: must be at least 1")
-    _check_count(max(t.size - 1, 0) * substeps + 1, f"--substeps {substeps}", max_frames)
+    what = (f"--substeps {substeps}" if substeps > 1 else "--frames" if frames is not None
+            else f"--fps {fps:g}" if fps is not None else "the animation's time range")
+    _check_count(max(t.size - 1, 0) * substeps + 1, what, max_frames)
     if substeps > 1 and t.size > 1:
         d = [Decimal(repr(float(x))) for x in t]
         t = np.array([float(a + (b - a) * k / substeps) for a, b in zip(d[:-1], d[1:])

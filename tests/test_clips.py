@@ -21,7 +21,14 @@ from pxr import Sdf, Usd, UsdGeom
 
 from dqskin import bake
 from dqskin.formats import load
-from dqskin.formats.usd_clips import chunk_bounds, clips_folder, flatten, verify_chunk
+from dqskin.formats.usd_clips import (
+    LOCK_FILE,
+    bake_lock,
+    chunk_bounds,
+    clips_folder,
+    flatten,
+    verify_chunk,
+)
 
 HUMANOID = Path(__file__).resolve().parents[1] / "assets" / "humanoid.usda"
 BAKE = "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning"
@@ -101,7 +108,8 @@ def test_unsorted_and_repeated_times_give_the_sorted_cache(tmp_path):
     shuffled = np.concatenate([t[::-1][:5], t[3:9], t[:4], t[10:]])  # reversed, repeated
     single, clipped = tmp_path / "single.usda", tmp_path / "clips.usda"
     bake(scene, single, t, method="dqs", clips=False)
-    bake(scene, clipped, shuffled, method="dqs", chunk=3, clips=True)
+    said = bake(scene, clipped, shuffled, method="dqs", chunk=3, clips=True)
+    assert f"× {len(t)} frames" in said and len(shuffled) > len(t), said  # each time once
     a = Usd.Stage.Open(str(single))
     names = [str(p.GetPath()) for p in a.Traverse() if p.IsA(UsdGeom.Mesh)]
     probe = np.concatenate([t, t[:-1] + 0.5])
@@ -166,6 +174,123 @@ def test_flatten_refuses_to_overwrite_one_of_its_clip_layers(tmp_path):
     with pytest.raises(ValueError, match="refusing to overwrite an input"):
         flatten(out, layer, overwrite=True)
     assert layer.read_bytes() == before
+
+
+def test_flatten_refuses_a_missing_or_damaged_clip_layer(tmp_path):
+    """USD skips a missing clip (holding the samples around it) and copies a damaged one: flatten
+    checks every clip layer the metadata names against its record first, and writes nothing."""
+    out = tmp_path / "shot.usd"
+    bake(load(HUMANOID), out, chunk=8, clips=True, normals=False, velocities=False)
+    layer = sorted(clips_folder(out).glob("chunk_*.usdc"))[2]
+    good = layer.read_bytes()
+    layer.unlink()
+    with pytest.raises(ValueError, match=f"{layer.name}: a clip layer of /.* is missing"):
+        flatten(out, tmp_path / "a.usdc")
+    flipped = bytearray(good)
+    flipped[len(good) // 2] ^= 1
+    for n, damaged in enumerate([bytes(flipped), good[:1000]]):
+        layer.write_bytes(damaged)
+        with pytest.raises(ValueError, match=f"{layer.name}: does not match its record"):
+            flatten(out, tmp_path / f"b{n}.usdc")
+    assert sorted(p.name for p in tmp_path.glob("*.usdc")) == []
+    layer.write_bytes(good)
+    assert Sdf.Layer.FindOrOpen(str(flatten(out, tmp_path / "c.usdc"))) is not None
+
+
+def test_flatten_of_a_file_usd_cannot_open_is_a_clean_error(tmp_path):
+    bad = tmp_path / "bad.usd"
+    bad.write_text("garbage\n")
+    proc = subprocess.run([sys.executable, "-m", "dqskin.cli", "flatten", str(bad), "--out",
+                           str(tmp_path / "y.usdc")], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert "bad.usd: cannot open as USD" in proc.stderr
+    assert not (tmp_path / "y.usdc").exists()
+
+
+def test_a_running_bake_holds_its_clip_folder(tmp_path):
+    """While a bake of ``out`` runs (its lock held), another bake of ``out`` fails at once,
+    --resume and --force included, and changes nothing (they used to remove or rewrite the
+    running bake's files, which then failed); the lock goes with the bake, and a lock file a
+    killed run left behind (held by nobody) stops nothing."""
+    scene = load(HUMANOID)
+    out = tmp_path / "shot.usd"
+    args = dict(chunk=4, clips=True, normals=False, velocities=False)
+    bake(scene, out, scene.times[:8], **args)
+    folder = clips_folder(out)
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert LOCK_FILE not in before
+    with bake_lock(out):
+        for extra in ({}, {"resume": True}, {"force": True}):
+            with pytest.raises(FileExistsError, match="another dqskin clip bake"):
+                bake(scene, out, scene.times[:8], **args, **extra)
+        assert {p.name: p.read_bytes() for p in folder.iterdir() if p.name != LOCK_FILE} == before
+    assert not (folder / LOCK_FILE).exists()
+    (folder / LOCK_FILE).write_text("12345\n")
+    bake(scene, out, scene.times[:8], **args, force=True)
+    assert not (folder / LOCK_FILE).exists()
+
+
+def test_the_lock_holds_across_processes_and_names_the_holder(tmp_path):
+    out = tmp_path / "shot.usd"
+    code = ("import sys\nfrom dqskin.formats.usd_clips import bake_lock\n"
+            "with bake_lock(sys.argv[1]):\n"
+            "    print('held', flush=True)\n    sys.stdin.readline()\n")
+    holder = subprocess.Popen([sys.executable, "-c", code, str(out)], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(FileExistsError, match=f"pid {holder.pid}"):
+            bake(load(HUMANOID), out, chunk=4, clips=True, resume=True)
+        assert not out.exists()
+    finally:
+        holder.stdin.close()
+        holder.wait(60)
+    assert not clips_folder(out).exists()  # the holder made it: left empty, removed
+    bake(load(HUMANOID), out, load(HUMANOID).times[:6], chunk=4, clips=True)
+    assert out.is_file()
+
+
+def test_a_bake_failing_before_any_chunk_leaves_nothing_to_resume(tmp_path, monkeypatch):
+    """A first bake that fails before it keeps a chunk leaves no plan behind (the next bake of
+    the output used to be told to --resume one that never baked a frame)."""
+    import dqskin.distributed as dist
+    out = tmp_path / "shot.usd"
+
+    def fail(*a, **k):
+        raise ValueError("no frame could be skinned")
+    monkeypatch.setattr(dist, "run_here", fail)
+    with pytest.raises(ValueError, match="no frame could be skinned"):
+        bake(load(HUMANOID), out, chunk=4, clips=True)
+    assert not clips_folder(out).exists() and not out.exists()
+    monkeypatch.undo()
+    bake(load(HUMANOID), out, load(HUMANOID).times[:6], chunk=4, clips=True)
+    assert out.is_file()
+
+
+def test_an_input_inside_the_clip_folder_is_refused_and_left_alone(tmp_path):
+    folder = clips_folder(tmp_path / "shot.usd")
+    folder.mkdir()
+    src = folder / "chunk_00000.usdc"  # the name of the first clip layer
+    assert Sdf.Layer.FindOrOpen(str(HUMANOID)).Export(str(src))
+    before = src.read_bytes()
+    for force in (False, True):
+        with pytest.raises(ValueError, match="inside .*shot.clips, where this clip bake writes"):
+            bake(src, tmp_path / "shot.usd", chunk=7, clips=True, force=force)
+        assert src.read_bytes() == before
+    assert sorted(p.name for p in folder.iterdir()) == ["chunk_00000.usdc"]
+
+
+def test_resume_over_other_settings_says_what_differs(tmp_path):
+    scene = load(HUMANOID)
+    out = tmp_path / "shot.usd"
+    bake(scene, out, scene.times[:8], chunk=4, clips=True, method="lbs", normals=False)
+    out.unlink()  # unfinished, as after an interrupt
+    with pytest.raises(ValueError, match=r"in chunks of 4 frames \(now 3\), with method 'lbs' "
+                                         r"\(now 'dqs'\), with normals False \(now True\)"):
+        bake(scene, out, scene.times[:8], chunk=3, clips=True, method="dqs", resume=True)
+    with pytest.raises(ValueError, match=r"of 8 frames from 0 to 7 \(now 6 from 0 to 5"):
+        bake(scene, out, scene.times[:6], chunk=4, clips=True, method="lbs", normals=False,
+             resume=True)
 
 
 @pytest.mark.parametrize("force", [False, True])
@@ -371,7 +496,7 @@ def test_resume_keeps_verified_chunks_and_redoes_missing_or_corrupt(humanoid, tm
     time.sleep(0.01)
     with pytest.raises(FileExistsError, match="--resume"):
         bake(scene, shot, chunk=CHUNK, clips=True)
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(ValueError, match=rf"in chunks of {CHUNK} frames \(now {CHUNK + 1}\)"):
         bake(scene, shot, chunk=CHUNK + 1, resume=True)
     summary = bake(scene, shot, chunk=CHUNK, resume=True)
     assert "5 kept from the earlier run" in summary
@@ -393,6 +518,9 @@ def test_refusals(humanoid, tmp_path):
         bake(scene, tmp_path / "x.usd", clips=False, resume=True)
     with pytest.raises(ValueError, match="--workers 0"):
         bake(scene, tmp_path / "x.usd", workers=0)
+    with pytest.raises(ValueError, match="--workers and --scheduler: give one"):
+        bake(scene, tmp_path / "x.usd", workers=2, scheduler="tcp://127.0.0.1:1")
+    assert not (tmp_path / "x.usd").exists() and not clips_folder(tmp_path / "x.usd").exists()
     import shutil
     src = Path(shutil.copy(HUMANOID, tmp_path / "rig.usda"))
     before = src.read_bytes()
@@ -574,7 +702,8 @@ def test_skinning_options_reach_the_clips_and_their_plan(humanoid, tmp_path):
     names = [m.name for m in scene.meshes]
     assert_same_animation(Usd.Stage.Open(str(single)), Usd.Stage.Open(str(shot)), names,
                           probe_times(scene.times, CHUNK)[::3])
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(ValueError, match="with sign_reference 'running_sum' "
+                                         r"\(now 'largest_weight'\)"):
         bake(scene, shot, chunk=CHUNK, resume=True, **dict(opts, sign_reference="largest_weight"))
 
 

@@ -28,6 +28,7 @@ one layer for tools that do not read clips.
 """
 
 import contextlib
+import errno
 import hashlib
 import json
 import os
@@ -37,15 +38,16 @@ from pathlib import Path
 
 import numpy as np
 import xxhash
-from pxr import Sdf, Usd, Vt
+from pxr import Sdf, Tf, Usd, Vt
 
 from .atomic import atomic_path, check_interrupted
 from .crate import BOOTSTRAP, CrateSamples
-from .usd_cache import CacheLayer, export_layer, frame_bytes
+from .usd import _tf_message
+from .usd_cache import CacheLayer, _source_files, export_layer, frame_bytes
 
-__all__ = ["CHECKSUM", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "ClipBake", "ClipLayer",
-           "chunk_bounds", "clip_frames", "clips_folder", "commit_clip", "flatten",
-           "file_checksum", "recorded_chunk", "verify_chunk", "write_clip"]
+__all__ = ["CHECKSUM", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "LOCK_FILE", "ClipBake",
+           "ClipLayer", "bake_lock", "chunk_bounds", "clip_frames", "clips_folder", "commit_clip",
+           "flatten", "file_checksum", "recorded_chunk", "verify_chunk", "write_clip"]
 
 CLIPS_FOLDER_SUFFIX = ".clips"
 """``SHOT.usd`` → ``SHOT.clips/``."""
@@ -71,6 +73,81 @@ CLIP_BYTES = 32 << 20
 small mesh gets longer clips than :data:`CLIP_CHUNK` frames, since each clip costs milliseconds
 beyond its frames (a layer, its record, its checksum, a task: 128-frame clips of a 3,273-point
 mesh took 13-20 ms of CPU each, their frames' share of a single-layer bake 8)."""
+
+
+LOCK_FILE = ".lock"
+"""The file in a clip folder that the bake writing it holds locked (:func:`bake_lock`)."""
+
+_BUSY = (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES)
+_NO_LOCKS = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL)
+
+
+@contextlib.contextmanager
+def bake_lock(out):
+    """Hold ``out``'s clip folder (:func:`clips_folder`) for one bake: an exclusive ``flock`` on
+    its :data:`LOCK_FILE`, released when the block ends or the process does (however it ends).
+    A second bake of ``out`` (``resume`` and ``force`` included) then fails at once with
+    FileExistsError instead of removing or rewriting the files of one still running. Creates
+    the folder; removes the lock file at the end (still holding it: a run that opened it
+    meanwhile finds it gone and locks the next one), and the folder when this call made it
+    and it is left empty (a refused bake leaves nothing). Where the system or the file system
+    has no such locks (Windows; ``ENOLCK``), nothing is locked."""
+    folder = clips_folder(out)
+    if folder.exists() and not folder.is_dir():
+        raise NotADirectoryError(f"{folder}: exists and is not a folder")
+    made = not folder.exists()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OSError(exc.errno, f"{folder}: cannot create ({exc.strerror})") from None
+    fd = _lock(folder / LOCK_FILE)
+    try:
+        yield
+    finally:
+        if fd is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(folder / LOCK_FILE)
+            os.close(fd)
+        if made:
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # only when empty
+
+
+def _lock(path):
+    """A descriptor of ``path`` holding its exclusive lock (None where locks do not exist)."""
+    try:
+        import fcntl
+    except ImportError:
+        return None
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise OSError(exc.errno, f"{path}: cannot create ({exc.strerror})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno in _NO_LOCKS:
+                return None
+            if exc.errno in _BUSY:
+                try:
+                    pid = f" (pid {int(path.read_text().strip())})"
+                except (OSError, ValueError):
+                    pid = ""
+                raise FileExistsError(
+                    f"{path.parent}: another dqskin clip bake{pid} is writing it; let it finish "
+                    "or stop it, then rerun (--resume completes it, --force starts over)") from None
+            raise
+        try:
+            st, now = os.fstat(fd), os.stat(path)
+            if (st.st_dev, st.st_ino) == (now.st_dev, now.st_ino):
+                os.ftruncate(fd, 0)
+                os.write(fd, f"{os.getpid()}\n".encode())
+                return fd
+        except FileNotFoundError:
+            pass
+        os.close(fd)  # the run that held it removed it meanwhile: lock the next one
 
 
 def clip_frames(scene, frames: int, normals: bool = True, velocities: bool = True,
@@ -162,6 +239,10 @@ def file_checksum(path, algorithm: str = CHECKSUM) -> str:
             h.update(view[:n])
     h.update(head)
     return h.hexdigest()
+
+
+def _same_path(a, b) -> bool:
+    return Path(a).resolve() == Path(b).resolve()
 
 
 def _write_json(path, data, overwrite=True):
@@ -300,6 +381,12 @@ class ClipBake:
         normals, velocities = options.get("normals", True), options.get("velocities", True)
         self.cache = CacheLayer(scene, out)
         self.out, self.folder = Path(out), clips_folder(out)
+        inside = self.folder.resolve()
+        for f in sorted(_source_files(self.cache.stage, self.cache.src)):
+            if os.path.exists(f) and inside in Path(f).resolve().parents:
+                what = "" if _same_path(f, self.cache.src) else f" (read by {self.cache.src})"
+                raise ValueError(f"{f}{what}: inside {self.folder}, where this clip bake writes; "
+                                 "move it out of that folder first")
         # a cache is keyed by time: sorted, each once (the clip metadata's "active" and "times"
         # need increasing times: unsorted --frames gave a cache wrong at almost every time)
         self.times = np.unique(np.asarray(times, np.float64))
@@ -335,9 +422,8 @@ class ClipBake:
         self._check_owner(self.out)
         if earlier and resume and not force:
             if _recorded(self.out, "key") != self.key:
-                raise ValueError(f"{self.folder}: an earlier bake of another input or with other "
-                                 "settings (frames, chunk, method, normals, velocities); rerun "
-                                 "it with those, or use --force to start over")
+                raise ValueError(f"{self.folder}: an earlier bake {self._differs()}; rerun it "
+                                 "with those, or use --force to start over")
             return True
         if not force:
             self.check_free(self.out)
@@ -347,6 +433,40 @@ class ClipBake:
                 self.out.unlink()  # interrupted --force left it showing a mix of two bakes
             self._remove(_OURS)
         return False
+
+    def _differs(self):
+        """What the earlier bake's plan has that this one's does not, in words."""
+        try:
+            return self._compare_plans()
+        except (TypeError, ValueError, AttributeError):  # a plan.json edited by hand
+            return "with other settings"
+
+    def _compare_plans(self):
+        try:
+            old = json.loads((self.folder / "plan.json").read_text())
+            if not isinstance(old, dict) or old.get("format") != _FORMAT:
+                return "of another format or an unreadable plan.json"
+        except (OSError, ValueError):
+            return "with an unreadable plan.json"
+        new = self.plan
+        if old.get("source") != new["source"]:
+            return f"of another input ({old.get('source')})"
+        if (old.get("source_bytes"), old.get("source_mtime_ns")) != \
+                (new["source_bytes"], new["source_mtime_ns"]):
+            return "of this input before it changed (its size or modification time)"
+        said = []
+        if any(old.get(k) != new[k] for k in ("frames", "first", "last", "times_sha256")):
+            said.append(f"of {old.get('frames')} frames from {old.get('first'):g} to "
+                        f"{old.get('last'):g} (now {new['frames']} from {new['first']:g} to "
+                        f"{new['last']:g}: --frames, --fps, --substeps)")
+        if old.get("chunk") != new["chunk"]:
+            said.append(f"in chunks of {old.get('chunk')} frames (now {new['chunk']})")
+        opts, was = new["options"], old.get("options") or {}
+        said += [f"with {k} {was.get(k)!r} (now {opts.get(k)!r})"
+                 for k in sorted(set(opts) | set(was)) if opts.get(k) != was.get(k)]
+        if not said and old.get("attributes") != new["attributes"]:
+            said.append("of other attributes")
+        return ", ".join(said) if said else "with other settings"
 
     @staticmethod
     def _check_owner(out):
@@ -395,6 +515,16 @@ class ClipBake:
                 elif p.is_file():
                     with contextlib.suppress(OSError):
                         p.unlink()
+
+    def abandon(self) -> None:
+        """After a failed bake: remove the plan and the manifest when no clip layer is in the
+        folder (nothing was kept, so the next bake of ``out`` starts afresh instead of being
+        told to resume one)."""
+        if any(self.folder.glob("chunk_*.usdc")):
+            return
+        for name in ("plan.json", "manifest.usda"):
+            with contextlib.suppress(OSError):
+                (self.folder / name).unlink()
 
     def clip_path(self, index) -> Path:
         return self.folder / (_chunk_name(index, len(self.bounds)) + ".usdc")
@@ -462,16 +592,29 @@ def flatten(src, out, *, overwrite: bool = False) -> Path:
     clip's samples become ordinary time samples, for tools that do not read value clips. The
     whole animation is held in memory while writing.
 
-    ``.usd`` output is crate. ``out`` appears only when complete (exclusively unless
-    ``overwrite``); ``src`` is never modified. Returns ``out``.
+    Every clip layer the stage's ``clips`` metadata names must exist, and one with a dqskin
+    record beside it (``chunk_00000.json``) must match it (:func:`verify_chunk`): USD would
+    skip a missing clip and hold the samples around it, and copy a damaged one (ValueError
+    naming the layer; ``dqskin skin ... --resume`` redoes it). ``.usd`` output is crate. ``out``
+    appears only when complete (exclusively unless ``overwrite``); ``src`` is never modified.
+    Returns ``out``.
     """
     out = Path(out)
     if out.suffix.lower() not in (".usd", ".usdc", ".usda"):
         raise ValueError(f"{out}: cannot write extension {out.suffix!r}; use .usd/.usdc/.usda")
-    stage = Usd.Stage.Open(str(src)) if Path(src).is_file() else None
+    if not Path(src).is_file():
+        raise ValueError(f"{src}: no such file")
+    try:
+        stage = Usd.Stage.Open(str(src))
+    except Tf.ErrorException as exc:
+        raise ValueError(f"{src}: cannot open as USD: {_tf_message(exc)}") from None
     if stage is None:
         raise ValueError(f"{src}: cannot open the stage")
-    flat = stage.Flatten()  # opens every clip layer: only then are all the inputs known
+    _check_clips(stage)
+    try:
+        flat = stage.Flatten()  # opens every clip layer: only then are all the inputs known
+    except Tf.ErrorException as exc:
+        raise ValueError(f"{src}: cannot flatten: {_tf_message(exc)}") from None
     for layer in stage.GetUsedLayers():
         real = layer.realPath and layer.realPath.split("[", 1)[0]
         if real and out.exists() and os.path.samefile(real, out):
@@ -484,3 +627,31 @@ def flatten(src, out, *, overwrite: bool = False) -> Path:
         raise
     claim.commit()
     return out
+
+
+def _check_clips(stage):
+    """ValueError for a clip layer named in ``stage``'s ``clips`` metadata that is missing, or
+    that has a dqskin record and does not match it."""
+    seen = set()
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+        clips = Usd.ClipsAPI(prim)
+        for clip_set in clips.GetClips() or {}:
+            for asset in clips.ComputeClipAssetPaths(clip_set) or []:  # (templates expanded)
+                where = asset.resolvedPath or asset.path
+                if where in seen:
+                    continue
+                seen.add(where)
+                path = Path(where)
+                if not asset.resolvedPath or not path.is_file():
+                    raise ValueError(f"{asset.path}: a clip layer of {prim.GetPath()} is missing "
+                                     "(dqskin skin ... --resume redoes it)")
+                record = path.with_suffix(".json")
+                if record.is_file():
+                    try:
+                        key = json.loads(record.read_text()).get("plan")
+                    except (OSError, ValueError, AttributeError):
+                        key = None
+                    if not isinstance(key, str) or not verify_chunk(path, key):
+                        raise ValueError(f"{path}: does not match its record {record.name} "
+                                         "(damaged or incomplete; dqskin skin ... --resume "
+                                         "redoes it)")
