@@ -97,6 +97,26 @@ def check_clip_arguments(out, *, chunk=None, clips=None, workers=None, scheduler
         raise ValueError("--workers, --scheduler and --resume need value clips (not --no-clips)")
 
 
+def _single_layer(scene, out, t, chunk, normals, velocities, progress, force, counts, args,
+                  sign):
+    """The single-layer USD cache of :func:`bake`; returns what it wrote, in words."""
+    src, method = scene.path, args["method"]
+    wrote_velocities = False
+
+    def check(res):
+        nonlocal wrote_velocities
+        check_skinned(src, res)
+        wrote_velocities |= bool(res.velocities)
+
+    size = chunk or usd_cache.piece_frames(scene, normals, velocities)
+    with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args, **sign) as writer:
+        writer.write_chunks((res for _, res in _chunks(
+            scene, t, size, progress, normals=normals, velocities=velocities,
+            **args, **sign)), check, checked=True)
+    return (f"wrote {out}: {counts} "
+            f"({method or 'asset method'}{', velocities' if wrote_velocities else ''})")
+
+
 def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None = None, *,
          method: Method | None = None, interp: Interpolation = "trs", device: Device = None,
          chunk: int | None = None, normals: bool = True, velocities: bool = True,
@@ -202,20 +222,19 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
                     f"{', velocities' if velocities else ''}) as {_plural(done['chunks'], 'clip')} "
                     f"in {done['folder']}{kept}")
         check_output(out, sources, force)
-        wrote_velocities = False
-
-        def check(res):
-            nonlocal wrote_velocities
-            check_skinned(src, res)
-            wrote_velocities |= bool(res.velocities)
-
-        size = chunk or usd_cache.piece_frames(scene, normals, velocities)
-        with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args, **sign) as writer:
-            writer.write_chunks((res for _, res in _chunks(
-                scene, t, size, progress, normals=normals, velocities=velocities,
-                **args, **sign)), check, checked=True)
-        return (f"wrote {out}: {counts} "
-                f"({method or 'asset method'}{', velocities' if wrote_velocities else ''})")
+        from .formats import usd_clips
+        if usd_clips.holds_clip_bake(out):  # SHOT.clips/ of this SHOT.usd
+            if not force:  # (an unfinished one: out itself does not exist)
+                raise FileExistsError(f"{usd_clips.clips_folder(out)}: holds a clip bake of "
+                                      f"{Path(out).name}; complete it with --resume, or "
+                                      "--force to replace it with a single layer")
+            with usd_clips.bake_lock(out):  # not while that bake runs
+                said = _single_layer(scene, out, t, chunk, normals, velocities, progress,
+                                     force, counts, args, sign)
+                usd_clips.remove_clip_bake(out)  # nothing reads it now
+            return said
+        return _single_layer(scene, out, t, chunk, normals, velocities, progress, force,
+                             counts, args, sign)
     if kind == "npz":
         check_output(out, sources, force)
         with atomic_path(out, overwrite=force) as tmp:  # claimed for the whole run

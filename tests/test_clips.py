@@ -267,6 +267,30 @@ def test_a_bake_failing_before_any_chunk_leaves_nothing_to_resume(tmp_path, monk
     assert out.is_file()
 
 
+def test_a_single_layer_over_a_clip_bake_replaces_it_whole(tmp_path):
+    """A single-layer bake to the output of a clip bake: refused over an unfinished one without
+    --force (a later --resume would have replaced the single layer); with --force the single
+    layer replaces it and dqskin's clip files go (they were hundreds of MB nothing read), a file
+    of the user's in the folder stays, and --resume no longer overwrites the single layer."""
+    scene = load(HUMANOID)
+    out = tmp_path / "shot.usd"
+    bake(scene, out, scene.times[:8], chunk=4, clips=True, normals=False, velocities=False)
+    folder = clips_folder(out)
+    (folder / "notes.txt").write_text("mine")
+    out.unlink()  # unfinished
+    with pytest.raises(FileExistsError, match="holds a clip bake of shot.usd; complete it"):
+        bake(scene, out, scene.times[:8], clips=False)
+    assert not out.exists() and (folder / "plan.json").is_file()
+    bake(scene, out, scene.times[:8], clips=False, force=True)
+    assert sorted(p.name for p in folder.iterdir()) == ["notes.txt"]
+    before = out.read_bytes()
+    assert Sdf.Layer.FindOrOpen(str(out)).GetPrimAtPath("/Humanoid").HasInfo("clips") is False
+    with pytest.raises(FileExistsError, match="exists"):
+        bake(scene, out, scene.times[:8], chunk=4, clips=True, resume=True, normals=False,
+             velocities=False)
+    assert out.read_bytes() == before
+
+
 def test_an_input_inside_the_clip_folder_is_refused_and_left_alone(tmp_path):
     folder = clips_folder(tmp_path / "shot.usd")
     folder.mkdir()

@@ -47,7 +47,8 @@ from .usd_cache import CacheLayer, _source_files, export_layer, frame_bytes
 
 __all__ = ["CHECKSUM", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "LOCK_FILE", "ClipBake",
            "ClipLayer", "bake_lock", "chunk_bounds", "clip_frames", "clips_folder", "commit_clip",
-           "flatten", "file_checksum", "recorded_chunk", "verify_chunk", "write_clip"]
+           "flatten", "file_checksum", "holds_clip_bake", "recorded_chunk", "remove_clip_bake",
+           "verify_chunk", "write_clip"]
 
 CLIPS_FOLDER_SUFFIX = ".clips"
 """``SHOT.usd`` → ``SHOT.clips/``."""
@@ -182,6 +183,29 @@ def _recorded(out, key):
         return json.loads((clips_folder(out) / "plan.json").read_text()).get(key)
     except (OSError, ValueError, AttributeError):
         return None
+
+
+def holds_clip_bake(out) -> bool:
+    """Whether ``out``'s clip folder holds a clip bake of ``out`` (its plan names it)."""
+    return _recorded(out, "out") == Path(out).name
+
+
+def remove_clip_bake(out) -> None:
+    """Remove the clip bake of ``out`` that a single layer written there replaced: dqskin's own
+    files in its clip folder (others stay; the folder too)."""
+    if clips_folder(out).is_dir():
+        _remove_files(clips_folder(out), _OURS)
+
+
+def _remove_files(folder, pattern):
+    """Remove ``folder``'s files whose names match, and its temporary folders (:mod:`.atomic`)."""
+    for p in folder.iterdir():
+        if pattern.match(p.name):
+            if _TEMP.match(p.name) and p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p, ignore_errors=True)
+            elif p.is_file():
+                with contextlib.suppress(OSError):
+                    p.unlink()
 
 
 def recorded_chunk(out) -> int | None:
@@ -507,14 +531,7 @@ class ClipBake:
                                   "complete it or --force to start over")
 
     def _remove(self, pattern):
-        """Remove this folder's files that match, and its temporary folders (:mod:`.atomic`)."""
-        for p in self.folder.iterdir():
-            if pattern.match(p.name):
-                if _TEMP.match(p.name) and p.is_dir() and not p.is_symlink():
-                    shutil.rmtree(p, ignore_errors=True)
-                elif p.is_file():
-                    with contextlib.suppress(OSError):
-                        p.unlink()
+        _remove_files(self.folder, pattern)
 
     def abandon(self) -> None:
         """After a failed bake: remove the plan and the manifest when no clip layer is in the
