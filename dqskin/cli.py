@@ -762,6 +762,9 @@ def _run_command(argv):
         if isinstance(exc, BrokenPipeError) and _stdout_reader_gone():
             return _reader_gone(redirect=argv is None)
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        if isinstance(exc, OSError) and exc.strerror:  # "[Errno 13] ...: 'x'" → "x: ..."
+            where = " -> ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
+            msg = f"{where}: {exc.strerror}" if where else exc.strerror
         print(f"dqskin: error: {msg}", file=sys.stderr)
         code = EXIT_INPUT
     except Exception:

@@ -191,6 +191,23 @@ def test_a_reader_that_goes_away_ends_the_command_silently(tmp_path):
         assert stderr == "", stderr
 
 
+def test_system_errors_name_their_file_in_one_line(monkeypatch, capsys):
+    """An OSError from the system reads "FILE: reason" (not Python's "[Errno 13] reason:
+    'FILE'"); a rename names both files; dqskin's own (a message of its own) is unchanged."""
+    from dqskin import cli
+    for exc, said in ((PermissionError(13, "Permission denied", "/x/shot.clips"),
+                       "/x/shot.clips: Permission denied"),
+                      (OSError(18, "Invalid cross-device link", "/a/t", None, "/b/t"),
+                       "/a/t -> /b/t: Invalid cross-device link"),
+                      (FileExistsError("/x/shot.usd: exists (use --force to overwrite)"),
+                       "/x/shot.usd: exists (use --force to overwrite)")):
+        def fail(args, exc=exc):
+            raise exc
+        monkeypatch.setattr(cli, "cmd_info", fail)
+        assert cli.main(["info", str(HUMANOID)]) == 2
+        assert capsys.readouterr().err.strip() == f"dqskin: error: {said}"
+
+
 def test_a_broken_pipe_elsewhere_is_an_error_and_python_callers_keep_their_stdout(
         tmp_path, monkeypatch, capsys):
     """A broken pipe that is not stdout's (a socket, a child process), stdout being a pipe with
@@ -202,13 +219,13 @@ def test_a_broken_pipe_elsewhere_is_an_error_and_python_callers_keep_their_stdou
         raise BrokenPipeError(32, "Broken pipe")
     monkeypatch.setattr(cli, "cmd_info", broken)
     assert cli.main(["info", str(HUMANOID)]) == 2  # stdout: pytest's capture (not a pipe)
-    assert capsys.readouterr().err.strip() == "dqskin: error: [Errno 32] Broken pipe"
+    assert capsys.readouterr().err.strip() == "dqskin: error: Broken pipe"
     read, write = os.pipe()  # a pipe with its reader
     with open(write, "w") as pipe, open(read):
         monkeypatch.setattr(sys, "stdout", pipe)
         assert cli.main(["info", str(HUMANOID)]) == 2
     monkeypatch.undo()
-    assert capsys.readouterr().err.strip() == "dqskin: error: [Errno 32] Broken pipe"
+    assert capsys.readouterr().err.strip() == "dqskin: error: Broken pipe"
     read, write = os.pipe()
     os.close(read)  # a pipe without one: the reader went away
     pipe = open(write, "w", buffering=1)
