@@ -223,12 +223,16 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
                     f"in {done['folder']}{kept}")
         check_output(out, sources, force)
         from .formats import usd_clips
-        if usd_clips.holds_clip_bake(out):  # SHOT.clips/ of this SHOT.usd
-            if not force:  # (an unfinished one: out itself does not exist)
-                raise FileExistsError(f"{usd_clips.clips_folder(out)}: holds a clip bake of "
-                                      f"{Path(out).name}; complete it with --resume, or "
-                                      "--force to replace it with a single layer")
-            with usd_clips.bake_lock(out):  # not while that bake runs
+        if usd_clips.clips_folder(out).is_dir():  # SHOT.clips/ beside this SHOT.usd
+            with usd_clips.bake_lock(out):  # not while a clip bake of it runs
+                if not usd_clips.holds_clip_bake(out):
+                    return _single_layer(scene, out, t, chunk, normals, velocities, progress,
+                                         force, counts, args, sign)
+                if not force:  # (an unfinished one: out itself does not exist)
+                    raise FileExistsError(f"{usd_clips.clips_folder(out)}: holds a clip bake of "
+                                          f"{Path(out).name}; complete it with --resume, or "
+                                          "--force to replace it with a single layer")
+                usd_clips.check_outside(out, sources, src)  # --force removes what is there
                 said = _single_layer(scene, out, t, chunk, normals, velocities, progress,
                                      force, counts, args, sign)
                 usd_clips.remove_clip_bake(out)  # nothing reads it now

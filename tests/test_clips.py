@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pxr import Sdf, Usd, UsdGeom
+from pxr import Sdf, Usd, UsdGeom, Vt
 
 from dqskin import bake
 from dqskin.formats import load
@@ -184,7 +184,8 @@ def test_flatten_refuses_a_missing_or_damaged_clip_layer(tmp_path):
     layer = sorted(clips_folder(out).glob("chunk_*.usdc"))[2]
     good = layer.read_bytes()
     layer.unlink()
-    with pytest.raises(ValueError, match=f"{layer.name}: a clip layer of /.* is missing"):
+    with pytest.raises(ValueError, match=f"shot.usd: clip layer ./shot.clips/{layer.name} of "
+                                         "/Humanoid is missing"):
         flatten(out, tmp_path / "a.usdc")
     flipped = bytearray(good)
     flipped[len(good) // 2] ^= 1
@@ -195,6 +196,57 @@ def test_flatten_refuses_a_missing_or_damaged_clip_layer(tmp_path):
     assert sorted(p.name for p in tmp_path.glob("*.usdc")) == []
     layer.write_bytes(good)
     assert Sdf.Layer.FindOrOpen(str(flatten(out, tmp_path / "c.usdc"))) is not None
+    # a chunk of another bake (its record's plan is not the folder's) is refused too
+    plan = clips_folder(out) / "plan.json"
+    plan.write_text(plan.read_text().replace('"key": "', '"key": "0'))
+    with pytest.raises(ValueError, match="of another bake"):
+        flatten(out, tmp_path / "d.usdc")
+
+
+def _clip_stage(folder, sidecar=None):
+    """A two-clip stage written with Sdf (another tool's clips), optionally with a ``.json`` of
+    another tool's beside each clip."""
+    folder.mkdir()
+    for k in range(2):
+        clip = Sdf.Layer.CreateNew(str(folder / f"clip.{k}.usda"))
+        prim = Sdf.CreatePrimInLayer(clip, "/A")
+        attr = Sdf.AttributeSpec(prim, "x", Sdf.ValueTypeNames.Float)
+        for t in (k, k + 1):
+            clip.SetTimeSample(attr.path, t, float(t))
+        clip.Save()
+        if sidecar is not None:
+            (folder / f"clip.{k}.json").write_text(sidecar)
+    top = Sdf.Layer.CreateNew(str(folder.parent / "top.usda"))
+    prim = Sdf.PrimSpec(top, "A", Sdf.SpecifierDef)
+    Sdf.AttributeSpec(prim, "x", Sdf.ValueTypeNames.Float)
+    prim.SetInfo("clips", {"default": {
+        "assetPaths": Sdf.AssetPathArray([f"./{folder.name}/clip.0.usda",
+                                          f"./{folder.name}/clip.1.usda"]),
+        "primPath": "/A", "active": Vt.Vec2dArray([(0.0, 0.0), (1.0, 1.0)])}})
+    top.Save()
+    return folder.parent / "top.usda"
+
+
+@pytest.mark.parametrize("sidecar", [None, '{"frames": 10}', "[1, 2]", "not json"])
+def test_flatten_takes_other_tools_clips_and_their_files(tmp_path, sidecar):
+    """Clips of another tool, with or without a ``.json`` of its own beside each (not a dqskin
+    record: no layer name, plan and checksum), flatten as USD composes them."""
+    top = _clip_stage(tmp_path / "c", sidecar)
+    flat = Usd.Stage.Open(str(flatten(top, tmp_path / "flat.usda")))
+    assert [flat.GetAttributeAtPath("/A.x").Get(t) for t in (0, 0.5, 1, 2)] == [0, 0.5, 1, 2]
+
+
+def test_flatten_of_clips_in_a_package_and_of_bad_clips_metadata(tmp_path):
+    from pxr import UsdUtils
+    top = _clip_stage(tmp_path / "c")
+    package = tmp_path / "pkg.usdz"
+    assert UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(top)), str(package))
+    flat = Usd.Stage.Open(str(flatten(package, tmp_path / "flat.usda")))
+    assert flat.GetAttributeAtPath("/A.x").Get(1.5) == 1.5
+    bad = tmp_path / "bad.usda"
+    bad.write_text('#usda 1.0\ndef "A" (clips = {dictionary default = {double x = 5}}) {}\n')
+    with pytest.raises(ValueError, match="bad.usda: cannot flatten"):
+        flatten(bad, tmp_path / "y.usda")
 
 
 def test_flatten_of_a_file_usd_cannot_open_is_a_clean_error(tmp_path):
@@ -281,6 +333,13 @@ def test_a_single_layer_over_a_clip_bake_replaces_it_whole(tmp_path):
     with pytest.raises(FileExistsError, match="holds a clip bake of shot.usd; complete it"):
         bake(scene, out, scene.times[:8], clips=False)
     assert not out.exists() and (folder / "plan.json").is_file()
+    inside = folder / "chunk_00099.usdc"  # an input under a name --force would remove
+    assert Sdf.Layer.FindOrOpen(str(HUMANOID)).Export(str(inside))
+    kept = inside.read_bytes()
+    with pytest.raises(ValueError, match="inside .*shot.clips, where a clip bake of shot.usd"):
+        bake(inside, out, scene.times[:8], clips=False, force=True)
+    assert inside.read_bytes() == kept and (folder / "plan.json").is_file()
+    inside.unlink()
     bake(scene, out, scene.times[:8], clips=False, force=True)
     assert sorted(p.name for p in folder.iterdir()) == ["notes.txt"]
     before = out.read_bytes()
@@ -291,6 +350,23 @@ def test_a_single_layer_over_a_clip_bake_replaces_it_whole(tmp_path):
     assert out.read_bytes() == before
 
 
+def test_the_top_level_is_written_only_over_chunks_of_this_bake(tmp_path, monkeypatch):
+    """A chunk whose record is of another plan when the bake finishes (a late write by a remote
+    worker of a stopped bake) fails the bake: no SHOT.usd reads it."""
+    from dqskin.formats import usd_clips
+    real = usd_clips.ClipBake.finish
+
+    def late(self):
+        record = self.clip_path(1).with_suffix(".json")
+        record.write_text(record.read_text().replace(self.key, "0" * 64))
+        return real(self)
+    monkeypatch.setattr(usd_clips.ClipBake, "finish", late)
+    out = tmp_path / "shot.usd"
+    with pytest.raises(ValueError, match="chunk_00001.usdc: its record is missing or of another"):
+        bake(load(HUMANOID), out, load(HUMANOID).times[:8], chunk=4, clips=True)
+    assert not out.exists()
+
+
 def test_an_input_inside_the_clip_folder_is_refused_and_left_alone(tmp_path):
     folder = clips_folder(tmp_path / "shot.usd")
     folder.mkdir()
@@ -298,7 +374,7 @@ def test_an_input_inside_the_clip_folder_is_refused_and_left_alone(tmp_path):
     assert Sdf.Layer.FindOrOpen(str(HUMANOID)).Export(str(src))
     before = src.read_bytes()
     for force in (False, True):
-        with pytest.raises(ValueError, match="inside .*shot.clips, where this clip bake writes"):
+        with pytest.raises(ValueError, match="inside .*shot.clips, where a clip bake of shot.usd"):
             bake(src, tmp_path / "shot.usd", chunk=7, clips=True, force=force)
         assert src.read_bytes() == before
     assert sorted(p.name for p in folder.iterdir()) == ["chunk_00000.usdc"]

@@ -46,9 +46,9 @@ from .usd import _tf_message
 from .usd_cache import CacheLayer, _source_files, export_layer, frame_bytes
 
 __all__ = ["CHECKSUM", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "LOCK_FILE", "ClipBake",
-           "ClipLayer", "bake_lock", "chunk_bounds", "clip_frames", "clips_folder", "commit_clip",
-           "flatten", "file_checksum", "holds_clip_bake", "recorded_chunk", "remove_clip_bake",
-           "verify_chunk", "write_clip"]
+           "ClipLayer", "bake_lock", "check_outside", "chunk_bounds", "clip_frames",
+           "clips_folder", "commit_clip", "flatten", "file_checksum", "holds_clip_bake",
+           "recorded_chunk", "remove_clip_bake", "verify_chunk", "write_clip"]
 
 CLIPS_FOLDER_SUFFIX = ".clips"
 """``SHOT.usd`` → ``SHOT.clips/``."""
@@ -121,10 +121,18 @@ def _lock(path):
     except ImportError:
         return None
     while True:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:  # (as the umask allows: another user's bake may need to lock it after this one)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        except FileNotFoundError:  # the bake that made the folder removed it meanwhile
+            path.parent.mkdir(parents=True, exist_ok=True)
+            continue
+        except PermissionError:  # a lock file of another user's (flock needs no write access)
+            try:
+                fd = os.open(path, os.O_RDONLY)
+            except OSError as exc:
+                raise OSError(exc.errno, f"{path}: cannot open ({exc.strerror})") from None
         except OSError as exc:
-            raise OSError(exc.errno, f"{path}: cannot create ({exc.strerror})") from None
+            raise OSError(exc.errno, f"{path}: cannot open ({exc.strerror})") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
@@ -143,8 +151,9 @@ def _lock(path):
         try:
             st, now = os.fstat(fd), os.stat(path)
             if (st.st_dev, st.st_ino) == (now.st_dev, now.st_ino):
-                os.ftruncate(fd, 0)
-                os.write(fd, f"{os.getpid()}\n".encode())
+                with contextlib.suppress(OSError):  # (read-only: no pid to tell)
+                    os.ftruncate(fd, 0)
+                    os.write(fd, f"{os.getpid()}\n".encode())
                 return fd
         except FileNotFoundError:
             pass
@@ -179,10 +188,25 @@ def clip_frames(scene, frames: int, normals: bool = True, velocities: bool = Tru
 def _recorded(out, key):
     """``key`` of the plan of the earlier bake in ``out``'s clip folder (its ``plan.json``), None
     without one (or an unreadable one)."""
+    return _recorded_in(clips_folder(out), key)
+
+
+def _recorded_in(folder, key):
     try:
-        return json.loads((clips_folder(out) / "plan.json").read_text()).get(key)
+        return json.loads((Path(folder) / "plan.json").read_text()).get(key)
     except (OSError, ValueError, AttributeError):
         return None
+
+
+def check_outside(out, files, src) -> None:
+    """ValueError when one of ``files`` (``src`` and the layers it reads) is inside ``out``'s
+    clip folder, where a clip bake writes and ``--force`` removes."""
+    inside = clips_folder(out).resolve()
+    for f in sorted(map(str, files)):
+        if os.path.exists(f) and inside in Path(f).resolve().parents:
+            what = "" if _same_path(f, src) else f" (read by {src})"
+            raise ValueError(f"{f}{what}: inside {clips_folder(out)}, where a clip bake of "
+                             f"{Path(out).name} writes; move it out of that folder first")
 
 
 def holds_clip_bake(out) -> bool:
@@ -405,12 +429,7 @@ class ClipBake:
         normals, velocities = options.get("normals", True), options.get("velocities", True)
         self.cache = CacheLayer(scene, out)
         self.out, self.folder = Path(out), clips_folder(out)
-        inside = self.folder.resolve()
-        for f in sorted(_source_files(self.cache.stage, self.cache.src)):
-            if os.path.exists(f) and inside in Path(f).resolve().parents:
-                what = "" if _same_path(f, self.cache.src) else f" (read by {self.cache.src})"
-                raise ValueError(f"{f}{what}: inside {self.folder}, where this clip bake writes; "
-                                 "move it out of that folder first")
+        check_outside(out, _source_files(self.cache.stage, self.cache.src), self.cache.src)
         # a cache is keyed by time: sorted, each once (the clip metadata's "active" and "times"
         # need increasing times: unsorted --frames gave a cache wrong at almost every time)
         self.times = np.unique(np.asarray(times, np.float64))
@@ -574,6 +593,11 @@ class ClipBake:
         if missing:
             raise ValueError(f"{self.clip_path(missing[0])}: missing; {len(missing)} chunks "
                              "were not written")
+        for k in range(len(self.bounds)):  # (a late write of a stopped bake's remote worker)
+            record = _record_of(self.clip_path(k))
+            if record is None or record["plan"] != self.key:
+                raise ValueError(f"{self.clip_path(k)}: its record is missing or of another "
+                                 "bake; rerun with --resume to redo it")
         layer, t = self.cache.layer, self.times
         with Sdf.ChangeBlock():
             for target in self.targets.values():
@@ -609,10 +633,11 @@ def flatten(src, out, *, overwrite: bool = False) -> Path:
     clip's samples become ordinary time samples, for tools that do not read value clips. The
     whole animation is held in memory while writing.
 
-    Every clip layer the stage's ``clips`` metadata names must exist, and one with a dqskin
-    record beside it (``chunk_00000.json``) must match it (:func:`verify_chunk`): USD would
-    skip a missing clip and hold the samples around it, and copy a damaged one (ValueError
-    naming the layer; ``dqskin skin ... --resume`` redoes it). ``.usd`` output is crate. ``out``
+    Every clip layer the stage's ``clips`` metadata names must resolve, and one with a dqskin
+    record beside it (``chunk_00000.json``) must match it (:func:`verify_chunk`) and its
+    folder's plan: USD would skip a missing clip and hold the samples around it, and copy a
+    damaged one (ValueError naming the layer; ``dqskin skin ... --resume`` redoes it). That
+    check reads each such layer once more. ``.usd`` output is crate. ``out``
     appears only when complete (exclusively unless ``overwrite``); ``src`` is never modified.
     Returns ``out``.
     """
@@ -627,8 +652,8 @@ def flatten(src, out, *, overwrite: bool = False) -> Path:
         raise ValueError(f"{src}: cannot open as USD: {_tf_message(exc)}") from None
     if stage is None:
         raise ValueError(f"{src}: cannot open the stage")
-    _check_clips(stage)
     try:
+        _check_clips(stage, src)
         flat = stage.Flatten()  # opens every clip layer: only then are all the inputs known
     except Tf.ErrorException as exc:
         raise ValueError(f"{src}: cannot flatten: {_tf_message(exc)}") from None
@@ -646,9 +671,10 @@ def flatten(src, out, *, overwrite: bool = False) -> Path:
     return out
 
 
-def _check_clips(stage):
-    """ValueError for a clip layer named in ``stage``'s ``clips`` metadata that is missing, or
-    that has a dqskin record and does not match it."""
+def _check_clips(stage, src):
+    """ValueError for a clip layer named in ``stage``'s ``clips`` metadata that does not
+    resolve, or that has a dqskin record beside it (:func:`_record_of`) and does not match it
+    or the plan of its folder (a chunk of another bake). Each such layer is read in full."""
     seen = set()
     for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
         clips = Usd.ClipsAPI(prim)
@@ -658,17 +684,29 @@ def _check_clips(stage):
                 if where in seen:
                     continue
                 seen.add(where)
-                path = Path(where)
-                if not asset.resolvedPath or not path.is_file():
-                    raise ValueError(f"{asset.path}: a clip layer of {prim.GetPath()} is missing "
-                                     "(dqskin skin ... --resume redoes it)")
-                record = path.with_suffix(".json")
-                if record.is_file():
-                    try:
-                        key = json.loads(record.read_text()).get("plan")
-                    except (OSError, ValueError, AttributeError):
-                        key = None
-                    if not isinstance(key, str) or not verify_chunk(path, key):
-                        raise ValueError(f"{path}: does not match its record {record.name} "
-                                         "(damaged or incomplete; dqskin skin ... --resume "
-                                         "redoes it)")
+                if not asset.resolvedPath:
+                    raise ValueError(f"{src}: clip layer {asset.path} of {prim.GetPath()} is "
+                                     "missing (for a dqskin clip bake, --resume redoes it)")
+                path = Path(where)  # (a layer inside a package or elsewhere: no record)
+                record = _record_of(path) if path.is_file() else None
+                if record is None:
+                    continue
+                plan = _recorded_in(path.parent, "key")
+                if not verify_chunk(path, record["plan"]) or (
+                        plan is not None and plan != record["plan"]):
+                    raise ValueError(f"{path}: does not match its record {path.stem}.json "
+                                     "(damaged, incomplete or of another bake; dqskin skin ... "
+                                     "--resume redoes it)")
+
+
+def _record_of(path):
+    """The dqskin record of clip layer ``path`` (``chunk_00000.json`` beside it: a dict naming
+    the layer, with a plan key and a checksum), or None (another tool's file, or none)."""
+    try:
+        record = json.loads(path.with_suffix(".json").read_text())
+    except (OSError, ValueError):
+        return None
+    if (isinstance(record, dict) and record.get("layer") == path.name
+            and isinstance(record.get("plan"), str) and any(a in record for a in _HASHES)):
+        return record
+    return None
