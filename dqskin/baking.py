@@ -8,6 +8,7 @@ file per frame (:mod:`dqskin.formats.mesh_files`). Every output is written atomi
 (:mod:`dqskin.formats.atomic`) and checked first (:mod:`dqskin.validation`).
 """
 
+import contextlib
 import sys
 from pathlib import Path
 
@@ -95,26 +96,6 @@ def check_clip_arguments(out, *, chunk=None, clips=None, workers=None, scheduler
                          "of that cluster; --workers starts a cluster of its own)")
     if clips is False and asked:
         raise ValueError("--workers, --scheduler and --resume need value clips (not --no-clips)")
-
-
-def _single_layer(scene, out, t, chunk, normals, velocities, progress, force, counts, args,
-                  sign):
-    """The single-layer USD cache of :func:`bake`; returns what it wrote, in words."""
-    src, method = scene.path, args["method"]
-    wrote_velocities = False
-
-    def check(res):
-        nonlocal wrote_velocities
-        check_skinned(src, res)
-        wrote_velocities |= bool(res.velocities)
-
-    size = chunk or usd_cache.piece_frames(scene, normals, velocities)
-    with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args, **sign) as writer:
-        writer.write_chunks((res for _, res in _chunks(
-            scene, t, size, progress, normals=normals, velocities=velocities,
-            **args, **sign)), check, checked=True)
-    return (f"wrote {out}: {counts} "
-            f"({method or 'asset method'}{', velocities' if wrote_velocities else ''})")
 
 
 def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None = None, *,
@@ -205,10 +186,10 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     sign = dict(sign_reference=sign_reference)
     src = scene.path
     sources = [src, *inputs]
-    counts = f"{_plural(len(names), 'mesh', 'meshes')} × {_plural(len(t), 'frame')}"
-    if kind == "usd":  # a USD cache holds each time once (np.unique would import numpy.ma)
-        once = int(np.count_nonzero(np.diff(np.sort(t)))) + 1 if len(t) else 0
-        counts = f"{_plural(len(names), 'mesh', 'meshes')} × {_plural(once, 'frame')}"
+    # a USD cache holds each time once (np.unique would import numpy.ma)
+    frames = int(np.count_nonzero(np.diff(np.sort(t)))) + 1 if kind == "usd" else len(t)
+    counts = f"{_plural(len(names), 'mesh', 'meshes')} × {_plural(frames, 'frame')}"
+    if kind == "usd":
         if format_of(src) is not usd:
             raise ValueError(f"--out {out}: a USD point cache copies the input stage, so it needs "
                              "a USD input; for glTF write .npz or per-frame .obj/.ply/.glb files")
@@ -216,29 +197,41 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
             from .distributed import bake_clips
             done = bake_clips(scene, out, t, chunk=chunk, normals=normals,
                               velocities=velocities, workers=workers, scheduler=scheduler,
-                              resume=resume, force=force, progress=progress, **args, **sign)
+                              resume=resume, force=force, progress=progress, inputs=inputs,
+                              **args, **sign)
             kept = f", {done['kept']} kept from the earlier run" if done["kept"] else ""
             return (f"wrote {out}: {counts} ({method or 'asset method'}"
                     f"{', velocities' if velocities else ''}) as {_plural(done['chunks'], 'clip')} "
                     f"in {done['folder']}{kept}")
         check_output(out, sources, force)
-        from .formats import usd_clips
-        if usd_clips.clips_folder(out).is_dir():  # SHOT.clips/ beside this SHOT.usd
-            with usd_clips.bake_lock(out):  # not while a clip bake of it runs
-                if not usd_clips.holds_clip_bake(out):
-                    return _single_layer(scene, out, t, chunk, normals, velocities, progress,
-                                         force, counts, args, sign)
-                if not force:  # (an unfinished one: out itself does not exist)
-                    raise FileExistsError(f"{usd_clips.clips_folder(out)}: holds a clip bake of "
-                                          f"{Path(out).name}; complete it with --resume, or "
+        clip_bake = None  # SHOT.clips/ beside SHOT.usd: locked, and replaced with --force
+        if usd_cache.clips_folder(out).is_dir():
+            from .formats import usd_clips as clip_bake
+        wrote_velocities = False
+
+        def check(res):
+            nonlocal wrote_velocities
+            check_skinned(src, res)
+            wrote_velocities |= bool(res.velocities)
+
+        size = chunk or usd_cache.piece_frames(scene, normals, velocities)
+        with clip_bake.bake_lock(out) if clip_bake else contextlib.nullcontext():
+            replaces = clip_bake is not None and clip_bake.holds_clip_bake(out)
+            with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args, **sign) as writer:
+                if replaces and not force:  # (an unfinished one: out itself does not exist)
+                    raise FileExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
+                                          f"of {Path(out).name}; complete it with --resume, or "
                                           "--force to replace it with a single layer")
-                usd_clips.check_outside(out, sources, src)  # --force removes what is there
-                said = _single_layer(scene, out, t, chunk, normals, velocities, progress,
-                                     force, counts, args, sign)
-                usd_clips.remove_clip_bake(out)  # nothing reads it now
-            return said
-        return _single_layer(scene, out, t, chunk, normals, velocities, progress, force,
-                             counts, args, sign)
+                if replaces:  # its files are removed below
+                    clip_bake.check_outside(out, clip_bake.input_files(
+                        writer.cache.stage, src, inputs), src)
+                writer.write_chunks((res for _, res in _chunks(
+                    scene, t, size, progress, normals=normals, velocities=velocities,
+                    **args, **sign)), check, checked=True)
+            if replaces:
+                clip_bake.remove_clip_bake(out)  # nothing reads it now
+        return (f"wrote {out}: {counts} "
+                f"({method or 'asset method'}{', velocities' if wrote_velocities else ''})")
     if kind == "npz":
         check_output(out, sources, force)
         with atomic_path(out, overwrite=force) as tmp:  # claimed for the whole run

@@ -37,7 +37,7 @@ __all__ = ["Interrupted", "build_parser", "install_signal_handlers", "main"]
 EXIT_INPUT = 2
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _signalled = []  # the signal numbers received while main runs (only the first one acts)
-_own_process = []  # [True] while main runs as the process's entry point (not from Python)
+_own_process = False  # while main runs as the process's entry point (not from Python)
 
 
 class Interrupted(KeyboardInterrupt):
@@ -601,7 +601,8 @@ def _main(argv):
     try:
         previous = install_signal_handlers()  # first: Ctrl-C in start-up is an interrupt too
         del _signalled[:]  # (a new run, when called from Python again)
-        _own_process[:] = [True] if argv is None else []
+        global _own_process
+        _own_process = argv is None
         atomic = sys.modules.get("dqskin.formats.atomic")
         if atomic is not None:
             atomic.reset_interrupt()

@@ -269,14 +269,15 @@ def _commit_on_error(job, claim, digest, start):
 
 def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", device=None,
                normals=True, velocities=True, workers=None, scheduler=None, resume=False,
-               force=False, progress=False, threads=None, **skin_options) -> dict:
+               force=False, progress=False, threads=None, inputs=(), **skin_options) -> dict:
     """Bake ``scene`` at ``times`` to the value-clip cache ``out``
     (:class:`~.formats.usd_clips.ClipBake`); see :func:`dqskin.bake` for the parameters.
     ``skin_options`` go to :meth:`dqskin.Scene.skin` (``sign_reference``, ...) for the meshes
     and into the plan key (rigidly bound prims use ``method``, ``interp``, ``device`` and
     ``sign_reference``). ``threads``: CPU threads of each LocalCluster worker process (default
     cores / ``workers``); the workers of an external ``scheduler`` follow their own
-    ``--nthreads`` (:func:`worker_threads`).
+    ``--nthreads`` (:func:`worker_threads`). ``inputs``: other files the bake reads (refused
+    inside the clip folder).
 
     Returns
     -------
@@ -288,54 +289,54 @@ def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", devi
                    velocities=bool(velocities))
     with usd_clips.bake_lock(out):  # one bake of ``out`` at a time, --resume and --force too
         usd_clips.ClipBake.check_free(out, force=force, resume=resume)  # before starting workers
-        made = []
-        try:
-            return _bake_clips(scene, out, times, chunk, options, device, workers, scheduler,
-                               resume, force, progress, threads, made)
-        except BaseException:
-            if made:  # failed before any chunk was kept: nothing for --resume to complete
-                made[0].abandon()
-            raise
+        return _bake_clips(scene, out, times, chunk, options, device, workers, scheduler,
+                           resume, force, progress, threads, inputs)
 
 
 def _bake_clips(scene, out, times, chunk, options, device, workers, scheduler, resume, force,
-                progress, threads, made):
-    """:func:`bake_clips` once ``out`` is locked and free; ``made`` gets the ClipBake."""
+                progress, threads, inputs):
+    """:func:`bake_clips` once ``out`` is locked and free."""
     normals, velocities = options["normals"], options["velocities"]
     source = str(Path(scene.path).resolve())
     tasks = []
-    with _dask(workers, scheduler, threads) as client:
-        # the workers load the asset while this process flattens it (kept until the end: a
-        # released future is cancelled)
-        # each worker's task slots (scheduler_info() lists at most 5 workers in some versions)
-        slots = {} if client is None else client.nthreads()
-        preload = [client.submit(_preload, source, pure=False, workers=[w],
-                                 allow_other_workers=False) for w in slots]
-        if chunk is None:  # the earlier bake's when resuming, else by size and task slots
-            chunk = (resume and not force and usd_clips.recorded_chunk(out)) or \
-                usd_clips.clip_frames(scene, len(np.unique(times)), normals, velocities,
-                                      None if client is None else max(1, sum(slots.values())))
-        bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=force, resume=resume)
-        made.append(bake)
-        todo = bake.pending()
-        skin = dict(options, device=None if device is None else str(device))
-        jobs = [ChunkJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()),
-                         bake.key, bake.targets, bake.cache.rigid, skin,
-                         float(scene.time_codes_per_second)) for k in todo]
-        bar = _bar(len(bake.bounds), len(bake.bounds) - len(todo), progress)
+    bake = None
+    try:
+        with _dask(workers, scheduler, threads) as client:
+            # the workers load the asset while this process flattens it (kept until the end: a
+            # released future is cancelled)
+            # each worker's task slots (scheduler_info() lists at most 5 workers in some versions)
+            slots = {} if client is None else client.nthreads()
+            preload = [client.submit(_preload, source, pure=False, workers=[w],
+                                     allow_other_workers=False) for w in slots]
+            if chunk is None:  # the earlier bake's when resuming, else by size and task slots
+                chunk = (resume and not force and usd_clips.recorded_chunk(out)) or \
+                    usd_clips.clip_frames(scene, len(np.unique(times)), normals, velocities,
+                                          None if client is None else max(1, sum(slots.values())))
+            bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=force,
+                                      resume=resume, inputs=inputs)
+            todo = bake.pending()
+            skin = dict(options, device=None if device is None else str(device))
+            jobs = [ChunkJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()),
+                             bake.key, bake.targets, bake.cache.rigid, skin,
+                             float(scene.time_codes_per_second)) for k in todo]
+            bar = _bar(len(bake.bounds), len(bake.bounds) - len(todo), progress)
 
-        def done(result):
-            tasks.append(result)
-            bar.update(1)
-        try:
-            if client is None:
-                run_here(jobs, scene, done)
-            elif jobs:
-                _run_on_dask(client, jobs, done)
-        finally:
-            bar.close()
-            del preload
-    bake.finish()
+            def done(result):
+                tasks.append(result)
+                bar.update(1)
+            try:
+                if client is None:
+                    run_here(jobs, scene, done)
+                elif jobs:
+                    _run_on_dask(client, jobs, done)
+            finally:
+                bar.close()
+                del preload
+        bake.finish()
+    except BaseException:
+        if bake is not None:  # (only when no chunk was kept: nothing for --resume to complete)
+            bake.abandon()
+        raise
     return dict(chunks=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
                 folder=str(bake.folder), tasks=tasks)
 

@@ -109,7 +109,8 @@ def keep_freed_memory() -> bool:
 
 def freeze_heap() -> None:
     """Move every object this process holds now (the modules it imported: Dask, NumPy, USD,
-    Warp, dqskin; a loaded asset) out of reach of Python's cyclic garbage collector
+    Warp, dqskin; in the program, its loaded input) out of reach of Python's cyclic garbage
+    collector
     (:func:`gc.freeze`): they live until the process exits, and each full collection walked all
     of them again. A worker's first full collection took 80 ms, during its first task; the
     ``dqskin`` program's, 40-60 ms of a bake. Garbage made afterwards is collected as before.

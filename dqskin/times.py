@@ -113,8 +113,8 @@ def select_times(times, time_codes_per_second, frames=None, fps=None, substeps=1
         raise ValueError("--frames: no frames selected")
     if substeps < 1:
         raise ValueError(f"--substeps {substeps}: must be at least 1")
-    what = (f"--substeps {substeps}" if substeps > 1 else "--frames" if frames is not None
-            else f"--fps {fps:g}" if fps is not None else "the animation's time range")
+    # (--frames and --fps checked their own counts above)
+    what = f"--substeps {substeps}" if substeps > 1 else "the animation's time range"
     _check_count(max(t.size - 1, 0) * substeps + 1, what, max_frames)
     if substeps > 1 and t.size > 1:
         d = [Decimal(repr(float(x))) for x in t]

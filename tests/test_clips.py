@@ -282,6 +282,23 @@ def test_a_running_bake_holds_its_clip_folder(tmp_path):
     assert not (folder / LOCK_FILE).exists()
 
 
+def test_a_link_where_the_lock_goes_is_refused_not_followed(tmp_path):
+    """``SHOT.clips/.lock`` is never followed: a dangling link is an error (it looped for ever),
+    and the file a link points to is not truncated."""
+    out = tmp_path / "shot.usd"
+    folder = clips_folder(out)
+    folder.mkdir()
+    target = tmp_path / "precious.txt"
+    for exists in (False, True):
+        if exists:
+            target.write_text("keep")
+        (folder / LOCK_FILE).symlink_to(target)
+        with pytest.raises(OSError):
+            bake(load(HUMANOID), out, chunk=4, clips=True)
+        assert target.read_text() == "keep" if exists else not target.exists()
+        (folder / LOCK_FILE).unlink()
+
+
 def test_the_lock_holds_across_processes_and_names_the_holder(tmp_path):
     out = tmp_path / "shot.usd"
     code = ("import sys\nfrom dqskin.formats.usd_clips import bake_lock\n"
@@ -336,9 +353,12 @@ def test_a_single_layer_over_a_clip_bake_replaces_it_whole(tmp_path):
     inside = folder / "chunk_00099.usdc"  # an input under a name --force would remove
     assert Sdf.Layer.FindOrOpen(str(HUMANOID)).Export(str(inside))
     kept = inside.read_bytes()
-    with pytest.raises(ValueError, match="inside .*shot.clips, where a clip bake of shot.usd"):
-        bake(inside, out, scene.times[:8], clips=False, force=True)
-    assert inside.read_bytes() == kept and (folder / "plan.json").is_file()
+    top = tmp_path / "top.usda"  # and a layer the input reads
+    top.write_text(f'#usda 1.0\n(subLayers = [@./shot.clips/{inside.name}@])\n')
+    for src in (inside, top):
+        with pytest.raises(ValueError, match="inside .*shot.clips, where a clip bake of shot.usd"):
+            bake(src, out, scene.times[:8], clips=False, force=True)
+        assert inside.read_bytes() == kept and (folder / "plan.json").is_file()
     inside.unlink()
     bake(scene, out, scene.times[:8], clips=False, force=True)
     assert sorted(p.name for p in folder.iterdir()) == ["notes.txt"]

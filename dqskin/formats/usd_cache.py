@@ -35,9 +35,9 @@ from .atomic import atomic_path, check_parent
 from .crate import CrateSamples, UnsupportedCrate
 from .usd import load_rigid_prims, rigid_transforms
 
-__all__ = ["CACHE_EXTENSIONS", "PIECE_BYTES", "PIECE_FRAMES", "SUBCHUNK", "CacheLayer",
-           "SampleWriter", "Target", "UsdCacheWriter", "export_layer", "frame_bytes",
-           "piece_frames", "write_usd_cache"]
+__all__ = ["CACHE_EXTENSIONS", "CLIPS_FOLDER_SUFFIX", "PIECE_BYTES", "PIECE_FRAMES", "SUBCHUNK",
+           "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter", "clips_folder",
+           "export_layer", "frame_bytes", "piece_frames", "write_usd_cache"]
 
 CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
 """Extensions :func:`write_usd_cache` writes (``.usd`` is binary crate)."""
@@ -72,6 +72,17 @@ def piece_frames(scene, normals=True, velocities=True) -> int:
     single-layer USD bake (which streams them to its file, so this is what it holds)."""
     n = max(SUBCHUNK, PIECE_BYTES // max(frame_bytes(scene, normals, velocities), 1))
     return min(n, PIECE_FRAMES)
+
+
+CLIPS_FOLDER_SUFFIX = ".clips"
+"""``SHOT.usd`` → ``SHOT.clips/``: the folder of a value-clip cache's layers
+(:mod:`.usd_clips`)."""
+
+
+def clips_folder(out) -> Path:
+    """The folder of the clip layers of ``out`` (``SHOT.usd`` → ``SHOT.clips``)."""
+    out = Path(out)
+    return out.with_name(out.stem + CLIPS_FOLDER_SUFFIX)
 
 
 def _frames(name, what, a, frames, count, finite=True):

@@ -43,26 +43,25 @@ from pxr import Sdf, Tf, Usd, Vt
 from .atomic import atomic_path, check_interrupted
 from .crate import BOOTSTRAP, CrateSamples
 from .usd import _tf_message
-from .usd_cache import CacheLayer, _source_files, export_layer, frame_bytes
+from .usd_cache import (
+    CLIPS_FOLDER_SUFFIX,
+    CacheLayer,
+    _source_files,
+    clips_folder,
+    export_layer,
+    frame_bytes,
+)
 
 __all__ = ["CHECKSUM", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "LOCK_FILE", "ClipBake",
            "ClipLayer", "bake_lock", "check_outside", "chunk_bounds", "clip_frames",
            "clips_folder", "commit_clip", "flatten", "file_checksum", "holds_clip_bake",
-           "recorded_chunk", "remove_clip_bake", "verify_chunk", "write_clip"]
+           "input_files", "recorded_chunk", "remove_clip_bake", "verify_chunk", "write_clip"]
 
-CLIPS_FOLDER_SUFFIX = ".clips"
-"""``SHOT.usd`` → ``SHOT.clips/``."""
 
 _FORMAT = "dqskin-usd-clips/1"
 _OURS = re.compile(r"^(chunk_\d+\.(usdc|json)|plan\.json|manifest\.usda|"
                    r"\.(chunk_\d+|plan|manifest)\..+)$")
 _TEMP = re.compile(r"^\.(chunk_\d+|plan|manifest)\..+$")
-
-
-def clips_folder(out) -> Path:
-    """The folder of the clip layers of ``out`` (``SHOT.usd`` → ``SHOT.clips``)."""
-    out = Path(out)
-    return out.with_name(out.stem + CLIPS_FOLDER_SUFFIX)
 
 
 CLIP_CHUNK = 128
@@ -79,7 +78,7 @@ mesh took 13-20 ms of CPU each, their frames' share of a single-layer bake 8).""
 LOCK_FILE = ".lock"
 """The file in a clip folder that the bake writing it holds locked (:func:`bake_lock`)."""
 
-_BUSY = (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES)
+_BUSY = (errno.EWOULDBLOCK, errno.EAGAIN)
 _NO_LOCKS = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL)
 
 
@@ -97,10 +96,7 @@ def bake_lock(out):
     if folder.exists() and not folder.is_dir():
         raise NotADirectoryError(f"{folder}: exists and is not a folder")
     made = not folder.exists()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OSError(exc.errno, f"{folder}: cannot create ({exc.strerror})") from None
+    folder.mkdir(parents=True, exist_ok=True)
     fd = _lock(folder / LOCK_FILE)
     try:
         yield
@@ -120,19 +116,17 @@ def _lock(path):
         import fcntl
     except ImportError:
         return None
-    while True:
-        try:  # (as the umask allows: another user's bake may need to lock it after this one)
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-        except FileNotFoundError:  # the bake that made the folder removed it meanwhile
-            path.parent.mkdir(parents=True, exist_ok=True)
+    nofollow = getattr(os, "O_NOFOLLOW", 0)  # (a link there is not followed, nor truncated)
+    for _ in range(8):
+        try:  # made as the umask allows: another user's bake may lock it after this one
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | nofollow, 0o666)
+        except PermissionError:  # another user's lock file (flock needs no write access)
+            fd = os.open(path, os.O_RDONLY | nofollow)
+        except FileNotFoundError:
+            if path.parent.is_dir():
+                raise
+            path.parent.mkdir(parents=True, exist_ok=True)  # the bake that made it removed it
             continue
-        except PermissionError:  # a lock file of another user's (flock needs no write access)
-            try:
-                fd = os.open(path, os.O_RDONLY)
-            except OSError as exc:
-                raise OSError(exc.errno, f"{path}: cannot open ({exc.strerror})") from None
-        except OSError as exc:
-            raise OSError(exc.errno, f"{path}: cannot open ({exc.strerror})") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
@@ -158,6 +152,7 @@ def _lock(path):
         except FileNotFoundError:
             pass
         os.close(fd)  # the run that held it removed it meanwhile: lock the next one
+    raise FileExistsError(f"{path}: removed and made again while locking it; rerun")
 
 
 def clip_frames(scene, frames: int, normals: bool = True, velocities: bool = True,
@@ -198,6 +193,12 @@ def _recorded_in(folder, key):
         return None
 
 
+def input_files(stage, src, inputs=()) -> list:
+    """Every file a bake of ``src`` reads: the layers of its ``stage`` and ``inputs`` (the
+    command's other files: ``--weights``, ``--skeleton``)."""
+    return [*_source_files(stage, src), *map(str, inputs)]
+
+
 def check_outside(out, files, src) -> None:
     """ValueError when one of ``files`` (``src`` and the layers it reads) is inside ``out``'s
     clip folder, where a clip bake writes and ``--force`` removes."""
@@ -217,8 +218,7 @@ def holds_clip_bake(out) -> bool:
 def remove_clip_bake(out) -> None:
     """Remove the clip bake of ``out`` that a single layer written there replaced: dqskin's own
     files in its clip folder (others stay; the folder too)."""
-    if clips_folder(out).is_dir():
-        _remove_files(clips_folder(out), _OURS)
+    _remove_files(clips_folder(out), _OURS)
 
 
 def _remove_files(folder, pattern):
@@ -377,21 +377,34 @@ def commit_clip(claim, key: str, times, digest: str | None = None) -> str:
     return digest
 
 
-def verify_chunk(path, key: str) -> bool:
-    """True when the clip layer ``path`` exists and matches its record (same plan key, size
-    and checksum: :data:`CHECKSUM`, or ``xxh3_128`` or ``sha256`` in the records of earlier
-    bakes; the first of these a record holds decides)."""
+def verify_chunk(path, key: str, record: dict | None = None) -> bool:
+    """True when the clip layer ``path`` exists and matches its record (``record``, else read:
+    :func:`_record_of`): the same plan key, size and checksum (:data:`CHECKSUM`, or
+    ``xxh3_128`` or ``sha256`` in the records of earlier bakes; the first of these a record
+    holds decides)."""
     path = Path(path)
-    try:
-        record = json.loads(path.with_suffix(".json").read_text())
-        if not isinstance(record, dict):
-            return False
-        algorithm = next((a for a in _HASHES if a in record), None)
-        return (record.get("plan") == key and algorithm is not None and path.is_file()
-                and path.stat().st_size == record.get("bytes")
-                and file_checksum(path, algorithm) == record[algorithm])
-    except (OSError, ValueError, AttributeError):
+    record = _record_of(path) if record is None else record
+    if record is None or record["plan"] != key:
         return False
+    algorithm = next(a for a in _HASHES if a in record)
+    try:
+        return (path.is_file() and path.stat().st_size == record.get("bytes")
+                and file_checksum(path, algorithm) == record[algorithm])
+    except OSError:
+        return False
+
+
+def _record_of(path):
+    """The dqskin record of clip layer ``path`` (``chunk_00000.json`` beside it: a dict naming
+    the layer, with a plan key and a checksum), or None (another tool's file, or none)."""
+    try:
+        record = json.loads(Path(path).with_suffix(".json").read_text())
+    except (OSError, ValueError):
+        return None
+    if (isinstance(record, dict) and record.get("layer") == Path(path).name
+            and isinstance(record.get("plan"), str) and any(a in record for a in _HASHES)):
+        return record
+    return None
 
 
 class ClipBake:
@@ -416,6 +429,8 @@ class ClipBake:
         ``out`` of an earlier clip bake is removed at once: it reads those clip files).
     resume : bool
         Keep the chunks of an earlier bake of the same plan that verify; redo the rest.
+    inputs : sequence of path
+        Other files the bake reads (refused inside the clip folder, as the source's layers).
 
     Raises
     ------
@@ -425,11 +440,12 @@ class ClipBake:
         ``resume`` over a bake of another input or other settings.
     """
 
-    def __init__(self, scene, out, times, chunk, options, *, force=False, resume=False):
+    def __init__(self, scene, out, times, chunk, options, *, force=False, resume=False,
+                 inputs=()):
         normals, velocities = options.get("normals", True), options.get("velocities", True)
         self.cache = CacheLayer(scene, out)
         self.out, self.folder = Path(out), clips_folder(out)
-        check_outside(out, _source_files(self.cache.stage, self.cache.src), self.cache.src)
+        check_outside(out, input_files(self.cache.stage, self.cache.src, inputs), self.cache.src)
         # a cache is keyed by time: sorted, each once (the clip metadata's "active" and "times"
         # need increasing times: unsorted --frames gave a cache wrong at almost every time)
         self.times = np.unique(np.asarray(times, np.float64))
@@ -474,23 +490,21 @@ class ClipBake:
         elif self.folder.is_dir():
             if earlier and self.out.is_file():  # it reads the clips about to be replaced: an
                 self.out.unlink()  # interrupted --force left it showing a mix of two bakes
-            self._remove(_OURS)
+            _remove_files(self.folder, _OURS)
         return False
 
     def _differs(self):
         """What the earlier bake's plan has that this one's does not, in words."""
         try:
-            return self._compare_plans()
-        except (TypeError, ValueError, AttributeError):  # a plan.json edited by hand
-            return "with other settings"
-
-    def _compare_plans(self):
-        try:
-            old = json.loads((self.folder / "plan.json").read_text())
-            if not isinstance(old, dict) or old.get("format") != _FORMAT:
-                return "of another format or an unreadable plan.json"
+            return self._compare_plans(json.loads((self.folder / "plan.json").read_text()))
         except (OSError, ValueError):
             return "with an unreadable plan.json"
+        except (TypeError, AttributeError, KeyError):  # a plan.json edited by hand
+            return "with other settings"
+
+    def _compare_plans(self, old):
+        if not isinstance(old, dict) or old.get("format") != _FORMAT:
+            return "of another format"
         new = self.plan
         if old.get("source") != new["source"]:
             return f"of another input ({old.get('source')})"
@@ -549,9 +563,6 @@ class ClipBake:
             raise FileExistsError(f"{folder}: an unfinished clip bake is there; use --resume to "
                                   "complete it or --force to start over")
 
-    def _remove(self, pattern):
-        _remove_files(self.folder, pattern)
-
     def abandon(self) -> None:
         """After a failed bake: remove the plan and the manifest when no clip layer is in the
         folder (nothing was kept, so the next bake of ``out`` starts afresh instead of being
@@ -574,7 +585,7 @@ class ClipBake:
         """Indices of the chunks to bake: all, or when resuming those that do not verify. Writes
         the plan and the manifest (and removes temporary files a killed run left)."""
         self.folder.mkdir(parents=True, exist_ok=True)
-        self._remove(_TEMP)
+        _remove_files(self.folder, _TEMP)
         todo = [k for k in range(len(self.bounds))
                 if not (self.resumed and verify_chunk(self.clip_path(k), self.key))]
         check_interrupted()
@@ -589,12 +600,10 @@ class ClipBake:
 
     def finish(self) -> Path:
         """Check every chunk is in place, then write the top level (atomically). Returns it."""
-        missing = [k for k in range(len(self.bounds)) if not self.clip_path(k).is_file()]
-        if missing:
-            raise ValueError(f"{self.clip_path(missing[0])}: missing; {len(missing)} chunks "
-                             "were not written")
-        for k in range(len(self.bounds)):  # (a late write of a stopped bake's remote worker)
-            record = _record_of(self.clip_path(k))
+        for k in range(len(self.bounds)):  # in place, of this plan (not a late write of a
+            record = _record_of(self.clip_path(k))  # stopped bake's remote worker)
+            if not self.clip_path(k).is_file():
+                raise ValueError(f"{self.clip_path(k)}: missing (not written)")
             if record is None or record["plan"] != self.key:
                 raise ValueError(f"{self.clip_path(k)}: its record is missing or of another "
                                  "bake; rerun with --resume to redo it")
@@ -624,7 +633,7 @@ class ClipBake:
             claim.discard()
             raise
         claim.commit()
-        self._remove(_TEMP)
+        _remove_files(self.folder, _TEMP)
         return self.out
 
 
@@ -675,7 +684,7 @@ def _check_clips(stage, src):
     """ValueError for a clip layer named in ``stage``'s ``clips`` metadata that does not
     resolve, or that has a dqskin record beside it (:func:`_record_of`) and does not match it
     or the plan of its folder (a chunk of another bake). Each such layer is read in full."""
-    seen = set()
+    seen, plans = set(), {}
     for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
         clips = Usd.ClipsAPI(prim)
         for clip_set in clips.GetClips() or {}:
@@ -691,21 +700,13 @@ def _check_clips(stage, src):
                 record = _record_of(path) if path.is_file() else None
                 if record is None:
                     continue
-                plan = _recorded_in(path.parent, "key")
-                if not verify_chunk(path, record["plan"]) or (
-                        plan is not None and plan != record["plan"]):
+                if path.parent not in plans:
+                    plans[path.parent] = _recorded_in(path.parent, "key")
+                plan = plans[path.parent] or record["plan"]
+                if not verify_chunk(path, plan, record):
                     raise ValueError(f"{path}: does not match its record {path.stem}.json "
                                      "(damaged, incomplete or of another bake; dqskin skin ... "
                                      "--resume redoes it)")
-
-
-def _record_of(path):
-    """The dqskin record of clip layer ``path`` (``chunk_00000.json`` beside it: a dict naming
-    the layer, with a plan key and a checksum), or None (another tool's file, or none)."""
-    try:
-        record = json.loads(path.with_suffix(".json").read_text())
-    except (OSError, ValueError):
-        return None
     if (isinstance(record, dict) and record.get("layer") == path.name
             and isinstance(record.get("plan"), str) and any(a in record for a in _HASHES)):
         return record
