@@ -79,10 +79,11 @@ def _plural(n, word, plural=None):
 
 
 def check_clip_arguments(out, *, chunk=None, clips=None, workers=None, scheduler=None,
-                         resume=False):
+                         resume=False, force=False):
     """Raise ValueError, naming the option, for settings :func:`bake` refuses: a chunk or
     worker count below 1, clips or their options (``workers``, ``scheduler``, ``resume``) with a
-    non-USD ``out``, those options with ``clips=False``, ``workers`` with ``scheduler``."""
+    non-USD ``out``, those options with ``clips=False``, ``workers`` with ``scheduler``,
+    ``resume`` with ``force``."""
     if chunk is not None and int(chunk) < 1:
         raise ValueError(f"--chunk {chunk}: must be at least 1")
     asked = workers is not None or bool(scheduler) or resume
@@ -91,6 +92,9 @@ def check_clip_arguments(out, *, chunk=None, clips=None, workers=None, scheduler
                          "USD caches (.usd/.usdc/.usda)")
     if workers is not None and int(workers) < 1:
         raise ValueError(f"--workers {workers}: must be at least 1")
+    if resume and force:
+        raise ValueError("--resume and --force: give one (--resume completes the earlier bake, "
+                         "--force starts over)")
     if workers is not None and scheduler:
         raise ValueError("--workers and --scheduler: give one (--scheduler bakes on the workers "
                          "of that cluster; --workers starts a cluster of its own)")
@@ -177,7 +181,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     t = scene.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
     kind = output_kind(out)
     check_clip_arguments(out, chunk=chunk, clips=clips, workers=workers, scheduler=scheduler,
-                         resume=resume)
+                         resume=resume, force=force)
     asked = workers is not None or bool(scheduler) or resume
     if clips is None and kind == "usd":
         clips = asked or sample_bytes(scene, len(t), normals, velocities) > CLIPS_AUTO_BYTES

@@ -159,7 +159,8 @@ def cmd_skin(args):
         raise ValueError("--cor-exact cannot be combined with --workers, --scheduler or --resume "
                          "(clip workers compute the centers with the defaults)")
     check_clip_arguments(args.out, chunk=args.chunk, clips=args.clips, workers=args.workers,
-                         scheduler=args.scheduler, resume=args.resume)  # before loading INPUT
+                         scheduler=args.scheduler, resume=args.resume,
+                         force=args.force)  # before loading INPUT
     _checkpoint()
     with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
         scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)

@@ -562,7 +562,7 @@ def test_flatten_gives_one_layer_with_the_same_animation(humanoid, tmp_path):
     names = [m.name for m in scene.meshes]
     assert_same_animation(Usd.Stage.Open(str(humanoid["single"])), Usd.Stage.Open(str(flat)),
                           names, probe_times(scene.times, CHUNK))
-    with pytest.raises(FileExistsError):
+    with pytest.raises(FileExistsError, match="flat.usdc: exists .use --force to overwrite"):
         flatten(humanoid["shot"], flat)
 
 
@@ -638,6 +638,8 @@ def test_refusals(humanoid, tmp_path):
         bake(scene, tmp_path / "x.usd", clips=False, resume=True)
     with pytest.raises(ValueError, match="--workers 0"):
         bake(scene, tmp_path / "x.usd", workers=0)
+    with pytest.raises(ValueError, match="--resume and --force: give one"):
+        bake(scene, tmp_path / "x.usd", resume=True, force=True)
     with pytest.raises(ValueError, match="--workers and --scheduler: give one"):
         bake(scene, tmp_path / "x.usd", workers=2, scheduler="tcp://127.0.0.1:1")
     assert not (tmp_path / "x.usd").exists() and not clips_folder(tmp_path / "x.usd").exists()

@@ -655,6 +655,8 @@ def flatten(src, out, *, overwrite: bool = False) -> Path:
         raise ValueError(f"{out}: cannot write extension {out.suffix!r}; use .usd/.usdc/.usda")
     if not Path(src).is_file():
         raise ValueError(f"{src}: no such file")
+    if out.exists() and not overwrite:  # (checked again when it is claimed)
+        raise FileExistsError(f"{out}: exists (use --force to overwrite)")
     try:
         stage = Usd.Stage.Open(str(src))
     except Tf.ErrorException as exc:
