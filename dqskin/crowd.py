@@ -29,6 +29,7 @@ from .kernels import buffers as KB
 from .kernels import fk as FK
 from .motion import moved_velocities, per_second, skinning_transforms_with_derivative
 from .skinning import Method, Skinner
+from .spaces import space_track
 from .validation import check_transforms
 
 __all__ = ["BATCH_METHODS", "Crowd", "JointBatch", "MeshBatch", "skin_meshes"]
@@ -260,7 +261,7 @@ def skin_meshes(scene, times, method: Method | None = None, *, device: Device = 
         skel = batch.skinner.skin(xforms, meth, points=bind_rest)
         outs = {}
         for i, m in enumerate(meshes):
-            track = m.output_transforms if space == "output" else None
+            track = space_track(m, space)
             if track is not None:
                 outs[i] = track.with_derivative(t) if velocities else (track.at(t), None)
         for i, m in enumerate(meshes):

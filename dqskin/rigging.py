@@ -127,7 +127,8 @@ def rig_mesh(mesh: str | os.PathLike | tuple, skeleton: str | os.PathLike | bvh.
     -------
     dqskin.Scene
         Path of the BVH file, its frames as times (``time_codes_per_second = 1 / Frame Time``),
-        one mesh (named after the mesh file) on skeleton 0, method "lbs".
+        one mesh (named after the mesh file) on skeleton 0, method "lbs"; the skeleton's space
+        is the world (``output_transforms`` and ``world_transforms`` None).
 
     Raises
     ------

@@ -8,7 +8,6 @@ kinematics (dual quaternions) → skinning transforms → per-vertex skinning �
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -20,6 +19,7 @@ from .kernels import buffers as KB
 from .motion import moved_velocities, per_second, skinning_transforms_with_derivative
 from .skeleton import Skeleton
 from .skinning import Method, SignReference, Skinner
+from .spaces import Space, check_space, space_track
 from .validation import check_transforms
 
 __all__ = ["DEFAULT_BLEND", "Mesh", "Scene", "SkinnedFrames"]
@@ -55,8 +55,16 @@ class Mesh:
         Rest tangents in mesh space, per vertex: direction ``(x, y, z)`` and handedness ``w``
         (±1, glTF's bitangent sign).
     output_transforms : dqskin.animation.TransformTrack or None
-        Skeleton space → the space results are reported in (USD: the prim's local space; glTF:
-        world), keyed over time. Identity when None.
+        Skeleton (bind) space → the mesh's local space, keyed over time (USD: the prim's own
+        space; glTF, BVH and rigged meshes: world, their local space being the world). Identity
+        when None.
+    world_transforms : dqskin.animation.TransformTrack or None
+        Skeleton (bind) space → world space over time: the stage's world, in its own length
+        unit and up axis (``Scene.meters_per_unit``, ``Scene.up_axis``; no unit conversion).
+        USD: the Skeleton prim's local-to-world, so that ``world_transforms`` equals the prim's
+        local-to-world composed with ``output_transforms``. None when it equals
+        ``output_transforms`` (glTF, BVH and rigged meshes; USD prims whose local-to-world is
+        the identity).
     deformer : dqskin.animation.Deformer or None
         Rest points (and normals, tangents) changing over time before skinning: blend shapes,
         glTF morph targets, time-sampled points.
@@ -78,6 +86,7 @@ class Mesh:
     normals: np.ndarray | None = None
     normal_vertex: np.ndarray | None = None
     output_transforms: TransformTrack | None = None
+    world_transforms: TransformTrack | None = None
     deformer: Deformer | None = None
     face_vertex_counts: np.ndarray | None = None
     face_vertex_indices: np.ndarray | None = None
@@ -117,7 +126,10 @@ class Scene:
     time_codes_per_second : float
         Frames per second of ``times`` (1 for glTF, whose times are seconds).
     up_axis : str
+        "Y" or "Z": the up axis of world space (``space="world"``).
     meters_per_unit : float
+        Metres per length unit of every space (points, velocities per second); results are
+        never rescaled by it.
     clips : list of str
         Animation clip names available (glTF); the loaded one is ``clip``.
     cor_options : dict
@@ -206,7 +218,7 @@ class Scene:
 
     def skin(self, times: npt.ArrayLike | None = None, method: Method | None = None, *,
              device: Device = None, normals: bool = False, velocities: bool = False,
-             interp: Interpolation = "trs", space: Literal["output", "skeleton"] = "output",
+             interp: Interpolation = "trs", space: Space = "output",
              blend_shapes: bool = True, tangents: bool = False,
              sign_reference: SignReference = "largest_weight") -> "SkinnedFrames":
         """Skin every mesh at ``times``: the one per-mesh loop of the engine.
@@ -226,9 +238,10 @@ class Scene:
             :mod:`dqskin.motion`).
         interp : str
             Joint interpolation between keys (:data:`dqskin.animation.INTERPOLATIONS`).
-        space : {"output", "skeleton"}
-            "output": each mesh's output space (``output_transforms``: USD prim space, glTF
-            world); "skeleton": skeleton (bind) space.
+        space : {"output", "local", "world", "skeleton"}
+            :data:`dqskin.spaces.Space`: "local" (or "output"): each mesh's own space
+            (``output_transforms``: USD prim space, glTF world); "world": world space, stage
+            units (``world_transforms``); "skeleton": skeleton (bind) space.
         blend_shapes : bool
             Apply each mesh's ``deformer`` (blend shapes, glTF morph targets, animated points);
             False skins the bind points, isolating skinning.
@@ -242,8 +255,7 @@ class Scene:
         -------
         SkinnedFrames
         """
-        if space not in ("output", "skeleton"):
-            raise ValueError(f'space must be "output" or "skeleton", got {space!r}')
+        check_space(space)
         t = self.times if times is None else check_times(times)
         if (len(self.meshes) > 1 and not tangents and sign_reference == "largest_weight"
                 and all((method or m.skinning_method) in BATCH_METHODS for m in self.meshes)):
@@ -269,7 +281,7 @@ class Scene:
             sk = self.skinner(m, device)
             deformer = m.deformer if blend_shapes else None
             rest = None if deformer is None else deformer.points_at(t)
-            track = m.output_transforms if space == "output" else None
+            track = space_track(m, space)
             out = rate = None
             if track is not None:
                 out, rate = track.with_derivative(t) if velocities else (track.at(t), None)

@@ -1228,7 +1228,8 @@ def load_gltf(path, *, clip=None):
         points, normals, tangents (TANGENT, ``(x, y, z, w)``) and uvs (TEXCOORD_0, glTF's
         top-left origin) as stored, float32 (the base shape: morph targets are the mesh's
         ``deformer``, a :class:`GltfMorph`); results of :meth:`Scene.skin` are world space
-        (``output_transforms`` None, geom-bind identity).
+        in every space but "skeleton", which is the world too (``output_transforms`` and
+        ``world_transforms`` None, geom-bind identity).
         Weights: JOINTS_n/WEIGHTS_n sets concatenated (K = 4·sets), normalized integers
         dequantized, each row divided by its sum; an all-zero row gets weight 1 on its first
         influence (as three.js). ``times`` are the clip's key times in seconds (``[0.]``

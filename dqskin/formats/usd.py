@@ -23,6 +23,11 @@ What a loaded :class:`~dqskin.scene.Mesh` holds for a skinned ``UsdGeom.PointBas
   :class:`~dqskin.animation.TransformTrack` keyed at every time sample of the transforms above
   the two prims (exact there; between samples interpolated as joints are, which is USD's own
   interpolation for translate, orient and scale ops); None when identity.
+- ``world_transforms``: skeleton space → world (stage units, no ``metersPerUnit`` scaling):
+  ``skelLocalToWorld``, evaluated as ``output_transforms`` are, one track per skeleton; so
+  ``gprimLocalToWorld`` applied to ``UsdSkel.BakeSkinning``'s points is what
+  ``Scene.skin(space="world")`` returns. None when the prim's local-to-world is the identity at
+  every time (world is then its own space).
 - ``deformer``: blend shapes (offsets, normalOffsets, pointIndices, inbetweens) driven by the
   skeleton's ``SkelAnimation.blendShapeWeights``, and time-sampled rest points, with their
   analytic time derivative; None when there are neither.
@@ -455,6 +460,7 @@ class _Loader:
         self.skeleton_index = {}  # skeleton prim path -> index into skeletons
         self.skeletons, self.animations = [], []
         self.meshes, self.rigid = [], []
+        self.world_tracks = {}  # skeleton prim path -> its local-to-world XformChain
 
     def fail(self, where, what):
         raise ValueError(f"{self.path}: {where}: {what}")
@@ -864,6 +870,7 @@ class _Loader:
             skinning_method=method, normals=normals,
             normal_vertex=normal_vertex,
             output_transforms=_output_transforms(self, where, skel_prim, prim),
+            world_transforms=_world_transforms(self, prim, skel_prim),
             deformer=deform,
             face_vertex_counts=counts, face_vertex_indices=fvi, uvs=uvs))
 
@@ -991,6 +998,27 @@ def _shared_space(loader, skel_prim, gprim):
         except (ValueError, np.linalg.LinAlgError):
             spaces[common] = False  # the full chain below names the problem
     return spaces[common]
+
+
+def _is_identity(track):
+    """Whether ``track`` is one constant identity transform."""
+    with np.errstate(all="ignore"):
+        return (track.key_times.shape[0] == 1
+                and np.allclose(track.at(track.key_times), np.eye(4), rtol=0, atol=1e-12))
+
+
+def _world_transforms(loader, gprim, skel_prim):
+    """Skeleton space → world as an :class:`XformChain` (the skeleton's local-to-world, one per
+    skeleton), or None when the gprim's local-to-world is the identity at every time (world is
+    then the gprim's space, where ``output_transforms`` already lead). The chain's values are
+    checked by :func:`_output_transforms`: it composes them with the gprim's."""
+    if _is_identity(XformChain(read_local_to_world(gprim), [])):
+        return None
+    key = str(skel_prim.GetPath())
+    if key not in loader.world_tracks:
+        loader.world_tracks[key] = XformChain(read_local_to_world(skel_prim), [],
+                                              name=f"{loader.path}: {key}")
+    return loader.world_tracks[key]
 
 
 def _output_transforms(loader, where, skel_prim, gprim):
