@@ -106,6 +106,18 @@ def test_imports_count_the_packages_they_pass_through(tmp_path):
     assert _cycle(graph) == ["p.b", "p.q.r", "p.b"]
 
 
+def test_file_roles_import_one_way():
+    """``dqskin.files`` (file machinery) imports no reader or writer; readers import no writer."""
+    mods = _modules()
+    graph = {name: _imports(name, path, mods) for name, path in mods.items()}
+    banned = {"dqskin.files": ("dqskin.readers", "dqskin.writers"),
+              "dqskin.readers": ("dqskin.writers",)}
+    offenders = [f"{name} → {dep}" for name, deps in graph.items() for role, bad in banned.items()
+                 if name.startswith(role) for dep in sorted(deps) if dep.startswith(bad)]
+    assert graph["dqskin.writers.usd_cache"] & {"dqskin.files.atomic", "dqskin.readers.usd"}
+    assert not offenders, offenders
+
+
 HEAVY = ("warp", "pxr", "dask", "trimesh", "pygltflib")
 LOADERS = ("dqskin.readers.", "dqskin.writers.", "dqskin.scene")
 SMALL = ["dqskin", "dqskin.errors", "dqskin.files", "dqskin.files.atomic", "dqskin.files.direct",

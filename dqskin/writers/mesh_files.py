@@ -1,5 +1,5 @@
 """Plain mesh files through trimesh, one file per frame (:class:`FrameWriter`,
-:class:`MeshLayout`, :func:`write_frames`); :func:`.mesh.load_mesh` reads them.
+:class:`MeshLayout`, :func:`write_frames`); :func:`dqskin.readers.mesh.load_mesh` reads them.
 
 What each per-frame format holds (all meshes of the scene go into one file per frame):
 

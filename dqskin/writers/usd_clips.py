@@ -414,7 +414,7 @@ class ClipBake:
     Parameters
     ----------
     scene : Scene
-        A USD scene (:func:`.usd.load_usd`).
+        A USD scene (:func:`dqskin.readers.usd.load_usd`).
     out : str or Path
         ``SHOT.usd/.usdc/.usda``; the clips go to :func:`clips_folder`.
     times : (F,) float64
