@@ -13,8 +13,8 @@ import importlib
 _EXPORTS = {
     "METHODS": "skinning", "Skinner": "skinning", "skin_normals": "skinning",
     "skin_points": "skinning", "Animation": "animation", "KeyedAnimation": "animation",
-    "bake": "baking", "Crowd": "crowd", "load": "formats", "load_mesh": "formats", "Mesh": "scene",
-    "Scene": "scene", "SkinnedFrames": "scene", "Skeleton": "skeleton",
+    "bake": "baking", "Crowd": "crowd", "load": "readers", "load_mesh": "readers.mesh",
+    "Mesh": "scene", "Scene": "scene", "SkinnedFrames": "scene", "Skeleton": "skeleton",
     "forward_kinematics": "skeleton", "dq": None, "dual": None, "quat": None,
     "automatic_weights": "autoweights", "rig_mesh": "rigging", "replace_weights": "rigging",
     "autoweights": None, "rigging": None,

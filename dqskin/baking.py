@@ -2,10 +2,10 @@
 
 :func:`bake` skins a scene chunk by chunk (:meth:`dqskin.Scene.skin_chunks`, so memory stays
 bounded) and hands each chunk to the writer the output's suffix selects: a USD point cache
-(:mod:`dqskin.formats.usd_cache`) or value clips (:mod:`dqskin.formats.usd_clips`, chunks baked
-in parallel by :mod:`dqskin.distributed`), one ``.npz`` (:mod:`dqskin.formats.npz`) or one mesh
-file per frame (:mod:`dqskin.formats.mesh_files`). Every output is written atomically
-(:mod:`dqskin.formats.atomic`) and checked first (:mod:`dqskin.validation`).
+(:mod:`dqskin.writers.usd_cache`) or value clips (:mod:`dqskin.writers.usd_clips`, chunks baked
+in parallel by :mod:`dqskin.distributed`), one ``.npz`` (:mod:`dqskin.writers.npz`) or one mesh
+file per frame (:mod:`dqskin.writers.mesh_files`). Every output is written atomically
+(:mod:`dqskin.files.atomic`) and checked first (:mod:`dqskin.validation`).
 """
 
 import contextlib
@@ -17,11 +17,12 @@ import numpy.typing as npt
 
 from ._warp import Device
 from .animation import Interpolation
-from .formats import format_of, gltf, mesh_files, npz, usd, usd_cache
-from .formats.atomic import atomic_path, check_interrupted, check_parent
+from .files.atomic import atomic_path, check_interrupted, check_parent
+from .readers import format_of, gltf, usd
 from .scene import Scene
 from .skinning import Method, SignReference
 from .validation import check_skinned
+from .writers import mesh_files, npz, usd_cache
 
 __all__ = ["CHUNK", "CLIPS_AUTO_BYTES", "OUTPUT_SUFFIXES", "bake", "check_clip_arguments",
            "check_output", "output_kind", "sample_bytes"]
@@ -32,7 +33,7 @@ OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXE
 
 CHUNK = usd_cache.PIECE_FRAMES
 """Default frames skinned at a time, 256 (.npz, per-frame files; single-layer USD caches skin
-fewer when 256 frames of samples exceed :data:`dqskin.formats.usd_cache.PIECE_BYTES`)."""
+fewer when 256 frames of samples exceed :data:`dqskin.writers.usd_cache.PIECE_BYTES`)."""
 
 CLIPS_AUTO_BYTES = 512 << 20
 """A USD cache whose samples would exceed this many bytes (:func:`sample_bytes`) is written as
@@ -114,7 +115,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     (:meth:`dqskin.Scene.local_transforms`) and every skinned chunk before it is written
     (:func:`dqskin.validation.check_skinned`: no NaN or infinite result in any format); a refusal
     leaves nothing behind, because the output appears only when complete
-    (:mod:`dqskin.formats.atomic`); without ``force`` its name is claimed exclusively, so of two
+    (:mod:`dqskin.files.atomic`); without ``force`` its name is claimed exclusively, so of two
     runs writing the same file the one finishing second fails.
 
     Parameters
@@ -126,7 +127,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         extent, and normals and velocities as asked), ``.npz`` (points and faces), or a per-frame
         pattern ``dir/f_{:04d}.obj`` (``.obj .ply .stl .off .glb``; all meshes in one file; a
         name without ``{}`` only for one frame; ``.obj/.ply/.glb`` also get skinned normals and
-        UVs, see :mod:`dqskin.formats.mesh_files`). Per-frame files are committed together.
+        UVs, see :mod:`dqskin.writers.mesh_files`). Per-frame files are committed together.
     times : (F,) float, optional
         Default ``scene.times``.
     method : {"lbs", "dqs", "blend", "cor"} or None
@@ -136,7 +137,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     chunk : int, optional
         Frames skinned at a time (default 256, fewer for a USD cache when 256 frames of its
         samples exceed 64 MB); with clips, frames per clip layer (default
-        :func:`dqskin.formats.usd_clips.clip_frames`: 128, more for a mesh whose 128 frames hold
+        :func:`dqskin.writers.usd_clips.clip_frames`: 128, more for a mesh whose 128 frames hold
         under 32 MB of samples; with workers, shorter for four or more a task slot and evened
         out over them, so possibly fewer than 128; with ``resume``, the earlier bake's).
     sign_reference : {"largest_weight", "running_sum"}
@@ -152,7 +153,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         A tqdm bar over frames (over chunks with clips) on stderr (for three chunks or more,
         and only when stderr is a terminal).
     clips : bool or None
-        USD output as value clips (:mod:`dqskin.formats.usd_clips`): a small top-level ``out``
+        USD output as value clips (:mod:`dqskin.writers.usd_clips`): a small top-level ``out``
         and one crate layer per chunk in ``out``'s ``.clips`` folder. None (default): clips when
         the samples would exceed :data:`CLIPS_AUTO_BYTES` (512 MiB), or when ``workers``,
         ``scheduler`` or ``resume`` ask for them.
@@ -176,7 +177,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         A one-line summary of what was written.
     """
     if not isinstance(scene, Scene):
-        from .formats import load
+        from .readers import load
         scene = load(scene)
     t = scene.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
     kind = output_kind(out)
@@ -210,7 +211,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         check_output(out, sources, force)
         clip_bake = None  # SHOT.clips/ beside SHOT.usd: locked, and replaced with --force
         if usd_cache.clips_folder(out).is_dir():
-            from .formats import usd_clips as clip_bake
+            from .writers import usd_clips as clip_bake
         wrote_velocities = False
 
         def check(res):

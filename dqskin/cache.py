@@ -2,7 +2,7 @@
 
 Entries are ``.npz`` files under :func:`cache_dir`, one folder per kind (``weights/``, ``cor/``),
 named by a hash of everything the result depends on (the caller's key), so nothing goes stale:
-a changed input is another file. :func:`store` writes atomically (:mod:`dqskin.formats.atomic`)
+a changed input is another file. :func:`store` writes atomically (:mod:`dqskin.files.atomic`)
 and skips a cache it cannot write; :func:`load` treats anything it cannot use (missing, empty,
 truncated, not an archive, a missing array, another shape or dtype) as a miss.
 """
@@ -11,6 +11,8 @@ import os
 from pathlib import Path
 
 import numpy as np
+
+from .files.atomic import atomic_path
 
 __all__ = ["cache_dir", "load", "store"]
 
@@ -49,8 +51,6 @@ def store(path: str | os.PathLike, **arrays) -> None:
     """Write ``arrays`` as the ``.npz`` entry ``path`` (atomically, replacing an unreadable
     one); a cache that cannot be written (read-only, full) costs a recomputation next time,
     nothing more."""
-    from .formats.atomic import atomic_path  # lazily: dqskin.formats imports the scene, which
-    # imports the modules that cache (cor)
     try:
         with atomic_path(path, overwrite=True) as tmp:
             np.savez(tmp, **arrays)

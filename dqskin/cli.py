@@ -10,11 +10,11 @@ All argument parsing lives here; each command calls the library (:func:`dqskin.b
   reader of stdout goes away (``dqskin info X | head``), as a tool ended by SIGPIPE.
 * Signals: :func:`main` installs the handlers before anything else it does; the first SIGINT or
   SIGTERM raises :class:`Interrupted` in the main thread, so every ``with`` block unwinds and
-  :mod:`dqskin.formats.atomic` removes its temporary files (its commit and clean-up steps finish
+  :mod:`dqskin.files.atomic` removes its temporary files (its commit and clean-up steps finish
   first; further signals during clean-up are ignored). An interrupted run leaves no output and no
   temporary file.
 * Outputs: atomic, never over an existing file without ``--force`` nor over the input; without
-  ``--force`` the name is claimed exclusively (:mod:`dqskin.formats.atomic`), so of two runs
+  ``--force`` the name is claimed exclusively (:mod:`dqskin.files.atomic`), so of two runs
   writing the same output the one that finishes second fails.
 * Exit: :func:`main`, as the process's entry point, ends the process itself once Python's exit
   handlers have run and the standard streams are flushed, skipping the interpreter's teardown of
@@ -54,7 +54,7 @@ def _on_signal(signum, frame):
         return  # the first signal interrupts; clean-up then runs to its end
     _signalled.append(signum)
     exc = Interrupted(signum)
-    atomic = sys.modules.get("dqskin.formats.atomic")
+    atomic = sys.modules.get("dqskin.files.atomic")
     if atomic is not None:
         atomic.interrupt(exc)  # raises now, or when the current commit/clean-up step ends
         return
@@ -181,7 +181,7 @@ def cmd_skin(args):
 
 
 def cmd_flatten(args):
-    from .formats.usd_clips import flatten
+    from .writers.usd_clips import flatten
     src = _regular_file(args.input)
     print(f"wrote {flatten(src, args.out, overwrite=args.force)}")
     return 0
@@ -205,8 +205,8 @@ def _load_input(args, cache_out=None, rig_dir=None):
     plain mesh bound to a BVH (:func:`dqskin.rigging.rig_mesh`); ``--weights`` replaces the
     influences (:func:`dqskin.rigging.replace_weights`). ``cache_out``: the cache ``skin`` will
     write; a USD cache copies a USD stage, so a bound mesh is then written as a UsdSkel rig in
-    the folder ``rig_dir`` (:func:`dqskin.formats.usd_rig.write_rig`) and that rig loaded."""
-    from . import formats
+    the folder ``rig_dir`` (:func:`dqskin.writers.usd_rig.write_rig`) and that rig loaded."""
+    from . import readers
     from .rigging import replace_weights, rig_mesh
     if args.max_influences < 1:
         raise ValueError(f"--max-influences {args.max_influences}: must be at least 1")
@@ -217,7 +217,7 @@ def _load_input(args, cache_out=None, rig_dir=None):
         weights = _regular_file(weights)
     src = _regular_file(args.input)
     if args.skeleton is not None:
-        if formats.format_of(src) is not None and src.suffix.lower() != ".glb":
+        if readers.format_of(src) is not None and src.suffix.lower() != ".glb":
             raise ValueError(f"{src}: --skeleton binds a plain mesh (.obj/.ply/.stl/.off/.glb) "
                              "to a BVH; a character file has its own skeleton (use --weights "
                              "auto to replace its weights)")
@@ -230,14 +230,14 @@ def _load_input(args, cache_out=None, rig_dir=None):
         scene = rig_mesh(src, _regular_file(args.skeleton), weights=weights or "auto",
                          scale=args.scale, max_influences=args.max_influences, device=args.device)
         if usd_out:
-            from .formats.usd_rig import write_rig
+            from .writers.usd_rig import write_rig
             rig = Path(rig_dir) / f"{src.stem or 'mesh'}.usdc"
             write_rig(scene, rig)
-            scene = formats.load(rig)
+            scene = readers.load(rig)
         return scene
     if args.scale is not None:
         raise ValueError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")
-    scene = formats.load(src, clip=_clip(args.clip))
+    scene = readers.load(src, clip=_clip(args.clip))
     if cache_out is not None and not scene.meshes and src.suffix.lower() == ".bvh":
         raise ValueError(f"{src}: no mesh to skin (a BVH holds a skeleton and its motion); bind "
                          f"a mesh in its rest pose: dqskin skin MESH --skeleton {src.name} "
@@ -267,7 +267,7 @@ def _print_weight_difference(asset, scene, label, device, samples=100):
 def cmd_rig(args):
     """``dqskin rig``: bind (or re-weight) and write a UsdSkel rig."""
     from .baking import check_output
-    from .formats.usd_rig import write_rig
+    from .writers.usd_rig import write_rig
     check_output(args.out, _inputs(args), args.force)
     scene = _load_input(args)
     _checkpoint()
@@ -278,9 +278,9 @@ def cmd_rig(args):
 def cmd_info(args):
     import numpy as np
 
-    from . import formats
+    from . import readers
     from .validation import scene_problems
-    scene = formats.load(_regular_file(args.input), clip=_clip(args.clip))
+    scene = readers.load(_regular_file(args.input), clip=_clip(args.clip))
     print(f"{scene.path}")
     t = np.asarray(scene.times)
     tcps = scene.time_codes_per_second
@@ -289,7 +289,7 @@ def cmd_info(args):
           f"up axis {scene.up_axis}, "
           f"{scene.meters_per_unit:g} m/unit")
     if Path(scene.path).suffix.lower() == ".bvh":
-        from .formats import bvh
+        from .readers import bvh
         for line in bvh.summary_lines(bvh.read_bvh(scene.path)):
             print(f"  {line}")
     if scene.clips:
@@ -331,7 +331,7 @@ def cmd_info(args):
 
 
 def cmd_demo(args):
-    from . import formats
+    from . import readers
     from .baking import bake
     from .report.compare import run_compare
     asset = _regular_file(args.asset) if args.asset else default_asset()
@@ -340,7 +340,7 @@ def cmd_demo(args):
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     print(f"dqskin demo: skinning {asset.name} with DQS")
-    scene = formats.load(asset)
+    scene = readers.load(asset)
     print(bake(scene, out_dir / "humanoid_dqs.usdc", method="dqs", device=args.device,
                force=True))
     report = out_dir / "report"
@@ -604,7 +604,7 @@ def _main(argv):
         del _signalled[:]  # (a new run, when called from Python again)
         global _own_process
         _own_process = argv is None
-        atomic = sys.modules.get("dqskin.formats.atomic")
+        atomic = sys.modules.get("dqskin.files.atomic")
         if atomic is not None:
             atomic.reset_interrupt()
         if argv is None and "--verbose" not in sys.argv[1:]:
@@ -772,7 +772,7 @@ def _run_command(argv):
     except Exception:
         _checkpoint()  # e.g. NumPy's ImportError when Ctrl-C lands inside its C-level import
         raise
-    _checkpoint()  # nothing was committed after a swallowed interrupt (formats.atomic)
+    _checkpoint()  # nothing was committed after a swallowed interrupt (files.atomic)
     return code
 
 

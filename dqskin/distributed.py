@@ -1,9 +1,9 @@
-"""Clip bakes chunk by chunk, in this process or as tasks on Dask (:mod:`dqskin.formats.usd_clips`).
+"""Clip bakes chunk by chunk, in this process or as tasks on Dask (:mod:`dqskin.writers.usd_clips`).
 
 Every chunk of frames is one independent task, :func:`run_chunk`: it skins its frames with
-:meth:`dqskin.Scene.skin_chunks` and writes its own clip layer (:func:`~.formats.usd_clips.
+:meth:`dqskin.Scene.skin_chunks` and writes its own clip layer (:func:`~.writers.usd_clips.
 write_clip`: complete, checksummed, then renamed into place). A task carries only the source's
-path, its times and where each value goes (:class:`~.formats.usd_cache.Target`); each worker
+path, its times and where each value goes (:class:`~.writers.usd_cache.Target`); each worker
 process loads the asset once and keeps it for its later chunks, and returns a few numbers, so
 point data never travels through the scheduler. Workers need the source and the output folder at
 the same paths (one machine, or a shared file system).
@@ -33,10 +33,11 @@ from pathlib import Path
 import numpy as np
 
 from . import forkserver
-from .formats import atomic, usd_clips
-from .formats.usd_cache import SampleWriter, piece_frames
+from .files import atomic
 from .kernels import buffers as KB
 from .validation import check_skinned
+from .writers import usd_clips
+from .writers.usd_cache import SampleWriter, piece_frames
 
 __all__ = ["ChunkJob", "bake_clips", "run_chunk", "run_here", "worker_threads"]
 
@@ -129,7 +130,7 @@ def _worker_scene(path):
     st = os.stat(path)
     key = (path, st.st_mtime_ns, st.st_size)
     if key not in _scenes:
-        from .formats import load
+        from .readers import load
         global _buffers
         _scenes.clear()
         _buffers = KB.BufferPool()  # another asset's pieces: their own sizes
@@ -176,7 +177,7 @@ def _result(job, digest, t0, c0):
 
 def run_chunk(job: ChunkJob, scene=None) -> dict:
     """Skin one chunk and write its clip layer; ``scene`` defaults to the worker's copy of
-    ``job.source``. Returns ``index``, ``checksum`` (:data:`~.formats.usd_clips.CHECKSUM`),
+    ``job.source``. Returns ``index``, ``checksum`` (:data:`~.writers.usd_clips.CHECKSUM`),
     ``seconds``, ``cpu_seconds`` (of the whole process while the task ran: all its threads, a
     worker running one task at a time), ``pid``, ``peak_rss_mb``, and ``started`` and ``ended``
     (``time.time()`` seconds)."""
@@ -196,10 +197,10 @@ def run_here(jobs: list, scene, done) -> None:
     """Every job, in order, in this process (``done(result)`` after each; results as
     :func:`run_chunk`'s), pipelined across chunks instead of :func:`run_chunk` one by one: one
     :meth:`dqskin.Scene.skin_chunks` stream of pieces
-    (:data:`~.formats.usd_cache.PIECE_BYTES`) over all their frames keeps skinning (the first
+    (:data:`~.writers.usd_cache.PIECE_BYTES`) over all their frames keeps skinning (the first
     piece of chunk ``k + 1`` while chunk ``k``'s layer is finished), and chunk ``k``'s layer
     (hashed as it was written) is recorded and renamed
-    (:func:`~.formats.usd_clips.commit_clip`) once chunk ``k + 1``'s is filled. Memory is as
+    (:func:`~.writers.usd_clips.commit_clip`) once chunk ``k + 1``'s is filled. Memory is as
     :func:`run_chunk`'s: a few pieces (the one being skinned, two being checked, one being
     written), no layer (each goes to its file as it fills).
 
@@ -248,7 +249,7 @@ def _commit(job, claim, digest, start):
 def _commit_on_error(job, claim, digest, start):
     """:func:`_commit`, while :func:`run_here` is failing: an error of its own is dropped (the
     failure being raised matters; commit_clip removed the layer). An interrupt the CLI recorded
-    (:func:`~.formats.atomic.interrupt`; nothing commits after one) is set aside for this one
+    (:func:`~.files.atomic.interrupt`; nothing commits after one) is set aside for this one
     complete, hashed file and raised again at the end."""
     try:
         atomic.check_interrupted()
@@ -271,7 +272,7 @@ def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", devi
                normals=True, velocities=True, workers=None, scheduler=None, resume=False,
                force=False, progress=False, threads=None, inputs=(), **skin_options) -> dict:
     """Bake ``scene`` at ``times`` to the value-clip cache ``out``
-    (:class:`~.formats.usd_clips.ClipBake`); see :func:`dqskin.bake` for the parameters.
+    (:class:`~.writers.usd_clips.ClipBake`); see :func:`dqskin.bake` for the parameters.
     ``skin_options`` go to :meth:`dqskin.Scene.skin` (``sign_reference``, ...) for the meshes
     and into the plan key (rigidly bound prims use ``method``, ``interp``, ``device`` and
     ``sign_reference``). ``threads``: CPU threads of each LocalCluster worker process (default

@@ -20,7 +20,7 @@ import sys
 __all__ = ["PRELOAD", "dask_config", "freeze_heap", "keep_freed_memory", "prestart_workers",
            "stop_workers"]
 
-PRELOAD = ["distributed", "numpy", "dqskin.distributed", "dqskin.formats.usd"]
+PRELOAD = ["distributed", "numpy", "dqskin.distributed", "dqskin.readers.usd"]
 """Modules the forkserver imports once; every worker process forked from it starts with them
 (importing them costs each spawned worker 2-3 CPU-seconds)."""
 

@@ -21,9 +21,9 @@ import numpy as np
 
 from ._warp import Device
 from .autoweights import automatic_weights
-from .formats import bvh
-from .formats.mesh_files import load_mesh
 from .influences import check_influences
+from .readers import bvh
+from .readers.mesh import load_mesh
 from .scene import Mesh, Scene
 
 __all__ = ["WEIGHT_FIELDS", "check_fit", "read_weights", "replace_weights", "rig_mesh",

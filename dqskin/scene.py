@@ -1,6 +1,6 @@
 """The loaded scene: skinned meshes, their skeletons and animations, skinned per frame on a device.
 
-Loaders (:mod:`dqskin.formats.usd`, :mod:`dqskin.formats.gltf`) fill these containers;
+Loaders (:mod:`dqskin.readers.usd`, :mod:`dqskin.readers.gltf`) fill these containers;
 :meth:`Scene.skin` runs the same engine for every format: animation → local transforms → forward
 kinematics (dual quaternions) → skinning transforms → per-vertex skinning → output space.
 """

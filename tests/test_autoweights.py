@@ -10,7 +10,7 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from dqskin import Scene, Skeleton, autoweights, cache, formats
+from dqskin import Scene, Skeleton, autoweights, cache, readers
 from dqskin.autoweights import automatic_weights, bone_heat_weights, bone_segments, sparsify
 from dqskin.rigging import replace_weights
 
@@ -322,7 +322,7 @@ BLENDER = {"CesiumMan": (0.58, 1.25), "RiggedFigure": (0.28, 1.27)}
 @pytest.mark.parametrize("source", ["khronos-gltf", "usd-wg"])
 def test_real_characters_match_blender_or_better(shared_assets, name, source):
     suffix = ".glb" if source == "khronos-gltf" else ".usdz"
-    scene = formats.load(shared_assets / source / name / f"{name}{suffix}")
+    scene = readers.load(shared_assets / source / name / f"{name}{suffix}")
     auto = replace_weights(scene, "auto", cache=False)
     # 24 frames a second, as Blender plays it (times are seconds in glTF, time codes in USD)
     step = scene.time_codes_per_second / 24

@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dqskin.cli import main
-from dqskin.formats import bvh, load
+from dqskin.readers import bvh, load
 
 ORDERS = ["".join(p) for p in itertools.permutations("XYZ")]
 

@@ -1,4 +1,4 @@
-"""Value-clip caches (dqskin.formats.usd_clips), baked in this process.
+"""Value-clip caches (dqskin.writers.usd_clips), baked in this process.
 
 What USD shows through ``Usd.Stage.Open`` is checked against two references: a float64 oracle
 written from USD's own rule (linear interpolation between the bracketing samples, held outside
@@ -20,8 +20,8 @@ import pytest
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 from dqskin import bake
-from dqskin.formats import load
-from dqskin.formats.usd_clips import (
+from dqskin.readers import load
+from dqskin.writers.usd_clips import (
     LOCK_FILE,
     bake_lock,
     chunk_bounds,
@@ -119,7 +119,7 @@ def test_unsorted_and_repeated_times_give_the_sorted_cache(tmp_path):
 def test_force_removes_the_top_level_reading_the_clips_it_replaces(tmp_path):
     """A ``--force`` clip bake over an earlier one removes the earlier top level as it clears the
     clip layers that file reads: interrupted, it leaves no file showing a mix of two bakes."""
-    from dqskin.formats.usd_clips import ClipBake
+    from dqskin.writers.usd_clips import ClipBake
     scene = load(HUMANOID)
     out = tmp_path / "shot.usd"
     bake(scene, out, scene.times[:6], method="lbs", chunk=3, clips=True)
@@ -301,7 +301,7 @@ def test_a_link_where_the_lock_goes_is_refused_not_followed(tmp_path):
 
 def test_the_lock_holds_across_processes_and_names_the_holder(tmp_path):
     out = tmp_path / "shot.usd"
-    code = ("import sys\nfrom dqskin.formats.usd_clips import bake_lock\n"
+    code = ("import sys\nfrom dqskin.writers.usd_clips import bake_lock\n"
             "with bake_lock(sys.argv[1]):\n"
             "    print('held', flush=True)\n    sys.stdin.readline()\n")
     holder = subprocess.Popen([sys.executable, "-c", code, str(out)], stdin=subprocess.PIPE,
@@ -373,7 +373,7 @@ def test_a_single_layer_over_a_clip_bake_replaces_it_whole(tmp_path):
 def test_the_top_level_is_written_only_over_chunks_of_this_bake(tmp_path, monkeypatch):
     """A chunk whose record is of another plan when the bake finishes (a late write by a remote
     worker of a stopped bake) fails the bake: no SHOT.usd reads it."""
-    from dqskin.formats import usd_clips
+    from dqskin.writers import usd_clips
     real = usd_clips.ClipBake.finish
 
     def late(self):
@@ -668,7 +668,7 @@ def test_long_ranges_default_to_clips(humanoid, tmp_path, monkeypatch):
 def test_default_clip_length_holds_clip_bytes_of_samples(humanoid, tmp_path, monkeypatch):
     """Without ``chunk``, a clip holds ``CLIP_CHUNK`` frames, or as many more as make
     ``CLIP_BYTES`` of samples (closed form: the layers' frame counts)."""
-    from dqskin.formats import usd_clips
+    from dqskin.writers import usd_clips
     scene = humanoid["scene"]
     F = len(scene.times)
     per_frame = 12 * (2 * sum(len(m.points) for m in scene.meshes)
@@ -687,8 +687,8 @@ def test_default_clip_length_leaves_each_worker_four_clips(humanoid, monkeypatch
     """``clip_frames``: points only counts 12 bytes a point, normals and velocities add theirs;
     with N slots a clip is at most ``ceil(F / 4N)`` frames (not under ``CLIP_CHUNK``), then
     shortened to share the frames evenly among the clips that makes."""
-    from dqskin.formats import usd_clips
-    from dqskin.formats.usd_clips import clip_frames
+    from dqskin.writers import usd_clips
+    from dqskin.writers.usd_clips import clip_frames
     scene = humanoid["scene"]
     points = sum(len(m.points) for m in scene.meshes)
     monkeypatch.setattr(usd_clips, "CLIP_CHUNK", 2)
@@ -710,8 +710,8 @@ def test_default_clip_length_fills_every_wave_of_workers(humanoid, monkeypatch):
     (``k``) bakes fewer than ``F / N + k`` frames (the last wave is full, to within a frame a
     clip), the clips are never longer than without workers, and never under ``CLIP_CHUNK``
     frames unless evened out."""
-    from dqskin.formats import usd_clips
-    from dqskin.formats.usd_clips import CLIP_CHUNK, clip_frames
+    from dqskin.writers import usd_clips
+    from dqskin.writers.usd_clips import CLIP_CHUNK, clip_frames
     scene = humanoid["scene"]
     for F in (*range(1, 3000, 7), 1292, 10000, 123457):
         alone = clip_frames(scene, F, normals=False, velocities=False)
@@ -882,7 +882,8 @@ def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_p
     0, finished and hashed as it was written, is recorded and renamed, as the one-by-one bake
     had it; ``--resume`` keeps it. Never a temporary file left, nor chunk 1."""
     import dqskin.distributed as distributed
-    from dqskin.formats import atomic, usd_clips
+    from dqskin.files import atomic
+    from dqskin.writers import usd_clips
     scene = humanoid["scene"]
     shot = tmp_path / "shot.usd"
     calls = []

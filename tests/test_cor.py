@@ -661,7 +661,7 @@ def test_usd_bake_with_rigid_prims(shared_assets, tmp_path):
     """A USD cache baked with --method cor: meshes get COR, rigid prims (no triangles) DQS."""
     from pxr import Usd
 
-    from dqskin.formats.usd import load_rigid_prims, rigid_transforms
+    from dqskin.readers.usd import load_rigid_prims, rigid_transforms
 
     src = shared_assets / "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning/dqs.usda"
     scene = dqskin.load(src)

@@ -1,12 +1,12 @@
-"""dqskin.formats.crate: crate files written without Sdf, read back by usd-core (the oracle):
+"""dqskin.files.crate: crate files written without Sdf, read back by usd-core (the oracle):
 the same layer built with Sdf and exported must read identically, as text and value by value."""
 
 import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
-from dqskin.formats.crate import VALUE_TYPES, CrateSamples
-from dqskin.formats.direct import nbytes
+from dqskin.files.crate import VALUE_TYPES, CrateSamples
+from dqskin.files.direct import nbytes
 
 RNG = np.random.default_rng(7)
 
@@ -268,7 +268,7 @@ def test_lz4_blocks_with_overlapping_matches_and_long_lengths_decode():
     """The LZ4 decoder (for the structural sections usd-core compressed) against hand-made
     blocks: a back-reference longer than its offset repeats the bytes; lengths of 15 and more
     take extension bytes (255 = another byte follows)."""
-    from dqskin.formats.crate import _lz4_decode, _lz4_literals
+    from dqskin.files.crate import _lz4_decode, _lz4_literals
 
     block = bytes([0x00, 0x38]) + b"abc" + bytes([3, 0, 0x50]) + b"defgh"
     assert _lz4_decode(block) == b"abc" + b"abc" * 4 + b"defgh"
@@ -289,7 +289,7 @@ def test_a_failed_write_on_the_writer_thread_is_raised_here(tmp_path, monkeypatc
     def full(*args):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    from dqskin.formats import direct as direct_io
+    from dqskin.files import direct as direct_io
     monkeypatch.setenv("DQSKIN_DIRECT_IO", direct)
     monkeypatch.setattr(direct_io, "STAGE", direct_io.BLOCK)  # direct: each add writes
     crate = CrateSamples(tmp_path / "full.usdc", 24.0)
@@ -376,7 +376,7 @@ def test_integer_codes_of_every_width_decode():
     deltas from the previous value, wrapping at 32 bits."""
     import struct
 
-    from dqskin.formats.crate import _compressed_ints, _decode_ints, _lz4_literals
+    from dqskin.files.crate import _compressed_ints, _decode_ints, _lz4_literals
 
     deltas = [7, -3, 300, -70000, 7, 2**31 - 1, 5]  # common 7; 8, 16, 32, common, 32, 8 bits
     codes = [0, 1, 2, 3, 0, 3, 1]
@@ -474,8 +474,8 @@ def test_a_dropped_writer_closes_only_after_its_queued_writes(tmp_path, monkeypa
     import os
     import threading
 
-    import dqskin.formats.crate as crate_mod
-    from dqskin.formats.direct import AppendFile
+    import dqskin.files.crate as crate_mod
+    from dqskin.files.direct import AppendFile
 
     monkeypatch.setenv("DQSKIN_DIRECT_IO", direct)
     gate, real = threading.Event(), AppendFile.append_records
@@ -502,7 +502,7 @@ def test_a_base_of_another_crate_version_is_refused_as_unsupported(tmp_path, ver
     """A base whose crate version this writer cannot extend raises ``UnsupportedCrate`` (which
     a caller can write another way), leaving no output; a file that is not a crate raises a
     plain ValueError."""
-    from dqskin.formats.crate import UnsupportedCrate
+    from dqskin.files.crate import UnsupportedCrate
     base = tmp_path / "base.usdc"
     assert _base_layer().Export(str(base))
     data = bytearray(base.read_bytes())

@@ -1,4 +1,4 @@
-"""Files written past the page cache (:mod:`dqskin.formats.direct`): the bytes are exactly those
+"""Files written past the page cache (:mod:`dqskin.files.direct`): the bytes are exactly those
 appended (and rewritten at an offset), direct or buffered, and a file system that refuses
 ``O_DIRECT`` gets buffered writes instead."""
 
@@ -8,8 +8,8 @@ import os
 import numpy as np
 import pytest
 
-from dqskin.formats import direct
-from dqskin.formats.direct import AppendFile
+from dqskin.files import direct
+from dqskin.files.direct import AppendFile
 
 RNG = np.random.default_rng(7)
 
@@ -141,12 +141,12 @@ def test_pwrite_refuses_bytes_past_the_appended_ones(tmp_path):
 
 
 def test_a_crate_layer_written_past_the_cache_is_the_buffered_one(tmp_path, monkeypatch):
-    """:class:`~dqskin.formats.crate.CrateSamples` past the page cache (a stage of 3 blocks:
+    """:class:`~dqskin.files.crate.CrateSamples` past the page cache (a stage of 3 blocks:
     its sample blocks cross many) writes the bytes it writes through the cache, and usd-core
     reads its samples back."""
     from pxr import Sdf
 
-    from dqskin.formats.crate import CrateSamples
+    from dqskin.files.crate import CrateSamples
     monkeypatch.setattr(direct, "STAGE", 3 * direct.BLOCK)
     points = RNG.normal(size=(7, 500, 3)).astype(np.float32)
     points[3] = points[2]  # a held frame: stored once
@@ -255,7 +255,7 @@ def test_a_crate_layer_hashed_as_written_matches_its_bytes(tmp_path, monkeypatch
     direct writes refused after some went through)."""
     import xxhash
 
-    from dqskin.formats.crate import CrateSamples
+    from dqskin.files.crate import CrateSamples
     monkeypatch.setattr(direct, "STAGE", 3 * direct.BLOCK)
     if mode == "refused midway":
         real, calls = os.pwrite, []
@@ -277,7 +277,7 @@ def test_a_crate_layer_hashed_as_written_matches_its_bytes(tmp_path, monkeypatch
     crate.add("/A/B.points", "point3f[]", np.arange(5.0, 9.0), points[5:])
     data = crate.close(0, 8).read_bytes()
     assert hasher.hexdigest() == xxhash.xxh3_128(data[88:] + data[:88]).hexdigest()
-    from dqskin.formats.usd_clips import file_checksum
+    from dqskin.writers.usd_clips import file_checksum
     assert file_checksum(tmp_path / "c.usdc") == hasher.hexdigest()
 
 

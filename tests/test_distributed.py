@@ -20,8 +20,8 @@ import pytest
 from pxr import Usd
 
 from dqskin import bake
-from dqskin.formats import load
-from dqskin.formats.usd_clips import clips_folder
+from dqskin.readers import load
+from dqskin.writers.usd_clips import clips_folder
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_clips import HUMANOID, assert_same_animation, probe_times  # noqa: E402
@@ -131,7 +131,7 @@ def test_default_clips_are_sized_for_the_clusters_task_slots(external_cluster, t
     """Without ``chunk``, a bake on a cluster of two one-thread workers cuts the clips for two
     slots (``clip_frames(..., workers=2)``: two clips of the humanoid's frames, where one
     process bakes one), and equals the same bake in one process."""
-    from dqskin.formats.usd_clips import clip_frames
+    from dqskin.writers.usd_clips import clip_frames
     scene = load(HUMANOID)
     F = len(scene.times)
     assert -(-F // clip_frames(scene, F)) == 1
@@ -160,7 +160,7 @@ def test_a_worker_killed_mid_chunk_is_replaced_and_the_bake_completes(reference,
         name = "kill-once-mid-chunk"
 
         def setup(self, worker):
-            from dqskin.formats.usd_clips import ClipLayer
+            from dqskin.writers.usd_clips import ClipLayer
             finish = self.finish = ClipLayer.finish
 
             def finish_then_die(layer, times):
@@ -173,7 +173,7 @@ def test_a_worker_killed_mid_chunk_is_replaced_and_the_bake_completes(reference,
             ClipLayer.finish = finish_then_die
 
         def teardown(self, worker):
-            from dqskin.formats.usd_clips import ClipLayer
+            from dqskin.writers.usd_clips import ClipLayer
             ClipLayer.finish = self.finish
 
     shot = tmp_path / "shot.usd"
@@ -310,7 +310,7 @@ def test_a_task_reports_its_wall_and_process_cpu_seconds(tmp_path):
     its start and end on the system clock (the benchmark's span from the first task's start to
     the last one's end)."""
     from dqskin import distributed
-    from dqskin.formats.usd_clips import ClipBake
+    from dqskin.writers.usd_clips import ClipBake
     scene = load(HUMANOID)
     opts = dict(method="lbs", interp="trs", normals=False, velocities=False)
     plan = ClipBake(scene, tmp_path / "shot.usd", scene.times[:40], 40, opts)
@@ -332,8 +332,8 @@ def test_a_worker_reuses_its_buffers_from_task_to_task(tmp_path, monkeypatch):
     the second task of a chunk's size allocates no new one, where a pool per task would
     allocate all again (every buffer pooled here)."""
     from dqskin import distributed
-    from dqskin.formats.usd_clips import ClipBake
     from dqskin.kernels import buffers as KB
+    from dqskin.writers.usd_clips import ClipBake
     scene = load(HUMANOID)
     opts = dict(method="dqs", interp="trs", normals=True, velocities=True)
     plan = ClipBake(scene, tmp_path / "shot.usd", scene.times[:40], 20, opts)

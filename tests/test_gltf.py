@@ -22,7 +22,7 @@ import numpy as np
 import pygltflib as gl
 import pytest
 
-from dqskin.formats.gltf import load_gltf
+from dqskin.readers.gltf import load_gltf
 
 ASSETS = ["khronos-gltf/RiggedSimple/RiggedSimple.glb",
           "khronos-gltf/RiggedFigure/RiggedFigure.glb",

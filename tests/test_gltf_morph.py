@@ -33,7 +33,7 @@ from test_gltf import (
 )
 
 from dqskin.cli import main
-from dqskin.formats.gltf import GltfMorph, load_gltf
+from dqskin.readers.gltf import GltfMorph, load_gltf
 
 
 class MorphOracle(Oracle):

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from dqskin.formats import atomic_path, load_mesh
+from dqskin.files.atomic import atomic_path
+from dqskin.readers.mesh import load_mesh
 
 
 @pytest.mark.parametrize("suffix", [".obj", ".ply", ".stl", ".off"])
@@ -89,7 +90,7 @@ def test_atomic_path_exclusive_claim(tmp_path):
 
 
 def test_atomic_group_is_all_or_nothing(tmp_path):
-    from dqskin.formats.atomic import atomic_group
+    from dqskin.files.atomic import atomic_group
     (tmp_path / "b.txt").write_text("other run")
     group = atomic_group(overwrite=False)
     for name in ("a.txt", "b.txt", "c.txt"):
@@ -126,7 +127,7 @@ def test_atomic_errors_name_the_target(tmp_path):
 
 def test_interrupt_waits_for_the_critical_step(tmp_path):
     """An interrupt during a commit is raised after it; then nothing commits any more."""
-    from dqskin.formats import atomic
+    from dqskin.files import atomic
 
     class Stop(KeyboardInterrupt):
         pass
@@ -146,7 +147,7 @@ def test_interrupt_waits_for_the_critical_step(tmp_path):
 
 
 def test_frame_writer_rules(tmp_path):
-    from dqskin.formats.mesh_files import FrameWriter, frame_paths, write_frames
+    from dqskin.writers.mesh_files import FrameWriter, frame_paths, write_frames
     with pytest.raises(ValueError, match=r"3 frames but 1 file"):
         frame_paths(str(tmp_path / "x.obj"), [0, 1, 2])
     assert frame_paths(str(tmp_path / "x.obj"), [7]) == [tmp_path / "x.obj"]
@@ -170,7 +171,7 @@ def test_mesh_layout_mixes_meshes_with_and_without_normals_and_uvs():
     """One file for two meshes: the one without rest normals gets area-weighted normals of its
     skinned triangles, the one without UVs gets (0, 0); glTF UVs are flipped to bottom-left."""
     from dqskin import Mesh
-    from dqskin.formats.mesh_files import MeshLayout
+    from dqskin.writers.mesh_files import MeshLayout
     quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32)
     faces = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
     one = np.ones((4, 1), np.float32)

@@ -336,7 +336,7 @@ def test_spline_low_jerk():
 
 
 def test_gltf_trs_matches_key_values(shared_assets):
-    from dqskin.formats.gltf import (
+    from dqskin.readers.gltf import (
         load_gltf,  # must exist: fail, not skip, if the loader is missing
     )
 
@@ -467,7 +467,7 @@ def test_velocities_at_keys_are_the_mean_of_both_sides(shared_assets, method):
     """Caches are sampled exactly at keys, where linear keyframes have a kink; a renderer's shutter
     spans both sides, so the velocity authored there is the central one: it matches the central
     difference of the skinned points (one-sided derivatives were off by ~20% of the peak speed)."""
-    from dqskin.formats.gltf import load_gltf
+    from dqskin.readers.gltf import load_gltf
 
     scene = load_gltf(shared_assets / CESIUM)
     kt = scene.animations[0].key_times
@@ -487,7 +487,7 @@ def test_velocities_at_keys_are_the_mean_of_both_sides(shared_assets, method):
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_cesium_man_velocities_match_finite_differences(shared_assets, method):
-    from dqskin.formats.gltf import (
+    from dqskin.readers.gltf import (
         load_gltf,  # must exist: fail, not skip, if the loader is missing
     )
 

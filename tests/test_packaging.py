@@ -28,7 +28,7 @@ def test_wheel_ships_kernels_and_imports_outside_the_repo(tmp_path):
         assert f"dqskin/kernels/{module}.py" in names
     for rig in ("humanoid", "twist_cylinder", "bending_arm"):
         assert f"dqskin/assets/{rig}.usda" in names
-    for module in ("formats/usd", "formats/gltf", "report/compare", "report/html"):
+    for module in ("readers/usd", "readers/gltf", "report/compare", "report/html"):
         assert f"dqskin/{module}.py" in names
     assert not any(n.startswith(("kernels/", "assets/", "tests/", "tools/")) for n in names)
     # a fresh virtual environment outside the checkout; its dependencies (not dqskin) come from

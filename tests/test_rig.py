@@ -14,11 +14,12 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel
 from test_autoweights import capsule_body
 from test_bvh import _offsets, oracle
 
-from dqskin import formats
+from dqskin import readers
 from dqskin.cli import main
-from dqskin.formats import bvh
-from dqskin.formats.usd_rig import write_rig
+from dqskin.readers import bvh
+from dqskin.readers.mesh import load_mesh
 from dqskin.rigging import read_weights, replace_weights, rig_mesh
+from dqskin.writers.usd_rig import write_rig
 
 FRAMES = 12
 
@@ -70,7 +71,7 @@ def test_cli_skin_with_skeleton_and_weights_file(capture, tmp_path, monkeypatch,
     path, mesh, motion = capture
     got = _skin_cli(mesh, path, tmp_path / "auto.npz")
     assert "1 mesh × 12 frames" in capsys.readouterr().out
-    pts, _ = formats.load_mesh(mesh)
+    pts, _ = load_mesh(mesh)
     scene = rig_mesh(mesh, path)
     (m,) = scene.meshes
     ref = lbs_oracle(path, pts.astype(np.float64), m.joint_indices, m.joint_weights)
@@ -108,14 +109,14 @@ def test_rig_round_trip_through_usdskel(capture, tmp_path, monkeypatch, capsys):
         np.testing.assert_allclose(got, ref, atol=2e-5 * np.abs(ref).max(), err_msg=method)
         assert np.abs(ref[-1] - ref[0]).max() > 0.1, "the capture moves the mesh"
     # dqskin reads its own rig back: same skeleton, weights and motion
-    back = formats.load(rig)
+    back = readers.load(rig)
     np.testing.assert_allclose(back.skin(np.arange(FRAMES), method="lbs").points["/Root/body"],
                                scene.skin(np.arange(FRAMES), method="lbs").points[m.name],
                                atol=1e-5 * np.abs(ref).max())
 
 
 def test_rig_of_a_gltf_character_with_auto_weights(shared_assets, tmp_path, capsys):
-    scene = formats.load(shared_assets / "khronos-gltf" / "RiggedSimple" / "RiggedSimple.glb")
+    scene = readers.load(shared_assets / "khronos-gltf" / "RiggedSimple" / "RiggedSimple.glb")
     out = tmp_path / "simple.usda"
     assert main(["rig", str(shared_assets / "khronos-gltf" / "RiggedSimple" /
                              "RiggedSimple.glb"), "--weights", "auto", "--out", str(out)]) == 0
@@ -127,7 +128,7 @@ def test_rig_of_a_gltf_character_with_auto_weights(shared_assets, tmp_path, caps
     assert UsdSkel.BakeSkinning(stage.Traverse(), Gf.Interval(24 * t, 24 * t))
     (prim,) = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
     ref = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(24 * t), np.float64)
-    rig = formats.load(out)
+    rig = readers.load(out)
     np.testing.assert_allclose(rig.times, 24 * scene.times, atol=1e-5)
     got = rig.skin([24 * t], method="lbs", space="output").points[str(prim.GetPath())]
     np.testing.assert_allclose(got[0], ref, atol=1e-5 * np.abs(ref).max())
@@ -139,7 +140,7 @@ def test_rig_of_a_gltf_character_with_auto_weights(shared_assets, tmp_path, caps
 
 def test_misfits_are_explained(capture, tmp_path, capsys):
     path, mesh, motion = capture
-    pts, faces = formats.load_mesh(mesh)
+    pts, faces = load_mesh(mesh)
     far = tmp_path / "far.obj"
     trimesh.Trimesh(pts + [100, 0, 0], faces, process=False).export(far)
     metres = tmp_path / "metres.obj"
@@ -167,7 +168,7 @@ def test_misfits_are_explained(capture, tmp_path, capsys):
 
 def test_bad_weight_files_are_named(capture, tmp_path):
     path, mesh, motion = capture
-    V = len(formats.load_mesh(mesh)[0])
+    V = len(load_mesh(mesh)[0])
     J = motion.joint_names
     bad = {
         "missing": (dict(joint_indices=np.zeros((V, 1), int)), "missing joint_weights"),
@@ -210,7 +211,7 @@ def test_cli_compare_on_a_rigged_mesh(capture, tmp_path, monkeypatch, capsys):
 
 def test_damaged_weight_files_are_named(capture, tmp_path, capsys):
     path, mesh, motion = capture
-    V, J = len(formats.load_mesh(mesh)[0]), motion.joint_names
+    V, J = len(load_mesh(mesh)[0]), motion.joint_names
     good = tmp_path / "good.npz"
     np.savez(good, joint_indices=np.zeros((V, 1), int), joint_weights=np.ones((V, 1)),
              joint_names=np.array(J))
@@ -266,7 +267,7 @@ def test_weights_refused_with_clip_workers_or_resume(tmp_path, capsys, monkeypat
     """Clip workers reload INPUT from its file (without the new weights), and the resume check
     does not know them: refused before anything is loaded."""
     from dqskin.cli import default_asset
-    monkeypatch.setattr("dqskin.formats.load", lambda *a, **k: 1 / 0)
+    monkeypatch.setattr("dqskin.readers.load", lambda *a, **k: 1 / 0)
     for extra in (["--workers", "1"], ["--scheduler", "tcp://127.0.0.1:1"], ["--resume"]):
         argv = ["skin", str(default_asset()), "--weights", "auto", "--out",
                 str(tmp_path / "x.usdc"), *extra]
@@ -351,7 +352,7 @@ def test_cli_skin_with_skeleton_to_a_usd_cache(capture, tmp_path, capsys):
     out = tmp_path / "walk.usdc"
     assert main(["skin", str(mesh), "--skeleton", str(path), "--out", str(out)]) == 0
     assert "1 mesh × 12 frames" in capsys.readouterr().out
-    pts, _ = formats.load_mesh(mesh)
+    pts, _ = load_mesh(mesh)
     (m,) = rig_mesh(mesh, path).meshes
     ref = lbs_oracle(path, pts.astype(np.float64), m.joint_indices, m.joint_weights)
     stage = Usd.Stage.Open(str(out))

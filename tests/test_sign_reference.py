@@ -385,7 +385,7 @@ def test_rigid_prims_both_rules(tmp_path):
     its frame: from Python (rigid_transforms) and in a baked USD cache."""
     from pxr import Sdf, Usd, UsdGeom, UsdSkel, Vt
 
-    from dqskin.formats.usd import load_rigid_prims, rigid_transforms
+    from dqskin.readers.usd import load_rigid_prims, rigid_transforms
 
     path = tmp_path / "rig.usda"
     write_usd_rig(path, np.random.default_rng(31))

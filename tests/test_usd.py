@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
 
-from dqskin.formats.usd import load_rigid_prims, load_usd, rigid_transforms
+from dqskin.readers.usd import load_rigid_prims, load_usd, rigid_transforms
 
 TOKENS = {"lbs": "classicLinear", "dqs": "dualQuaternion"}
 BAKE = "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning"

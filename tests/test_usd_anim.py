@@ -1,4 +1,4 @@
-"""UsdSkel's joint-transform sampling done in NumPy (dqskin.formats.usd_anim) against usd-core:
+"""UsdSkel's joint-transform sampling done in NumPy (dqskin.readers.usd_anim) against usd-core:
 USD's own interpolation of float3[], half3[] and quatf[] attributes, UsdSkel's
 ``ComputeJointLocalTransforms`` on every animation of the shared assets and on sparse rigs,
 and the loader's fallback to UsdSkel where the samples could resolve otherwise."""
@@ -8,9 +8,9 @@ import pytest
 from pxr import Gf, Sdf, Usd, Vt
 from test_usd import build_rig
 
-from dqskin.formats import load
-from dqskin.formats.usd import load_usd
-from dqskin.formats.usd_anim import _lerp, _slerp
+from dqskin.readers import load
+from dqskin.readers.usd import load_usd
+from dqskin.readers.usd_anim import _lerp, _slerp
 
 rng = np.random.default_rng(7)
 

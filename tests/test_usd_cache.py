@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 
-from dqskin.formats.usd import load_usd
-from dqskin.formats.usd_cache import UsdCacheWriter, write_usd_cache
+from dqskin.readers.usd import load_usd
+from dqskin.writers.usd_cache import UsdCacheWriter, write_usd_cache
 
 BAKE = "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning"
 RIGID = ["/Root/Cube", "/Root/Cylinder", "/Root/Sphere"]
@@ -303,7 +303,7 @@ def test_vt_arrays_hold_each_frame_exactly(monkeypatch):
     ctypes.pythonapi's buffer functions its own way changes nothing."""
     import ctypes
 
-    from dqskin.formats.usd_cache import SMALL_ARRAY, vec3f_arrays
+    from dqskin.writers.usd_cache import SMALL_ARRAY, vec3f_arrays
     shared = ctypes.pythonapi.PyObject_GetBuffer
     monkeypatch.setattr(shared, "argtypes", [ctypes.py_object, ctypes.POINTER(ctypes.c_char),
                                              ctypes.c_int])
@@ -325,7 +325,7 @@ def test_vt_arrays_from_several_threads_at_once():
     call's arrays hold exactly its own frames."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from dqskin.formats.usd_cache import vec3f_arrays
+    from dqskin.writers.usd_cache import vec3f_arrays
     rng = np.random.default_rng(9)
     inputs = [rng.normal(size=(200, 700, 3)).astype(np.float32) for _ in range(8)]
     with ThreadPoolExecutor(4) as pool:
@@ -375,8 +375,8 @@ def test_a_single_layer_bake_skins_pieces_of_bounded_bytes(tmp_path, monkeypatch
     256 frames, or fewer when they would exceed ``usd_cache.PIECE_BYTES`` of samples (at least
     ``SUBCHUNK``); a given ``chunk`` is used as given."""
     from dqskin import bake
-    from dqskin.formats import usd_cache
     from dqskin.scene import Scene
+    from dqskin.writers import usd_cache
 
     sizes = []
     real = Scene.skin_chunks
@@ -418,7 +418,7 @@ def test_a_base_usd_core_writes_in_another_crate_version_falls_back_to_sdf(tmp_p
     """When usd-core's copy of the source is a crate version the writer cannot extend, the cache
     is written through Sdf and reads the same; any other error of the writer is raised."""
     from dqskin import bake
-    from dqskin.formats import crate
+    from dqskin.files import crate
 
     src = Path(__file__).resolve().parents[1] / "assets" / "humanoid.usda"
     bake(src, tmp_path / "crate.usdc", clips=False)

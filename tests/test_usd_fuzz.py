@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from dqskin.formats.usd import load_usd
+from dqskin.readers.usd import load_usd
 
 SEED = 1
 MUTATIONS = 30

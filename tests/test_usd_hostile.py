@@ -11,8 +11,8 @@ import pytest
 from pxr import Gf, Tf, Usd, UsdSkel, Vt
 from test_usd import build_rig
 
-from dqskin.formats import usd as usd_format
-from dqskin.formats.usd import load_usd
+from dqskin.readers import usd as usd_format
+from dqskin.readers.usd import load_usd
 
 BODY, SKEL, ANIM = "/Root/Geo/Body", "/Root/Rig/Skel", "/Root/Rig/Skel/Anim"
 

@@ -123,7 +123,7 @@ def import_usdskel():
 
 def import_dqskin():
     import importlib
-    for name in ("dqskin.cli", "dqskin.formats.usd", "dqskin.formats.usd_cache",
+    for name in ("dqskin.cli", "dqskin.readers.usd", "dqskin.writers.usd_cache",
                  "dqskin.distributed"):
         importlib.import_module(name)
     import warp as wp
@@ -146,7 +146,7 @@ def run_dqskin(src, dst, which):
     worker), ``+nv`` for normals and velocities."""
     from dqskin.baking import bake
     from dqskin.distributed import bake_clips
-    from dqskin.formats import load
+    from dqskin.readers import load
     nv = which.endswith("+nv")
     kind = which.removesuffix("+nv")
     workers, _, threads = kind[5:].partition("t")
@@ -252,14 +252,14 @@ def breakdown_dqskin(src, dst, chunk=256):
     (reading one back to check its checksum: a clip bake hashes its layers as it writes them)."""
     ph = _Phases()
     with ph("imports"):
-        from dqskin.formats import load
-        from dqskin.formats.atomic import atomic_path
-        from dqskin.formats.crate import CrateSamples
-        from dqskin.formats.usd_cache import CacheLayer, _extents, export_layer
-        from dqskin.formats.usd_clips import file_checksum
+        from dqskin.files.atomic import atomic_path
+        from dqskin.files.crate import CrateSamples
+        from dqskin.readers import load
         from dqskin.validation import check_skinned
+        from dqskin.writers.usd_cache import CacheLayer, _extents, export_layer
+        from dqskin.writers.usd_clips import file_checksum
         import_dqskin()
-    with ph("load (dqskin.formats.load)"):
+    with ph("load (dqskin.readers.load)"):
         scene = load(src)
     with ph("CacheLayer: open, Flatten, unbind"):
         cache = CacheLayer(scene, dst)
@@ -343,7 +343,7 @@ def compare_caches(a, b, probe_times):
 
 def output_mb(dst):
     """Size of a cache: the file and, for clips, its ``.clips`` folder."""
-    from dqskin.formats.usd_clips import clips_folder  # (here: a child times its own imports)
+    from dqskin.writers.usd_clips import clips_folder  # (here: a child times its own imports)
     folder = clips_folder(dst)
     files = [dst] + (list(folder.iterdir()) if folder.is_dir() else [])
     return sum(f.stat().st_size for f in files) / 2**20
@@ -351,7 +351,7 @@ def output_mb(dst):
 
 def _remove_output(dst):
     """Remove an earlier run's output (and its clips folder) before the next run writes it."""
-    from dqskin.formats.usd_clips import clips_folder
+    from dqskin.writers.usd_clips import clips_folder
     for f in (dst, clips_folder(dst)):
         if f.is_dir():
             shutil.rmtree(f)

@@ -46,7 +46,7 @@ def capsule_mesh():
     from test_autoweights import capsule_body
 
     from dqskin.autoweights import bone_segments
-    from dqskin.formats import bvh
+    from dqskin.readers import bvh
     motion = bvh.read_bvh(SHARED / "cmu-mocap" / "131_01.bvh")
     skel = motion.skeleton()
     pts, faces = capsule_body(skel, motion.end_sites, count=(16, 16), subdivide=1)
@@ -56,9 +56,9 @@ def capsule_mesh():
 def cesium_mesh():
     import trimesh
 
-    from dqskin import formats
+    from dqskin import readers
     from dqskin.autoweights import bone_segments
-    scene = formats.load(SHARED / "khronos-gltf" / "CesiumMan" / "CesiumMan.glb")
+    scene = readers.load(SHARED / "khronos-gltf" / "CesiumMan" / "CesiumMan.glb")
     m = scene.meshes[0]
     skel = scene.skeletons[m.skeleton]
     g = m.geom_bind_transform
@@ -114,10 +114,10 @@ def nearest_bone(scene):
 
 
 def accuracy():
-    from dqskin import formats
+    from dqskin import readers
     from dqskin.rigging import replace_weights, skinned_difference
     for name in BLENDER:
-        scene = formats.load(SHARED / "khronos-gltf" / name / f"{name}.glb")
+        scene = readers.load(SHARED / "khronos-gltf" / name / f"{name}.glb")
         t0 = time.perf_counter()
         auto = replace_weights(scene, "auto", cache=False)
         dt = time.perf_counter() - t0
@@ -166,7 +166,7 @@ def blender(python):
     import trimesh
     from test_autoweights import capsule_body
 
-    from dqskin.formats import bvh
+    from dqskin.readers import bvh
     from dqskin.rigging import rig_mesh
     src = SHARED / "cmu-mocap" / "131_01.bvh"
     motion = bvh.read_bvh(src)
@@ -180,7 +180,7 @@ def blender(python):
                         str(tmp / "blender.npz")], check=True, capture_output=True)
         dt = time.perf_counter() - t0
         with np.load(tmp / "blender.npz") as z:
-            if not np.allclose(z["co"], formats_points(tmp / "body.obj"), atol=1e-5):
+            if not np.allclose(z["co"], mesh_points(tmp / "body.obj"), atol=1e-5):
                 raise SystemExit("Blender reordered the OBJ's vertices")
             w = z["joint_weights"] / np.maximum(z["joint_weights"].sum(1, keepdims=True), 1e-30)
             np.savez(tmp / "norm.npz", joint_indices=z["joint_indices"], joint_weights=w,
@@ -198,8 +198,8 @@ def blender(python):
           f"(Blender incl. start-up {dt:.1f} s, dqskin {dt_ours:.2f} s)")
 
 
-def formats_points(path):
-    from dqskin.formats import load_mesh
+def mesh_points(path):
+    from dqskin.readers.mesh import load_mesh
     return load_mesh(path)[0]
 
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
 
-from dqskin.formats import atomic_path
+from dqskin.files.atomic import atomic_path
 
 __all__ = ["RigSpec", "MeshSpec", "twist_cylinder", "bending_arm", "humanoid", "author_rig",
            "write_assets", "main"]

@@ -41,8 +41,9 @@ from pathlib import Path
 import numpy as np
 
 from .. import metrics as M
-from ..formats import atomic_path, load
+from ..files.atomic import atomic_path
 from ..metrics import METRICS, worst
+from ..readers import load
 from ..scene import DEFAULT_BLEND, Scene
 from ..skinning import METHODS
 from ..times import default_frames

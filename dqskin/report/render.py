@@ -18,7 +18,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import resolve_device
-from ..formats import atomic_path
+from ..files.atomic import atomic_path
 from ..kernels import render as K
 from ..topology import check_faces, incidence
 

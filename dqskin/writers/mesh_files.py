@@ -1,5 +1,5 @@
-"""Plain mesh files through trimesh: read geometry (:func:`load_mesh`), write one file per frame
-(:class:`FrameWriter`, :class:`MeshLayout`, :func:`write_frames`).
+"""Plain mesh files through trimesh, one file per frame (:class:`FrameWriter`,
+:class:`MeshLayout`, :func:`write_frames`); :func:`dqskin.readers.mesh.load_mesh` reads them.
 
 What each per-frame format holds (all meshes of the scene go into one file per frame):
 
@@ -14,15 +14,14 @@ What each per-frame format holds (all meshes of the scene go into one file per f
   naming it; ``.ply`` keeps its points as vertices.
 """
 
-import os
 from pathlib import Path
 
 import numpy as np
 
-from .atomic import CommitOnSuccess, atomic_group
+from ..files.atomic import CommitOnSuccess, atomic_group
 
 __all__ = ["FACES_REQUIRED", "SUFFIXES", "WITH_ATTRIBUTES", "FrameWriter", "MeshLayout",
-           "frame_paths", "load_mesh", "write_frames"]
+           "frame_paths", "write_frames"]
 
 SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb")
 """Mesh files trimesh reads and writes (one frame per file)."""
@@ -32,23 +31,6 @@ WITH_ATTRIBUTES = (".obj", ".ply", ".glb")
 
 FACES_REQUIRED = (".obj", ".stl", ".off", ".glb")
 """Per-frame formats that need triangles (``.ply`` also holds bare points)."""
-
-
-def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Geometry of a plain mesh file: ``(points (V, 3) float32, faces (T, 3) int32)``."""
-    import trimesh
-    p = Path(path)
-    if not p.exists():
-        raise ValueError(f"{p}: no such file")
-    if not p.is_file():
-        raise ValueError(f"{p}: not a regular file")
-    try:
-        mesh = trimesh.load(p, force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types for corrupt files
-        raise ValueError(f"{p}: cannot read mesh ({exc})") from None
-    if len(mesh.vertices) == 0:
-        raise ValueError(f"{p}: mesh has no vertices")
-    return np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.int32)
 
 
 def frame_paths(pattern, frames):

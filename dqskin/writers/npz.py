@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from .atomic import atomic_path
+from ..files.atomic import atomic_path
 
 __all__ = ["SUFFIXES", "save_npz", "write_npz"]
 
@@ -11,7 +11,7 @@ SUFFIXES = (".npz",)
 
 def save_npz(path, times, names, points, faces):
     """Write the archive to ``path`` as is (not atomic: :func:`write_npz`, or a path from
-    :class:`dqskin.formats.atomic.atomic_path`)."""
+    :class:`dqskin.files.atomic.atomic_path`)."""
     with open(path, "wb") as fh:
         np.savez(fh, times=np.asarray(times, np.float64), names=np.array(list(names)),
                  **{f"points_{i}": p for i, p in enumerate(points)},
@@ -31,7 +31,7 @@ def write_npz(path, times, names, points, faces, *, overwrite=True):
     faces : sequence of (T_i, 3) int32, length M
     overwrite : bool
         Replace an existing ``path``; False fails (FileExistsError) if it exists when the file is
-        complete (:class:`~dqskin.formats.atomic.atomic_path`).
+        complete (:class:`~dqskin.files.atomic.atomic_path`).
     """
     with atomic_path(path, overwrite=overwrite) as tmp:
         save_npz(tmp, times, names, points, faces)

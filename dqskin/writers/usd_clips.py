@@ -40,9 +40,9 @@ import numpy as np
 import xxhash
 from pxr import Sdf, Tf, Usd, Vt
 
-from .atomic import atomic_path, check_interrupted
-from .crate import BOOTSTRAP, CrateSamples
-from .usd import _tf_message
+from ..files.atomic import atomic_path, check_interrupted
+from ..files.crate import BOOTSTRAP, CrateSamples
+from ..readers.usd import _tf_message
 from .usd_cache import (
     CLIPS_FOLDER_SUFFIX,
     CacheLayer,
@@ -414,7 +414,7 @@ class ClipBake:
     Parameters
     ----------
     scene : Scene
-        A USD scene (:func:`dqskin.formats.usd.load_usd`).
+        A USD scene (:func:`dqskin.readers.usd.load_usd`).
     out : str or Path
         ``SHOT.usd/.usdc/.usda``; the clips go to :func:`clips_folder`.
     times : (F,) float64

@@ -10,7 +10,7 @@ is dropped. ``Skeleton`` prims are kept but deactivated (unbound from their anim
 be drawn in the rest pose); ``SkelAnimation`` prims stay as inert data.
 
 Two pieces serve both USD outputs, the single layer (:class:`UsdCacheWriter`) and the value
-clips of :mod:`dqskin.formats.usd_clips`: :class:`CacheLayer` (the flattened, unbound copy of the
+clips of :mod:`dqskin.writers.usd_clips`: :class:`CacheLayer` (the flattened, unbound copy of the
 source and where each skinned value goes in it, as picklable :class:`Target` records) and
 :class:`SampleWriter` (checked chunks of skinned frames → time samples: streamed into a crate
 file by :class:`~.crate.CrateSamples`, after the cache's copy of the source exported once or as
@@ -30,10 +30,10 @@ from types import SimpleNamespace
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
+from ..files.atomic import atomic_path, check_parent
+from ..files.crate import CrateSamples, UnsupportedCrate
+from ..readers.usd import load_rigid_prims, rigid_transforms
 from ..shapes import frames_of
-from .atomic import atomic_path, check_parent
-from .crate import CrateSamples, UnsupportedCrate
-from .usd import load_rigid_prims, rigid_transforms
 
 __all__ = ["CACHE_EXTENSIONS", "CLIPS_FOLDER_SUFFIX", "PIECE_BYTES", "PIECE_FRAMES", "SUBCHUNK",
            "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter", "clips_folder",
@@ -319,7 +319,7 @@ class CacheLayer:
     Parameters
     ----------
     scene : Scene
-        What :func:`dqskin.formats.usd.load_usd` returned.
+        What :func:`dqskin.readers.usd.load_usd` returned.
     out_path : str or os.PathLike
         The cache to write: checked to be ``.usda/.usdc/.usd`` and not the source file nor any
         layer it reads (nothing is written here).
@@ -456,7 +456,7 @@ class SampleWriter:
     target : callable (prim, what) → Target
         :meth:`CacheLayer.target`, or a lookup in the :meth:`CacheLayer.all_targets` a clip
         worker received.
-    rigid : list of dqskin.formats.usd.RigidPrim
+    rigid : list of dqskin.readers.usd.RigidPrim
         Skinned prims without points, baked as ``xformOp:transform`` samples.
     method, device, interp, sign_reference
         As for :class:`UsdCacheWriter`.
@@ -603,12 +603,12 @@ class UsdCacheWriter:
     (:class:`~.crate.CrateSamples` with that ``base``): memory holds the copy of the source but
     no sample. Every later chunk must hold the same meshes and values as the first. A ``.usda``
     layer keeps every sample in memory until it is written. (For clips too long for one file,
-    see :mod:`dqskin.formats.usd_clips`.)
+    see :mod:`dqskin.writers.usd_clips`.)
 
     Parameters
     ----------
     scene : Scene
-        What :func:`dqskin.formats.usd.load_usd` returned; its metadata (``time_codes_per_second``,
+        What :func:`dqskin.readers.usd.load_usd` returned; its metadata (``time_codes_per_second``,
         ``up_axis``, ``meters_per_unit``) is written and its meshes' rest data checks the shapes.
     out_path : str or os.PathLike
         ``.usda``, ``.usdc`` or ``.usd``. Written atomically: into a temporary file in a private

@@ -46,10 +46,11 @@ from .. import quat
 from ..animation import Animation, Deformer, check_times
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
+from . import LOADER_SUFFIXES
 
 __all__ = ["SUFFIXES", "GltfAnimation", "GltfMorph", "load", "load_gltf"]
 
-SUFFIXES = (".gltf", ".glb")
+SUFFIXES = LOADER_SUFFIXES["gltf"]
 """glTF files :func:`load` reads."""
 
 _COMPONENT_DTYPES = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}

@@ -54,12 +54,13 @@ from ..animation import Animation, Deformer, TransformTrack, segment_rates
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
 from ..skinning import skin_points
+from . import LOADER_SUFFIXES
 from .usd_xform import XformChain, read_local_to_world
 
 __all__ = ["SKINNING_METHODS", "SUFFIXES", "load", "RigidPrim", "UsdSkelAnimation",
            "load_rigid_prims", "load_usd", "rigid_transforms"]
 
-SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+SUFFIXES = LOADER_SUFFIXES["usd"]
 """File extensions :func:`load_usd` (and :func:`load`) reads."""
 
 SKINNING_METHODS = {"classicLinear": "lbs", "dualQuaternion": "dqs"}

@@ -1,35 +1,44 @@
-"""File formats: what dqskin reads and writes, one module per format.
+"""Readers: what dqskin reads into a :class:`~dqskin.scene.Scene`, one module per format.
 
 Each format module owns its suffixes (``SUFFIXES``) and its loader; :func:`load` dispatches on
 them. Characters: :mod:`.usd` (UsdSkel) and :mod:`.gltf` (glTF 2.0 skins); motion capture:
-:mod:`.bvh` (a skeleton and its animation, no mesh). Outputs:
-:mod:`.usd_cache` (USD point caches), :mod:`.npz`, :mod:`.mesh_files` (one trimesh file per
-frame; also :func:`load_mesh` for plain geometry). Every writer goes through
-:func:`.atomic.atomic_path`.
+:mod:`.bvh` (a skeleton and its animation, no mesh). Plain geometry: :mod:`.mesh`
+(:func:`~.mesh.load_mesh`). Outputs: :mod:`dqskin.writers`; the file machinery they share:
+:mod:`dqskin.files`. The suffixes are listed here (:data:`LOADER_SUFFIXES`) so that a format
+module is imported on first use: importing this package loads neither USD nor a loader.
 """
 
+from __future__ import annotations
+
+import importlib
 import os
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING
 
-from ..scene import Scene
-from . import bvh, gltf, usd
-from .atomic import atomic_path
-from .mesh_files import load_mesh
+if TYPE_CHECKING:
+    from ..scene import Scene
 
-__all__ = ["CHARACTER_SUFFIXES", "atomic_path", "format_of", "load", "load_mesh"]
+__all__ = ["CHARACTER_SUFFIXES", "LOADER_SUFFIXES", "format_of", "load"]
 
-_LOADERS = {**{s: usd.load for s in usd.SUFFIXES}, **{s: gltf.load for s in gltf.SUFFIXES},
-            **{s: bvh.load for s in bvh.SUFFIXES}}
+LOADER_SUFFIXES = {"usd": (".usd", ".usda", ".usdc", ".usdz"), "gltf": (".gltf", ".glb"),
+                   "bvh": (".bvh",)}
+"""Loader module (of this package) → the suffixes it reads (each module's ``SUFFIXES``)."""
+
+_LOADERS = {s: module for module, suffixes in LOADER_SUFFIXES.items() for s in suffixes}
 
 CHARACTER_SUFFIXES = tuple(_LOADERS)
 """Suffixes :func:`load` reads."""
 
 
+def _loader(name: str) -> ModuleType:
+    return importlib.import_module(f".{name}", __name__)
+
+
 def format_of(path: str | os.PathLike) -> ModuleType | None:
     """The format module that reads ``path`` (:mod:`.usd` or :mod:`.gltf`), by suffix, or None."""
-    suffix = Path(path).suffix.lower()
-    return usd if suffix in usd.SUFFIXES else gltf if suffix in gltf.SUFFIXES else None
+    name = _LOADERS.get(Path(path).suffix.lower())
+    return _loader(name) if name in ("usd", "gltf") else None
 
 
 def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
@@ -54,4 +63,4 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     if loader is None:
         raise ValueError(f"{p}: unsupported file type {p.suffix.lower()!r}; expected one of "
                          f"{', '.join(CHARACTER_SUFFIXES)}")
-    return loader(p, clip=clip)
+    return _loader(loader).load(p, clip=clip)

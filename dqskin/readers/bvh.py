@@ -34,10 +34,11 @@ import numpy as np
 from ..animation import KeyedAnimation
 from ..scene import Scene
 from ..skeleton import Skeleton
+from . import LOADER_SUFFIXES
 
 __all__ = ["CHANNELS", "SUFFIXES", "BvhMotion", "load", "read_bvh", "scaled", "summary_lines"]
 
-SUFFIXES = (".bvh",)
+SUFFIXES = LOADER_SUFFIXES["bvh"]
 
 CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
 """Channel names the format defines (case-insensitive in files)."""

@@ -23,11 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..files.atomic import atomic_path
+from ..readers import gltf
+from ..readers.usd_xform import XformChain, read_local_to_world
 from ..scene import Scene
-from . import gltf
-from .atomic import atomic_path
 from .usd_cache import export_layer
-from .usd_xform import XformChain, read_local_to_world
 
 __all__ = ["RIG_SUFFIXES", "SECONDS_RATE", "joint_paths", "write_rig"]
 
@@ -76,7 +76,7 @@ def _source_stage(scene):
     """The USD stage ``scene`` was read from, or None (glTF, BVH, a missing file)."""
     from pxr import Usd
 
-    from . import usd
+    from ..readers import usd
     if Path(scene.path).suffix.lower() not in usd.SUFFIXES or not Path(scene.path).is_file():
         return None
     return Usd.Stage.Open(str(scene.path))
