@@ -16,7 +16,7 @@ from test_usd import ASSETS, BAKE, JOINT_INFLUENCES, POPULATE, build_rig
 
 import dqskin
 from dqskin.errors import InputError
-from dqskin.formats.bvh import read_bvh
+from dqskin.readers.bvh import read_bvh
 from dqskin.spaces import space_track
 
 BUNDLED = sorted((Path(__file__).resolve().parents[1] / "assets").glob("*.usda"))
