@@ -12,6 +12,7 @@ import os
 from pathlib import Path
 from types import ModuleType
 
+from ..errors import InputError
 from ..scene import Scene
 from . import bvh, gltf, usd
 from .atomic import atomic_path
@@ -49,9 +50,9 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     """
     p = Path(path)
     if not p.is_file():
-        raise ValueError(f"{p}: no such file")
+        raise InputError(f"{p}: no such file")
     loader = _LOADERS.get(p.suffix.lower())
     if loader is None:
-        raise ValueError(f"{p}: unsupported file type {p.suffix.lower()!r}; expected one of "
+        raise InputError(f"{p}: unsupported file type {p.suffix.lower()!r}; expected one of "
                          f"{', '.join(CHARACTER_SUFFIXES)}")
     return loader(p, clip=clip)

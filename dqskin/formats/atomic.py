@@ -34,6 +34,8 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from ..errors import OutputExistsError, Param
+
 __all__ = ["CommitOnSuccess", "atomic_group", "atomic_path", "check_interrupted", "check_parent",
            "critical", "interrupt", "reset_interrupt"]
 
@@ -99,10 +101,10 @@ def check_parent(path: str | os.PathLike) -> Path:
     for anc in path.parents:
         if anc.exists():
             if not anc.is_dir():
-                raise NotADirectoryError(f"{path}: {anc} is not a directory")
+                raise NotADirectoryError(errno.ENOTDIR, f"{anc} is not a directory", str(path))
             break
     if path.is_dir():
-        raise IsADirectoryError(f"{path}: is a directory")
+        raise IsADirectoryError(errno.EISDIR, "is a directory", str(path))
     return path
 
 
@@ -177,8 +179,8 @@ class atomic_path:
                 _remove_folder(tmp.parent)
             except FileExistsError:
                 self.discard()
-                raise FileExistsError(f"{path}: exists (written by another run meanwhile?); use "
-                                      "--force to overwrite") from None
+                raise OutputExistsError(f"{path}: exists (written by another run meanwhile?); "
+                                        "use ", Param("force", True), " to overwrite") from None
             except OSError as exc:
                 self.discard()
                 raise _cannot_write(path, exc) from None
