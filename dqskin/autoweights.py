@@ -51,7 +51,7 @@ import warp as wp
 
 from . import cache as _cache
 from ._warp import Device, resolve_device
-from .errors import InputError
+from .errors import InputError, Param
 from .kernels import bone_heat as BH
 from .skeleton import Skeleton
 
@@ -140,7 +140,7 @@ def sparsify(weights: np.ndarray, max_influences: int = 8) -> tuple[np.ndarray, 
     V, J = w.shape
     K = min(int(max_influences), J)
     if K < 1:
-        raise InputError(f"max_influences {max_influences}: must be at least 1")
+        raise InputError(Param("max_influences", max_influences), ": must be at least 1")
     idx = np.argpartition(-w, K - 1, axis=1)[:, :K] if K < J else np.tile(np.arange(J), (V, 1))
     wk = np.take_along_axis(w, idx, 1)
     order = np.argsort(-wk, axis=1, kind="stable")
@@ -158,7 +158,8 @@ def _check_max_influences(max_influences):
     work)."""
     if isinstance(max_influences, bool) or int(max_influences) != max_influences \
             or max_influences < 1:
-        raise InputError(f"max_influences {max_influences}: must be a whole number, at least 1")
+        raise InputError(Param("max_influences", max_influences),
+                         ": must be a whole number, at least 1")
 
 
 def _heat_sources(points, faces, heads, tails, visibility, device):

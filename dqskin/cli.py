@@ -824,7 +824,9 @@ def _run_command(argv):
         elif exc.strerror:  # the system about a file: "[Errno 13] ...: 'x'" → "x: ..."
             where = " -> ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
             msg = f"{where}: {exc.strerror}" if where else exc.strerror
-        else:  # an OSError dqskin made up itself: a bug
+        elif exc.errno is not None:  # a system error reworded to name its file (formats.atomic)
+            msg = exc
+        else:  # an OSError that did not come from the system: a bug
             raise
         print(f"dqskin: error: {msg}", file=sys.stderr)
         code = EXIT_INPUT

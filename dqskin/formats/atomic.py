@@ -109,9 +109,13 @@ def check_parent(path: str | os.PathLike) -> Path:
 
 
 def _cannot_write(path, exc):
-    """``exc`` (an OSError about the temporary file) as an OSError naming ``path``."""
-    reason = exc.strerror or str(exc)
-    return type(exc)(f"{path}: cannot write ({reason})") if isinstance(exc, OSError) else exc
+    """``exc`` (an OSError about the temporary file) as an OSError naming ``path``, with its
+    ``errno`` (the command line reports it as a system error, not as a bug)."""
+    if not isinstance(exc, OSError):
+        return exc
+    error = type(exc)(f"{path}: cannot write ({exc.strerror or exc})")
+    error.errno = exc.errno
+    return error
 
 
 class atomic_path:

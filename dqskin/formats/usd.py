@@ -46,7 +46,7 @@ import numpy as np
 from pxr import Sdf, Tf, Usd, UsdGeom, UsdSkel, Vt
 
 from ..animation import Animation, Deformer, TransformTrack, segment_rates
-from ..errors import InputError, Param
+from ..errors import InputError, LimitError, Param
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
 from ..skinning import skin_points
@@ -956,7 +956,7 @@ class _Loader:
                 raise InputError(f"{self.path}: layer metadata startTimeCode {start:g} .. "
                                  f"endTimeCode {end:g}: must be finite")
             if end - start >= MAX_FRAMES:
-                raise InputError(f"{self.path}: layer metadata startTimeCode {start:g} .. "
+                raise LimitError(f"{self.path}: layer metadata startTimeCode {start:g} .. "
                                  f"endTimeCode {end:g} spans more than {MAX_FRAMES} time codes")
             return np.arange(start, max(start, end) + 0.5, 1.0, dtype=np.float64)
         keys = set()
