@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import metrics as M
-from ..errors import InputError, LimitError, OutputExistsError, Param
+from ..errors import InputError, LimitError, Param, output_exists
 from ..formats import atomic_path, load
 from ..metrics import METRICS, worst
 from ..scene import DEFAULT_BLEND, Scene
@@ -438,7 +438,7 @@ def _prepare_out(out_dir, force):
     if not force:
         for p in [out / "report.html", out / "metrics.json"] + panels:
             if p.exists():
-                raise OutputExistsError(f"{p}: exists; ", Param("force", True), " overwrites it")
+                raise output_exists(p)
     frames.mkdir(parents=True, exist_ok=True)
     for p in panels:
         p.unlink()
