@@ -18,8 +18,8 @@ _EXPORTS = {
     "forward_kinematics": "skeleton", "dq": None, "dual": None, "quat": None,
     "automatic_weights": "autoweights", "rig_mesh": "rigging", "replace_weights": "rigging",
     "autoweights": None, "rigging": None, "errors": None, "DqskinError": "errors",
-    "InputError": "errors", "LimitError": "errors", "OutputExistsError": "errors",
-    "UnknownNameError": "errors",
+    "InputError": "errors", "Interrupted": "errors", "LimitError": "errors",
+    "OutputExistsError": "errors", "UnknownNameError": "errors",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -21,7 +21,7 @@ How dqskin reads it (the conventions of the format as Biovision, CMU and Blender
   frames the animation interpolates like USD and glTF players (rotation slerp, translation lerp:
   :class:`dqskin.KeyedAnimation`).
 
-Malformed files raise ValueError naming the file, the line and what was expected.
+Malformed files raise InputError (a ValueError) naming the file, the line and what was expected.
 """
 
 import os
