@@ -132,7 +132,7 @@ def test_a_frame_limit_names_max_frames_in_python_and_on_the_command_line(tmp_pa
 
 # -- a bug exits 70 with a traceback file; bad input exits 2 without one ----------------------
 
-@pytest.mark.parametrize("kind", [ValueError, KeyError, TypeError, RuntimeError])
+@pytest.mark.parametrize("kind", [ValueError, KeyError, TypeError, RuntimeError, OSError])
 def test_a_bug_exits_70_naming_the_traceback_file(kind, monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
 
@@ -160,10 +160,11 @@ def test_verbose_prints_the_traceback_too(monkeypatch, tmp_path, capsys):
     assert "Traceback (most recent call last)" in err and BUG_LINE.match(err.splitlines()[-1])
 
 
-def test_a_bug_in_the_process_exits_70_with_one_line(tmp_path):
+@pytest.mark.parametrize("kind", ["ValueError", "RuntimeError"])
+def test_a_bug_in_the_process_exits_70_with_one_line(kind, tmp_path):
     """As the console script runs: ``main()`` ends the process itself."""
     code = ("import sys\nfrom dqskin import cli\n"
-            "def buggy_command(args):\n    raise RuntimeError('injected bug')\n"
+            f"def buggy_command(args):\n    raise {kind}('injected bug')\n"
             "cli.cmd_info = buggy_command\nsys.argv = ['dqskin', 'info', sys.argv[1]]\n"
             "cli.main()\n")
     proc = subprocess.run([sys.executable, "-c", code, str(HUMANOID)], capture_output=True,
@@ -172,10 +173,10 @@ def test_a_bug_in_the_process_exits_70_with_one_line(tmp_path):
     lines = proc.stderr.splitlines()
     assert len(lines) == 1, proc.stderr
     m = BUG_LINE.match(lines[0])
-    assert m and m[1] == "RuntimeError" and m[2] == "injected bug", lines[0]
+    assert m and m[1] == kind and m[2] == "injected bug", lines[0]
     text = Path(m[3]).read_text()
     assert Path(m[3]).parent == tmp_path
-    assert "buggy_command" in text and "RuntimeError: injected bug" in text
+    assert "buggy_command" in text and f"{kind}: injected bug" in text
 
 
 def test_bad_input_still_exits_2_without_a_traceback(tmp_path, monkeypatch, capsys):
