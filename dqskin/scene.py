@@ -175,7 +175,7 @@ class Scene:
         return sk
 
     def mesh(self, name: str) -> Mesh:
-        """The mesh called ``name`` (UnknownNameError, a KeyError, naming the known meshes)."""
+        """The mesh called ``name`` (KeyError naming the known meshes)."""
         for m in self.meshes:
             if m.name == name:
                 return m

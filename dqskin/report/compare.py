@@ -425,7 +425,7 @@ def _default_assets():
 
 def _prepare_out(out_dir, force):
     """Create ``out_dir/frames``. Earlier outputs (the report, the metrics, panels named as this
-    module names them) raise OutputExistsError, or with ``force`` the panels are removed."""
+    module names them) raise FileExistsError, or with ``force`` the panels are removed."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a directory")
