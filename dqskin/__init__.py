@@ -17,7 +17,9 @@ _EXPORTS = {
     "Mesh": "scene", "Scene": "scene", "SkinnedFrames": "scene", "Skeleton": "skeleton",
     "forward_kinematics": "skeleton", "dq": None, "dual": None, "quat": None,
     "automatic_weights": "autoweights", "rig_mesh": "rigging", "replace_weights": "rigging",
-    "autoweights": None, "rigging": None,
+    "autoweights": None, "rigging": None, "errors": None, "DqskinError": "errors",
+    "InputError": "errors", "Interrupted": "errors", "LimitError": "errors",
+    "OutputExistsError": "errors", "UnknownNameError": "errors",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -6,6 +6,8 @@ import threading
 
 import warp as wp
 
+from .errors import InputError
+
 Device = str | wp.Device | None
 """A Warp device or its name (``"cpu"``, ``"cuda:0"``); None picks CUDA when present."""
 
@@ -37,4 +39,4 @@ def resolve_device(device: Device = None) -> wp.Device:
     try:
         return wp.get_device(device)
     except (RuntimeError, ValueError) as exc:
-        raise ValueError(f"device {device!r}: {exc}") from None
+        raise InputError(f"device {device!r}: {exc}") from None

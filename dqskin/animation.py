@@ -63,6 +63,7 @@ import numpy as np
 import numpy.typing as npt
 
 from . import dq, quat
+from .errors import InputError
 from .linalg import hat, polar
 
 __all__ = ["INTERPOLATIONS", "Animation", "Deformer", "Interpolation", "KeyedAnimation",
@@ -117,13 +118,13 @@ class Animation(abc.ABC):
 def check_times(times, name="times"):
     t = np.atleast_1d(np.asarray(times, dtype=np.float64))
     if t.ndim != 1 or not np.all(np.isfinite(t)):
-        raise ValueError(f"{name}: expected a 1-D array of finite times, got shape {t.shape}")
+        raise InputError(f"{name}: expected a 1-D array of finite times, got shape {t.shape}")
     return t
 
 
 def _check_interp(interp):
     if interp not in INTERPOLATIONS:
-        raise ValueError(f"interp must be one of {INTERPOLATIONS}, got {interp!r}")
+        raise InputError(f"interp must be one of {INTERPOLATIONS}, got {interp!r}")
 
 
 def _normalize_with_derivative(g, g_dot):
@@ -135,7 +136,7 @@ def _normalize_with_derivative(g, g_dot):
     rd, dd = g_dot[..., :4], g_dot[..., 4:]
     n2 = np.sum(r * r, -1, keepdims=True)
     if np.any(n2 == 0):
-        raise ValueError("interpolated dual quaternion has a zero real part (keys too far apart)")
+        raise InputError("interpolated dual quaternion has a zero real part (keys too far apart)")
     n = np.sqrt(n2)
     n_dot = np.sum(r * rd, -1, keepdims=True) / n
     c = np.sum(r * d, -1, keepdims=True)
@@ -174,7 +175,7 @@ def ramp(times: npt.ArrayLike, key_times: npt.ArrayLike) -> tuple[np.ndarray, np
     t = check_times(times)
     k = np.asarray(key_times, dtype=np.float64)
     if k.ndim != 1 or k.shape[0] < 3:
-        raise ValueError(f"key_times: ramp needs at least 3 keys, got shape {k.shape}")
+        raise InputError(f"key_times: ramp needs at least 3 keys, got shape {k.shape}")
     t0, t1, tm, tn = k[0], k[1], k[-2], k[-1]
     up = np.clip((t - t0) / (t1 - t0), 0.0, 1.0)
     down = np.clip((tn - t) / (tn - tm), 0.0, 1.0)
@@ -223,16 +224,16 @@ class _Keys:
     def __init__(self, key_times, local, where):
         kt = np.asarray(key_times, dtype=np.float64)
         if kt.ndim != 1 or kt.shape[0] == 0 or not np.all(np.isfinite(kt)):
-            raise ValueError(f"{where}: key_times must be a non-empty 1-D array of finite times, "
+            raise InputError(f"{where}: key_times must be a non-empty 1-D array of finite times, "
                              f"got shape {kt.shape}")
         if np.any(np.diff(kt) <= 0):
-            raise ValueError(f"{where}: key_times must be strictly increasing")
+            raise InputError(f"{where}: key_times must be strictly increasing")
         m = np.asarray(local, dtype=np.float64)
         if m.ndim != 4 or m.shape[0] != kt.shape[0] or m.shape[2:] != (4, 4):
-            raise ValueError(f"{where}: key transforms must be ({kt.shape[0]}, J, 4, 4), "
+            raise InputError(f"{where}: key transforms must be ({kt.shape[0]}, J, 4, 4), "
                              f"got {m.shape}")
         if not np.all(np.isfinite(m)):
-            raise ValueError(f"{where}: key transforms have NaN or infinite entries")
+            raise InputError(f"{where}: key transforms have NaN or infinite entries")
         self.times = kt
         self.joint_count = m.shape[1]
         # in blocks of keys: the SVD's temporaries for every key at once peaked at 3x the result
@@ -437,7 +438,7 @@ def _keys_of(animation):
         name = _name(animation)
         kt = np.asarray(animation.key_times, dtype=np.float64)
         if kt.ndim != 1 or kt.shape[0] == 0:
-            raise ValueError(f"{name}: animation has no key_times")
+            raise InputError(f"{name}: animation has no key_times")
         keys = _KEYS_CACHE[animation] = _Keys(kt, animation.local_transforms(kt), name)
     return keys
 
@@ -449,7 +450,7 @@ def _motion(animation, times, interp, player=None):
     t = check_times(times)
     local, local_dot, eta, eta_dot = _keys_of(animation).local(t, interp)
     if interp == "trs" and not getattr(animation, "linear_trs", True):
-        raise ValueError(f"{_name(animation)}: not linear TRS between its key_times (STEP or "
+        raise InputError(f"{_name(animation)}: not linear TRS between its key_times (STEP or "
                          "CUBICSPLINE keys), so 'trs' velocities are unknown; use "
                          "interp='sclerp', 'dlb', 'spline' or 'catmull-rom'")
     if interp == "trs" and not isinstance(animation, KeyedAnimation):
@@ -457,12 +458,12 @@ def _motion(animation, times, interp, player=None):
         player = np.asarray(animation.local_transforms(t) if player is None else player,
                             dtype=np.float64)
         if player.shape != local.shape:
-            raise ValueError(f"{name}: local_transforms returned {player.shape}, expected "
+            raise InputError(f"{name}: local_transforms returned {player.shape}, expected "
                              f"{local.shape}")
         err = np.abs(player - local) / (1.0 + np.abs(player))
         bad = np.nonzero(np.any(err > _TRS_TOLERANCE, axis=(1, 2, 3)))[0]
         if bad.size:
-            raise ValueError(
+            raise InputError(
                 f"{name}: not linear TRS between its key_times (off by "
                 f"{err[bad[0]].max():.3g} at time {t[bad[0]]}), so 'trs' velocities are unknown; "
                 "use interp='sclerp', 'dlb', 'spline' or 'catmull-rom'")

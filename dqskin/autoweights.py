@@ -51,6 +51,7 @@ import warp as wp
 
 from . import cache as _cache
 from ._warp import Device, resolve_device
+from .errors import InputError, Param
 from .kernels import bone_heat as BH
 from .skeleton import Skeleton
 
@@ -100,7 +101,7 @@ def bone_segments(skeleton: Skeleton, *, end_sites: list | None = None,
         tips.setdefault(int(j), []).append((bind[j] @ np.append(np.asarray(off, float), 1.0))[:3])
     deforming = range(J) if joints is None else sorted({int(j) for j in np.ravel(joints)})
     if not len(deforming) or deforming[0] < 0 or deforming[-1] >= J:
-        raise ValueError(f"joints: expected indices of the {J} joints, got {list(deforming)}")
+        raise InputError(f"joints: expected indices of the {J} joints, got {list(deforming)}")
     kids = [np.nonzero(skeleton.parents == j)[0] for j in range(J)]
 
     def reach(j, at):
@@ -139,7 +140,7 @@ def sparsify(weights: np.ndarray, max_influences: int = 8) -> tuple[np.ndarray, 
     V, J = w.shape
     K = min(int(max_influences), J)
     if K < 1:
-        raise ValueError(f"max_influences {max_influences}: must be at least 1")
+        raise InputError(Param("max_influences", max_influences), ": must be at least 1")
     idx = np.argpartition(-w, K - 1, axis=1)[:, :K] if K < J else np.tile(np.arange(J), (V, 1))
     wk = np.take_along_axis(w, idx, 1)
     order = np.argsort(-wk, axis=1, kind="stable")
@@ -157,7 +158,8 @@ def _check_max_influences(max_influences):
     work)."""
     if isinstance(max_influences, bool) or int(max_influences) != max_influences \
             or max_influences < 1:
-        raise ValueError(f"max_influences {max_influences}: must be a whole number, at least 1")
+        raise InputError(Param("max_influences", max_influences),
+                         ": must be a whole number, at least 1")
 
 
 def _heat_sources(points, faces, heads, tails, visibility, device):
@@ -225,16 +227,16 @@ def bone_heat_weights(points: npt.ArrayLike, faces: npt.ArrayLike, heads: npt.Ar
     V, J = P.shape[0], int(joint_count)
     _check_max_influences(max_influences)
     if P.ndim != 2 or P.shape[1] != 3 or V == 0:
-        raise ValueError(f"points: expected (V, 3) with V > 0, got {P.shape}")
+        raise InputError(f"points: expected (V, 3) with V > 0, got {P.shape}")
     if not np.all(np.isfinite(P)):
-        raise ValueError("points: NaN or infinite coordinates")
+        raise InputError("points: NaN or infinite coordinates")
     if F.size and (F.min() < 0 or F.max() >= V):
-        raise ValueError(f"faces: vertex index out of range for {V} points")
+        raise InputError(f"faces: vertex index out of range for {V} points")
     if heads.shape != tails.shape or heads.ndim != 2 or heads.shape[0] != joints.shape[0] \
             or heads.shape[0] == 0:
-        raise ValueError("bones: heads, tails (B, 3) and joints (B,) must match, B > 0")
+        raise InputError("bones: heads, tails (B, 3) and joints (B,) must match, B > 0")
     if joints.min() < 0 or joints.max() >= J:
-        raise ValueError(f"bones: joint index out of range for {J} joints")
+        raise InputError(f"bones: joint index out of range for {J} joints")
     # weld coincident vertices (UV and normal seams split them): heat diffuses across seams
     P_all = P
     P, weld = np.unique(P_all, axis=0, return_inverse=True)

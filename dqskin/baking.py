@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from ._warp import Device
 from .animation import Interpolation
+from .errors import InputError, OutputExistsError, Param, output_exists
 from .files.atomic import atomic_path, check_interrupted, check_parent
 from .readers import format_of, gltf, usd
 from .scene import Scene
@@ -56,7 +57,7 @@ def output_kind(out: str | Path) -> str:
         return "npz"
     if suffix in mesh_files.SUFFIXES:
         return "frames"
-    raise ValueError(f"--out {out}: unsupported output type; use "
+    raise InputError(Param("out", out), ": unsupported output type; use "
                      f"{'/'.join(usd_cache.CACHE_EXTENSIONS)}, {'/'.join(npz.SUFFIXES)}, or a "
                      "per-frame pattern like out/frame_{:04d}.obj "
                      f"({' '.join(mesh_files.SUFFIXES)})")
@@ -68,10 +69,10 @@ def check_output(out: str | Path, inputs: list, force: bool) -> Path:
     out = Path(out)
     for src in inputs:
         if out.resolve() == Path(src).resolve():
-            raise ValueError(f"{out}: refusing to overwrite the input")
+            raise InputError(f"{out}: refusing to overwrite the input")
     check_parent(out)
     if out.exists() and not force:
-        raise FileExistsError(f"{out}: exists (use --force to overwrite)")
+        raise output_exists(out)
     return out
 
 
@@ -86,21 +87,26 @@ def check_clip_arguments(out, *, chunk=None, clips=None, workers=None, scheduler
     non-USD ``out``, those options with ``clips=False``, ``workers`` with ``scheduler``,
     ``resume`` with ``force``."""
     if chunk is not None and int(chunk) < 1:
-        raise ValueError(f"--chunk {chunk}: must be at least 1")
+        raise InputError(Param("chunk", chunk), ": must be at least 1")
     asked = workers is not None or bool(scheduler) or resume
     if output_kind(out) != "usd" and (clips or asked):
-        raise ValueError(f"--out {out}: value clips, --workers, --scheduler and --resume are for "
-                         "USD caches (.usd/.usdc/.usda)")
+        raise InputError(Param("out", out), ": value clips, ", Param("workers"), ", ",
+                         Param("scheduler"), " and ", Param("resume", True),
+                         " are for USD caches (.usd/.usdc/.usda)")
     if workers is not None and int(workers) < 1:
-        raise ValueError(f"--workers {workers}: must be at least 1")
+        raise InputError(Param("workers", workers), ": must be at least 1")
     if resume and force:
-        raise ValueError("--resume and --force: give one (--resume completes the earlier bake, "
-                         "--force starts over)")
+        raise InputError(Param("resume", True), " and ", Param("force", True), ": give one (",
+                         Param("resume", True), " completes the earlier bake, ",
+                         Param("force", True), " starts over)")
     if workers is not None and scheduler:
-        raise ValueError("--workers and --scheduler: give one (--scheduler bakes on the workers "
-                         "of that cluster; --workers starts a cluster of its own)")
+        raise InputError(Param("workers"), " and ", Param("scheduler"), ": give one (",
+                         Param("scheduler"), " bakes on the workers of that cluster; ",
+                         Param("workers"), " starts a cluster of its own)")
     if clips is False and asked:
-        raise ValueError("--workers, --scheduler and --resume need value clips (not --no-clips)")
+        raise InputError(Param("workers"), ", ", Param("scheduler"), " and ",
+                         Param("resume", True), " need value clips (not ", Param("clips", False),
+                         ")")
 
 
 def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None = None, *,
@@ -196,8 +202,9 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     counts = f"{_plural(len(names), 'mesh', 'meshes')} × {_plural(frames, 'frame')}"
     if kind == "usd":
         if format_of(src) is not usd:
-            raise ValueError(f"--out {out}: a USD point cache copies the input stage, so it needs "
-                             "a USD input; for glTF write .npz or per-frame .obj/.ply/.glb files")
+            raise InputError(Param("out", out), ": a USD point cache copies the input stage, so "
+                             "it needs a USD input; for glTF write .npz or per-frame "
+                             ".obj/.ply/.glb files")
         if clips:
             from .distributed import bake_clips
             done = bake_clips(scene, out, t, chunk=chunk, normals=normals,
@@ -224,9 +231,10 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
             replaces = clip_bake is not None and clip_bake.holds_clip_bake(out)
             with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args, **sign) as writer:
                 if replaces and not force:  # (an unfinished one: out itself does not exist)
-                    raise FileExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
-                                          f"of {Path(out).name}; complete it with --resume, or "
-                                          "--force to replace it with a single layer")
+                    raise OutputExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
+                                            f"of {Path(out).name}; complete it with ",
+                                            Param("resume", True), ", or replace it with a "
+                                            "single layer with ", Param("force", True))
                 if replaces:  # its files are removed below
                     clip_bake.check_outside(out, clip_bake.input_files(
                         writer.cache.stage, src, inputs), src)

@@ -3,11 +3,15 @@
 All argument parsing lives here; each command calls the library (:func:`dqskin.baking.bake`,
 :func:`dqskin.report.compare.run_compare`). The process's promises, one place each:
 
-* Exit status: 0 done, 2 bad input or refused (one line ``dqskin: error: ...`` naming the file,
-  prim or field; no traceback), 130 on SIGINT (Ctrl-C) and 143 on SIGTERM (one line
-  ``dqskin: interrupted``), 120 when a finished command's output could not be written (a full
-  disk; one line ``dqskin: error: writing <stdout>: ...``), 141 without a message when the
-  reader of stdout goes away (``dqskin info X | head``), as a tool ended by SIGPIPE.
+* Exit status: 0 done; 2 bad input, a refused output or a limit
+  (:class:`dqskin.errors.DqskinError`: one line ``dqskin: error: ...`` naming the file, prim,
+  field or flag; no traceback), or a system error about a file (one line ``FILE: reason``:
+  permission, no space, no such file); 70 for anything else, a bug in dqskin (one line
+  ``dqskin: internal error (a bug): ...`` naming the file the traceback was written to); 130 on
+  SIGINT (Ctrl-C) and 143 on SIGTERM (one line ``dqskin: interrupted``); 120 when a finished
+  command's output could not be written (a full disk; one line ``dqskin: error: writing
+  <stdout>: ...``); 141 without a message when the reader of stdout goes away (``dqskin info X
+  | head``), as a tool ended by SIGPIPE.
 * Signals: :func:`main` installs the handlers before anything else it does; the first SIGINT or
   SIGTERM raises :class:`Interrupted` in the main thread, so every ``with`` block unwinds and
   :mod:`dqskin.files.atomic` removes its temporary files (its commit and clean-up steps finish
@@ -30,23 +34,39 @@ import signal
 import sys
 from pathlib import Path
 
+from .errors import DqskinError, InputError, Interrupted
+
 # (nothing heavy above: main installs its signal handlers before importing anything else)
 
-__all__ = ["Interrupted", "build_parser", "install_signal_handlers", "main"]
+__all__ = ["EXIT_INPUT", "EXIT_INTERNAL", "Interrupted", "build_parser", "flag",
+           "install_signal_handlers", "main"]
 
 EXIT_INPUT = 2
+EXIT_INTERNAL = 70  # os.EX_SOFTWARE: a bug in dqskin
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _signalled = []  # the signal numbers received while main runs (only the first one acts)
 _own_process = False  # while main runs as the process's entry point (not from Python)
 
 
-class Interrupted(KeyboardInterrupt):
-    """SIGINT or SIGTERM, raised in the main thread; ``exit_code`` is ``128 + signum``."""
+# The flag that sets an API parameter named in an error message (:class:`dqskin.errors.Param`),
+# where it is not ``--`` + the name with ``-`` for ``_``; and the ``--no-...`` flag that sets one
+# to False. The one place the command line's spelling of parameters lives.
+FLAGS = {"overwrite": "--force"}
+NEGATED = {"normals": "--no-normals", "velocities": "--no-velocities", "clips": "--no-clips",
+           "sweeps": "--no-sweeps"}
 
-    def __init__(self, signum):
-        super().__init__(signum)
-        self.signum = int(signum)
-        self.exit_code = 128 + self.signum
+
+def flag(param):
+    """``param`` as typed on the command line: ``--force``, ``--no-clips``, ``--chunk 0``."""
+    import shlex
+    name = FLAGS.get(param.name, "--" + param.name.replace("_", "-"))
+    if not param.has_value or param.value is True:
+        return name
+    if param.value is False:
+        return NEGATED.get(param.name, f"no {name}")
+    value = param.value
+    text = format(value, "g") if isinstance(value, float) else str(value)
+    return f"{name} {shlex.quote(text)}"
 
 
 def _on_signal(signum, frame):
@@ -121,12 +141,12 @@ def _init_warp(verbose):
 
 
 def _regular_file(path):
-    """ValueError unless ``path`` is a regular file (a folder, ``/dev/null`` or a FIFO is not)."""
+    """InputError unless ``path`` is a regular file (a folder, ``/dev/null`` or a FIFO is not)."""
     p = Path(path)
     if not p.exists():
-        raise ValueError(f"{p}: no such file")
+        raise InputError(f"{p}: no such file")
     if not p.is_file():
-        raise ValueError(f"{p}: not a regular file")
+        raise InputError(f"{p}: not a regular file")
     return p
 
 
@@ -151,12 +171,12 @@ def cmd_skin(args):
         check_output(args.out, inputs, force=True)
     if (args.skeleton is not None or args.weights is not None) and (
             args.workers is not None or args.scheduler or args.resume):
-        raise ValueError("--skeleton and --weights cannot be combined with --workers, "
+        raise InputError("--skeleton and --weights cannot be combined with --workers, "
                          "--scheduler or --resume: clip workers and the resume check read INPUT "
                          "from its file, without the new weights; write the rig first (dqskin "
                          "rig ... --out rig.usda) and bake that")
     if args.cor_exact and (args.workers is not None or args.scheduler or args.resume):
-        raise ValueError("--cor-exact cannot be combined with --workers, --scheduler or --resume "
+        raise InputError("--cor-exact cannot be combined with --workers, --scheduler or --resume "
                          "(clip workers compute the centers with the defaults)")
     check_clip_arguments(args.out, chunk=args.chunk, clips=args.clips, workers=args.workers,
                          scheduler=args.scheduler, resume=args.resume,
@@ -209,22 +229,22 @@ def _load_input(args, cache_out=None, rig_dir=None):
     from . import readers
     from .rigging import replace_weights, rig_mesh
     if args.max_influences < 1:
-        raise ValueError(f"--max-influences {args.max_influences}: must be at least 1")
+        raise InputError(f"--max-influences {args.max_influences}: must be at least 1")
     if args.scale is not None and not (math.isfinite(args.scale) and args.scale > 0):
-        raise ValueError(f"--scale {args.scale:g}: must be a positive number")
+        raise InputError(f"--scale {args.scale:g}: must be a positive number")
     weights = args.weights
     if weights is not None and weights != "auto":
         weights = _regular_file(weights)
     src = _regular_file(args.input)
     if args.skeleton is not None:
         if readers.format_of(src) is not None and src.suffix.lower() != ".glb":
-            raise ValueError(f"{src}: --skeleton binds a plain mesh (.obj/.ply/.stl/.off/.glb) "
+            raise InputError(f"{src}: --skeleton binds a plain mesh (.obj/.ply/.stl/.off/.glb) "
                              "to a BVH; a character file has its own skeleton (use --weights "
                              "auto to replace its weights)")
         usd_out = cache_out is not None and Path(cache_out).suffix.lower() in (".usd", ".usda",
                                                                                ".usdc")
         if usd_out and rig_dir is None:
-            raise ValueError(f"--out {cache_out}: a USD point cache copies a USD input stage; "
+            raise InputError(f"--out {cache_out}: a USD point cache copies a USD input stage; "
                              f"write the rig first (dqskin rig {src.name} --skeleton "
                              f"{Path(args.skeleton).name} --out rig.usda)")
         scene = rig_mesh(src, _regular_file(args.skeleton), weights=weights or "auto",
@@ -236,10 +256,10 @@ def _load_input(args, cache_out=None, rig_dir=None):
             scene = readers.load(rig)
         return scene
     if args.scale is not None:
-        raise ValueError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")
+        raise InputError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")
     scene = readers.load(src, clip=_clip(args.clip))
     if cache_out is not None and not scene.meshes and src.suffix.lower() == ".bvh":
-        raise ValueError(f"{src}: no mesh to skin (a BVH holds a skeleton and its motion); bind "
+        raise InputError(f"{src}: no mesh to skin (a BVH holds a skeleton and its motion); bind "
                          f"a mesh in its rest pose: dqskin skin MESH --skeleton {src.name} "
                          f"--out {cache_out}")
     if weights is not None:
@@ -336,7 +356,7 @@ def cmd_demo(args):
     from .report.compare import run_compare
     asset = _regular_file(args.asset) if args.asset else default_asset()
     if not Path(asset).is_file():
-        raise ValueError(f"{asset}: demo asset not found")
+        raise InputError(f"{asset}: demo asset not found")
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     print(f"dqskin demo: skinning {asset.name} with DQS")
@@ -368,7 +388,7 @@ def cmd_compare(args):
     for src in _inputs(args):  # what the report writes: the folder, these files, frames/*
         p = Path(src).resolve()
         if p in (out, out / "report.html", out / "metrics.json") or p.parent == out / "frames":
-            raise ValueError(f"--out {args.out}: refusing to write the report over the input "
+            raise InputError(f"--out {args.out}: refusing to write the report over the input "
                              f"{src}")
     source = _load_input(args) if _rigging(args) else _regular_file(args.input)
     result = run_compare(
@@ -550,7 +570,8 @@ def main(argv=None):
 
     Called without ``argv`` (the process's entry point) it keeps its signal handlers until the
     process exits and, unless ``--verbose``, holds what native code (Warp, USD) writes to stderr,
-    showing it only if dqskin itself crashes; it then ends the process when the command returns
+    adding it to the traceback file if dqskin itself fails (a bug: :data:`EXIT_INTERNAL`); it
+    then ends the process when the command returns
     (:func:`_exit`). With ``argv`` (from Python) it restores the previous handlers when it returns
     and leaves stderr alone.
     """
@@ -597,8 +618,7 @@ def _exit(code):
 
 
 def _main(argv):
-    previous = release = None
-    crashed = False
+    previous = release = bug = None
     try:
         previous = install_signal_handlers()  # first: Ctrl-C in start-up is an interrupt too
         del _signalled[:]  # (a new run, when called from Python again)
@@ -620,15 +640,53 @@ def _main(argv):
     except KeyboardInterrupt as exc:  # Interrupted, or SIGINT outside the main thread
         print("dqskin: interrupted", file=sys.stderr)
         return getattr(exc, "exit_code", 128 + signal.SIGINT)
-    except Exception:
-        crashed = True  # a bug: the traceback follows, with what native code said
-        raise
+    except Exception as exc:  # not a DqskinError nor a system error about a file: a bug
+        bug = exc
     finally:
-        if release is not None:
-            release(replay=crashed)
+        native = release() if release is not None else ""
         if previous is not None and argv is not None:
             for s, h in previous.items():
                 signal.signal(s, h)
+    verbose = "--verbose" in (sys.argv[1:] if argv is None else argv)
+    return _report_bug(bug, native, verbose)
+
+
+def _report_bug(exc, native="", verbose=False):
+    """Write ``exc``'s traceback (and what native code wrote to stderr meanwhile, ``native``) to
+    a new file in the temporary folder, say in one line that dqskin failed and where the
+    traceback is, and return :data:`EXIT_INTERNAL`; with ``verbose`` the traceback is printed
+    too. If the file cannot be written the traceback goes to stderr instead."""
+    import os
+    import tempfile
+    import time
+    import traceback
+    text = "".join(traceback.format_exception(exc))
+    report = (f"dqskin {_version()} internal error\ncommand: {sys.argv!r}\n\n{text}"
+              + (f"\nnative stderr:\n{native}" if native else ""))
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    where = None
+    try:
+        fd, where = tempfile.mkstemp(prefix=f"dqskin-crash-{stamp}-{os.getpid()}-",
+                                     suffix=".txt")  # O_EXCL, mode 0600
+        with open(fd, "w", encoding="utf-8", errors="backslashreplace") as f:
+            f.write(report)
+    except OSError:
+        where = None
+    if verbose or where is None:
+        sys.stderr.write(text)
+    what = " ".join(str(exc).split())
+    print(f"dqskin: internal error (a bug): {type(exc).__name__}"
+          + (f": {what}" if what else "")
+          + (f"; traceback written to {where}" if where else ""), file=sys.stderr)
+    return EXIT_INTERNAL
+
+
+def _version():
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("dqskin")
+    except PackageNotFoundError:
+        return "(not installed)"
 
 
 def _checkpoint():
@@ -640,7 +698,8 @@ def _checkpoint():
 
 def _hold_native_stderr():
     """Point file descriptor 2 at a temporary file, ``sys.stderr`` staying on the real stderr;
-    returns ``release(replay)`` (None when stderr cannot be redirected)."""
+    returns ``release()``, which restores it and returns what was written there (None when
+    stderr cannot be redirected)."""
     import os
     import tempfile
     try:
@@ -654,7 +713,7 @@ def _hold_native_stderr():
     os.dup2(capture.fileno(), 2)
     previous, sys.stderr = sys.stderr, stream
 
-    def release(replay=False):
+    def release():
         import contextlib
         with contextlib.suppress(OSError, ValueError):
             stream.flush()
@@ -662,13 +721,10 @@ def _hold_native_stderr():
         os.close(saved)
         sys.stderr = previous
         stream.close()
-        if replay:
-            capture.seek(0)
-            text = capture.read().decode(errors="replace")
-            if text:
-                previous.write(text)
-                previous.flush()
+        capture.seek(0)
+        text = capture.read().decode(errors="replace")
         capture.close()
+        return text
     return release
 
 
@@ -759,14 +815,19 @@ def _run_command(argv):
         _quiet_libraries(args.verbose)
         _checkpoint()
         code = args.run(args)
-    except (ValueError, FileExistsError, KeyError, OSError) as exc:
+    except (DqskinError, OSError) as exc:
         _checkpoint()  # an error caused by an interrupt some library turned into another type
         if isinstance(exc, BrokenPipeError) and _stdout_reader_gone():
             return _reader_gone(redirect=argv is None)
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        if isinstance(exc, OSError) and exc.strerror:  # "[Errno 13] ...: 'x'" → "x: ..."
+        if isinstance(exc, DqskinError):
+            msg = exc.message(flag)
+        elif exc.strerror:  # the system about a file: "[Errno 13] ...: 'x'" → "x: ..."
             where = " -> ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
             msg = f"{where}: {exc.strerror}" if where else exc.strerror
+        elif exc.errno is not None:  # a system error reworded to name its file (files.atomic)
+            msg = exc
+        else:  # an OSError that did not come from the system: a bug
+            raise
         print(f"dqskin: error: {msg}", file=sys.stderr)
         code = EXIT_INPUT
     except Exception:

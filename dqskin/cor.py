@@ -42,6 +42,7 @@ import warp as wp
 
 from . import cache as _cache
 from ._warp import Device, resolve_device
+from .errors import InputError
 from .influences import check_influences
 from .kernels import cor as KC
 from .shapes import as_real
@@ -70,9 +71,9 @@ def check_faces(faces, vertex_count):
     if f.size == 0:
         return np.zeros((0, 3), np.int64)
     if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"faces: expected (T, 3) integer triangles, got {f.shape} {f.dtype}")
+        raise InputError(f"faces: expected (T, 3) integer triangles, got {f.shape} {f.dtype}")
     if f.min() < 0 or f.max() >= vertex_count:
-        raise ValueError(f"faces: vertex index out of range for {vertex_count} points")
+        raise InputError(f"faces: vertex index out of range for {vertex_count} points")
     return f.astype(np.int64)
 
 
@@ -293,7 +294,7 @@ def _positive_or_none(name, value, also=""):
     except (TypeError, ValueError):
         v = float("nan")
     if not (np.isfinite(v) and v > 0):
-        raise ValueError(f"{name}: expected a positive number{also} or None, got {value!r}")
+        raise InputError(f"{name}: expected a positive number{also} or None, got {value!r}")
     return v
 
 
@@ -341,11 +342,11 @@ def rotation_centers(points, faces, joint_indices, joint_weights, *, sigma: floa
     """
     pts = as_real("points", points, np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"points: expected (V, 3), got {pts.shape}")
+        raise InputError(f"points: expected (V, 3), got {pts.shape}")
     if not np.all(np.isfinite(pts)):
-        raise ValueError("points: NaN or infinite coordinates")
+        raise InputError("points: NaN or infinite coordinates")
     if not (np.isfinite(sigma) and sigma > 0):
-        raise ValueError(f"sigma: expected a positive number, got {sigma!r}")
+        raise InputError(f"sigma: expected a positive number, got {sigma!r}")
     subdivide = _positive_or_none("subdivide", subdivide)
     cluster = cluster if cluster == "auto" else _positive_or_none("cluster", cluster, ', "auto"')
     idx, wts = check_influences(joint_indices, joint_weights, pts.shape[0])

@@ -25,6 +25,7 @@ import warp as wp
 
 from ._warp import Device, resolve_device
 from .animation import check_times
+from .errors import InputError
 from .kernels import buffers as KB
 from .kernels import fk as FK
 from .motion import moved_velocities, per_second, skinning_transforms_with_derivative
@@ -128,7 +129,7 @@ class MeshBatch:
         for m, sl, off, count in zip(self.meshes, self.vertices, joint_offsets, joint_counts):
             i = np.asarray(m.joint_indices).reshape(sl.stop - sl.start, -1)
             if i.size and (i.min() < 0 or i.max() >= count):
-                raise ValueError(f"{m.name}: joint index {int(i.max())} out of range for its "
+                raise InputError(f"{m.name}: joint index {int(i.max())} out of range for its "
                                  f"skeleton's {count} joints")
             g = np.asarray(m.geom_bind_transform, np.float64)
             points[sl] = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
@@ -178,7 +179,7 @@ class MeshBatch:
             try:
                 ginv = np.linalg.inv(g)
             except np.linalg.LinAlgError:
-                raise ValueError(f"{m.name}: geom_bind_transform: singular, normals cannot "
+                raise InputError(f"{m.name}: geom_bind_transform: singular, normals cannot "
                                  "follow") from None
             n = np.asarray(per_mesh.get(i, m.normals), np.float64) @ ginv  # (G⁻ᵀ·n)ᵀ = nᵀ·G⁻¹
             blocks.append(np.broadcast_to(n, (frames,) + n.shape[-2:]) if per_frame else n)
@@ -241,7 +242,7 @@ def skin_meshes(scene, times, method: Method | None = None, *, device: Device = 
                 rates[:, where[s]] = skinning_transforms_with_derivative(
                     scene.skeletons[s], scene.skeletons[s].animation, t, interp, local=loc)[1]
             except ValueError as exc:
-                raise ValueError(f"{scene.path}: {exc}") from None
+                raise InputError(f"{scene.path}: {exc}") from None
     groups = {}
     for m in scene.meshes:
         groups.setdefault(method or m.skinning_method, []).append(m)
@@ -290,7 +291,7 @@ def skin_meshes(scene, times, method: Method | None = None, *, device: Device = 
                                                       point_velocities=rest_dot_s)
             except ValueError as exc:  # per-second rates beyond float32
                 more = f" and {len(meshes) - 1} more" if len(meshes) > 1 else ""
-                raise ValueError(f"{scene.path}: {meshes[0].name}{more}: velocities: "
+                raise InputError(f"{scene.path}: {meshes[0].name}{more}: velocities: "
                                  f"{exc}") from None
             for i, m in enumerate(meshes):
                 v = v_all[:, batch.vertices[i]]
@@ -360,17 +361,17 @@ class Crowd:
         (default ``"i<index>"``). ValueError for a non-finite offset or root transform, a
         repeated name, or a character without meshes."""
         if not getattr(character, "meshes", None):
-            raise ValueError("character: no skinned meshes")
+            raise InputError("character: no skinned meshes")
         off = float(time_offset)
         if not np.isfinite(off):
-            raise ValueError(f"time_offset: {time_offset!r} is not finite")
+            raise InputError(f"time_offset: {time_offset!r} is not finite")
         root = np.eye(4) if root_transform is None else check_transforms(
             "root_transform", np.asarray(root_transform, np.float64).reshape(1, 4, 4))[0]
         if not np.allclose(root[3], [0, 0, 0, 1]):
-            raise ValueError("root_transform: last row must be (0, 0, 0, 1)")
+            raise InputError("root_transform: last row must be (0, 0, 0, 1)")
         name = f"i{len(self.instances)}" if name is None else str(name)
         if any(i.name == name for i in self.instances):
-            raise ValueError(f"instance name {name!r} used twice")
+            raise InputError(f"instance name {name!r} used twice")
         self.instances = [*self.instances, Instance(name, character, off, root)]
         self._version += 1
         self._batch = None
@@ -385,7 +386,7 @@ class Crowd:
             return batch
         instances = self.instances
         if not instances:
-            raise ValueError("crowd: no instances (add some first)")
+            raise InputError("crowd: no instances (add some first)")
         skeletons, meshes, offsets, counts, names = [], [], [], [], []
         for inst in instances:
             first = len(skeletons)
@@ -458,7 +459,7 @@ class Crowd:
     @staticmethod
     def _pose(batch, local_transforms):
         if len(local_transforms) != len(batch.joints.skeletons):
-            raise ValueError(f"local_transforms: {len(local_transforms)} skeletons for "
+            raise InputError(f"local_transforms: {len(local_transforms)} skeletons for "
                              f"{len(batch.joints.skeletons)}")
         return batch.joints.skinning_transforms(local_transforms)
 
@@ -502,5 +503,5 @@ class Crowd:
     @staticmethod
     def _check_method(method):
         if method not in BATCH_METHODS:
-            raise ValueError(f"method must be one of {list(BATCH_METHODS)} for a crowd, got "
+            raise InputError(f"method must be one of {list(BATCH_METHODS)} for a crowd, got "
                              f"{method!r}")

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from . import forkserver
+from .errors import DqskinError, InputError, Param
 from .files import atomic
 from .kernels import buffers as KB
 from .validation import check_skinned
@@ -161,7 +162,7 @@ def _sample_writer(scene, job):
         try:
             return job.targets[name, what]
         except KeyError:
-            raise ValueError(f"{job.source}: {name}: no {what} in this bake's plan") from None
+            raise InputError(f"{job.source}: {name}: no {what} in this bake's plan") from None
 
     return SampleWriter(scene, target, job.rigid, method=opts.get("method"),
                         device=opts.get("device"), interp=opts.get("interp", "trs"),
@@ -368,10 +369,11 @@ def _dask(workers, scheduler, threads=None):
             try:
                 client = Client(scheduler, timeout="20s")
             except (OSError, ValueError) as exc:
-                raise ConnectionError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+                raise DqskinError(Param("scheduler", scheduler),
+                                  f": cannot connect ({exc})") from None
         else:
             if int(workers) < 1:
-                raise ValueError(f"--workers {workers}: must be at least 1")
+                raise InputError(Param("workers", workers), ": must be at least 1")
             threads = str(max(1, int(threads or (os.cpu_count() or 1) // int(workers))))
             # for the cluster's lifetime: a restarted worker is forked from the same server
             stack.enter_context(dask.config.set(forkserver.dask_config()))
@@ -406,7 +408,8 @@ def _run_on_dask(client, jobs, done):
             result = fut.result()
         except KilledWorker:
             job = futures[fut]
-            raise ChildProcessError(
+            raise DqskinError(
                 f"{job.path}: the worker processes baking it died repeatedly (out of memory? "
-                "try a smaller --chunk); finished chunks are kept: rerun with --resume") from None
+                "try a smaller ", Param("chunk"), "); finished chunks are kept: rerun with ",
+                Param("resume", True)) from None
         done(result)

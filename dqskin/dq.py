@@ -49,6 +49,7 @@ References
 import numpy as np
 
 from . import dual, quat
+from .errors import InputError
 from .linalg import nonzero_norm2, unit_or_x
 from .shapes import as_float, concat
 
@@ -408,7 +409,7 @@ def from_matrix(m):
     """
     m = as_float(m, "m")
     if m.ndim < 2 or m.shape[-2:] != (4, 4):
-        raise ValueError(f"m must have shape (..., 4, 4), got shape {m.shape}")
+        raise InputError(f"m must have shape (..., 4, 4), got shape {m.shape}")
     return from_rt(quat.from_matrix(m[..., :3, :3]), m[..., :3, 3])
 
 
@@ -711,10 +712,10 @@ def dlb(dqs, weights):
     """
     dqs = _dq(dqs, "dqs")
     if dqs.ndim < 2:
-        raise ValueError(f"dqs must have shape (..., K, 8), got shape {dqs.shape}")
+        raise InputError(f"dqs must have shape (..., K, 8), got shape {dqs.shape}")
     weights = as_float(weights, "weights", dtype=dqs.dtype)
     if weights.ndim == 0 or weights.shape[-1] not in (1, dqs.shape[-2]):
-        raise ValueError(
+        raise InputError(
             f"weights must have shape (..., {dqs.shape[-2]}), got shape {weights.shape}"
         )
     batch = np.broadcast_shapes(dqs.shape[:-2], weights.shape[:-1])
@@ -896,7 +897,7 @@ def twist(eta, eta_dot, frame="body"):
     elif frame == "spatial":
         phi = mul(eta_dot, inverse(eta))
     else:
-        raise ValueError(f'frame must be "body" or "spatial", got {frame!r}')
+        raise InputError(f'frame must be "body" or "spatial", got {frame!r}')
     return 2 * phi[..., 1:4], 2 * phi[..., 5:8]
 
 

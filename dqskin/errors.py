@@ -4,9 +4,12 @@
   its limits. Anything else that escapes dqskin is a bug (the CLI exits 70 for it).
 * :class:`InputError` (also a ``ValueError``, so ``except ValueError`` keeps working): a file,
   prim, field or argument that cannot be used; :class:`LimitError`: an input beyond a size or
-  count limit (raise the limit, or ask for less).
+  count limit (raise the limit, or ask for less); :class:`UnknownNameError` (also a
+  ``KeyError``, as a lookup by name raised before): a name the input lacks (a mesh of a scene).
 * :class:`OutputExistsError` (also a ``FileExistsError``): an output refused because something
   is already there (``force=True`` replaces what dqskin made; never an input).
+* :class:`DqskinError` itself: what dqskin depends on failed, not the input (a Dask scheduler
+  that cannot be reached, worker processes that keep dying).
 * :class:`Interrupted`: SIGINT or SIGTERM. It is a ``KeyboardInterrupt``, not a
   :class:`DqskinError`, so that ``except Exception`` in any library lets it through.
 
@@ -17,13 +20,20 @@ with the command line's flag table (:mod:`dqskin.cli`).
 
 from __future__ import annotations
 
+import enum
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 
 __all__ = ["DqskinError", "InputError", "Interrupted", "LimitError", "OutputExistsError",
-           "Param"]
+           "Param", "UnknownNameError", "output_exists"]
 
-_NO_VALUE = object()
+
+class _Unset(enum.Enum):  # an enum member pickles as itself (a bare object() would not)
+    NO_VALUE = 0
+
+
+_NO_VALUE = _Unset.NO_VALUE
 
 
 @dataclass(frozen=True)
@@ -38,7 +48,10 @@ class Param:
     value: object = _NO_VALUE
 
     def __str__(self) -> str:
-        return self.name if self.value is _NO_VALUE else f"{self.name}={self.value!r}"
+        if self.value is _NO_VALUE:
+            return self.name
+        value = os.fspath(self.value) if isinstance(self.value, os.PathLike) else self.value
+        return f"{self.name}={value!r}"
 
     @property
     def has_value(self) -> bool:
@@ -68,6 +81,9 @@ class DqskinError(Exception):
         """The message with each :class:`Param` written by ``spell`` (default: ``name=value``)."""
         return "".join(p if isinstance(p, str) else spell(p) for p in self.parts)
 
+    def __str__(self) -> str:  # not KeyError's repr() of the message (UnknownNameError)
+        return self.message()
+
     def __reduce__(self):  # pickled across Dask workers: rebuilt from its parts
         return (type(self), self.parts)
 
@@ -80,8 +96,22 @@ class LimitError(InputError):
     """An input beyond one of dqskin's size or count limits; the message names the limit."""
 
 
+class UnknownNameError(InputError, KeyError):
+    """A name (a mesh of a scene) that the input does not hold; the message lists those it does.
+
+    Also a ``KeyError``: a lookup by name raised ``KeyError`` before these classes existed.
+    """
+
+
 class OutputExistsError(DqskinError, FileExistsError):
     """An output refused because something is already there (and ``force`` was not given)."""
+
+
+def output_exists(path: str | os.PathLike, param: str = "force") -> OutputExistsError:
+    """The refusal of an existing output ``path``: "PATH: exists (use force=True to overwrite)",
+    naming the boolean parameter ``param`` that allows it."""
+    return OutputExistsError(f"{os.fspath(path)}: exists (use ", Param(param, True),
+                             " to overwrite)")
 
 
 class Interrupted(KeyboardInterrupt):

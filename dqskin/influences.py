@@ -4,6 +4,7 @@
 import numpy as np
 import warp as wp
 
+from .errors import InputError
 from .kernels import buffers as KB
 from .kernels import layout as KL
 from .kernels.grid import beside
@@ -29,10 +30,10 @@ def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None
     if idx.ndim != 2 or wts.shape != idx.shape or (vertex_count is not None
                                                    and idx.shape[0] != vertex_count):
         want = "(V, K)" if vertex_count is None else f"({vertex_count}, K)"
-        raise ValueError(f"joint_indices {idx.shape} and joint_weights {wts.shape} must both be "
+        raise InputError(f"joint_indices {idx.shape} and joint_weights {wts.shape} must both be "
                          f"{want}")
     if not np.issubdtype(idx.dtype, np.integer):
-        raise ValueError(f"joint_indices: expected integers, got {idx.dtype}")
+        raise InputError(f"joint_indices: expected integers, got {idx.dtype}")
     if not idx.size or not values:
         return idx, wts, -1
     if idx.size >= _BESIDE_MIN:  # the weights on another core
@@ -41,18 +42,18 @@ def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None
     else:
         weights_ok, hi = None, nonnegative_max(idx)
     if hi is None:
-        raise ValueError(f"joint_indices: negative index {int(idx.min())}")
+        raise InputError(f"joint_indices: negative index {int(idx.min())}")
     hi = int(hi)
     if joint_count is not None and hi >= joint_count:
-        raise ValueError(f"joint_indices: index {hi} out of range for {joint_count} joints")
+        raise InputError(f"joint_indices: index {hi} out of range for {joint_count} joints")
     if weights_ok is None:
         weights_ok = nonnegative_max(wts) is not None
     if not weights_ok:  # then look closer (-0.0 is fine)
         wlo, whi = wts.min(), wts.max()  # NaN propagates; no temporaries
         if not (np.isfinite(wlo) and np.isfinite(whi)):
-            raise ValueError("joint_weights: NaN or infinite weight")
+            raise InputError("joint_weights: NaN or infinite weight")
         if wlo < 0:
-            raise ValueError(f"joint_weights: negative weight {float(wlo)}")
+            raise InputError(f"joint_weights: negative weight {float(wlo)}")
     return idx, wts, hi
 
 
@@ -142,10 +143,10 @@ class Influences:
         """ValueError when ``joint_count`` skinning transforms cannot cover the indices (the
         zero-weight padding points at joint 0, so points need at least one joint)."""
         if joint_count < self.joint_count_min:
-            raise ValueError(f"joint_indices: index {self.joint_count_min - 1} out of range for "
+            raise InputError(f"joint_indices: index {self.joint_count_min - 1} out of range for "
                              f"{joint_count} skinning transforms")
         if joint_count == 0 and self.vertex_count:
-            raise ValueError("skinning_transforms: no joints to skin the points with")
+            raise InputError("skinning_transforms: no joints to skin the points with")
 
     def upload(self, device, order="weight", copy=True):
         """``{"indices": (V, C) wp.vec4i, "weights": (V, C) wp.vec4}`` on ``device``.
@@ -172,7 +173,7 @@ class Influences:
                                             device=device, copy=False)}
             idx, wts = self._groups(idx, wts)
         else:
-            raise ValueError(f'order must be "weight" or "input", got {order!r}')
+            raise InputError(f'order must be "weight" or "input", got {order!r}')
         return {"indices": wp.array(idx, dtype=wp.vec4i, device=device),
                 "weights": wp.array(wts, dtype=wp.vec4, device=device)}
 

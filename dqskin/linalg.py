@@ -4,6 +4,8 @@ polar split, safe normalization. Their float32 device counterparts are in
 
 import numpy as np
 
+from .errors import InputError
+
 __all__ = ["NEAR_ROTATION", "NEWTON_STEPS", "hat", "nonzero_norm2", "polar", "unit_or_x", "vee"]
 
 NEAR_ROTATION = 1e-3
@@ -76,7 +78,7 @@ def nonzero_norm2(q, name):
     """Squared norm of ``q`` (shape ``(...)``); raise ``ValueError`` if any is zero."""
     n2 = np.sum(q * q, axis=-1)
     if np.any(n2 == 0):
-        raise ValueError(f"{name} has a zero-norm quaternion, which has no inverse or direction")
+        raise InputError(f"{name} has a zero-norm quaternion, which has no inverse or direction")
     return n2
 
 

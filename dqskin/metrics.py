@@ -18,6 +18,7 @@ import warp as wp
 
 from . import quat
 from ._warp import resolve_device
+from .errors import InputError
 from .influences import Influences
 from .kernels import metrics as K
 from .linalg import polar
@@ -147,7 +148,7 @@ def mesh_edges(faces):
     """
     f = np.asarray(faces)
     if f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"faces: expected (T, 3) triangles, got {f.shape}")
+        raise InputError(f"faces: expected (T, 3) triangles, got {f.shape}")
     e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
     e = e[e[:, 0] != e[:, 1]]
     return np.unique(e, axis=0).astype(np.int32)
@@ -173,9 +174,9 @@ def edge_strain(points, rest_points, edges, *, device=None):
     rest, _ = frames_of("rest_points", rest_points, *pts.shape[:2], finite=True)
     e = np.asarray(edges)
     if e.ndim != 2 or e.shape[1] != 2 or not np.issubdtype(e.dtype, np.integer):
-        raise ValueError(f"edges: expected (E, 2) integers, got {e.dtype} {e.shape}")
+        raise InputError(f"edges: expected (E, 2) integers, got {e.dtype} {e.shape}")
     if e.size and (e.min() < 0 or e.max() >= pts.shape[1]):
-        raise ValueError(f"edges: vertex index out of range [0, {pts.shape[1]})")
+        raise InputError(f"edges: vertex index out of range [0, {pts.shape[1]})")
     strain = _floats((pts.shape[0], e.shape[0]), d)
     K.edge_strain(points=_vec3s(pts, d), rest_points=_vec3s(rest, d),
                   edges=wp.array(e.astype(np.int32), dtype=wp.vec2i, device=d), out=strain,
@@ -207,7 +208,7 @@ def _parents(parents, count):
     """:func:`dqskin.skeleton.check_parents`, plus the joint count when ``count >= 0``."""
     par = check_parents(parents).astype(np.int64)
     if count >= 0 and par.shape[0] != count:
-        raise ValueError(f"parents: expected ({count},) integers, got {par.shape}")
+        raise InputError(f"parents: expected ({count},) integers, got {par.shape}")
     return par
 
 
@@ -248,7 +249,7 @@ def dominant_pair_regions(joint_indices, joint_weights, parents, *, min_weight=0
     if inf.influence_count < 2 or inf.vertex_count == 0:
         return regions, fraction
     if inf.joint_count_min > par.shape[0]:
-        raise ValueError(f"joint_indices: index out of range [0, {par.shape[0]})")
+        raise InputError(f"joint_indices: index out of range [0, {par.shape[0]})")
     (a, b) = idx[:, :2].T
     wa, wb = np.take_along_axis(w, inf.order[:, :2], 1).T
     strong = (wb >= min_weight) & (wa + wb >= min_pair * w.sum(axis=1))
@@ -292,7 +293,7 @@ def joint_rings(joint_indices, joint_weights, parents, *, ring_width=RING_WIDTH,
         The child share at the centre of each ring, ``k · ring_width``.
     """
     if not 0 < ring_width <= 1:
-        raise ValueError(f"ring_width: expected a share in (0, 1], got {ring_width!r}")
+        raise InputError(f"ring_width: expected a share in (0, 1], got {ring_width!r}")
     count = int(round(1 / ring_width)) + 1
     regions, share = dominant_pair_regions(joint_indices, joint_weights, parents,
                                            min_weight=min_weight, min_pair=min_pair)
@@ -384,11 +385,11 @@ def ring_sections(rest_points, points, rings, ring_count, *, min_vertices=4, min
     rest, _ = frames_of("rest_points", rest_points, 1, count, finite=True)
     r = np.asarray(rings)
     if r.shape != (count,) or not np.issubdtype(r.dtype, np.integer):
-        raise ValueError(f"rings: expected ({count},) integers, got {r.dtype} {r.shape}")
+        raise InputError(f"rings: expected ({count},) integers, got {r.dtype} {r.shape}")
     if int(ring_count) != ring_count or ring_count < 0:
-        raise ValueError(f"ring_count: expected a count >= 0, got {ring_count!r}")
+        raise InputError(f"ring_count: expected a count >= 0, got {ring_count!r}")
     if r.size and (r.min() < -1 or r.max() >= ring_count):
-        raise ValueError(f"rings: value out of range [-1, {ring_count})")
+        raise InputError(f"rings: value out of range [-1, {ring_count})")
     members = np.flatnonzero(r >= 0)
     _, cov0, n, d0 = _ring_moments(rest, r, members, ring_count)
     _, cov, _, d = _ring_moments(pts, r, members, ring_count)
@@ -431,7 +432,7 @@ def bone_directions(bind_positions, parents):
     pos = np.asarray(bind_positions, dtype=np.float64)
     par = _parents(parents, pos.shape[0] if pos.ndim == 2 else -1)
     if pos.ndim != 2 or pos.shape[1] != 3:
-        raise ValueError(f"bind_positions: expected ({par.shape[0]}, 3), got {pos.shape}")
+        raise InputError(f"bind_positions: expected ({par.shape[0]}, 3), got {pos.shape}")
     child_sum = np.zeros_like(pos)
     children = np.zeros(pos.shape[0])
     has = par >= 0
@@ -465,7 +466,7 @@ def joint_bend_twist(skinning_transforms, bind_positions, parents):
     x = np.asarray(skinning_transforms, dtype=np.float64)
     par = _parents(parents, -1)
     if x.ndim not in (3, 4) or x.shape[-3:] != (par.shape[0], 4, 4):
-        raise ValueError(f"skinning_transforms: expected ({par.shape[0]}, 4, 4) or (F, "
+        raise InputError(f"skinning_transforms: expected ({par.shape[0]}, 4, 4) or (F, "
                          f"{par.shape[0]}, 4, 4), got {x.shape}")
     axis = bone_directions(bind_positions, par)
     rot, _ = polar(x[..., :3, :3])

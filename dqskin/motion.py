@@ -28,6 +28,7 @@ import numpy.typing as npt
 from . import dq
 from ._warp import Device
 from .animation import Animation, Interpolation, _motion, check_times, sample_with_derivative
+from .errors import InputError
 from .influences import check_influences
 from .linalg import vee
 from .shapes import as_real, frames_of
@@ -82,7 +83,7 @@ def forward_kinematics_derivative(parents: npt.ArrayLike, local: npt.ArrayLike,
     loc_dot = np.asarray(local_dot, dtype=np.float64)
     J = par.shape[0]
     if loc.ndim < 3 or loc.shape[-3:] != (J, 4, 4) or loc_dot.shape != loc.shape:
-        raise ValueError(f"local {loc.shape} and local_dot {loc_dot.shape} must both be "
+        raise InputError(f"local {loc.shape} and local_dot {loc_dot.shape} must both be "
                          f"(..., {J}, 4, 4)")
     world = np.empty_like(loc)
     world_dot = np.empty_like(loc)
@@ -128,9 +129,9 @@ def joint_twists(animation: Animation, times: npt.ArrayLike, interp: Interpolati
         _, _, eta, eta_dot = _motion(animation, times, interp)
         return dq.twist(eta, eta_dot, "body")
     if frame != "world":
-        raise ValueError(f'frame must be "local" or "world", got {frame!r}')
+        raise InputError(f'frame must be "local" or "world", got {frame!r}')
     if parents is None:
-        raise ValueError('frame="world" needs parents')
+        raise InputError('frame="world" needs parents')
     local, local_dot, _, _ = _motion(animation, times, interp)
     world, world_dot = forward_kinematics_derivative(parents, local, local_dot)
     lin = world[..., :3, :3]
@@ -230,7 +231,7 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
     x = as_real("skinning_transforms", skinning_transforms, np.float64)
     x_dot = as_real("skinning_transform_derivatives", skinning_transform_derivatives, np.float64)
     if x.ndim not in (3, 4) or x.shape[-2:] != (4, 4) or x_dot.shape != x.shape:
-        raise ValueError(f"skinning_transforms {x.shape} and skinning_transform_derivatives "
+        raise InputError(f"skinning_transforms {x.shape} and skinning_transform_derivatives "
                          f"{x_dot.shape} must both be (J, 4, 4) or (F, J, 4, 4)")
     frames = x.shape[0] if x.ndim == 4 else 1
     idx, wts = check_influences(joint_indices, joint_weights, joint_count=x.shape[-3])
@@ -239,9 +240,9 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
     if rest_points is not None:
         rest = as_real("rest_points", rest_points, np.float64)
         if rest.shape != (idx.shape[0], 3):
-            raise ValueError(f"rest_points: expected ({idx.shape[0]}, 3), got {rest.shape}")
+            raise InputError(f"rest_points: expected ({idx.shape[0]}, 3), got {rest.shape}")
     elif method == "cor" and batched:
-        raise ValueError('method "cor" with per-frame points needs rest_points (its centers '
+        raise InputError('method "cor" with per-frame points needs rest_points (its centers '
                          'come from the rest mesh)')
     sk = Skinner(rest, idx, wts, geom_bind_transform=geom_bind_transform,
                  blend_weights=blend_weights, faces=faces, device=device)

@@ -18,6 +18,7 @@ References
 
 import numpy as np
 
+from .errors import InputError
 from .linalg import nonzero_norm2, unit_or_x
 from .shapes import as_float, concat
 
@@ -237,7 +238,7 @@ def from_axis_angle(axis, angle):
     angle = as_float(angle, "angle", dtype=axis.dtype)
     n = np.linalg.norm(axis, axis=-1)
     if np.any(n == 0):
-        raise ValueError("axis has a zero vector, which defines no rotation axis")
+        raise InputError("axis has a zero vector, which defines no rotation axis")
     half = 0.5 * angle[..., None]
     return concat(np.cos(half), np.sin(half) * axis / n[..., None])
 
@@ -290,7 +291,7 @@ def from_matrix(m):
     """
     m = as_float(m, "m")
     if m.ndim < 2 or m.shape[-2:] not in ((3, 3), (4, 4)):
-        raise ValueError(f"m must have shape (..., 3, 3) or (..., 4, 4), got shape {m.shape}")
+        raise InputError(f"m must have shape (..., 3, 3) or (..., 4, 4), got shape {m.shape}")
     m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
     m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
     m20, m21, m22 = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]

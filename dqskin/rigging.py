@@ -21,6 +21,7 @@ import numpy as np
 
 from ._warp import Device
 from .autoweights import automatic_weights
+from .errors import InputError, Param
 from .influences import check_influences
 from .readers import bvh
 from .readers.mesh import load_mesh
@@ -50,25 +51,25 @@ def read_weights(path: str | os.PathLike, joint_names: list, vertex_count: int
         with np.load(p, allow_pickle=False) as z:
             missing = [f for f in WEIGHT_FIELDS if f not in z.files]
             if missing:
-                raise ValueError(f"{p}: missing {', '.join(missing)} (a weights file holds "
+                raise InputError(f"{p}: missing {', '.join(missing)} (a weights file holds "
                                  f"{', '.join(WEIGHT_FIELDS)})")
             idx, wts, names = (z[f] for f in WEIGHT_FIELDS)
     except ValueError as exc:
         if str(exc).startswith(str(p)):
             raise
-        raise ValueError(f"{p}: cannot read weights: {exc}") from None
+        raise InputError(f"{p}: cannot read weights: {exc}") from None
     except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
         # missing, empty, truncated or damaged archive
-        raise ValueError(f"{p}: cannot read weights: {exc or type(exc).__name__}") from None
+        raise InputError(f"{p}: cannot read weights: {exc or type(exc).__name__}") from None
     names = [str(n) for n in np.ravel(names)]
     try:
         idx, wts = check_influences(idx, wts, vertex_count, len(names))
     except ValueError as exc:
-        raise ValueError(f"{p}: {exc} (the mesh has {vertex_count} points)") from None
+        raise InputError(f"{p}: {exc} (the mesh has {vertex_count} points)") from None
     index = {n: k for k, n in enumerate(joint_names)}
     unknown = [n for n in names if n not in index]
     if unknown:
-        raise ValueError(f"{p}: joint_names: {', '.join(map(repr, unknown[:5]))}"
+        raise InputError(f"{p}: joint_names: {', '.join(map(repr, unknown[:5]))}"
                          f"{' and more' if len(unknown) > 5 else ''} not in the skeleton")
     remap = np.array([index[n] for n in names], np.int32)
     return (remap[idx] if idx.size else idx.astype(np.int32)), wts
@@ -77,7 +78,7 @@ def read_weights(path: str | os.PathLike, joint_names: list, vertex_count: int
 def check_fit(points: np.ndarray, joint_positions: np.ndarray, where: str) -> None:
     """ValueError unless the mesh ``points`` and the skeleton's rest ``joint_positions`` are the
     same size (within a factor 2) and overlap (most joints inside the mesh's bounding box, padded
-    by a tenth); the message gives the sizes and the ``--scale`` that would match them."""
+    by a tenth); the message gives the sizes and the ``scale`` that would match them."""
     lo, hi = points.min(0), points.max(0)
     size_mesh = float((hi - lo).max())
     jlo, jhi = joint_positions.min(0), joint_positions.max(0)
@@ -86,15 +87,16 @@ def check_fit(points: np.ndarray, joint_positions: np.ndarray, where: str) -> No
         return
     ratio = size_mesh / size_skel
     if not 1 / _SIZE_RATIO <= ratio <= _SIZE_RATIO:
-        raise ValueError(
+        raise InputError(
             f"{where}: the mesh is {ratio:.3g}× the size of the skeleton (mesh {size_mesh:.4g}, "
             f"skeleton {size_skel:.4g} units across): different units? Scale the skeleton to "
-            f"the mesh with --scale {ratio:.4g} (or export the mesh in the BVH's units)")
+            "the mesh with ", Param("scale", float(f"{ratio:.4g}")),
+            " (or export the mesh in the BVH's units)")
     pad = 0.1 * (hi - lo).max()
     inside = np.all((joint_positions >= lo - pad) & (joint_positions <= hi + pad), axis=1)
     if inside.mean() < _INSIDE:
         mc, sc = 0.5 * (lo + hi), 0.5 * (jlo + jhi)
-        raise ValueError(
+        raise InputError(
             f"{where}: the mesh is far from its skeleton (only {inside.sum()} of {inside.size} "
             f"rest joints inside the mesh's bounds; mesh centre {np.round(mc, 4).tolist()}, "
             f"skeleton centre {np.round(sc, 4).tolist()}): model the mesh in the BVH's rest pose "
@@ -174,7 +176,7 @@ def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,
     """
     meshes = []
     if str(weights) != "auto" and len(scene.meshes) != 1:
-        raise ValueError(f"{weights}: a weights file applies to a scene with one mesh; "
+        raise InputError(f"{weights}: a weights file applies to a scene with one mesh; "
                          f"{scene.path} has {len(scene.meshes)}")
     for m in scene.meshes:
         skel = scene.skeletons[m.skeleton]

@@ -15,6 +15,7 @@ import numpy.typing as npt
 from ._warp import Device, resolve_device
 from .animation import Deformer, Interpolation, TransformTrack, check_times, sample
 from .crowd import BATCH_METHODS, skin_meshes
+from .errors import InputError, Param, UnknownNameError
 from .kernels import buffers as KB
 from .motion import moved_velocities, per_second, skinning_transforms_with_derivative
 from .skeleton import Skeleton
@@ -158,7 +159,7 @@ class Scene:
     def __post_init__(self):
         for m in self.meshes:
             if not 0 <= m.skeleton < len(self.skeletons):
-                raise ValueError(f"{self.path}: mesh {m.name!r}: skeleton {m.skeleton} out of "
+                raise InputError(f"{self.path}: mesh {m.name!r}: skeleton {m.skeleton} out of "
                                  f"range for {len(self.skeletons)} skeletons")
 
     @property
@@ -190,7 +191,8 @@ class Scene:
         for m in self.meshes:
             if m.name == name:
                 return m
-        raise KeyError(f"{self.path}: no mesh {name!r}; meshes: {[m.name for m in self.meshes]}")
+        raise UnknownNameError(f"{self.path}: no mesh {name!r}; meshes: "
+                               f"{[m.name for m in self.meshes]}")
 
     def local_transforms(self, times: npt.ArrayLike, skeleton: int = 0, *,
                          interp: Interpolation = "trs") -> np.ndarray:
@@ -276,7 +278,7 @@ class Scene:
                         rates[s] = skinning_transforms_with_derivative(
                             skel, skel.animation, t, interp, local=local)[1]
                     except ValueError as exc:
-                        raise ValueError(f"{self.path}: {exc}") from None
+                        raise InputError(f"{self.path}: {exc}") from None
             meth = method or m.skinning_method
             sk = self.skinner(m, device)
             deformer = m.deformer if blend_shapes else None
@@ -304,7 +306,7 @@ class Scene:
                     result.velocities[m.name] = self._velocities(
                         sk, t, meth, xforms[s], rates[s], rest, deformer, out, rate, sign)
                 except ValueError as exc:  # per-second rates beyond float32
-                    raise ValueError(f"{self.path}: {m.name}: velocities: {exc}") from None
+                    raise InputError(f"{self.path}: {m.name}: velocities: {exc}") from None
         return result
 
     def skin_chunks(self, times: npt.ArrayLike, chunk: "int | list[int]", *,
@@ -325,10 +327,10 @@ class Scene:
         if isinstance(chunk, (list, tuple)):
             ends = np.cumsum(chunk, dtype=np.int64)
             if not chunk or min(chunk) < 1 or ends[-1] != len(t):
-                raise ValueError(f"chunk sizes must be at least 1 and add up to {len(t)} frames")
+                raise InputError(f"chunk sizes must be at least 1 and add up to {len(t)} frames")
             slices = [slice(int(e - n), int(e)) for n, e in zip(chunk, ends)]
         elif int(chunk) < 1:
-            raise ValueError(f"--chunk {chunk}: must be at least 1")
+            raise InputError(Param("chunk", chunk), ": must be at least 1")
         else:
             slices = [slice(lo, min(lo + chunk, len(t))) for lo in range(0, len(t), chunk)]
         pool = KB.BufferPool() if buffers is None else buffers

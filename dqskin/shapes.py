@@ -3,6 +3,8 @@ engine works with, with errors naming the argument."""
 
 import numpy as np
 
+from .errors import InputError
+
 __all__ = ["as_array", "as_float", "as_real", "concat", "frames_of"]
 
 
@@ -15,10 +17,10 @@ def as_real(name, x, dtype=None):
         if a.dtype.kind == "O":
             a = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError, OverflowError) as exc:
-        raise ValueError(f"{name}: not an array of numbers ({' '.join(str(exc).split())})") \
+        raise InputError(f"{name}: not an array of numbers ({' '.join(str(exc).split())})") \
             from None
     if a.dtype.kind not in "biuf":
-        raise ValueError(f"{name}: expected real numbers, got {a.dtype} values")
+        raise InputError(f"{name}: expected real numbers, got {a.dtype} values")
     return a if dtype is None else a.astype(dtype, copy=False)
 
 
@@ -32,7 +34,7 @@ def as_array(name, x, dtype, tail):
     if a.ndim < n or any(t is not None and a.shape[a.ndim - n + i] != t
                          for i, t in enumerate(tail)):
         want = "(..., " + ", ".join("n" if t is None else str(t) for t in tail) + ")"
-        raise ValueError(f"{name}: expected shape {want}, got {a.shape}")
+        raise InputError(f"{name}: expected shape {want}, got {a.shape}")
     return a
 
 
@@ -69,9 +71,9 @@ def frames_of(name, a, frames=None, count=None, *, dtype=np.float64, finite=Fals
         n = "N" if count is None else count
         want = (f"({n}, 3) or (F, {n}, 3)" if frames is None else
                 f"({n}, 3) or ({frames}, {n}, 3)" if broadcast else f"({frames}, {n}, 3)")
-        raise ValueError(f"{name}: expected shape {want}, got {np.shape(a)}")
+        raise InputError(f"{name}: expected shape {want}, got {np.shape(a)}")
     if finite and not np.all(np.isfinite(x)):
-        raise ValueError(f"{name}: NaN or infinite values")
+        raise InputError(f"{name}: NaN or infinite values")
     return x, batched
 
 
@@ -89,7 +91,7 @@ def as_float(x, name, size=None, dtype=None):
     elif not np.issubdtype(x.dtype, np.floating):
         x = x.astype(np.float64)
     if size is not None and (x.ndim == 0 or x.shape[-1] != size):
-        raise ValueError(f"{name} must have shape (..., {size}), got shape {x.shape}")
+        raise InputError(f"{name} must have shape (..., {size}), got shape {x.shape}")
     return x
 
 

@@ -8,6 +8,7 @@ import numpy.typing as npt
 import warp as wp
 
 from ._warp import Device, resolve_device
+from .errors import InputError
 from .kernels import buffers as KB
 from .kernels import fk as FK
 from .shapes import as_real
@@ -30,11 +31,11 @@ def check_parents(parents, where="parents"):
     if p.ndim == 1 and p.size == 0:
         return p.astype(np.int32)
     if p.ndim != 1 or not np.issubdtype(p.dtype, np.integer):
-        raise ValueError(f"{where}: expected a 1-D integer array, got shape {p.shape} {p.dtype}")
+        raise InputError(f"{where}: expected a 1-D integer array, got shape {p.shape} {p.dtype}")
     j = np.arange(p.shape[0])
     bad = np.nonzero((p < -1) | (p >= p.shape[0]))[0]
     if bad.size:
-        raise ValueError(f"{where}: joint {bad[0]} has parent {p[bad[0]]} out of range "
+        raise InputError(f"{where}: joint {bad[0]} has parent {p[bad[0]]} out of range "
                          f"[-1, {p.shape[0]})")
     bad = np.nonzero(p >= j)[0]
     if bad.size:
@@ -45,8 +46,8 @@ def check_parents(parents, where="parents"):
             seen.add(cur)
             cur = int(p[cur])
         if cur >= 0:
-            raise ValueError(f"{where}: cycle in the joint hierarchy through joint {cur}")
-        raise ValueError(f"{where}: joint {k} comes before its parent {int(p[k])}; joints must be "
+            raise InputError(f"{where}: cycle in the joint hierarchy through joint {cur}")
+        raise InputError(f"{where}: joint {k} comes before its parent {int(p[k])}; joints must be "
                          "ordered parents first")
     return p.astype(np.int32)
 
@@ -78,8 +79,8 @@ def _check_quaternions(rot, lead, joint_names=None):
         index = np.argwhere(bad)[0]
         where = location(index, lead, joint_names)
         if n2[tuple(index)] == 0:
-            raise ValueError(f"rotations: zero quaternion at {where}")
-        raise ValueError(f"rotations: quaternion of norm {float(np.sqrt(n2[tuple(index)])):.3g} "
+            raise InputError(f"rotations: zero quaternion at {where}")
+        raise InputError(f"rotations: quaternion of norm {float(np.sqrt(n2[tuple(index)])):.3g} "
                          f"at {where} cannot be normalized in float32")
 
 
@@ -88,13 +89,13 @@ def _check_matrices(name, m, count, joint_names=None):
     and the joints."""
     a = as_real(name, m).astype(np.float64)
     if a.shape != (count, 4, 4):
-        raise ValueError(f"{name}: expected ({count}, 4, 4), got {a.shape}")
+        raise InputError(f"{name}: expected ({count}, 4, 4), got {a.shape}")
     bad = ~np.isfinite(a).all(axis=(1, 2))
     if bad.any():
-        raise ValueError(f"{name}: NaN or infinite entries at {_joint_list(bad, joint_names)}")
+        raise InputError(f"{name}: NaN or infinite entries at {_joint_list(bad, joint_names)}")
     bad = (np.abs(a) > FLOAT32_MAX).any(axis=(1, 2))
     if bad.any():
-        raise ValueError(f"{name}: entries beyond float32 range (|x| > {FLOAT32_MAX:.4g}) at "
+        raise InputError(f"{name}: entries beyond float32 range (|x| > {FLOAT32_MAX:.4g}) at "
                          f"{_joint_list(bad, joint_names)}")
     return a
 
@@ -104,7 +105,7 @@ def _names(label, joint_names):
     try:
         return [str(n) for n in joint_names]
     except TypeError:
-        raise ValueError(f"{label}: joint_names: expected a sequence of names, got "
+        raise InputError(f"{label}: joint_names: expected a sequence of names, got "
                          f"{type(joint_names).__name__}") from None
 
 
@@ -117,7 +118,7 @@ def _check_unique(label, names):
         seen.add(n)
     if dups:
         plural = "s" if len(dups) > 1 else ""
-        raise ValueError(f"{label}: joint_names: duplicate joint name{plural} "
+        raise InputError(f"{label}: joint_names: duplicate joint name{plural} "
                          f"{', '.join(map(repr, dups))}")
 
 
@@ -127,9 +128,9 @@ def _world_transform(label, m):
         return np.eye(4)
     a = as_real(f"{label}: world_transform", m).astype(np.float64)
     if a.shape != (4, 4):
-        raise ValueError(f"{label}: world_transform: expected (4, 4), got {a.shape}")
+        raise InputError(f"{label}: world_transform: expected (4, 4), got {a.shape}")
     if not np.all(np.isfinite(a)):
-        raise ValueError(f"{label}: world_transform: NaN or infinite entries")
+        raise InputError(f"{label}: world_transform: NaN or infinite entries")
     return a
 
 
@@ -148,7 +149,7 @@ def _invert_bind(label, bind, joint_names):
             singular[:] = True
     singular |= ~(np.abs(inv) <= FLOAT32_MAX).all(axis=(1, 2))
     if singular.any():
-        raise ValueError(f"{label}: bind_transforms: singular bind transform at "
+        raise InputError(f"{label}: bind_transforms: singular bind transform at "
                          f"{_joint_list(singular, joint_names)}")
     return inv
 
@@ -199,9 +200,9 @@ class Skeleton:
         self.parents = check_parents(parents, f"{label}: parents")
         J = self.joint_count
         if len(self.joint_names) != J:
-            raise ValueError(f"{label}: {len(self.joint_names)} joint names for {J} parents")
+            raise InputError(f"{label}: {len(self.joint_names)} joint names for {J} parents")
         if J == 0:
-            raise ValueError(f"{label}: no joints (a skeleton needs at least one joint)")
+            raise InputError(f"{label}: no joints (a skeleton needs at least one joint)")
         _check_unique(label, self.joint_names)
         self.bind_transforms = (np.tile(np.eye(4), (J, 1, 1)) if bind_transforms is None else
                                 _check_matrices(f"{label}: bind_transforms", bind_transforms, J,
@@ -304,17 +305,17 @@ class Skeleton:
 def _trs_arrays(pose, J, joint_names=None):
     """Checked float32 (translations, rotations, scales) of a TRS pose, and its batch shape."""
     if len(pose) != 3:
-        raise ValueError("local_transforms: a TRS pose is (translations, rotations, scales)")
+        raise InputError("local_transforms: a TRS pose is (translations, rotations, scales)")
     tr, rot, sc = pose
     rot = as_real("rotations", rot)
     if rot.ndim < 2 or rot.shape[-2:] != (J, 4):
-        raise ValueError(f"rotations: expected (..., {J}, 4) (w, x, y, z), got {rot.shape}")
+        raise InputError(f"rotations: expected (..., {J}, 4) (w, x, y, z), got {rot.shape}")
     batch = rot.shape[:-2]
     tr = as_real("translations", tr)
     sc = np.ones(batch + (J, 3), np.float32) if sc is None else as_real("scales", sc)
     for name, a in (("translations", tr), ("scales", sc)):
         if a.shape != batch + (J, 3):
-            raise ValueError(f"{name}: expected {batch + (J, 3)}, got {a.shape}")
+            raise InputError(f"{name}: expected {batch + (J, 3)}, got {a.shape}")
     for name, a in (("translations", tr), ("rotations", rot), ("scales", sc)):
         check_finite(name, a, len(batch), joint_names)
     tr, rot, sc = (np.ascontiguousarray(a, np.float32) for a in (tr, rot, sc))
@@ -328,7 +329,7 @@ def _matrix_array(local_transforms, J):
     them (:func:`_check_matrices_after`), which saves a host pass over every pose."""
     loc = as_real("local_transforms", local_transforms)
     if loc.ndim < 3 or loc.shape[-3:] != (J, 4, 4):
-        raise ValueError(f"local_transforms: expected (..., {J}, 4, 4), got {loc.shape}")
+        raise InputError(f"local_transforms: expected (..., {J}, 4, 4), got {loc.shape}")
     with np.errstate(over="ignore"):  # beyond float32 becomes inf: flagged by the kernel
         return np.ascontiguousarray(loc, np.float32), loc.shape[:-3], loc
 
@@ -338,7 +339,7 @@ def _check_matrices_after(out, loc, batch, joint_names=None):
     flagged a non-finite local matrix (NaN, inf, or a float64 value beyond float32)."""
     if out.invalid.numpy()[0]:
         check_finite("local_transforms", loc, len(batch), joint_names)
-        raise ValueError("local_transforms: NaN or infinite values")  # (not reached)
+        raise InputError("local_transforms: NaN or infinite values")  # (not reached)
 
 
 def _device_array(a, dtype, device):
@@ -369,7 +370,7 @@ def _forward_kinematics(parents, local_transforms, device, joint_names=None):
     par = check_parents(parents)
     J = par.shape[0]
     if J == 0:
-        raise ValueError("parents: no joints")
+        raise InputError("parents: no joints")
     d = device
     local, batch, given = _local_arrays(local_transforms, J, d, joint_names)
     B = int(np.prod(batch, dtype=np.int64))

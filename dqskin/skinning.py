@@ -16,6 +16,7 @@ import warp as wp
 
 from ._warp import Device, resolve_device
 from .cor import SIGMA, check_faces, rotation_centers
+from .errors import InputError
 from .influences import Influences
 from .kernels import buffers as KB
 from .kernels import grid as KG
@@ -50,7 +51,7 @@ VectorKind = Literal["normal", "tangent"]
 
 def _check_sign_reference(sign_reference):
     if sign_reference not in SIGN_REFERENCES:
-        raise ValueError(f"sign_reference must be one of {list(SIGN_REFERENCES)}, got "
+        raise InputError(f"sign_reference must be one of {list(SIGN_REFERENCES)}, got "
                          f"{sign_reference!r}")
     return sign_reference
 
@@ -59,7 +60,7 @@ def _method_code(method):
     try:
         return int(METHODS[method])
     except KeyError:
-        raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}") from None
+        raise InputError(f"method must be one of {sorted(METHODS)}, got {method!r}") from None
 
 
 def _transforms(name, skinning_transforms):
@@ -70,7 +71,7 @@ def _transforms(name, skinning_transforms):
         return x[None], False
     if x.ndim == 4:
         return x, True
-    raise ValueError(f"{name}: expected (J, 4, 4) or (F, J, 4, 4), got {x.shape}")
+    raise InputError(f"{name}: expected (J, 4, 4) or (F, J, 4, 4), got {x.shape}")
 
 
 _empties = {}
@@ -148,7 +149,7 @@ class Skinner:
         self.device = resolve_device(device)
         pts = as_array("points", points, None, (3,))
         if pts.ndim != 2:
-            raise ValueError(f"points: expected (V, 3), got {pts.shape}")
+            raise InputError(f"points: expected (V, 3), got {pts.shape}")
         unchecked = self._unchecked  # values left to the kernels (a one-shot call's)
 
         def influences():  # its error is raised after one about the points
@@ -164,7 +165,7 @@ class Skinner:
             KG.beside(lambda: within_float32(pts), influences) if pts.size >= _BESIDE_MIN
             else (within_float32(pts), influences()))
         if problem:
-            raise ValueError(f"points: {problem} coordinates")
+            raise InputError(f"points: {problem} coordinates")
         if error is not None:
             raise error
         self.vertex_count = self.influences.vertex_count
@@ -188,7 +189,7 @@ class Skinner:
         else:
             b = np.asarray(blend_weights, dtype=np.float32).reshape(-1)
             if b.shape != (self.vertex_count,) or not np.all((b >= 0) & (b <= 1)):
-                raise ValueError(f"blend_weights: expected ({self.vertex_count},) values in [0, 1]")
+                raise InputError(f"blend_weights: expected ({self.vertex_count},) values in [0, 1]")
             self._blend = wp.array(b, dtype=wp.float32, device=d)
         self._no_centers = _empty(wp.vec4, d)
         order = self._layout_order
@@ -201,7 +202,7 @@ class Skinner:
         """(V, 3) float64 centers of rotation of ``method="cor"`` in bind space, NaN for vertices
         without one (skinned as DQS); computed once (or read from the disk cache)."""
         if self.faces is None:
-            raise ValueError('method "cor" needs faces (the mesh triangles): pass faces=')
+            raise InputError('method "cor" needs faces (the mesh triangles): pass faces=')
         if self._centers is None:
             g = self.geom_bind_transform
             rest_bind = np.asarray(self._rest_points, np.float64) @ g[:3, :3].T + g[:3, 3]
@@ -256,7 +257,7 @@ class Skinner:
         unchecked inputs: ValueError naming the array and what is wrong."""
         problem = within_float32(self._rest_points)
         if problem:
-            raise ValueError(f"points: {problem} coordinates")
+            raise InputError(f"points: {problem} coordinates")
         self.influences.check_values()
         if joint_count is None:
             return
@@ -294,9 +295,9 @@ class Skinner:
     def _check_method(self, method, points=True):
         code = _method_code(method)
         if code == K.BLEND and self._blend.shape[0] == 0:
-            raise ValueError('method "blend" needs blend_weights')
+            raise InputError('method "blend" needs blend_weights')
         if code == K.COR and points and self.faces is None:
-            raise ValueError('method "cor" needs faces (the mesh triangles): pass faces=')
+            raise InputError('method "cor" needs faces (the mesh triangles): pass faces=')
         return code
 
     _BUFFERS = {
@@ -335,7 +336,7 @@ class Skinner:
             xs = xs if batched else xs[None]
         elif isinstance(xs, wp.array):
             if xs.dtype != wp.mat44 or xs.ndim != 2 or xs.device != d:
-                raise ValueError(f"{name}: a Warp array must be 2-D (F, J) of wp.mat44 on {d}, got "
+                raise InputError(f"{name}: a Warp array must be 2-D (F, J) of wp.mat44 on {d}, got "
                                  f"{xs.ndim}-D {xs.dtype} on {xs.device}")
             return xs, True  # used in place, unchecked: a non-finite entry gives NaN everywhere
         else:
@@ -365,7 +366,7 @@ class Skinner:
         if kind == "derivatives":
             xd, _ = self._upload_transforms("skinning_transform_derivatives", derivatives)
             if xd.shape != x.shape:
-                raise ValueError(f"skinning_transforms {x.shape} and "
+                raise InputError(f"skinning_transforms {x.shape} and "
                                  f"skinning_transform_derivatives {xd.shape} must have the same "
                                  "shape")
             prep["rates"] = self._buffers("rates", frames, joints)
@@ -393,14 +394,14 @@ class Skinner:
         xf = check_transforms("output_transforms", as_array(
             "output_transforms", output_transforms, np.float64, (4, 4)).reshape(-1, 1, 4, 4))[:, 0]
         if xf.shape[0] not in (1, frames):
-            raise ValueError(f"output_transforms: expected (4, 4) or ({frames}, 4, 4), got "
+            raise InputError(f"output_transforms: expected (4, 4) or ({frames}, 4, 4), got "
                              f"{xf.shape}")
         xf = np.broadcast_to(xf, (frames, 4, 4))
         if normals:
             try:
                 lin = np.linalg.inv(xf[:, :3, :3]).transpose(0, 2, 1)
             except np.linalg.LinAlgError:
-                raise ValueError("output_transforms: singular, normals cannot follow") from None
+                raise InputError("output_transforms: singular, normals cannot follow") from None
             xf = np.zeros((frames, 4, 4))
             xf[:, :3, :3] = lin
             xf[:, 3, 3] = 1.0
@@ -511,7 +512,7 @@ class Skinner:
         (N, 3) or (F, N, 3) float32, skeleton space.
         """
         if kind not in get_args(VectorKind):
-            raise ValueError(f'kind must be "normal" or "tangent", got {kind!r}')
+            raise InputError(f'kind must be "normal" or "tangent", got {kind!r}')
         with self._lock:
             code = self._check_method(method, points=False)
             inf = self._influences(K.DQS if code == K.COR else code, sign_reference)
@@ -521,19 +522,19 @@ class Skinner:
             n = vec.shape[1]
             if vector_vertex is None:
                 if n != self.vertex_count:
-                    raise ValueError(f"vectors: {n} vectors for {self.vertex_count} points; pass "
+                    raise InputError(f"vectors: {n} vectors for {self.vertex_count} points; pass "
                                      "vector_vertex for face-varying data")
                 vv = np.arange(n, dtype=np.int32)
             else:
                 vv = np.asarray(vector_vertex, dtype=np.int64).reshape(-1)
                 if vv.shape != (n,) or (n and (vv.min() < 0 or vv.max() >= self.vertex_count)):
-                    raise ValueError(f"vector_vertex: expected ({n},) indices into "
+                    raise InputError(f"vector_vertex: expected ({n},) indices into "
                                      f"{self.vertex_count} points")
             g = self.geom_bind_transform[:3, :3]
             try:
                 gm = np.linalg.inv(g).T if kind == "normal" else g
             except np.linalg.LinAlgError:
-                raise ValueError("geom_bind_transform: singular, normals cannot follow") from None
+                raise InputError("geom_bind_transform: singular, normals cannot follow") from None
             d = self.device
             src = wp.array((vec @ gm.T).astype(np.float32), dtype=wp.vec3, device=d)
             if kind == "normal":

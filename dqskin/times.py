@@ -9,6 +9,8 @@ from decimal import Decimal, InvalidOperation
 
 import numpy as np
 
+from .errors import InputError, LimitError, Param
+
 __all__ = ["MAX_FRAMES", "default_frames", "frame_numbers", "parse_frames", "select_times"]
 
 MAX_FRAMES = 100_000
@@ -17,9 +19,11 @@ selection above it is refused before anything is allocated."""
 
 
 def _check_count(count, what, max_frames):
+    """LimitError when ``count`` frames exceed ``max_frames``; ``what`` (message parts) names the
+    selection."""
     if count > max_frames:
-        raise ValueError(f"{what} selects {count:,} frames, more than the limit of {max_frames:,}; "
-                         "pass --max-frames to raise it")
+        raise LimitError(*what, f" selects {count:,} frames, more than the limit of "
+                         f"{max_frames:,}; raise ", Param("max_frames"), " to allow more")
 
 
 def _decimal(text):
@@ -29,7 +33,7 @@ def _decimal(text):
     return d
 
 
-def _range(start, end, step, what="--frames", max_frames=MAX_FRAMES):
+def _range(start, end, step, what=(Param("frames"),), max_frames=MAX_FRAMES):
     """Decimal ``start, start + step, …`` up to ``end`` (inclusive within 1e-6 step), as floats;
     counted before anything is allocated."""
     count = int((end - start) / step + Decimal("1e-6")) + 1
@@ -55,26 +59,26 @@ def parse_frames(text, default_step=1.0, max_frames=MAX_FRAMES):
 
     Raises
     ------
-    ValueError
-        Naming ``--frames`` and the expected grammar.
+    InputError
+        Naming ``frames`` and the expected grammar; LimitError beyond ``max_frames``.
     """
-    message = (f"--frames {text!r}: expected START:END[:STEP] or a comma-separated list of "
-               "times")
+    what = (Param("frames", text),)
+    message = (*what, ": expected START:END[:STEP] or a comma-separated list of times")
     ranged = ":" in text
     try:
         parts = [_decimal(p) for p in text.split(":" if ranged else ",")]
     except InvalidOperation:
-        raise ValueError(message) from None
+        raise InputError(*message) from None
     if not ranged:
-        _check_count(len(parts), f"--frames {text!r}", max_frames)
+        _check_count(len(parts), what, max_frames)
         return np.array([float(p) for p in parts], dtype=np.float64)
     if len(parts) not in (2, 3):
-        raise ValueError(message)
+        raise InputError(*message)
     start, end = parts[:2]
     step = parts[2] if len(parts) == 3 else Decimal(repr(float(default_step)))
     if not step > 0 or not end >= start:
-        raise ValueError(f"--frames {text!r}: need END >= START and STEP > 0")
-    return _range(start, end, step, f"--frames {text!r}", max_frames)
+        raise InputError(*what, ": need END >= START and STEP > 0")
+    return _range(start, end, step, what, max_frames)
 
 
 def select_times(times, time_codes_per_second, frames=None, fps=None, substeps=1,
@@ -102,19 +106,19 @@ def select_times(times, time_codes_per_second, frames=None, fps=None, substeps=1
     """
     t = np.asarray(times, np.float64)
     if fps is not None and not (np.isfinite(fps) and fps > 0):
-        raise ValueError(f"--fps {fps}: must be a positive number")
+        raise InputError(Param("fps", fps), ": must be a positive number")
     step = 1.0 if fps is None else time_codes_per_second / fps
     if frames is not None:
         t = parse_frames(frames, step, max_frames)
     elif fps is not None:
         t = _range(Decimal(repr(float(t[0]))), Decimal(repr(float(t[-1]))),
-                   Decimal(repr(float(step))), f"--fps {fps:g}", max_frames)
+                   Decimal(repr(float(step))), (Param("fps", fps),), max_frames)
     if t.size == 0:
-        raise ValueError("--frames: no frames selected")
+        raise InputError(Param("frames"), ": no frames selected")
     if substeps < 1:
-        raise ValueError(f"--substeps {substeps}: must be at least 1")
+        raise InputError(Param("substeps", substeps), ": must be at least 1")
     # (--frames and --fps checked their own counts above)
-    what = f"--substeps {substeps}" if substeps > 1 else "the animation's time range"
+    what = (Param("substeps", substeps),) if substeps > 1 else ("the animation's time range",)
     _check_count(max(t.size - 1, 0) * substeps + 1, what, max_frames)
     if substeps > 1 and t.size > 1:
         d = [Decimal(repr(float(x))) for x in t]
@@ -137,7 +141,7 @@ def default_frames(times, count=10):
     """
     t = np.asarray(times, dtype=np.float64).reshape(-1)
     if t.size == 0:
-        raise ValueError("times: the asset has no sample times")
+        raise InputError("times: the asset has no sample times")
     pick = np.unique(np.round(np.linspace(0, t.size - 1, min(t.size, count))).astype(int))
     return t[pick]
 
@@ -154,7 +158,7 @@ def frame_numbers(times, seconds):
 
     Returns
     -------
-    (F,) int; ValueError when two frames would share a number (sub-frame times).
+    (F,) int; InputError when two frames would share a number (sub-frame times).
     """
     t = np.asarray(times, dtype=np.float64)
     rate = 1.0
@@ -163,7 +167,7 @@ def frame_numbers(times, seconds):
         rate = max(24.0, float(np.round(1.0 / step)) if step > 0 else 24.0)
     numbers = np.round(t * rate).astype(int)
     if len(set(numbers.tolist())) != len(numbers):
-        raise ValueError(f"--out: {len(numbers)} frames map to {len(set(numbers.tolist()))} file "
-                         "names (sub-frame times); write .npz"
+        raise InputError(Param("out"), f": {len(numbers)} frames map to "
+                         f"{len(set(numbers.tolist()))} file names (sub-frame times); write .npz"
                          + ("" if seconds else " or .usd/.usdc") + " instead")
     return numbers

@@ -2,6 +2,8 @@
 
 import numpy as np
 
+from .errors import InputError
+
 __all__ = ["check_faces", "incidence"]
 
 
@@ -13,13 +15,13 @@ def check_faces(faces, vertex_count):
     """
     f = np.asarray(faces)
     if f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"faces: expected (T, 3) triangles, got {f.shape}")
+        raise InputError(f"faces: expected (T, 3) triangles, got {f.shape}")
     if f.shape[0] == 0:
-        raise ValueError("faces: mesh has no faces")
+        raise InputError("faces: mesh has no faces")
     if not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"faces: expected integers, got {f.dtype}")
+        raise InputError(f"faces: expected integers, got {f.dtype}")
     if f.min() < 0 or f.max() >= vertex_count:
-        raise ValueError(f"faces: vertex index out of range [0, {vertex_count})")
+        raise InputError(f"faces: vertex index out of range [0, {vertex_count})")
     return f.astype(np.int32)
 
 

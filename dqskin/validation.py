@@ -12,6 +12,7 @@ exactly what ``dqskin skin`` (every writer) and the Python API refuse.
 
 import numpy as np
 
+from .errors import InputError
 from .shapes import as_real
 
 __all__ = ["FLOAT32_MAX", "check_finite", "check_skinned", "check_transforms", "location",
@@ -104,10 +105,10 @@ def check_finite(name, a, lead, joint_names=None, times=None):
     if not finite.all():
         index = np.argwhere(~finite)[0]
         what = "NaN" if np.isnan(a[tuple(index)]) else "infinite value"
-        raise ValueError(f"{name}: {what} at {location(index, lead, joint_names, times)}")
+        raise InputError(f"{name}: {what} at {location(index, lead, joint_names, times)}")
     if a.dtype.itemsize > 4:
         index = np.argwhere(np.abs(a) > FLOAT32_MAX)[0]
-        raise ValueError(f"{name}: {float(a[tuple(index)]):.6g} at "
+        raise InputError(f"{name}: {float(a[tuple(index)]):.6g} at "
                          f"{location(index, lead, joint_names, times)} overflows float32 "
                          f"(|x| > {FLOAT32_MAX:.4g})")
 
@@ -129,7 +130,7 @@ def check_skinned(path, result):
             bad = ~np.isfinite(np.asarray(a)).all(axis=tuple(range(1, np.ndim(a))))
             if bad.any():
                 t = float(result.times[int(np.argmax(bad))])
-                raise ValueError(f"{path}: {mesh}: skinned {what} are NaN or infinite at time "
+                raise InputError(f"{path}: {mesh}: skinned {what} are NaN or infinite at time "
                                  f"{t:g} (joint transforms out of float32 range?)")
 
 

@@ -49,6 +49,7 @@ from typing import Any
 
 import warp as wp
 
+from ..errors import InputError
 from . import packets
 from .blend import affine_gather
 from .dqmath import (
@@ -688,7 +689,7 @@ def _flat(a):
     view = _flat_views.get(a)
     if view is None:
         if not a.is_contiguous:
-            raise ValueError(f"expected a contiguous array, got strides {a.strides}")
+            raise InputError(f"expected a contiguous array, got strides {a.strides}")
         if a.size == 0:
             view = wp.empty(0, dtype=a.dtype, device=a.device)
         else:

@@ -193,13 +193,14 @@ def test_a_reader_that_goes_away_ends_the_command_silently(tmp_path):
 
 def test_system_errors_name_their_file_in_one_line(monkeypatch, capsys):
     """An OSError from the system reads "FILE: reason" (not Python's "[Errno 13] reason:
-    'FILE'"); a rename names both files; dqskin's own (a message of its own) is unchanged."""
+    'FILE'"); a rename names both files; dqskin's own refusal names the flag."""
     from dqskin import cli
+    from dqskin.errors import output_exists
     for exc, said in ((PermissionError(13, "Permission denied", "/x/shot.clips"),
                        "/x/shot.clips: Permission denied"),
                       (OSError(18, "Invalid cross-device link", "/a/t", None, "/b/t"),
                        "/a/t -> /b/t: Invalid cross-device link"),
-                      (FileExistsError("/x/shot.usd: exists (use --force to overwrite)"),
+                      (output_exists("/x/shot.usd"),
                        "/x/shot.usd: exists (use --force to overwrite)")):
         def fail(args, exc=exc):
             raise exc

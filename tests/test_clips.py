@@ -459,7 +459,7 @@ def test_two_clip_bakes_to_one_output_one_wins_whole(tmp_path):
     winners = [m for m, r in outcome.items() if r == "ok"]
     assert len(winners) == 1 and len(outcome) == 2, outcome
     loser = next(r for r in outcome.values() if r != "ok")
-    assert "clip bake" in str(loser) and "--force" in str(loser), loser
+    assert "clip bake" in str(loser) and "force=True" in str(loser), loser
     ref = tmp_path / "ref.usda"
     bake(load(HUMANOID), ref, times, method=winners[0], clips=False, normals=False,
          velocities=False)
@@ -562,7 +562,7 @@ def test_flatten_gives_one_layer_with_the_same_animation(humanoid, tmp_path):
     names = [m.name for m in scene.meshes]
     assert_same_animation(Usd.Stage.Open(str(humanoid["single"])), Usd.Stage.Open(str(flat)),
                           names, probe_times(scene.times, CHUNK))
-    with pytest.raises(FileExistsError, match="flat.usdc: exists .use --force to overwrite"):
+    with pytest.raises(FileExistsError, match="flat.usdc: exists .use overwrite=True to overwrite"):
         flatten(humanoid["shot"], flat)
 
 
@@ -614,7 +614,7 @@ def test_resume_keeps_verified_chunks_and_redoes_missing_or_corrupt(humanoid, tm
     data[len(data) // 2] ^= 0xFF
     (folder / "chunk_00004.usdc").write_bytes(bytes(data))
     time.sleep(0.01)
-    with pytest.raises(FileExistsError, match="--resume"):
+    with pytest.raises(FileExistsError, match="resume=True"):
         bake(scene, shot, chunk=CHUNK, clips=True)
     with pytest.raises(ValueError, match=rf"in chunks of {CHUNK} frames \(now {CHUNK + 1}\)"):
         bake(scene, shot, chunk=CHUNK + 1, resume=True)
@@ -636,11 +636,11 @@ def test_refusals(humanoid, tmp_path):
         bake(scene, tmp_path / "x.npz", workers=2)
     with pytest.raises(ValueError, match="need value clips"):
         bake(scene, tmp_path / "x.usd", clips=False, resume=True)
-    with pytest.raises(ValueError, match="--workers 0"):
+    with pytest.raises(ValueError, match="workers=0"):
         bake(scene, tmp_path / "x.usd", workers=0)
-    with pytest.raises(ValueError, match="--resume and --force: give one"):
+    with pytest.raises(ValueError, match="resume=True and force=True: give one"):
         bake(scene, tmp_path / "x.usd", resume=True, force=True)
-    with pytest.raises(ValueError, match="--workers and --scheduler: give one"):
+    with pytest.raises(ValueError, match="workers and scheduler: give one"):
         bake(scene, tmp_path / "x.usd", workers=2, scheduler="tcp://127.0.0.1:1")
     assert not (tmp_path / "x.usd").exists() and not clips_folder(tmp_path / "x.usd").exists()
     import shutil

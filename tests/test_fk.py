@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from dqskin.errors import InputError
 from dqskin.skeleton import Skeleton, forward_kinematics
 
 
@@ -249,11 +250,11 @@ CHAIN = [-1, 0, 1]
 
 
 def _raises(call, message):
-    """``call()`` raises exactly ValueError (not a subclass such as LinAlgError) on one line
-    containing ``message``."""
+    """``call()`` raises dqskin's InputError (a ValueError; not a library's such as LinAlgError)
+    on one line containing ``message``."""
     with pytest.raises(ValueError) as err:
         call()
-    assert type(err.value) is ValueError, repr(err.value)
+    assert isinstance(err.value, InputError), repr(err.value)
     assert "\n" not in str(err.value) and message in str(err.value), str(err.value)
 
 

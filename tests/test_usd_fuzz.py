@@ -15,6 +15,7 @@ import time
 import numpy as np
 import pytest
 
+from dqskin.errors import InputError
 from dqskin.readers.usd import load_usd
 
 SEED = 1
@@ -87,7 +88,7 @@ def test_mutated_assets_load_or_raise_value_error(shared_assets, tmp_path, capfd
                 outcomes.append("loaded")
             except ValueError as exc:
                 msg = str(exc)
-                assert type(exc) is ValueError, (src, kind, repr(exc))
+                assert isinstance(exc, InputError), (src, kind, repr(exc))
                 assert msg.startswith(str(path)) and "\n" not in msg, (src, kind, msg)
                 outcomes.append("refused")
             elapsed = time.perf_counter() - start

@@ -11,6 +11,7 @@ import pytest
 from pxr import Gf, Tf, Usd, UsdSkel, Vt
 from test_usd import build_rig
 
+from dqskin.errors import InputError
 from dqskin.readers import usd as usd_format
 from dqskin.readers.usd import load_usd
 
@@ -27,13 +28,13 @@ def edited_rig(tmp_path, edit, name="bad.usda"):
 
 
 def assert_refused(path, capfd, *needles):
-    """``load_usd`` raises exactly ValueError, one line starting with the file and containing
-    every needle; USD printed nothing."""
+    """``load_usd`` raises dqskin's InputError (a ValueError, not a library's), one line
+    starting with the file and containing every needle; USD printed nothing."""
     capfd.readouterr()
     with pytest.raises(ValueError) as err:
         load_usd(path)
     msg = str(err.value)
-    assert type(err.value) is ValueError, repr(err.value)
+    assert isinstance(err.value, InputError), repr(err.value)
     assert "\n" not in msg and msg.startswith(str(path)), msg
     for needle in needles:
         assert needle in msg, msg

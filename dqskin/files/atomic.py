@@ -34,6 +34,8 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from ..errors import OutputExistsError, Param
+
 __all__ = ["CommitOnSuccess", "atomic_group", "atomic_path", "check_interrupted", "check_parent",
            "critical", "interrupt", "reset_interrupt"]
 
@@ -99,17 +101,21 @@ def check_parent(path: str | os.PathLike) -> Path:
     for anc in path.parents:
         if anc.exists():
             if not anc.is_dir():
-                raise NotADirectoryError(f"{path}: {anc} is not a directory")
+                raise NotADirectoryError(errno.ENOTDIR, f"{anc} is not a directory", str(path))
             break
     if path.is_dir():
-        raise IsADirectoryError(f"{path}: is a directory")
+        raise IsADirectoryError(errno.EISDIR, "is a directory", str(path))
     return path
 
 
 def _cannot_write(path, exc):
-    """``exc`` (an OSError about the temporary file) as an OSError naming ``path``."""
-    reason = exc.strerror or str(exc)
-    return type(exc)(f"{path}: cannot write ({reason})") if isinstance(exc, OSError) else exc
+    """``exc`` (an OSError about the temporary file) as an OSError naming ``path``, with its
+    ``errno`` (the command line reports it as a system error, not as a bug)."""
+    if not isinstance(exc, OSError):
+        return exc
+    error = type(exc)(f"{path}: cannot write ({exc.strerror or exc})")
+    error.errno = exc.errno
+    return error
 
 
 class atomic_path:
@@ -177,8 +183,8 @@ class atomic_path:
                 _remove_folder(tmp.parent)
             except FileExistsError:
                 self.discard()
-                raise FileExistsError(f"{path}: exists (written by another run meanwhile?); use "
-                                      "--force to overwrite") from None
+                raise OutputExistsError(f"{path}: exists (written by another run meanwhile?); "
+                                        "use ", Param("force", True), " to overwrite") from None
             except OSError as exc:
                 self.discard()
                 raise _cannot_write(path, exc) from None

@@ -51,6 +51,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf
 
+from ..errors import InputError
 from .direct import AppendFile
 
 __all__ = ["BOOTSTRAP", "CrateSamples", "UnsupportedCrate", "VERSION", "VALUE_TYPES"]
@@ -109,7 +110,7 @@ def _lz4_decode(src: bytes) -> bytes:
     """``TfFastCompression`` output back to its bytes: a zero chunk-count byte (one chunk: the
     only kind a structural section is), then an LZ4 block (literal runs and back-references)."""
     if not src or src[0] != 0:
-        raise ValueError("not a one-chunk LZ4 buffer")
+        raise InputError("not a one-chunk LZ4 buffer")
     out, i, n = bytearray(), 1, len(src)
     while i < n:
         token = src[i]
@@ -122,7 +123,7 @@ def _lz4_decode(src: bytes) -> bytes:
         length, i = _lz4_length(src, i + 2, token & 15)
         length += 4
         if not 0 < offset <= len(out):
-            raise ValueError("LZ4 offset out of range")
+            raise InputError("LZ4 offset out of range")
         start = len(out) - offset
         if offset >= length:
             out += out[start:start + length]
@@ -160,7 +161,7 @@ def _decode_ints(data: bytes, pos: int, count: int):
     widths = _INT_WIDTHS[codes]
     at = 4 + n_codes + np.cumsum(widths) - widths  # where each delta's bytes start
     if at.size and at[-1] + widths[-1] > enc.size:
-        raise ValueError("integer codes run past their buffer")
+        raise InputError("integer codes run past their buffer")
     deltas = np.full(count, common, np.int64)
     for code, dtype in ((1, np.int8), (2, np.int16), (3, np.int32)):
         sel = codes == code
@@ -172,7 +173,7 @@ def _decode_ints(data: bytes, pos: int, count: int):
     return values, end
 
 
-class UnsupportedCrate(ValueError):
+class UnsupportedCrate(InputError):
     """A base crate file of a version :class:`CrateSamples` cannot extend (before 0.7.0, or
     1.0 and later): the caller can write the layer another way."""
 
@@ -186,7 +187,7 @@ class _Base:
         data = Path(path).read_bytes()
         self.data, self.kept = data, {}
         if data[:8] != _IDENT:
-            raise ValueError(f"{path}: not a USD crate file")
+            raise InputError(f"{path}: not a USD crate file")
         self.version = tuple(data[8:11])
         if not (0, 7, 0) <= self.version < (1, 0, 0):
             raise UnsupportedCrate(f"{path}: crate version {self.version} is not one this "
@@ -204,7 +205,7 @@ class _Base:
         n, size, packed = struct.unpack_from("<QQQ", data, pos)
         names = _lz4_decode(data[pos + 24:pos + 24 + packed])
         if len(names) != size:
-            raise ValueError(f"{path}: tokens do not decode")
+            raise InputError(f"{path}: tokens do not decode")
         self.tokens = [t.decode() for t in names.split(b"\0")[:n]]
 
         pos = sections["FIELDS"][0]
@@ -450,10 +451,10 @@ class CrateSamples:
             Token-valued metadata authored with the attribute (a primvar's ``interpolation``).
         """
         if self._file is None:
-            raise ValueError(f"{self.path}: the layer is closed")
+            raise InputError(f"{self.path}: the layer is closed")
         kind = VALUE_TYPES.get(type_name)
         if kind is None:
-            raise ValueError(f"{attr}: cannot write type {type_name!r} as crate samples; one of "
+            raise InputError(f"{attr}: cannot write type {type_name!r} as crate samples; one of "
                              f"{', '.join(VALUE_TYPES)}")
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         if kind == "vec3f[]":
@@ -465,25 +466,25 @@ class CrateSamples:
             if ok:
                 v = np.ascontiguousarray(v.transpose(0, 2, 1))
         if not ok or t.ndim != 1 or v.shape[0] != t.shape[0]:
-            raise ValueError(f"{attr}: expected {len(t)} frames of "
+            raise InputError(f"{attr}: expected {len(t)} frames of "
                              f"{'(N, 3)' if kind == 'vec3f[]' else '(4, 4)'} values, got "
                              f"{np.shape(values)}")
         if not np.all(np.isfinite(t)):
-            raise ValueError(f"{attr}: sample times must be finite")
+            raise InputError(f"{attr}: sample times must be finite")
         path = Sdf.Path(attr) if attr else Sdf.Path()
         key = str(path)  # one spelling per attribute (a variant selection's spaces)
         rec = self._attrs.get(key)
         if rec is None:
             if not (path.IsAbsolutePath() and path.IsPrimPropertyPath()):
-                raise ValueError(f"{attr}: not an attribute path (/Prim.name)")
+                raise InputError(f"{attr}: not an attribute path (/Prim.name)")
             if self._base is not None:
                 self._check_base_spec(path, type_name)
             elif path.ContainsPrimVariantSelection():
-                raise ValueError(f"{attr}: a variant's attribute needs a base layer that "
+                raise InputError(f"{attr}: a variant's attribute needs a base layer that "
                                  "declares it")
             rec = _Attribute(type_name, tuple(info))
         elif rec.type_name != type_name:
-            raise ValueError(f"{attr}: added as {rec.type_name} before, now {type_name}")
+            raise InputError(f"{attr}: added as {rec.type_name} before, now {type_name}")
         if not t.size:
             return
         self._attrs.setdefault(key, rec)
@@ -523,17 +524,17 @@ class CrateSamples:
         base = self._base
         spec = base.spec_of.get(path)
         if spec is None or base.specs[spec][2] != _SPEC_ATTRIBUTE:
-            raise ValueError(f"{path}: the base layer has no attribute spec for it (only "
+            raise InputError(f"{path}: the base layer has no attribute spec for it (only "
                              "attributes it declares take samples)")
         for f in base.spec_fields(spec):
             name, rep = base.fields[f]
             if base.tokens[name] == "typeName":
                 declared = base.tokens[rep & 0xFFFFFFFF]
                 if VALUE_TYPES.get(declared) != VALUE_TYPES[type_name]:  # same storage: ok
-                    raise ValueError(f"{path}: declared {declared} in the base layer, which "
+                    raise InputError(f"{path}: declared {declared} in the base layer, which "
                                      f"{type_name} samples cannot fill")
             elif base.tokens[name] == "timeSamples":
-                raise ValueError(f"{path}: has time samples in the base layer already (they "
+                raise InputError(f"{path}: has time samples in the base layer already (they "
                                  "would be replaced, not merged)")
 
     def abort(self) -> None:
@@ -547,7 +548,7 @@ class CrateSamples:
         """Write the layer's structure (``startTimeCode`` ``start``, ``endTimeCode`` ``end``)
         and close the file; returns its path."""
         if self._file is None:
-            raise ValueError(f"{self.path}: the layer is closed")
+            raise InputError(f"{self.path}: the layer is closed")
         try:
             self._finish(float(start), float(end))
         finally:

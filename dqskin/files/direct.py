@@ -24,6 +24,8 @@ import os
 
 import numpy as np
 
+from ..errors import InputError
+
 __all__ = ["BLOCK", "STAGE", "AppendFile", "enabled", "nbytes"]
 
 BLOCK = 4096
@@ -174,7 +176,7 @@ class AppendFile:
         appended."""
         rows = np.asarray(rows)
         if rows.ndim != 2 or rows.dtype != np.uint8:
-            raise ValueError(f"append_records: expected (K, M) uint8 rows, got {rows.dtype} "
+            raise InputError(f"append_records: expected (K, M) uint8 rows, got {rows.dtype} "
                              f"{rows.shape}")
         index = np.arange(len(rows)) if select is None else np.asarray(select)
         h, m = len(head), rows.shape[1]
@@ -263,7 +265,7 @@ class AppendFile:
     def pwrite(self, data, offset: int) -> None:
         """Write ``data`` at ``offset``, within the bytes appended (after a :meth:`flush`)."""
         if offset < 0 or offset + nbytes(data) > self.size:
-            raise ValueError(f"{self.path}: a write at {offset} past the {self.size} bytes "
+            raise InputError(f"{self.path}: a write at {offset} past the {self.size} bytes "
                              "appended")
         self.flush()
         _pwrite_all(self._fd, data, offset)

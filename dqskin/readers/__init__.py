@@ -16,6 +16,8 @@ from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING
 
+from ..errors import InputError
+
 if TYPE_CHECKING:
     from ..scene import Scene
 
@@ -58,9 +60,9 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     """
     p = Path(path)
     if not p.is_file():
-        raise ValueError(f"{p}: no such file")
+        raise InputError(f"{p}: no such file")
     loader = _LOADERS.get(p.suffix.lower())
     if loader is None:
-        raise ValueError(f"{p}: unsupported file type {p.suffix.lower()!r}; expected one of "
+        raise InputError(f"{p}: unsupported file type {p.suffix.lower()!r}; expected one of "
                          f"{', '.join(CHARACTER_SUFFIXES)}")
     return _loader(loader).load(p, clip=clip)

@@ -21,7 +21,7 @@ How dqskin reads it (the conventions of the format as Biovision, CMU and Blender
   frames the animation interpolates like USD and glTF players (rotation slerp, translation lerp:
   :class:`dqskin.KeyedAnimation`).
 
-Malformed files raise ValueError naming the file, the line and what was expected.
+Malformed files raise InputError (a ValueError) naming the file, the line and what was expected.
 """
 
 import os
@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..animation import KeyedAnimation
+from ..errors import InputError
 from ..scene import Scene
 from ..skeleton import Skeleton
 from . import LOADER_SUFFIXES
@@ -85,10 +86,10 @@ class BvhMotion:
         self.values = np.asarray(self.values, np.float64)
         counts = [len(ch) for ch in self.channels]
         if len(counts) != len(self.joint_names):
-            raise ValueError(f"{self.path}: {len(self.joint_names)} joints but channels for "
+            raise InputError(f"{self.path}: {len(self.joint_names)} joints but channels for "
                              f"{len(counts)}")
         if self.values.ndim != 2 or self.values.shape[1] != sum(counts):
-            raise ValueError(f"{self.path}: values of shape {self.values.shape}: expected (F, "
+            raise InputError(f"{self.path}: values of shape {self.values.shape}: expected (F, "
                              f"{sum(counts)}), one column per channel")
         starts = np.concatenate([[0], np.cumsum(counts)]).astype(int)
         self._columns = [list(range(a, a + n)) for a, n in zip(starts, counts)]
@@ -162,7 +163,7 @@ def scaled(motion: BvhMotion, scale: float) -> BvhMotion:
     ``scale``: a skeleton in the units of a mesh."""
     scale = float(scale)
     if not (np.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale {scale}: must be a positive finite number")
+        raise InputError(f"scale {scale}: must be a positive finite number")
     values = motion.values.copy()
     for names, cols in zip(motion.channels, motion._columns):
         for name, col in zip(names, cols):
@@ -199,7 +200,7 @@ class _Tokens:
     def error(self, message, line=None):
         if line is None:
             line = self.words[min(self.i, len(self.words) - 1)][1] if self.words else 1
-        return ValueError(f"{self.path}: line {line}: {message}")
+        return InputError(f"{self.path}: line {line}: {message}")
 
     def next(self, what):
         if self.i >= len(self.words):
@@ -311,14 +312,14 @@ def read_bvh(path: str | os.PathLike) -> BvhMotion:
     try:
         text = p.read_text(encoding="utf-8", errors="replace")
     except OSError as exc:
-        raise ValueError(f"{p}: cannot read ({exc.strerror or exc})") from None
+        raise InputError(f"{p}: cannot read ({exc.strerror or exc})") from None
     lines = text.splitlines()
     motion_line = next((n for n, line in enumerate(lines) if line.strip().upper() == "MOTION"),
                        None)
     if motion_line is None:
         if not lines or not lines[0].strip().upper().startswith("HIERARCHY"):
-            raise ValueError(f"{p}: not a BVH file (it does not start with HIERARCHY)")
-        raise ValueError(f"{p}: no MOTION section")
+            raise InputError(f"{p}: not a BVH file (it does not start with HIERARCHY)")
+        raise InputError(f"{p}: no MOTION section")
     tok = _Tokens(p, lines[:motion_line])
     b = _Building()
     _parse_hierarchy(tok, b)
@@ -330,39 +331,39 @@ def read_bvh(path: str | os.PathLike) -> BvhMotion:
         m = _HEADER.match(lines[n]) if n < len(lines) else None
         if m is None or re.sub(r"\s+", " ", m.group(1).lower()) != key:
             want = "Frames: N" if key == "frames" else "Frame Time: SECONDS"
-            raise ValueError(f"{p}: line {n + 1}: expected {want!r}")
+            raise InputError(f"{p}: line {n + 1}: expected {want!r}")
         try:
             header[key] = float(m.group(2))
         except ValueError:
-            raise ValueError(f"{p}: line {n + 1}: {m.group(1)}: not a number: "
+            raise InputError(f"{p}: line {n + 1}: {m.group(1)}: not a number: "
                              f"{m.group(2)!r}") from None
         n += 1
     frames, frame_time = header["frames"], header["frame time"]
     if not (frames == int(frames) and 1 <= frames <= MAX_FRAMES):
-        raise ValueError(f"{p}: line {motion_line + 2}: Frames: {frames:g}: expected a whole "
+        raise InputError(f"{p}: line {motion_line + 2}: Frames: {frames:g}: expected a whole "
                          f"number from 1 to {MAX_FRAMES}")
     if not (np.isfinite(frame_time) and frame_time > 0):
-        raise ValueError(f"{p}: line {motion_line + 3}: Frame Time: {frame_time:g}: must be "
+        raise InputError(f"{p}: line {motion_line + 3}: Frame Time: {frame_time:g}: must be "
                          "positive")
     frames = int(frames)
     c = sum(map(len, b.channels))
     data_lines = [(n + k + 1, r) for k, r in enumerate(lines[n:]) if r.strip()]
     if len(data_lines) < frames:
-        raise ValueError(f"{p}: Frames: {frames} but only {len(data_lines)} frame lines")
+        raise InputError(f"{p}: Frames: {frames} but only {len(data_lines)} frame lines")
     values = np.empty((frames, c), np.float64)
     for f, (ln, r) in enumerate(data_lines[:frames]):
         words = r.split()
         if len(words) != c:
-            raise ValueError(f"{p}: line {ln}: frame {f} has {len(words)} values, expected {c} "
+            raise InputError(f"{p}: line {ln}: frame {f} has {len(words)} values, expected {c} "
                              "(one per channel)")
         try:
             values[f] = [float(w) for w in words]
         except ValueError:
             bad = next(w for w in words if not _is_float(w))
-            raise ValueError(f"{p}: line {ln}: frame {f}: not a number: {bad!r}") from None
+            raise InputError(f"{p}: line {ln}: frame {f}: not a number: {bad!r}") from None
     if not np.all(np.isfinite(values)):
         f, col = np.argwhere(~np.isfinite(values))[0]
-        raise ValueError(f"{p}: frame {f}: channel {col}: value is not finite")
+        raise InputError(f"{p}: frame {f}: channel {col}: value is not finite")
     return BvhMotion(str(p), b.joint_names, np.asarray(b._parents, np.int32),
                      np.asarray(b._offsets, np.float64).reshape(-1, 3), b.channels, b.end_sites,
                      float(frame_time), values)

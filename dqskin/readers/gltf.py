@@ -44,6 +44,7 @@ import numpy as np
 
 from .. import quat
 from ..animation import Animation, Deformer, check_times
+from ..errors import InputError
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
 from . import LOADER_SUFFIXES
@@ -314,7 +315,7 @@ class GltfMorph(Deformer):
 # the length of every array a reference may point into.
 
 
-class _Invalid(Exception):
+class _Invalid(InputError):
     """A glTF file fails validation; the message is ``"field: what is wrong"``."""
 
 
@@ -699,7 +700,7 @@ class _Reader:
 
     def error(self, message):
         """``ValueError("file: message")``, on one line."""
-        return ValueError(f"{self.name}: {message}".replace("\n", " "))
+        return InputError(f"{self.name}: {message}".replace("\n", " "))
 
     def item(self, kind, items, index, where):
         if not isinstance(index, int) or not 0 <= index < len(items):

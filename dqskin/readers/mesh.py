@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError
+
 __all__ = ["load_mesh"]
 
 
@@ -14,13 +16,13 @@ def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     import trimesh
     p = Path(path)
     if not p.exists():
-        raise ValueError(f"{p}: no such file")
+        raise InputError(f"{p}: no such file")
     if not p.is_file():
-        raise ValueError(f"{p}: not a regular file")
+        raise InputError(f"{p}: not a regular file")
     try:
         mesh = trimesh.load(p, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files
-        raise ValueError(f"{p}: cannot read mesh ({exc})") from None
+        raise InputError(f"{p}: cannot read mesh ({exc})") from None
     if len(mesh.vertices) == 0:
-        raise ValueError(f"{p}: mesh has no vertices")
+        raise InputError(f"{p}: mesh has no vertices")
     return np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.int32)

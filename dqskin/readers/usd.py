@@ -51,6 +51,7 @@ import numpy as np
 from pxr import Sdf, Tf, Usd, UsdGeom, UsdSkel, Vt
 
 from ..animation import Animation, Deformer, TransformTrack, segment_rates
+from ..errors import InputError, LimitError, Param
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
 from ..skinning import skin_points
@@ -331,7 +332,7 @@ class UsdSkelAnimation(Animation):
         self.key_times = np.array(sorted(keys), dtype=np.float64)
 
     def _fail(self, what):
-        raise ValueError(f"{self.path}: {self.name}: {what}")
+        raise InputError(f"{self.path}: {self.name}: {what}")
 
     def local_transforms(self, times):
         """Parent-relative joint transforms, skeleton joint order.
@@ -464,7 +465,7 @@ class _Loader:
         self.world_tracks = {}  # skeleton prim path -> its local-to-world XformChain
 
     def fail(self, where, what):
-        raise ValueError(f"{self.path}: {where}: {what}")
+        raise InputError(f"{self.path}: {where}: {what}")
 
     @contextlib.contextmanager
     def at(self, where):
@@ -476,23 +477,23 @@ class _Loader:
         except ValueError as exc:
             if str(exc).startswith(self.path):
                 raise
-            raise ValueError(f"{self.path}: {where}: {_one_line(exc)}") from None
+            raise InputError(f"{self.path}: {where}: {_one_line(exc)}") from None
         except RuntimeError as exc:  # Tf.ErrorException and pxr's Python-side errors
-            raise ValueError(f"{self.path}: {where}: USD error: {_tf_message(exc)}") from None
+            raise InputError(f"{self.path}: {where}: USD error: {_tf_message(exc)}") from None
 
     def _open(self):
         if not os.path.isfile(self.path):
-            raise ValueError(f"{self.path}: no such file")
+            raise InputError(f"{self.path}: no such file")
         ext = os.path.splitext(self.path)[1].lower()
         if ext not in SUFFIXES:
-            raise ValueError(f"{self.path}: not a USD file (extension {ext!r}, expected one of "
+            raise InputError(f"{self.path}: not a USD file (extension {ext!r}, expected one of "
                              f"{', '.join(SUFFIXES)})")
         try:
             stage = Usd.Stage.Open(self.path, Usd.Stage.LoadAll)
         except Tf.ErrorException as exc:
-            raise ValueError(f"{self.path}: cannot open as USD: {_tf_message(exc)}") from None
+            raise InputError(f"{self.path}: cannot open as USD: {_tf_message(exc)}") from None
         if stage is None:
-            raise ValueError(f"{self.path}: cannot open as USD{_first(self.warnings())}")
+            raise InputError(f"{self.path}: cannot open as USD{_first(self.warnings())}")
         return stage
 
     def value(self, where, attr, vt_type, type_name):
@@ -539,7 +540,7 @@ class _Loader:
             skeleton = Skeleton(joints, np.asarray(query.GetTopology().GetParentIndices()), bind,
                                 rest, name=key, world_transform=world)
         except ValueError as exc:
-            raise ValueError(f"{self.path}: {_usd_names(key, str(exc))}") from None
+            raise InputError(f"{self.path}: {_usd_names(key, str(exc))}") from None
         animation = self.animation(query, rest)  # after the skeleton's own checks
         return skeleton.with_animation(animation), animation
 
@@ -904,7 +905,7 @@ class _Loader:
             roots = [UsdSkel.Root(p) for p in self.stage.Traverse(predicate)
                      if p.IsA(UsdSkel.Root)]
         if not roots:
-            raise ValueError(f"{self.path}: no SkelRoot prim")
+            raise InputError(f"{self.path}: no SkelRoot prim")
         cache = UsdSkel.Cache()
         seen = set()
         for root in roots:
@@ -914,7 +915,7 @@ class _Loader:
             for binding in bindings:
                 self.load_binding(cache, binding, seen)
         if not self.meshes:
-            raise ValueError(f"{self.path}: no skinned point-based prim under "
+            raise InputError(f"{self.path}: no skinned point-based prim under "
                              f"{', '.join(str(r.GetPrim().GetPath()) for r in roots)}")
         tcps, up_axis, meters_per_unit = self.stage_metadata()
         return Scene(path=self.path, meshes=self.meshes, skeletons=self.skeletons,
@@ -948,10 +949,10 @@ class _Loader:
         up = str(UsdGeom.GetStageUpAxis(self.stage))
         for name, value in (("timeCodesPerSecond", tcps), ("metersPerUnit", mpu)):
             if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{self.path}: layer metadata {name} {value:g}: must be a "
+                raise InputError(f"{self.path}: layer metadata {name} {value:g}: must be a "
                                  "positive number")
         if up not in ("Y", "Z"):
-            raise ValueError(f"{self.path}: layer metadata upAxis {up!r}: must be 'Y' or 'Z'")
+            raise InputError(f"{self.path}: layer metadata upAxis {up!r}: must be 'Y' or 'Z'")
         return tcps, up, mpu
 
     def times(self):
@@ -960,10 +961,10 @@ class _Loader:
         if st.HasAuthoredTimeCodeRange():
             start, end = st.GetStartTimeCode(), st.GetEndTimeCode()
             if not (np.isfinite(start) and np.isfinite(end)):
-                raise ValueError(f"{self.path}: layer metadata startTimeCode {start:g} .. "
+                raise InputError(f"{self.path}: layer metadata startTimeCode {start:g} .. "
                                  f"endTimeCode {end:g}: must be finite")
             if end - start >= MAX_FRAMES:
-                raise ValueError(f"{self.path}: layer metadata startTimeCode {start:g} .. "
+                raise LimitError(f"{self.path}: layer metadata startTimeCode {start:g} .. "
                                  f"endTimeCode {end:g} spans more than {MAX_FRAMES} time codes")
             return np.arange(start, max(start, end) + 0.5, 1.0, dtype=np.float64)
         keys = set()
@@ -1211,7 +1212,7 @@ class _RestDeformer(Deformer):
             pts = np.stack([np.asarray(self.points_attr.Get(Usd.TimeCode(float(ti))),
                                        dtype=np.float32).reshape(-1, 3) for ti in t])
             if pts.shape[1] != self.points.shape[0]:
-                raise ValueError(f"{self.points_attr.GetPath()}: point count changes over time")
+                raise InputError(f"{self.points_attr.GetPath()}: point count changes over time")
         else:
             pts = np.broadcast_to(self.points, (t.shape[0],) + self.points.shape).copy()
         if self.sub_shapes:
@@ -1288,8 +1289,8 @@ def load(path, *, clip=None):
     """:func:`load_usd` with the signature every format's loader has (USD has one animation per
     skeleton, so ``clip`` must be None)."""
     if clip is not None:
-        raise ValueError(f"{path}: --clip applies to glTF files; USD has one animation per "
-                         "skeleton")
+        raise InputError(f"{path}: ", Param("clip"), " applies to glTF files; USD has one "
+                         "animation per skeleton")
     return load_usd(path)
 
 
@@ -1312,7 +1313,7 @@ def load_rigid_prims(scene):
     for r in loader.rigid:
         name = loader.skeletons[r.skeleton].name
         if name not in index:
-            raise ValueError(f"{scene.path}: {r.name}: skeleton {name} is not in the scene")
+            raise InputError(f"{scene.path}: {r.name}: skeleton {name} is not in the scene")
         r.skeleton = index[name]
         out.append(r)
     return out

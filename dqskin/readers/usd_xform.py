@@ -16,6 +16,7 @@ from pxr import Gf, UsdGeom
 
 from .. import quat
 from ..animation import TransformTrack
+from ..errors import InputError
 from ..linalg import hat
 
 __all__ = ["XformChain", "read_local_to_world"]
@@ -102,7 +103,7 @@ class _Op:
                 r, dr = _axis_rotation(_AXES[axis], angles[:, i], rates[:, i])
                 m, dm = r @ m, dr @ m + r @ dm
         else:
-            raise ValueError(f"xform op {self.name}: unsupported type {name}")
+            raise InputError(f"xform op {self.name}: unsupported type {name}")
         if self.inverse:
             inv = np.linalg.inv(m)
             return inv, -inv @ dm @ inv
@@ -161,6 +162,6 @@ class XformChain(TransformTrack):
         s, ds = self._compose(self.source, t)
         g, dg = self._compose(self.target, t)
         if np.any(np.abs(np.linalg.det(g[:, :3, :3])) < 1e-300):
-            raise ValueError(f"{self.name}: singular local-to-world transform")
+            raise InputError(f"{self.name}: singular local-to-world transform")
         gi = np.linalg.inv(g)
         return gi @ s, gi @ ds - gi @ dg @ gi @ s

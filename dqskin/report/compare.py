@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import metrics as M
+from ..errors import InputError, LimitError, Param, output_exists
 from ..files.atomic import atomic_path
 from ..metrics import METRICS, worst
 from ..readers import load
@@ -89,12 +90,12 @@ _HEAT_COLORMAP = "viridis"
 def _choice_list(name, values, allowed):
     items = [values] if isinstance(values, str) else list(values)
     if not items:
-        raise ValueError(f"{name}: empty; choose from {', '.join(allowed)}")
+        raise InputError(Param(name), f": empty; choose from {', '.join(allowed)}")
     for v in items:
         if v not in allowed:
-            raise ValueError(f"{name}: unknown {v!r}; choose from {', '.join(allowed)}")
+            raise InputError(Param(name), f": unknown {v!r}; choose from {', '.join(allowed)}")
     if len(set(items)) != len(items):
-        raise ValueError(f"{name}: repeated entries in {items}")
+        raise InputError(Param(name), f": repeated entries in {items}")
     return tuple(items)
 
 
@@ -123,7 +124,7 @@ def _renderable(scene):
             keep.append(m)
     if not keep:
         detail = "; ".join(f"{k}: {v}" for k, v in skipped.items()) or "no skinned meshes"
-        raise ValueError(f"{scene.path}: nothing to render ({detail})")
+        raise InputError(f"{scene.path}: nothing to render ({detail})")
     return keep, skipped
 
 
@@ -428,17 +429,17 @@ def _prepare_out(out_dir, force):
     module names them) raise FileExistsError, or with ``force`` the panels are removed."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
-        raise ValueError(f"{out}: exists and is not a directory")
+        raise InputError(f"{out}: exists and is not a directory")
     frames = out / "frames"
     if frames.exists() and not frames.is_dir():
-        raise ValueError(f"{frames}: exists and is not a directory")
+        raise InputError(f"{frames}: exists and is not a directory")
     panels = []
     if frames.is_dir():
         panels = sorted(p for p in frames.iterdir() if p.is_file() and _FRAME_FILE.match(p.name))
     if not force:
         for p in [out / "report.html", out / "metrics.json"] + panels:
             if p.exists():
-                raise FileExistsError(f"{p}: exists (use --force to overwrite)")
+                raise output_exists(p)
     frames.mkdir(parents=True, exist_ok=True)
     for p in panels:
         p.unlink()
@@ -521,24 +522,24 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
     for name, v, low in (("width", width, 16), ("supersample", supersample, 1),
                          ("viewer_frames", viewer_frames, 0)):
         if isinstance(v, bool) or int(v) != v or v < low:
-            raise ValueError(f"{name}: expected an integer >= {low}, got {v!r}")
+            raise InputError(Param(name), f": expected an integer >= {low}, got {v!r}")
     if width * supersample > max_rays:
         rays = width * supersample
-        raise ValueError(f"--width {width} × --supersample {supersample} casts {rays:,} rays per "
-                         f"image side, more than the limit of {max_rays:,}; pass --max-rays to "
-                         "raise it")
+        raise LimitError(Param("width", width), " × ", Param("supersample", supersample),
+                         f" casts {rays:,} rays per image side, more than the limit of "
+                         f"{max_rays:,}; raise ", Param("max_rays"), " to allow more")
     with _progress_bar(progress) as bar:
         bar.set_postfix_str("loading")
         scene = input_path if isinstance(input_path, Scene) else load(input_path, clip=clip)
         up = skeleton_up_axis(scene) if up_axis is None else up_axis
         if up not in ("Y", "Z"):
-            raise ValueError(f"{scene.path}: up axis must be Y or Z, got {up!r}")
+            raise InputError(f"{scene.path}: up axis must be Y or Z, got {up!r}")
         if frames is None:
             times = default_frames(scene.times)
         else:
             times = np.asarray(frames, dtype=np.float64).reshape(-1)
             if times.size == 0 or not np.all(np.isfinite(times)):
-                raise ValueError(f"frames: expected finite times, got {list(frames)!r}")
+                raise InputError(Param("frames"), f": expected finite times, got {list(frames)!r}")
         _renderable(scene)
         out, frames_dir = _prepare_out(out_dir, force)
 

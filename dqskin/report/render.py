@@ -18,6 +18,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import resolve_device
+from ..errors import InputError
 from ..files.atomic import atomic_path
 from ..kernels import render as K
 from ..topology import check_faces, incidence
@@ -47,13 +48,13 @@ _THREE_QUARTER_ELEVATION = np.radians(20.0)
 def _vec3(name, x):
     a = np.asarray(x, dtype=np.float64)
     if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{name}: expected 3 finite numbers, got {np.asarray(x).tolist()!r}")
+        raise InputError(f"{name}: expected 3 finite numbers, got {np.asarray(x).tolist()!r}")
     return a
 
 
 def _up_axis(up_axis):
     if up_axis not in _UP:
-        raise ValueError(f'up_axis must be "Y" or "Z", got {up_axis!r}')
+        raise InputError(f'up_axis must be "Y" or "Z", got {up_axis!r}')
     return up_axis
 
 
@@ -75,11 +76,11 @@ def _view_direction(view, up_axis):
                           + np.sin(_THREE_QUARTER_AZIMUTH) * np.array([1.0, 0.0, 0.0]))
             return (np.cos(_THREE_QUARTER_ELEVATION) * horizontal
                     + np.sin(_THREE_QUARTER_ELEVATION) * up)
-        raise ValueError(f"view must be one of {VIEWS} or a 3-vector, got {view!r}")
+        raise InputError(f"view must be one of {VIEWS} or a 3-vector, got {view!r}")
     d = _vec3("view", view)
     n = np.linalg.norm(d)
     if n == 0:
-        raise ValueError("view: direction has zero length")
+        raise InputError("view: direction has zero length")
     return d / n
 
 
@@ -114,15 +115,15 @@ class Camera:
             object.__setattr__(self, name, _vec3(name, getattr(self, name)))
         if self.fov is None:
             if self.ortho_height is None or not self.ortho_height > 0:
-                raise ValueError("ortho_height: an orthographic camera (fov=None) needs a "
+                raise InputError("ortho_height: an orthographic camera (fov=None) needs a "
                                  "positive ortho_height")
         elif not 0 < self.fov < 180:
-            raise ValueError(f"fov: expected degrees in (0, 180), got {self.fov!r}")
+            raise InputError(f"fov: expected degrees in (0, 180), got {self.fov!r}")
         forward = self.target - self.eye
         if np.linalg.norm(forward) == 0:
-            raise ValueError("eye and target coincide")
+            raise InputError("eye and target coincide")
         if np.linalg.norm(np.cross(forward, self.up)) <= 1e-9 * np.linalg.norm(forward):
-            raise ValueError("up: parallel to the view direction")
+            raise InputError("up: parallel to the view direction")
 
     @property
     def orthographic(self):
@@ -191,7 +192,7 @@ class Camera:
         """
         lo, hi = _vec3("bounds_min", bounds_min), _vec3("bounds_max", bounds_max)
         if np.any(hi < lo):
-            raise ValueError("bounds_max: below bounds_min")
+            raise InputError("bounds_max: below bounds_min")
         center = 0.5 * (lo + hi)
         back = _view_direction(view, up_axis)
         up = _UP[up_axis]
@@ -216,7 +217,7 @@ class Camera:
         """
         c = _vec3("center", center)
         if not radius > 0:
-            raise ValueError(f"radius: expected > 0, got {radius!r}")
+            raise InputError(f"radius: expected > 0, got {radius!r}")
         back = _view_direction(view, up_axis)
         up = _UP[up_axis]
         if fov is None:
@@ -267,7 +268,7 @@ class Shading:
         d = lr * right + lu * up - lb * forward
         n = np.linalg.norm(d)
         if n == 0:
-            raise ValueError("light: direction has zero length")
+            raise InputError("light: direction has zero length")
         return d / n
 
     def _params(self, camera):
@@ -293,18 +294,18 @@ def colormap_lut(colormap="viridis", size=256):
     try:
         cmap = matplotlib.colormaps[colormap]
     except KeyError:
-        raise ValueError(f"colormap: unknown Matplotlib colour map {colormap!r}") from None
+        raise InputError(f"colormap: unknown Matplotlib colour map {colormap!r}") from None
     return cmap(np.linspace(0.0, 1.0, size))[:, :3].astype(np.float32)
 
 
 def _check_mesh(points, faces):
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"points: expected (V, 3), got {pts.shape}")
+        raise InputError(f"points: expected (V, 3), got {pts.shape}")
     if pts.shape[0] == 0:
-        raise ValueError("points: mesh has no points")
+        raise InputError("points: mesh has no points")
     if not np.all(np.isfinite(pts)):
-        raise ValueError("points: NaN or infinite coordinate")
+        raise InputError("points: NaN or infinite coordinate")
     return pts.astype(np.float32), check_faces(faces, pts.shape[0])
 
 
@@ -351,9 +352,9 @@ class MeshRenderer:
         """
         pts = np.asarray(points, dtype=np.float64)
         if pts.shape != (self.vertex_count, 3):
-            raise ValueError(f"points: expected ({self.vertex_count}, 3), got {pts.shape}")
+            raise InputError(f"points: expected ({self.vertex_count}, 3), got {pts.shape}")
         if not np.all(np.isfinite(pts)):
-            raise ValueError("points: NaN or infinite coordinate")
+            raise InputError("points: NaN or infinite coordinate")
         self.mesh.points.assign(pts.astype(np.float32))
         self.mesh.refit()
         self._update_normals()
@@ -409,7 +410,7 @@ class MeshRenderer:
         shading = Shading() if shading is None else shading
         for name, v in (("width", width), ("height", height), ("supersample", supersample)):
             if int(v) != v or v < 1:
-                raise ValueError(f"{name}: expected a positive integer, got {v!r}")
+                raise InputError(f"{name}: expected a positive integer, got {v!r}")
         width, height, s = int(width), int(height), int(supersample)
         d = self.device
         layer_a = self._layer(camera, scalars, scalar_range, colormap, shading, "")
@@ -419,7 +420,7 @@ class MeshRenderer:
             extra = dict(second_layer)
             unknown = set(extra) - {"scalars", "scalar_range", "colormap", "shading"}
             if unknown:
-                raise ValueError(f"second_layer: unknown keys {sorted(unknown)}")
+                raise InputError(f"second_layer: unknown keys {sorted(unknown)}")
             layer_b = self._layer(camera, extra.get("scalars"), extra.get("scalar_range"),
                                   extra.get("colormap", "viridis"),
                                   extra.get("shading") or Shading(), "second_layer: ")
@@ -465,7 +466,7 @@ class MeshRenderer:
         else:
             sv = np.asarray(scalars, dtype=np.float64).reshape(-1)
             if sv.shape != (self.vertex_count,):
-                raise ValueError(f"{where}scalars: expected ({self.vertex_count},), got "
+                raise InputError(f"{where}scalars: expected ({self.vertex_count},), got "
                                  f"{np.shape(scalars)}")
             lo, hi = _scalar_range(sv, scalar_range)
             layer.scalar_min, layer.scalar_scale = lo, 1.0 / (hi - lo) if hi > lo else 0.0
@@ -498,11 +499,11 @@ class MeshRenderer:
         """
         pts = np.asarray(frames, dtype=np.float64)
         if pts.ndim != 3 or pts.shape[1:] != (self.vertex_count, 3):
-            raise ValueError(f"frames: expected (F, {self.vertex_count}, 3), got {pts.shape}")
+            raise InputError(f"frames: expected (F, {self.vertex_count}, 3), got {pts.shape}")
         sv = None if scalars is None else np.asarray(scalars, dtype=np.float64)
         if sv is not None and sv.shape not in ((self.vertex_count,),
                                                (pts.shape[0], self.vertex_count)):
-            raise ValueError(f"scalars: expected ({self.vertex_count},) or "
+            raise InputError(f"scalars: expected ({self.vertex_count},) or "
                              f"({pts.shape[0]}, {self.vertex_count}), got {sv.shape}")
         indices = range(pts.shape[0])
         if progress:
@@ -521,7 +522,7 @@ def _scalar_range(values, scalar_range):
     if scalar_range is not None:
         lo, hi = (float(v) for v in scalar_range)
         if not (np.isfinite(lo) and np.isfinite(hi)) or hi < lo:
-            raise ValueError(f"scalar_range: expected finite (low, high) with low <= high, got "
+            raise InputError(f"scalar_range: expected finite (low, high) with low <= high, got "
                              f"{tuple(scalar_range)!r}")
         return lo, hi
     finite = values[np.isfinite(values)]
@@ -549,7 +550,7 @@ def render(points, faces, camera, *, device=None, **kwargs):
 def _as_image(name, image):
     a = np.asarray(image)
     if a.dtype != np.uint8 or not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (3, 4))):
-        raise ValueError(f"{name}: expected a uint8 (H, W), (H, W, 3) or (H, W, 4) image, got "
+        raise InputError(f"{name}: expected a uint8 (H, W), (H, W, 3) or (H, W, 4) image, got "
                          f"{a.dtype} {a.shape}")
     return a
 
@@ -591,7 +592,7 @@ def add_colorbar(image, scalar_range, colormap="viridis", *, label=None, ticks=5
         img = np.repeat(img[..., None], 3, axis=2)
     lo, hi = _scalar_range(np.zeros(0), scalar_range)
     if int(ticks) != ticks or ticks < 2:
-        raise ValueError(f"ticks: expected an integer >= 2, got {ticks!r}")
+        raise InputError(f"ticks: expected an integer >= 2, got {ticks!r}")
     h, w, c = img.shape
     size = font_size or max(10, h // 36)
     font = _font(size)
@@ -643,9 +644,9 @@ def side_by_side(images, labels=None, *, pad=8, background=(1.0, 1.0, 1.0),
 
     imgs = [_as_image(f"images[{i}]", im) for i, im in enumerate(images)]
     if not imgs:
-        raise ValueError("images: nothing to compose")
+        raise InputError("images: nothing to compose")
     if labels is not None and len(labels) != len(imgs):
-        raise ValueError(f"labels: expected {len(imgs)} labels, got {len(labels)}")
+        raise InputError(f"labels: expected {len(imgs)} labels, got {len(labels)}")
     bg = np.array(_rgb_bytes("background", background), dtype=np.float64)
     rgb = []
     for im in imgs:

@@ -30,6 +30,8 @@ from importlib.resources import files
 
 import numpy as np
 
+from ..errors import InputError
+
 __all__ = ["VIEWER_FRAMES", "decode", "encode", "viewer_html", "viewer_times"]
 
 VIEWER_FRAMES = 48
@@ -56,7 +58,7 @@ def viewer_times(clip_times, compared, count=VIEWER_FRAMES):
     (F',) float64, sorted, unique.
     """
     if int(count) != count or count < 0:
-        raise ValueError(f"viewer frames: expected an integer >= 0, got {count!r}")
+        raise InputError(f"viewer frames: expected an integer >= 0, got {count!r}")
     clip = np.asarray(clip_times, dtype=np.float64).reshape(-1)
     extra = np.zeros(0)
     if count and clip.size:

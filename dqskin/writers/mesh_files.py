@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError, Param, output_exists
 from ..files.atomic import CommitOnSuccess, atomic_group
 
 __all__ = ["FACES_REQUIRED", "SUFFIXES", "WITH_ATTRIBUTES", "FrameWriter", "MeshLayout",
@@ -34,18 +35,19 @@ FACES_REQUIRED = (".obj", ".stl", ".off", ".glb")
 
 
 def frame_paths(pattern, frames):
-    """Expand ``dir/frame_{:04d}.obj`` for each frame number; ValueError when two frames would
+    """Expand ``dir/frame_{:04d}.obj`` for each frame number; InputError when two frames would
     share a file (a name without a ``{}`` field and more than one frame)."""
     pattern = str(pattern)
     try:
         paths = [Path(pattern.format(int(f))) for f in frames]
     except (IndexError, KeyError, ValueError):
-        raise ValueError(f"--out {pattern!r}: expected a pattern with one '{{}}' field for the "
-                         "frame number, e.g. out/frame_{:04d}.obj") from None
+        raise InputError(Param("out", pattern), ": expected a pattern with one '{}' field for "
+                         "the frame number, e.g. out/frame_{:04d}.obj") from None
     if len(set(paths)) != len(paths):
-        raise ValueError(f"--out {pattern}: {len(paths)} frames but {len(set(paths))} file "
-                         "name(s); one file per frame needs a '{}' field for the frame number "
-                         "(e.g. out/frame_{:04d}.obj), or select one frame with --frames")
+        raise InputError(Param("out", pattern), f": {len(paths)} frames but {len(set(paths))} "
+                         "file name(s); one file per frame needs a '{}' field for the frame "
+                         "number (e.g. out/frame_{:04d}.obj), or select one frame with ",
+                         Param("frames"))
     return paths
 
 
@@ -102,7 +104,7 @@ def _uv_interpolation(mesh, hint):
             return authored
     if len(candidates) == 1:
         return candidates[0]
-    raise ValueError(f"{mesh.name}: cannot tell how its {U} UVs map to {V} points"
+    raise InputError(f"{mesh.name}: cannot tell how its {U} UVs map to {V} points"
                      + (f" and {len(fvi)} face corners" if fvi is not None else ""))
 
 
@@ -136,7 +138,7 @@ class MeshLayout:
                  uv_interpolation=None):
         suffix = suffix.lower()
         if suffix not in SUFFIXES:
-            raise ValueError(f"{suffix}: not a mesh file type ({' '.join(SUFFIXES)})")
+            raise InputError(f"{suffix}: not a mesh file type ({' '.join(SUFFIXES)})")
         rich = suffix in WITH_ATTRIBUTES
         self.normals = bool(normals) and rich and any(m.normals is not None for m in meshes)
         want_uvs = bool(uvs) and rich and any(m.uvs is not None for m in meshes)
@@ -144,7 +146,7 @@ class MeshLayout:
         faces, uv_rows, offset = [], [], 0
         for m in meshes:
             if suffix in FACES_REQUIRED and len(m.faces) == 0:
-                raise ValueError(f"{m.name}: no faces; {suffix} files hold triangle meshes "
+                raise InputError(f"{m.name}: no faces; {suffix} files hold triangle meshes "
                                  "(write .ply, .npz or a USD cache)")
             vert, tris, nidx, uv = self._split(m, want_uvs, uv_top_left, uv_interpolation)
             self.parts.append((m, vert, nidx))
@@ -174,7 +176,7 @@ class MeshLayout:
             return vert, faces, (vert if has_n else None), (None if uvs is None else uvs)
         corners = _triangle_corners(m)
         if corners is None:
-            raise ValueError(f"{m.name}: cannot match its face-varying normals or UVs to its "
+            raise InputError(f"{m.name}: cannot match its face-varying normals or UVs to its "
                              "triangles")
         vert_c, corner_c = faces.ravel(), corners.ravel()
         keys = [vert_c[:, None]]
@@ -279,10 +281,10 @@ class FrameWriter(CommitOnSuccess):
         self.pattern = str(pattern)
         self.suffix = Path(self.pattern).suffix.lower()
         if self.suffix not in SUFFIXES:
-            raise ValueError(f"{self.pattern}: not a mesh file type ({' '.join(SUFFIXES)})")
+            raise InputError(f"{self.pattern}: not a mesh file type ({' '.join(SUFFIXES)})")
         self.faces = np.asarray(faces, np.int64).reshape(-1, 3)
         if uvs is not None and self.suffix not in WITH_ATTRIBUTES:
-            raise ValueError(f"{self.pattern}: {self.suffix} files cannot hold UVs")
+            raise InputError(f"{self.pattern}: {self.suffix} files cannot hold UVs")
         self.uvs = None if uvs is None else np.asarray(uvs, np.float64)
         self.group = atomic_group(overwrite=overwrite)
         self.paths = []
@@ -292,7 +294,7 @@ class FrameWriter(CommitOnSuccess):
         optionally unit ``normals`` (F, K, 3) to temporary files."""
         import trimesh
         if normals is not None and self.suffix not in WITH_ATTRIBUTES:
-            raise ValueError(f"{self.pattern}: {self.suffix} files cannot hold vertex normals")
+            raise InputError(f"{self.pattern}: {self.suffix} files cannot hold vertex normals")
         paths = frame_paths(self.pattern, frame_numbers)
         from trimesh.visual import TextureVisuals
         from trimesh.visual.material import PBRMaterial
@@ -308,7 +310,7 @@ class FrameWriter(CommitOnSuccess):
             except OSError:
                 raise
             except Exception as exc:  # trimesh raises many types
-                raise ValueError(f"{path}: trimesh cannot write it ({exc})") from None
+                raise InputError(f"{path}: trimesh cannot write it ({exc})") from None
             self.paths.append(path)
         return paths
 
@@ -343,7 +345,7 @@ def write_frames(pattern, frame_numbers, points, faces, *, force=False, normals=
     points : (F, V, 3) float
     faces : (T, 3) int
     force : bool
-        Replace existing files (otherwise FileExistsError, before anything is written).
+        Replace existing files (otherwise OutputExistsError, before anything is written).
     normals : (F, V, 3) float, optional
     uvs : (V, 2) float, optional
 
@@ -355,9 +357,9 @@ def write_frames(pattern, frame_numbers, points, faces, *, force=False, normals=
     if not force:
         for path in paths:
             if path.exists():
-                raise FileExistsError(f"{path}: exists (use --force to overwrite)")
+                raise output_exists(path)
     if Path(str(pattern)).suffix.lower() in FACES_REQUIRED and len(np.reshape(faces, (-1, 3))) == 0:
-        raise ValueError(f"{pattern}: no faces to write")
+        raise InputError(f"{pattern}: no faces to write")
     with FrameWriter(pattern, faces, uvs, overwrite=force) as writer:
         writer.write(frame_numbers, points, normals)
     return paths

@@ -30,6 +30,7 @@ from types import SimpleNamespace
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
+from ..errors import InputError
 from ..files.atomic import atomic_path, check_parent
 from ..files.crate import CrateSamples, UnsupportedCrate
 from ..readers.usd import load_rigid_prims, rigid_transforms
@@ -333,17 +334,17 @@ class CacheLayer:
         src = os.fspath(scene.path if source_path is None else source_path)
         ext = os.path.splitext(out)[1].lower()
         if ext not in CACHE_EXTENSIONS:
-            raise ValueError(f"{out}: cannot write extension {ext!r}; use one of "
+            raise InputError(f"{out}: cannot write extension {ext!r}; use one of "
                              f"{', '.join(CACHE_EXTENSIONS)}")
         try:
             stage = Usd.Stage.Open(src, Usd.Stage.LoadAll)
         except Tf.ErrorException:
             stage = None
         if stage is None:
-            raise ValueError(f"{src}: cannot open the source stage")
+            raise InputError(f"{src}: cannot open the source stage")
         if os.path.exists(out) and any(_same_file(out, f) for f in _source_files(stage, src)
                                        if os.path.exists(f)):
-            raise ValueError(f"{out}: refusing to overwrite an input of {src}")
+            raise InputError(f"{out}: refusing to overwrite an input of {src}")
         self.scene, self.out, self.src, self.ext = scene, out, src, ext
         self.stage = stage
         self.rigid = _rigid_prims(stage, scene)
@@ -370,7 +371,7 @@ class CacheLayer:
         else:
             prim = self.stage.GetPrimAtPath(name)
             if not prim or not UsdGeom.PointBased(prim):
-                raise ValueError(f"{self.src}: {name}: not a point-based prim")
+                raise InputError(f"{self.src}: {name}: not a point-based prim")
             if name not in self._target_prims:  # a set: a crowd has thousands of prims
                 for anc in Sdf.Path(name).GetPrefixes()[:-1]:
                     anc_spec = layer.GetPrimAtPath(anc)
@@ -436,10 +437,10 @@ def export_layer(layer, claim, out=None, tmp=None):
     try:
         ok = layer.Export(str(tmp), args=args)
     except Tf.ErrorException as exc:
-        raise ValueError(f"{out}: USD could not write the layer "
+        raise InputError(f"{out}: USD could not write the layer "
                          f"({str(exc).replace(str(tmp), out)})") from None
     if not ok:
-        raise ValueError(f"{out}: USD could not write the layer")
+        raise InputError(f"{out}: USD could not write the layer")
     return tmp
 
 
@@ -486,7 +487,7 @@ class SampleWriter:
         checked again (others are, as float32); shapes are always checked."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)):
-            raise ValueError(f"times: expected a non-empty 1-D array of finite time codes, "
+            raise InputError(f"times: expected a non-empty 1-D array of finite time codes, "
                              f"got shape {t.shape}")
         F = t.shape[0]
         meshes = self.meshes
@@ -494,7 +495,7 @@ class SampleWriter:
         for what, d in (("points", points), ("normals", normals), ("velocities", velocities)):
             unknown = sorted(set(d) - set(meshes))
             if unknown:
-                raise ValueError(f"{what}: no mesh {unknown[0]!r} in {self.scene.path}; meshes: "
+                raise InputError(f"{what}: no mesh {unknown[0]!r} in {self.scene.path}; meshes: "
                                  f"{sorted(meshes)}")
         def finite(a):  # checked float32 values need no second pass (others may overflow)
             return not (checked and getattr(a, "dtype", None) == np.float32)
@@ -504,7 +505,7 @@ class SampleWriter:
         nrm = {}
         for n, v in normals.items():
             if meshes[n].normals is None:
-                raise ValueError(f"normals[{n!r}]: the mesh has no rest normals to replace")
+                raise InputError(f"normals[{n!r}]: the mesh has no rest normals to replace")
             nrm[n] = _frames(n, "normals", v, F, meshes[n].normals.shape[0], finite(v))
         vel = {n: _frames(n, "velocities", v, F, meshes[n].points.shape[0], finite(v))
                for n, v in velocities.items()}
@@ -710,7 +711,7 @@ class UsdCacheWriter:
             try:
                 return targets[name, what]
             except KeyError:
-                raise ValueError(f"{self.out}: {name}: {what} was not in the first chunk; a "
+                raise InputError(f"{self.out}: {name}: {what} was not in the first chunk; a "
                                  ".usdc/.usd cache takes the meshes and values of its first "
                                  "chunk in every later one (.usda takes any)") from None
         return target
@@ -754,7 +755,7 @@ class UsdCacheWriter:
         claim = self._claim
         try:
             if not np.isfinite(self._t_min):
-                raise ValueError(f"{self.out}: no frames were written")
+                raise InputError(f"{self.out}: no frames were written")
             if isinstance(self._sink, CrateSamples):
                 self._sink.close(self._t_min, self._t_max)
             else:

@@ -40,6 +40,7 @@ import numpy as np
 import xxhash
 from pxr import Sdf, Tf, Usd, Vt
 
+from ..errors import InputError, OutputExistsError, Param, output_exists
 from ..files.atomic import atomic_path, check_interrupted
 from ..files.crate import BOOTSTRAP, CrateSamples
 from ..readers.usd import _tf_message
@@ -94,7 +95,7 @@ def bake_lock(out):
     has no such locks (Windows; ``ENOLCK``), nothing is locked."""
     folder = clips_folder(out)
     if folder.exists() and not folder.is_dir():
-        raise NotADirectoryError(f"{folder}: exists and is not a folder")
+        raise NotADirectoryError(errno.ENOTDIR, "exists and is not a folder", str(folder))
     made = not folder.exists()
     folder.mkdir(parents=True, exist_ok=True)
     fd = _lock(folder / LOCK_FILE)
@@ -138,9 +139,10 @@ def _lock(path):
                     pid = f" (pid {int(path.read_text().strip())})"
                 except (OSError, ValueError):
                     pid = ""
-                raise FileExistsError(
+                raise OutputExistsError(
                     f"{path.parent}: another dqskin clip bake{pid} is writing it; let it finish "
-                    "or stop it, then rerun (--resume completes it, --force starts over)") from None
+                    "or stop it, then rerun (", Param("resume", True), " completes it, ",
+                    Param("force", True), " starts over)") from None
             raise
         try:
             st, now = os.fstat(fd), os.stat(path)
@@ -152,7 +154,7 @@ def _lock(path):
         except FileNotFoundError:
             pass
         os.close(fd)  # the run that held it removed it meanwhile: lock the next one
-    raise FileExistsError(f"{path}: removed and made again while locking it; rerun")
+    raise OutputExistsError(f"{path}: removed and made again while locking it; rerun")
 
 
 def clip_frames(scene, frames: int, normals: bool = True, velocities: bool = True,
@@ -206,7 +208,7 @@ def check_outside(out, files, src) -> None:
     for f in sorted(map(str, files)):
         if os.path.exists(f) and inside in Path(f).resolve().parents:
             what = "" if _same_path(f, src) else f" (read by {src})"
-            raise ValueError(f"{f}{what}: inside {clips_folder(out)}, where a clip bake of "
+            raise InputError(f"{f}{what}: inside {clips_folder(out)}, where a clip bake of "
                              f"{Path(out).name} writes; move it out of that folder first")
 
 
@@ -245,7 +247,7 @@ def chunk_bounds(count: int, chunk: int) -> list:
     """``[(lo, hi), ...]``: chunk ``k`` owns frames ``lo..hi-1``; its clip layer holds frames
     ``lo..min(hi, count - 1)`` (the next chunk's first frame too)."""
     if int(chunk) < 1:
-        raise ValueError(f"--chunk {chunk}: must be at least 1")
+        raise InputError(Param("chunk", chunk), ": must be at least 1")
     return [(lo, min(lo + chunk, count)) for lo in range(0, count, chunk)]
 
 
@@ -469,20 +471,20 @@ class ClipBake:
         """True when resuming a bake of this plan; clears an earlier bake when ``force``."""
         plan_file = self.folder / "plan.json"
         if self.folder.exists() and not self.folder.is_dir():
-            raise NotADirectoryError(f"{self.folder}: exists and is not a folder")
+            raise NotADirectoryError(errno.ENOTDIR, "exists and is not a folder", str(self.folder))
         if self.folder.is_dir():  # before anything is removed: a bake would fail on it midway
             layers = [self.clip_path(k) for k in range(len(self.bounds))]
             for p in [plan_file, self.folder / "manifest.usda", *layers,
                       *(q.with_suffix(".json") for q in layers)]:
                 if p.exists() and not p.is_file():  # (a link to a file is one)
-                    raise ValueError(f"{p}: not a file, where this clip bake writes one; move it "
+                    raise InputError(f"{p}: not a file, where this clip bake writes one; move it "
                                      f"out of {self.folder.name}/")
         earlier = plan_file.exists()
         self._check_owner(self.out)
         if earlier and resume and not force:
             if _recorded(self.out, "key") != self.key:
-                raise ValueError(f"{self.folder}: an earlier bake {self._differs()}; rerun it "
-                                 "with those, or use --force to start over")
+                raise InputError(f"{self.folder}: an earlier bake {self._differs()}; rerun it "
+                                 "with those, or use ", Param("force", True), " to start over")
             return True
         if not force:
             self.check_free(self.out)
@@ -515,7 +517,7 @@ class ClipBake:
         if any(old.get(k) != new[k] for k in ("frames", "first", "last", "times_sha256")):
             said.append(f"of {old.get('frames')} frames from {old.get('first'):g} to "
                         f"{old.get('last'):g} (now {new['frames']} from {new['first']:g} to "
-                        f"{new['last']:g}: --frames, --fps, --substeps)")
+                        f"{new['last']:g}: other times selected)")
         if old.get("chunk") != new["chunk"]:
             said.append(f"in chunks of {old.get('chunk')} frames (now {new['chunk']})")
         opts, was = new["options"], old.get("options") or {}
@@ -532,7 +534,7 @@ class ClipBake:
         out, folder = Path(out), clips_folder(out)
         owner = _recorded(out, "out")
         if isinstance(owner, str) and owner != out.name:
-            raise ValueError(f"{folder}: holds the clips of {owner}, another output; bake "
+            raise InputError(f"{folder}: holds the clips of {owner}, another output; bake "
                              f"{out.name} under another name (or remove {owner} and "
                              f"{folder.name}/ first)")
 
@@ -545,8 +547,9 @@ class ClipBake:
             _write_json(plan_file, self.plan, overwrite=False)
         except (FileExistsError, FileNotFoundError):  # (the other run's start-up clears temporary
             # files in the folder, this run's plan being written among them)
-            raise FileExistsError(f"{self.folder}: another clip bake is there or being written; "
-                                  "use --resume to complete it or --force to start over") from None
+            raise OutputExistsError(f"{self.folder}: another clip bake is there or being "
+                                    "written; use ", Param("resume", True), " to complete it or ",
+                                    Param("force", True), " to start over") from None
 
     @staticmethod
     def check_free(out, *, force=False, resume=False):
@@ -558,10 +561,11 @@ class ClipBake:
             return
         out, folder = Path(out), clips_folder(out)
         if out.exists():
-            raise FileExistsError(f"{out}: exists (use --force to overwrite)")
+            raise output_exists(out)
         if (folder / "plan.json").exists():
-            raise FileExistsError(f"{folder}: an unfinished clip bake is there; use --resume to "
-                                  "complete it or --force to start over")
+            raise OutputExistsError(f"{folder}: an unfinished clip bake is there; use ",
+                                    Param("resume", True), " to complete it or ",
+                                    Param("force", True), " to start over")
 
     def abandon(self) -> None:
         """After a failed bake: remove the plan and the manifest when no clip layer is in the
@@ -595,7 +599,7 @@ class ClipBake:
             target.spec(manifest)
         with atomic_path(self.folder / "manifest.usda") as tmp:
             if not manifest.Export(str(tmp)):
-                raise ValueError(f"{self.folder / 'manifest.usda'}: USD could not write it")
+                raise InputError(f"{self.folder / 'manifest.usda'}: USD could not write it")
         return todo
 
     def finish(self) -> Path:
@@ -603,10 +607,10 @@ class ClipBake:
         for k in range(len(self.bounds)):  # in place, of this plan (not a late write of a
             record = _record_of(self.clip_path(k))  # stopped bake's remote worker)
             if not self.clip_path(k).is_file():
-                raise ValueError(f"{self.clip_path(k)}: missing (not written)")
+                raise InputError(f"{self.clip_path(k)}: missing (not written)")
             if record is None or record["plan"] != self.key:
-                raise ValueError(f"{self.clip_path(k)}: its record is missing or of another "
-                                 "bake; rerun with --resume to redo it")
+                raise InputError(f"{self.clip_path(k)}: its record is missing or of another "
+                                 "bake; rerun with ", Param("resume", True), " to redo it")
         layer, t = self.cache.layer, self.times
         with Sdf.ChangeBlock():
             for target in self.targets.values():
@@ -652,26 +656,26 @@ def flatten(src, out, *, overwrite: bool = False) -> Path:
     """
     out = Path(out)
     if out.suffix.lower() not in (".usd", ".usdc", ".usda"):
-        raise ValueError(f"{out}: cannot write extension {out.suffix!r}; use .usd/.usdc/.usda")
+        raise InputError(f"{out}: cannot write extension {out.suffix!r}; use .usd/.usdc/.usda")
     if not Path(src).is_file():
-        raise ValueError(f"{src}: no such file")
+        raise InputError(f"{src}: no such file")
     if out.exists() and not overwrite:  # (checked again when it is claimed)
-        raise FileExistsError(f"{out}: exists (use --force to overwrite)")
+        raise output_exists(out, "overwrite")
     try:
         stage = Usd.Stage.Open(str(src))
     except Tf.ErrorException as exc:
-        raise ValueError(f"{src}: cannot open as USD: {_tf_message(exc)}") from None
+        raise InputError(f"{src}: cannot open as USD: {_tf_message(exc)}") from None
     if stage is None:
-        raise ValueError(f"{src}: cannot open the stage")
+        raise InputError(f"{src}: cannot open the stage")
     try:
         _check_clips(stage, src)
         flat = stage.Flatten()  # opens every clip layer: only then are all the inputs known
     except Tf.ErrorException as exc:
-        raise ValueError(f"{src}: cannot flatten: {_tf_message(exc)}") from None
+        raise InputError(f"{src}: cannot flatten: {_tf_message(exc)}") from None
     for layer in stage.GetUsedLayers():
         real = layer.realPath and layer.realPath.split("[", 1)[0]
         if real and out.exists() and os.path.samefile(real, out):
-            raise ValueError(f"{out}: refusing to overwrite an input of {src}")
+            raise InputError(f"{out}: refusing to overwrite an input of {src}")
     claim = atomic_path(out, overwrite=overwrite)
     try:
         export_layer(flat, claim)
@@ -696,8 +700,9 @@ def _check_clips(stage, src):
                     continue
                 seen.add(where)
                 if not asset.resolvedPath:
-                    raise ValueError(f"{src}: clip layer {asset.path} of {prim.GetPath()} is "
-                                     "missing (for a dqskin clip bake, --resume redoes it)")
+                    raise InputError(f"{src}: clip layer {asset.path} of {prim.GetPath()} is "
+                                     "missing (for a dqskin clip bake, baking again with ",
+                                     Param("resume", True), " redoes it)")
                 path = Path(where)  # (a layer inside a package or elsewhere: no record)
                 record = _record_of(path) if path.is_file() else None
                 if record is None:
@@ -706,9 +711,9 @@ def _check_clips(stage, src):
                     plans[path.parent] = _recorded_in(path.parent, "key")
                 plan = plans[path.parent] or record["plan"]
                 if not verify_chunk(path, plan, record):
-                    raise ValueError(f"{path}: does not match its record {path.stem}.json "
-                                     "(damaged, incomplete or of another bake; dqskin skin ... "
-                                     "--resume redoes it)")
+                    raise InputError(f"{path}: does not match its record {path.stem}.json "
+                                     "(damaged, incomplete or of another bake; baking again "
+                                     "with ", Param("resume", True), " redoes it)")
     if (isinstance(record, dict) and record.get("layer") == path.name
             and isinstance(record.get("plan"), str) and any(a in record for a in _HASHES)):
         return record

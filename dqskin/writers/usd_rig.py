@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError, Param
 from ..files.atomic import atomic_path
 from ..readers import gltf
 from ..readers.usd_xform import XformChain, read_local_to_world
@@ -128,7 +129,7 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
 
     out = Path(out)
     if out.suffix.lower() not in RIG_SUFFIXES:
-        raise ValueError(f"--out {out}: a rig is written as {'/'.join(RIG_SUFFIXES)}")
+        raise InputError(Param("out", out), f": a rig is written as {'/'.join(RIG_SUFFIXES)}")
     times = np.asarray(scene.times, np.float64)
     rate = float(scene.time_codes_per_second)
     codes = times
