@@ -37,7 +37,7 @@ import shutil
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, Literal, Protocol
+from typing import IO, Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -46,7 +46,7 @@ from pxr import Sdf, Tf, Usd, Vt
 
 from ..scene import Scene
 from .atomic import atomic_path, check_interrupted
-from .crate import BOOTSTRAP, CrateSamples
+from .crate import BOOTSTRAP, CrateSamples, Hasher
 from .usd import _tf_message
 from .usd_cache import (
     CLIPS_FOLDER_SUFFIX,
@@ -270,17 +270,7 @@ against tampering. Records of earlier bakes hold ``xxh3_128`` (the whole file in
 ``xxh128sum FILE`` prints it) or ``sha256`` instead, and are verified by that
 (:func:`verify_chunk`)."""
 
-
-
-class _Hash(Protocol):
-    """What :func:`file_checksum` needs of a hash object (hashlib's, xxhash's)."""
-
-    def update(self, data: bytes | memoryview, /) -> None: ...
-
-    def hexdigest(self) -> str: ...
-
-
-_HASHES: dict[str, Callable[[], _Hash]] = {CHECKSUM: xxhash.xxh3_128, "xxh3_128": xxhash.xxh3_128,
+_HASHES: dict[str, Callable[[], Hasher]] = {CHECKSUM: xxhash.xxh3_128, "xxh3_128": xxhash.xxh3_128,
                                            "sha256": hashlib.sha256}
 _BLOCK = 1 << 20
 
