@@ -25,7 +25,7 @@ def as_real(name: str, x: npt.ArrayLike, dtype: npt.DTypeLike | None = None) -> 
     return a if dtype is None else a.astype(dtype, copy=False)
 
 
-def as_array(name: str, x: npt.ArrayLike, dtype: npt.DTypeLike,
+def as_array(name: str, x: npt.ArrayLike, dtype: npt.DTypeLike | None,
              tail: Sequence[int | None]) -> np.ndarray:
     """``x`` as an array of ``dtype`` whose trailing axes are ``tail`` (None: any length).
 
