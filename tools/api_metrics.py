@@ -18,6 +18,7 @@ import importlib.machinery
 import importlib.util
 import inspect
 import json
+import os
 import pkgutil
 import subprocess
 import sys
@@ -65,8 +66,9 @@ def _collect(root):
     tree = str(root.resolve())
 
     def ours(fn):
-        code = getattr(inspect.unwrap(fn), "__code__", None)
-        return code is not None and str(Path(code.co_filename).resolve()).startswith(tree)
+        code = getattr(inspect.unwrap(fn), "__code__", None)  # (generated code: "<string>")
+        return (code is not None and os.path.isabs(code.co_filename)
+                and str(Path(code.co_filename).resolve()).startswith(tree))
 
     def add(fn, bound):
         if ours(fn):
@@ -131,6 +133,8 @@ def main(argv=None):
     for module, annotated in found.values():
         per_module[module][0] += annotated
         per_module[module][1] += 1
+    for module, (a, n) in sorted(per_module.items()):
+        print(f"{module:32s} {a:4d}/{n:<4d}")
     groups = (("dqskin/ (kernels/ excluded)", lambda m: not m.startswith("dqskin.kernels")),
               ("dqskin.kernels", lambda m: m.startswith("dqskin.kernels")),
               ("total", lambda m: True))
