@@ -20,11 +20,24 @@ def _modules():
     return mods
 
 
+def _runtime_nodes(node):
+    """Every node under ``node`` but those in ``if TYPE_CHECKING:`` blocks (imports for
+    annotations only, never executed)."""
+    for child in ast.iter_child_nodes(node):
+        if isinstance(child, ast.If) and ast.unparse(child.test) in ("TYPE_CHECKING",
+                                                                    "typing.TYPE_CHECKING"):
+            yield from (n for part in child.orelse for n in [part, *_runtime_nodes(part)])
+            continue
+        yield child
+        yield from _runtime_nodes(child)
+
+
 def _imports(name, path, mods):
-    """Modules of the package that ``name`` imports (anywhere in the file, lazy imports too)."""
+    """Modules of the package that ``name`` imports when it runs (anywhere in the file, lazy
+    imports too; not those for type annotations only)."""
     out = set()
     package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    for node in _runtime_nodes(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.ImportFrom):
             base = package[:len(package) - node.level + 1] if node.level else []
             target = ".".join(base + ([node.module] if node.module else []))
@@ -55,6 +68,14 @@ def _cycle(graph):
         if node not in state and (found := visit(node)):
             return found
     return None
+
+
+def test_import_scanner_skips_type_checking_imports(tmp_path):
+    src = tmp_path / "m.py"
+    src.write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from . import a\n"
+                   "else:\n    from . import b\n\ndef f():\n    from . import c\n")
+    mods = {f"p.{x}": None for x in "abcm"}
+    assert _imports("p.m", src, mods) == {"p.b", "p.c"}
 
 
 def test_cycle_finder_finds_a_cycle():
