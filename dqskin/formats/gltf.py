@@ -618,7 +618,7 @@ def _checked_document(raw):
     return doc
 
 
-def _glb_chunks(data: bytes):
+def _glb_chunks(data: bytes) -> tuple[bytes, bytes | None]:
     """(JSON chunk, BIN chunk or None) of a GLB container, checked chunk by chunk."""
     if len(data) < 12:
         raise _Invalid(f"GLB header: the file has {len(data)} bytes, fewer than the 12-byte header")
