@@ -65,7 +65,8 @@ def identity(shape: int | Sequence[int] = (), dtype: npt.DTypeLike = np.float64)
     -------
     (*shape, 4) array of ``dtype``
     """
-    batch = (shape,) if isinstance(shape, (int, np.integer)) else tuple(shape)
+    batch = ((shape,) if isinstance(shape, (int, np.integer)) or np.ndim(shape) == 0
+             else tuple(shape))
     q = np.zeros((*batch, 4), dtype=dtype)
     q[..., 0] = 1
     return q
