@@ -115,14 +115,14 @@ class Animation(abc.ABC):
         """
 
 
-def check_times(times, name="times"):
+def check_times(times: npt.ArrayLike, name: str = "times") -> np.ndarray:
     t = np.atleast_1d(np.asarray(times, dtype=np.float64))
     if t.ndim != 1 or not np.all(np.isfinite(t)):
         raise InputError(f"{name}: expected a 1-D array of finite times, got shape {t.shape}")
     return t
 
 
-def _check_interp(interp):
+def _check_interp(interp: str) -> None:
     if interp not in INTERPOLATIONS:
         raise InputError(f"interp must be one of {INTERPOLATIONS}, got {interp!r}")
 
@@ -417,19 +417,19 @@ class KeyedAnimation(Animation):
         self._keys = _Keys(key_times, local, name)
         self.key_times = self._keys.times
 
-    def local_transforms(self, times):
+    def local_transforms(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, J, 4, 4) float64 parent-relative transforms at ``times`` ("trs" interpolation)."""
         return self._keys.local(check_times(times), "trs", derivative=False)[0]
 
 
-def _name(animation):
+def _name(animation: Animation) -> str:
     return getattr(animation, "name", type(animation).__name__)
 
 
-_KEYS_CACHE = weakref.WeakKeyDictionary()
+_KEYS_CACHE: "weakref.WeakKeyDictionary[Animation, _Keys]" = weakref.WeakKeyDictionary()
 
 
-def _keys_of(animation):
+def _keys_of(animation: Animation) -> _Keys:
     """The decomposed key poses of ``animation``, computed once per animation object."""
     if isinstance(animation, KeyedAnimation):
         return animation._keys
@@ -443,7 +443,9 @@ def _keys_of(animation):
     return keys
 
 
-def _motion(animation, times, interp, player=None):
+def _motion(animation: Animation, times: npt.ArrayLike, interp: Interpolation,
+            player: npt.ArrayLike | None = None
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Local transforms, derivatives, DQs and DQ derivatives of ``animation`` at ``times``;
     ``player``: ``animation.local_transforms(times)`` when the caller has it ("trs")."""
     _check_interp(interp)
@@ -594,15 +596,15 @@ def segment_rates(key_times: npt.ArrayLike, values_at: Callable[[int], npt.Array
     """
     kt = np.asarray(key_times, dtype=np.float64)
     t = check_times(times)
-    cache = {}
+    cache: dict[int, np.ndarray] = {}
 
-    def rate(k):
+    def rate(k: int) -> np.ndarray:
         if k not in cache:
             lo, hi = (np.asarray(values_at(i), np.float64) for i in (k, k + 1))
             cache[k] = (hi - lo) / (kt[k + 1] - kt[k])
         return cache[k]
 
-    out = []
+    out: list[np.ndarray | None] = []
     for ti in t:
         if kt.shape[0] < 2 or ti < kt[0] or ti > kt[-1]:
             out.append(None)

@@ -96,7 +96,7 @@ def bone_segments(skeleton: Skeleton, *, end_sites: list | None = None,
     scale = max(float(np.ptp(pos, axis=0).max()), 1e-12)
     tiny = 1e-6 * scale
     heads, tails, owner = [], [], []
-    tips = {}
+    tips: dict[int, list[np.ndarray]] = {}
     for j, off in end_sites or []:
         tips.setdefault(int(j), []).append((bind[j] @ np.append(np.asarray(off, float), 1.0))[:3])
     deforming = range(J) if joints is None else sorted({int(j) for j in np.ravel(joints)})
@@ -167,7 +167,7 @@ def _heat_sources(points, faces, heads, tails, visibility, device):
     d = resolve_device(device)
     V, B = points.shape[0], heads.shape[0]
     diag = float(np.linalg.norm(np.ptp(points, axis=0))) or 1.0
-    pts = wp.array(points.astype(np.float32), dtype=wp.vec3, device=d)
+    pts: wp.array = wp.array(points.astype(np.float32), dtype=wp.vec3, device=d)
     mesh = None
     if visibility and faces.size:
         mesh = wp.Mesh(points=pts, indices=wp.array(faces.astype(np.int32).ravel(), dtype=int,

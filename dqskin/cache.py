@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from .files.atomic import atomic_path
 
@@ -27,7 +28,9 @@ def cache_dir() -> Path:
     return (Path(xdg) if xdg else Path.home() / ".cache") / "dqskin"
 
 
-def load(path: str | os.PathLike, expected: dict) -> dict | None:
+def load(path: str | os.PathLike,
+         expected: dict[str, tuple[tuple[int | None, ...], npt.DTypeLike]]
+         ) -> dict[str, np.ndarray] | None:
     """The arrays of the entry at ``path``, or None when it cannot be used.
 
     ``expected`` maps each array name to ``(shape, dtype)``; ``None`` in a shape matches any
@@ -47,12 +50,12 @@ def load(path: str | os.PathLike, expected: dict) -> dict | None:
     return out
 
 
-def store(path: str | os.PathLike, **arrays) -> None:
+def store(path: str | os.PathLike, **arrays: npt.ArrayLike) -> None:
     """Write ``arrays`` as the ``.npz`` entry ``path`` (atomically, replacing an unreadable
     one); a cache that cannot be written (read-only, full) costs a recomputation next time,
     nothing more."""
     try:
         with atomic_path(path, overwrite=True) as tmp:
-            np.savez(tmp, **arrays)
+            np.savez(tmp, allow_pickle=False, **arrays)
     except OSError:
         pass

@@ -38,6 +38,7 @@ import hashlib
 import logging
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from . import cache as _cache
@@ -65,7 +66,7 @@ ALGORITHM_VERSION = 2
 """Part of the cache key: bump when the computed centers change."""
 
 
-def check_faces(faces, vertex_count):
+def check_faces(faces: npt.ArrayLike, vertex_count: int) -> np.ndarray:
     """(T, 3) int64 triangles; ValueError naming ``faces`` for a bad shape, type or index."""
     f = as_real("faces", faces)
     if f.size == 0:
@@ -102,7 +103,7 @@ def _pairs(rows, cols, vals, row_count):
     (row, col_a, col_b, val_a, val_b)."""
     counts = np.bincount(rows, minlength=row_count)
     start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    out = [[] for _ in range(5)]
+    out: list[list[np.ndarray]] = [[] for _ in range(5)]
     m = int(counts.max()) if counts.size else 0
     for a in range(m):
         for b in range(a + 1, m):
@@ -277,9 +278,10 @@ def _compute(points, faces, idx, wts, sigma, subdivide, cluster, device):
                   len(points), terms, cluster)
     types = dict(row_offsets=wp.int32, row_entries=wp.vec2i, row_weights=wp.vec2d,
                  entry_weights=wp.vec2d, entry_areas=wp.float64, entry_moments=wp.vec3d)
-    arrays = {k: wp.array(np.asarray(v, dtype=np.int32 if t in (wp.int32, wp.vec2i) else
-                                     np.float64), dtype=t, device=device)
-              for (k, v), t in zip(plan.items(), types.values())}
+    arrays: dict[str, wp.array] = {
+        k: wp.array(np.asarray(v, dtype=np.int32 if t in (wp.int32, wp.vec2i) else np.float64),
+                    dtype=t, device=device)
+        for (k, v), t in zip(plan.items(), types.values())}
     out = wp.empty(len(plan["row_offsets"]) - 1, dtype=wp.vec4d, device=device)
     KC.centers(sigma=sigma, out=out, device=device, **arrays)
     c = out.numpy()
@@ -298,10 +300,10 @@ def _positive_or_none(name, value, also=""):
     return v
 
 
-def rotation_centers(points, faces, joint_indices, joint_weights, *, sigma: float = SIGMA,
+def rotation_centers(points: npt.ArrayLike, faces: npt.ArrayLike, joint_indices: npt.ArrayLike,
+                     joint_weights: npt.ArrayLike, *, sigma: float = SIGMA,
                      subdivide: float | None = None, cluster: float | str | None = "auto",
-                     cache: bool = True,
-                     device: Device = None) -> np.ndarray:
+                     cache: bool = True, device: Device = None) -> np.ndarray:
     """Optimized centers of rotation of a mesh's vertices (see the module docstring).
 
     Parameters

@@ -46,7 +46,10 @@ References
     (shared/references/004_36c1f3d9accc74fe.txt; no equation numbers).
 """
 
+from collections.abc import Sequence
+
 import numpy as np
+import numpy.typing as npt
 
 from . import dual, quat
 from .errors import InputError
@@ -87,26 +90,26 @@ __all__ = [
 ]
 
 
-def _dq(x, name):
+def _dq(x: npt.ArrayLike, name: str) -> np.ndarray:
     """``x`` as a floating ``(..., 8)`` array; ``ValueError`` naming ``name`` otherwise."""
     return as_float(x, name, 8)
 
 
-def _scale(dq, s):
+def _scale(dq: np.ndarray, s: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """Product of ``dq`` and the dual number ``s = (s0, s1)``: ``s0 r + eps (s0 d + s1 r)``."""
     r, d = dq[..., :4], dq[..., 4:]
     s0, s1 = s[0][..., None], s[1][..., None]
     return concat(s0 * r, s0 * d + s1 * r)
 
 
-def identity(shape=(), dtype=np.float64):
+def identity(shape: int | Sequence[int] = (), dtype: npt.DTypeLike = np.float64) -> np.ndarray:
     """Identity dual quaternions ``[1, 0, 0, 0][0, 0, 0, 0]`` ([K] eq. 24): ``(*shape, 8)`` of
     ``dtype``, the real part :func:`dqskin.quat.identity` (``shape``: int or tuple; batch shape)."""
     r = quat.identity(shape, dtype)
     return concat(r, np.zeros_like(r))
 
 
-def mul(a, b):
+def mul(a: npt.ArrayLike, b: npt.ArrayLike) -> np.ndarray:
     """Product ``a b = r_a r_b + eps (r_a d_b + d_a r_b)`` ([K] eq. 31).
 
     As poses, ``b`` is applied first, then ``a``: ``to_matrix(mul(a, b)) ==
@@ -128,7 +131,7 @@ def mul(a, b):
     return concat(quat.mul(ra, rb), quat.mul(ra, db) + quat.mul(da, rb))
 
 
-def conjugate_quat(dq):
+def conjugate_quat(dq: npt.ArrayLike) -> np.ndarray:
     """Quaternion conjugate ``r* + eps d*`` ([C] eq. 5, first; [K] eq. 32; [MS] eq. 8).
 
     Reverses products, ``(a b)* = b* a*``, and is the inverse of a unit dual
@@ -146,7 +149,7 @@ def conjugate_quat(dq):
     return concat(quat.conjugate(dq[..., :4]), quat.conjugate(dq[..., 4:]))
 
 
-def conjugate_dual(dq):
+def conjugate_dual(dq: npt.ArrayLike) -> np.ndarray:
     """Dual-number conjugate ``r - eps d`` ([C] eq. 5, second; [MS] sec. 3).
 
     Parameters
@@ -161,7 +164,7 @@ def conjugate_dual(dq):
     return concat(dq[..., :4], -dq[..., 4:])
 
 
-def conjugate_both(dq):
+def conjugate_both(dq: npt.ArrayLike) -> np.ndarray:
     """Combined conjugate ``r* - eps d*`` ([C] eq. 5, third; [MS] eq. 18).
 
     A point ``p`` maps as ``1 + eps p' = dq (1 + eps p) conjugate_both(dq)``.
@@ -178,7 +181,7 @@ def conjugate_both(dq):
     return concat(quat.conjugate(dq[..., :4]), -quat.conjugate(dq[..., 4:]))
 
 
-def norm(dq):
+def norm(dq: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Dual-number norm ``|dq| = |r| + eps (r . d)/|r|`` ([MS] eq. 11-12).
 
     Multiplicative: ``|a b| = |a| |b|`` as dual numbers ([MS] eq. 13). A unit
@@ -204,7 +207,7 @@ def norm(dq):
     return dual.sqrt((norm2, 2 * quat.dot(r, d)))
 
 
-def normalize(dq):
+def normalize(dq: npt.ArrayLike) -> np.ndarray:
     """Project onto the unit dual quaternions: ``|dq|^-1 dq`` ([MS] eq. 14).
 
     The result has ``|r| = 1`` and satisfies the Plücker condition ``r . d = 0``.
@@ -233,7 +236,7 @@ def normalize(dq):
     return _scale(dq, dual.div((np.ones_like(n[0]), np.zeros_like(n[1])), n))
 
 
-def inverse(dq):
+def inverse(dq: npt.ArrayLike) -> np.ndarray:
     """Multiplicative inverse ``r^-1 - eps r^-1 d r^-1`` ([MS] eq. 9).
 
     Valid for any dual quaternion with a nonzero real part; for unit ones
@@ -257,7 +260,7 @@ def inverse(dq):
     return concat(r_inv, -quat.mul(quat.mul(r_inv, dq[..., 4:]), r_inv))
 
 
-def inverse_unit(dq):
+def inverse_unit(dq: npt.ArrayLike) -> np.ndarray:
     """Inverse of a unit dual quaternion, its quaternion conjugate ``r* + eps d*`` ([MS] eq. 10).
 
     Parameters
@@ -272,7 +275,7 @@ def inverse_unit(dq):
     return conjugate_quat(dq)
 
 
-def dot(a, b):
+def dot(a: npt.ArrayLike, b: npt.ArrayLike) -> np.ndarray:
     """Dot product of the real parts, ``r_a . r_b`` ([K] Listing 1, ``Dot``).
 
     Its sign tells whether ``a`` and ``b`` lie in the same hemisphere, i.e.
@@ -292,7 +295,7 @@ def dot(a, b):
     return quat.dot(a[..., :4], b[..., :4])
 
 
-def from_rotation(q):
+def from_rotation(q: npt.ArrayLike) -> np.ndarray:
     """Pure rotation ``q + eps 0`` ([K] eq. 27).
 
     Parameters
@@ -313,7 +316,7 @@ def from_rotation(q):
     return concat(q, np.zeros_like(q))
 
 
-def from_translation(t):
+def from_translation(t: npt.ArrayLike) -> np.ndarray:
     """Pure translation ``1 + eps (0, t/2)`` ([K] eq. 28).
 
     Parameters
@@ -331,7 +334,7 @@ def from_translation(t):
     return concat(r, concat(np.zeros_like(t[..., :1]), 0.5 * t))
 
 
-def from_rt(q, t):
+def from_rt(q: npt.ArrayLike, t: npt.ArrayLike) -> np.ndarray:
     """Pose "rotate by ``q``, then translate by ``t``": ``q + eps (1/2) t q``.
 
     [K] eq. 25-26; [MS] eq. 17; [C] eq. 11-14.
@@ -359,7 +362,7 @@ def from_rt(q, t):
     return concat(q, 0.5 * quat.mul(t_quat, q))
 
 
-def to_rt(dq):
+def to_rt(dq: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Rotation and translation of the pose ``normalize(dq)``: ``q = r``, ``t = 2 d r*``.
 
     [K] eq. 29.
@@ -392,7 +395,7 @@ def to_rt(dq):
     return r / np.sqrt(norm2)[..., None], t
 
 
-def from_matrix(m):
+def from_matrix(m: npt.ArrayLike) -> np.ndarray:
     """Unit dual quaternion of a rigid 4x4 transform ([B] "Converting Matrix to Dual Quaternion").
 
     The rotation block goes through :func:`dqskin.quat.from_matrix` (Shepperd's
@@ -413,7 +416,7 @@ def from_matrix(m):
     return from_rt(quat.from_matrix(m[..., :3, :3]), m[..., :3, 3])
 
 
-def to_matrix(dq):
+def to_matrix(dq: npt.ArrayLike) -> np.ndarray:
     """4x4 rigid transform of the pose ``normalize(dq)``.
 
     Rotation block from [K] eq. 7 (see :func:`dqskin.quat.to_matrix`), translation
@@ -441,7 +444,7 @@ def to_matrix(dq):
     return m
 
 
-def transform_point(dq, p):
+def transform_point(dq: npt.ArrayLike, p: npt.ArrayLike) -> np.ndarray:
     """Apply the pose to points: ``p' = r p r* + 2 d r*`` ([MS] eq. 19; [K] eq. 35).
 
     Parameters
@@ -464,7 +467,7 @@ def transform_point(dq, p):
     return quat.rotate(q, as_float(p, "p", 3)) + t
 
 
-def transform_vector(dq, v):
+def transform_vector(dq: npt.ArrayLike, v: npt.ArrayLike) -> np.ndarray:
     """Apply only the rotation of the pose to direction vectors: ``v' = r v r*`` ([K] eq. 5).
 
     Parameters
@@ -486,7 +489,7 @@ def transform_vector(dq, v):
     return quat.rotate(dq[..., :4], as_float(v, "v", 3))
 
 
-def _screw_axis(c, u, s, dv):
+def _screw_axis(c: np.ndarray, u: np.ndarray, s: np.ndarray, dv: np.ndarray) -> np.ndarray:
     """Rotation axis ``u/s``; for ``s = 0`` the direction of ``sign(c) dv``, or ``(1, 0, 0)``.
 
     Shared by :func:`to_screw` and :func:`log` so that both choose the same axis
@@ -498,7 +501,7 @@ def _screw_axis(c, u, s, dv):
     return np.where(s[..., None] > 0, u / safe_s, fallback)
 
 
-def to_screw(dq):
+def to_screw(dq: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Screw parameters ``(theta, d, l, m)`` of ``normalize(dq)`` ([K] eq. 36-37).
 
     The pose is a rotation by ``theta`` about the line with unit direction ``l``
@@ -549,7 +552,8 @@ def to_screw(dq):
     return 2 * half, d, l, m
 
 
-def from_screw(theta, d, l, m):
+def from_screw(theta: npt.ArrayLike, d: npt.ArrayLike, l: npt.ArrayLike,
+               m: npt.ArrayLike) -> np.ndarray:
     """Unit dual quaternion of screw parameters ([K] eq. 38).
 
     ``r = (cos(theta/2), l sin(theta/2))``,
@@ -583,7 +587,7 @@ def from_screw(theta, d, l, m):
     return concat(real, dual_part)
 
 
-def power(dq, t):
+def power(dq: npt.ArrayLike, t: npt.ArrayLike) -> np.ndarray:
     """Power ``dq^t`` via the screw parameters ([K] eq. 39-40).
 
     Scales angle and translation along the screw axis by ``t``:
@@ -613,7 +617,7 @@ def power(dq, t):
     return from_screw(t * theta, t * d, l, m)
 
 
-def sclerp(a, b, t):
+def sclerp(a: npt.ArrayLike, b: npt.ArrayLike, t: npt.ArrayLike) -> np.ndarray:
     """Screw linear interpolation ``a (a^-1 b)^t`` along the shorter path ([K] eq. 41; [MS] eq. 41).
 
     Both inputs are normalized; ``b`` is negated where ``dot(a, b) < 0`` ([K]
@@ -648,7 +652,7 @@ def sclerp(a, b, t):
     return mul(a, power(mul(conjugate_quat(a), b), t))
 
 
-def nlerp(a, b, t):
+def nlerp(a: npt.ArrayLike, b: npt.ArrayLike, t: npt.ArrayLike) -> np.ndarray:
     """Normalized linear interpolation ``normalize(a + (b - a) t)``, shorter path ([K] eq. 44).
 
     Both inputs are normalized and ``b`` is negated where ``dot(a, b) < 0``.
@@ -680,7 +684,7 @@ def nlerp(a, b, t):
     return normalize(a + (b - a) * t)
 
 
-def dlb(dqs, weights):
+def dlb(dqs: npt.ArrayLike, weights: npt.ArrayLike) -> np.ndarray:
     """Dual quaternion linear blending ``normalize(sum_k w_k s_k dq_k)`` ([B] DLB; [K] "DLB").
 
     Antipodality: every ``dq_k`` is multiplied by ``s_k = +-1`` so that its real
@@ -726,7 +730,7 @@ def dlb(dqs, weights):
     return normalize(np.sum((weights * signs)[..., None] * dqs, axis=-2))
 
 
-def exp(xi):
+def exp(xi: npt.ArrayLike) -> np.ndarray:
     """Dual quaternion exponential ``sum_k xi^k / k!`` ([MS] eq. 39), closed form ([MS] eq. 43-44).
 
     For a vector dual quaternion ``xi = (0, a theta, 0, u)`` (unit ``a``), with
@@ -758,7 +762,7 @@ def exp(xi):
     return _scale(concat(real, dual_part), scalar)
 
 
-def log(dq):
+def log(dq: npt.ArrayLike) -> np.ndarray:
     """Principal dual quaternion logarithm ([MS] eq. 46-48).
 
     For a unit ``dq = c + s a + eps (x + y1 a + y2 b)`` (``a``, ``b``
@@ -805,7 +809,7 @@ def log(dq):
     return concat(concat(scalar[0][..., None], phi * a), concat(scalar[1][..., None], dual_vec))
 
 
-def exp_twist(omega, v):
+def exp_twist(omega: npt.ArrayLike, v: npt.ArrayLike) -> np.ndarray:
     """Pose after unit time of constant body twist ``(omega, v)``: ``exp(omega/2 + eps v/2)``.
 
     [MS] eq. 26, 40.
@@ -832,7 +836,7 @@ def exp_twist(omega, v):
     return exp(concat(zero, 0.5 * omega, zero, 0.5 * v))
 
 
-def lie_difference(a, b):
+def lie_difference(a: npt.ArrayLike, b: npt.ArrayLike) -> np.ndarray:
     """Twist taking pose ``a`` to pose ``b`` in unit time: ``log(a^-1 b)``.
 
     Satisfies ``mul(a, exp(lie_difference(a, b))) == b``. This is the exact
@@ -858,7 +862,8 @@ def lie_difference(a, b):
     return log(mul(inverse(_dq(a, "a")), _dq(b, "b")))
 
 
-def twist(eta, eta_dot, frame="body"):
+def twist(eta: npt.ArrayLike, eta_dot: npt.ArrayLike,
+          frame: str = "body") -> tuple[np.ndarray, np.ndarray]:
     """Angular and linear velocity of a moving pose ([MS] eq. 25-26).
 
     ``frame="body"``: ``phi = eta^-1 eta_dot = omega/2 + eps v/2`` ([MS] eq.
@@ -901,7 +906,7 @@ def twist(eta, eta_dot, frame="body"):
     return 2 * phi[..., 1:4], 2 * phi[..., 5:8]
 
 
-def wrench(torque, force):
+def wrench(torque: npt.ArrayLike, force: npt.ArrayLike) -> np.ndarray:
     """Wrench dual quaternion ``2 q + 2 eps p`` ([MS] eq. 27).
 
     ``q`` is the torque and ``p`` the force applied at the origin of the moving

@@ -11,12 +11,16 @@ References
     Graphics and Beyond", 2012 (shared/references/000_e688072581e8ee3b.txt).
 """
 
+from collections.abc import Callable
+
 import numpy as np
+import numpy.typing as npt
 
 __all__ = ["add", "mul", "div", "sqrt", "apply"]
 
 
-def add(x, y):
+def add(x: tuple[npt.ArrayLike, npt.ArrayLike],
+        y: tuple[npt.ArrayLike, npt.ArrayLike]) -> tuple[np.ndarray, np.ndarray]:
     """Sum ``(a + eps b) + (c + eps d) = (a + c) + eps (b + d)`` ([K] eq. 19).
 
     ``x``, ``y``: (real, dual) pairs of array_like; returns a (real, dual) tuple of arrays.
@@ -24,7 +28,8 @@ def add(x, y):
     return (np.add(x[0], y[0]), np.add(x[1], y[1]))
 
 
-def mul(x, y):
+def mul(x: tuple[npt.ArrayLike, npt.ArrayLike],
+        y: tuple[npt.ArrayLike, npt.ArrayLike]) -> tuple[np.ndarray, np.ndarray]:
     """Product ``(a + eps b)(c + eps d) = a c + eps (a d + b c)`` ([K] eq. 20).
 
     ``x``, ``y``: (real, dual) pairs of array_like; returns a (real, dual) tuple of arrays.
@@ -34,7 +39,8 @@ def mul(x, y):
     return (np.multiply(a, c), np.multiply(a, d) + np.multiply(b, c))
 
 
-def div(x, y):
+def div(x: tuple[npt.ArrayLike, npt.ArrayLike],
+        y: tuple[npt.ArrayLike, npt.ArrayLike]) -> tuple[np.ndarray, np.ndarray]:
     """Quotient ``(a + eps b)/(c + eps d) = a/c + eps (b c - a d)/c^2`` ([K] eq. 21).
 
     Parameters
@@ -51,7 +57,8 @@ def div(x, y):
     return (np.divide(a, c), np.divide(np.multiply(b, c) - np.multiply(a, d), np.multiply(c, c)))
 
 
-def apply(f, df, x):
+def apply(f: Callable[[npt.ArrayLike], np.ndarray], df: Callable[[npt.ArrayLike], np.ndarray],
+          x: tuple[npt.ArrayLike, npt.ArrayLike]) -> tuple[np.ndarray, np.ndarray]:
     """Extend a real function to dual numbers: ``f(a + eps b) = f(a) + eps b f'(a)`` ([K] eq. 23).
 
     Parameters
@@ -68,7 +75,7 @@ def apply(f, df, x):
     return (f(a), np.multiply(b, df(a)))
 
 
-def sqrt(x):
+def sqrt(x: tuple[npt.ArrayLike, npt.ArrayLike]) -> tuple[np.ndarray, np.ndarray]:
     """Square root ``sqrt(a + eps b) = sqrt(a) + eps b / (2 sqrt(a))`` ([K] eq. 23).
 
     Parameters

@@ -16,6 +16,7 @@ import contextlib
 import os
 import signal
 import sys
+from collections.abc import Iterator
 
 __all__ = ["PRELOAD", "dask_config", "freeze_heap", "keep_freed_memory", "prestart_workers",
            "stop_workers"]
@@ -37,7 +38,7 @@ worker waiting for the GIL, the profiler's thread among them while each chunk's 
 threads exited (not confirmed as the cause: too rare to reproduce at will)."""
 
 
-def _distributed_defaults():
+def _distributed_defaults() -> None:
     """Add ``distributed``'s default settings to Dask's config without importing it (what
     ``distributed.config`` does on import; it is then imported all the same, for the cluster);
     no-op when it is imported or its YAML file is not where it keeps it."""
@@ -96,7 +97,7 @@ def keep_freed_memory() -> bool:
     if not sys.platform.startswith("linux"):
         return False
     try:
-        if not os.confstr("CS_GNU_LIBC_VERSION").startswith("glibc"):
+        if not (os.confstr("CS_GNU_LIBC_VERSION") or "").startswith("glibc"):  # None: unknown
             return False
         import ctypes
         mallopt = ctypes.CDLL(None).mallopt
@@ -127,7 +128,7 @@ def freeze_heap() -> None:
     gc.freeze()
 
 
-def dask_config() -> dict:
+def dask_config() -> dict[str, object]:
     """The Dask settings a LocalCluster bake runs under (:data:`_CONFIG`), with the forkserver's
     preload made :data:`PRELOAD` (Dask sets its own list once per process, on first use; this
     call makes that happen first, then replaces it). Imports ``distributed``."""
@@ -171,19 +172,19 @@ def prestart_workers() -> None:
             os.environ.pop(k, None)
 
 
-_own_forkservers = set()
+_own_forkservers: set[int] = set()
 """Pids of the forkservers dqskin started (:func:`prestart_workers`, a LocalCluster bake): the
 only ones :func:`stop_workers` stops. multiprocessing has one forkserver per process, shared with
 whatever else in it uses the ``forkserver`` start method."""
 
 
-def _forkserver_pid():
+def _forkserver_pid() -> int | None:
     fs = sys.modules.get("multiprocessing.forkserver")
     return getattr(getattr(fs, "_forkserver", None), "_forkserver_pid", None)
 
 
 @contextlib.contextmanager
-def owning_forkserver():
+def owning_forkserver() -> Iterator[None]:
     """Count a forkserver started inside the block as dqskin's (not one running before it)."""
     before = _forkserver_pid()
     try:

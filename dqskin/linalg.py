@@ -3,6 +3,7 @@ polar split, safe normalization. Their float32 device counterparts are in
 :mod:`dqskin.kernels.dqmath`."""
 
 import numpy as np
+import numpy.typing as npt
 
 from .errors import InputError
 
@@ -16,7 +17,7 @@ NEWTON_STEPS = 3
 → rounding."""
 
 
-def hat(w):
+def hat(w: np.ndarray) -> np.ndarray:
     """(..., 3) → (..., 3, 3) cross-product matrices ``[w]×`` ([MS] eq. 21)."""
     z = np.zeros_like(w[..., 0])
     return np.stack([np.stack([z, -w[..., 2], w[..., 1]], -1),
@@ -24,7 +25,7 @@ def hat(w):
                      np.stack([-w[..., 1], w[..., 0], z], -1)], -2)
 
 
-def vee(k):
+def vee(k: np.ndarray) -> np.ndarray:
     """Axial vector of the skew-symmetric part of (..., 3, 3) ``k``."""
     return 0.5 * np.stack([k[..., 2, 1] - k[..., 1, 2], k[..., 0, 2] - k[..., 2, 0],
                            k[..., 1, 0] - k[..., 0, 1]], -1)
@@ -41,7 +42,7 @@ def _cofactors(x):
     return c, a00 * c[0] + a01 * c[1] + a02 * c[2]
 
 
-def polar(a):
+def polar(a: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Polar split ``a = R·S`` of (..., 3, 3) float64: ``R`` proper rotation, ``S`` symmetric.
 
     As the skinning and FK kernels (``GfMatrix4d::Factor``): ``R = U·Vᵀ`` from the SVD, negated
@@ -74,7 +75,7 @@ def polar(a):
     return r, np.swapaxes(r, -1, -2) @ a
 
 
-def nonzero_norm2(q, name):
+def nonzero_norm2(q: np.ndarray, name: str) -> np.ndarray:
     """Squared norm of ``q`` (shape ``(...)``); raise ``ValueError`` if any is zero."""
     n2 = np.sum(q * q, axis=-1)
     if np.any(n2 == 0):
@@ -82,7 +83,7 @@ def nonzero_norm2(q, name):
     return n2
 
 
-def unit_or_x(v):
+def unit_or_x(v: np.ndarray) -> np.ndarray:
     """Normalize 3-vectors ``v`` (..., 3); zero vectors become the x axis ``(1, 0, 0)``."""
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     x_axis = np.zeros_like(v)

@@ -14,10 +14,11 @@ present, else CPU) in float32; sums, ring moments and ratios are taken in float6
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from . import quat
-from ._warp import resolve_device
+from ._warp import Device, resolve_device
 from .errors import InputError
 from .influences import Influences
 from .kernels import metrics as K
@@ -39,11 +40,12 @@ def _floats(shape, device):
     return wp.empty(shape, dtype=float, device=device)
 
 
-def _result(a, batched):
+def _result(a: np.ndarray, batched: bool) -> np.ndarray:
     return a if batched else a[0]
 
 
-def volume(points, faces, *, device=None):
+def volume(points: npt.ArrayLike, faces: npt.ArrayLike, *,
+           device: Device = None) -> float | np.ndarray:
     """Signed volume enclosed by a triangle mesh (divergence theorem).
 
     ``V = Σ_t (a−o)·((b−o)×(c−o)) / 6`` over the triangles, with ``o`` the frame's bounding-box
@@ -99,7 +101,8 @@ def _closure_problem(faces, points):
     return None
 
 
-def volume_ratio(points, rest_points, faces, *, device=None):
+def volume_ratio(points: npt.ArrayLike, rest_points: npt.ArrayLike, faces: npt.ArrayLike, *,
+                 device: Device = None) -> tuple[float | np.ndarray | None, str | None]:
     """Enclosed volume relative to the rest volume, for closed meshes.
 
     Parameters
@@ -126,7 +129,7 @@ def volume_ratio(points, rest_points, faces, *, device=None):
     problem = _closure_problem(f, rest[0])
     if problem:
         return None, problem
-    rest_volume = volume(rest[0], f, device=device)
+    rest_volume = float(volume(rest[0], f, device=device))  # one frame: a float
     scale = np.ptp(rest[0], axis=0).max() if rest.shape[1] else 0.0
     if not abs(rest_volume) > 1e-9 * scale ** 3:
         return None, f"rest volume is zero ({rest_volume:g})"
@@ -134,7 +137,7 @@ def volume_ratio(points, rest_points, faces, *, device=None):
     return volume(points, f, device=device) / rest_volume, None
 
 
-def mesh_edges(faces):
+def mesh_edges(faces: npt.ArrayLike) -> np.ndarray:
     """Unique undirected edges of a triangle mesh.
 
     Parameters
@@ -154,7 +157,8 @@ def mesh_edges(faces):
     return np.unique(e, axis=0).astype(np.int32)
 
 
-def edge_strain(points, rest_points, edges, *, device=None):
+def edge_strain(points: npt.ArrayLike, rest_points: npt.ArrayLike, edges: npt.ArrayLike, *,
+                device: Device = None) -> np.ndarray:
     """Engineering strain of each edge, ``|p_a − p_b| / |r_a − r_b| − 1``.
 
     Parameters
@@ -184,7 +188,8 @@ def edge_strain(points, rest_points, edges, *, device=None):
     return _result(strain.numpy(), batched)
 
 
-def vertex_distance(points, reference_points, *, device=None):
+def vertex_distance(points: npt.ArrayLike, reference_points: npt.ArrayLike, *,
+                    device: Device = None) -> np.ndarray:
     """Distance between corresponding vertices, e.g. of two skinning methods' results.
 
     Parameters
@@ -217,8 +222,9 @@ PAIR_SHARE = 0.9
 region (:func:`dominant_pair_regions`): a third joint moving the rest would distort its ring."""
 
 
-def dominant_pair_regions(joint_indices, joint_weights, parents, *, min_weight=0.05,
-                          min_pair=PAIR_SHARE):
+def dominant_pair_regions(joint_indices: npt.ArrayLike, joint_weights: npt.ArrayLike,
+                          parents: npt.ArrayLike, *, min_weight: float = 0.05,
+                          min_pair: float = PAIR_SHARE) -> tuple[np.ndarray, np.ndarray]:
     """Assign vertices to the joint they bend around: the vertex's two largest weights belong to a
     joint ``j`` and its parent, the smaller of the two is at least ``min_weight`` and together
     they hold at least ``min_pair`` of the vertex's total weight (other joints barely move it).
@@ -265,8 +271,9 @@ RING_WIDTH = 1 / 32
 shares within ``RING_WIDTH / 2`` of ``k · RING_WIDTH`` (so the share ½ is a ring centre)."""
 
 
-def joint_rings(joint_indices, joint_weights, parents, *, ring_width=RING_WIDTH, min_weight=0.05,
-                min_pair=PAIR_SHARE):
+def joint_rings(joint_indices: npt.ArrayLike, joint_weights: npt.ArrayLike, parents: npt.ArrayLike,
+                *, ring_width: float = RING_WIDTH, min_weight: float = 0.05,
+                min_pair: float = PAIR_SHARE) -> tuple[np.ndarray, np.ndarray]:
     """Cut each joint's region into rings of equal weight share: the level sets of the blend.
 
     A vertex belongs to joint ``j`` when its two largest weights are ``j`` and ``j``'s parent
@@ -347,7 +354,9 @@ def _ring_moments(points, rings, members, count):
     return centroid, cov, n, d
 
 
-def ring_sections(rest_points, points, rings, ring_count, *, min_vertices=4, min_radius=0.25):
+def ring_sections(rest_points: npt.ArrayLike, points: npt.ArrayLike, rings: npt.ArrayLike,
+                  ring_count: int, *, min_vertices: int = 4,
+                  min_radius: float = 0.25) -> RingSections:
     """Cross-section and bulge of vertex rings (e.g. :func:`joint_rings`), measured in each
     ring's own frame: both measures are invariant to any rigid motion of the ring.
 
@@ -416,7 +425,7 @@ def ring_sections(rest_points, points, rings, ring_count, *, min_vertices=4, min
     return RingSections(section_ratio=section, bulge_ratio=bulge, vertex_ratio=vertex_ratio)
 
 
-def bone_directions(bind_positions, parents):
+def bone_directions(bind_positions: npt.ArrayLike, parents: npt.ArrayLike) -> np.ndarray:
     """Unit bind-space direction of the bone each joint drives: toward the mean of its
     children's positions, or along its parent bone for a leaf (zero for a lone root).
 
@@ -445,7 +454,8 @@ def bone_directions(bind_positions, parents):
     return np.divide(d, norm, out=np.zeros_like(d), where=norm > 0)
 
 
-def joint_bend_twist(skinning_transforms, bind_positions, parents):
+def joint_bend_twist(skinning_transforms: npt.ArrayLike, bind_positions: npt.ArrayLike,
+                     parents: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Bend and twist of each joint relative to its parent, in degrees.
 
     The relative rotation ``R = R_parent⁻¹ R_joint`` of the skinning transforms' rotations (their
@@ -489,7 +499,7 @@ value (:func:`worst`): the volume ratio furthest from 1, the smallest section ra
 bulge ratio."""
 
 
-def worst(metric, values):
+def worst(metric: str, values: npt.ArrayLike) -> tuple[int, float] | None:
     """The worst finite value of a metric.
 
     Parameters

@@ -20,6 +20,7 @@ keys).
 References: [K] and [MS] as in :mod:`dqskin.animation`.
 """
 
+from collections.abc import Callable
 from typing import Literal
 
 import numpy as np
@@ -39,7 +40,7 @@ __all__ = ["forward_kinematics_derivative", "joint_twists", "moved_velocities", 
            "skinned_velocities", "skinning_transforms_with_derivative"]
 
 
-def per_second(rate: float, *derivatives):
+def per_second(rate: float, *derivatives: npt.ArrayLike | None) -> tuple[np.ndarray | None, ...]:
     """Each of ``derivatives`` (per unit of animation time; None stays None) times ``rate``
     (time units per second), in its own float dtype. Skinned velocities are linear in the
     derivatives of the joints and of the rest points, so scaling those inputs before the kernel
@@ -47,17 +48,18 @@ def per_second(rate: float, *derivatives):
     return tuple(None if d is None else np.asarray(d) * rate for d in derivatives)
 
 
-def moved_velocities(v, out, out_rate, rate, skinned_points):
+def moved_velocities(v: npt.ArrayLike, out: np.ndarray, out_rate: np.ndarray | None, rate: float,
+                     skinned_points: Callable[[], np.ndarray]) -> np.ndarray:
     """(F, V, 3) float32 velocities per second in a moving output space: ``O·v + rate·(Ȯ·p +
     ȯ)`` for per-second ``v`` (F, V, 3) in skeleton space, output transforms ``out`` (F, 4, 4),
     their derivatives per unit of time ``out_rate`` and ``skinned_points()`` (called only when
     the output transform moves) the skinned points ``p`` in skeleton space."""
-    v = np.einsum("fij,fvj->fvi", out[:, :3, :3], np.asarray(v, dtype=np.float64))
+    moved = np.einsum("fij,fvj->fvi", out[:, :3, :3], np.asarray(v, dtype=np.float64))
     if out_rate is not None and np.any(out_rate):
         p = skinned_points()
-        v += rate * (np.einsum("fij,fvj->fvi", out_rate[:, :3, :3], p)
+        moved += rate * (np.einsum("fij,fvj->fvi", out_rate[:, :3, :3], p)
                      + out_rate[:, None, :3, 3])
-    return v.astype(np.float32)
+    return moved.astype(np.float32)
 
 
 def forward_kinematics_derivative(parents: npt.ArrayLike, local: npt.ArrayLike,

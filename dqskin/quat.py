@@ -16,7 +16,10 @@ References
     to Study Kinematics", 2023 (shared/references/003_d8d7d9932a992693.txt).
 """
 
+from collections.abc import Sequence
+
 import numpy as np
+import numpy.typing as npt
 
 from .errors import InputError
 from .linalg import nonzero_norm2, unit_or_x
@@ -49,7 +52,7 @@ __all__ = [
 
 
 
-def identity(shape=(), dtype=np.float64):
+def identity(shape: int | Sequence[int] = (), dtype: npt.DTypeLike = np.float64) -> np.ndarray:
     """Identity quaternions ``(1, 0, 0, 0)``.
 
     Parameters
@@ -63,13 +66,14 @@ def identity(shape=(), dtype=np.float64):
     -------
     (*shape, 4) array of ``dtype``
     """
-    shape = (shape,) if np.ndim(shape) == 0 else tuple(shape)
-    q = np.zeros((*shape, 4), dtype=dtype)
+    batch = ((shape,) if isinstance(shape, (int, np.integer)) or np.ndim(shape) == 0
+             else tuple(shape))
+    q = np.zeros((*batch, 4), dtype=dtype)
     q[..., 0] = 1
     return q
 
 
-def mul(a, b):
+def mul(a: npt.ArrayLike, b: npt.ArrayLike) -> np.ndarray:
     """Hamilton product ``a b`` ([K] eq. 9).
 
     As rotations, ``mul(a, b)`` applies ``b`` first, then ``a``.
@@ -98,7 +102,7 @@ def mul(a, b):
     )
 
 
-def conjugate(q):
+def conjugate(q: npt.ArrayLike) -> np.ndarray:
     """Conjugate ``q* = (w, -x, -y, -z)`` ([K] eq. 6).
 
     Parameters
@@ -113,7 +117,7 @@ def conjugate(q):
     return np.concatenate([q[..., :1], -q[..., 1:]], axis=-1)
 
 
-def inverse(q):
+def inverse(q: npt.ArrayLike) -> np.ndarray:
     """Multiplicative inverse ``q* / |q|^2`` ([MS] sec. 2); ``q*`` for unit ``q`` ([K] eq. 10).
 
     Parameters
@@ -133,7 +137,7 @@ def inverse(q):
     return conjugate(q) / nonzero_norm2(q, "q")[..., None]
 
 
-def dot(a, b):
+def dot(a: npt.ArrayLike, b: npt.ArrayLike) -> np.ndarray:
     """Four-dimensional inner product ``Re(a b*)`` ([MS] eq. 5).
 
     Parameters
@@ -149,7 +153,7 @@ def dot(a, b):
     return np.sum(a * b, axis=-1)
 
 
-def norm(q):
+def norm(q: npt.ArrayLike) -> np.ndarray:
     """Euclidean norm ``|q| = sqrt(q q*)`` ([MS] sec. 2).
 
     Parameters
@@ -164,7 +168,7 @@ def norm(q):
     return np.sqrt(np.sum(q * q, axis=-1))
 
 
-def normalize(q):
+def normalize(q: npt.ArrayLike) -> np.ndarray:
     """Unit quaternion ``q / |q|`` ([K] eq. 45).
 
     Parameters
@@ -184,7 +188,7 @@ def normalize(q):
     return q / np.sqrt(nonzero_norm2(q, "q"))[..., None]
 
 
-def rotate(q, v):
+def rotate(q: npt.ArrayLike, v: npt.ArrayLike) -> np.ndarray:
     """Rotate 3-vectors: ``q v q^-1`` ([K] eq. 5).
 
     ``q`` need not be unit: the result is the rotation by ``q / |q|``.
@@ -214,7 +218,7 @@ def rotate(q, v):
     return v + scale * (w * uv + np.cross(u, uv))
 
 
-def from_axis_angle(axis, angle):
+def from_axis_angle(axis: npt.ArrayLike, angle: npt.ArrayLike) -> np.ndarray:
     """Quaternion ``(cos(angle/2), axis sin(angle/2))`` ([K] eq. 3).
 
     Parameters
@@ -243,7 +247,7 @@ def from_axis_angle(axis, angle):
     return concat(np.cos(half), np.sin(half) * axis / n[..., None])
 
 
-def to_axis_angle(q):
+def to_axis_angle(q: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Axis and angle of the rotation represented by ``q`` ([K] eq. 4).
 
     ``q`` and ``-q`` give the same result: the angle is in ``[0, pi]``. The
@@ -269,7 +273,7 @@ def to_axis_angle(q):
     return unit_or_x(u), 2 * np.arctan2(s, q[..., 0])
 
 
-def from_matrix(m):
+def from_matrix(m: npt.ArrayLike) -> np.ndarray:
     """Unit quaternion of a rotation matrix (Shepperd's method).
 
     Of the four equivalent formulas for ``q`` (one per quaternion component),
@@ -312,7 +316,7 @@ def from_matrix(m):
     return normalize(q)
 
 
-def to_matrix(q):
+def to_matrix(q: npt.ArrayLike) -> np.ndarray:
     """Rotation matrix of ``q``, column-vector convention ``v' = R @ v`` ([K] eq. 7).
 
     [K] eq. 7 as printed has sign errors in its off-diagonal terms; this is the
@@ -344,7 +348,7 @@ def to_matrix(q):
     return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
 
 
-def exp(q):
+def exp(q: npt.ArrayLike) -> np.ndarray:
     """Quaternion exponential ``e^w (cos|v|, v/|v| sin|v|)`` ([K] eq. 14).
 
     For a pure quaternion ``(0, a theta)`` with unit ``a`` this is
@@ -366,7 +370,7 @@ def exp(q):
     return e * np.concatenate([np.cos(theta), np.sinc(theta / np.pi) * u], axis=-1)
 
 
-def log(q):
+def log(q: npt.ArrayLike) -> np.ndarray:
     """Principal quaternion logarithm ``(ln|q|, v/|v| atan2(|v|, w))`` (inverse of [K] eq. 14).
 
     ``exp(log(q)) == q`` for every nonzero ``q``; the vector part has length in
@@ -394,7 +398,7 @@ def log(q):
     return concat(0.5 * np.log(n2)[..., None], theta * unit_or_x(u))
 
 
-def slerp(q0, q1, t):
+def slerp(q0: npt.ArrayLike, q1: npt.ArrayLike, t: npt.ArrayLike) -> np.ndarray:
     """Spherical linear interpolation along the shorter arc ([K] eq. 17).
 
     Both inputs are normalized; ``q1`` is negated where ``dot(q0, q1) < 0`` so

@@ -14,10 +14,12 @@ says how to fix it (``scale``: multiply the skeleton's lengths).
 import os
 import zipfile
 import zlib
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from ._warp import Device
 from .autoweights import automatic_weights
@@ -26,6 +28,7 @@ from .influences import check_influences
 from .readers import bvh
 from .readers.mesh import load_mesh
 from .scene import Mesh, Scene
+from .skinning import Method
 
 __all__ = ["WEIGHT_FIELDS", "check_fit", "read_weights", "replace_weights", "rig_mesh",
            "skinned_difference"]
@@ -37,7 +40,7 @@ _SIZE_RATIO = 2.0  # mesh and skeleton heights may differ by up to this factor
 _INSIDE = 0.75  # share of joints that must lie in the mesh's (padded) bounding box
 
 
-def read_weights(path: str | os.PathLike, joint_names: list, vertex_count: int
+def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_count: int
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Influences from an ``.npz`` with :data:`WEIGHT_FIELDS`, re-indexed by joint name into
     ``joint_names`` order: ``(indices (V, K) int32, weights (V, K) float32)``.
@@ -104,7 +107,8 @@ def check_fit(points: np.ndarray, joint_positions: np.ndarray, where: str) -> No
             f"{np.round(mc - sc, 4).tolist()} back onto the skeleton")
 
 
-def rig_mesh(mesh: str | os.PathLike | tuple, skeleton: str | os.PathLike | bvh.BvhMotion, *,
+def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
+             skeleton: str | os.PathLike | bvh.BvhMotion, *,
              weights: str | os.PathLike | None = "auto", scale: float | None = None,
              max_influences: int = 8, cache: bool = True, device: Device = None) -> Scene:
     """Bind a plain mesh in a BVH's rest pose to the BVH's skeleton and motion.
@@ -193,8 +197,9 @@ def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,
     return replace(scene, meshes=meshes, _skinners={})
 
 
-def skinned_difference(reference: Scene, other: Scene, times=None, *, method: str = "lbs",
-                       device: Device = None) -> dict:
+def skinned_difference(reference: Scene, other: Scene, times: npt.ArrayLike | None = None, *,
+                       method: Method = "lbs", device: Device = None
+                       ) -> dict[str, tuple[float, float]]:
     """How far ``other``'s skinned points are from ``reference``'s (the same scene with other
     weights, e.g. from :func:`replace_weights`), as a share of each mesh's height.
 
@@ -205,7 +210,7 @@ def skinned_difference(reference: Scene, other: Scene, times=None, *, method: st
     times = reference.times if times is None else times
     ref = reference.skin(times, method=method, space="skeleton", device=device)
     got = other.skin(times, method=method, space="skeleton", device=device)
-    out = {}
+    out: dict[str, tuple[float, float]] = {}
     for m in reference.meshes:
         g = np.asarray(m.geom_bind_transform, np.float64)
         rest = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]

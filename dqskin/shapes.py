@@ -1,14 +1,17 @@
 """Array shape checks shared by the API: one place that turns user arrays into the shapes the
 engine works with, with errors naming the argument."""
 
+from collections.abc import Sequence
+
 import numpy as np
+import numpy.typing as npt
 
 from .errors import InputError
 
 __all__ = ["as_array", "as_float", "as_real", "concat", "frames_of"]
 
 
-def as_real(name, x, dtype=None):
+def as_real(name: str, x: npt.ArrayLike, dtype: npt.DTypeLike | None = None) -> np.ndarray:
     """``x`` as a real-valued (bool, integer or float) array, of ``dtype`` when given; ValueError
     naming ``name`` for anything else (strings, complex numbers -- never silently truncated to
     their real part --, ragged nesting, objects)."""
@@ -24,7 +27,8 @@ def as_real(name, x, dtype=None):
     return a if dtype is None else a.astype(dtype, copy=False)
 
 
-def as_array(name, x, dtype, tail):
+def as_array(name: str, x: npt.ArrayLike, dtype: npt.DTypeLike | None,
+             tail: Sequence[int | None]) -> np.ndarray:
     """``x`` as an array of ``dtype`` whose trailing axes are ``tail`` (None: any length).
 
     Raises ValueError naming ``name`` with the expected ``(..., tail)`` shape otherwise.
@@ -38,8 +42,9 @@ def as_array(name, x, dtype, tail):
     return a
 
 
-def frames_of(name, a, frames=None, count=None, *, dtype=np.float64, finite=False,
-              broadcast=True):
+def frames_of(name: str, a: npt.ArrayLike, frames: int | None = None, count: int | None = None, *,
+              dtype: npt.DTypeLike = np.float64, finite: bool = False,
+              broadcast: bool = True) -> tuple[np.ndarray, bool]:
     """Per-frame rows of 3-vectors: ``(N, 3)`` or ``(F, N, 3)`` → ``(Fp, N, 3)`` of ``dtype``.
 
     Parameters
@@ -77,7 +82,8 @@ def frames_of(name, a, frames=None, count=None, *, dtype=np.float64, finite=Fals
     return x, batched
 
 
-def as_float(x, name, size=None, dtype=None):
+def as_float(x: npt.ArrayLike, name: str, size: int | None = None,
+             dtype: npt.DTypeLike | None = None) -> np.ndarray:
     """Return ``x`` as a floating array, checking that its last axis has ``size``.
 
     ``dtype`` forces the result dtype (used for scalar parameters); otherwise a
@@ -95,7 +101,7 @@ def as_float(x, name, size=None, dtype=None):
     return x
 
 
-def concat(*parts):
+def concat(*parts: np.ndarray) -> np.ndarray:
     """Concatenate ``(..., n_i)`` arrays along the last axis, broadcasting batch shapes."""
     batch = np.broadcast_shapes(*(p.shape[:-1] for p in parts))
     return np.concatenate([np.broadcast_to(p, batch + p.shape[-1:]) for p in parts], axis=-1)

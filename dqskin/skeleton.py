@@ -2,12 +2,14 @@
 
 import copy
 from collections.abc import Sequence
+from typing import Literal, overload
 
 import numpy as np
 import numpy.typing as npt
 import warp as wp
 
 from ._warp import Device, resolve_device
+from .animation import Animation
 from .errors import InputError
 from .kernels import buffers as KB
 from .kernels import fk as FK
@@ -21,7 +23,7 @@ LocalTransforms = npt.ArrayLike | tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayL
 (..., J, 4) ``(w, x, y, z)``, scales (..., J, 3) or None)."""
 
 
-def check_parents(parents, where="parents"):
+def check_parents(parents: npt.ArrayLike, where: str = "parents") -> np.ndarray:
     """Validate a joint hierarchy: (J,) ints in [-1, J), parents before children, no cycles.
 
     Returns the parents as int32; raises ValueError naming ``where`` and the offending joint. An
@@ -192,7 +194,8 @@ class Skeleton:
     def __init__(self, joint_names: Sequence[str], parents: npt.ArrayLike,
                  bind_transforms: npt.ArrayLike | None = None,
                  rest_transforms: npt.ArrayLike | None = None, *, name: str = "",
-                 world_transform: npt.ArrayLike | None = None, animation=None) -> None:
+                 world_transform: npt.ArrayLike | None = None,
+                 animation: Animation | None = None) -> None:
         self.name = name
         self.animation = animation
         label = name or "skeleton"
@@ -220,18 +223,18 @@ class Skeleton:
                                                    J, self.joint_names)
         self.world_transform = _world_transform(label, world_transform)
 
-    def with_animation(self, animation):
+    def with_animation(self, animation: Animation | None) -> "Skeleton":
         """A copy of this skeleton (sharing its arrays) driven by ``animation``."""
         other = copy.copy(self)
         other.animation = animation
         return other
 
     @property
-    def joint_count(self):
+    def joint_count(self) -> int:
         return int(self.parents.shape[0])
 
     @property
-    def inverse_bind_transforms(self):
+    def inverse_bind_transforms(self) -> np.ndarray:
         """(J, 4, 4) float64 inverses of the bind transforms (ValueError naming the joints whose
         bind transform is singular)."""
         if self._inverse_bind is None:
@@ -239,8 +242,19 @@ class Skeleton:
                                               self.joint_names)
         return self._inverse_bind
 
+    @overload
     def forward_kinematics(self, local_transforms: LocalTransforms | None = None, *,
-                           device: Device = None, return_dq: bool = False):
+                           device: Device = None, return_dq: Literal[False] = False
+                           ) -> np.ndarray: ...
+
+    @overload
+    def forward_kinematics(self, local_transforms: LocalTransforms | None = None, *,
+                           device: Device = None, return_dq: Literal[True]
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+    def forward_kinematics(self, local_transforms: LocalTransforms | None = None, *,
+                           device: Device = None, return_dq: bool = False
+                           ) -> np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World (skeleton-space) joint transforms from local ones.
 
         Parameters
@@ -269,8 +283,18 @@ class Skeleton:
                                          self.joint_names)
         return _results(out, shape, return_dq)
 
+    @overload
     def skinning_transforms(self, local_transforms: LocalTransforms | None = None, *,
-                            device: Device = None, as_warp: bool = False):
+                            device: Device = None, as_warp: Literal[False] = False
+                            ) -> np.ndarray: ...
+
+    @overload
+    def skinning_transforms(self, local_transforms: LocalTransforms | None = None, *,
+                            device: Device = None, as_warp: Literal[True]) -> wp.array: ...
+
+    def skinning_transforms(self, local_transforms: LocalTransforms | None = None, *,
+                            device: Device = None, as_warp: bool = False
+                            ) -> np.ndarray | wp.array:
         """Bind-relative skinning transforms ``world ∘ inverse(bind)``.
 
         Parameters
@@ -296,7 +320,7 @@ class Skeleton:
         inverse_bind = self.inverse_bind_transforms.astype(np.float32)
         poses, shape = _forward_kinematics(self.parents, local, d, joint_names=self.joint_names)
         world = poses.matrices.reshape((-1, self.joint_count))
-        inv = wp.array(inverse_bind, dtype=wp.mat44, device=d)
+        inv: wp.array = wp.array(inverse_bind, dtype=wp.mat44, device=d)
         out = KB.empty(world.shape, wp.mat44, d)
         FK.bind_relative(world=world, inverse_bind=inv, skinning=out, device=d)
         return out if as_warp else out.numpy().reshape(*shape, 4, 4)
@@ -375,15 +399,16 @@ def _forward_kinematics(parents, local_transforms, device, joint_names=None):
     local, batch, given = _local_arrays(local_transforms, J, d, joint_names)
     B = int(np.prod(batch, dtype=np.int64))
     out = FK.world_poses(B * J, d)
-    par_w = wp.array(par, dtype=wp.int32, device=d)
-    start = wp.array(np.array([0, J], np.int32), dtype=wp.int32, device=d)
+    par_w: wp.array = wp.array(par, dtype=wp.int32, device=d)
+    start: wp.array = wp.array(np.array([0, J], np.int32), dtype=wp.int32, device=d)
     FK.forward_kinematics(parents=par_w, skeleton_start=start, local=local, out=out, device=d)
     if given is not None:
         _check_matrices_after(out, given, batch, joint_names)
     return out, batch + (J,)
 
 
-def _results(out, shape, return_dq=False):
+def _results(out: FK.WorldPoses, shape: tuple[int, ...], return_dq: bool = False
+             ) -> np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World matrices (and, with ``return_dq``, dual quaternions and residuals: the identity
     where the kernel flagged a joint rigid) as NumPy arrays of ``shape`` (..., J) joints."""
     w = out.matrices.numpy().reshape(*shape, 4, 4)
@@ -395,8 +420,20 @@ def _results(out, shape, return_dq=False):
     return w, out.dqs.numpy().reshape(*shape, 8), residual
 
 
+@overload
 def forward_kinematics(parents: npt.ArrayLike, local_transforms: LocalTransforms, *,
-                       device: Device = None, return_dq: bool = False):
+                       device: Device = None, return_dq: Literal[False] = False) -> np.ndarray: ...
+
+
+@overload
+def forward_kinematics(parents: npt.ArrayLike, local_transforms: LocalTransforms, *,
+                       device: Device = None, return_dq: Literal[True]
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+def forward_kinematics(parents: npt.ArrayLike, local_transforms: LocalTransforms, *,
+                       device: Device = None, return_dq: bool = False
+                       ) -> np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Forward kinematics for one hierarchy over any batch of poses, in one launch.
 
     The hierarchy is concatenated as dual quaternions; scale and shear ride along as a residual

@@ -8,6 +8,7 @@ asset's time unit (USD time codes, glTF seconds). Ranges are evaluated in decima
 from decimal import Decimal, InvalidOperation
 
 import numpy as np
+import numpy.typing as npt
 
 from .errors import InputError, LimitError, Param
 
@@ -18,7 +19,7 @@ MAX_FRAMES = 100_000
 selection above it is refused before anything is allocated."""
 
 
-def _check_count(count, what, max_frames):
+def _check_count(count: int, what: tuple[str | Param, ...], max_frames: int) -> None:
     """LimitError when ``count`` frames exceed ``max_frames``; ``what`` (message parts) names the
     selection."""
     if count > max_frames:
@@ -26,14 +27,16 @@ def _check_count(count, what, max_frames):
                          f"{max_frames:,}; raise ", Param("max_frames"), " to allow more")
 
 
-def _decimal(text):
+def _decimal(text: str) -> Decimal:
     d = Decimal(text.strip())
     if not d.is_finite():
         raise InvalidOperation
     return d
 
 
-def _range(start, end, step, what=(Param("frames"),), max_frames=MAX_FRAMES):
+def _range(start: Decimal, end: Decimal, step: Decimal,
+           what: tuple[str | Param, ...] = (Param("frames"),),
+           max_frames: int = MAX_FRAMES) -> np.ndarray:
     """Decimal ``start, start + step, …`` up to ``end`` (inclusive within 1e-6 step), as floats;
     counted before anything is allocated."""
     count = int((end - start) / step + Decimal("1e-6")) + 1
@@ -41,7 +44,7 @@ def _range(start, end, step, what=(Param("frames"),), max_frames=MAX_FRAMES):
     return np.array([float(start + k * step) for k in range(count)], dtype=np.float64)
 
 
-def parse_frames(text, default_step=1.0, max_frames=MAX_FRAMES):
+def parse_frames(text: str, default_step: float = 1.0, max_frames: int = MAX_FRAMES) -> np.ndarray:
     """``--frames`` text → times.
 
     Parameters
@@ -81,8 +84,9 @@ def parse_frames(text, default_step=1.0, max_frames=MAX_FRAMES):
     return _range(start, end, step, what, max_frames)
 
 
-def select_times(times, time_codes_per_second, frames=None, fps=None, substeps=1,
-                 max_frames=MAX_FRAMES):
+def select_times(times: npt.ArrayLike, time_codes_per_second: float, frames: str | None = None,
+                 fps: float | None = None, substeps: int = 1,
+                 max_frames: int = MAX_FRAMES) -> np.ndarray:
     """Sample times: the asset's own, an explicit ``--frames`` selection, or ``--fps`` resampling
     (which also sets the default STEP of ``--frames``); ``substeps`` samples per interval
     (motion-blur sub-frames).
@@ -127,7 +131,7 @@ def select_times(times, time_codes_per_second, frames=None, fps=None, substeps=1
     return t
 
 
-def default_frames(times, count=10):
+def default_frames(times: npt.ArrayLike, count: int = 10) -> np.ndarray:
     """Up to ``count`` evenly spaced samples of ``times`` (first and last included).
 
     Parameters
@@ -146,7 +150,7 @@ def default_frames(times, count=10):
     return t[pick]
 
 
-def frame_numbers(times, seconds):
+def frame_numbers(times: npt.ArrayLike, seconds: bool) -> np.ndarray:
     """Integer frame numbers for file names.
 
     Parameters

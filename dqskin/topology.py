@@ -1,13 +1,14 @@
 """Triangle-mesh topology helpers shared by the metrics and the renderer."""
 
 import numpy as np
+import numpy.typing as npt
 
 from .errors import InputError
 
 __all__ = ["check_faces", "incidence"]
 
 
-def check_faces(faces, vertex_count):
+def check_faces(faces: npt.ArrayLike, vertex_count: int) -> np.ndarray:
     """Validate triangles and return them as (T, 3) int32.
 
     Raises ValueError naming ``faces`` for a wrong shape, no faces, non-integer indices or an
@@ -25,7 +26,7 @@ def check_faces(faces, vertex_count):
     return f.astype(np.int32)
 
 
-def incidence(items_of, count):
+def incidence(items_of: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
     """Index → incident items as CSR ``(offsets (count+1,), items)`` int32, from an (N, k) table
     (e.g. faces (T, 3) → for each vertex the faces that use it)."""
     flat = items_of.reshape(-1)

@@ -10,10 +10,18 @@ exactly what ``dqskin skin`` (every writer) and the Python API refuse.
   :meth:`dqskin.Scene.local_transforms` samples them, results with :func:`check_skinned`.
 """
 
-import numpy as np
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, cast
 
+import numpy as np
+import numpy.typing as npt
+
+from ._warp import Device
 from .errors import InputError
 from .shapes import as_real
+
+if TYPE_CHECKING:
+    from .scene import Scene, SkinnedFrames
 
 __all__ = ["FLOAT32_MAX", "check_finite", "check_skinned", "check_transforms", "location",
            "nonnegative_max", "scene_problems", "within_float32"]
@@ -22,7 +30,7 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 """Largest magnitude a value may have to survive the device's float32."""
 
 
-def within_float32(a):
+def within_float32(a: np.ndarray) -> str | None:
     """None when every value of the array is finite and within float32 range, else what is wrong
     ("NaN or infinite", "beyond float32 range"); one pass without temporaries in the common case:
     a contiguous float32 array's sum, or a float64 array's sum of squares, is finite (within
@@ -58,7 +66,7 @@ _BITS = {np.dtype(np.int32): (np.uint32, 1 << 31), np.dtype(np.int64): (np.uint6
 """Unsigned view of a dtype, and the bits from which a value is negative, infinite or NaN."""
 
 
-def nonnegative_max(a):
+def nonnegative_max(a: np.ndarray) -> np.generic | None:
     """The largest value of a non-empty array of numbers when every value is non-negative (and
     finite, for floats), else None (-0.0 included: look closer then). One pass over the bits of a
     contiguous int32/int64/float32/float64 array: as unsigned integers, non-negative finite
@@ -71,10 +79,12 @@ def nonnegative_max(a):
     m = a.view(bits[0]).max()
     if m >= bits[1]:
         return None
-    return np.array(m).view(a.dtype)[()]
+    # a 0-d array indexed by () is a scalar (NumPy's stubs type it as an array)
+    return cast(np.generic, np.array(m).view(a.dtype)[()])
 
 
-def location(index, lead, joint_names=None, times=None):
+def location(index: Sequence[int] | np.ndarray, lead: int, joint_names: Sequence[str] | None = None,
+             times: Sequence[float] | np.ndarray | None = None) -> str:
     """"frame 3, joint 'Hips'" for an index into a (*batch, J, ...) array with ``lead`` batch
     axes ("time 12" with ``times``); a multi-axis batch index is written as a tuple, none is
     left out."""
@@ -88,7 +98,8 @@ def location(index, lead, joint_names=None, times=None):
     return f"frame {frame[0] if len(frame) == 1 else frame}, {joint}"
 
 
-def check_finite(name, a, lead, joint_names=None, times=None):
+def check_finite(name: str, a: np.ndarray, lead: int, joint_names: Sequence[str] | None = None,
+                 times: Sequence[float] | np.ndarray | None = None) -> None:
     """Raise ValueError unless every value of ``a`` (``lead`` batch axes, then joints, then
     components) is finite and fits float32, the device precision.
 
@@ -113,7 +124,8 @@ def check_finite(name, a, lead, joint_names=None, times=None):
                          f"(|x| > {FLOAT32_MAX:.4g})")
 
 
-def check_transforms(name, transforms, joint_names=None, times=None):
+def check_transforms(name: str, transforms: npt.ArrayLike, joint_names: Sequence[str] | None = None,
+                     times: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
     """Raise ValueError unless every entry of ``transforms`` (..., J, 4, 4) is real, finite and
     within float32 range (:func:`check_finite`, the leading axes are frames); returns them as
     float64."""
@@ -122,7 +134,7 @@ def check_transforms(name, transforms, joint_names=None, times=None):
     return x
 
 
-def check_skinned(path, result):
+def check_skinned(path: str, result: "SkinnedFrames") -> None:
     """Raise ValueError if any array of a :class:`dqskin.scene.SkinnedFrames` is not finite (joint
     transforms too large for float32, or degenerate), naming the mesh, the array and the time."""
     for what in ("points", "normals", "velocities"):
@@ -134,14 +146,15 @@ def check_skinned(path, result):
                                  f"{t:g} (joint transforms out of float32 range?)")
 
 
-def scene_problems(scene, times=None, *, skin=True, device=None):
+def scene_problems(scene: "Scene", times: npt.ArrayLike | None = None, *, skin: bool = True,
+                   device: Device = None) -> list[str]:
     """Every problem of ``scene`` at ``times`` (default its own): unusable bind transforms,
     non-finite or out-of-range animated joint transforms, and with ``skin`` non-finite skinned
     results. Returns a list of one-line messages (empty when the scene can be skinned and
     written)."""
     t = scene.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
-    problems = []
-    usable = set()
+    problems: list[str] = []
+    usable: set[int] = set()
     for s, skel in enumerate(scene.skeletons):
         try:
             skel.inverse_bind_transforms  # noqa: B018  (raises for a singular bind pose)

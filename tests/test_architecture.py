@@ -25,6 +25,18 @@ def _modules():
     return mods
 
 
+def _runtime_nodes(node):
+    """Every node under ``node`` but those in ``if TYPE_CHECKING:`` blocks (imports for
+    annotations only, never executed)."""
+    for child in ast.iter_child_nodes(node):
+        if isinstance(child, ast.If) and ast.unparse(child.test) in ("TYPE_CHECKING",
+                                                                    "typing.TYPE_CHECKING"):
+            yield from (n for part in child.orelse for n in [part, *_runtime_nodes(part)])
+            continue
+        yield child
+        yield from _runtime_nodes(child)
+
+
 def _ancestors(module):
     """``module`` and the packages above it: ``a.b.c`` → ``a``, ``a.b``, ``a.b.c``."""
     parts = module.split(".")
@@ -32,7 +44,8 @@ def _ancestors(module):
 
 
 def _imports(name, path, mods):
-    """Modules of the package that ``name`` imports (anywhere in the file, lazy imports too).
+    """Modules of the package that ``name`` imports (anywhere in the file, lazy imports too;
+    not those in ``if TYPE_CHECKING:`` blocks, which never run).
 
     Importing ``a.b.c`` runs ``a/__init__`` and ``a/b/__init__`` first, so each import counts as
     one of every package it passes through, except the packages ``name`` is inside (those are
@@ -41,7 +54,7 @@ def _imports(name, path, mods):
     """
     out = set()
     package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    for node in _runtime_nodes(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.ImportFrom):
             base = package[:len(package) - node.level + 1] if node.level else []
             target = ".".join(base + ([node.module] if node.module else []))
@@ -74,6 +87,14 @@ def _cycle(graph):
         if node not in state and (found := visit(node)):
             return found
     return None
+
+
+def test_import_scanner_skips_type_checking_imports(tmp_path):
+    src = tmp_path / "m.py"
+    src.write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from . import a\n"
+                   "else:\n    from . import b\n\ndef f():\n    from . import c\n")
+    mods = {f"p.{x}": None for x in "abcm"}
+    assert _imports("p.m", src, mods) == {"p.b", "p.c"}
 
 
 def test_cycle_finder_finds_a_cycle():

@@ -259,6 +259,20 @@ def test_flatten_of_a_file_usd_cannot_open_is_a_clean_error(tmp_path):
     assert not (tmp_path / "y.usdc").exists()
 
 
+
+def test_flatten_of_a_stage_without_clips(tmp_path):
+    # any stage flattens, not only clip caches: its time samples are copied as they are
+    src = tmp_path / "plain.usda"
+    stage = Usd.Stage.CreateNew(str(src))
+    op = UsdGeom.Xform.Define(stage, "/Root").AddTranslateOp()
+    for t, x in ((1.0, 0.5), (2.0, 2.5)):
+        op.Set((x, 0.0, 0.0), t)
+    stage.Save()
+    out = flatten(src, tmp_path / "flat.usda")
+    flat = Usd.Stage.Open(str(out))
+    attr = flat.GetAttributeAtPath("/Root.xformOp:translate")
+    assert attr.GetTimeSamples() == [1.0, 2.0] and attr.Get(2.0)[0] == 2.5
+
 def test_a_running_bake_holds_its_clip_folder(tmp_path):
     """While a bake of ``out`` runs (its lock held), another bake of ``out`` fails at once,
     --resume and --force included, and changes nothing (they used to remove or rewrite the

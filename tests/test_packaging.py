@@ -30,6 +30,7 @@ def test_wheel_ships_kernels_and_imports_outside_the_repo(tmp_path):
         assert f"dqskin/assets/{rig}.usda" in names
     for module in ("readers/usd", "readers/gltf", "report/compare", "report/html"):
         assert f"dqskin/{module}.py" in names
+    assert "dqskin/py.typed" in names  # PEP 561: type checkers read the annotations
     assert not any(n.startswith(("kernels/", "assets/", "tests/", "tools/")) for n in names)
     # a fresh virtual environment outside the checkout; its dependencies (not dqskin) come from
     # the test environment's site-packages through a .pth line

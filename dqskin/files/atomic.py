@@ -27,60 +27,76 @@ complete, and a failed or interrupted write leaves nothing behind.
   (:func:`check_interrupted`), even if some library swallowed the exception.
 """
 
+import abc
 import contextlib
 import errno
 import os
 import shutil
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
+from types import TracebackType
+from typing import Literal, TypeVar
 
 from ..errors import OutputExistsError, Param
 
 __all__ = ["CommitOnSuccess", "atomic_group", "atomic_path", "check_interrupted", "check_parent",
            "critical", "interrupt", "reset_interrupt"]
 
-_state = {"depth": 0, "pending": None, "interrupted": None}
+_Writer = TypeVar("_Writer", bound="CommitOnSuccess")
+
+
+class _State:
+    """Interrupt bookkeeping of the process: open :func:`critical` blocks, the interrupt to raise
+    when the outermost ends, the interrupt :func:`interrupt` recorded."""
+
+    depth: int = 0
+    pending: BaseException | None = None
+    interrupted: BaseException | None = None
+
+
+_state = _State()
 
 
 def interrupt(exc: BaseException) -> None:
     """Record an interrupt and raise ``exc`` now, or at the end of the current :func:`critical`
     block. For signal handlers (main thread)."""
-    _state["interrupted"] = exc
-    if _state["depth"]:
-        _state["pending"] = exc
+    _state.interrupted = exc
+    if _state.depth:
+        _state.pending = exc
         return
     raise exc
 
 
 def reset_interrupt() -> None:
     """Forget a recorded interrupt (a new run in the same process)."""
-    _state.update(pending=None, interrupted=None)
+    _state.pending = _state.interrupted = None
 
 
 def check_interrupted() -> None:
     """Raise the interrupt :func:`interrupt` was given, if any (some libraries, trimesh's
     exporters among them, catch ``BaseException`` and so swallow it): writers call this between
     steps, and nothing claims or commits a file after an interrupt."""
-    exc = _state["interrupted"]
+    exc = _state.interrupted
     if exc is not None:
         raise exc
 
 
 @contextlib.contextmanager
-def critical():
+def critical() -> Iterator[None]:
     """A block an interrupt does not cut: the exception :func:`interrupt` is given is raised when
     the outermost block ends."""
-    _state["depth"] += 1
+    _state.depth += 1
     try:
         yield
     finally:
-        _state["depth"] -= 1
-        if _state["depth"] == 0 and _state["pending"] is not None:
-            exc, _state["pending"] = _state["pending"], None
+        _state.depth -= 1
+        if _state.depth == 0 and _state.pending is not None:
+            exc, _state.pending = _state.pending, None
             raise exc
 
 
-def _umask():
+def _umask() -> int:
     """The process umask, read without changing it (Linux ``/proc``), else set-and-restore."""
     try:
         with open("/proc/self/status") as fh:
@@ -108,11 +124,9 @@ def check_parent(path: str | os.PathLike) -> Path:
     return path
 
 
-def _cannot_write(path, exc):
+def _cannot_write(path: Path, exc: OSError) -> OSError:
     """``exc`` (an OSError about the temporary file) as an OSError naming ``path``, with its
     ``errno`` (the command line reports it as a system error, not as a bug)."""
-    if not isinstance(exc, OSError):
-        return exc
     error = type(exc)(f"{path}: cannot write ({exc.strerror or exc})")
     error.errno = exc.errno
     return error
@@ -136,10 +150,10 @@ class atomic_path:
         FileExistsError if ``path`` exists by then (created by another run meanwhile).
     """
 
-    def __init__(self, path, *, overwrite=True):
+    def __init__(self, path: str | os.PathLike, *, overwrite: bool = True) -> None:
         self.path = Path(path)
         self.overwrite = overwrite
-        self.tmp = None
+        self.tmp: Path | None = None
 
     def open(self) -> Path:
         """Create the private temporary folder (and missing folders); returns the temporary
@@ -201,10 +215,11 @@ class atomic_path:
                 _remove_folder(self.tmp.parent)
                 self.tmp = None
 
-    def __enter__(self):
+    def __enter__(self) -> Path:
         return self.open()
 
-    def __exit__(self, exc_type, exc, tb):
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> Literal[False]:
         if exc_type is None:
             self.commit()
             return False
@@ -216,12 +231,12 @@ class atomic_path:
         return False
 
 
-def _remove_folder(folder):
+def _remove_folder(folder: Path) -> None:
     """Remove a temporary folder of :class:`atomic_path` and whatever a writer left in it."""
     shutil.rmtree(folder, ignore_errors=True)
 
 
-def _link_exclusive(tmp, path):
+def _link_exclusive(tmp: Path, path: Path) -> None:
     """Put ``tmp`` at ``path`` unless ``path`` exists (FileExistsError); ``tmp`` is gone after."""
     try:
         os.link(tmp, path)
@@ -240,14 +255,23 @@ def _link_exclusive(tmp, path):
         os.unlink(tmp)
 
 
-class CommitOnSuccess:
+class CommitOnSuccess(abc.ABC):
     """Context-manager protocol of the multi-file writers: ``commit()`` when the block ends
     normally, ``discard()`` on any exception (interrupts included)."""
 
-    def __enter__(self):
+    @abc.abstractmethod
+    def commit(self) -> object:
+        """Put what was written in place."""
+
+    @abc.abstractmethod
+    def discard(self) -> None:
+        """Remove what was written."""
+
+    def __enter__(self: _Writer) -> _Writer:
         return self
 
-    def __exit__(self, exc_type, exc, tb):
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> Literal[False]:
         if exc_type is None:
             self.commit()
         else:
@@ -264,19 +288,19 @@ class atomic_group(CommitOnSuccess):
     the files this group already put in place are taken back, so the set never mixes two runs.
     """
 
-    def __init__(self, *, overwrite=True):
+    def __init__(self, *, overwrite: bool = True) -> None:
         self.overwrite = overwrite
-        self.members = []
+        self.members: list[atomic_path] = []
 
-    def add(self, path) -> Path:
+    def add(self, path: str | os.PathLike) -> Path:
         """Claim ``path``: returns the temporary path to write it to."""
         member = atomic_path(path, overwrite=self.overwrite)
         self.members.append(member)
         return member.open()
 
-    def commit(self) -> list:
+    def commit(self) -> list[Path]:
         """Put every file in place; returns their paths."""
-        done = []
+        done: list[Path] = []
         with critical():
             try:
                 for m in self.members:

@@ -45,16 +45,19 @@ import os
 import struct
 import threading
 import weakref
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
+import numpy.typing as npt
 from pxr import Sdf
 
 from ..errors import InputError
-from .direct import AppendFile
+from .direct import AppendFile, BytesLike
 
-__all__ = ["BOOTSTRAP", "CrateSamples", "UnsupportedCrate", "VERSION", "VALUE_TYPES"]
+__all__ = ["BOOTSTRAP", "CrateSamples", "Hasher", "UnsupportedCrate", "VERSION", "VALUE_TYPES"]
 
 VERSION = (0, 8, 0)
 """Crate file version written (usd-core's default for new files)."""
@@ -78,7 +81,15 @@ VALUE_TYPES = {"point3f[]": "vec3f[]", "normal3f[]": "vec3f[]", "vector3f[]": "v
 """Sdf value type names :meth:`CrateSamples.add` writes, and how they are stored."""
 
 
-def _rep(kind, payload=0, *, array=False, inlined=False):
+class Hasher(Protocol):
+    """A hash object fed the bytes of a file as they are written (hashlib's, xxhash's)."""
+
+    def update(self, data: bytes | memoryview, /) -> None: ...
+
+    def hexdigest(self) -> str: ...
+
+
+def _rep(kind: int, payload: int = 0, *, array: bool = False, inlined: bool = False) -> int:
     return (_IS_ARRAY if array else 0) | (_IS_INLINED if inlined else 0) | (kind << 48) | payload
 
 
@@ -94,7 +105,7 @@ def _lz4_literals(data: bytes) -> bytes:
     return b"\x00" + head + data
 
 
-def _compressed_ints(values) -> bytes:
+def _compressed_ints(values: Sequence[int | None] | np.ndarray) -> bytes:
     """32-bit integers as ``Sdf_IntegerCompression`` output, with its ``uint64`` size first:
     the most common delta (0, unused), one 2-bit code per integer (all ``11``: a 32-bit delta),
     the deltas to the previous integer, then LZ4."""
@@ -133,7 +144,7 @@ def _lz4_decode(src: bytes) -> bytes:
     return bytes(out)
 
 
-def _lz4_length(src, i, length):
+def _lz4_length(src: bytes, i: int, length: int) -> tuple[int, int]:
     """A 4-bit LZ4 length and its extension bytes at ``src[i:]`` (each 255 means another)."""
     if length == 15:
         while True:
@@ -147,7 +158,7 @@ def _lz4_length(src, i, length):
 _INT_WIDTHS = np.array([0, 1, 2, 4])  # bytes of a delta by its 2-bit code
 
 
-def _decode_ints(data: bytes, pos: int, count: int):
+def _decode_ints(data: bytes, pos: int, count: int) -> tuple[np.ndarray, int]:
     """``count`` integers coded by ``Sdf_IntegerCompression`` at ``data[pos:]`` (``uint64`` size
     first); returns them (int64, wrapped to signed 32 bits) and the position after them."""
     size = struct.unpack_from("<Q", data, pos)[0]
@@ -183,9 +194,10 @@ class _Base:
     with its samples): version, where its values end, tokens, fields, field sets, specs, the
     path of each path index, and the raw STRINGS and PATHS sections."""
 
-    def __init__(self, path):
+    def __init__(self, path: str | os.PathLike) -> None:
         data = Path(path).read_bytes()
-        self.data, self.kept = data, {}
+        self.data: bytes | None = data
+        self.kept: dict[str, bytes] = {}
         if data[:8] != _IDENT:
             raise InputError(f"{path}: not a USD crate file")
         self.version = tuple(data[8:11])
@@ -210,10 +222,10 @@ class _Base:
 
         pos = sections["FIELDS"][0]
         n = struct.unpack_from("<Q", data, pos)[0]
-        names, pos = _decode_ints(data, pos + 8, n)
+        token_ids, pos = _decode_ints(data, pos + 8, n)
         size = struct.unpack_from("<Q", data, pos)[0]
         reps = np.frombuffer(_lz4_decode(data[pos + 8:pos + 8 + size]), "<u8", count=n)
-        self.fields = [(int(t) & 0xFFFFFFFF, int(r)) for t, r in zip(names, reps)]
+        self.fields = [(int(t) & 0xFFFFFFFF, int(r)) for t, r in zip(token_ids, reps)]
 
         pos = sections["FIELDSETS"][0]
         n = struct.unpack_from("<Q", data, pos)[0]
@@ -225,25 +237,26 @@ class _Base:
         element, pos = _decode_ints(data, pos, n)
         jumps, pos = _decode_ints(data, pos, n)
         index, element, jumps = index.tolist(), element.tolist(), jumps.tolist()
-        self.paths = [None] * total
-        stack = [(0, None)]  # (item, parent path) of each sibling run still to walk
+        self.paths: list[Sdf.Path] = [None] * total
+        # (item, parent path) of each sibling run still to walk
+        stack: list[tuple[int, Sdf.Path | None]] = [(0, None)]
         while stack:
             item, parent = stack.pop()
             while True:
                 here = item
                 item += 1
                 if parent is None:
-                    path = Sdf.Path.absoluteRootPath
+                    node = Sdf.Path.absoluteRootPath
                 elif element[here] < 0:
-                    path = parent.AppendProperty(self.tokens[-element[here]])
+                    node = parent.AppendProperty(self.tokens[-element[here]])
                 else:
-                    path = parent.AppendElementString(self.tokens[element[here]])
-                self.paths[index[here]] = path
+                    node = parent.AppendElementString(self.tokens[element[here]])
+                self.paths[index[here]] = node
                 has_child, has_sibling = jumps[here] > 0 or jumps[here] == -1, jumps[here] >= 0
                 if has_child and has_sibling:
                     stack.append((here + jumps[here], parent))
                 if has_child:
-                    parent = path
+                    parent = node
                 elif not has_sibling:
                     break
 
@@ -255,18 +268,24 @@ class _Base:
         self.specs = [list(spec) for spec in zip(paths.tolist(), sets.tolist(), kinds.tolist())]
         self.spec_of = {self.paths[p]: k for k, (p, _, _) in enumerate(self.specs)}
 
-    def section(self, name) -> bytes:
+    def values(self) -> memoryview:
+        """The file's bytes after the bootstrap up to the end of its values (before
+        :meth:`release`)."""
+        assert self.data is not None, "released"
+        return memoryview(self.data)[BOOTSTRAP:self.data_end]
+
+    def section(self, name: str) -> bytes:
         """The raw bytes of section ``name`` (kept by :meth:`release` for STRINGS and PATHS)."""
         start, size = self.sections[name]
         return self.data[start:start + size] if self.data is not None else self.kept[name]
 
-    def release(self):
+    def release(self) -> None:
         """Drop the file's bytes once its values are copied, keeping the sections written
         again as they are."""
         self.kept = {name: self.section(name) for name in ("STRINGS", "PATHS")}
         self.data = None
 
-    def spec_fields(self, spec) -> list:
+    def spec_fields(self, spec: int) -> list[int]:
         """Field indices of spec number ``spec`` (its field set, up to the terminator)."""
         start = self.specs[spec][1]
         end = self.fieldsets.index(_NO_FIELD, start)
@@ -277,28 +296,36 @@ WRITES_AHEAD = 2
 """Blocks of samples a :class:`CrateSamples` may have queued for the writer thread before
 :meth:`~CrateSamples.add` waits (each holds its frames in memory until written)."""
 
-_WRITER = {"executor": None, "lock": threading.Lock()}
+class _Writer:
+    """The process's writer thread (:func:`_writer`) and the lock that creates it once."""
+
+    executor: ThreadPoolExecutor | None = None
+    lock = threading.Lock()
 
 
-def _writer():
+_WRITER = _Writer()
+
+
+def _writer() -> ThreadPoolExecutor:
     """The process's one writer thread (created on first use; a forked child makes its own):
     file writes release the GIL, so the caller skins and checks the next frames meanwhile."""
-    with _WRITER["lock"]:
-        if _WRITER["executor"] is None:
-            _WRITER["executor"] = ThreadPoolExecutor(max_workers=1,
-                                                     thread_name_prefix="dqskin-crate-write")
-        return _WRITER["executor"]
+    with _WRITER.lock:
+        if _WRITER.executor is None:
+            _WRITER.executor = ThreadPoolExecutor(max_workers=1,
+                                                  thread_name_prefix="dqskin-crate-write")
+        return _WRITER.executor
 
 
-def _forget_writer():
-    _WRITER["executor"], _WRITER["lock"] = None, threading.Lock()
+def _forget_writer() -> None:
+    _WRITER.executor, _WRITER.lock = None, threading.Lock()
 
 
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_writer)
 
 
-def _close_after(file, queued, wait=True):
+def _close_after(file: AppendFile, queued: collections.deque[Future[Any]],
+                 wait: bool = True) -> None:
     """Close ``file`` (an abandoned :class:`~.direct.AppendFile`: nothing staged is written)
     after the writes ``queued`` for it (their errors dropped): now, after waiting for them, or
     (``wait=False``, a writer dropped unclosed) as the writer thread's next task, behind them."""
@@ -331,12 +358,14 @@ def _close_after(file, queued, wait=True):
 class _Attribute:
     __slots__ = ("type_name", "info", "times", "reps", "last")
 
-    def __init__(self, type_name, info):
-        self.type_name, self.info, self.times, self.reps = type_name, info, [], []
-        self.last = None  # (copy of the last frame added, its rep)
+    def __init__(self, type_name: str, info: tuple[tuple[str, str], ...]) -> None:
+        self.type_name, self.info = type_name, info
+        self.times: list[np.ndarray] = []
+        self.reps: list[np.ndarray] = []
+        self.last: tuple[np.ndarray, int] | None = None  # (copy of the last frame added, its rep)
 
 
-def _holds(rows, last):
+def _holds(rows: np.ndarray, last: np.ndarray | None) -> np.ndarray:
     """Which frames of ``rows`` (F, K) equal the frame before them (the first: ``last``, a
     (K,) array or None), as a crate file stores an array once: a few elements of every
     frame are compared first, the whole frame only when they match (a hold, not a move)."""
@@ -350,6 +379,7 @@ def _holds(rows, last):
         same[0] = bool((rows[0, probe] == last[probe]).all())
     for f in np.flatnonzero(same):
         before = rows[f - 1] if f else last
+        assert before is not None  # frame 0 is a hold only after a last frame
         same[f] = np.array_equal(rows[f], before)
     return same
 
@@ -382,15 +412,16 @@ class CrateSamples:
     layer's time range (or :meth:`abort`).
     """
 
-    def __init__(self, path, time_codes_per_second: float, *, base=None, direct: bool = True,
-                 hasher=None):
+    def __init__(self, path: str | os.PathLike, time_codes_per_second: float, *,
+                 base: str | os.PathLike | None = None, direct: bool = True,
+                 hasher: Hasher | None = None) -> None:
         self.path = Path(path)
         self.time_codes_per_second = float(time_codes_per_second)
         self._base = None if base is None else _Base(base)
-        self._attrs = {}  # attribute path → _Attribute, in first-added order
-        self._file = AppendFile(self.path, direct=direct)
+        self._attrs: dict[str, _Attribute] = {}  # attribute path → its samples, first-added order
+        self._file: AppendFile | None = AppendFile(self.path, direct=direct)
         self._pos = 0
-        self._queued = collections.deque()  # writes of add() not yet known done
+        self._queued: collections.deque[Future[Any]] = collections.deque()  # not yet known done
         # if never closed: close once the queued writes ended (the descriptor's number could
         # otherwise be reused by another file while they wait for the writer thread)
         self._closer = weakref.finalize(self, _close_after, self._file, self._queued, False)
@@ -398,19 +429,25 @@ class CrateSamples:
         try:
             self._write([bytes(BOOTSTRAP)])
             if hasher is not None:  # what follows the bootstrap, as it is written
-                self._file.observe = hasher.update
+                # arrays are buffers too: NumPy's stubs say so only from Python 3.12
+                self._file.observe = hasher.update  # type: ignore[assignment,unused-ignore]
             if self._base is not None:  # its values at their own offsets
-                self._write([memoryview(self._base.data)[BOOTSTRAP:self._base.data_end]])
+                self._write([self._base.values()])
                 self._base.release()
         except BaseException:
             self.abort()
             raise
 
-    def _write(self, buffers):
+    def _write(self, buffers: Sequence[BytesLike]) -> None:
         self._drain()
-        self._pos += self._file.append(buffers)
+        self._pos += self._open().append(buffers)
 
-    def _write_later(self, write, *args, size):
+    def _open(self) -> AppendFile:
+        """The file being written (until :meth:`abort` or :meth:`close`)."""
+        assert self._file is not None, f"{self.path}: the layer is closed"
+        return self._file
+
+    def _write_later(self, write: Callable[..., object], *args: object, size: int) -> None:
         """Queue ``write(*args)`` of ``size`` bytes (a method of the file) for the writer thread,
         in order after the queued ones; waits while :data:`WRITES_AHEAD` are queued. An error
         of a queued write is raised here or later."""
@@ -420,18 +457,19 @@ class CrateSamples:
         self._queued.append(_writer().submit(write, *args))
         self._pos += size
 
-    def _drain(self):
+    def _drain(self) -> None:
         """Wait for every queued write (raising the first error)."""
         while self._queued:
             self._queued[0].result()  # (abort then still waits for it before closing)
             self._queued.popleft()
 
-    def _align(self):
+    def _align(self) -> None:
         pad = -self._pos % 8
         if pad:
             self._write([bytes(pad)])
 
-    def add(self, attr: str, type_name: str, times, values, info=()) -> None:
+    def add(self, attr: str, type_name: str, times: npt.ArrayLike, values: npt.ArrayLike,
+            info: Sequence[tuple[str, str]] = ()) -> None:
         """Write samples of attribute ``attr`` (``/Prim/Path.name``) at ``times`` now.
 
         Parameters
@@ -478,7 +516,7 @@ class CrateSamples:
             if not (path.IsAbsolutePath() and path.IsPrimPropertyPath()):
                 raise InputError(f"{attr}: not an attribute path (/Prim.name)")
             if self._base is not None:
-                self._check_base_spec(path, type_name)
+                self._check_base_spec(self._base, path, type_name)
             elif path.ContainsPrimVariantSelection():
                 raise InputError(f"{attr}: a variant's attribute needs a base layer that "
                                  "declares it")
@@ -502,14 +540,16 @@ class CrateSamples:
         if kind == "vec3f[]":
             pad = -(12 * n) % 8
             stride, head = 8 + 12 * n + pad, _rep(_VEC3F, array=True)
-            # one record (count, floats[, padding]) per frame written
-            write = (self._file.append_records, struct.pack("<Q", n), rows.view(np.uint8), pad,
-                     None if len(written) == F else written)
+            if written.size:  # one record (count, floats[, padding]) per frame written
+                self._write_later(self._file.append_records, struct.pack("<Q", n),
+                                  rows.view(np.uint8), pad, None if len(written) == F else written,
+                                  size=stride * len(written))
         else:
             stride, head = 128, _rep(_MATRIX4D)
-            write = (self._file.append, [rows[f] for f in written] if held.any() else [rows])
-        if written.size:
-            self._write_later(*write, size=stride * len(written))
+            if written.size:
+                self._write_later(self._file.append,
+                                  [rows[f] for f in written] if held.any() else [rows],
+                                  size=stride * len(written))
         offsets = self._pos - stride * len(written) + stride * np.arange(len(written),
                                                                          dtype=np.uint64)
         # each frame's rep: that of the last frame written up to it (before this block: last's)
@@ -520,8 +560,8 @@ class CrateSamples:
         rec.times.append(t)
         rec.reps.append(frame_reps)
 
-    def _check_base_spec(self, path, type_name):
-        base = self._base
+    @staticmethod
+    def _check_base_spec(base: _Base, path: Sdf.Path, type_name: str) -> None:
         spec = base.spec_of.get(path)
         if spec is None or base.specs[spec][2] != _SPEC_ATTRIBUTE:
             raise InputError(f"{path}: the base layer has no attribute spec for it (only "
@@ -557,7 +597,7 @@ class CrateSamples:
 
     # -- the layer's structure -------------------------------------------------------------
 
-    def _finish(self, start, end):
+    def _finish(self, start: float, end: float) -> None:
         base = self._base
         tokens = {t: i for i, t in enumerate(base.tokens)} if base else {"": 0}
         # without a base, token 0 is the root's element token, never a property name
@@ -603,11 +643,11 @@ class CrateSamples:
                     field_index[key] = len(fields)
                     fields.append(key)
                 ids.append(field_index[key])
-            key = tuple(ids)
-            if key not in fieldset_index:
-                fieldset_index[key] = len(fieldsets)
+            members = tuple(ids)
+            if members not in fieldset_index:
+                fieldset_index[members] = len(fieldsets)
                 fieldsets.extend(ids + [_NO_FIELD])
-            return fieldset_index[key]
+            return fieldset_index[members]
 
         if base is None:
             specs, paths = self._new_namespace(token, fieldset, samples, doubles)
@@ -637,8 +677,8 @@ class CrateSamples:
         packed = _lz4_literals(names)
         section(b"TOKENS", struct.pack("<QQQ", len(tokens), len(names), len(packed)), packed)
         section(b"STRINGS", base.section("STRINGS") if base else struct.pack("<Q", 0))
-        reps = np.array([r for _, r in fields], "<u8").tobytes()
-        packed_reps = _lz4_literals(reps)
+        rep_bytes = np.array([r for _, r in fields], "<u8").tobytes()
+        packed_reps = _lz4_literals(rep_bytes)
         section(b"FIELDS", struct.pack("<Q", len(fields)),
                 _compressed_ints([t for t, _ in fields]),
                 struct.pack("<Q", len(packed_reps)), packed_reps)
@@ -652,15 +692,16 @@ class CrateSamples:
         version = base.version if base else VERSION
         boot = struct.pack("<8s8Bq", _IDENT, *version, 0, 0, 0, 0, 0, toc) + bytes(64)
         self._drain()
-        self._file.pwrite(boot, 0)
-        self._file.close()
+        self._open().pwrite(boot, 0)
+        self._open().close()
         if self._hasher is not None:
             self._hasher.update(boot)
 
     def _new_namespace(self, token, fieldset, samples, doubles):
         """Specs and the PATHS section of a layer of ``over`` prims holding the attributes."""
         root = Sdf.Path.absoluteRootPath
-        children, props = {root: []}, {}
+        children: dict[Sdf.Path, list[Sdf.Path]] = {root: []}
+        props: dict[Sdf.Path, list[Sdf.Path]] = {}
         for attr in self._attrs:
             path = Sdf.Path(attr)
             prim = path.GetPrimPath()
@@ -707,9 +748,11 @@ class CrateSamples:
 
         # The path tree, depth first: (path index, element token, jump) per node; a node with
         # a child and a sibling jumps to the sibling, written after the child's subtree.
-        tree_paths, tree_tokens, jumps = [], [], []
+        tree_paths: list[int] = []
+        tree_tokens: list[int] = []
+        jumps: list[int | None] = []  # None until the node's next sibling is written
         stack = [(root, False)]  # (path, has a sibling after it)
-        open_jumps = []  # (node index, depth) of nodes whose sibling is not written yet
+        open_jumps: list[tuple[int, int]] = []  # (node index, depth): sibling not written yet
         depth = {root: 0}
         while stack:
             node, has_sibling = stack.pop()

@@ -21,12 +21,17 @@ writes are buffered from there on.
 import errno
 import mmap
 import os
+from collections.abc import Callable, Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 
-__all__ = ["BLOCK", "STAGE", "AppendFile", "enabled", "nbytes"]
+__all__ = ["BLOCK", "STAGE", "AppendFile", "BytesLike", "enabled", "nbytes"]
+
+BytesLike = bytes | bytearray | memoryview | np.ndarray
+"""What the writers take: bytes, or a C-contiguous array written as its raw bytes."""
 
 BLOCK = 4096
 """Alignment of direct transfers (address, offset and size): the largest logical block size of
@@ -45,7 +50,7 @@ def enabled() -> bool:
     return bool(_O_DIRECT) and os.environ.get("DQSKIN_DIRECT_IO", "1") != "0"
 
 
-def _set_direct(fd, on: bool) -> bool:
+def _set_direct(fd: int, on: bool) -> bool:
     """Set or clear ``O_DIRECT`` on ``fd``; whether it is now set (False where refused)."""
     import fcntl
     flags = fcntl.fcntl(fd, fcntl.F_GETFL)
@@ -57,10 +62,16 @@ def _set_direct(fd, on: bool) -> bool:
     return bool(fcntl.fcntl(fd, fcntl.F_GETFL) & _O_DIRECT)
 
 
-def _pwrite_all(fd, data, offset):
+def _byte_view(buffer: BytesLike) -> memoryview:
+    """The bytes of ``buffer`` as a flat memoryview (no copy)."""
+    # NumPy's stubs give arrays the buffer protocol only from Python 3.12 (__buffer__)
+    return memoryview(buffer).cast("B")  # type: ignore[arg-type,unused-ignore]
+
+
+def _pwrite_all(fd: int, data: BytesLike, offset: int) -> None:
     """Write all of ``data`` at ``offset`` (``os.pwrite``; where there is none, as on Windows,
     a seek and writes: only the buffered path runs there)."""
-    view = memoryview(data).cast("B")
+    view = _byte_view(data)
     if not hasattr(os, "pwrite"):
         os.lseek(fd, offset, os.SEEK_SET)
         while view.nbytes:
@@ -71,12 +82,12 @@ def _pwrite_all(fd, data, offset):
         view, offset = view[n:], offset + n
 
 
-def nbytes(buffer) -> int:
+def nbytes(buffer: BytesLike) -> int:
     """Bytes of a bytes-like ``buffer``."""
     return buffer.nbytes if isinstance(buffer, (np.ndarray, memoryview)) else len(buffer)
 
 
-def _writev(fd, buffers) -> int:
+def _writev(fd: int, buffers: Sequence[BytesLike]) -> int:
     """Write ``buffers`` (bytes, or C-contiguous arrays), in order, at ``fd``'s position;
     returns the bytes written. No Python object per buffer (a bake may write one per frame:
     GC-tracked objects there cost garbage-collector passes over the whole heap)."""
@@ -84,14 +95,15 @@ def _writev(fd, buffers) -> int:
     for a in range(0, len(buffers), _WRITEV_MAX):
         part = buffers[a:a + _WRITEV_MAX]
         size = sum(map(nbytes, part))
-        done = os.writev(fd, part) if hasattr(os, "writev") else 0
+        # NumPy's stubs give arrays the buffer protocol only from Python 3.12 (__buffer__)
+        done = os.writev(fd, part) if hasattr(os, "writev") else 0  # type: ignore[arg-type,unused-ignore]
         if done != size:  # a short write (or no writev): the rest one by one
             for b in part:
                 n = nbytes(b)
                 if done >= n:
                     done -= n
                     continue
-                view = memoryview(b).cast("B")[done:]
+                view = _byte_view(b)[done:]
                 while view.nbytes:
                     view = view[os.write(fd, view):]
                 done = 0
@@ -119,15 +131,17 @@ class AppendFile:
         during the call): e.g. a hash's ``update``. Not with :meth:`pwrite`'s bytes.
     """
 
-    def __init__(self, path, mode=0o666, *, direct: bool = True):
+    def __init__(self, path: str | os.PathLike, mode: int = 0o666, *, direct: bool = True) -> None:
         self.path = os.fspath(path)
         self.size = 0
-        self.observe = None
+        self.observe: Callable[[BytesLike], object] | None = None
         self._written = 0  # bytes of the file written (a BLOCK multiple while direct)
-        self._stage = self._view = None
+        self._stage: mmap.mmap | None = None
+        self._view: np.ndarray | None = None  # the stage's bytes: set while direct I/O is on
         self._fill = 0  # bytes staged
         self._direct = False
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | _CLOEXEC, mode)
+        self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | _CLOEXEC,
+                                       mode)
         try:
             if direct and enabled() and _set_direct(self._fd, True):
                 self._stage = mmap.mmap(-1, STAGE, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
@@ -142,7 +156,7 @@ class AppendFile:
         """Whether appends go past the page cache now."""
         return self._direct
 
-    def append(self, buffers) -> int:
+    def append(self, buffers: Sequence[BytesLike]) -> int:
         """Append ``buffers`` (bytes-like: bytes, C-contiguous arrays), in order; returns the
         bytes appended."""
         if self.observe is not None:
@@ -153,11 +167,12 @@ class AppendFile:
             if not self._direct:
                 total += self._append_buffered(buffers[i:])
                 break
-            src = np.frombuffer(memoryview(b).cast("B"), np.uint8)
+            src = np.frombuffer(_byte_view(b), np.uint8)
             total += src.nbytes
             while src.nbytes:
                 k = min(src.nbytes, STAGE - self._fill)
-                self._view[self._fill:self._fill + k] = src[:k]  # NumPy: the GIL released
+                view = self._staged()
+                view[self._fill:self._fill + k] = src[:k]  # NumPy: the GIL released
                 self._fill += k
                 src = src[k:]
                 if self._fill == STAGE:
@@ -168,7 +183,8 @@ class AppendFile:
         self.size += total
         return total
 
-    def append_records(self, head: bytes, rows: np.ndarray, pad: int = 0, select=None) -> int:
+    def append_records(self, head: bytes, rows: np.ndarray, pad: int = 0,
+                       select: npt.ArrayLike | None = None) -> int:
         """Append one record per row of ``rows`` ((K, M) uint8, C-contiguous; with ``select``,
         only those row indices, in that order): ``head``, the row's M bytes, ``pad`` zero
         bytes. Direct: the records are copied straight into the stage, many rows a copy (no
@@ -194,7 +210,7 @@ class AppendFile:
             if not room or not self._direct:  # a record larger than the stage; refused
                 break
             k = min(room, len(index) - a)
-            dst = self._view[self._fill:self._fill + k * stride].reshape(k, stride)
+            dst = self._staged()[self._fill:self._fill + k * stride].reshape(k, stride)
             dst[:, :h] = hv
             dst[:, h:h + m] = rows[a:a + k] if select is None else rows[index[a:a + k]]
             dst[:, h + m:] = 0
@@ -210,15 +226,16 @@ class AppendFile:
             self.append([part for i in index[a:] for part in (head, rows[i], zeros)])
         return total
 
-    def _append_buffered(self, buffers):
+    def _append_buffered(self, buffers: Sequence[BytesLike]) -> int:
         if self._view is not None:  # bytes a failed switch left staged come first
             self._to_buffered()
-        os.lseek(self._fd, self._written, os.SEEK_SET)
-        n = _writev(self._fd, list(buffers))
+        fd = self._open()
+        os.lseek(fd, self._written, os.SEEK_SET)
+        n = _writev(fd, list(buffers))
         self._written += n
         return n
 
-    def _write_stage(self):
+    def _write_stage(self) -> None:
         """Write the staged whole blocks directly and keep the partial one staged. Refused
         (EINVAL: an alignment this file system does not take) or short (the device filling
         up): every staged byte is written through the page cache, and buffered from then on
@@ -226,8 +243,9 @@ class AppendFile:
         whole = self._fill - self._fill % BLOCK
         if not whole:
             return
+        view = self._staged()
         try:
-            n = os.pwrite(self._fd, self._view[:whole], self._written)
+            n = os.pwrite(self._open(), view[:whole].data, self._written)
         except OSError as exc:
             if exc.errno not in _REFUSED:
                 raise
@@ -237,23 +255,33 @@ class AppendFile:
             return
         self._written += whole
         rest = self._fill - whole
-        self._view[:rest] = self._view[whole:self._fill]
+        view[:rest] = view[whole:self._fill]
         self._fill = rest
 
-    def _to_buffered(self):
+    def _to_buffered(self) -> None:
         """Clear O_DIRECT and write what is staged through the page cache (the state changes
         only once that write succeeded: a failed one leaves the bytes staged)."""
         if self._direct:
             self._direct = False
-            if _set_direct(self._fd, False):
+            if _set_direct(self._open(), False):
                 raise OSError(errno.EINVAL, f"{self.path}: cannot clear O_DIRECT")
-        staged = self._view[:self._fill]
-        _pwrite_all(self._fd, staged, self._written)
+        staged = self._staged()[:self._fill]
+        _pwrite_all(self._open(), staged, self._written)
         self._written += staged.nbytes
         self._fill = 0
         # the staging memory goes with its last reference (not closed here: a traceback may
         # still hold a view of it)
         self._view = self._stage = None
+
+    def _staged(self) -> np.ndarray:
+        """The staging memory (held while direct I/O is on, or bytes a failed switch left)."""
+        assert self._view is not None, "nothing staged"
+        return self._view
+
+    def _open(self) -> int:
+        """The file descriptor (until :meth:`close`)."""
+        assert self._fd is not None, f"{self.path}: closed"
+        return self._fd
 
     def flush(self) -> None:
         """Write everything staged; later appends are buffered."""
@@ -262,13 +290,13 @@ class AppendFile:
         if self._view is not None:  # staged bytes remain (or a failed switch left them)
             self._to_buffered()
 
-    def pwrite(self, data, offset: int) -> None:
+    def pwrite(self, data: BytesLike, offset: int) -> None:
         """Write ``data`` at ``offset``, within the bytes appended (after a :meth:`flush`)."""
         if offset < 0 or offset + nbytes(data) > self.size:
             raise InputError(f"{self.path}: a write at {offset} past the {self.size} bytes "
                              "appended")
         self.flush()
-        _pwrite_all(self._fd, data, offset)
+        _pwrite_all(self._open(), data, offset)
 
     def close(self, flush: bool = True) -> None:
         """Flush (unless ``flush`` is False: the file is abandoned) and close; again: nothing."""

@@ -82,7 +82,7 @@ class BvhMotion:
     frame_time: float
     values: np.ndarray
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         self.values = np.asarray(self.values, np.float64)
         counts = [len(ch) for ch in self.channels]
         if len(counts) != len(self.joint_names):
@@ -138,7 +138,7 @@ class BvhMotion:
                      time_codes_per_second=1.0 / self.frame_time, up_axis="Y")
 
 
-def summary_lines(motion: BvhMotion) -> list:
+def summary_lines(motion: BvhMotion) -> list[str]:
     """What ``dqskin info`` adds for a BVH file: channels, End Sites, frame time, rotation
     orders and the rest skeleton's size (the unit a mesh to bind must be in)."""
     from collections import Counter
@@ -377,7 +377,7 @@ def _is_float(w):
         return False
 
 
-def load(path: str | os.PathLike, *, clip=None) -> Scene:
+def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     """Read a ``.bvh`` file as a :class:`dqskin.Scene` with one animated skeleton and no meshes
     (``clip`` is accepted for a uniform loader signature; a BVH file has one take)."""
     return read_bvh(path).scene()

@@ -38,9 +38,11 @@ import stat
 import struct
 import warnings
 from collections import Counter
+from collections.abc import Sequence
 from urllib.parse import unquote, urlsplit
 
 import numpy as np
+import numpy.typing as npt
 
 from .. import quat
 from ..animation import Animation, Deformer, check_times
@@ -166,6 +168,10 @@ def _sample_rate(times, keys, values, interpolation):
     return out
 
 
+Channel = tuple[int, str, np.ndarray, np.ndarray, str]
+"""One animated node property: (joint, path, keys (K,), values, interpolation)."""
+
+
 class GltfAnimation(Animation):
     """One glTF animation clip driving the nodes of one skeleton.
 
@@ -182,14 +188,16 @@ class GltfAnimation(Animation):
         the sampler (rotations ``(w, x, y, z)``).
     """
 
-    def __init__(self, key_times, rest_trs, matrix_nodes, channels):
+    def __init__(self, key_times: npt.ArrayLike,
+                 rest_trs: tuple[np.ndarray, np.ndarray, np.ndarray],
+                 matrix_nodes: dict[int, np.ndarray], channels: list[Channel]) -> None:
         self.key_times = np.asarray(key_times, dtype=np.float64)
         self._rest = rest_trs
         self._matrix_nodes = matrix_nodes
         self._channels = channels
         self.linear_trs = all(c[4] == "LINEAR" for c in channels)
 
-    def local_transforms(self, times):
+    def local_transforms(self, times: npt.ArrayLike) -> np.ndarray:
         """Parent-relative node transforms at ``times``.
 
         Parameters
@@ -243,7 +251,10 @@ class GltfMorph(Deformer):
     target_count : int
     """
 
-    def __init__(self, points, normals, tangents, offsets, default_weights, channel=None):
+    def __init__(self, points: npt.ArrayLike, normals: np.ndarray | None,
+                 tangents: np.ndarray | None, offsets: dict[str, np.ndarray],
+                 default_weights: npt.ArrayLike,
+                 channel: tuple[np.ndarray, np.ndarray, str] | None = None) -> None:
         self.points = np.asarray(points, dtype=np.float32)
         self.normals = normals
         self.tangents = tangents
@@ -252,7 +263,7 @@ class GltfMorph(Deformer):
         self.channel = channel
         self.target_count = self.default_weights.shape[0]
 
-    def weights(self, times):
+    def weights(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, T) float64 morph weights at ``times`` (seconds)."""
         t = check_times(times)
         if self.channel is None:
@@ -260,14 +271,14 @@ class GltfMorph(Deformer):
         keys, values, interpolation = self.channel
         return _sample(t, keys, values, interpolation, rotation=False)
 
-    def weight_rates(self, times):
+    def weight_rates(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, T) float64 ``d weights / dt`` per second (see :func:`_sample_rate`)."""
         t = check_times(times)
         if self.channel is None:
             return np.zeros((t.shape[0], self.target_count))
         return _sample_rate(t, *self.channel)
 
-    def _combine(self, weights, attribute):
+    def _combine(self, weights: np.ndarray, attribute: str) -> np.ndarray | None:
         """(F, V, 3) float64 ``Σ wᵢ·offsetᵢ`` of one attribute (one matrix product over the
         targets whose weight is not zero at every time), or None when nothing moves."""
         offsets = self.offsets.get(attribute)
@@ -279,29 +290,29 @@ class GltfMorph(Deformer):
         flat = offsets[used].reshape(used.size, -1)
         return (weights[:, used] @ flat).reshape((weights.shape[0],) + offsets.shape[1:])
 
-    def _morph(self, base, attribute, weights):
+    def _morph(self, base: np.ndarray, attribute: str, weights: np.ndarray) -> np.ndarray:
         """(F, V, 3) float32 ``base + Σ wᵢ·offsetᵢ`` of one attribute."""
         out = np.broadcast_to(np.asarray(base, np.float64), (weights.shape[0],) + base.shape)
         delta = self._combine(weights, attribute)
         return (out if delta is None else out + delta).astype(np.float32)
 
-    def points_at(self, times):
+    def points_at(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, V, 3) float32 morphed points, mesh space."""
         return self._morph(self.points, "POSITION", self.weights(times))
 
-    def point_velocities_at(self, times):
+    def point_velocities_at(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, V, 3) float64 ``d points / dt`` per second."""
         rates = self.weight_rates(times)
         delta = self._combine(rates, "POSITION")
         return np.zeros((rates.shape[0],) + self.points.shape) if delta is None else delta
 
-    def normals_at(self, times):
+    def normals_at(self, times: npt.ArrayLike) -> np.ndarray | None:
         """(F, V, 3) float32 morphed normals (not normalized), or None without NORMAL targets."""
         if self.normals is None or "NORMAL" not in self.offsets:
             return None
         return self._morph(self.normals, "NORMAL", self.weights(times))
 
-    def tangents_at(self, times):
+    def tangents_at(self, times: npt.ArrayLike) -> np.ndarray | None:
         """(F, V, 3) float32 morphed tangent directions (not normalized), or None without TANGENT
         targets."""
         if self.tangents is None or "TANGENT" not in self.offsets:
@@ -609,7 +620,7 @@ def _checked_document(raw):
     return doc
 
 
-def _glb_chunks(data):
+def _glb_chunks(data: bytes) -> tuple[bytes, bytes | None]:
     """(JSON chunk, BIN chunk or None) of a GLB container, checked chunk by chunk."""
     if len(data) < 12:
         raise _Invalid(f"GLB header: the file has {len(data)} bytes, fewer than the 12-byte header")
@@ -620,7 +631,8 @@ def _glb_chunks(data):
     if length > len(data):
         raise _Invalid(f"GLB header: declares {length} bytes but the file has {len(data)} "
                        "(truncated?)")
-    chunks, offset = [], 12
+    chunks: list[tuple[int, bytes]] = []
+    offset = 12
     while offset < length:
         if offset + 8 > length:
             raise _Invalid(f"GLB chunk {len(chunks)}: its 8-byte header at byte {offset} runs "
@@ -884,11 +896,13 @@ class _Reader:
                              "(the transform overflows)")
         return m
 
-    def rest_pose(self, nodes):
+    def rest_pose(self,
+                  nodes: Sequence[int]
+                  ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], dict[int, np.ndarray]]:
         """Static ((J, 3) t, (J, 4) r (w, x, y, z), (J, 3) s) and {k: matrix} of ``nodes``."""
         t, r, s = np.zeros((len(nodes), 3)), np.zeros((len(nodes), 4)), np.ones((len(nodes), 3))
         r[:, 0] = 1.0
-        matrices = {}
+        matrices: dict[int, np.ndarray] = {}
         for k, n in enumerate(nodes):
             tk, rk, sk, m = self.node_trs(n)
             if m is None:
@@ -1199,12 +1213,12 @@ class _Reader:
         return keys, values, interpolation
 
 
-def load(path, *, clip=None):
+def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     """The format's loader: :func:`load_gltf`."""
     return load_gltf(path, clip=clip)
 
 
-def load_gltf(path, *, clip=None):
+def load_gltf(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     """Load the skinned meshes, skins and one animation clip of a glTF 2.0 file.
 
     Parameters
@@ -1254,7 +1268,7 @@ def load_gltf(path, *, clip=None):
         return _load(path, clip)
 
 
-def _load(path, clip):
+def _load(path: str | os.PathLike, clip: str | int | None) -> Scene:
     """:func:`load_gltf` without its floating-point error state."""
     r = _Reader(path)
     doc = r.doc
@@ -1292,7 +1306,7 @@ def _load(path, clip):
         if not prims:
             raise r.error(f"meshes[{node.mesh}].primitives: empty")
         count = targets[node.mesh]
-        default = r.default_weights(node_index, node.mesh, count) if count else None
+        default = r.default_weights(node_index, node.mesh, count) if count else np.zeros(0)
         channel = (weight_channels or {}).get(node_index)
         for k in range(len(prims)):
             fields = r.primitive(node.mesh, k, node.skin, slot_maps[skeleton])

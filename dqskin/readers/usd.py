@@ -45,9 +45,12 @@ import re
 import sys
 import tempfile
 import threading
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any, NoReturn
 
 import numpy as np
+import numpy.typing as npt
 from pxr import Sdf, Tf, Usd, UsdGeom, UsdSkel, Vt
 
 from ..animation import Animation, Deformer, TransformTrack, segment_rates
@@ -56,6 +59,7 @@ from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
 from ..skinning import skin_points
 from . import LOADER_SUFFIXES
+from .usd_anim import JointTracks
 from .usd_xform import XformChain, read_local_to_world
 
 __all__ = ["SKINNING_METHODS", "SUFFIXES", "load", "RigidPrim", "UsdSkelAnimation",
@@ -68,7 +72,7 @@ SKINNING_METHODS = {"classicLinear": "lbs", "dualQuaternion": "dqs"}
 """``primvars:skel:skinningMethod`` tokens → dqskin method names."""
 
 
-def _tf_message(exc):
+def _tf_message(exc: BaseException) -> str:
     """The first diagnostic text of a ``Tf.ErrorException``, on one line."""
     for block in re.split(r"\n\s*Error in ", str(exc)):
         if " : '" in block:
@@ -101,17 +105,18 @@ class _SharedRedirect:
         since offset ``start`` and ``read()`` the current offset; ``undo()`` restores.
     """
 
-    def __init__(self, setup):
+    def __init__(self, setup: Callable[[], tuple[Callable[..., Any], Callable[[], None]]]) -> None:
         self._setup = setup
         self._lock = threading.Lock()
         self._depth = 0
-        self._state = None
+        self._state: tuple[Callable[..., Any], Callable[[], None]] | None = None
 
     @contextlib.contextmanager
-    def __call__(self):
+    def __call__(self) -> Iterator[Callable[..., Any]]:
         with self._lock:
             if self._depth == 0:
                 self._state = self._setup()
+            assert self._state is not None  # set up by the first to enter
             self._depth += 1
             read = self._state[0]
         try:
@@ -119,7 +124,7 @@ class _SharedRedirect:
         finally:
             with self._lock:
                 self._depth -= 1
-                if self._depth == 0:
+                if self._depth == 0 and self._state is not None:
                     self._state[1]()
                     self._state = None
 
@@ -173,7 +178,7 @@ _FD_STDERR = _SharedRedirect(_fd_stderr_to_file)
 
 
 @contextlib.contextmanager
-def _usd_diagnostics(process_stderr=False):
+def _usd_diagnostics(process_stderr: bool = False) -> Iterator[Callable[[], list[str]]]:
     """Keep USD's diagnostics off the terminal.
 
     Inside, USD's C++ diagnostics (Tf warnings, status messages) on this thread are trapped
@@ -208,7 +213,7 @@ def _usd_diagnostics(process_stderr=False):
             trap.Clear()  # dropped, not reposted to the terminal
 
 
-def _one_line(exc):
+def _one_line(exc: BaseException) -> str:
     """An exception's message on one line."""
     return " ".join(str(exc).split())
 
@@ -218,19 +223,19 @@ _USD_NAMES = {"joint_names": "joints", "bind_transforms": "bindTransforms",
 """Skeleton argument names → what they are called in a USD file (for messages)."""
 
 
-def _usd_names(key, message):
+def _usd_names(key: str, message: str) -> str:
     """A :class:`Skeleton` message about prim ``key`` with USD's names for its fields."""
     for ours, usd in _USD_NAMES.items():
         message = message.replace(f"{key}: {ours}", f"{key}: {usd}", 1)
     return message
 
 
-def _first(texts):
+def _first(texts: Sequence[str]) -> str:
     """`` (USD: first text)`` to append to a message, or "" when there is none."""
     return f" (USD: {texts[0]})" if texts else ""
 
 
-def _at_time(time):
+def _at_time(time: float | None) -> str:
     """`` at time 2`` for a time sample, "" for the default value (None)."""
     return "" if time is None else f" at time {time:g}"
 
@@ -247,7 +252,7 @@ def _authored_values(attr):
     return [(None, attr.Get(Usd.TimeCode.Default()))]
 
 
-def _duplicates(names):
+def _duplicates(names: Sequence[str]) -> list[str]:
     """The names that occur more than once, in first-seen order."""
     seen, dups = set(), []
     for n in names:
@@ -271,7 +276,7 @@ def _missing_primvar(prim, name, pv):
     return f"{full} is not usable as a joint influence primvar (type {attr.GetTypeName()})"
 
 
-def _matrices(gf_matrices):
+def _matrices(gf_matrices: object) -> np.ndarray:
     """Row-vector ``Gf.Matrix4d`` array → ``(N, 4, 4)`` float64, column-vector convention."""
     return np.array(gf_matrices, dtype=np.float64).reshape(-1, 4, 4).transpose(0, 2, 1)
 
@@ -317,10 +322,12 @@ class UsdSkelAnimation(Animation):
         The animation's ``blendShapes`` tokens (order of :meth:`blend_shape_weights`).
     """
 
-    def __init__(self, skel_query, stage, path=None):
+    def __init__(self, skel_query: UsdSkel.SkeletonQuery, stage: Usd.Stage,
+                 path: str | os.PathLike | None = None) -> None:
         self._stage = stage
         self._query = skel_query
-        self._tracks = None  # the loader's JointTracks, when it can sample as UsdSkel does
+        # the loader's JointTracks, when it can sample as UsdSkel does
+        self._tracks: JointTracks | None = None
         self._anim = skel_query.GetAnimQuery()
         layer = stage.GetRootLayer()
         self.path = os.fspath(path) if path is not None else (layer.realPath or layer.identifier)
@@ -331,10 +338,10 @@ class UsdSkelAnimation(Animation):
         keys.update(self._anim.GetBlendShapeWeightTimeSamples())
         self.key_times = np.array(sorted(keys), dtype=np.float64)
 
-    def _fail(self, what):
+    def _fail(self, what: str) -> NoReturn:
         raise InputError(f"{self.path}: {self.name}: {what}")
 
-    def local_transforms(self, times):
+    def local_transforms(self, times: npt.ArrayLike) -> np.ndarray:
         """Parent-relative joint transforms, skeleton joint order.
 
         Parameters
@@ -357,7 +364,7 @@ class UsdSkelAnimation(Animation):
             return self._tracks.local_transforms(t)
         return self._usdskel_local_transforms(t)
 
-    def _usdskel_local_transforms(self, t):
+    def _usdskel_local_transforms(self, t: np.ndarray) -> np.ndarray:
         """:meth:`local_transforms` asking UsdSkel at each time."""
         J = self.joint_count
         rows = np.empty((t.shape[0], J, 4, 4))  # USD's row-vector matrices, one copy each
@@ -376,7 +383,7 @@ class UsdSkelAnimation(Animation):
             self._fail(self._warned_at(t, trapped))
         return np.ascontiguousarray(rows.transpose(0, 1, 3, 2))
 
-    def _warned_at(self, t, trapped):
+    def _warned_at(self, t: np.ndarray, trapped: Sequence[str]) -> str:
         """Why sampling at ``t`` posted USD warnings (UsdSkel falls back to the rest pose): the
         first time that warns again, sampled one by one."""
         with _usd_diagnostics() as warnings:
@@ -387,7 +394,7 @@ class UsdSkelAnimation(Animation):
         return (f"cannot compute joint transforms at a time from {t[0]:g} to {t[-1]:g}"
                 f"{_first(trapped)}")
 
-    def blend_shape_weight_rates(self, times):
+    def blend_shape_weight_rates(self, times: npt.ArrayLike) -> np.ndarray:
         """``(F, S)`` float64 time derivatives of :meth:`blend_shape_weights` (USD interpolates
         the weights linearly between time samples)."""
         attr = UsdSkel.Animation(self._anim.GetPrim()).GetBlendShapeWeightsAttr()
@@ -398,7 +405,7 @@ class UsdSkelAnimation(Animation):
         return np.stack(segment_rates(keys, lambda k: self.blend_shape_weights([keys[k]])[0],
                                       times))
 
-    def blend_shape_weights(self, times):
+    def blend_shape_weights(self, times: npt.ArrayLike) -> np.ndarray:
         """``(F, S)`` float32 weights of :attr:`blend_shape_names` at ``times`` (0 when unset).
 
         Raises
@@ -455,20 +462,30 @@ class _Loader:
     reaches the terminal; what matters becomes a ValueError.
     """
 
-    def __init__(self, path):
+    def __init__(self, path: str | os.PathLike) -> None:
         self.path = os.fspath(path)
-        self.stage = None
-        self.warnings = lambda: []  # texts of the USD warnings trapped so far (set by load)
-        self.skeleton_index = {}  # skeleton prim path -> index into skeletons
-        self.skeletons, self.animations = [], []
-        self.meshes, self.rigid = [], []
-        self.world_tracks = {}  # skeleton prim path -> its local-to-world XformChain
+        self._stage: Usd.Stage | None = None
+        # texts of the USD warnings trapped so far (set by load)
+        self.warnings: Callable[[], list[str]] = lambda: []
+        self.skeleton_index: dict[str, int] = {}  # skeleton prim path -> index into skeletons
+        self.skeletons: list[Skeleton] = []
+        self.animations: list[UsdSkelAnimation | None] = []
+        self.meshes: list[Mesh] = []
+        self.rigid: list[RigidPrim] = []
+        # skeleton prim path -> its local-to-world XformChain
+        self.world_tracks: dict[str, XformChain] = {}
 
-    def fail(self, where, what):
+    @property
+    def stage(self) -> Usd.Stage:
+        """The stage :meth:`load` opened."""
+        assert self._stage is not None, "load() opens the stage"
+        return self._stage
+
+    def fail(self, where: str, what: str) -> NoReturn:
         raise InputError(f"{self.path}: {where}: {what}")
 
     @contextlib.contextmanager
-    def at(self, where):
+    def at(self, where: str) -> Iterator[None]:
         """Make every exception inside a ValueError naming the file and ``where``: USD's
         (``Tf.ErrorException``, ``RuntimeError``) and NumPy's on malformed values; ours already
         name the file."""
@@ -481,7 +498,7 @@ class _Loader:
         except RuntimeError as exc:  # Tf.ErrorException and pxr's Python-side errors
             raise InputError(f"{self.path}: {where}: USD error: {_tf_message(exc)}") from None
 
-    def _open(self):
+    def _open(self) -> Usd.Stage:
         if not os.path.isfile(self.path):
             raise InputError(f"{self.path}: no such file")
         ext = os.path.splitext(self.path)[1].lower()
@@ -599,26 +616,31 @@ class _Loader:
             anim._tracks = self.joint_tracks(query, prim, arrays, first, composed, rest)
         return anim
 
-    def joint_tracks(self, query, prim, arrays, first, composed, rest=None):
+    def joint_tracks(self, query: UsdSkel.SkeletonQuery, prim: Usd.Prim,
+                     arrays: dict[str, tuple[np.ndarray | None, np.ndarray] | None],
+                     first: np.ndarray, composed: np.ndarray,
+                     rest: np.ndarray | None = None) -> JointTracks | None:
         """The :class:`~.usd_anim.JointTracks` of the animation ``prim`` from its checked
         ``arrays`` (:meth:`check_animation_array`'s), or None where it might not sample as
         UsdSkel does: an array unauthored, blocked or of another layout, values from value
         clips, held interpolation, a sparse animation without rest transforms, or a result
         that differs from UsdSkel's ``composed`` at time ``first``; or an array not of its
         schema type (``float3[]``, ``quatf[]``, ``half3[]``: UsdSkel then gives the rest pose)."""
-        from .usd_anim import JointTracks
         kinds = {"translations": (Sdf.ValueTypeNames.Float3Array, "f", 3),
                  "rotations": (Sdf.ValueTypeNames.QuatfArray, "f", 4),
                  "scales": (Sdf.ValueTypeNames.Half3Array, "e", 3)}
         if self.stage.GetInterpolationType() != Usd.InterpolationTypeLinear:
             return None
         sources = (Usd.ResolveInfoSourceTimeSamples, Usd.ResolveInfoSourceDefault)
+        checked = {}
         for a, (type_name, char, width) in kinds.items():
             attr = prim.GetAttribute(a)
-            if (arrays.get(a) is None or attr.GetTypeName() != type_name  # UsdSkel: rest pose
-                    or arrays[a][1].dtype.char != char or arrays[a][1].shape[2:] != (width,)
+            array = arrays.get(a)
+            if (array is None or attr.GetTypeName() != type_name  # UsdSkel: rest pose
+                    or array[1].dtype.char != char or array[1].shape[2:] != (width,)
                     or attr.GetResolveInfo().GetSource() not in sources):
                 return None
+            checked[a] = array
         skel_joints = {str(j): i for i, j in enumerate(query.GetJointOrder())}
         joints = [skel_joints.get(str(j), -1) for j in query.GetAnimQuery().GetJointOrder()]
         if rest is None:  # (J, 4, 4) from bind_and_rest, None when UsdSkel has none
@@ -626,7 +648,8 @@ class _Loader:
                 return None
             rest = np.zeros((len(skel_joints), 4, 4))  # every joint driven: rest unused
         try:
-            tracks = JointTracks(*(arrays[a] for a in kinds), joints, rest)
+            tracks = JointTracks(checked["translations"], checked["rotations"], checked["scales"],
+                                 joints, rest)
             same = np.array_equal(tracks.local_transforms(first), composed)
         except (TypeError, ValueError):
             return None
@@ -641,7 +664,8 @@ class _Loader:
         default value; values ``(K, names, components)`` in the attribute's own scalar type)
         when every sample is an array of that one layout, else None."""
         times = [time for time, value in samples if value is not None]
-        values = native = None
+        values: np.ndarray | None = None
+        native: np.ndarray | None = None
         if times and names:
             arrays = [v for _, v in samples if v is not None]
             kind = type(arrays[0])
@@ -893,13 +917,13 @@ class _Loader:
 
     # -- the whole file --------------------------------------------------------------------
 
-    def load(self):
+    def load(self) -> Scene:
         """The file as a :class:`Scene` (USD's diagnostics trapped throughout)."""
         with _usd_diagnostics(process_stderr=True) as self.warnings:
-            self.stage = self._open()
+            self._stage = self._open()
             return self.load_stage()
 
-    def load_stage(self):
+    def load_stage(self) -> Scene:
         predicate = Usd.TraverseInstanceProxies()
         with self.at("/"):
             roots = [UsdSkel.Root(p) for p in self.stage.Traverse(predicate)
@@ -907,7 +931,7 @@ class _Loader:
         if not roots:
             raise InputError(f"{self.path}: no SkelRoot prim")
         cache = UsdSkel.Cache()
-        seen = set()
+        seen: set[str] = set()
         for root in roots:
             with self.at(str(root.GetPrim().GetPath())):
                 cache.Populate(root, predicate)
@@ -942,7 +966,7 @@ class _Loader:
                 else:
                     self.load_rigid(q, skel_index, skel.GetPrim())
 
-    def stage_metadata(self):
+    def stage_metadata(self) -> tuple[float, str, float]:
         """``(timeCodesPerSecond, upAxis, metersPerUnit)``: positive, 'Y' or 'Z', positive."""
         tcps = float(self.stage.GetTimeCodesPerSecond())
         mpu = float(UsdGeom.GetStageMetersPerUnit(self.stage))
@@ -955,7 +979,7 @@ class _Loader:
             raise InputError(f"{self.path}: layer metadata upAxis {up!r}: must be 'Y' or 'Z'")
         return tcps, up, mpu
 
-    def times(self):
+    def times(self) -> np.ndarray:
         """The stage's start..end time codes, else every sample that drives the skinning."""
         st = self.stage
         if st.HasAuthoredTimeCodeRange():
@@ -1045,14 +1069,15 @@ def _output_transforms(loader, where, skel_prim, gprim):
     return track
 
 
-def _add_at(dst, idx, delta):
+def _add_at(dst: np.ndarray, idx: np.ndarray | None, delta: np.ndarray) -> None:
     """``dst[:, idx] += delta`` over a frame axis, repeated indices adding up (as UsdSkel)."""
     if idx is None:
         dst += delta
     elif np.unique(idx).size == idx.size:
         dst[:, idx] += delta
     else:
-        np.add.at(dst, (slice(None), idx), delta)
+        # (an index tuple with a slice: NumPy's stubs take integer arrays only)
+        np.add.at(dst, (slice(None), idx), delta)  # type: ignore[arg-type]
 
 
 class _RestDeformer(Deformer):
@@ -1075,14 +1100,16 @@ class _RestDeformer(Deformer):
         self.points = points
         self.normals = normals
         self.normal_vertex = normal_vertex
-        self.animation = None
-        self.shape_from_anim = None  # prim blend shape → animation weight column (-1: none)
-        self.query = None
+        # set by setup_blend_shapes: where the weights come from, the animation weight column of
+        # each prim blend shape (-1: none), the query that splits weights into sub-shapes
+        self.animation: UsdSkelAnimation | None = None
+        self.shape_from_anim: np.ndarray | None = None
+        self.query: UsdSkel.BlendShapeQuery | None = None
         # per sub-shape: (point indices or None, offsets (n, 3), normal offsets or None), or None
         # for the zero shape UsdSkel puts at weight 0
-        self.sub_shapes = []
+        self.sub_shapes: list[tuple[np.ndarray | None, np.ndarray, np.ndarray | None] | None] = []
         # per prim blend shape: (sub-shape indices, their weights), sorted by weight
-        self.knots = []
+        self.knots: list[tuple[list[int], list[float]]] = []
 
     @classmethod
     def build(cls, loader, where, q, skeleton, points_attr, points, normals, normal_vertex):
@@ -1155,14 +1182,16 @@ class _RestDeformer(Deformer):
         subs.insert(k, sub)
         weights.insert(k, float(weight))
 
-    def sub_shape_rates(self, times):
+    def sub_shape_rates(self, times: npt.ArrayLike) -> np.ndarray:
         """``(F, S_sub)`` float64 time derivatives of :meth:`sub_shape_weights`."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-        anim_w = self.animation.blend_shape_weights(t)
-        anim_rate = self.animation.blend_shape_weight_rates(t)
+        anim, cols = self.animation, self.shape_from_anim
+        assert anim is not None and cols is not None, "only with blend shapes"
+        anim_w = anim.blend_shape_weights(t)
+        anim_rate = anim.blend_shape_weight_rates(t)
         out = np.zeros((t.shape[0], len(self.sub_shapes)))
         for shape, (subs, knots) in enumerate(self.knots):
-            col = self.shape_from_anim[shape]
+            col = cols[shape]
             if col < 0:
                 continue
             w, rate = anim_w[:, col], anim_rate[:, col]
@@ -1176,7 +1205,7 @@ class _RestDeformer(Deformer):
             out[rows, np.asarray(subs)[k]] -= rate / span
         return out
 
-    def point_velocities_at(self, times):
+    def point_velocities_at(self, times: npt.ArrayLike) -> np.ndarray:
         """``(F, V, 3)`` float64 ``d points / dt`` per time code, prim space."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         V = self.points.shape[0]
@@ -1192,20 +1221,21 @@ class _RestDeformer(Deformer):
                     _add_at(vel, sub[0], rate[:, s, None, None] * sub[1][None])
         return vel
 
-    def sub_shape_weights(self, times):
+    def sub_shape_weights(self, times: np.ndarray) -> np.ndarray:
         """``(F, S_sub)`` float32 sub-shape weights at ``times``."""
         F = times.shape[0]
         out = np.zeros((F, len(self.sub_shapes)), dtype=np.float32)
-        anim_w = self.animation.blend_shape_weights(times)
-        cols = self.shape_from_anim
+        anim, cols, query = self.animation, self.shape_from_anim, self.query
+        assert anim is not None and cols is not None and query is not None, "only with blend shapes"
+        anim_w = anim.blend_shape_weights(times)
         for f in range(F):
             w = np.where(cols >= 0, anim_w[f][np.maximum(cols, 0)], 0.0).astype(np.float32)
-            sub_w, _, sub_idx = self.query.ComputeSubShapeWeights(Vt.FloatArray.FromNumpy(w))
+            sub_w, _, sub_idx = query.ComputeSubShapeWeights(Vt.FloatArray.FromNumpy(w))
             sub = np.asarray(sub_idx, dtype=np.int64)
             np.add.at(out[f], sub, np.asarray(sub_w, dtype=np.float32))
         return out
 
-    def points_at(self, times):
+    def points_at(self, times: npt.ArrayLike) -> np.ndarray:
         """``(F, V, 3)`` float32 rest points with blend shapes applied, prim space."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         if self.animated_points:
@@ -1224,7 +1254,7 @@ class _RestDeformer(Deformer):
                 _add_at(pts, idx, w[:, s, None, None] * off[None])
         return pts
 
-    def normals_at(self, times):
+    def normals_at(self, times: npt.ArrayLike) -> np.ndarray | None:
         """``(F, N, 3)`` float32 rest normals with blend-shape normal offsets (not normalized), or
         None without normals."""
         if self.normals is None:
@@ -1236,15 +1266,17 @@ class _RestDeformer(Deformer):
             w = self.sub_shape_weights(t)
             per_vertex = np.zeros((t.shape[0], V, 3), dtype=np.float32)
             for s, sub in enumerate(self.sub_shapes):
-                if sub is None or sub[2] is None:
+                if sub is None:
                     continue
                 idx, _, noff = sub
+                if noff is None:
+                    continue
                 _add_at(per_vertex, idx, w[:, s, None, None] * noff[None])
             nrm += per_vertex if self.normal_vertex is None else per_vertex[:, self.normal_vertex]
         return nrm
 
 
-def load_usd(path):
+def load_usd(path: str | os.PathLike) -> Scene:
     """Load every skinned point-based prim of a USD file.
 
     Parameters
@@ -1285,7 +1317,7 @@ def load_usd(path):
     return _Loader(path).load()
 
 
-def load(path, *, clip=None):
+def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     """:func:`load_usd` with the signature every format's loader has (USD has one animation per
     skeleton, so ``clip`` must be None)."""
     if clip is not None:
@@ -1294,7 +1326,7 @@ def load(path, *, clip=None):
     return load_usd(path)
 
 
-def load_rigid_prims(scene):
+def load_rigid_prims(scene: Scene) -> list[RigidPrim]:
     """The rigidly skinned prims without points of a scene loaded by :func:`load_usd`.
 
     Parameters
@@ -1309,7 +1341,7 @@ def load_rigid_prims(scene):
     loader = _Loader(scene.path)
     loader.load()
     index = {s.name: i for i, s in enumerate(scene.skeletons)}
-    out = []
+    out: list[RigidPrim] = []
     for r in loader.rigid:
         name = loader.skeletons[r.skeleton].name
         if name not in index:

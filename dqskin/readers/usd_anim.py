@@ -19,7 +19,10 @@ unit ``(w, x, y, z)`` quaternions would differ in the last bits), stored as floa
 animations of seven shared assets, sparse and random ones.
 """
 
+from collections.abc import Callable
+
 import numpy as np
+import numpy.typing as npt
 
 __all__ = ["JointTracks"]
 
@@ -45,7 +48,10 @@ class JointTracks:
         animation does not drive.
     """
 
-    def __init__(self, translations, rotations, scales, joints, rest):
+    def __init__(self, translations: tuple[npt.ArrayLike | None, npt.ArrayLike],
+                 rotations: tuple[npt.ArrayLike | None, npt.ArrayLike],
+                 scales: tuple[npt.ArrayLike | None, npt.ArrayLike], joints: npt.ArrayLike,
+                 rest: npt.ArrayLike) -> None:
         self._tracks = [_Track(*translations, np.float32, _lerp),
                         _Track(*rotations, np.float32, _slerp),
                         _Track(*scales, np.float16, _lerp)]
@@ -56,7 +62,7 @@ class JointTracks:
         self._full = (len(self._to) == len(self._rest)
                       and np.array_equal(self._to, np.arange(len(self._rest))))
 
-    def local_transforms(self, times) -> np.ndarray:
+    def local_transforms(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, J, 4, 4) float64 parent-relative joint transforms at ``times`` (F,),
         column-vector convention, skeleton joint order."""
         t = np.atleast_1d(np.asarray(times, np.float64))
@@ -71,12 +77,13 @@ class JointTracks:
 class _Track:
     """One attribute's samples and USD's linear interpolation between them."""
 
-    def __init__(self, times, values, dtype, blend):
+    def __init__(self, times: npt.ArrayLike | None, values: npt.ArrayLike, dtype: npt.DTypeLike,
+                 blend: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]) -> None:
         self.values = np.asarray(values, dtype)
         self.times = None if times is None else np.asarray(times, np.float64)
         self.blend = blend
 
-    def at(self, t):
+    def at(self, t: np.ndarray) -> np.ndarray:
         """(F, A, C) values at times ``t`` (F,): a sample's own at its time, held outside the
         samples, blended between two."""
         k = self.times
@@ -92,7 +99,7 @@ class _Track:
         return out
 
 
-def _lerp(a, lower, upper):
+def _lerp(a: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """``(1 - a) * lower + a * upper`` as ``GfVec3f`` and ``GfVec3h`` compute it: each product
     rounded to the type (``GfVec3f``: in double; ``GfVec3h``: in float32, the weight made a
     float32 first, as ``GfHalf *= float`` does), then their sum in the type."""
@@ -104,7 +111,7 @@ def _lerp(a, lower, upper):
     return ((1.0 - a) * lower).astype(kind) + (a * upper).astype(kind)
 
 
-def _slerp(a, q0, q1):
+def _slerp(a: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
     """``GfSlerp(a, q0, q1)`` of ``GfQuatf`` arrays ``(x, y, z, w)``, rounded where ``GfQuatf``
     arithmetic rounds: the dot product in float32, the angle (``acos`` in double) and its sine
     (in float32) and both weights (``sin`` in double) rounded to float32, the shorter way round
@@ -124,7 +131,8 @@ def _slerp(a, q0, q1):
     return s0 * q0 + s1 * q1
 
 
-def _make_transforms(translations, rotations, scales):
+def _make_transforms(translations: np.ndarray, rotations: np.ndarray,
+                     scales: np.ndarray) -> np.ndarray:
     """``UsdSkelMakeTransforms``: (F, A, 4, 4) float64 column-vector matrices of scale, then
     rotation (the quaternion ``(x, y, z, w)`` as given, not normalized, each entry computed in
     float32 as UsdSkel does: bit for bit with it), then translation."""

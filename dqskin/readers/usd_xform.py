@@ -11,8 +11,11 @@ chain is differentiated by the product rule. At an interior sample time, where t
 a kink, the derivative is the mean of both sides, as for joints.
 """
 
+from typing import Literal
+
 import numpy as np
-from pxr import Gf, UsdGeom
+import numpy.typing as npt
+from pxr import Gf, Usd, UsdGeom
 
 from .. import quat
 from ..animation import TransformTrack
@@ -25,7 +28,7 @@ _T = UsdGeom.XformOp
 _AXES = {"X": 0, "Y": 1, "Z": 2}
 
 
-def _value(v):
+def _value(v: object) -> np.ndarray:
     """An op attribute value as a flat float64 array ((w, x, y, z) for quaternions)."""
     if isinstance(v, (Gf.Quatf, Gf.Quatd, Gf.Quath)):
         return np.array([v.GetReal(), *v.GetImaginary()], dtype=np.float64)
@@ -37,7 +40,7 @@ def _value(v):
 class _Op:
     """One xform op: its kind, axis order, inversion and keyed values."""
 
-    def __init__(self, op):
+    def __init__(self, op: UsdGeom.XformOp) -> None:
         self.type = op.GetOpType()
         self.inverse = op.IsInverseOp()
         times = op.GetTimeSamples()
@@ -49,7 +52,7 @@ class _Op:
             self.values = _value(op.Get())[None]
         self.name = op.GetOpName()
 
-    def sample(self, t):
+    def sample(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Value (F, n) and its time derivative (F, n) at times ``t`` (at an interior sample, the
         mean of the two one-sided derivatives)."""
         kt, v = self.times, self.values
@@ -62,7 +65,8 @@ class _Op:
             rate[at_key] = 0.5 * (rate[at_key] + self._segment(t[at_key], "left")[1])
         return value, rate
 
-    def _segment(self, t, side):
+    def _segment(self, t: np.ndarray,
+                 side: Literal["left", "right"]) -> tuple[np.ndarray, np.ndarray]:
         kt, v = self.times, self.values
         k = np.clip(np.searchsorted(kt, t, side=side) - 1, 0, kt.shape[0] - 2)
         dt = kt[k + 1] - kt[k]
@@ -76,7 +80,7 @@ class _Op:
             return q, quat.mul(q, log) * (inside / dt[:, None])
         return (1 - u) * v[k] + u * v[k + 1], (v[k + 1] - v[k]) * (inside / dt[:, None])
 
-    def matrices(self, t):
+    def matrices(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(F, 4, 4) op matrices and their time derivatives."""
         val, rate = self.sample(t)
         F = t.shape[0]
@@ -110,7 +114,7 @@ class _Op:
         return m, dm
 
 
-def _axis_rotation(axis, angle, rate):
+def _axis_rotation(axis: int, angle: np.ndarray, rate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(F, 4, 4) rotations about one axis and their derivatives (angles in radians)."""
     F = angle.shape[0]
     c, s = np.cos(angle), np.sin(angle)
@@ -122,10 +126,10 @@ def _axis_rotation(axis, angle, rate):
     return r, dr
 
 
-def read_local_to_world(prim):
+def read_local_to_world(prim: Usd.Prim) -> list[_Op]:
     """The xform ops from the root down to ``prim`` (after the last ``!resetXformStack!``), in
     the order they compose: a list of :class:`_Op`, the outermost first."""
-    chain = []
+    chain: list[_Op] = []
     while prim and not prim.IsPseudoRoot():
         xf = UsdGeom.Xformable(prim)
         if xf:
@@ -140,7 +144,8 @@ class XformChain(TransformTrack):
     """``inverse(localToWorld(target)) @ localToWorld(source)``: ``source`` space → ``target``
     space over time (skeleton → prim), from the ops read by :func:`read_local_to_world`."""
 
-    def __init__(self, source_ops, target_ops, *, name="transform"):
+    def __init__(self, source_ops: list[_Op], target_ops: list[_Op], *,
+                 name: str = "transform") -> None:
         self.source, self.target, self.name = source_ops, target_ops, name
         keys = set()
         for op in source_ops + target_ops:
@@ -149,7 +154,7 @@ class XformChain(TransformTrack):
         self.key_times = np.array(sorted(keys) or [0.0], dtype=np.float64)
 
     @staticmethod
-    def _compose(ops, t):
+    def _compose(ops: list[_Op], t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         m = np.tile(np.eye(4), (t.shape[0], 1, 1))
         dm = np.zeros_like(m)
         for op in ops:
@@ -157,7 +162,7 @@ class XformChain(TransformTrack):
             m, dm = m @ a, dm @ a + m @ da
         return m, dm
 
-    def with_derivative(self, times):
+    def with_derivative(self, times: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         s, ds = self._compose(self.source, t)
         g, dg = self._compose(self.target, t)

@@ -7,11 +7,17 @@ panels it rendered. Plots are drawn with Matplotlib's Agg canvas (no pyplot, no 
 import base64
 import html
 import io
+import os
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..metrics import worst
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["METRIC_TITLES", "build_html", "frame_plot_png", "method_color", "method_label",
            "sweep_plot_png"]
@@ -28,12 +34,12 @@ _NAMES = {"lbs": "LBS", "dqs": "DQS", "blend": "Blend", "cor": "CoR"}
 _PALETTE = ("#ff7f0e", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf")
 
 
-def method_label(method):
+def method_label(method: str) -> str:
     """Display name of a skinning method (its upper-cased key when it has none)."""
     return _NAMES.get(method, str(method).upper())
 
 
-def method_color(method):
+def method_color(method: str) -> str:
     """Plot colour of a skinning method: fixed for the known ones, else from a palette."""
     if method in _COLORS:
         return _COLORS[method]
@@ -57,23 +63,23 @@ figure { margin: 0; } figcaption { font-size: 0.9em; color: #444; }
 """
 
 
-def _esc(x):
+def _esc(x: object) -> str:
     return html.escape(str(x), quote=True)
 
 
-def _data_uri(png):
+def _data_uri(png: bytes) -> str:
     return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
 
 
-def _img(png, alt):
+def _img(png: bytes, alt: str) -> str:
     return f'<img src="{_data_uri(png)}" alt="{_esc(alt)}">'
 
 
-def _fmt(v, digits=4):
+def _fmt(v: float | None, digits: int = 4) -> str:
     return "—" if v is None else f"{v:.{digits}g}"
 
 
-def _figure_png(fig):
+def _figure_png(fig: "Figure") -> bytes:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     FigureCanvasAgg(fig)
@@ -82,11 +88,11 @@ def _figure_png(fig):
     return buf.getvalue()
 
 
-def _array(values):
+def _array(values: Sequence[float | None]) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
 
 
-def _scene_series(metrics, metric, method):
+def _scene_series(metrics: dict[str, Any], metric: str, method: str) -> np.ndarray:
     """Per-frame scene-wide extreme of a metric over the meshes (NaN where none is defined)."""
     rows = []
     for per_method in metrics["meshes"].values():
@@ -105,7 +111,7 @@ def _scene_series(metrics, metric, method):
     return out
 
 
-def frame_plot_png(metrics):
+def frame_plot_png(metrics: dict[str, Any]) -> bytes:
     """Per-frame plots of each metric (scene-wide worst over meshes) and of the LBS↔DQS distance.
 
     Returns
@@ -138,7 +144,7 @@ def frame_plot_png(metrics):
     return _figure_png(fig)
 
 
-def sweep_plot_png(sweeps):
+def sweep_plot_png(sweeps: dict[str, Any]) -> bytes | None:
     """Min section, max bulge and volume ratios against the joint angle on the procedural rigs,
     every method measured (solid) and the closed-form LBS references (dashed).
 
@@ -179,7 +185,7 @@ def sweep_plot_png(sweeps):
     return _figure_png(fig)
 
 
-def _summary_table(metrics):
+def _summary_table(metrics: dict[str, Any]) -> str:
     methods = metrics["methods"]
     head = "".join(f"<th>{method_label(m)} worst</th>" for m in methods)
     rows = []
@@ -208,7 +214,7 @@ def _summary_table(metrics):
             f"{''.join(rows)}</table>")
 
 
-def _mesh_table(metrics):
+def _mesh_table(metrics: dict[str, Any]) -> str:
     methods = metrics["methods"]
     head = "".join(f"<th>{METRIC_TITLES[k]}<br>{method_label(m)}</th>" for k in METRIC_TITLES
                    for m in methods)
@@ -232,7 +238,7 @@ def _mesh_table(metrics):
     return (f"<table><tr><th class=l>mesh</th>{head}</tr>{''.join(rows)}</table>{note}")
 
 
-def _worst_frames(metrics):
+def _worst_frames(metrics: dict[str, Any]) -> list[tuple[int, list[str]]]:
     """Frame indices to show: each metric's worst frame (worst method first), then the frame of
     the largest LBS↔DQS distance; at most :data:`_MAX_WORST_FRAMES`, with the reasons."""
     picks = []
@@ -247,13 +253,14 @@ def _worst_frames(metrics):
         d = np.nanmax(np.stack([_array(v["max"]) for v in dist.values()]), axis=0)
         if np.isfinite(d).any():
             picks.append((int(np.nanargmax(d)), f"largest LBS↔DQS distance ({np.nanmax(d):.3g})"))
-    frames = {}
+    frames: dict[int, list[str]] = {}
     for f, why in picks:
         frames.setdefault(f, []).append(why)
     return sorted(frames.items())[:_MAX_WORST_FRAMES]
 
 
-def _viewer_section(m, viewer):
+def _viewer_section(m: dict[str, Any],
+                    viewer: tuple[np.ndarray, tuple[dict[str, Any], bytes]]) -> str:
     """The animated viewer (:mod:`.viewer`) for ``viewer = (times, (meta, blob))``."""
     from .render import colormap_lut
     from .viewer import viewer_html
@@ -278,7 +285,8 @@ def _viewer_section(m, viewer):
             f"are quantized to {meta['step']:.3g} units.</p>" + viewer_html(meta, blob, settings))
 
 
-def build_html(metrics, out_dir, *, viewer=None):
+def build_html(metrics: dict[str, Any], out_dir: str | os.PathLike, *,
+               viewer: tuple[np.ndarray, tuple[dict[str, Any], bytes]] | None = None) -> str:
     """The report as one HTML string, images read from ``out_dir`` (paths in ``metrics``).
 
     ``viewer``: ``(times, (meta, blob))`` of :func:`dqskin.report.viewer.encode` for the

@@ -11,13 +11,17 @@ Cameras (:class:`Camera`) use world units and the column-vector convention of th
 one camera from the bounds of every frame and method you compare so the images line up.
 """
 
+import os
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
-from .._warp import resolve_device
+from .._warp import Device, resolve_device
 from ..errors import InputError
 from ..files.atomic import atomic_path
 from ..kernels import render as K
@@ -45,20 +49,20 @@ _THREE_QUARTER_AZIMUTH = np.radians(45.0)
 _THREE_QUARTER_ELEVATION = np.radians(20.0)
 
 
-def _vec3(name, x):
+def _vec3(name: str, x: npt.ArrayLike) -> np.ndarray:
     a = np.asarray(x, dtype=np.float64)
     if a.shape != (3,) or not np.all(np.isfinite(a)):
         raise InputError(f"{name}: expected 3 finite numbers, got {np.asarray(x).tolist()!r}")
     return a
 
 
-def _up_axis(up_axis):
+def _up_axis(up_axis: str) -> str:
     if up_axis not in _UP:
         raise InputError(f'up_axis must be "Y" or "Z", got {up_axis!r}')
     return up_axis
 
 
-def _view_direction(view, up_axis):
+def _view_direction(view: str | npt.ArrayLike, up_axis: str) -> np.ndarray:
     """Unit vector from the target to the eye for a named view or an explicit (3,) direction.
 
     ``front`` looks at the character's front, ``side`` from its left-hand side (+X),
@@ -110,7 +114,7 @@ class Camera:
     fov: float | None = 30.0
     ortho_height: float | None = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ("eye", "target", "up"):
             object.__setattr__(self, name, _vec3(name, getattr(self, name)))
         if self.fov is None:
@@ -126,10 +130,10 @@ class Camera:
             raise InputError("up: parallel to the view direction")
 
     @property
-    def orthographic(self):
+    def orthographic(self) -> bool:
         return self.fov is None
 
-    def basis(self):
+    def basis(self) -> np.ndarray:
         """Orthonormal ``(forward, right, up)`` (3, 3) float64 rows, right-handed screen axes."""
         forward = self.target - self.eye
         forward = forward / np.linalg.norm(forward)
@@ -137,15 +141,16 @@ class Camera:
         right /= np.linalg.norm(right)
         return np.stack([forward, right, np.cross(right, forward)])
 
-    def half_extents(self, aspect):
+    def half_extents(self, aspect: float) -> tuple[float, float]:
         """``(half_w, half_h)``: tangents of the half field of view, or orthographic half sizes."""
-        if self.orthographic:
+        if self.fov is None:  # orthographic
+            assert self.ortho_height is not None  # (__post_init__ requires it)
             half_h = 0.5 * self.ortho_height
         else:
-            half_h = np.tan(np.radians(self.fov) / 2)
+            half_h = float(np.tan(np.radians(self.fov) / 2))
         return half_h * aspect, half_h
 
-    def project(self, points, width, height):
+    def project(self, points: npt.ArrayLike, width: int, height: int) -> np.ndarray:
         """Pixel coordinates of world points.
 
         Parameters
@@ -168,8 +173,9 @@ class Camera:
         return np.stack([(x + 1) * width / 2, (1 - y) * height / 2], axis=-1)
 
     @classmethod
-    def frame(cls, bounds_min, bounds_max, view="front", *, up_axis="Y", fov=30.0, aspect=1.0,
-              margin=1.05):
+    def frame(cls, bounds_min: npt.ArrayLike, bounds_max: npt.ArrayLike,
+              view: str | npt.ArrayLike = "front", *, up_axis: str = "Y", fov: float | None = 30.0,
+              aspect: float = 1.0, margin: float = 1.05) -> "Camera":
         """A camera that sees the whole box ``[bounds_min, bounds_max]``.
 
         Parameters
@@ -210,7 +216,9 @@ class Camera:
         return cls(center + back * max(distance, 1e-6), center, up, fov=fov)
 
     @classmethod
-    def frame_point(cls, center, radius, view="front", *, up_axis="Y", fov=30.0, aspect=1.0):
+    def frame_point(cls, center: npt.ArrayLike, radius: float, view: str | npt.ArrayLike = "front",
+                    *, up_axis: str = "Y", fov: float | None = 30.0,
+                    aspect: float = 1.0) -> "Camera":
         """A close-up: the sphere ``(center, radius)`` (e.g. around one joint) just fills the image.
 
         Parameters as in :meth:`frame`; ``radius`` > 0 in world units.
@@ -227,7 +235,7 @@ class Camera:
         half = min(half, np.arctan(np.tan(half) * aspect))
         return cls(c + back * radius / np.sin(half), c, up, fov=fov)
 
-    def _params(self, aspect):
+    def _params(self, aspect: float) -> K.CameraParams:
         forward, right, up = self.basis()
         half_w, half_h = self.half_extents(aspect)
         p = K.CameraParams()
@@ -250,18 +258,18 @@ class Shading:
     area-weighted vertex normals; otherwise faces are flat.
     """
 
-    base_color: tuple = (0.78, 0.78, 0.80)
-    background: tuple = (1.0, 1.0, 1.0)
-    light: tuple = (-0.4, 0.6, 1.0)
+    base_color: tuple[float, float, float] = (0.78, 0.78, 0.80)
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    light: tuple[float, float, float] = (-0.4, 0.6, 1.0)
     ambient: float = 0.25
     diffuse: float = 0.75
     rim: float = 0.25
     rim_power: float = 3.0
     lit: bool = True
     smooth: bool = True
-    nan_color: tuple = (0.5, 0.5, 0.5)
+    nan_color: tuple[float, float, float] = (0.5, 0.5, 0.5)
 
-    def light_world(self, camera):
+    def light_world(self, camera: Camera) -> np.ndarray:
         """Unit world direction from the surface to the key light, (3,) float64."""
         forward, right, up = camera.basis()
         lr, lu, lb = _vec3("light", self.light)
@@ -271,7 +279,7 @@ class Shading:
             raise InputError("light: direction has zero length")
         return d / n
 
-    def _params(self, camera):
+    def _params(self, camera: Camera) -> K.ShadingParams:
         p = K.ShadingParams()
         p.light = wp.vec3(*map(float, self.light_world(camera)))
         p.base_color = wp.vec3(*map(float, _vec3("base_color", self.base_color)))
@@ -282,7 +290,7 @@ class Shading:
         return p
 
 
-def colormap_lut(colormap="viridis", size=256):
+def colormap_lut(colormap: str = "viridis", size: int = 256) -> np.ndarray:
     """RGB samples of a Matplotlib colour map at ``linspace(0, 1, size)``.
 
     Returns
@@ -298,7 +306,7 @@ def colormap_lut(colormap="viridis", size=256):
     return cmap(np.linspace(0.0, 1.0, size))[:, :3].astype(np.float32)
 
 
-def _check_mesh(points, faces):
+def _check_mesh(points: npt.ArrayLike, faces: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"points: expected (V, 3), got {pts.shape}")
@@ -324,25 +332,26 @@ class MeshRenderer:
     The ``wp.Mesh`` (BVH) is built once; :meth:`update` moves the points and refits it.
     """
 
-    def __init__(self, points, faces, *, device=None):
+    def __init__(self, points: npt.ArrayLike, faces: npt.ArrayLike, *,
+                 device: Device = None) -> None:
         self.device = resolve_device(device)
         pts, f = _check_mesh(points, faces)
         d = self.device
         self.vertex_count, self.face_count = pts.shape[0], f.shape[0]
-        self._faces = wp.array(f.reshape(-1), dtype=wp.int32, device=d)
+        self._faces: wp.array = wp.array(f.reshape(-1), dtype=wp.int32, device=d)
         offsets, vf = incidence(f, pts.shape[0])
-        self._vf_offsets = wp.array(offsets, dtype=wp.int32, device=d)
-        self._vf_faces = wp.array(vf, dtype=wp.int32, device=d)
+        self._vf_offsets: wp.array = wp.array(offsets, dtype=wp.int32, device=d)
+        self._vf_faces: wp.array = wp.array(vf, dtype=wp.int32, device=d)
         self._normals = wp.empty(pts.shape[0], dtype=wp.vec3, device=d)
         self.mesh = wp.Mesh(wp.array(pts, dtype=wp.vec3, device=d), self._faces)
-        self._luts = {}
+        self._luts: dict[str, wp.array] = {}
         self._update_normals()
 
-    def _update_normals(self):
+    def _update_normals(self) -> None:
         K.vertex_normals(points=self.mesh.points, faces=self._faces, vf_offsets=self._vf_offsets,
                          vf_faces=self._vf_faces, out=self._normals, device=self.device)
 
-    def update(self, points):
+    def update(self, points: npt.ArrayLike) -> None:
         """Move the vertices (same topology) and refit the BVH.
 
         Parameters
@@ -359,15 +368,18 @@ class MeshRenderer:
         self.mesh.refit()
         self._update_normals()
 
-    def _lut(self, colormap):
+    def _lut(self, colormap: str) -> wp.array:
         if colormap not in self._luts:
             self._luts[colormap] = wp.array(colormap_lut(colormap), dtype=wp.vec3,
                                             device=self.device)
         return self._luts[colormap]
 
-    def render(self, camera, *, width=512, height=512, supersample=2, scalars=None,
-               scalar_range=None, colormap="viridis", shading=None, transparent=False,
-               adaptive=False, second_layer=None):
+    def render(self, camera: Camera, *, width: int = 512, height: int = 512, supersample: int = 2,
+               scalars: npt.ArrayLike | None = None,
+               scalar_range: tuple[float, float] | None = None, colormap: str = "viridis",
+               shading: Shading | None = None, transparent: bool = False, adaptive: bool = False,
+               second_layer: dict[str, Any] | None = None
+               ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Ray cast the current mesh.
 
         Parameters
@@ -454,9 +466,13 @@ class MeshRenderer:
                              device=d)
         images = [o.numpy() for o in outs]
         images = [img if transparent else img[..., :3].copy() for img in images]
-        return images[0] if second_layer is None else tuple(images)
+        if second_layer is not None:
+            return images[0], images[-1]
+        return images[0]
 
-    def _layer(self, camera, scalars, scalar_range, colormap, shading, where):
+    def _layer(self, camera: Camera, scalars: npt.ArrayLike | None,
+               scalar_range: tuple[float, float] | None, colormap: str, shading: Shading,
+               where: str) -> K.Layer:
         """A :class:`dqskin.kernels.render.Layer`: constant colour or heat map, lit."""
         layer = K.Layer()
         layer.lut = self._lut(colormap)
@@ -476,7 +492,9 @@ class MeshRenderer:
         return layer
 
 
-    def render_frames(self, frames, camera, *, scalars=None, progress=False, **kwargs):
+    def render_frames(self, frames: npt.ArrayLike, camera: Camera, *,
+                      scalars: npt.ArrayLike | None = None, progress: bool = False,
+                      **kwargs: Any) -> np.ndarray:
         """Render a sequence of poses of this mesh, refitting between frames.
 
         Parameters
@@ -510,7 +528,7 @@ class MeshRenderer:
             from tqdm import tqdm
 
             indices = tqdm(indices, desc="render", unit="frame")
-        images = []
+        images: list[np.ndarray | tuple[np.ndarray, np.ndarray]] = []
         for i in indices:
             self.update(pts[i])
             frame_scalars = None if sv is None else (sv if sv.ndim == 1 else sv[i])
@@ -518,7 +536,7 @@ class MeshRenderer:
         return np.stack(images)
 
 
-def _scalar_range(values, scalar_range):
+def _scalar_range(values: np.ndarray, scalar_range: Iterable[float] | None) -> tuple[float, float]:
     if scalar_range is not None:
         lo, hi = (float(v) for v in scalar_range)
         if not (np.isfinite(lo) and np.isfinite(hi)) or hi < lo:
@@ -531,7 +549,8 @@ def _scalar_range(values, scalar_range):
     return float(finite.min()), float(finite.max())
 
 
-def render(points, faces, camera, *, device=None, **kwargs):
+def render(points: npt.ArrayLike, faces: npt.ArrayLike, camera: Camera, *, device: Device = None,
+           **kwargs: Any) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Render one mesh once (see :meth:`MeshRenderer.render` for the keyword arguments).
 
     Parameters
@@ -547,7 +566,7 @@ def render(points, faces, camera, *, device=None, **kwargs):
     return MeshRenderer(points, faces, device=device).render(camera, **kwargs)
 
 
-def _as_image(name, image):
+def _as_image(name: str, image: npt.ArrayLike) -> np.ndarray:
     a = np.asarray(image)
     if a.dtype != np.uint8 or not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (3, 4))):
         raise InputError(f"{name}: expected a uint8 (H, W), (H, W, 3) or (H, W, 4) image, got "
@@ -555,19 +574,22 @@ def _as_image(name, image):
     return a
 
 
-def _font(size):
+def _font(size: float | None) -> Any:
     from PIL import ImageFont
 
     return ImageFont.load_default(size=size)
 
 
-def _rgb_bytes(name, color):
+def _rgb_bytes(name: str, color: npt.ArrayLike) -> tuple[int, ...]:
     c = _vec3(name, color)
     return tuple(int(round(v * 255)) for v in np.clip(c, 0, 1))
 
 
-def add_colorbar(image, scalar_range, colormap="viridis", *, label=None, ticks=5,
-                 background=(1.0, 1.0, 1.0), text_color=(0.0, 0.0, 0.0), font_size=None):
+def add_colorbar(image: npt.ArrayLike, scalar_range: tuple[float, float], colormap: str = "viridis",
+                 *, label: str | None = None, ticks: int = 5,
+                 background: npt.ArrayLike = (1.0, 1.0, 1.0),
+                 text_color: npt.ArrayLike = (0.0, 0.0, 0.0),
+                 font_size: int | None = None) -> np.ndarray:
     """Append a vertical colour bar with tick labels to the right of an image.
 
     Parameters
@@ -623,8 +645,10 @@ def add_colorbar(image, scalar_range, colormap="viridis", *, label=None, ticks=5
     return np.concatenate([img, np.asarray(panel)], axis=1)
 
 
-def side_by_side(images, labels=None, *, pad=8, background=(1.0, 1.0, 1.0),
-                 text_color=(0.0, 0.0, 0.0), font_size=None):
+def side_by_side(images: Sequence[npt.ArrayLike], labels: Sequence[str] | None = None, *,
+                 pad: int = 8, background: npt.ArrayLike = (1.0, 1.0, 1.0),
+                 text_color: npt.ArrayLike = (0.0, 0.0, 0.0),
+                 font_size: int | None = None) -> np.ndarray:
     """Compose images in one row, each with an optional text label above it.
 
     Parameters
@@ -674,7 +698,7 @@ def side_by_side(images, labels=None, *, pad=8, background=(1.0, 1.0, 1.0),
     return np.asarray(canvas)
 
 
-def save_png(path, image):
+def save_png(path: str | os.PathLike, image: npt.ArrayLike) -> Path:
     """Write an image as PNG atomically (temporary file in the same folder, then ``os.replace``).
 
     Parameters

@@ -26,9 +26,12 @@ far better than interleaved bytes. 35k points × 48 frames × 3 methods come to 
 import base64
 import json
 import zlib
+from collections.abc import Mapping
 from importlib.resources import files
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 
@@ -41,7 +44,8 @@ frames, so the worst frames are exact)."""
 _GRID = 65535
 
 
-def viewer_times(clip_times, compared, count=VIEWER_FRAMES):
+def viewer_times(clip_times: npt.ArrayLike, compared: npt.ArrayLike,
+                 count: int = VIEWER_FRAMES) -> np.ndarray:
     """The viewer's frame times: ``count`` evenly spaced times over the clip's range (all of the
     clip's own times when it has no more), merged with the compared times.
 
@@ -66,13 +70,13 @@ def viewer_times(clip_times, compared, count=VIEWER_FRAMES):
     return np.union1d(np.asarray(compared, dtype=np.float64).reshape(-1), extra)
 
 
-def _planes(q):
+def _planes(q: np.ndarray) -> bytes:
     """uint16 array → its low-byte plane followed by its high-byte plane."""
     b = np.ascontiguousarray(q, dtype="<u2").reshape(-1).view(np.uint8).reshape(-1, 2)
     return np.ascontiguousarray(b.T).tobytes()
 
 
-def _spread(posed):
+def _spread(posed: Mapping[str, np.ndarray]) -> np.ndarray:
     """(F, V) largest distance between any two methods' points (float32)."""
     arrays = list(posed.values())
     out = np.zeros(arrays[0].shape[:2], dtype=np.float32)
@@ -83,7 +87,8 @@ def _spread(posed):
     return out
 
 
-def encode(posed, rest, faces, *, level=1):
+def encode(posed: Mapping[str, npt.ArrayLike], rest: npt.ArrayLike, faces: npt.ArrayLike, *,
+           level: int = 1) -> tuple[dict[str, Any], bytes]:
     """The viewer's metadata and compressed vertex data.
 
     Parameters
@@ -133,7 +138,9 @@ def encode(posed, rest, faces, *, level=1):
         heat_max = float(spread.max()) if spread.size else 0.0
         scale = 255.0 / heat_max if heat_max > 0 else 0.0
         sections["heat"] = np.rint(spread * scale).astype(np.uint8).tobytes()
-    offsets, raw, at = {}, [], 0
+    offsets: dict[str, list[int]] = {}
+    raw: list[bytes] = []
+    at = 0
     for name, data in sections.items():
         offsets[name] = [at, len(data)]
         raw.append(data)
@@ -144,7 +151,7 @@ def encode(posed, rest, faces, *, level=1):
     return meta, zlib.compress(b"".join(raw), level)
 
 
-def decode(meta, blob):
+def decode(meta: Mapping[str, Any], blob: bytes) -> dict[str, Any]:
     """Inverse of :func:`encode` (what ``viewer.js`` does), for tests and tools.
 
     Returns
@@ -179,16 +186,16 @@ def decode(meta, blob):
             "heat": heat}
 
 
-def _asset(*parts):
+def _asset(*parts: str) -> str:
     return files("dqskin.report").joinpath(*parts).read_text(encoding="utf-8")
 
 
-def _script_json(value):
+def _script_json(value: object) -> str:
     """JSON safe inside a ``<script>`` element (no ``</``, no ``<!--``)."""
     return json.dumps(value, ensure_ascii=False, allow_nan=False).replace("<", "\\u003c")
 
 
-def viewer_html(meta, blob, settings):
+def viewer_html(meta: Mapping[str, Any], blob: bytes, settings: Mapping[str, Any]) -> str:
     """The viewer's HTML fragment: a canvas, its controls, three.js, the data and viewer.js.
 
     Parameters

@@ -14,12 +14,23 @@ What each per-frame format holds (all meshes of the scene go into one file per f
   naming it; ``.ply`` keeps its points as vertices.
 """
 
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError, Param, output_exists
 from ..files.atomic import CommitOnSuccess, atomic_group
+
+if TYPE_CHECKING:
+    import trimesh
+
+    from ..scene import Mesh
 
 __all__ = ["FACES_REQUIRED", "SUFFIXES", "WITH_ATTRIBUTES", "FrameWriter", "MeshLayout",
            "frame_paths", "write_frames"]
@@ -34,7 +45,7 @@ FACES_REQUIRED = (".obj", ".stl", ".off", ".glb")
 """Per-frame formats that need triangles (``.ply`` also holds bare points)."""
 
 
-def frame_paths(pattern, frames):
+def frame_paths(pattern: str | os.PathLike, frames: Iterable[int]) -> list[Path]:
     """Expand ``dir/frame_{:04d}.obj`` for each frame number; InputError when two frames would
     share a file (a name without a ``{}`` field and more than one frame)."""
     pattern = str(pattern)
@@ -51,7 +62,7 @@ def frame_paths(pattern, frames):
     return paths
 
 
-def _triangle_corners(mesh):
+def _triangle_corners(mesh: Mesh) -> np.ndarray | None:
     """(T, 3) positions in ``face_vertex_indices`` of each triangle corner of ``mesh.faces`` (the
     loaders' fan triangulation, holes dropped, winding maybe flipped), or None."""
     counts, fvi, faces = mesh.face_vertex_counts, mesh.face_vertex_indices, mesh.faces
@@ -83,8 +94,9 @@ def _triangle_corners(mesh):
     return None
 
 
-def _uv_interpolation(mesh, hint):
+def _uv_interpolation(mesh: Mesh, hint: Callable[[str], str | None] | None) -> str:
     """How ``mesh.uvs`` map to the mesh: "vertex", "faceVarying", "uniform" or "constant"."""
+    assert mesh.uvs is not None, "asked only for meshes with UVs"
     U, V = len(mesh.uvs), len(mesh.points)
     fvi, counts = mesh.face_vertex_indices, mesh.face_vertex_counts
     candidates = []
@@ -134,16 +146,20 @@ class MeshLayout:
     normals : bool
     """
 
-    def __init__(self, meshes, suffix, *, normals=True, uvs=True, uv_top_left=False,
-                 uv_interpolation=None):
+    def __init__(self, meshes: Sequence[Mesh], suffix: str, *, normals: bool = True,
+                 uvs: bool = True, uv_top_left: bool = False,
+                 uv_interpolation: Callable[[str], str | None] | None = None) -> None:
         suffix = suffix.lower()
         if suffix not in SUFFIXES:
             raise InputError(f"{suffix}: not a mesh file type ({' '.join(SUFFIXES)})")
         rich = suffix in WITH_ATTRIBUTES
         self.normals = bool(normals) and rich and any(m.normals is not None for m in meshes)
         want_uvs = bool(uvs) and rich and any(m.uvs is not None for m in meshes)
-        self.parts = []  # (mesh, vertex (K,), normal index (K,) or None, uv (K, 2) or None)
-        faces, uv_rows, offset = [], [], 0
+        # (mesh, vertex (K,), normal index (K,) or None)
+        self.parts: list[tuple[Mesh, np.ndarray, np.ndarray | None]] = []
+        faces: list[np.ndarray] = []
+        uv_rows: list[np.ndarray] = []
+        offset = 0
         for m in meshes:
             if suffix in FACES_REQUIRED and len(m.faces) == 0:
                 raise InputError(f"{m.name}: no faces; {suffix} files hold triangle meshes "
@@ -157,7 +173,9 @@ class MeshLayout:
         self.uvs = np.concatenate(uv_rows) if want_uvs else None
         self.vertex_count = offset
 
-    def _split(self, m, want_uvs, uv_top_left, uv_interpolation):
+    def _split(self, m: Mesh, want_uvs: bool, uv_top_left: bool,
+               uv_interpolation: Callable[[str], str | None] | None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
         """(vertex (K,), faces (T, 3) into K, normal index (K,) or None, uvs (K, 2) or None)."""
         faces = np.asarray(m.faces, np.int64).reshape(-1, 3)
         V = len(m.points)
@@ -187,8 +205,8 @@ class MeshLayout:
             elif uv_interp == "faceVarying":
                 uv_c = uvs[corner_c]
             elif uv_interp == "uniform":
-                polygon = np.repeat(np.arange(len(m.face_vertex_counts)),
-                                    np.asarray(m.face_vertex_counts, np.int64))
+                counts = np.asarray(m.face_vertex_counts, np.int64)  # "uniform": known
+                polygon = np.repeat(np.arange(len(counts)), counts)
                 uv_c = uvs[polygon[corner_c]]
             else:
                 uv_c = np.broadcast_to(uvs[0], (len(vert_c), 2))
@@ -203,7 +221,9 @@ class MeshLayout:
         return (vert, inverse.reshape(-1, 3), nidx,
                 None if uv_c is None else np.ascontiguousarray(uv_c[first]))
 
-    def frames(self, points, normals=None):
+    def frames(self, points: Mapping[str, npt.ArrayLike],
+               normals: Mapping[str, npt.ArrayLike] | None = None
+               ) -> tuple[np.ndarray, np.ndarray | None]:
         """Per-frame arrays for the file from skinned results.
 
         Parameters
@@ -216,7 +236,8 @@ class MeshLayout:
         -------
         (F, K, 3) float32 positions and (F, K, 3) float32 unit normals or None.
         """
-        pts, nrm = [], []
+        pts: list[np.ndarray] = []
+        nrm: list[np.ndarray] = []
         for m, vert, nidx in self.parts:
             p = np.asarray(points[m.name], np.float32)
             pts.append(p[:, vert])
@@ -236,7 +257,7 @@ class MeshLayout:
         return pos, n
 
 
-def _vertex_normals(points, faces):
+def _vertex_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(F, V, 3) unit area-weighted vertex normals of triangles ``faces`` over ``points``
     (F, V, 3): the renderer's kernel (:func:`dqskin.kernels.render.vertex_normals`), per frame."""
     import warp as wp
@@ -248,9 +269,10 @@ def _vertex_normals(points, faces):
     if not len(faces) or not V:
         return out
     offsets, vf = incidence(np.asarray(faces, np.int32), V)
-    arrays = {"faces": wp.array(np.asarray(faces, np.int32).ravel(), dtype=wp.int32, device="cpu"),
-              "vf_offsets": wp.array(offsets, dtype=wp.int32, device="cpu"),
-              "vf_faces": wp.array(vf, dtype=wp.int32, device="cpu")}
+    arrays: dict[str, wp.array] = {
+        "faces": wp.array(np.asarray(faces, np.int32).ravel(), dtype=wp.int32, device="cpu"),
+        "vf_offsets": wp.array(offsets, dtype=wp.int32, device="cpu"),
+        "vf_faces": wp.array(vf, dtype=wp.int32, device="cpu")}
     normals = wp.empty(V, dtype=wp.vec3, device="cpu")
     for k in range(F):
         KR.vertex_normals(points=wp.array(points[k], dtype=wp.vec3, device="cpu"), out=normals,
@@ -277,7 +299,8 @@ class FrameWriter(CommitOnSuccess):
     or call :meth:`commit` / :meth:`discard`.
     """
 
-    def __init__(self, pattern, faces, uvs=None, *, overwrite=True):
+    def __init__(self, pattern: str | os.PathLike, faces: npt.ArrayLike,
+                 uvs: npt.ArrayLike | None = None, *, overwrite: bool = True) -> None:
         self.pattern = str(pattern)
         self.suffix = Path(self.pattern).suffix.lower()
         if self.suffix not in SUFFIXES:
@@ -287,9 +310,10 @@ class FrameWriter(CommitOnSuccess):
             raise InputError(f"{self.pattern}: {self.suffix} files cannot hold UVs")
         self.uvs = None if uvs is None else np.asarray(uvs, np.float64)
         self.group = atomic_group(overwrite=overwrite)
-        self.paths = []
+        self.paths: list[Path] = []
 
-    def write(self, frame_numbers, points, normals=None):
+    def write(self, frame_numbers: Iterable[int], points: Sequence[npt.ArrayLike] | np.ndarray,
+              normals: Sequence[npt.ArrayLike] | np.ndarray | None = None) -> list[Path]:
         """Write frames ``frame_numbers`` (F,) with positions ``points`` (F, K, 3) and
         optionally unit ``normals`` (F, K, 3) to temporary files."""
         import trimesh
@@ -314,7 +338,7 @@ class FrameWriter(CommitOnSuccess):
             self.paths.append(path)
         return paths
 
-    def _export(self, mesh, tmp, with_normals):
+    def _export(self, mesh: trimesh.Trimesh, tmp: Path, with_normals: bool) -> None:
         if self.suffix == ".obj":
             from trimesh.exchange.obj import export_obj
             text = export_obj(mesh, include_normals=with_normals,
@@ -326,15 +350,18 @@ class FrameWriter(CommitOnSuccess):
         else:
             mesh.export(tmp, file_type=self.suffix.lstrip("."))
 
-    def commit(self):
+    def commit(self) -> list[Path]:
         """Put every written file in place; returns their paths."""
         return self.group.commit()
 
-    def discard(self):
+    def discard(self) -> None:
         self.group.discard()
 
 
-def write_frames(pattern, frame_numbers, points, faces, *, force=False, normals=None, uvs=None):
+def write_frames(pattern: str | os.PathLike, frame_numbers: Iterable[int],
+                 points: Sequence[npt.ArrayLike] | np.ndarray, faces: npt.ArrayLike, *,
+                 force: bool = False, normals: Sequence[npt.ArrayLike] | np.ndarray | None = None,
+                 uvs: npt.ArrayLike | None = None) -> list[Path]:
     """Write one mesh file per frame through trimesh (format from the suffix), all together.
 
     Parameters

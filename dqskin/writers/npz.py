@@ -1,6 +1,10 @@
 """Skinned frames as one NumPy ``.npz`` archive."""
 
+import os
+from collections.abc import Iterable
+
 import numpy as np
+import numpy.typing as npt
 
 from ..files.atomic import atomic_path
 
@@ -9,16 +13,20 @@ __all__ = ["SUFFIXES", "save_npz", "write_npz"]
 SUFFIXES = (".npz",)
 
 
-def save_npz(path, times, names, points, faces):
+def save_npz(path: str | os.PathLike, times: npt.ArrayLike, names: Iterable[str],
+             points: Iterable[npt.ArrayLike], faces: Iterable[npt.ArrayLike]) -> None:
     """Write the archive to ``path`` as is (not atomic: :func:`write_npz`, or a path from
     :class:`dqskin.files.atomic.atomic_path`)."""
     with open(path, "wb") as fh:
-        np.savez(fh, times=np.asarray(times, np.float64), names=np.array(list(names)),
+        np.savez(fh, allow_pickle=False, times=np.asarray(times, np.float64),
+                 names=np.array(list(names)),
                  **{f"points_{i}": p for i, p in enumerate(points)},
                  **{f"faces_{i}": f for i, f in enumerate(faces)})
 
 
-def write_npz(path, times, names, points, faces, *, overwrite=True):
+def write_npz(path: str | os.PathLike, times: npt.ArrayLike, names: Iterable[str],
+              points: Iterable[npt.ArrayLike], faces: Iterable[npt.ArrayLike], *,
+              overwrite: bool = True) -> None:
     """Write ``times``, ``names`` and per mesh ``i`` (in ``names`` order) ``points_i`` and
     ``faces_i``, atomically.
 

@@ -34,16 +34,21 @@ import json
 import os
 import re
 import shutil
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, Literal
 
 import numpy as np
+import numpy.typing as npt
 import xxhash
 from pxr import Sdf, Tf, Usd, Vt
 
 from ..errors import InputError, OutputExistsError, Param, output_exists
 from ..files.atomic import atomic_path, check_interrupted
-from ..files.crate import BOOTSTRAP, CrateSamples
+from ..files.crate import BOOTSTRAP, CrateSamples, Hasher
 from ..readers.usd import _tf_message
+from ..scene import Scene
 from .usd_cache import (
     CLIPS_FOLDER_SUFFIX,
     CacheLayer,
@@ -84,7 +89,7 @@ _NO_LOCKS = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL)
 
 
 @contextlib.contextmanager
-def bake_lock(out):
+def bake_lock(out: str | os.PathLike) -> Iterator[None]:
     """Hold ``out``'s clip folder (:func:`clips_folder`) for one bake: an exclusive ``flock`` on
     its :data:`LOCK_FILE`, released when the block ends or the process does (however it ends).
     A second bake of ``out`` (``resume`` and ``force`` included) then fails at once with
@@ -111,7 +116,7 @@ def bake_lock(out):
                 folder.rmdir()  # only when empty
 
 
-def _lock(path):
+def _lock(path: Path) -> int | None:
     """A descriptor of ``path`` holding its exclusive lock (None where locks do not exist)."""
     try:
         import fcntl
@@ -157,7 +162,7 @@ def _lock(path):
     raise OutputExistsError(f"{path}: removed and made again while locking it; rerun")
 
 
-def clip_frames(scene, frames: int, normals: bool = True, velocities: bool = True,
+def clip_frames(scene: Scene, frames: int, normals: bool = True, velocities: bool = True,
                 workers: int | None = None) -> int:
     """Default frames per clip layer of a bake of ``frames`` frames: :data:`CLIP_CHUNK`, or as
     many more as hold :data:`CLIP_BYTES` of samples (CesiumMan's 3,273 points: 854 frames
@@ -182,26 +187,28 @@ def clip_frames(scene, frames: int, normals: bool = True, velocities: bool = Tru
     return -(-F // (k * w))
 
 
-def _recorded(out, key):
+def _recorded(out: str | os.PathLike, key: str) -> Any:
     """``key`` of the plan of the earlier bake in ``out``'s clip folder (its ``plan.json``), None
     without one (or an unreadable one)."""
     return _recorded_in(clips_folder(out), key)
 
 
-def _recorded_in(folder, key):
+def _recorded_in(folder: str | os.PathLike, key: str) -> Any:
     try:
         return json.loads((Path(folder) / "plan.json").read_text()).get(key)
     except (OSError, ValueError, AttributeError):
         return None
 
 
-def input_files(stage, src, inputs=()) -> list:
+def input_files(stage: Usd.Stage, src: str | os.PathLike,
+                inputs: Iterable[str | os.PathLike] = ()) -> list[str]:
     """Every file a bake of ``src`` reads: the layers of its ``stage`` and ``inputs`` (the
     command's other files: ``--weights``, ``--skeleton``)."""
     return [*_source_files(stage, src), *map(str, inputs)]
 
 
-def check_outside(out, files, src) -> None:
+def check_outside(out: str | os.PathLike, files: Iterable[str | os.PathLike],
+                  src: str | os.PathLike) -> None:
     """ValueError when one of ``files`` (``src`` and the layers it reads) is inside ``out``'s
     clip folder, where a clip bake writes and ``--force`` removes."""
     inside = clips_folder(out).resolve()
@@ -212,18 +219,18 @@ def check_outside(out, files, src) -> None:
                              f"{Path(out).name} writes; move it out of that folder first")
 
 
-def holds_clip_bake(out) -> bool:
+def holds_clip_bake(out: str | os.PathLike) -> bool:
     """Whether ``out``'s clip folder holds a clip bake of ``out`` (its plan names it)."""
     return _recorded(out, "out") == Path(out).name
 
 
-def remove_clip_bake(out) -> None:
+def remove_clip_bake(out: str | os.PathLike) -> None:
     """Remove the clip bake of ``out`` that a single layer written there replaced: dqskin's own
     files in its clip folder (others stay; the folder too)."""
     _remove_files(clips_folder(out), _OURS)
 
 
-def _remove_files(folder, pattern):
+def _remove_files(folder: Path, pattern: re.Pattern[str]) -> None:
     """Remove ``folder``'s files whose names match, and its temporary folders (:mod:`.atomic`)."""
     for p in folder.iterdir():
         if pattern.match(p.name):
@@ -234,7 +241,7 @@ def _remove_files(folder, pattern):
                     p.unlink()
 
 
-def recorded_chunk(out) -> int | None:
+def recorded_chunk(out: str | os.PathLike) -> int | None:
     """The frames per clip of the earlier bake in ``out``'s clip folder, or None: ``--resume``
     without ``--chunk`` continues with the chunks that bake was started with, whatever the
     default would be now."""
@@ -243,7 +250,7 @@ def recorded_chunk(out) -> int | None:
         else None
 
 
-def chunk_bounds(count: int, chunk: int) -> list:
+def chunk_bounds(count: int, chunk: int) -> list[tuple[int, int]]:
     """``[(lo, hi), ...]``: chunk ``k`` owns frames ``lo..hi-1``; its clip layer holds frames
     ``lo..min(hi, count - 1)`` (the next chunk's first frame too)."""
     if int(chunk) < 1:
@@ -251,7 +258,7 @@ def chunk_bounds(count: int, chunk: int) -> list:
     return [(lo, min(lo + chunk, count)) for lo in range(0, count, chunk)]
 
 
-def _chunk_name(index, count):
+def _chunk_name(index: int, count: int) -> str:
     return f"chunk_{index:0{max(5, len(str(count - 1)))}d}"
 
 
@@ -265,11 +272,12 @@ against tampering. Records of earlier bakes hold ``xxh3_128`` (the whole file in
 ``xxh128sum FILE`` prints it) or ``sha256`` instead, and are verified by that
 (:func:`verify_chunk`)."""
 
-_HASHES = {CHECKSUM: xxhash.xxh3_128, "xxh3_128": xxhash.xxh3_128, "sha256": hashlib.sha256}
+_HASHES: dict[str, Callable[[], Hasher]] = {CHECKSUM: xxhash.xxh3_128, "xxh3_128": xxhash.xxh3_128,
+                                           "sha256": hashlib.sha256}
 _BLOCK = 1 << 20
 
 
-def _read_up_to(fh, n: int) -> bytes:
+def _read_up_to(fh: IO[bytes], n: int) -> bytes:
     """``n`` bytes of ``fh`` (fewer only at its end), whatever its reads return."""
     data = b""
     while len(data) < n and (more := fh.read(n - len(data))):
@@ -277,7 +285,7 @@ def _read_up_to(fh, n: int) -> bytes:
     return data
 
 
-def file_checksum(path, algorithm: str = CHECKSUM) -> str:
+def file_checksum(path: str | os.PathLike, algorithm: str = CHECKSUM) -> str:
     """Hex digest of a file by ``algorithm`` (a key of a clip record: :data:`CHECKSUM`,
     ``"xxh3_128"`` or ``"sha256"``), read in 1 MB blocks (the GIL is released while hashing)."""
     h = _HASHES[algorithm]()
@@ -291,11 +299,11 @@ def file_checksum(path, algorithm: str = CHECKSUM) -> str:
     return h.hexdigest()
 
 
-def _same_path(a, b) -> bool:
+def _same_path(a: str | os.PathLike, b: str | os.PathLike) -> bool:
     return Path(a).resolve() == Path(b).resolve()
 
 
-def _write_json(path, data, overwrite=True):
+def _write_json(path: str | os.PathLike, data: object, overwrite: bool = True) -> None:
     with atomic_path(path, overwrite=overwrite) as tmp:
         Path(tmp).write_text(json.dumps(data, indent=1) + "\n")
 
@@ -309,9 +317,9 @@ class ClipLayer:
     for :func:`commit_clip`;
     :meth:`discard` (or leaving the ``with`` block on an exception) removes it."""
 
-    digest = None
+    digest: str | None = None
 
-    def __init__(self, path, time_codes_per_second: float):
+    def __init__(self, path: str | os.PathLike, time_codes_per_second: float) -> None:
         self.claim = atomic_path(Path(path), overwrite=True)
         try:
             # hashed as it is written (never read back), so past the page cache too
@@ -322,7 +330,7 @@ class ClipLayer:
             self.claim.discard()
             raise
 
-    def finish(self, times):
+    def finish(self, times: npt.ArrayLike) -> atomic_path:
         """Close the layer (its time range from ``times``); returns the claim holding it. Its
         checksum (:data:`CHECKSUM`) is then :attr:`digest`."""
         times = np.asarray(times, np.float64)
@@ -339,16 +347,17 @@ class ClipLayer:
         self.samples.abort()
         self.claim.discard()
 
-    def __enter__(self):
+    def __enter__(self) -> "ClipLayer":
         return self
 
-    def __exit__(self, exc_type, exc, tb):
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> Literal[False]:
         if exc_type is not None:
             self.discard()
         return False
 
 
-def write_clip(layer: ClipLayer, key: str, times) -> str:
+def write_clip(layer: ClipLayer, key: str, times: npt.ArrayLike) -> str:
     """Finish one chunk's ``layer``, record its checksum (:data:`CHECKSUM`) beside its final
     name (``chunk_k.json`` for ``chunk_k.usdc``), then rename it into place
     (:meth:`ClipLayer.finish`, then :func:`commit_clip`). Returns the checksum.
@@ -360,7 +369,8 @@ def write_clip(layer: ClipLayer, key: str, times) -> str:
     return commit_clip(claim, key, times, layer.digest)
 
 
-def commit_clip(claim, key: str, times, digest: str | None = None) -> str:
+def commit_clip(claim: atomic_path, key: str, times: npt.ArrayLike,
+                digest: str | None = None) -> str:
     """Record the checksum (:data:`CHECKSUM`) of the layer :meth:`ClipLayer.finish` left in
     ``claim`` (``path.json``, with ``key``), then rename it into place. ``digest``: that file's
     checksum if already known (:attr:`ClipLayer.digest`), else read from the file
@@ -379,7 +389,7 @@ def commit_clip(claim, key: str, times, digest: str | None = None) -> str:
     return digest
 
 
-def verify_chunk(path, key: str, record: dict | None = None) -> bool:
+def verify_chunk(path: str | os.PathLike, key: str, record: dict[str, Any] | None = None) -> bool:
     """True when the clip layer ``path`` exists and matches its record (``record``, else read:
     :func:`_record_of`): the same plan key, size and checksum (:data:`CHECKSUM`, or
     ``xxh3_128`` or ``sha256`` in the records of earlier bakes; the first of these a record
@@ -396,7 +406,7 @@ def verify_chunk(path, key: str, record: dict | None = None) -> bool:
         return False
 
 
-def _record_of(path):
+def _record_of(path: str | os.PathLike) -> dict[str, Any] | None:
     """The dqskin record of clip layer ``path`` (``chunk_00000.json`` beside it: a dict naming
     the layer, with a plan key and a checksum), or None (another tool's file, or none)."""
     try:
@@ -442,8 +452,9 @@ class ClipBake:
         ``resume`` over a bake of another input or other settings.
     """
 
-    def __init__(self, scene, out, times, chunk, options, *, force=False, resume=False,
-                 inputs=()):
+    def __init__(self, scene: Scene, out: str | os.PathLike, times: npt.ArrayLike, chunk: int,
+                 options: dict[str, Any], *, force: bool = False, resume: bool = False,
+                 inputs: Iterable[str | os.PathLike] = ()) -> None:
         normals, velocities = options.get("normals", True), options.get("velocities", True)
         self.cache = CacheLayer(scene, out)
         self.out, self.folder = Path(out), clips_folder(out)
@@ -455,7 +466,7 @@ class ClipBake:
         self.targets = self.cache.all_targets(normals=normals, velocities=velocities)
         src = Path(self.cache.src).resolve()
         st = src.stat()
-        plan = {"format": _FORMAT, "source": str(src), "source_bytes": st.st_size,
+        plan: dict[str, Any] = {"format": _FORMAT, "source": str(src), "source_bytes": st.st_size,
                 "source_mtime_ns": st.st_mtime_ns, "frames": len(self.times),
                 "first": float(self.times[0]), "last": float(self.times[-1]),
                 "times_sha256": hashlib.sha256(self.times.tobytes()).hexdigest(),
@@ -467,7 +478,7 @@ class ClipBake:
         self.resumed = self._check_existing(force, resume)
         self.overwrite = force or self.resumed
 
-    def _check_existing(self, force, resume):
+    def _check_existing(self, force: bool, resume: bool) -> bool:
         """True when resuming a bake of this plan; clears an earlier bake when ``force``."""
         plan_file = self.folder / "plan.json"
         if self.folder.exists() and not self.folder.is_dir():
@@ -495,7 +506,7 @@ class ClipBake:
             _remove_files(self.folder, _OURS)
         return False
 
-    def _differs(self):
+    def _differs(self) -> str:
         """What the earlier bake's plan has that this one's does not, in words."""
         try:
             return self._compare_plans(json.loads((self.folder / "plan.json").read_text()))
@@ -504,7 +515,7 @@ class ClipBake:
         except (TypeError, AttributeError, KeyError):  # a plan.json edited by hand
             return "with other settings"
 
-    def _compare_plans(self, old):
+    def _compare_plans(self, old: object) -> str:
         if not isinstance(old, dict) or old.get("format") != _FORMAT:
             return "of another format"
         new = self.plan
@@ -528,7 +539,7 @@ class ClipBake:
         return ", ".join(said) if said else "with other settings"
 
     @staticmethod
-    def _check_owner(out):
+    def _check_owner(out: str | os.PathLike) -> None:
         """ValueError when ``out``'s clip folder holds an earlier bake of another top-level
         file (``shot.usda`` beside ``shot.usd``: one ``shot.clips/``), ``force`` or not."""
         out, folder = Path(out), clips_folder(out)
@@ -538,7 +549,7 @@ class ClipBake:
                              f"{out.name} under another name (or remove {owner} and "
                              f"{folder.name}/ first)")
 
-    def _claim(self, plan_file):
+    def _claim(self, plan_file: Path) -> None:
         """Write the plan exclusively: of two runs baking to one output without ``force``, the
         second to get here fails (the check before it is not enough: both can pass it, then
         write each other's chunks and remove each other's temporary files)."""
@@ -552,7 +563,7 @@ class ClipBake:
                                     Param("force", True), " to start over") from None
 
     @staticmethod
-    def check_free(out, *, force=False, resume=False):
+    def check_free(out: str | os.PathLike, *, force: bool = False, resume: bool = False) -> None:
         """The refusals that need no plan (before starting workers): FileExistsError when
         ``out`` or an unfinished clip bake exists, unless ``force`` or ``resume``; ValueError
         when its clip folder belongs to another output (:meth:`_check_owner`)."""
@@ -577,15 +588,15 @@ class ClipBake:
             with contextlib.suppress(OSError):
                 (self.folder / name).unlink()
 
-    def clip_path(self, index) -> Path:
+    def clip_path(self, index: int) -> Path:
         return self.folder / (_chunk_name(index, len(self.bounds)) + ".usdc")
 
-    def chunk_times(self, index):
+    def chunk_times(self, index: int) -> np.ndarray:
         """(F_k,) times of clip layer ``index``: its own frames and the next chunk's first."""
         lo, hi = self.bounds[index]
         return self.times[lo:min(hi + 1, len(self.times))]
 
-    def pending(self) -> list:
+    def pending(self) -> list[int]:
         """Indices of the chunks to bake: all, or when resuming those that do not verify. Writes
         the plan and the manifest (and removes temporary files a killed run left)."""
         self.folder.mkdir(parents=True, exist_ok=True)
@@ -641,7 +652,7 @@ class ClipBake:
         return self.out
 
 
-def flatten(src, out, *, overwrite: bool = False) -> Path:
+def flatten(src: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Write the composed stage ``src`` (a clip cache, or any stage) as one layer ``out``: every
     clip's samples become ordinary time samples, for tools that do not read value clips. The
     whole animation is held in memory while writing.
@@ -686,11 +697,12 @@ def flatten(src, out, *, overwrite: bool = False) -> Path:
     return out
 
 
-def _check_clips(stage, src):
+def _check_clips(stage: Usd.Stage, src: str | os.PathLike) -> None:
     """ValueError for a clip layer named in ``stage``'s ``clips`` metadata that does not
     resolve, or that has a dqskin record beside it (:func:`_record_of`) and does not match it
     or the plan of its folder (a chunk of another bake). Each such layer is read in full."""
-    seen, plans = set(), {}
+    seen: set[str] = set()
+    plans: dict[Path, str | None] = {}
     for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
         clips = Usd.ClipsAPI(prim)
         for clip_set in clips.GetClips() or {}:
@@ -714,7 +726,3 @@ def _check_clips(stage, src):
                     raise InputError(f"{path}: does not match its record {path.stem}.json "
                                      "(damaged, incomplete or of another bake; baking again "
                                      "with ", Param("resume", True), " redoes it)")
-    if (isinstance(record, dict) and record.get("layer") == path.name
-            and isinstance(record.get("plan"), str) and any(a in record for a in _HASHES)):
-        return record
-    return None

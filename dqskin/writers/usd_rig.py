@@ -18,8 +18,12 @@ the USD boundary (Gf is row-vector). Joint names become valid USD identifiers
 The file is written atomically (:mod:`.atomic`); ``.usd`` is crate, ``.usda`` text.
 """
 
+from __future__ import annotations
+
 import os
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,6 +33,11 @@ from ..readers import gltf
 from ..readers.usd_xform import XformChain, read_local_to_world
 from ..scene import Scene
 from .usd_cache import export_layer
+
+if TYPE_CHECKING:
+    from pxr import Usd, Vt
+
+    from ..skeleton import Skeleton
 
 __all__ = ["RIG_SUFFIXES", "SECONDS_RATE", "joint_paths", "write_rig"]
 
@@ -40,11 +49,12 @@ SECONDS_RATE = 24.0
 _METHODS = {"lbs": "classicLinear", "dqs": "dualQuaternion"}
 
 
-def joint_paths(joint_names: list, parents: np.ndarray) -> list:
+def joint_paths(joint_names: Sequence[str], parents: np.ndarray) -> list[str]:
     """UsdSkel joint paths (``"Hips/Spine/Chest"``) from names and parents: each name made a
     valid identifier, unique among its siblings."""
     from pxr import Tf
-    paths, taken = [], {}
+    paths: list[str] = []
+    taken: dict[int, set[str]] = {}
     for name, p in zip(joint_names, parents):
         base = Tf.MakeValidIdentifier(str(name).split("/")[-1]) or "joint"
         prefix = paths[p] + "/" if p >= 0 else ""
@@ -57,7 +67,7 @@ def joint_paths(joint_names: list, parents: np.ndarray) -> list:
     return paths
 
 
-def _prim_name(name, taken):
+def _prim_name(name: str, taken: set[str]) -> str:
     from pxr import Tf
     base = Tf.MakeValidIdentifier(str(name).strip("/").split("/")[-1]) or "Mesh"
     leaf, k = base, 1
@@ -67,13 +77,13 @@ def _prim_name(name, taken):
     return leaf
 
 
-def _matrices(m):
+def _matrices(m: np.ndarray) -> Vt.Matrix4dArray:
     """(N, 4, 4) column-vector float64 → ``Vt.Matrix4dArray`` (row-vector, transposed)."""
     from pxr import Vt
     return Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(np.transpose(m, (0, 2, 1))))
 
 
-def _source_stage(scene):
+def _source_stage(scene: Scene) -> Usd.Stage | None:
     """The USD stage ``scene`` was read from, or None (glTF, BVH, a missing file)."""
     from pxr import Usd
 
@@ -83,7 +93,8 @@ def _source_stage(scene):
     return Usd.Stage.Open(str(scene.path))
 
 
-def _skeleton_to_world(scene, skel, source, times):
+def _skeleton_to_world(scene: Scene, skel: Skeleton, source: Usd.Stage | None,
+                       times: np.ndarray) -> np.ndarray:
     """(F, 4, 4) skeleton space → world at ``times``: the source Skeleton prim's
     local-to-world (its xform ops and its ancestors', time-sampled ones evaluated at every time)
     for a USD scene, else the skeleton's ``world_transform`` (identity for glTF and BVH)."""
@@ -95,7 +106,7 @@ def _skeleton_to_world(scene, skel, source, times):
     return np.broadcast_to(np.asarray(skel.world_transform, np.float64), (len(times), 4, 4))
 
 
-def _author_placement(xformable, world, codes):
+def _author_placement(xformable: Usd.Prim, world: np.ndarray, codes: np.ndarray) -> None:
     """Give ``xformable`` the transform ``world`` (F, 4, 4) at time ``codes``: one value when
     constant, else a time sample per code."""
     from pxr import Gf, Usd, UsdGeom
