@@ -91,7 +91,7 @@ def encode(posed, rest, faces, *, level=1):
     rest : (V, 3) float
     faces : (T, 3) int
     level : int
-        zlib compression level (1: ~5× faster than 6 for ~8% more bytes here).
+        zlib compression level (1: much faster than 6 for slightly more bytes).
 
     Returns
     -------
