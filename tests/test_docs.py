@@ -124,3 +124,22 @@ def test_mkdocs_build_strict(tmp_path):
     for name in ("load", "Scene", "Scene.skin", "SkinnedFrames", "Skinner", "skin_points",
                  "Skeleton", "bake", "Crowd", "rig_mesh", "errors.InputError"):
         assert f'id="dqskin.{name}"' in api, name
+
+
+def test_docstring_rewrite_for_the_api_reference():
+    """The griffe extension's rewrite: closing prose gets a Notes heading, a ``{..}`` type is not
+    read as choices, Sphinx roles become inline code; nothing else changes."""
+    sys.path.insert(0, str(ROOT / "docs" / "hooks"))
+    try:
+        from griffe_docstrings import rewrite
+    finally:
+        sys.path.pop(0)
+    text = ("Skin it (:func:`dqskin.load`, :meth:`~.scene.Scene.skin`).\n\nParameters\n"
+            "----------\nmethod : {\"lbs\", \"dqs\"} or None\n    None: the asset's.\n\n"
+            "Closing prose.\n")
+    assert rewrite(text) == (
+        "Skin it (``dqskin.load``, ``skin``).\n\nParameters\n----------\n"
+        "method : one of {\"lbs\", \"dqs\"} or None\n    None: the asset's.\n\nNotes\n-----\n"
+        "Closing prose.\n")
+    plain = "Summary.\n\nReturns\n-------\n(F, V, 3) float32\n    Points.\n"
+    assert rewrite(plain) == plain
