@@ -1,11 +1,13 @@
 """The documentation builds without a broken link or reference, its CLI reference is the parser's,
-and the Python examples of the README and the how-to guides run as written.
+the Python examples of the README and the how-to guides run as written, and so do the README's
+``dqskin`` commands.
 
 A ```python block that cannot run is marked in the Markdown by ``<!-- no-run: why -->`` on the
 line above it; :data:`MAX_NO_RUN` keeps them few.
 """
 
 import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -24,6 +26,18 @@ _BLOCK = re.compile(r"^(<!-- no-run: (?P<why>[^>]*?) -->\n)?```python\n(?P<code>
 def python_blocks(text):
     """``(code, why)`` for every ```python block, ``why`` the no-run reason or None."""
     return [(m["code"], m["why"]) for m in _BLOCK.finditer(text)]
+
+
+def dqskin_commands(text):
+    """The ``dqskin ...`` command lines of the ```bash blocks (continuations joined, comments
+    dropped), as argument lists."""
+    commands = []
+    for block in re.findall(r"^```bash\n(.*?)^```", text, re.M | re.S):
+        for line in block.replace("\\\n", " ").splitlines():
+            args = shlex.split(line, comments=True)
+            if args[:1] == ["dqskin"]:
+                commands.append(args[1:])
+    return commands
 
 
 def test_python_blocks_parser():
@@ -91,6 +105,19 @@ def test_readme_examples_run(workdir, request):
     assert abs(dqs_radius - 1.0) < 1e-5 and lbs_radius < 1e-5
     assert "(49, 1202, 3)" in stdout  # the humanoid's body over its 49 time codes
     assert (workdir / "out" / "walk_api.usdc").is_file()
+
+
+def test_readme_commands_run(workdir, request):
+    commands = dqskin_commands((ROOT / "README.md").read_text())
+    assert len(commands) >= 5, commands
+    for args in commands:
+        if any("../shared/" in a for a in args):
+            request.getfixturevalue("shared_assets")
+        proc = subprocess.run([sys.executable, "-m", "dqskin.cli", *args], cwd=workdir,
+                              capture_output=True, text=True, timeout=900)
+        assert proc.returncode == 0, f"dqskin {shlex.join(args)}:\n{proc.stderr[-4000:]}"
+    assert (workdir / "out" / "report" / "report.html").is_file()
+    assert len(list((workdir / "out" / "cesium").glob("f_*.obj"))) == 3  # 0, 0.5 and 1 s
 
 
 @pytest.mark.parametrize("page", [p for p in PAGES if p.parent.name == "guides"],
