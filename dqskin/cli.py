@@ -22,8 +22,7 @@ All argument parsing lives here; each command calls the library (:func:`dqskin.b
   writing the same output the one that finishes second fails.
 * Exit: :func:`main`, as the process's entry point, ends the process itself once Python's exit
   handlers have run and the standard streams are flushed, skipping the interpreter's teardown of
-  USD's, Warp's and Dask's native libraries (0.5-0.8 s; the console script ``dqskin`` took
-  2.36-2.87 s against 2.10-2.38 s for a short ``skin``, five alternating runs).
+  USD's, Warp's and Dask's native libraries (slow, and with nothing left to save).
 * Output: only dqskin's own lines. Warp's start-up messages (including its CUDA-driver notice,
   printed by native code), library warnings and log records are silenced unless ``--verbose``;
   progress bars only on a terminal.
@@ -583,9 +582,9 @@ def main(argv=None):
 
 def _exit(code):
     """End the process with ``code`` once Python's exit handlers have run and the standard
-    streams are flushed, without the interpreter's finalization: unloading USD's, Warp's and
-    Dask's native libraries took 0.5-0.8 s after every command, and everything dqskin writes is
-    complete and closed by then (outputs are renamed into place before a command returns). A
+    streams are flushed, without the interpreter's finalization (unloading USD's, Warp's and
+    Dask's native libraries is slow): everything dqskin writes is complete and closed by then
+    (outputs are renamed into place before a command returns). A
     signal from here on is ignored (the command has finished). Output that cannot be written
     (a full disk) makes a successful command exit 120, as Python's own exit does, with a message
     naming stdout; a reader that went away makes it exit 141 silently (:func:`_reader_gone`)."""

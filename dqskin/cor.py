@@ -59,8 +59,8 @@ CLUSTER = 1.0 / 256
 """Weight grid of ``cluster="auto"`` when it clusters (see :func:`rotation_centers`)."""
 
 AUTO_TERMS = 50_000_000
-"""``cluster="auto"`` computes exactly up to this many similarity terms (about 2 s on two CPU
-cores), and clusters on the :data:`CLUSTER` grid above it."""
+"""``cluster="auto"`` computes exactly up to this many similarity terms, and clusters on the
+:data:`CLUSTER` grid above it."""
 
 ALGORITHM_VERSION = 2
 """Part of the cache key: bump when the computed centers change."""
@@ -331,7 +331,7 @@ def rotation_centers(points: npt.ArrayLike, faces: npt.ArrayLike, joint_indices:
         0.5–0.6·g·ℓ on the tests' chain, ℓ = 1.5, and on the benchmark tube, ℓ = 4), a skinned
         point by its center's error times ``|Σ wⱼ·Lⱼ − R|`` (less; ≤ 0.1·g·ℓ on both); sharp
         falloffs barely move, smooth ones over a whole limb move the most.
-        ``tools/bench_cor.py --exact`` prints both errors and the speed-up.
+        ``tools/bench_cor.py --exact`` prints both errors.
     cache : bool
         Read and write the on-disk cache (:func:`dqskin.cache.cache_dir`).
     device : str, optional

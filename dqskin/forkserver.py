@@ -1,15 +1,14 @@
 """The forkserver that a LocalCluster bake's worker processes (``workers=N``) are forked from.
 
 Dask spawns each worker process afresh by default, and each then imports Dask, NumPy, USD, Warp
-and dqskin (2-3 CPU-seconds). A bake instead starts them from multiprocessing's forkserver that
-has imported those once (:data:`PRELOAD`); :func:`prestart_workers` starts it early so that its
-imports overlap the caller's own start-up: ``dqskin skin --workers`` calls it before importing
-dqskin's heavy modules (the cluster was ready at 1.9-2.6 s instead of 4.0 s after the process
-started, 2 workers, CesiumMan, 2-core machine). :func:`stop_workers` stops it when the bake ends.
+and dqskin itself. A bake instead starts them from multiprocessing's forkserver that has imported
+those once (:data:`PRELOAD`); :func:`prestart_workers` starts it early so that its imports
+overlap the caller's own start-up: ``dqskin skin --workers`` calls it before importing dqskin's
+heavy modules. :func:`stop_workers` stops it when the bake ends.
 
-Importing this module imports nothing heavy; :func:`prestart_workers` imports Dask (0.3 s), not
-``distributed`` (0.7 s more): Dask's settings for worker processes come from Dask's config with
-``distributed``'s defaults read from its own YAML file, as ``distributed.config`` does.
+Importing this module imports nothing heavy; :func:`prestart_workers` imports Dask, not
+``distributed`` (slower to import): Dask's settings for worker processes come from Dask's config
+with ``distributed``'s defaults read from its own YAML file, as ``distributed.config`` does.
 """
 
 import contextlib
@@ -23,7 +22,7 @@ __all__ = ["PRELOAD", "dask_config", "freeze_heap", "keep_freed_memory", "presta
 
 PRELOAD = ["distributed", "numpy", "dqskin.distributed", "dqskin.readers.usd"]
 """Modules the forkserver imports once; every worker process forked from it starts with them
-(importing them costs each spawned worker 2-3 CPU-seconds)."""
+(instead of each worker importing them itself)."""
 
 _CONFIG = {"distributed.worker.multiprocessing-method": "forkserver",
            "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
@@ -31,11 +30,8 @@ _CONFIG = {"distributed.worker.multiprocessing-method": "forkserver",
 """Dask settings of a LocalCluster bake: workers from the forkserver, and without Dask's
 ``MALLOC_TRIM_THRESHOLD_=65536``: glibc reads it once, when the forkserver starts, and with it
 every worker hands each chunk's freed memory back to the system and faults it in again for the
-next (twice the system time: 2.1-2.2 against 1.0-1.2 s, tasks 0.2-1.4 s longer, for 10,000
-CesiumMan frames on one worker); and without Dask's statistical profiler, which samples every
-thread's stack each 10 ms: two bakes in about 100 stalled for ~10 minutes with every thread of a
-worker waiting for the GIL, the profiler's thread among them while each chunk's short-lived
-threads exited (not confirmed as the cause: too rare to reproduce at will)."""
+next, doubling the workers' system time; and without Dask's statistical profiler, which samples
+every thread's stack (it competes for the GIL with each chunk's short-lived threads)."""
 
 
 def _distributed_defaults() -> None:
@@ -66,32 +62,24 @@ HEAP_BELOW_BYTES = 8 << 20
 free room for are mapped apart and handed back when freed. Pieces of skinned frames (at least
 256 frames: 10 MB of CesiumMan's points; on huge pages, :mod:`dqskin.kernels.buffers` and
 NumPy's own) are such blocks: in the heap, pieces of unequal sizes (a clip's last piece is
-shorter) left holes that small allocations filled, and a worker's heap grew by 45-60 MB over
-its first tasks, all of it free (one-thread worker, CesiumMan × 10,000 in 854-frame clips, six
-runs each: peak RSS 370-399 → 335-341 MB; CPU for the 12 clips 0.67-0.88 → 0.70-0.96 s,
-medians 0.81 and 0.74 s). It was 32 MiB, glibc's largest, which kept such pieces in the heap.
-(In a library call's process, NumPy and glibc's defaults stand: mapping each large output
-afresh there cost the kernel's zeroing of its pages on every call, 1M points 274 → 160 M
-points/s.)"""
+shorter) would leave holes that small allocations fill, and a worker's heap would grow with free
+memory over its first tasks. (In a library call's process, NumPy and glibc's defaults stand:
+mapping each large output afresh there would cost the kernel's zeroing of its pages on every
+call.)"""
 
 
 def keep_freed_memory() -> bool:
     """Make glibc's malloc keep freed memory for reuse in this process: each chunk of a bake
     frees its samples (a clip layer's ``Vt`` arrays, tens of MB) and the next one allocates as
-    much again. With glibc's defaults the heap was trimmed after every chunk and the next one
-    faulted its memory in again, 4 KiB at a time: a process baking 10 CesiumMen × 1,292 frames
-    chunk by chunk as 11 clip layers took 133,000 page faults and 0.8-1.1 s of system time, with
-    this 26,000 and 0.2-0.4 s; one-thread Dask workers baking CesiumMan × 10,000 frames as 79
-    layers, 6.7-7.0 → 5.9-6.5 s for the whole bake with one worker, 5.2-5.3 → 4.3-4.6 s with two,
-    their peak RSS 302 → 307 MB (``tools/bench_bake.py --frames 10000 --no-standin --impls
-    clips1t1,clips2t1``, two runs each). Pieces of frames are mapped apart
+    much again. With glibc's defaults the heap is trimmed after every chunk and the next one
+    faults its memory in again, 4 KiB at a time. Pieces of frames are mapped apart
     (:data:`HEAP_BELOW_BYTES`). Peak memory still follows the chunk size, not the clip length;
     freed memory stays with the process until it exits.
 
     Called only on the workers of the LocalCluster a bake starts (dqskin's own processes): never
     by a library call nor on the workers of a cluster given as ``--scheduler``, whose processes
-    are the caller's. The pipelined in-process bake measured no gain (3.3-3.4 against 3.5-3.6 s),
-    so the ``dqskin`` program leaves its own malloc alone.
+    are the caller's. The ``dqskin`` program leaves its own malloc alone (its pipelined
+    in-process bake gains nothing from this).
     Returns whether it applied: glibc on Linux only (the mmap threshold first; the trim threshold,
     which turns glibc's adaptive thresholds off, only when that was accepted)."""
     if not sys.platform.startswith("linux"):
@@ -113,11 +101,9 @@ def freeze_heap() -> None:
     Warp, dqskin; in the program, its loaded input) out of reach of Python's cyclic garbage
     collector
     (:func:`gc.freeze`): they live until the process exits, and each full collection walked all
-    of them again. A worker's first full collection took 80 ms, during its first task; the
-    ``dqskin`` program's, 40-60 ms of a bake. Garbage made afterwards is collected as before.
+    of them again. Garbage made afterwards is collected as before.
     What is frozen is never freed, so garbage not yet collected stays too, without a full
-    collection first (which would cost what this saves): none in the program once CesiumMan
-    or the stand-in crowd is loaded, 376 objects in a worker at its set-up; and a cycle of
+    collection first (which would cost what this saves); and a cycle of
     frozen objects that becomes garbage later (nothing dqskin drops: its processes end with the
     bake).
 
@@ -144,8 +130,8 @@ def dask_config() -> dict[str, object]:
 
 
 def prestart_workers() -> None:
-    """Start the forkserver now, in the background, so that its imports (:data:`PRELOAD`, 2-3
-    CPU-seconds) overlap the caller's own work (``dqskin skin --workers`` calls it before
+    """Start the forkserver now, in the background, so that its imports (:data:`PRELOAD`)
+    overlap the caller's own work (``dqskin skin --workers`` calls it before
     importing dqskin's modules and loading the asset). The bake stops it (:func:`stop_workers`);
     else it ends with this process. One already running is used as it is (one started before
     dqskin touched it is then left running, never stopped).
@@ -200,7 +186,7 @@ def stop_workers() -> None:
     its workers are gone, so that no process outlives the bake (and its CPU time, its workers'
     included, is reaped into this process's); one started by anything else is left running.
     It is killed first: it holds nothing to save, and its orderly exit (tearing down USD, Warp and
-    Dask) took 0.7-1.4 s of every bake. ``_stop`` is multiprocessing's own (Python 3.10+),
+    Dask) is slow. ``_stop`` is multiprocessing's own (Python 3.10+),
     skipped when absent."""
     fs = sys.modules.get("multiprocessing.forkserver")
     server = getattr(fs, "_forkserver", None)

@@ -56,7 +56,7 @@ def within_float32(a: np.ndarray) -> str | None:
 
 
 _BLAS_ONE_THREAD = 8192
-"""Lengths up to which a BLAS dot product runs on the calling thread (~1 µs for 1,024)."""
+"""Lengths up to which a BLAS dot product runs on the calling thread."""
 
 _SQUARES_MAX = FLOAT32_MAX ** 2  # exact in float64 (a 24-bit mantissa squared)
 

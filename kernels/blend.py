@@ -4,13 +4,12 @@ the COR centers, velocities).
 
 Warp compiles ``@wp.func`` matrix arithmetic to scalar code on the CPU, one float at a time. On the
 CPU this snippet loads each joint's 12 floats as clang vectors (``ext_vector_type``, 8 + 4 floats:
-AVX2 here, NEON or SSE elsewhere) and multiply-adds them whole, keeping the sum in registers
-(one thread, 1M points, 4 influences, best of 30 launches in one run: the one-frame LBS kernel
-92.9 M points/s against 71.5 for the minimal scalar kernel of ``tools/bench.py``'s "Kernels alone"
-table, which reports the same comparison). On CUDA (``__CUDA_ARCH__``) it is the plain scalar sum.
+AVX2, NEON or SSE, as the CPU has) and multiply-adds them whole, keeping the sum in registers
+(``tools/bench.py``'s "Kernels alone" table compares it with a minimal scalar kernel). On CUDA
+(``__CUDA_ARCH__``) it is the plain scalar sum.
 
 The dual-quaternion blend stays a ``@wp.func`` (:func:`~.skin.dq_gather`): the same treatment
-measured within noise (45.2 against 44.6 M points/s), its cost being the sign tests and the
+gains nothing there, its cost being the sign tests and the
 transform rather than the sum. On the CPU, LBS and rigid DQS of one group of four influences run
 eight vertices at a time instead (:mod:`.packets`); this blend serves the other cases (more
 influences, COR, velocities) and CUDA.
@@ -18,7 +17,7 @@ influences, COR, velocities) and CUDA.
 Influence layout of :mod:`.skin`: ``groups`` groups of four per vertex in flat ``indices`` /
 ``weights``, group 0 already read as ``iv`` / ``wv``. The sum runs joint 0 to 3 of group 0, then
 of group 1, ..., from zero: the order of the scalar sum it replaces. Group 0 is summed
-straight-line and the others (usually none) in a loop: one loop over every group ran ~1.7× slower.
+straight-line and the others (usually none) in a loop: one loop over every group is slower.
 """
 
 import warp as wp

@@ -1,8 +1,8 @@
 """Output buffers of the launchers: on the CPU, large ones are backed by transparent huge pages.
 
 A skinning result is fresh memory that the kernel writes once: with 4 KiB pages, the page faults
-of first touch cost as much as the skinning itself (a 100 MB chunk of frames: 24,500 faults,
-80-95 ms, against 22-24 ms with 2 MiB pages; freeing it 14 ms against 1-2 ms). NumPy asks the
+of first touch cost as much as the skinning itself, and several times what they cost with 2 MiB
+pages (freeing too). NumPy asks the
 kernel for huge pages for its own large arrays (``madvise(MADV_HUGEPAGE)``, Linux); Warp's CPU
 allocator does not, so :func:`empty` does the same for the Warp arrays the launchers fill. Where
 transparent huge pages are off, or not on Linux, it is a plain ``wp.empty``; NumPy's switch,

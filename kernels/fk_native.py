@@ -4,10 +4,8 @@ matrix (:func:`rigid_matrix`).
 
 Warp compiles ``@wp.func`` quaternion arithmetic to scalar code on the CPU. On the CPU these
 snippets hold quaternions in clang vectors (``ext_vector_type(4)``): a Hamilton product is four
-multiply-adds of whole vectors against sign-flipped shuffles of the other factor. One thread,
-1,000 skeletons × 64 random rigid joints, best of 40 launches: 3.20-3.29 ms with the ``@wp.func``
-versions, 2.45-2.55 ms with both snippets (a reduced kernel; the full one is measured in
-``tools/bench.py``'s FK table).
+multiply-adds of whole vectors against sign-flipped shuffles of the other factor
+(``tools/bench.py``'s FK table measures the kernel).
 
 :func:`rigid_packet` takes one joint of eight frames at once, each quantity in the lanes of an
 ``ext_vector_type(8)`` (the transposes of :mod:`.packets`), for :mod:`.fk`'s packet kernel; on

@@ -10,8 +10,8 @@ Grids over frames (the flat point, vector and velocity kernels of :mod:`.skin` a
 :mod:`.velocity`) have one thread per row for a single frame, else one per (block of
 :data:`FRAME_BLOCK` frames, row), so a row's influences are read once per block and the block's
 joints stay in cache; they are launched as rows through :func:`launch_rows`.
-Small grids replay a recorded launch (:class:`_Recorded`): a few µs instead of ~40 µs of Warp's
-argument packing, which dominates small calls.
+Small grids replay a recorded launch (:class:`_Recorded`) instead of paying Warp's argument
+packing on every call, which dominates small calls.
 """
 
 import ctypes
@@ -100,7 +100,7 @@ def _held(a):
 
 _DIRECT = wp.__version__.split(".")[:2] == ["1", "19"]
 """The direct entry-point call of :class:`_Recorded` copies Warp 1.19's private ``invoke``; other
-Warp versions take ``Launch.launch`` (correct, ~4 µs slower a launch)."""
+Warp versions take ``Launch.launch`` (correct, a little slower a launch)."""
 
 
 def _capturing():
@@ -112,8 +112,8 @@ def _capturing():
 class _Recorded:
     """A recorded ``wp.Launch`` and (weak references to) the arguments it was last given. On the
     CPU with Warp 1.19 its ctypes argument block is built once and only arguments that changed
-    are packed into it again, then the kernel's entry point is called directly (~0.3 µs;
-    ``Launch.launch`` builds the block on every call, ~4 µs). A struct argument given again is
+    are packed into it again, then the kernel's entry point is called directly
+    (``Launch.launch`` builds the block on every call). A struct argument given again is
     re-copied each launch (it may have been changed in place). The record keeps no argument
     alive: the launch's own argument list is dropped, and an argument whose object died is
     packed again. Elsewhere, ``Launch.launch``."""
@@ -158,8 +158,8 @@ class _Recorded:
 def _record(kernel, dim, args, device):
     """One ``wp.launch`` of ``kernel`` on ``dim`` with ``args`` (inputs then outputs), recorded
     for this thread (:class:`_Recorded`) so that :func:`_launch` replays the next one of the same
-    kernel, grid and device in a few µs instead of ~40 µs of argument packing, which dominates
-    small calls. Grids above :data:`_RECORDED_GRID` threads (the packing is noise there) and
+    kernel, grid and device without Warp's argument packing, which dominates small calls. Grids
+    above :data:`_RECORDED_GRID` threads (the packing is noise there) and
     launches during a graph capture go through ``wp.launch`` unrecorded."""
     size = 1
     for d in dim:

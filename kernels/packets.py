@@ -5,13 +5,11 @@ influences as native snippets that hold each quantity of eight vertices in one c
 Warp's CPU back end compiles a kernel to one scalar loop over its threads. A DQS vertex is a chain
 of ~100 dependent scalar operations (gather, sign tests, blend, normalization, transform); the
 core's out-of-order window holds about two such chains, so the loop runs at the chain's latency,
-not at the machine's width (one thread, 1M points: the sorted-rule DQS kernel 46.5 M points/s,
-its gather and blend alone 107). Here one thread skins vertices ``v0 .. v0 + 7``: it loads each
+not at the machine's width. Here one thread skins vertices ``v0 .. v0 + 7``: it loads each
 influence's joint data as rows (one 32-byte ``vec8`` or 48-byte affine per vertex), transposes
 them with shuffles so that lane ``i`` of vector ``c`` is component ``c`` of vertex ``i``, and runs
-the arithmetic once for all eight (AVX2 here, NEON or SSE elsewhere). Same run: 142.5 M points/s,
-3.1× (``/tmp`` prototype against the kernel it replaces; ``tools/bench.py``'s "Kernels alone"
-table reports the comparison).
+the arithmetic once for all eight (AVX2, NEON or SSE, as the CPU has; ``tools/bench.py``'s
+"Kernels alone" table compares it with minimal scalar kernels).
 
 The arithmetic is the scalar kernels' (:func:`.skin.dqs_apply`, :func:`.blend.affine_gather`),
 term for term and in the same order; it is written once, over a type ``V``: ``f8`` (eight lanes)

@@ -158,9 +158,8 @@ _PREPARE_DOC = """Per (frame, joint): 3×4 affine for LBS; polar split ``A = R·
 quaternion and the residual ``S`` for DQS. ``has_residual`` must be zeroed before the launch; it
 is set for frames where some ``S ≠ I`` (1e-6, as UsdSkel). A (near-)singular ``A`` (``|det A| <``
 :data:`FACTOR_EPSILON`) gets a zero dual quaternion and ``S = I``, as UsdSkel's DQS; a non-finite
-one NaN, so it propagates in every method. One thread per (frame, joint), frame-major rows: a
-crowd's 16 frames × 19,000 joints are split across the CPU threads (single-threaded, with the
-polar split for every method, they took 175 ms a call)."""
+one NaN, so it propagates in every method. One thread per (frame, joint), frame-major rows, so a
+crowd's frames × joints are split across the CPU threads."""
 
 
 @wp.func
@@ -426,13 +425,11 @@ sum in input order (no pivot to search)."""
 
 def _skin_points_kernel(method, residual, single, sign=None, packet=False):
     """The point kernel of one method, specialized at compile time: ``residual=False`` drops the
-    scale/shear code (~18% faster on the CPU for rigid launches); ``single`` skins one frame
-    (``frame_count == 1``) with no frame-block code beside it (LBS ~1.2× on one thread, 1M points:
-    the unused frame loop in the same kernel slowed the one-frame path); ``sign`` (DQS, one of
-    :data:`SIGN_RULES`) fixes the sign rule at compile time, so only its code remains (the sorted
-    rule: median 36 against 31.5 M points/s, one thread, 1M points, 40 interleaved launches; the
-    best launches alike). The influence-group count stays a runtime argument: a kernel specialized
-    for ``K <= 4`` measured no faster (one thread, 1M points) and doubled the module's compile
+    scale/shear code (faster on the CPU for rigid launches); ``single`` skins one frame
+    (``frame_count == 1``) with no frame-block code beside it (an unused frame loop in the same
+    kernel slows the one-frame path); ``sign`` (DQS, one of :data:`SIGN_RULES`) fixes the sign
+    rule at compile time, so only its code remains. The influence-group count stays a runtime
+    argument: a kernel specialized for ``K <= 4`` is no faster and doubles the module's compile
     time. ``packet`` (CPU; LBS, or DQS with the sorted or searched rule; one group of four
     influences): thread ``t`` skins eight vertices at once (:mod:`.packets`), row ``t`` of
     ``ceil(V / 8)`` per frame (one frame or a frame block alike)."""
@@ -542,9 +539,8 @@ needs no residual code and has no sign rule, BLEND always has the residual code;
 their sign rule fixed (:data:`SIGN_RULES`), BLEND and COR read it at run time; packet kernels
 (:mod:`.packets`, the CPU's) for LBS and the sorted and searched DQS, which read each frame's
 residual flag (one kernel for rigid and scaled launches: the flag is one load per eight
-vertices) and have no one-frame variant (one frame runs the frame loop once; rigid DQS, one
-thread, 1M points measured 126-142 M points/s with and without a variant of its own, within
-this VM's noise)."""
+vertices) and have no one-frame variant (one frame runs the frame loop once, as fast as a
+variant of its own would)."""
 
 
 @wp.func
@@ -679,8 +675,8 @@ _flat_views = weakref.WeakKeyDictionary()
 
 
 def _flat(a):
-    """A 1-D view of contiguous array ``a`` (itself when 1-D), made once per array: a view costs
-    ~5 µs, a launch takes up to ten. The view does not own or reference ``a`` (a cached view
+    """A 1-D view of contiguous array ``a`` (itself when 1-D), made once per array: making a view
+    costs about half of a small launch. The view does not own or reference ``a`` (a cached view
     holding ``a`` would keep it alive): it is launched only while its caller holds ``a`` (the
     launches are synchronous), and the cache entry dies with ``a``; recorded launches keep
     only weak references (:mod:`.grid`)."""

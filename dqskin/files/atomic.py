@@ -8,11 +8,11 @@ complete, and a failed or interrupted write leaves nothing behind.
   The temporary file does not exist until the writer creates it. Writers that save through their
   own temporary file and a rename (USD's ``Export``) would otherwise rename onto an existing empty
   file, and ext4 (``auto_da_alloc``) then writes the whole new file to disk before the rename
-  returns: 2-3x the time of a 378 MB crate export (0.7-0.9 s against 0.3-0.4 s,
-  ``tools/bench_bake.py``'s measurements). Their own temporary files land in the private folder
-  too, so an error leaves nothing (:meth:`~atomic_path.discard` removes the folder) and a killed
-  process one folder (clip bakes remove their own when they resume or finish). Replacing an
-  existing target (``overwrite``) still pays the flush once, in the final rename.
+  returns, several times slower than the export itself. Their own temporary files land in the
+  private folder too, so an error leaves nothing (:meth:`~atomic_path.discard` removes the
+  folder) and a killed process one folder (clip bakes remove their own when they resume or
+  finish). Replacing an existing target (``overwrite``) still pays the flush once, in the final
+  rename.
 * Exclusive claim (``overwrite=False``): the temporary file is put in place with ``os.link``,
   which fails if the target exists. Of two runs writing the same new file, the one that finishes
   second gets :class:`FileExistsError` instead of silently replacing the other's finished file,

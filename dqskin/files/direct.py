@@ -2,12 +2,11 @@
 ordinary buffered writes elsewhere.
 
 A bake writes hundreds of MB that nothing reads soon. Through the page cache the kernel
-allocates and fills a cache page for every 4 KiB first: on this project's 2-core VM, 0.4-0.9 s
-of system time per 400 MB written (a CesiumMan × 10,000 bake: 0.2-0.64 s of system time beside
-0.5 s of user time; a clip worker's, as much system as user time). ``O_DIRECT`` hands the device
-whole aligned blocks from the process's own memory: 0.01-0.02 s of system time for the same
-400 MB, at 1.7-1.9 GB/s. Nothing should read such a file back at once (read past the cache, it
-waits on the device): a clip layer is hashed as it is written (:attr:`AppendFile.observe`).
+allocates and fills a cache page for every 4 KiB first, which can cost as much system time as
+the bake spends skinning. ``O_DIRECT`` hands the device whole aligned blocks from the process's
+own memory, at a small fraction of that system time. Nothing should read such a file back at
+once (read past the cache, it waits on the device): a clip layer is hashed as it is written
+(:attr:`AppendFile.observe`).
 
 :class:`AppendFile` stages appended bytes in an aligned buffer and writes whole :data:`BLOCK`
 multiples of it directly; then its descriptor's ``O_DIRECT`` flag is cleared (``fcntl``) and

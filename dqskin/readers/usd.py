@@ -299,7 +299,7 @@ class UsdSkelAnimation(Animation):
     animation's joint order onto the skeleton's, giving undriven joints their rest transform.
     The loader gives most animations a :class:`~.usd_anim.JointTracks` of their checked samples
     (``_tracks``), which does the same for all the times of a call at once in NumPy; the others
-    (and NaN times) are sampled through UsdSkel, time by time (7 µs a frame).
+    (and NaN times) are sampled through UsdSkel, time by time.
 
     Parameters
     ----------

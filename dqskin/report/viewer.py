@@ -98,7 +98,7 @@ def encode(posed: Mapping[str, npt.ArrayLike], rest: npt.ArrayLike, faces: npt.A
     rest : (V, 3) float
     faces : (T, 3) int
     level : int
-        zlib compression level (1: ~5× faster than 6 for ~8% more bytes here).
+        zlib compression level (1: much faster than 6 for slightly more bytes).
 
     Returns
     -------

@@ -172,7 +172,7 @@ _BUFFER_API = _buffer_api()
 
 def _vt_addresses():
     """``address(array)`` of a Vt array's first element (its buffer is read-only to Python):
-    through ``PyObject_GetBuffer`` (2 µs), else NumPy's view of it (4-5 µs); one per call of
+    through ``PyObject_GetBuffer``, else NumPy's (slower) view of it; one per call of
     :func:`vec3f_arrays` (its ``Py_buffer`` is not shared between threads)."""
     if _BUFFER_API is None:
         return lambda array: np.asarray(array).__array_interface__["data"][0]
@@ -212,9 +212,8 @@ def vec3f_arrays(frames):
     """One new ``Vt.Vec3fArray`` per frame of (F, N, 3) float32 ``frames``.
 
     Each is allocated by Vt and filled with one ``memmove`` (which releases the GIL):
-    ``Vt.Vec3fArray.FromNumpy`` converts element by element, 3-5x slower (3,273 points), but
-    takes one call: arrays of up to :data:`SMALL_ARRAY` elements (extents) use it (2 elements:
-    1.8 against 8-9 µs an array). A new array is never
+    ``Vt.Vec3fArray.FromNumpy`` converts element by element, slower on large arrays, but takes
+    one call: arrays of up to :data:`SMALL_ARRAY` elements (extents) use it. A new array is never
     shared, so writing into its storage is safe; :data:`_MEMCPY` checks once that the buffer Vt
     exposes is that storage, else ``FromNumpy`` is used.
     """
@@ -232,8 +231,8 @@ def vec3f_arrays(frames):
 
 def _extents(points, pad, block=32):
     """(F, 2, 3) float32 ``[min - pad, max + pad]`` of (F, V, 3) ``points``, reduced over
-    contiguous (block, 3, V) copies (2.3× faster than per-component strided reductions; a min
-    over axis 1 of (F, V, 3) is slower still)."""
+    contiguous (block, 3, V) copies (faster than per-component strided reductions or a min over
+    axis 1 of (F, V, 3))."""
     out = np.empty((len(points), 2, 3), np.float32)
     for a in range(0, len(points), block):
         q = np.ascontiguousarray(points[a:a + block].transpose(0, 2, 1))
@@ -245,7 +244,7 @@ def _extents(points, pad, block=32):
 def _rigid_prims(stage, scene):
     """:func:`~.usd.load_rigid_prims` of ``scene``, which loads the file again; skipped (no
     rigid prims) when no prim without points has joint influences of its own or an ancestor's,
-    a scan much cheaper than that second load (0.6 s of a 10,000-frame CesiumMan bake)."""
+    a scan much cheaper than that second load."""
     influenced = set()
     for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
         path = prim.GetPath()

@@ -76,9 +76,8 @@ CLIP_CHUNK = 128
 
 CLIP_BYTES = 32 << 20
 """Samples a clip layer holds at least by default, workers permitting (:func:`clip_frames`): a
-small mesh gets longer clips than :data:`CLIP_CHUNK` frames, since each clip costs milliseconds
-beyond its frames (a layer, its record, its checksum, a task: 128-frame clips of a 3,273-point
-mesh took 13-20 ms of CPU each, their frames' share of a single-layer bake 8)."""
+small mesh gets longer clips than :data:`CLIP_CHUNK` frames, since each clip has a fixed cost
+beyond its frames (a layer, its record, its checksum, a task)."""
 
 
 LOCK_FILE = ".lock"
