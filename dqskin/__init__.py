@@ -17,7 +17,7 @@ _EXPORTS = {
     "Scene": "scene", "SkinnedFrames": "scene", "Skeleton": "skeleton",
     "forward_kinematics": "skeleton", "dq": None, "dual": None, "quat": None,
     "automatic_weights": "autoweights", "rig_mesh": "rigging", "replace_weights": "rigging",
-    "autoweights": None, "rigging": None,
+    "autoweights": None, "rigging": None, "SkinOptions": "options", "CorOptions": "options",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -19,7 +19,7 @@ from .cor import SIGMA
 from .errors import InputError, Param
 from .skinning import METHODS, SIGN_REFERENCES, Method, SignReference
 
-__all__ = ["SPACES", "CorOptions", "SkinOptions", "Space"]
+__all__ = ["SPACES", "CorOptions", "SkinOptions", "Space", "split_changes"]
 
 Space = Literal["local", "skeleton", "world"]
 """Where results are reported: "local", each mesh's own space (the USD prim's local space, the
@@ -167,3 +167,14 @@ class SkinOptions:
         if self.cor != CorOptions():
             out["cor"] = dataclasses.asdict(self.cor)
         return out
+
+
+def split_changes(function: str, changes: dict, *kinds) -> list:
+    """``changes`` (keyword arguments of ``function``) split by the dataclass among ``kinds``
+    that has each as a field: one dict per kind. TypeError, as Python's, for a keyword no kind
+    has."""
+    names = [{f.name for f in dataclasses.fields(k)} for k in kinds]
+    unknown = sorted(set(changes).difference(*names))
+    if unknown:
+        raise TypeError(f"{function}() got an unexpected keyword argument {unknown[0]!r}")
+    return [{k: v for k, v in changes.items() if k in n} for n in names]
