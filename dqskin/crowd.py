@@ -13,8 +13,7 @@ their skeleton's bind space, joint indices offset onto the concatenated joints, 
   animations), each with a time offset and a root transform, built in code.
 
 :mod:`dqskin.pipeline` skins a :class:`dqskin.Scene` of many meshes (a USD stage referencing many
-characters) with the same batches, and a :class:`Crowd` through its
-:func:`~dqskin.pipeline.skin_batch`.
+characters) with the same batches; it and a :class:`Crowd` skin them with :func:`skin_batch`.
 """
 
 from dataclasses import dataclass
@@ -33,7 +32,7 @@ from .options import SkinOptions
 from .skinning import Method, Skinner
 from .validation import check_transforms
 
-__all__ = ["BATCH_METHODS", "Crowd", "JointBatch", "MeshBatch"]
+__all__ = ["BATCH_METHODS", "Crowd", "JointBatch", "MeshBatch", "skin_batch"]
 
 BATCH_METHODS = ("lbs", "dqs", "blend")
 """Methods a :class:`MeshBatch` skins in one launch (the others need per-mesh data)."""
@@ -191,6 +190,15 @@ class MeshBatch:
         axis = 1 if blocks[0].ndim == 3 else 0
         vectors = np.concatenate(blocks, axis=axis).astype(np.float32)
         return vectors, np.concatenate(vv).astype(np.int32), slices
+
+
+def skin_batch(batch: MeshBatch, skinning_transforms, method: Method, options: SkinOptions, *,
+               points=None, as_warp: bool = False):
+    """(F, V, 3) float32 points of every mesh of ``batch`` (bind space, or crowd space for a
+    :class:`Crowd`) in one launch: its skinner with ``method`` and ``options``' sign rule;
+    ``points`` (F, V, 3) bind-space rest points when deformed. ``as_warp``: the device array."""
+    return batch.skinner.skin(skinning_transforms, method, points=points,
+                              sign_reference=options.sign_reference, as_warp=as_warp)
 
 
 class _Batch(NamedTuple):
@@ -365,7 +373,7 @@ class Crowd:
     def skin(self, times: npt.ArrayLike, method: Method | None = None, *,
              options: SkinOptions | None = None, as_warp: bool = False,
              **changes) -> np.ndarray | wp.array:
-        """Skin every instance at ``times`` with one method (:func:`dqskin.pipeline.skin_batch`).
+        """Skin every instance at ``times`` with one method (:func:`skin_batch`).
 
         Parameters
         ----------
@@ -386,7 +394,6 @@ class Crowd:
         (F, V, 3) float32
             Every instance's points in crowd space, in :attr:`slices` order.
         """
-        from .pipeline import skin_batch  # (it imports this module)
         opts = SkinOptions.build(options, **changes)
         opts = opts.replace(method=method or opts.method or "dqs")
         if opts.sign_reference != "largest_weight" or opts.normals or opts.tangents \
@@ -395,9 +402,8 @@ class Crowd:
                              Param("options", opts))
         self._check_method(opts.method)
         batch = self._build()  # one set of instances for the transforms and the skinning
-        return skin_batch(batch.meshes.skinner,
-                          self._skinning_transforms(batch, times, opts.interp), opts.method, opts,
-                          as_warp=as_warp)
+        return skin_batch(batch.meshes, self._skinning_transforms(batch, times, opts.interp),
+                          opts.method, opts, as_warp=as_warp)
 
     def skin_transforms(self, skinning_transforms: wp.array, method: Method = "dqs", *,
                         as_warp: bool = False) -> np.ndarray | wp.array:

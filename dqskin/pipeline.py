@@ -1,8 +1,9 @@
 """The one skinning path of the engine: every caller's meshes go through :func:`skin_scene`.
 
 :meth:`dqskin.Scene.skin` (and :meth:`~dqskin.Scene.skin_chunks`, the bakes, the clip workers,
-the compare report) call :func:`skin_scene`; :class:`dqskin.Crowd` and the rigidly bound USD
-prims skin through :func:`skin_batch` and :func:`rigid_transforms`. The steps, for given
+the compare report) call :func:`skin_scene`; its batches of many meshes and :class:`dqskin.Crowd`
+skin through :func:`dqskin.crowd.skin_batch`, the rigidly bound USD prims through
+:func:`rigid_transforms`. The steps, for given
 :class:`~dqskin.options.SkinOptions`:
 
 1. each skeleton's local transforms sampled and checked (:meth:`dqskin.Scene.local_transforms`),
@@ -21,14 +22,13 @@ import numpy as np
 
 from ._warp import resolve_device
 from .animation import check_times
-from .crowd import BATCH_METHODS, JointBatch, MeshBatch
+from .crowd import BATCH_METHODS, JointBatch, MeshBatch, skin_batch
 from .errors import InputError
 from .motion import moved_velocities, per_second, skinning_transforms_with_derivative
 from .options import SkinOptions
 from .skinning import skin_points
 
-__all__ = ["SkinnedFrames", "one_launch", "rigid_transforms", "skin_batch", "skin_scene",
-           "space_track"]
+__all__ = ["SkinnedFrames", "one_launch", "rigid_transforms", "skin_scene", "space_track"]
 
 
 @dataclass
@@ -73,14 +73,6 @@ def one_launch(scene, options: SkinOptions) -> bool:
     return (len(scene.meshes) > 1 and not options.tangents
             and options.sign_reference == "largest_weight"
             and all(options.method_of(m) in BATCH_METHODS for m in scene.meshes))
-
-
-def skin_batch(skinner, skinning_transforms, method, options: SkinOptions, *, points=None,
-               output_transforms=None, as_warp=False):
-    """Points of one batch: ``skinner.skin`` with the options' sign rule."""
-    return skinner.skin(skinning_transforms, method, points=points,
-                        output_transforms=output_transforms,
-                        sign_reference=options.sign_reference, as_warp=as_warp)
 
 
 def skin_scene(scene, times, options: SkinOptions, cache: dict) -> SkinnedFrames:
@@ -224,7 +216,7 @@ class _Many:
         options, t, F, xf = p.options, p.t, len(p.t), p.all_xforms
         rest = {i: d.points_at(t) for i, d in self.deformers.items()}
         bind_rest = batch.bind_points({i: r for i, r in rest.items() if r is not None}, F)
-        skel = skin_batch(batch.skinner, xf, meth, options, points=bind_rest)
+        skel = skin_batch(batch, xf, meth, options, points=bind_rest)
         outs = {}
         for i, m in enumerate(meshes):
             track = space_track(m, options.space)
