@@ -1,6 +1,6 @@
 """SkinOptions: defaults, validation, pickling; and every entry point (Scene.skin, skin_chunks,
-bake, the compare report, Crowd, the clip workers) giving the same result for the same options, checked
-against float64 NumPy skinning from the equations."""
+bake, the compare report, Crowd, the clip workers) giving the same result for the same options,
+checked against float64 NumPy skinning from the equations."""
 
 import dataclasses
 import pickle
