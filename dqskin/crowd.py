@@ -24,7 +24,7 @@ import numpy.typing as npt
 import warp as wp
 
 from ._warp import Device, resolve_device
-from .animation import check_times
+from .animation import Interpolation, check_times
 from .errors import InputError, Param
 from .kernels import buffers as KB
 from .kernels import fk as FK
@@ -320,7 +320,8 @@ class Crowd:
         """``"instance/mesh"`` → (F, Vm, 3) views of a (F, V, 3) result of :meth:`skin`."""
         return {name: points[:, sl] for name, sl in self.slices.items()}
 
-    def local_transforms(self, times: npt.ArrayLike, *, interp="trs") -> list:
+    def local_transforms(self, times: npt.ArrayLike, *,
+                         interp: Interpolation = SkinOptions.interp) -> list:
         """Every instance skeleton's (F, J, 4, 4) local transforms at ``times`` (each at ``t −
         time_offset``), root transforms composed onto root joints. Instances of the same
         character skeleton are sampled in one call."""
@@ -362,7 +363,8 @@ class Crowd:
                              f"{len(batch.joints.skeletons)}")
         return batch.joints.skinning_transforms(local_transforms)
 
-    def skinning_transforms(self, times: npt.ArrayLike, *, interp="trs") -> wp.array:
+    def skinning_transforms(self, times: npt.ArrayLike, *,
+                            interp: Interpolation = SkinOptions.interp) -> wp.array:
         """(F, ΣJ) ``wp.mat44`` skinning transforms of every instance skeleton, crowd space:
         :meth:`local_transforms` then :meth:`pose`."""
         return self._skinning_transforms(self._build(), times, interp)

@@ -179,7 +179,7 @@ class Scene:
         raise KeyError(f"{self.path}: no mesh {name!r}; meshes: {[m.name for m in self.meshes]}")
 
     def local_transforms(self, times: npt.ArrayLike, skeleton: int = 0, *,
-                         interp: Interpolation = "trs") -> np.ndarray:
+                         interp: Interpolation = SkinOptions.interp) -> np.ndarray:
         """(F, J, 4, 4) float64 local joint transforms of one skeleton at ``times``.
 
         ``interp`` is :data:`dqskin.animation.INTERPOLATIONS`: "trs" is the asset's own sampler
@@ -197,7 +197,7 @@ class Scene:
                                 skel.joint_names, t)
 
     def skinning_transforms(self, times: npt.ArrayLike, skeleton: int = 0, *, device: Device = None,
-                            interp: Interpolation = "trs") -> np.ndarray:
+                            interp: Interpolation = SkinOptions.interp) -> np.ndarray:
         """(F, J, 4, 4) float32 bind-relative transforms of one skeleton at ``times``."""
         return self.skeletons[skeleton].skinning_transforms(
             self.local_transforms(times, skeleton, interp=interp), device=device)

@@ -19,7 +19,7 @@ import warp as wp
 
 from .._warp import resolve_device
 from ..formats import atomic_path
-from ..kernels import render as K
+from ..kernels import render as KR
 from ..topology import check_faces, incidence
 
 __all__ = ["ADAPTIVE_DEPTH_JUMP", "ADAPTIVE_NORMAL_ANGLE", "VIEWS", "Camera", "MeshRenderer",
@@ -229,7 +229,7 @@ class Camera:
     def _params(self, aspect):
         forward, right, up = self.basis()
         half_w, half_h = self.half_extents(aspect)
-        p = K.CameraParams()
+        p = KR.CameraParams()
         p.eye, p.forward, p.right, p.up = (wp.vec3(*map(float, v))
                                            for v in (self.eye, forward, right, up))
         p.half_w, p.half_h = float(half_w), float(half_h)
@@ -271,7 +271,7 @@ class Shading:
         return d / n
 
     def _params(self, camera):
-        p = K.ShadingParams()
+        p = KR.ShadingParams()
         p.light = wp.vec3(*map(float, self.light_world(camera)))
         p.base_color = wp.vec3(*map(float, _vec3("base_color", self.base_color)))
         p.background = wp.vec3(*map(float, _vec3("background", self.background)))
@@ -338,7 +338,7 @@ class MeshRenderer:
         self._update_normals()
 
     def _update_normals(self):
-        K.vertex_normals(points=self.mesh.points, faces=self._faces, vf_offsets=self._vf_offsets,
+        KR.vertex_normals(points=self.mesh.points, faces=self._faces, vf_offsets=self._vf_offsets,
                          vf_faces=self._vf_faces, out=self._normals, device=self.device)
 
     def update(self, points):
@@ -432,7 +432,7 @@ class MeshRenderer:
             def scratch(dtype, used=True):
                 return wp.empty(n if used else 1, dtype=dtype, device=d)
 
-            K.render_adaptive(factor=s, transparent=transparent,
+            KR.render_adaptive(factor=s, transparent=transparent,
                               depth_jump=ADAPTIVE_DEPTH_JUMP,
                               normal_cos=float(np.cos(np.radians(ADAPTIVE_NORMAL_ANGLE))),
                               centres_a=scratch(wp.vec4), centres_b=scratch(wp.vec4, layers > 1),
@@ -444,12 +444,12 @@ class MeshRenderer:
         else:
             sw, sh = width * s, height * s
             samples = [wp.empty(sw * sh, dtype=wp.vec4, device=d) for _ in range(layers)]
-            K.render(width=sw, height=sh, out_a=samples[0],
+            KR.render(width=sw, height=sh, out_a=samples[0],
                      out_b=samples[-1] if layers > 1 else wp.empty(1, dtype=wp.vec4, device=d),
                      depth=wp.empty(sw * sh, dtype=float, device=d),
                      facing=wp.empty(sw * sh, dtype=wp.vec3, device=d), **common)
             for sample, out in zip(samples, outs):
-                K.downsample(samples=sample, factor=s, transparent=transparent, out=out,
+                KR.downsample(samples=sample, factor=s, transparent=transparent, out=out,
                              device=d)
         images = [o.numpy() for o in outs]
         images = [img if transparent else img[..., :3].copy() for img in images]
@@ -457,7 +457,7 @@ class MeshRenderer:
 
     def _layer(self, camera, scalars, scalar_range, colormap, shading, where):
         """A :class:`dqskin.kernels.render.Layer`: constant colour or heat map, lit."""
-        layer = K.Layer()
+        layer = KR.Layer()
         layer.lut = self._lut(colormap)
         layer.scalar_min, layer.scalar_scale = 0.0, 0.0
         if scalars is None:
