@@ -617,10 +617,10 @@ def test_scene_cli_and_compare(tmp_path, monkeypatch):
     rc, text = run_cli("skin", path, "--out", out, "--method", "cor")
     assert rc == 0, text
     np.testing.assert_allclose(np.load(out)["points_0"], want, atol=5e-5)
-    rules = []  # what compare asks the scene for
-    real = dqskin.Scene.skin
-    monkeypatch.setattr(dqskin.Scene, "skin", lambda self, *a, **k: (
-        rules.append(k.get("sign_reference")), real(self, *a, **k))[1])
+    rules = []  # what compare asks the skinning path for
+    real = dqskin.scene.skin_scene
+    monkeypatch.setattr(dqskin.scene, "skin_scene", lambda scene, t, options, cache: (
+        rules.append(options.sign_reference), real(scene, t, options, cache))[1])
     rc, text = run_cli("compare", path, "--out", tmp_path / "report", "--methods", "lbs,cor",
                        "--frames", "1", "--views", "front", "--width", "32", "--supersample",
                        "1", "--no-sweeps", "--quiet", "--sign-reference", "running_sum")
@@ -659,7 +659,8 @@ def test_cor_options_through_scene_and_cli(tmp_path, monkeypatch):
         out = tmp_path / f"clips{len(flags)}.usda"
         rc, text = run_cli("skin", path, "--out", out, "--method", "cor", "--clips", *flags)
         assert rc == 0, text
-        attr = Usd.Stage.Open(str(out)).GetPrimAtPath("/Rig/Mesh").GetAttribute("points")
+        stage = Usd.Stage.Open(str(out))
+        attr = stage.GetPrimAtPath("/Rig/Mesh").GetAttribute("points")
         got = np.stack([np.array(attr.Get(t)) for t in (0, 1)])
         err = np.abs(got - want).max()
         assert (err < 5e-5) if exact else (err > 2e-4), (flags, err)
