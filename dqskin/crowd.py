@@ -397,15 +397,16 @@ class Crowd:
             Every instance's points in crowd space, in :attr:`slices` order.
         """
         opts = SkinOptions.build(options, **changes)
-        opts = opts.replace(method=method or opts.method or "dqs")
+        meth: Method = method or opts.method or "dqs"
+        opts = opts.replace(method=meth)
         if opts.sign_reference != "largest_weight" or opts.normals or opts.tangents \
                 or opts.velocities:
             raise InputError("a crowd skins points with the largest-weight sign rule; got ",
                              Param("options", opts))
-        self._check_method(opts.method)
+        self._check_method(meth)
         batch = self._build()  # one set of instances for the transforms and the skinning
         return skin_batch(batch.meshes, self._skinning_transforms(batch, times, opts.interp),
-                          opts.method, opts, as_warp=as_warp)
+                          meth, opts, as_warp=as_warp)
 
     def skin_transforms(self, skinning_transforms: wp.array, method: Method = "dqs", *,
                         as_warp: bool = False) -> np.ndarray | wp.array:

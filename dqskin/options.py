@@ -12,7 +12,7 @@ bake sends it to its Dask workers); :meth:`SkinOptions.replace` derives another.
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Literal, get_args
+from typing import Any, Literal, cast, get_args
 
 from .animation import INTERPOLATIONS, Interpolation
 from .cor import SIGMA
@@ -134,7 +134,7 @@ class SkinOptions:
             raise InputError(Param("cor", self.cor), ": expected a CorOptions")
 
     @classmethod
-    def build(cls, options: "SkinOptions | None" = None, **changes) -> "SkinOptions":
+    def build(cls, options: "SkinOptions | None" = None, **changes: Any) -> "SkinOptions":
         """``options`` (default: every default) with the fields in ``changes`` replaced; a
         ``cor`` given as a dict builds a :class:`CorOptions`. TypeError for an unknown field."""
         base = cls() if options is None else options
@@ -145,25 +145,26 @@ class SkinOptions:
         return dataclasses.replace(base, **changes) if changes else base
 
     @classmethod
-    def baking(cls, **changes) -> "SkinOptions":
+    def baking(cls, **changes: Any) -> "SkinOptions":
         """The options of a bake (:func:`dqskin.bake`, ``dqskin skin``): normals and velocities
         on, then ``changes``."""
         return cls.build(cls(normals=True, velocities=True), **changes)
 
-    def replace(self, **changes) -> "SkinOptions":
+    def replace(self, **changes: Any) -> "SkinOptions":
         """A copy with ``changes`` (:meth:`build` on this one)."""
         return self.build(self, **changes)
 
-    def method_of(self, mesh) -> str:
+    def method_of(self, mesh) -> Method:
         """The method ``mesh`` is skinned with: :attr:`method`, else the mesh's own."""
-        return self.method or mesh.skinning_method
+        return cast(Method, self.method or mesh.skinning_method)
 
-    def plan(self) -> dict:
+    def plan(self) -> dict[str, Any]:
         """The fields that change a clip bake's samples, as recorded in its plan (and key): the
         method, interpolation, sign rule, normals and velocities, and the centers-of-rotation
         settings when they are not the defaults."""
-        out = dict(method=self.method, interp=self.interp, sign_reference=self.sign_reference,
-                   normals=self.normals, velocities=self.velocities)
+        out: dict[str, Any] = dict(method=self.method, interp=self.interp,
+                                   sign_reference=self.sign_reference, normals=self.normals,
+                                   velocities=self.velocities)
         if self.cor != CorOptions():
             out["cor"] = dataclasses.asdict(self.cor)
         return out

@@ -597,7 +597,7 @@ class _Report(NamedTuple):
     methods: tuple
     options: SkinOptions
     render: RenderSettings
-    sweeps_dir: object
+    sweeps_dir: str | Path | None
     viewer: bool
     heat: bool
 
