@@ -62,13 +62,13 @@ RETAIN_BYTES = 256 << 20
 
 HEAP_BELOW_BYTES = 8 << 20
 """Allocations below this size come from the heap (reused); larger ones that the heap has no
-free room for are mapped apart and handed back when freed. Pieces of skinned frames (at least
+free room for are mapped apart and handed back when freed. Chunks of skinned frames (at least
 256 frames: 10 MB of CesiumMan's points; on huge pages, :mod:`dqskin.kernels.buffers` and
-NumPy's own) are such blocks: in the heap, pieces of unequal sizes (a clip's last piece is
+NumPy's own) are such blocks: in the heap, chunks of unequal sizes (a clip's last chunk is
 shorter) left holes that small allocations filled, and a worker's heap grew by 45-60 MB over
 its first tasks, all of it free (one-thread worker, CesiumMan × 10,000 in 854-frame clips, six
 runs each: peak RSS 370-399 → 335-341 MB; CPU for the 12 clips 0.67-0.88 → 0.70-0.96 s,
-medians 0.81 and 0.74 s). It was 32 MiB, glibc's largest, which kept such pieces in the heap.
+medians 0.81 and 0.74 s). It was 32 MiB, glibc's largest, which kept such chunks in the heap.
 (In a library call's process, NumPy and glibc's defaults stand: mapping each large output
 afresh there cost the kernel's zeroing of its pages on every call, 1M points 274 → 160 M
 points/s.)"""
