@@ -88,8 +88,9 @@ class SkinOptions:
     interp : str
         Joint interpolation between keys (:data:`dqskin.animation.INTERPOLATIONS`).
     normals, tangents, velocities : bool
-        Also skin the rest normals, the rest tangents (directions), and compute point velocities
-        (length units per second).
+        Also skin the rest normals, the rest tangents (directions only; the handedness stays
+        ``mesh.tangents[:, 3]``), and compute point velocities (length units per second, the
+        analytic joint motion of :mod:`dqskin.motion` through every time-varying input).
     blend_shapes : bool
         Apply each mesh's ``deformer`` (blend shapes, morph targets, animated points); False
         skins the bind points.

@@ -123,8 +123,8 @@ class Scene:
 
     Each mesh's ``skeleton`` indexes ``skeletons`` (checked on construction); each skeleton carries
     the animation that drives it (``Skeleton.animation``; :attr:`animations` lists them). Skinners
-    are uploaded once per mesh and device (:meth:`skinner`); after replacing a mesh, call
-    :meth:`invalidate`.
+    are uploaded once per mesh, device and centers-of-rotation settings (:meth:`skinner`); after
+    replacing a mesh, call :meth:`invalidate`.
     """
 
     path: str
