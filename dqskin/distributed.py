@@ -301,7 +301,7 @@ def _bake_clips(scene, out, times, options, settings, threads):
                     usd_clips.clip_frames(scene, len(np.unique(times)), options.normals,
                                           options.velocities,
                                           None if client is None else max(1, sum(slots.values())))
-            bake = usd_clips.ClipBake(scene, out, times, chunk, options.plan(), force=s.force,
+            bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=s.force,
                                       resume=s.resume, inputs=s.inputs)
             todo = bake.pending()
             jobs = [ClipJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()),

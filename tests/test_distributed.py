@@ -314,7 +314,7 @@ def test_a_task_reports_its_wall_and_process_cpu_seconds(tmp_path):
     from dqskin.formats.usd_clips import ClipBake
     scene = load(HUMANOID)
     opts = SkinOptions(method="lbs")
-    plan = ClipBake(scene, tmp_path / "shot.usd", scene.times[:40], 40, opts.plan())
+    plan = ClipBake(scene, tmp_path / "shot.usd", scene.times[:40], 40, opts)
     plan.pending()
     job = distributed.ClipJob(0, str(HUMANOID.resolve()), plan.chunk_times(0),
                                str(plan.clip_path(0)), plan.key, plan.targets, plan.cache.rigid,
@@ -337,7 +337,7 @@ def test_a_worker_reuses_its_buffers_from_task_to_task(tmp_path, monkeypatch):
     from dqskin.kernels import buffers as KB
     scene = load(HUMANOID)
     opts = SkinOptions.baking(method="dqs")
-    plan = ClipBake(scene, tmp_path / "shot.usd", scene.times[:40], 20, opts.plan())
+    plan = ClipBake(scene, tmp_path / "shot.usd", scene.times[:40], 20, opts)
     plan.pending()
     jobs = [distributed.ClipJob(k, str(HUMANOID.resolve()), plan.chunk_times(k),
                                  str(plan.clip_path(k)), plan.key, plan.targets,

@@ -421,9 +421,9 @@ class ClipBake:
         Time codes to bake (in any order; baked sorted, each once).
     chunk : int
         Frames each clip layer owns.
-    options : dict
-        Skinning options that change the result (method, interp, normals, velocities); part of
-        the plan key.
+    options : dqskin.SkinOptions
+        What the clips hold (normals, velocities) and are skinned with; the fields that change
+        the result (:meth:`~dqskin.options.SkinOptions.plan`) are part of the plan key.
     force : bool
         Start over: an existing ``out`` and the clip files of an earlier bake are replaced (the
         ``out`` of an earlier clip bake is removed at once: it reads those clip files).
@@ -442,7 +442,7 @@ class ClipBake:
 
     def __init__(self, scene, out, times, chunk, options, *, force=False, resume=False,
                  inputs=()):
-        normals, velocities = options.get("normals", True), options.get("velocities", True)
+        normals, velocities = options.normals, options.velocities
         self.cache = CacheLayer(scene, out)
         self.out, self.folder = Path(out), clips_folder(out)
         check_outside(out, input_files(self.cache.stage, self.cache.src, inputs), self.cache.src)
@@ -458,7 +458,7 @@ class ClipBake:
                 "first": float(self.times[0]), "last": float(self.times[-1]),
                 "times_sha256": hashlib.sha256(self.times.tobytes()).hexdigest(),
                 "chunk": int(chunk), "chunks": len(self.bounds),
-                "options": {k: options[k] for k in sorted(options)},
+                "options": dict(sorted(options.plan().items())),
                 "attributes": sorted(t.attr for t in self.targets.values())}
         self.key = hashlib.sha256(json.dumps(plan, sort_keys=True).encode()).hexdigest()
         self.plan = dict(plan, key=self.key, out=self.out.name)  # (the name: not in the key)
