@@ -20,6 +20,7 @@ _EXPORTS = {
     "autoweights": None, "rigging": None, "errors": None, "DqskinError": "errors",
     "InputError": "errors", "Interrupted": "errors", "LimitError": "errors",
     "OutputExistsError": "errors", "UnknownNameError": "errors",
+    "SkinOptions": "options", "CorOptions": "options",
 }
 
 __all__ = sorted(_EXPORTS)

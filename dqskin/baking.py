@@ -1,7 +1,8 @@
 """Bake a skinned animation to files: the library behind ``dqskin skin``.
 
 :func:`bake` skins a scene chunk by chunk (:meth:`dqskin.Scene.skin_chunks`, so memory stays
-bounded) and hands each chunk to the writer the output's suffix selects: a USD point cache
+bounded) with one :class:`dqskin.SkinOptions` and hands each chunk to the writer the output's
+suffix selects: a USD point cache
 (:mod:`dqskin.writers.usd_cache`) or value clips (:mod:`dqskin.writers.usd_clips`, chunks baked
 in parallel by :mod:`dqskin.distributed`), one ``.npz`` (:mod:`dqskin.writers.npz`) or one mesh
 file per frame (:mod:`dqskin.writers.mesh_files`). Every output is written atomically
@@ -9,32 +10,29 @@ file per frame (:mod:`dqskin.writers.mesh_files`). Every output is written atomi
 """
 
 import contextlib
+import dataclasses
 import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from ._warp import Device
-from .animation import Interpolation
 from .errors import InputError, OutputExistsError, Param, output_exists
 from .files.atomic import atomic_path, check_interrupted, check_parent
+from .options import SkinOptions, split_changes
 from .readers import format_of, gltf, usd
 from .scene import Scene
-from .skinning import Method, SignReference
 from .validation import check_skinned
 from .writers import mesh_files, npz, usd_cache
 
-__all__ = ["CHUNK", "CLIPS_AUTO_BYTES", "OUTPUT_SUFFIXES", "bake", "check_clip_arguments",
-           "check_output", "output_kind", "sample_bytes"]
+__all__ = ["CLIPS_AUTO_BYTES", "OUTPUT_SUFFIXES", "BakeSettings", "bake",
+           "check_clip_arguments", "check_output", "output_kind", "sample_bytes"]
 
 OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXES
 """Suffixes :func:`bake` writes (mesh files take a per-frame pattern like ``f_{:04d}.obj``)."""
 
-
-CHUNK = usd_cache.PIECE_FRAMES
-"""Default frames skinned at a time, 256 (.npz, per-frame files; single-layer USD caches skin
-fewer when 256 frames of samples exceed :data:`dqskin.writers.usd_cache.PIECE_BYTES`)."""
 
 CLIPS_AUTO_BYTES = 512 << 20
 """A USD cache whose samples would exceed this many bytes (:func:`sample_bytes`) is written as
@@ -80,22 +78,80 @@ def _plural(n, word, plural=None):
     return f"{n} {word if n == 1 else plural or word + 's'}"
 
 
-def check_clip_arguments(out, *, chunk=None, clips=None, workers=None, scheduler=None,
-                         resume=False, force=False):
-    """Raise ValueError, naming the option, for settings :func:`bake` refuses: a chunk or
+@dataclass(frozen=True)
+class BakeSettings:
+    """How :func:`dqskin.bake` writes, apart from what is skinned (:class:`dqskin.SkinOptions`).
+
+    Attributes
+    ----------
+    chunk : int or None
+        Frames skinned at a time (default :data:`~dqskin.writers.usd_cache.CHUNK_FRAMES`, 256,
+        fewer for a USD cache when 256 frames of its samples exceed
+        :data:`~dqskin.writers.usd_cache.CHUNK_BYTES`); with clips, frames per clip layer
+        (default :func:`dqskin.writers.usd_clips.clip_frames`: 128, more for a mesh whose 128
+        frames hold under 32 MB of samples; with workers, shorter for four or more a task slot
+        and evened out over them, so possibly fewer than 128; with ``resume``, the earlier
+        bake's).
+    force : bool
+        Overwrite existing outputs (never the input); the last writer wins.
+    progress : bool
+        A tqdm bar over frames (over clips with clips) on stderr (for three chunks or more, and
+        only when stderr is a terminal).
+    clips : bool or None
+        USD output as value clips (:mod:`dqskin.writers.usd_clips`): a small top-level ``out``
+        and one crate layer per clip in ``out``'s ``.clips`` folder. None: clips when the
+        samples would exceed :data:`CLIPS_AUTO_BYTES` (512 MiB), or when ``workers``,
+        ``scheduler`` or ``resume`` ask for them.
+    workers : int or None
+        Bake the clips on a local Dask cluster of this many worker processes
+        (:mod:`dqskin.distributed`). None: in this process.
+    scheduler : str or None
+        ``tcp://HOST:PORT`` of a running Dask scheduler to bake the clips on instead; its
+        workers read ``scene.path`` from the file (in-memory changes to the scene are not seen)
+        and write to ``out``'s folder, so both must be at the same paths for them.
+    resume : bool
+        Keep the clip layers of an earlier, interrupted bake of the same input and settings
+        that verify against their checksums; bake the rest.
+    inputs : tuple of paths
+        Other files the scene was read from (a mesh, a BVH, a weights file): like
+        ``scene.path``, no output may replace them.
+    """
+
+    chunk: int | None = None
+    force: bool = False
+    progress: bool = False
+    clips: bool | None = None
+    workers: int | None = None
+    scheduler: str | None = None
+    resume: bool = False
+    inputs: tuple = ()
+
+    def __post_init__(self):
+        object.__setattr__(self, "inputs", tuple(self.inputs))
+
+    @property
+    def distributed(self) -> bool:
+        """Whether ``workers``, ``scheduler`` or ``resume`` ask for a clip bake."""
+        return self.workers is not None or bool(self.scheduler) or self.resume
+
+
+def check_clip_arguments(out, settings: BakeSettings) -> None:
+    """Raise InputError, naming the parameter, for settings :func:`bake` refuses: a chunk or
     worker count below 1, clips or their options (``workers``, ``scheduler``, ``resume``) with a
     non-USD ``out``, those options with ``clips=False``, ``workers`` with ``scheduler``,
     ``resume`` with ``force``."""
+    chunk, workers, scheduler, resume = (settings.chunk, settings.workers, settings.scheduler,
+                                         settings.resume)
     if chunk is not None and int(chunk) < 1:
         raise InputError(Param("chunk", chunk), ": must be at least 1")
-    asked = workers is not None or bool(scheduler) or resume
-    if output_kind(out) != "usd" and (clips or asked):
+    asked = settings.distributed
+    if output_kind(out) != "usd" and (settings.clips or asked):
         raise InputError(Param("out", out), ": value clips, ", Param("workers"), ", ",
                          Param("scheduler"), " and ", Param("resume", True),
                          " are for USD caches (.usd/.usdc/.usda)")
     if workers is not None and int(workers) < 1:
         raise InputError(Param("workers", workers), ": must be at least 1")
-    if resume and force:
+    if resume and settings.force:
         raise InputError(Param("resume", True), " and ", Param("force", True), ": give one (",
                          Param("resume", True), " completes the earlier bake, ",
                          Param("force", True), " starts over)")
@@ -103,18 +159,15 @@ def check_clip_arguments(out, *, chunk=None, clips=None, workers=None, scheduler
         raise InputError(Param("workers"), " and ", Param("scheduler"), ": give one (",
                          Param("scheduler"), " bakes on the workers of that cluster; ",
                          Param("workers"), " starts a cluster of its own)")
-    if clips is False and asked:
+    if settings.clips is False and asked:
         raise InputError(Param("workers"), ", ", Param("scheduler"), " and ",
                          Param("resume", True), " need value clips (not ", Param("clips", False),
                          ")")
 
 
 def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None = None, *,
-         method: Method | None = None, interp: Interpolation = "trs", device: Device = None,
-         chunk: int | None = None, normals: bool = True, velocities: bool = True,
-         force: bool = False, progress: bool = False, clips: bool | None = None,
-         workers: int | None = None, scheduler: str | None = None, resume: bool = False,
-         sign_reference: SignReference = "largest_weight", inputs: tuple = ()) -> str:
+         options: SkinOptions | None = None, settings: BakeSettings | None = None,
+         **changes) -> str:
     """Skin ``scene`` at ``times`` and write ``out``.
 
     Every chunk's joint transforms are checked as they are sampled
@@ -136,144 +189,167 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         UVs, see :mod:`dqskin.writers.mesh_files`). Per-frame files are committed together.
     times : (F,) float, optional
         Default ``scene.times``.
-    method : {"lbs", "dqs", "blend", "cor"} or None
-        None: each mesh's own.
-    interp : str
-        Joint interpolation (:data:`dqskin.animation.INTERPOLATIONS`).
-    chunk : int, optional
-        Frames skinned at a time (default 256, fewer for a USD cache when 256 frames of its
-        samples exceed 64 MB); with clips, frames per clip layer (default
-        :func:`dqskin.writers.usd_clips.clip_frames`: 128, more for a mesh whose 128 frames hold
-        under 32 MB of samples; with workers, shorter for four or more a task slot and evened
-        out over them, so possibly fewer than 128; with ``resume``, the earlier bake's).
-    sign_reference : {"largest_weight", "running_sum"}
-        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`), for meshes and
-        rigidly bound prims.
-    normals : bool
-        Skin normals into USD caches and ``.obj/.ply/.glb`` files.
-    velocities : bool
-        Write velocities (units per second) into USD caches.
-    force : bool
-        Overwrite existing outputs (never the input); the last writer wins.
-    progress : bool
-        A tqdm bar over frames (over chunks with clips) on stderr (for three chunks or more,
-        and only when stderr is a terminal).
-    clips : bool or None
-        USD output as value clips (:mod:`dqskin.writers.usd_clips`): a small top-level ``out``
-        and one crate layer per chunk in ``out``'s ``.clips`` folder. None (default): clips when
-        the samples would exceed :data:`CLIPS_AUTO_BYTES` (512 MiB), or when ``workers``,
-        ``scheduler`` or ``resume`` ask for them.
-    workers : int, optional
-        Bake the clip chunks on a local Dask cluster of this many worker processes
-        (:mod:`dqskin.distributed`). None: in this process.
-    scheduler : str, optional
-        ``tcp://HOST:PORT`` of a running Dask scheduler to bake the clip chunks on instead; its
-        workers read ``scene.path`` from the file (in-memory changes to ``scene`` are not seen)
-        and write to ``out``'s folder, so both must be at the same paths for them.
-    resume : bool
-        Keep the clip layers of an earlier, interrupted bake of the same input and settings
-        that verify against their checksums; bake the rest.
-    inputs : sequence of paths
-        Other files the scene was read from (a mesh, a BVH, a weights file): like
-        ``scene.path``, no output may replace them.
+    options : dqskin.SkinOptions, optional
+        What is skinned (default :meth:`SkinOptions.baking`: normals and velocities on; they
+        are written into USD caches, normals into ``.obj/.ply/.glb`` files). The method and
+        sign rule also skin the rigidly bound prims of a USD cache.
+    settings : BakeSettings, optional
+        How it is written (chunks, clips, workers, ``force``, ...).
+    **changes
+        Fields of either replacing those given (``method="dqs"``, ``force=True``, ...).
 
     Returns
     -------
     str
         A one-line summary of what was written.
     """
+    skin_changes, bake_changes = split_changes("bake", changes, SkinOptions, BakeSettings)
+    opts = SkinOptions.build(SkinOptions.baking() if options is None else options,
+                             **skin_changes)
+    settings = dataclasses.replace(BakeSettings() if settings is None else settings,
+                                   **bake_changes)
     if not isinstance(scene, Scene):
         from .readers import load
         scene = load(scene)
     t = scene.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
     kind = output_kind(out)
-    check_clip_arguments(out, chunk=chunk, clips=clips, workers=workers, scheduler=scheduler,
-                         resume=resume, force=force)
-    asked = workers is not None or bool(scheduler) or resume
-    if clips is None and kind == "usd":
-        clips = asked or sample_bytes(scene, len(t), normals, velocities) > CLIPS_AUTO_BYTES
-    names = [m.name for m in scene.meshes]
-    args = dict(method=method, device=device, interp=interp)
-    sign = dict(sign_reference=sign_reference)
-    src = scene.path
-    sources = [src, *inputs]
+    check_clip_arguments(out, settings)
+    job = _Job(scene, out, t, opts, settings)
+    return {"usd": _bake_usd, "npz": _bake_npz, "frames": _bake_frames}[kind](job)
+
+
+class _Job(NamedTuple):
+    """One :func:`bake`: what it reads, skins and writes."""
+
+    scene: Scene
+    out: str | Path
+    times: np.ndarray
+    options: SkinOptions
+    settings: BakeSettings
+
+    @property
+    def sources(self):
+        return [self.scene.path, *self.settings.inputs]
+
+    def counts(self, frames=None):
+        n = len(self.scene.meshes)
+        return (f"{_plural(n, 'mesh', 'meshes')} × "
+                f"{_plural(len(self.times) if frames is None else frames, 'frame')}")
+
+    def chunks(self, chunk, options):
+        """:meth:`Scene.skin_chunks` of ``chunk`` frames with ``options``, with a progress bar
+        over frames (only on a terminal; tqdm is imported only then)."""
+        bar = None
+        times = self.times
+        if self.settings.progress and len(times) > 2 * chunk and sys.stderr.isatty():
+            from tqdm import tqdm
+            bar = tqdm(total=len(times), unit="frame", desc="skinning", file=sys.stderr)
+        try:
+            for sl, res in self.scene.skin_chunks(times, chunk, options=options):
+                check_interrupted()  # in case a library swallowed it
+                yield sl, res
+                if bar is not None:
+                    bar.update(sl.stop - sl.start)
+        finally:
+            if bar is not None:
+                bar.close()
+
+
+def _bake_usd(job: _Job) -> str:
+    """A USD point cache: value clips or one layer."""
+    scene, out, t, opts, s = job
+    if format_of(scene.path) is not usd:
+        raise InputError(Param("out", out), ": a USD point cache copies the input stage, so "
+                         "it needs a USD input; for glTF write .npz or per-frame "
+                         ".obj/.ply/.glb files")
     # a USD cache holds each time once (np.unique would import numpy.ma)
-    frames = int(np.count_nonzero(np.diff(np.sort(t)))) + 1 if kind == "usd" else len(t)
-    counts = f"{_plural(len(names), 'mesh', 'meshes')} × {_plural(frames, 'frame')}"
-    if kind == "usd":
-        if format_of(src) is not usd:
-            raise InputError(Param("out", out), ": a USD point cache copies the input stage, so "
-                             "it needs a USD input; for glTF write .npz or per-frame "
-                             ".obj/.ply/.glb files")
-        if clips:
-            from .distributed import bake_clips
-            done = bake_clips(scene, out, t, chunk=chunk, normals=normals,
-                              velocities=velocities, workers=workers, scheduler=scheduler,
-                              resume=resume, force=force, progress=progress, inputs=inputs,
-                              **args, **sign)
-            kept = f", {done['kept']} kept from the earlier run" if done["kept"] else ""
-            return (f"wrote {out}: {counts} ({method or 'asset method'}"
-                    f"{', velocities' if velocities else ''}) as {_plural(done['chunks'], 'clip')} "
-                    f"in {done['folder']}{kept}")
-        check_output(out, sources, force)
-        clip_bake = None  # SHOT.clips/ beside SHOT.usd: locked, and replaced with --force
-        if usd_cache.clips_folder(out).is_dir():
-            from .writers import usd_clips as clip_bake
-        wrote_velocities = False
+    counts = job.counts(int(np.count_nonzero(np.diff(np.sort(t)))) + 1)
+    method = opts.method or "asset method"
+    clips = s.clips
+    if clips is None:
+        clips = s.distributed or sample_bytes(scene, len(t), opts.normals,
+                                              opts.velocities) > CLIPS_AUTO_BYTES
+    if clips:
+        from .distributed import bake_clips
+        done = bake_clips(scene, out, t, opts, s)
+        kept = f", {done['kept']} kept from the earlier run" if done["kept"] else ""
+        return (f"wrote {out}: {counts} ({method}{', velocities' if opts.velocities else ''}) "
+                f"as {_plural(done['chunks'], 'clip')} in {done['folder']}{kept}")
+    wrote_velocities = _bake_usd_layer(job)
+    return f"wrote {out}: {counts} ({method}{', velocities' if wrote_velocities else ''})"
 
-        def check(res):
-            nonlocal wrote_velocities
-            check_skinned(src, res)
-            wrote_velocities |= bool(res.velocities)
 
-        size = chunk or usd_cache.piece_frames(scene, normals, velocities)
-        with clip_bake.bake_lock(out) if clip_bake else contextlib.nullcontext():
-            replaces = clip_bake is not None and clip_bake.holds_clip_bake(out)
-            with usd_cache.UsdCacheWriter(scene, out, overwrite=force, **args, **sign) as writer:
-                if replaces and not force:  # (an unfinished one: out itself does not exist)
-                    raise OutputExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
-                                            f"of {Path(out).name}; complete it with ",
-                                            Param("resume", True), ", or replace it with a "
-                                            "single layer with ", Param("force", True))
-                if replaces:  # its files are removed below
-                    clip_bake.check_outside(out, clip_bake.input_files(
-                        writer.cache.stage, src, inputs), src)
-                writer.write_chunks((res for _, res in _chunks(
-                    scene, t, size, progress, normals=normals, velocities=velocities,
-                    **args, **sign)), check, checked=True)
-            if replaces:
-                clip_bake.remove_clip_bake(out)  # nothing reads it now
-        return (f"wrote {out}: {counts} "
-                f"({method or 'asset method'}{', velocities' if wrote_velocities else ''})")
-    if kind == "npz":
-        check_output(out, sources, force)
-        with atomic_path(out, overwrite=force) as tmp:  # claimed for the whole run
-            pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32)
-                   for m in scene.meshes}
-            for sl, res in _chunks(scene, t, chunk or CHUNK, progress, **args, **sign):
-                check_skinned(src, res)
-                for name in names:
-                    pts[name][sl] = res.points[name]
-            npz.save_npz(tmp, t, names, [pts[n] for n in names], [m.faces for m in scene.meshes])
-        return f"wrote {out}: {counts}"
-    suffix = Path(str(out)).suffix.lower()
+def _bake_usd_layer(job: _Job) -> bool:
+    """A single-layer USD cache (replacing a clip bake of ``out`` with ``force``); whether it
+    holds velocities."""
+    scene, out, t, opts, s = job
+    src = scene.path
+    check_output(out, job.sources, s.force)
+    clip_bake = None  # SHOT.clips/ beside SHOT.usd: locked, and replaced with --force
+    if usd_cache.clips_folder(out).is_dir():
+        from .writers import usd_clips as clip_bake
+    wrote_velocities = False
+
+    def check(res):
+        nonlocal wrote_velocities
+        check_skinned(src, res)
+        wrote_velocities |= bool(res.velocities)
+
+    size = s.chunk or usd_cache.chunk_frames(scene, opts)
+    with clip_bake.bake_lock(out) if clip_bake else contextlib.nullcontext():
+        replaces = clip_bake is not None and clip_bake.holds_clip_bake(out)
+        with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force) as writer:
+            if replaces and not s.force:  # (an unfinished one: out itself does not exist)
+                raise OutputExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
+                                        f"of {Path(out).name}; complete it with ",
+                                        Param("resume", True), ", or replace it with a "
+                                        "single layer with ", Param("force", True))
+            if replaces:  # its files are removed below
+                clip_bake.check_outside(out, clip_bake.input_files(
+                    writer.cache.stage, src, s.inputs), src)
+            writer.write_chunks((res for _, res in job.chunks(size, opts)), check, checked=True)
+        if replaces:
+            clip_bake.remove_clip_bake(out)  # nothing reads it now
+    return wrote_velocities
+
+
+def _bake_npz(job: _Job) -> str:
+    """One ``.npz`` of every mesh's points."""
+    scene, out, t, opts, s = job
+    check_output(out, job.sources, s.force)
+    names = [m.name for m in scene.meshes]
+    with atomic_path(out, overwrite=s.force) as tmp:  # claimed for the whole run
+        pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32) for m in scene.meshes}
+        for sl, res in job.chunks(s.chunk or usd_cache.CHUNK_FRAMES,
+                                  opts.replace(normals=False, velocities=False)):
+            check_skinned(scene.path, res)
+            for name in names:
+                pts[name][sl] = res.points[name]
+        npz.save_npz(tmp, t, names, [pts[n] for n in names], [m.faces for m in scene.meshes])
+    return f"wrote {out}: {job.counts()}"
+
+
+def _bake_frames(job: _Job) -> str:
+    """One mesh file per frame (all meshes in each), committed together."""
+    scene, out, t, opts, s = job
+    src = scene.path
     numbers = _frame_numbers(scene, t)
     paths = mesh_files.frame_paths(str(out), numbers)
     for p in paths:
-        check_output(p, sources, force)
+        check_output(p, job.sources, s.force)
     gltf_input = format_of(src) is gltf
     layout = mesh_files.MeshLayout(
-        scene.meshes, suffix, normals=normals, uv_top_left=gltf_input,
-        uv_interpolation=None if gltf_input else _usd_uv_interpolation(src))
-    with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=force) as writer:
-        for sl, res in _chunks(scene, t, chunk or CHUNK, progress, normals=layout.normals, **args,
-                               **sign):
+        scene.meshes, Path(str(out)).suffix.lower(), normals=opts.normals,
+        uv_top_left=gltf_input, uv_interpolation=None if gltf_input else _usd_uv_interpolation(src))
+    with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=s.force) as writer:
+        for sl, res in job.chunks(s.chunk or usd_cache.CHUNK_FRAMES,
+                                  opts.replace(normals=layout.normals, velocities=False)):
             check_skinned(src, res)
             points, nrm = layout.frames(res.points, res.normals)
             writer.write(numbers[sl], points, nrm)
     extras = [w for w, on in (("normals", layout.normals), ("UVs", layout.uvs is not None)) if on]
     span = f"{paths[0]}" if len(paths) == 1 else f"{paths[0]} … {paths[-1]}"
-    return (f"wrote {_plural(len(paths), 'file')} {span}: {counts}"
+    return (f"wrote {_plural(len(paths), 'file')} {span}: {job.counts()}"
             + (f" ({', '.join(extras)})" if extras else ""))
 
 
@@ -295,21 +371,3 @@ def _usd_uv_interpolation(path):
 def _frame_numbers(scene, times):
     from .times import frame_numbers
     return frame_numbers(times, seconds=format_of(scene.path) is gltf)
-
-
-def _chunks(scene, times, chunk, progress, **skin_args):
-    """:meth:`Scene.skin_chunks` with a progress bar over frames (only on a terminal; tqdm is
-    imported only then)."""
-    bar = None
-    if progress and len(times) > 2 * chunk and sys.stderr.isatty():
-        from tqdm import tqdm
-        bar = tqdm(total=len(times), unit="frame", desc="skinning", file=sys.stderr)
-    try:
-        for sl, res in scene.skin_chunks(times, chunk, **skin_args):
-            check_interrupted()  # in case a library swallowed it
-            yield sl, res
-            if bar is not None:
-                bar.update(sl.stop - sl.start)
-    finally:
-        if bar is not None:
-            bar.close()

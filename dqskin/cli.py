@@ -159,10 +159,23 @@ def _clip(text):
     return int(text) if isinstance(text, str) and text.isdigit() else text
 
 
+def skin_options(args):
+    """The one :class:`dqskin.SkinOptions` of a command's parsed arguments (those it has:
+    ``--method``, ``--sign-reference``, ``--interp``, ``--no-normals``, ``--no-velocities``,
+    ``--device``, ``--cor-exact``; a bake's defaults, :meth:`SkinOptions.baking`, for the
+    rest)."""
+    from .options import CorOptions, SkinOptions
+    given = {k: getattr(args, k) for k in ("method", "sign_reference", "interp", "normals",
+                                           "velocities", "device") if hasattr(args, k)}
+    if getattr(args, "cor_exact", False):
+        given["cor"] = CorOptions(cluster=None)
+    return SkinOptions.baking(**given)
+
+
 def cmd_skin(args):
     import tempfile
 
-    from .baking import bake, check_clip_arguments, check_output, output_kind
+    from .baking import BakeSettings, bake, check_clip_arguments, check_output, output_kind
     from .times import select_times
     output_kind(args.out)
     inputs = _inputs(args)
@@ -174,28 +187,21 @@ def cmd_skin(args):
                          "--scheduler or --resume: clip workers and the resume check read INPUT "
                          "from its file, without the new weights; write the rig first (dqskin "
                          "rig ... --out rig.usda) and bake that")
-    if args.cor_exact and (args.workers is not None or args.scheduler or args.resume):
-        raise InputError("--cor-exact cannot be combined with --workers, --scheduler or --resume "
-                         "(clip workers compute the centers with the defaults)")
-    check_clip_arguments(args.out, chunk=args.chunk, clips=args.clips, workers=args.workers,
-                         scheduler=args.scheduler, resume=args.resume,
-                         force=args.force)  # before loading INPUT
+    options = skin_options(args)
+    settings = BakeSettings(chunk=args.chunk, force=args.force, progress=True, clips=args.clips,
+                            workers=args.workers, scheduler=args.scheduler, resume=args.resume,
+                            inputs=tuple(inputs))
+    check_clip_arguments(args.out, settings)  # before loading INPUT
     _checkpoint()
     with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
         scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
         if _own_process:  # what is loaded lives to the end: no full collection walks it again
             from .forkserver import freeze_heap
             freeze_heap()
-        if args.cor_exact:
-            scene.cor_options = {"cluster": None}
         _checkpoint()
         times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
                              args.substeps, max_frames=args.max_frames)
-        print(bake(scene, args.out, times, method=args.method, interp=args.interp,
-                   device=args.device, chunk=args.chunk, normals=args.normals,
-                   velocities=args.velocities, force=args.force, progress=True,
-                   clips=args.clips, workers=args.workers, scheduler=args.scheduler,
-                   resume=args.resume, sign_reference=args.sign_reference, inputs=inputs))
+        print(bake(scene, args.out, times, options=options, settings=settings))
     return 0
 
 
@@ -360,11 +366,12 @@ def cmd_demo(args):
     out_dir.mkdir(parents=True, exist_ok=True)
     print(f"dqskin demo: skinning {asset.name} with DQS")
     scene = readers.load(asset)
-    print(bake(scene, out_dir / "humanoid_dqs.usdc", method="dqs", device=args.device,
+    options = skin_options(args)
+    print(bake(scene, out_dir / "humanoid_dqs.usdc", options=options.replace(method="dqs"),
                force=True))
     report = out_dir / "report"
     print(f"dqskin demo: comparing LBS and DQS on {asset.name}")
-    metrics = run_compare(scene, report, device=args.device, force=True)
+    metrics = run_compare(scene, report, options=options, force=True)
 
     def worst(values, pick):
         values = [v for v in values if v is not None]
@@ -381,7 +388,7 @@ def cmd_demo(args):
 
 def cmd_compare(args):
     """``dqskin compare``: :func:`dqskin.report.compare.run_compare`, then a summary."""
-    from .report.compare import run_compare, summary_lines
+    from .report.compare import RenderSettings, run_compare, summary_lines
     from .times import parse_frames
     out = Path(args.out).resolve()
     for src in _inputs(args):  # what the report writes: the folder, these files, frames/*
@@ -394,12 +401,13 @@ def cmd_compare(args):
         source, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],
         frames=None if args.frames is None else parse_frames(args.frames,
                                                              max_frames=args.max_frames),
-        views=[v.strip() for v in args.views.split(",") if v.strip()], device=args.device,
-        width=args.width, supersample=args.supersample, progress=not args.quiet,
-        force=args.force, sweeps_dir=None if args.no_sweeps else "default",
-        up_axis=args.up_axis, clip=_clip(args.clip), max_rays=args.max_rays,
-        sign_reference=args.sign_reference, viewer_frames=args.viewer_frames,
-        adaptive=not args.full_supersample)
+        options=skin_options(args), render=RenderSettings(
+            views=tuple(v.strip() for v in args.views.split(",") if v.strip()),
+            width=args.width, supersample=args.supersample, adaptive=not args.full_supersample,
+            max_rays=args.max_rays, up_axis=args.up_axis),
+        progress=not args.quiet, force=args.force,
+        sweeps_dir=None if args.no_sweeps else "default", clip=_clip(args.clip),
+        viewer_frames=args.viewer_frames)
     print(f"wrote {Path(args.out) / 'report.html'} ({len(result['frames'])} frames × "
           f"{len(result['methods'])} methods × {len(result['views'])} views, "
           f"{result['timing_s']['total']:.1f} s)")
@@ -408,8 +416,10 @@ def cmd_compare(args):
 
 
 def _add_sign_reference(parser):
+    from .options import SkinOptions
     from .skinning import SIGN_REFERENCES
-    parser.add_argument("--sign-reference", choices=SIGN_REFERENCES, default=SIGN_REFERENCES[0],
+    parser.add_argument("--sign-reference", choices=SIGN_REFERENCES,
+                        default=SkinOptions.sign_reference,
                         help="DQS sign rule: largest_weight = UsdSkel's (default), running_sum = "
                         "Blender's Preserve Volume")
 
@@ -471,6 +481,7 @@ def build_parser():
     import argparse
 
     from .animation import INTERPOLATIONS
+    from .options import SkinOptions
     from .skinning import METHODS
     from .times import MAX_FRAMES
     common = argparse.ArgumentParser(add_help=False)
@@ -499,7 +510,7 @@ def build_parser():
                    "(also the default STEP of --frames)")
     s.add_argument("--substeps", type=int, default=1,
                    help="samples per frame interval (motion-blur sub-frames)")
-    s.add_argument("--interp", choices=INTERPOLATIONS, default="trs",
+    s.add_argument("--interp", choices=INTERPOLATIONS, default=SkinOptions.interp,
                    help="joint interpolation between keys: trs = the asset's own (default); "
                    "sclerp, dlb, spline, catmull-rom interpolate dual quaternions")
     s.add_argument("--no-velocities", dest="velocities", action="store_false",
@@ -749,14 +760,12 @@ def _wants_workers(argv):
     for flag in ("--scheduler", "--skeleton", "--weights"):
         p.add_argument(flag)
     p.add_argument("--clips", action=argparse.BooleanOptionalAction)
-    p.add_argument("--cor-exact", action="store_true")
     try:
         a = p.parse_known_args(argv[1:])[0]
     except (argparse.ArgumentError, SystemExit):
         return False
     return (a.workers is not None and a.workers >= 1 and not a.scheduler and a.clips is not False
-            and (a.chunk is None or a.chunk >= 1) and a.skeleton is None and a.weights is None
-            and not a.cor_exact)
+            and (a.chunk is None or a.chunk >= 1) and a.skeleton is None and a.weights is None)
 
 
 def _run(argv):

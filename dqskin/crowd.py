@@ -11,9 +11,9 @@ their skeleton's bind space, joint indices offset onto the concatenated joints, 
 * :class:`MeshBatch`: meshes → one :class:`~dqskin.skinning.Skinner` (one influence layout).
 * :class:`Crowd`: instances of characters (any :class:`dqskin.Scene`: meshes, skeletons,
   animations), each with a time offset and a root transform, built in code.
-* :func:`skin_meshes`: what :meth:`dqskin.Scene.skin` runs for scenes of many meshes (a USD
-  stage referencing many characters): the same batches, then each mesh's output transform,
-  normals and velocities, matching the per-mesh results.
+
+:mod:`dqskin.pipeline` skins a :class:`dqskin.Scene` of many meshes (a USD stage referencing many
+characters) with the same batches; it and a :class:`Crowd` skin them with :func:`skin_batch`.
 """
 
 from dataclasses import dataclass
@@ -24,16 +24,15 @@ import numpy.typing as npt
 import warp as wp
 
 from ._warp import Device, resolve_device
-from .animation import check_times
-from .errors import InputError
+from .animation import Interpolation, check_times
+from .errors import InputError, Param
 from .kernels import buffers as KB
 from .kernels import fk as FK
-from .motion import moved_velocities, per_second, skinning_transforms_with_derivative
+from .options import SkinOptions
 from .skinning import Method, Skinner
-from .spaces import space_track
 from .validation import check_transforms
 
-__all__ = ["BATCH_METHODS", "Crowd", "JointBatch", "MeshBatch", "skin_meshes"]
+__all__ = ["BATCH_METHODS", "Crowd", "JointBatch", "MeshBatch", "skin_batch"]
 
 BATCH_METHODS = ("lbs", "dqs", "blend")
 """Methods a :class:`MeshBatch` skins in one launch (the others need per-mesh data)."""
@@ -193,113 +192,13 @@ class MeshBatch:
         return vectors, np.concatenate(vv).astype(np.int32), slices
 
 
-def _apply_points(p, xf):
-    """``xf (F, 4, 4) · [p, 1]`` for (F, N, 3) points, float32."""
-    a = xf[:, :3, :3].astype(np.float32)
-    return np.einsum("fij,fvj->fvi", a, p) + xf[:, None, :3, 3].astype(np.float32)
-
-
-def _apply_normals(n, xf):
-    lin = np.linalg.inv(xf[:, :3, :3]).transpose(0, 2, 1).astype(np.float32)
-    y = np.einsum("fij,fvj->fvi", lin, n)
-    return y / np.maximum(np.linalg.norm(y, axis=-1, keepdims=True), 1e-30)
-
-
-def skin_meshes(scene, times, method: Method | None = None, *, device: Device = None,
-                normals: bool = False, velocities: bool = False, interp="trs",
-                space="output", blend_shapes: bool = True, cache=None):
-    """Skin every mesh of ``scene`` with one FK launch and one skinning launch per method.
-
-    The batched twin of the per-mesh loop of :meth:`dqskin.Scene.skin` (same arguments, same
-    results): each skeleton's local transforms are sampled and checked as
-    :meth:`dqskin.Scene.local_transforms` does, posed together (:class:`JointBatch`), and the
-    meshes of each method skinned together (:class:`MeshBatch`); then each mesh's output
-    transform is applied to its rows (points; normals by the inverse transpose; velocities by the
-    chain rule, as :meth:`dqskin.Scene.skin`). ``cache`` (a dict) keeps the uploaded batches
-    between calls.
-
-    Returns
-    -------
-    points, normals, velocities : dict mesh name → (F, N, 3) float32
-    """
-    t = check_times(times)
-    F = t.shape[0]
-    cache = {} if cache is None else cache
-    dev = str(resolve_device(device))
-    used = sorted({m.skeleton for m in scene.meshes})
-    jkey = ("joints", tuple(scene.skeletons[s] for s in used), dev)
-    if jkey not in cache:
-        cache[jkey] = JointBatch([scene.skeletons[s] for s in used], device)
-    joints: JointBatch = cache[jkey]
-    where = dict(zip(used, joints.joints))
-    local = [scene.local_transforms(t, s, interp=interp) for s in used]
-    xforms = joints.skinning_transforms(local)
-    rates = None
-    if velocities:
-        rates = np.empty((F, joints.joint_count, 4, 4), np.float64)
-        for s, loc in zip(used, local):
-            try:
-                rates[:, where[s]] = skinning_transforms_with_derivative(
-                    scene.skeletons[s], scene.skeletons[s].animation, t, interp, local=loc)[1]
-            except ValueError as exc:
-                raise InputError(f"{scene.path}: {exc}") from None
-    groups = {}
-    for m in scene.meshes:
-        groups.setdefault(method or m.skinning_method, []).append(m)
-    points, nrm, vel = {}, {}, {}
-    for meth, meshes in groups.items():
-        key = ("meshes", tuple(m.name for m in meshes), dev)
-        batch = cache.get(key)  # one look-up: Scene.invalidate may drop it from another thread
-        if batch is None:
-            batch = cache[key] = MeshBatch(
-                meshes, [where[m.skeleton].start for m in meshes],
-                [scene.skeletons[m.skeleton].joint_count for m in meshes], device)
-        deformers = {i: m.deformer for i, m in enumerate(meshes)
-                     if blend_shapes and m.deformer is not None}
-        rest = {i: d.points_at(t) for i, d in deformers.items()}
-        rest = {i: p for i, p in rest.items() if p is not None}
-        bind_rest = batch.bind_points(rest, F)
-        skel = batch.skinner.skin(xforms, meth, points=bind_rest)
-        outs = {}
-        for i, m in enumerate(meshes):
-            track = space_track(m, space)
-            if track is not None:
-                outs[i] = track.with_derivative(t) if velocities else (track.at(t), None)
-        for i, m in enumerate(meshes):
-            p = skel[:, batch.vertices[i]]
-            points[m.name] = _apply_points(p, outs[i][0]) if i in outs else p
-        if normals:
-            with_normals = [i for i, m in enumerate(meshes) if m.normals is not None]
-            if with_normals:
-                rn = {i: deformers[i].normals_at(t) for i in with_normals if i in deformers}
-                rn = {i: n for i, n in rn.items() if n is not None}
-                vectors, vv, slices = batch.bind_normals(with_normals, rn, F)
-                skinned = batch.skinner.skin_vectors(xforms, vectors, meth, kind="normal",
-                                                     vector_vertex=vv)
-                if skinned.ndim == 2:
-                    skinned = skinned[None]
-                for i, sl in zip(with_normals, slices):
-                    n = skinned[:, sl]
-                    nrm[meshes[i].name] = _apply_normals(n, outs[i][0]) if i in outs else n
-        if velocities:
-            rest_dot = {i: d.point_velocities_at(t) for i, d in deformers.items()}
-            rest_dot = {i: v for i, v in rest_dot.items() if v is not None}
-            tcps = float(scene.time_codes_per_second)
-            rates_s, rest_dot_s = per_second(tcps, rates, batch.bind_velocities(rest_dot, F))
-            try:
-                v_all = batch.skinner.skin_velocities(xforms, rates_s, meth, points=bind_rest,
-                                                      point_velocities=rest_dot_s)
-            except ValueError as exc:  # per-second rates beyond float32
-                more = f" and {len(meshes) - 1} more" if len(meshes) > 1 else ""
-                raise InputError(f"{scene.path}: {meshes[0].name}{more}: velocities: "
-                                 f"{exc}") from None
-            for i, m in enumerate(meshes):
-                v = v_all[:, batch.vertices[i]]
-                if i in outs:
-                    v = moved_velocities(v, *outs[i], tcps,
-                                         lambda i=i: skel[:, batch.vertices[i]])
-                vel[m.name] = v
-    return points, nrm, vel
+def skin_batch(batch: MeshBatch, skinning_transforms, method: Method, options: SkinOptions, *,
+               points=None, as_warp: bool = False):
+    """(F, V, 3) float32 points of every mesh of ``batch`` (bind space, or crowd space for a
+    :class:`Crowd`) in one launch: its skinner with ``method`` and ``options``' sign rule;
+    ``points`` (F, V, 3) bind-space rest points when deformed. ``as_warp``: the device array."""
+    return batch.skinner.skin(skinning_transforms, method, points=points,
+                              sign_reference=options.sign_reference, as_warp=as_warp)
 
 
 class _Batch(NamedTuple):
@@ -421,7 +320,8 @@ class Crowd:
         """``"instance/mesh"`` → (F, Vm, 3) views of a (F, V, 3) result of :meth:`skin`."""
         return {name: points[:, sl] for name, sl in self.slices.items()}
 
-    def local_transforms(self, times: npt.ArrayLike, *, interp="trs") -> list:
+    def local_transforms(self, times: npt.ArrayLike, *,
+                         interp: Interpolation = SkinOptions.interp) -> list:
         """Every instance skeleton's (F, J, 4, 4) local transforms at ``times`` (each at ``t −
         time_offset``), root transforms composed onto root joints. Instances of the same
         character skeleton are sampled in one call."""
@@ -463,7 +363,8 @@ class Crowd:
                              f"{len(batch.joints.skeletons)}")
         return batch.joints.skinning_transforms(local_transforms)
 
-    def skinning_transforms(self, times: npt.ArrayLike, *, interp="trs") -> wp.array:
+    def skinning_transforms(self, times: npt.ArrayLike, *,
+                            interp: Interpolation = SkinOptions.interp) -> wp.array:
         """(F, ΣJ) ``wp.mat44`` skinning transforms of every instance skeleton, crowd space:
         :meth:`local_transforms` then :meth:`pose`."""
         return self._skinning_transforms(self._build(), times, interp)
@@ -471,27 +372,41 @@ class Crowd:
     def _skinning_transforms(self, batch, times, interp):
         return self._pose(batch, self._local_transforms(times, batch.instances, interp))
 
-    def skin(self, times: npt.ArrayLike, method: Method = "dqs", *, interp="trs",
-             as_warp: bool = False) -> np.ndarray | wp.array:
-        """Skin every instance at ``times`` with one method.
+    def skin(self, times: npt.ArrayLike, method: Method | None = None, *,
+             options: SkinOptions | None = None, as_warp: bool = False,
+             **changes) -> np.ndarray | wp.array:
+        """Skin every instance at ``times`` with one method (:func:`skin_batch`).
 
         Parameters
         ----------
         times : (F,) float
             Crowd time (each instance samples ``t − time_offset`` of its character's time unit).
-        method : {"dqs", "lbs", "blend"}
+        method : {"dqs", "lbs", "blend"}, optional
+            Shorthand for ``options.method``; a crowd skins "dqs" when neither gives one.
+        options : dqskin.SkinOptions, optional
+            ``method``, ``interp``, ``sign_reference`` ("largest_weight" only) apply; a crowd
+            skins points, in crowd space.
         as_warp : bool
             Return the device array (F, V) ``wp.vec3`` without a copy.
+        **changes
+            Fields of :class:`~dqskin.options.SkinOptions` replacing those of ``options``.
 
         Returns
         -------
         (F, V, 3) float32
             Every instance's points in crowd space, in :attr:`slices` order.
         """
-        self._check_method(method)
+        opts = SkinOptions.build(options, **changes)
+        meth: Method = method or opts.method or "dqs"
+        opts = opts.replace(method=meth)
+        if opts.sign_reference != "largest_weight" or opts.normals or opts.tangents \
+                or opts.velocities:
+            raise InputError("a crowd skins points with the largest-weight sign rule; got ",
+                             Param("options", opts))
+        self._check_method(meth)
         batch = self._build()  # one set of instances for the transforms and the skinning
-        return batch.meshes.skinner.skin(self._skinning_transforms(batch, times, interp), method,
-                                         as_warp=as_warp)
+        return skin_batch(batch.meshes, self._skinning_transforms(batch, times, opts.interp),
+                          meth, opts, as_warp=as_warp)
 
     def skin_transforms(self, skinning_transforms: wp.array, method: Method = "dqs", *,
                         as_warp: bool = False) -> np.ndarray | wp.array:

@@ -1,15 +1,16 @@
-"""Clip bakes chunk by chunk, in this process or as tasks on Dask (:mod:`dqskin.writers.usd_clips`).
+"""Clip bakes clip by clip, in this process or as tasks on Dask (:mod:`dqskin.writers.usd_clips`).
 
-Every chunk of frames is one independent task, :func:`run_chunk`: it skins its frames with
-:meth:`dqskin.Scene.skin_chunks` and writes its own clip layer (:func:`~.writers.usd_clips.
-write_clip`: complete, checksummed, then renamed into place). A task carries only the source's
-path, its times and where each value goes (:class:`~.writers.usd_cache.Target`); each worker
-process loads the asset once and keeps it for its later chunks, and returns a few numbers, so
+Every clip (the frames of one clip layer) is one independent task, :func:`run_clip`: it skins
+its frames chunk by chunk with :meth:`dqskin.Scene.skin_chunks` and writes its own clip layer
+(:func:`~.writers.usd_clips.write_clip`: complete, checksummed, then renamed into place). A task
+carries only the source's path, its times, where each value goes
+(:class:`~.writers.usd_cache.Target`) and the :class:`~dqskin.options.SkinOptions`; each worker
+process loads the asset once and keeps it for its later clips, and returns a few numbers, so
 point data never travels through the scheduler. Workers need the source and the output folder at
 the same paths (one machine, or a shared file system).
 
-* ``workers=None`` and no ``scheduler``: the chunks run here, one after another, pipelined
-  across chunks (:func:`run_here`).
+* ``workers=None`` and no ``scheduler``: the clips run here, one after another, pipelined
+  across clips (:func:`run_here`).
 * ``workers=N``: a :class:`distributed.LocalCluster` of ``N`` worker processes (one task at a
   time each; USD's and dqskin's CPU threads limited to cores / ``N`` per process, or to
   ``threads``) on 127.0.0.1, started and closed by the bake, forked from a forkserver that has
@@ -18,7 +19,7 @@ the same paths (one machine, or a shared file system).
   Each worker process's thread budget is its ``--nthreads`` (:func:`worker_threads`), unless
   ``DQSKIN_THREADS`` / ``PXR_WORK_THREAD_LIMIT`` are set in its environment.
 
-A worker process that dies mid-chunk leaves no layer under the chunk's name; Dask runs the task
+A worker process that dies mid-clip leaves no layer under the clip's name; Dask runs the task
 again on another worker (up to its ``allowed-failures``, 3 by default).
 """
 
@@ -36,25 +37,21 @@ from . import forkserver
 from .errors import DqskinError, InputError, Param
 from .files import atomic
 from .kernels import buffers as KB
+from .options import SkinOptions
 from .validation import check_skinned
 from .writers import usd_clips
-from .writers.usd_cache import SampleWriter, piece_frames
+from .writers.usd_cache import SampleWriter, chunk_frames
 
-__all__ = ["ChunkJob", "bake_clips", "run_chunk", "run_here", "worker_threads"]
-
-
-def _piece_frames(scene, opts):
-    """:func:`piece_frames` for :meth:`dqskin.Scene.skin` options ``opts``."""
-    return piece_frames(scene, opts.get("normals", True), opts.get("velocities", True))
+__all__ = ["ClipJob", "bake_clips", "run_clip", "run_here", "worker_threads"]
 
 
 _scenes = {}  # this worker process's loaded asset: {(path, mtime, size): Scene}
-_buffers = KB.BufferPool()  # this process's pieces of frames, reused from task to task (run_chunk)
+_buffers = KB.BufferPool()  # this process's chunks of frames, reused from task to task (run_clip)
 
 
 @dataclass(frozen=True)
-class ChunkJob:
-    """One chunk of a clip bake: everything a worker needs besides the asset file.
+class ClipJob:
+    """One clip of a clip bake: everything a worker needs besides the asset file.
 
     Attributes
     ----------
@@ -62,16 +59,15 @@ class ChunkJob:
     source : str
         Absolute path of the asset (read by the worker).
     times : (F_k,) float64
-        The clip layer's time codes (its own frames and the next chunk's first).
+        The clip layer's time codes (its own frames and the next clip's first).
     path : str
         Absolute path of the clip layer.
     key : str
         The plan key recorded with the layer.
     targets : dict (prim, what) → Target
     rigid : list of RigidPrim
-    skin : dict
-        Keyword arguments of :meth:`dqskin.Scene.skin` (``method``, ``interp``, ``device``,
-        ``normals``, ``velocities``, ...).
+    options : dqskin.SkinOptions
+        What the meshes and rigid prims are skinned with.
     time_codes_per_second : float
     """
 
@@ -82,7 +78,7 @@ class ChunkJob:
     key: str
     targets: dict
     rigid: list
-    skin: dict
+    options: SkinOptions
     time_codes_per_second: float
 
 
@@ -119,7 +115,7 @@ def _worker_plugin(own_cluster: bool):
             budget = worker_threads(getattr(state, "nthreads", 1))
             os.environ.update(budget)  # read by dqskin.kernels.grid.cpu_threads at each launch
             Work.SetConcurrencyLimitArgument(int(budget["PXR_WORK_THREAD_LIMIT"]))
-            if own_cluster:  # our own processes: a chunk reuses what the one before freed
+            if own_cluster:  # our own processes: a clip reuses what the one before freed
                 forkserver.keep_freed_memory()
                 forkserver.freeze_heap()
 
@@ -134,7 +130,7 @@ def _worker_scene(path):
         from .readers import load
         global _buffers
         _scenes.clear()
-        _buffers = KB.BufferPool()  # another asset's pieces: their own sizes
+        _buffers = KB.BufferPool()  # another asset's chunks: their own sizes
         _scenes[key] = load(path)
     return _scenes[key]
 
@@ -156,17 +152,13 @@ def _peak_rss_mb():
 
 def _sample_writer(scene, job):
     """The :class:`SampleWriter` of ``job``'s clip layers (the plan's targets, its options)."""
-    opts = job.skin
-
     def target(name, what):
         try:
             return job.targets[name, what]
         except KeyError:
             raise InputError(f"{job.source}: {name}: no {what} in this bake's plan") from None
 
-    return SampleWriter(scene, target, job.rigid, method=opts.get("method"),
-                        device=opts.get("device"), interp=opts.get("interp", "trs"),
-                        sign_reference=opts.get("sign_reference", "largest_weight"))
+    return SampleWriter(scene, target, job.rigid, job.options)
 
 
 def _result(job, digest, t0, c0):
@@ -176,8 +168,8 @@ def _result(job, digest, t0, c0):
                 peak_rss_mb=_peak_rss_mb(), started=ended - seconds, ended=ended)
 
 
-def run_chunk(job: ChunkJob, scene=None) -> dict:
-    """Skin one chunk and write its clip layer; ``scene`` defaults to the worker's copy of
+def run_clip(job: ClipJob, scene=None) -> dict:
+    """Skin one clip and write its layer; ``scene`` defaults to the worker's copy of
     ``job.source``. Returns ``index``, ``checksum`` (:data:`~.writers.usd_clips.CHECKSUM`),
     ``seconds``, ``cpu_seconds`` (of the whole process while the task ran: all its threads, a
     worker running one task at a time), ``pid``, ``peak_rss_mb``, and ``started`` and ``ended``
@@ -187,8 +179,8 @@ def run_chunk(job: ChunkJob, scene=None) -> dict:
     with usd_clips.ClipLayer(job.path, job.time_codes_per_second) as layer:
         _sample_writer(scene, job).write_chunks(
             layer.samples,
-            (res for _, res in scene.skin_chunks(job.times, _piece_frames(scene, job.skin),
-                                                 buffers=_buffers, **job.skin)),
+            (res for _, res in scene.skin_chunks(job.times, chunk_frames(scene, job.options),
+                                                 buffers=_buffers, options=job.options)),
             lambda res: check_skinned(scene.path, res), checked=True)
         digest = usd_clips.write_clip(layer, job.key, job.times)
     return _result(job, digest, t0, c0)
@@ -196,32 +188,32 @@ def run_chunk(job: ChunkJob, scene=None) -> dict:
 
 def run_here(jobs: list, scene, done) -> None:
     """Every job, in order, in this process (``done(result)`` after each; results as
-    :func:`run_chunk`'s), pipelined across chunks instead of :func:`run_chunk` one by one: one
-    :meth:`dqskin.Scene.skin_chunks` stream of pieces
-    (:data:`~.writers.usd_cache.PIECE_BYTES`) over all their frames keeps skinning (the first
-    piece of chunk ``k + 1`` while chunk ``k``'s layer is finished), and chunk ``k``'s layer
+    :func:`run_clip`'s), pipelined across chunks instead of :func:`run_clip` one by one: one
+    :meth:`dqskin.Scene.skin_chunks` stream of chunks
+    (:data:`~.writers.usd_cache.CHUNK_BYTES`) over all their frames keeps skinning (the first
+    chunk of clip ``k + 1`` while clip ``k``'s layer is finished), and clip ``k``'s layer
     (hashed as it was written) is recorded and renamed
-    (:func:`~.writers.usd_clips.commit_clip`) once chunk ``k + 1``'s is filled. Memory is as
-    :func:`run_chunk`'s: a few pieces (the one being skinned, two being checked, one being
+    (:func:`~.writers.usd_clips.commit_clip`) once clip ``k + 1``'s is filled. Memory is as
+    :func:`run_clip`'s: a few chunks (the one being skinned, two being checked, one being
     written), no layer (each goes to its file as it fills).
 
-    On an error or interrupt while chunk ``k + 1`` is filled, chunk ``k`` is still recorded and
+    On an error or interrupt while clip ``k + 1`` is filled, clip ``k`` is still recorded and
     renamed (as the one-by-one bake would have had it), then the error raised; nothing else is
     left under a final name."""
     if not jobs:
         return
-    size = _piece_frames(scene, jobs[0].skin)
-    pieces = [[min(size, len(j.times) - a) for a in range(0, len(j.times), size)] for j in jobs]
+    size = chunk_frames(scene, jobs[0].options)
+    chunks = [[min(size, len(j.times) - a) for a in range(0, len(j.times), size)] for j in jobs]
     writer = _sample_writer(scene, jobs[0])
     stream = scene.skin_chunks(np.concatenate([j.times for j in jobs]),
-                               [n for p in pieces for n in p], **jobs[0].skin)
+                               [n for c in chunks for n in c], options=jobs[0].options)
     pending = None  # (job, claim, checksum, start) of the finished, unrecorded layer
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values") as values:
         try:
             start = time.perf_counter(), time.process_time()
-            for job, p in zip(jobs, pieces):
+            for job, c in zip(jobs, chunks):
                 with usd_clips.ClipLayer(job.path, job.time_codes_per_second) as layer:
-                    writer.write_chunks(layer.samples, (next(stream)[1] for _ in p),
+                    writer.write_chunks(layer.samples, (next(stream)[1] for _ in c),
                                         lambda r: check_skinned(scene.path, r), checked=True,
                                         executor=values)
                     if pending is not None:
@@ -269,59 +261,55 @@ def _commit_on_error(job, claim, digest, start):
                 atomic.interrupt(recorded)
 
 
-def bake_clips(scene, out, times, *, chunk=None, method=None, interp="trs", device=None,
-               normals=True, velocities=True, workers=None, scheduler=None, resume=False,
-               force=False, progress=False, threads=None, inputs=(), **skin_options) -> dict:
+def bake_clips(scene, out, times, options: SkinOptions, settings, *, threads=None) -> dict:
     """Bake ``scene`` at ``times`` to the value-clip cache ``out``
-    (:class:`~.writers.usd_clips.ClipBake`); see :func:`dqskin.bake` for the parameters.
-    ``skin_options`` go to :meth:`dqskin.Scene.skin` (``sign_reference``, ...) for the meshes
-    and into the plan key (rigidly bound prims use ``method``, ``interp``, ``device`` and
-    ``sign_reference``). ``threads``: CPU threads of each LocalCluster worker process (default
-    cores / ``workers``); the workers of an external ``scheduler`` follow their own
-    ``--nthreads`` (:func:`worker_threads`). ``inputs``: other files the bake reads (refused
-    inside the clip folder).
+    (:class:`~.writers.usd_clips.ClipBake`) with ``options`` (for the meshes and the rigidly
+    bound prims; :meth:`SkinOptions.plan` goes into the plan key) and ``settings``
+    (:class:`dqskin.baking.BakeSettings`: ``chunk`` is the frames of each clip, ``workers``,
+    ``scheduler``, ``resume``, ``force``, ``progress``, ``inputs``: other files the bake reads,
+    refused inside the clip folder). ``threads``: CPU threads of each LocalCluster worker
+    process (default cores / ``workers``); the workers of an external ``scheduler`` follow their
+    own ``--nthreads`` (:func:`worker_threads`).
 
     Returns
     -------
     dict
-        ``chunks`` (total), ``baked`` (this run), ``kept`` (verified from an earlier run),
-        ``folder``, and ``tasks``: what each task returned (pid, seconds, peak RSS).
+        ``chunks`` (clips in total), ``baked`` (this run), ``kept`` (verified from an earlier
+        run), ``folder``, and ``tasks``: what each task returned (pid, seconds, peak RSS).
     """
-    options = dict(skin_options, method=method, interp=interp, normals=bool(normals),
-                   velocities=bool(velocities))
     with usd_clips.bake_lock(out):  # one bake of ``out`` at a time, --resume and --force too
-        usd_clips.ClipBake.check_free(out, force=force, resume=resume)  # before starting workers
-        return _bake_clips(scene, out, times, chunk, options, device, workers, scheduler,
-                           resume, force, progress, threads, inputs)
+        # before starting workers
+        usd_clips.ClipBake.check_free(out, force=settings.force, resume=settings.resume)
+        return _bake_clips(scene, out, times, options, settings, threads)
 
 
-def _bake_clips(scene, out, times, chunk, options, device, workers, scheduler, resume, force,
-                progress, threads, inputs):
+def _bake_clips(scene, out, times, options, settings, threads):
     """:func:`bake_clips` once ``out`` is locked and free."""
-    normals, velocities = options["normals"], options["velocities"]
+    s = settings
     source = str(Path(scene.path).resolve())
     tasks = []
     bake = None
     try:
-        with _dask(workers, scheduler, threads) as client:
+        with _dask(s.workers, s.scheduler, threads) as client:
             # the workers load the asset while this process flattens it (kept until the end: a
             # released future is cancelled)
             # each worker's task slots (scheduler_info() lists at most 5 workers in some versions)
             slots = {} if client is None else client.nthreads()
             preload = [client.submit(_preload, source, pure=False, workers=[w],
                                      allow_other_workers=False) for w in slots]
+            chunk = s.chunk
             if chunk is None:  # the earlier bake's when resuming, else by size and task slots
-                chunk = (resume and not force and usd_clips.recorded_chunk(out)) or \
-                    usd_clips.clip_frames(scene, len(np.unique(times)), normals, velocities,
+                chunk = (s.resume and not s.force and usd_clips.recorded_chunk(out)) or \
+                    usd_clips.clip_frames(scene, len(np.unique(times)), options.normals,
+                                          options.velocities,
                                           None if client is None else max(1, sum(slots.values())))
-            bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=force,
-                                      resume=resume, inputs=inputs)
+            bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=s.force,
+                                      resume=s.resume, inputs=s.inputs)
             todo = bake.pending()
-            skin = dict(options, device=None if device is None else str(device))
-            jobs = [ChunkJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()),
-                             bake.key, bake.targets, bake.cache.rigid, skin,
-                             float(scene.time_codes_per_second)) for k in todo]
-            bar = _bar(len(bake.bounds), len(bake.bounds) - len(todo), progress)
+            jobs = [ClipJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()),
+                            bake.key, bake.targets, bake.cache.rigid, options,
+                            float(scene.time_codes_per_second)) for k in todo]
+            bar = _bar(len(bake.bounds), len(bake.bounds) - len(todo), s.progress)
 
             def done(result):
                 tasks.append(result)
@@ -401,7 +389,7 @@ def _run_on_dask(client, jobs, done):
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
 
-    futures = {client.submit(run_chunk, job, key=f"dqskin-chunk-{job.index}-{job.key[:12]}",
+    futures = {client.submit(run_clip, job, key=f"dqskin-chunk-{job.index}-{job.key[:12]}",
                              pure=False): job for job in jobs}
     for fut in as_completed(futures):
         try:

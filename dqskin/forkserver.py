@@ -59,9 +59,9 @@ RETAIN_BYTES = 256 << 20
 
 HEAP_BELOW_BYTES = 8 << 20
 """Allocations below this size come from the heap (reused); larger ones that the heap has no
-free room for are mapped apart and handed back when freed. Pieces of skinned frames (at least
+free room for are mapped apart and handed back when freed. Chunks of skinned frames (at least
 256 frames: 10 MB of CesiumMan's points; on huge pages, :mod:`dqskin.kernels.buffers` and
-NumPy's own) are such blocks: in the heap, pieces of unequal sizes (a clip's last piece is
+NumPy's own) are such blocks: in the heap, chunks of unequal sizes (a clip's last chunk is
 shorter) would leave holes that small allocations fill, and a worker's heap would grow with free
 memory over its first tasks. (In a library call's process, NumPy and glibc's defaults stand:
 mapping each large output afresh there would cost the kernel's zeroing of its pages on every

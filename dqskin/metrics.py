@@ -21,7 +21,7 @@ from . import quat
 from ._warp import Device, resolve_device
 from .errors import InputError
 from .influences import Influences
-from .kernels import metrics as K
+from .kernels import metrics as KM
 from .linalg import polar
 from .shapes import frames_of
 from .skeleton import check_parents
@@ -66,7 +66,7 @@ def volume(points: npt.ArrayLike, faces: npt.ArrayLike, *,
     f = check_faces(faces, pts.shape[1])
     origins = 0.5 * (pts.min(axis=1) + pts.max(axis=1))
     vols = _floats((pts.shape[0], f.shape[0]), d)
-    K.volumes(points=_vec3s(pts, d), faces=wp.array(f, dtype=wp.vec3i, device=d),
+    KM.volumes(points=_vec3s(pts, d), faces=wp.array(f, dtype=wp.vec3i, device=d),
               origins=_vec3s(origins, d), out=vols, device=d)
     v = vols.numpy().astype(np.float64).sum(axis=1)
     return v if batched else float(v[0])
@@ -182,7 +182,7 @@ def edge_strain(points: npt.ArrayLike, rest_points: npt.ArrayLike, edges: npt.Ar
     if e.size and (e.min() < 0 or e.max() >= pts.shape[1]):
         raise InputError(f"edges: vertex index out of range [0, {pts.shape[1]})")
     strain = _floats((pts.shape[0], e.shape[0]), d)
-    K.edge_strain(points=_vec3s(pts, d), rest_points=_vec3s(rest, d),
+    KM.edge_strain(points=_vec3s(pts, d), rest_points=_vec3s(rest, d),
                   edges=wp.array(e.astype(np.int32), dtype=wp.vec2i, device=d), out=strain,
                   device=d)
     return _result(strain.numpy(), batched)
@@ -205,7 +205,7 @@ def vertex_distance(points: npt.ArrayLike, reference_points: npt.ArrayLike, *,
     pts, batched = frames_of("points", points, finite=True)
     ref, _ = frames_of("reference_points", reference_points, *pts.shape[:2], finite=True)
     dist = _floats(pts.shape[:2], d)
-    K.distances(points=_vec3s(pts, d), reference=_vec3s(ref, d), out=dist, device=d)
+    KM.distances(points=_vec3s(pts, d), reference=_vec3s(ref, d), out=dist, device=d)
     return _result(dist.numpy(), batched)
 
 

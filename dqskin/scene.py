@@ -1,8 +1,9 @@
 """The loaded scene: skinned meshes, their skeletons and animations, skinned per frame on a device.
 
 Loaders (:mod:`dqskin.readers.usd`, :mod:`dqskin.readers.gltf`) fill these containers;
-:meth:`Scene.skin` runs the same engine for every format: animation → local transforms → forward
-kinematics (dual quaternions) → skinning transforms → per-vertex skinning → output space.
+:meth:`Scene.skin` runs the same engine (:mod:`dqskin.pipeline`) for every format: animation →
+local transforms → forward kinematics (dual quaternions) → skinning transforms
+→ per-vertex skinning → output space.
 """
 
 from collections.abc import Iterator
@@ -14,13 +15,12 @@ import numpy.typing as npt
 
 from ._warp import Device, resolve_device
 from .animation import Deformer, Interpolation, TransformTrack, check_times, sample
-from .crowd import BATCH_METHODS, skin_meshes
 from .errors import InputError, Param, UnknownNameError
 from .kernels import buffers as KB
-from .motion import moved_velocities, per_second, skinning_transforms_with_derivative
+from .options import CorOptions, SkinOptions
+from .pipeline import SkinnedFrames, skin_scene
 from .skeleton import Skeleton
-from .skinning import Method, SignReference, Skinner
-from .spaces import Space, check_space, space_track
+from .skinning import Method, Skinner
 from .validation import check_transforms
 
 __all__ = ["DEFAULT_BLEND", "Mesh", "Scene", "SkinnedFrames"]
@@ -133,15 +133,11 @@ class Scene:
         never rescaled by it.
     clips : list of str
         Animation clip names available (glTF); the loaded one is ``clip``.
-    cor_options : dict
-        Options of ``method="cor"``'s centers for every mesh: ``sigma``, ``subdivide``,
-        ``cluster`` (:func:`dqskin.cor.rotation_centers`; e.g. ``{"cluster": None}`` for exact
-        centers); empty: the defaults. Call :meth:`invalidate` after changing it.
 
     Each mesh's ``skeleton`` indexes ``skeletons`` (checked on construction); each skeleton carries
     the animation that drives it (``Skeleton.animation``; :attr:`animations` lists them). Skinners
-    are uploaded once per mesh and device (:meth:`skinner`); after replacing a mesh, call
-    :meth:`invalidate`.
+    are uploaded once per mesh, device and centers-of-rotation settings (:meth:`skinner`); after
+    replacing a mesh, call :meth:`invalidate`.
     """
 
     path: str
@@ -153,7 +149,6 @@ class Scene:
     meters_per_unit: float = 1.0
     clips: list = field(default_factory=list)
     clip: str | None = None
-    cor_options: dict = field(default_factory=dict)
     _skinners: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self):
@@ -174,15 +169,18 @@ class Scene:
                     or (k[0] == "meshes" and name in k[1])]:  # batches (dqskin.crowd) too
             self._skinners.pop(key, None)  # (list, pop: other threads may skin meanwhile)
 
-    def skinner(self, mesh: Mesh, device: Device = None) -> Skinner:
-        """The :class:`dqskin.Skinner` of ``mesh`` on ``device``, uploaded once and reused."""
-        key = (mesh.name, str(resolve_device(device)))
+    def skinner(self, mesh: Mesh, device: Device = None, cor: CorOptions | None = None) -> Skinner:
+        """The :class:`dqskin.Skinner` of ``mesh`` on ``device`` with the centers-of-rotation
+        settings ``cor`` (default :class:`~dqskin.options.CorOptions`), uploaded once and
+        reused."""
+        cor = CorOptions() if cor is None else cor
+        key = (mesh.name, str(resolve_device(device)), cor)
         sk = self._skinners.get(key)
         if sk is None:
             sk = Skinner(mesh.points, mesh.joint_indices, mesh.joint_weights,
                          geom_bind_transform=mesh.geom_bind_transform,
                          blend_weights=mesh.blend_or_default(), faces=mesh.faces,
-                         device=device, **{f"cor_{k}": v for k, v in self.cor_options.items()})
+                         device=device, **cor.skinner_arguments())
             self._skinners[key] = sk
         return sk
 
@@ -195,7 +193,7 @@ class Scene:
                                f"{[m.name for m in self.meshes]}")
 
     def local_transforms(self, times: npt.ArrayLike, skeleton: int = 0, *,
-                         interp: Interpolation = "trs") -> np.ndarray:
+                         interp: Interpolation = SkinOptions.interp) -> np.ndarray:
         """(F, J, 4, 4) float64 local joint transforms of one skeleton at ``times``.
 
         ``interp`` is :data:`dqskin.animation.INTERPOLATIONS`: "trs" is the asset's own sampler
@@ -213,108 +211,52 @@ class Scene:
                                 skel.joint_names, t)
 
     def skinning_transforms(self, times: npt.ArrayLike, skeleton: int = 0, *, device: Device = None,
-                            interp: Interpolation = "trs") -> np.ndarray:
+                            interp: Interpolation = SkinOptions.interp) -> np.ndarray:
         """(F, J, 4, 4) float32 bind-relative transforms of one skeleton at ``times``."""
         return self.skeletons[skeleton].skinning_transforms(
             self.local_transforms(times, skeleton, interp=interp), device=device)
 
     def skin(self, times: npt.ArrayLike | None = None, method: Method | None = None, *,
-             device: Device = None, normals: bool = False, velocities: bool = False,
-             interp: Interpolation = "trs", space: Space = "output",
-             blend_shapes: bool = True, tangents: bool = False,
-             sign_reference: SignReference = "largest_weight") -> "SkinnedFrames":
-        """Skin every mesh at ``times``: the one per-mesh loop of the engine.
+             options: SkinOptions | None = None, **changes) -> SkinnedFrames:
+        """Skin every mesh at ``times`` (:func:`dqskin.pipeline.skin_scene`, the one skinning
+        path of the engine).
 
         Parameters
         ----------
         times : (F,) float, optional
             Scene time unit; default ``self.times``.
         method : {"lbs", "dqs", "blend", "cor"} or None
-            None uses each mesh's own ``skinning_method``. "cor" computes each mesh's centers of
-            rotation from its faces on first use (:mod:`dqskin.cor`, cached on disk).
-        normals : bool
-            Also skin the rest normals (meshes without normals are left out of ``normals``).
-        velocities : bool
-            Also compute point velocities, length units per second
-            (:meth:`dqskin.Skinner.skin_velocities` on the analytic joint motion of
-            :mod:`dqskin.motion`).
-        interp : str
-            Joint interpolation between keys (:data:`dqskin.animation.INTERPOLATIONS`).
-        space : {"output", "local", "world", "skeleton"}
-            :data:`dqskin.spaces.Space`: "local" (or "output"): each mesh's own space
-            (``output_transforms``: USD prim space, glTF world); "world": world space, stage
-            units (``world_transforms``); "skeleton": skeleton (bind) space.
-        blend_shapes : bool
-            Apply each mesh's ``deformer`` (blend shapes, glTF morph targets, animated points);
-            False skins the bind points, isolating skinning.
-        tangents : bool
-            Also skin the rest tangents (meshes with ``tangents``; directions only, the
-            handedness stays ``mesh.tangents[:, 3]``).
-        sign_reference : {"largest_weight", "running_sum"}
-            Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
+            Shorthand for ``options.method``; None keeps it (default: each mesh's own
+            ``skinning_method``). "cor" computes each mesh's centers of rotation from its faces
+            on first use (:mod:`dqskin.cor`, cached on disk).
+        options : dqskin.SkinOptions, optional
+            What to skin and how (default: :class:`~dqskin.options.SkinOptions` defaults).
+        **changes
+            Fields of :class:`~dqskin.options.SkinOptions` replacing those of ``options``
+            (``normals=True``, ``space="skeleton"``, ``sign_reference=...``, ...).
 
         Returns
         -------
         SkinnedFrames
+            Meshes without normals (tangents) are left out of ``normals`` (``tangents``);
+            velocities are in length units per second.
+
+        Raises
+        ------
+        dqskin.errors.InputError
+            An option out of range, or joint transforms or velocities that are not finite.
         """
-        check_space(space)
-        t = self.times if times is None else check_times(times)
-        if (len(self.meshes) > 1 and not tangents and sign_reference == "largest_weight"
-                and all((method or m.skinning_method) in BATCH_METHODS for m in self.meshes)):
-            # many meshes (a crowd): one FK launch, one skinning launch per method
-            return SkinnedFrames(t, *skin_meshes(
-                self, t, method, device=device, normals=normals, velocities=velocities,
-                interp=interp, space=space, blend_shapes=blend_shapes, cache=self._skinners))
-        result = SkinnedFrames(t)
-        xforms, rates = {}, {}
-        for m in self.meshes:
-            s = m.skeleton
-            if s not in xforms:
-                skel = self.skeletons[s]
-                local = self.local_transforms(t, s, interp=interp)
-                xforms[s] = skel.skinning_transforms(local, device=device)
-                if velocities:
-                    try:
-                        rates[s] = skinning_transforms_with_derivative(
-                            skel, skel.animation, t, interp, local=local)[1]
-                    except ValueError as exc:
-                        raise InputError(f"{self.path}: {exc}") from None
-            meth = method or m.skinning_method
-            sk = self.skinner(m, device)
-            deformer = m.deformer if blend_shapes else None
-            rest = None if deformer is None else deformer.points_at(t)
-            track = space_track(m, space)
-            out = rate = None
-            if track is not None:
-                out, rate = track.with_derivative(t) if velocities else (track.at(t), None)
-            sign = {"sign_reference": sign_reference}
-            result.points[m.name] = sk.skin(xforms[s], meth, points=rest, output_transforms=out,
-                                            **sign)
-            if normals and m.normals is not None:
-                rn = None if deformer is None else deformer.normals_at(t)
-                rn = m.normals if rn is None else rn
-                result.normals[m.name] = sk.skin_vectors(xforms[s], rn, meth, kind="normal",
-                                                         vector_vertex=m.normal_vertex,
-                                                         output_transforms=out, **sign)
-            if tangents and m.tangents is not None:
-                rt = None if deformer is None else deformer.tangents_at(t)
-                rt = m.tangents[:, :3] if rt is None else rt
-                result.tangents[m.name] = sk.skin_vectors(xforms[s], rt, meth, kind="tangent",
-                                                          output_transforms=out, **sign)
-            if velocities:
-                try:
-                    result.velocities[m.name] = self._velocities(
-                        sk, t, meth, xforms[s], rates[s], rest, deformer, out, rate, sign)
-                except ValueError as exc:  # per-second rates beyond float32
-                    raise InputError(f"{self.path}: {m.name}: velocities: {exc}") from None
-        return result
+        opts = SkinOptions.build(options, **changes)
+        if method is not None:
+            opts = opts.replace(method=method)
+        return skin_scene(self, self.times if times is None else times, opts, self._skinners)
 
     def skin_chunks(self, times: npt.ArrayLike, chunk: "int | list[int]", *,
-                    buffers: "KB.BufferPool | None" = None,
-                    **skin_args) -> Iterator[tuple[slice, "SkinnedFrames"]]:
+                    buffers: "KB.BufferPool | None" = None, options: SkinOptions | None = None,
+                    **changes) -> Iterator[tuple[slice, "SkinnedFrames"]]:
         """Yield ``(slice, SkinnedFrames)`` for consecutive chunks of ``chunk`` frames (or of
         the sizes in a list ``chunk``, which must add up to the frame count), so memory stays
-        bounded; ``skin_args`` go to :meth:`skin`.
+        bounded; ``options`` and ``changes`` as for :meth:`skin`.
 
         The next chunk is skinned on a worker thread while the caller consumes the current one
         (Warp launches and NumPy release the GIL, so the two overlap). The chunks' large arrays
@@ -334,10 +276,11 @@ class Scene:
         else:
             slices = [slice(lo, min(lo + chunk, len(t))) for lo in range(0, len(t), chunk)]
         pool = KB.BufferPool() if buffers is None else buffers
+        opts = SkinOptions.build(options, **changes)
 
         def skin(tt):
             with KB.reusing(pool):
-                return self.skin(tt, **skin_args)
+                return skin_scene(self, tt, opts, self._skinners)
 
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-skin") as ex:
             fut = ex.submit(skin, t[slices[0]])
@@ -347,39 +290,3 @@ class Scene:
                     fut = ex.submit(skin, t[slices[k + 1]])
                 yield sl, res
                 del res  # the caller's to keep or drop: its buffers can serve the next chunk
-
-    def _velocities(self, skinner, t, method, xforms, rates, rest, deformer, out, out_rate, sign):
-        """(F, V, 3) float32 velocities per second of one mesh, the chain rule through every
-        time-varying input: joints, the deformer's rest points, the output transform."""
-        tcps = float(self.time_codes_per_second)
-        rest_dot = None if deformer is None else deformer.point_velocities_at(t)
-        rates, rest_dot = per_second(tcps, rates, rest_dot)
-        v = skinner.skin_velocities(xforms, rates, method, points=rest, point_velocities=rest_dot,
-                                    **sign)
-        if out is None:
-            return v
-        return moved_velocities(v, out, out_rate, tcps,
-                                lambda: skinner.skin(xforms, method, points=rest, **sign))
-
-
-@dataclass
-class SkinnedFrames:
-    """What :meth:`Scene.skin` returns, per mesh name.
-
-    Attributes
-    ----------
-    times : (F,) float64
-    points : dict name → (F, V, 3) float32
-    normals : dict name → (F, N, 3) float32
-        Unit normals (meshes with normals, when asked).
-    velocities : dict name → (F, V, 3) float32
-        Length units per second (when asked).
-    tangents : dict name → (F, V, 3) float32
-        Unit tangent directions (meshes with tangents, when asked).
-    """
-
-    times: np.ndarray
-    points: dict = field(default_factory=dict)
-    normals: dict = field(default_factory=dict)
-    velocities: dict = field(default_factory=dict)
-    tangents: dict = field(default_factory=dict)

@@ -13,7 +13,7 @@ from .errors import InputError, Param
 
 __all__ = ["SPACES", "Space", "check_space", "space_track"]
 
-Space = Literal["local", "world", "skeleton", "output"]
+Space = Literal["local", "world", "skeleton"]
 """Where results are reported:
 
 ``"local"``
@@ -23,8 +23,6 @@ Space = Literal["local", "world", "skeleton", "output"]
     ``Scene.up_axis``): a USD prim's local-to-world applied to its local space.
 ``"skeleton"``
     The skeleton's (bind) space, before any transform of the mesh or skeleton prims.
-``"output"``
-    The former name of ``"local"``.
 """
 
 SPACES = get_args(Space)
@@ -45,12 +43,12 @@ def space_track(mesh, space: Space) -> TransformTrack | None:
     Parameters
     ----------
     mesh : dqskin.scene.Mesh
-    space : {"local", "world", "skeleton", "output"}
+    space : {"local", "world", "skeleton"}
 
     Returns
     -------
     dqskin.animation.TransformTrack or None
-        ``mesh.output_transforms`` for "local" (and "output"); ``mesh.world_transforms`` for
+        ``mesh.output_transforms`` for "local"; ``mesh.world_transforms`` for
         "world", falling back to ``output_transforms`` when None; None for "skeleton".
 
     Raises

@@ -9,11 +9,11 @@ transparent huge pages are off, or not on Linux, it is a plain ``wp.empty``; Num
 ``NUMPY_MADVISE_HUGEPAGE=0`` in the environment, turns it off here too (a first touch of huge pages
 can stall on memory compaction when free memory is fragmented: rare, but a latency spike).
 
-Inside :func:`reusing` (what :meth:`dqskin.Scene.skin_chunks` does around each piece), a large
+Inside :func:`reusing` (what :meth:`dqskin.Scene.skin_chunks` does around each chunk), a large
 CPU buffer whose array has been dropped is handed out again (:class:`BufferPool`: to the next
-request it fits, down to half its size): a stream of pieces of frames then runs on the same few
-buffers instead of fresh memory for each piece (faulted in and zeroed by the kernel each time,
-or taken from a heap that the other allocations of a bake fragment until it grows by pieces).
+request it fits, down to half its size): a stream of chunks of frames then runs on the same few
+buffers instead of fresh memory for each chunk (faulted in and zeroed by the kernel each time,
+or taken from a heap that the other allocations of a bake fragment until it grows by chunks).
 """
 
 import contextlib
@@ -54,7 +54,7 @@ _MADVISE = _madvise()
 class BufferPool:
     """Large CPU buffers that :func:`empty` hands out again inside :func:`reusing`: each one
     once nothing references the array it was given as (nor a NumPy view of it), to the next
-    request it is the smallest fit for, at most twice its size (a shorter last piece of frames
+    request it is the smallest fit for, at most twice its size (a shorter last chunk of frames
     takes a buffer of the longer ones). What the pool holds is freed with it; a buffer still
     in use, when its array goes."""
 

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from pxr import Sdf, Usd, UsdGeom, Vt
 
-from dqskin import bake
+from dqskin import SkinOptions, bake
 from dqskin.readers import load
 from dqskin.writers.usd_clips import (
     LOCK_FILE,
@@ -124,7 +124,8 @@ def test_force_removes_the_top_level_reading_the_clips_it_replaces(tmp_path):
     out = tmp_path / "shot.usd"
     bake(scene, out, scene.times[:6], method="lbs", chunk=3, clips=True)
     assert out.is_file()
-    ClipBake(scene, out, scene.times[:6], 3, {"method": "dqs"}, force=True)
+    ClipBake(scene, out, scene.times[:6], 3, SkinOptions.baking(method="dqs"),
+             force=True)
     assert not out.exists() and not list(clips_folder(out).glob("chunk_*"))
 
 

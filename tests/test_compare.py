@@ -374,7 +374,7 @@ def test_cameras_use_the_skeleton_spaces_up_axis(shared_assets):
 
 
 def test_sweeps_show_every_method():
-    sw = sweeps(ASSETS, methods=("blend",), device="cpu")
+    sw = sweeps(ASSETS, methods=("blend",), options=dqskin.SkinOptions(device="cpu"))
     for rig in ("twist", "bend"):
         entry = sw[rig]
         assert entry["methods"] == ["lbs", "dqs", "blend"]

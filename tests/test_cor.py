@@ -617,10 +617,10 @@ def test_scene_cli_and_compare(tmp_path, monkeypatch):
     rc, text = run_cli("skin", path, "--out", out, "--method", "cor")
     assert rc == 0, text
     np.testing.assert_allclose(np.load(out)["points_0"], want, atol=5e-5)
-    rules = []  # what compare asks the scene for
-    real = dqskin.Scene.skin
-    monkeypatch.setattr(dqskin.Scene, "skin", lambda self, *a, **k: (
-        rules.append(k.get("sign_reference")), real(self, *a, **k))[1])
+    rules = []  # what compare asks the skinning path for
+    real = dqskin.scene.skin_scene
+    monkeypatch.setattr(dqskin.scene, "skin_scene", lambda scene, t, options, cache: (
+        rules.append(options.sign_reference), real(scene, t, options, cache))[1])
     rc, text = run_cli("compare", path, "--out", tmp_path / "report", "--methods", "lbs,cor",
                        "--frames", "1", "--views", "front", "--width", "32", "--supersample",
                        "1", "--no-sweeps", "--quiet", "--sign-reference", "running_sum")
@@ -631,8 +631,9 @@ def test_scene_cli_and_compare(tmp_path, monkeypatch):
 
 
 def test_cor_options_through_scene_and_cli(tmp_path, monkeypatch):
-    """Scene.cor_options and ``dqskin skin --cor-exact`` reach the centers: with every mesh
-    above AUTO_TERMS the default clusters, the option gives the exact oracle's points."""
+    """SkinOptions.cor and ``dqskin skin --cor-exact`` reach the centers, in this process and in
+    a clip bake's workers: with every mesh above AUTO_TERMS the default clusters, the option
+    gives the exact oracle's points."""
     pts, faces, idx, w = chain_mesh(rings=16)
     path = tmp_path / "chain.usda"
     write_usd_rig(path, np.random.default_rng(6), J=4, frames=2, points=pts, faces=faces,
@@ -643,31 +644,41 @@ def test_cor_options_through_scene_and_cli(tmp_path, monkeypatch):
     scene = dqskin.load(path)
     clustered = scene.skin(method="cor").points["/Rig/Mesh"]
     assert np.abs(clustered - want).max() > 2e-4  # (the default clusters here)
-    scene.cor_options = {"cluster": None}
-    scene.invalidate()
-    np.testing.assert_allclose(scene.skin(method="cor").points["/Rig/Mesh"], want, atol=5e-5)
+    exact = dqskin.SkinOptions(method="cor", cor=dqskin.CorOptions(cluster=None))
+    np.testing.assert_allclose(scene.skin(options=exact).points["/Rig/Mesh"], want, atol=5e-5)
+    np.testing.assert_allclose(scene.skin(method="cor", cor={"cluster": None})
+                               .points["/Rig/Mesh"], want, atol=5e-5)
     for flags, exact in (([], False), (["--cor-exact"], True)):
         out = tmp_path / f"cor{len(flags)}.npz"
         rc, text = run_cli("skin", path, "--out", out, "--method", "cor", *flags)
         assert rc == 0, text
         err = np.abs(np.load(out)["points_0"] - want).max()
         assert (err < 5e-5) if exact else (err > 2e-4), (flags, err)
-    rc, text = run_cli("skin", path, "--out", tmp_path / "x.usda", "--method", "cor",
-                       "--cor-exact", "--workers", "2")
-    assert rc != 0 and "--cor-exact cannot be combined" in text
+    from pxr import Usd
+    for flags, exact in (([], False), (["--cor-exact"], True)):  # clip layers (the workers' path)
+        out = tmp_path / f"clips{len(flags)}.usda"
+        rc, text = run_cli("skin", path, "--out", out, "--method", "cor", "--clips", *flags)
+        assert rc == 0, text
+        stage = Usd.Stage.Open(str(out))
+        attr = stage.GetPrimAtPath("/Rig/Mesh").GetAttribute("points")
+        got = np.stack([np.array(attr.Get(t)) for t in (0, 1)])
+        err = np.abs(got - want).max()
+        assert (err < 5e-5) if exact else (err > 2e-4), (flags, err)
 
 
 def test_usd_bake_with_rigid_prims(shared_assets, tmp_path):
     """A USD cache baked with --method cor: meshes get COR, rigid prims (no triangles) DQS."""
     from pxr import Usd
 
-    from dqskin.readers.usd import load_rigid_prims, rigid_transforms
+    from dqskin.pipeline import rigid_transforms
+    from dqskin.readers.usd import load_rigid_prims
 
     src = shared_assets / "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning/dqs.usda"
     scene = dqskin.load(src)
     for r in load_rigid_prims(scene):
-        np.testing.assert_array_equal(rigid_transforms(scene, r, scene.times, "cor"),
-                                      rigid_transforms(scene, r, scene.times, "dqs"))
+        np.testing.assert_array_equal(
+            rigid_transforms(scene, r, scene.times, dqskin.SkinOptions(method="cor")),
+            rigid_transforms(scene, r, scene.times, dqskin.SkinOptions(method="dqs")))
     out = tmp_path / "cor.usda"
     rc, text = run_cli("skin", src, "--out", out, "--method", "cor", "--no-velocities")
     assert rc == 0, text

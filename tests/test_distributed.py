@@ -20,6 +20,7 @@ import pytest
 from pxr import Usd
 
 from dqskin import bake
+from dqskin.options import SkinOptions
 from dqskin.readers import load
 from dqskin.writers.usd_clips import clips_folder
 
@@ -312,15 +313,15 @@ def test_a_task_reports_its_wall_and_process_cpu_seconds(tmp_path):
     from dqskin import distributed
     from dqskin.writers.usd_clips import ClipBake
     scene = load(HUMANOID)
-    opts = dict(method="lbs", interp="trs", normals=False, velocities=False)
+    opts = SkinOptions(method="lbs")
     plan = ClipBake(scene, tmp_path / "shot.usd", scene.times[:40], 40, opts)
     plan.pending()
-    job = distributed.ChunkJob(0, str(HUMANOID.resolve()), plan.chunk_times(0),
+    job = distributed.ClipJob(0, str(HUMANOID.resolve()), plan.chunk_times(0),
                                str(plan.clip_path(0)), plan.key, plan.targets, plan.cache.rigid,
-                               dict(opts, device=None), float(scene.time_codes_per_second))
-    distributed.run_chunk(job, scene)  # warm: kernels loaded
+                               opts, float(scene.time_codes_per_second))
+    distributed.run_clip(job, scene)  # warm: kernels loaded
     w0, c0, t0 = time.perf_counter(), time.process_time(), time.time()
-    result = distributed.run_chunk(job, scene)
+    result = distributed.run_clip(job, scene)
     wall, cpu, t1 = time.perf_counter() - w0, time.process_time() - c0, time.time()
     assert 0 < result["seconds"] <= wall and 0 < result["cpu_seconds"] <= cpu
     assert t0 <= result["started"] < result["ended"] <= t1
@@ -335,20 +336,20 @@ def test_a_worker_reuses_its_buffers_from_task_to_task(tmp_path, monkeypatch):
     from dqskin.kernels import buffers as KB
     from dqskin.writers.usd_clips import ClipBake
     scene = load(HUMANOID)
-    opts = dict(method="dqs", interp="trs", normals=True, velocities=True)
+    opts = SkinOptions.baking(method="dqs")
     plan = ClipBake(scene, tmp_path / "shot.usd", scene.times[:40], 20, opts)
     plan.pending()
-    jobs = [distributed.ChunkJob(k, str(HUMANOID.resolve()), plan.chunk_times(k),
+    jobs = [distributed.ClipJob(k, str(HUMANOID.resolve()), plan.chunk_times(k),
                                  str(plan.clip_path(k)), plan.key, plan.targets,
-                                 plan.cache.rigid, dict(opts, device=None),
+                                 plan.cache.rigid, opts,
                                  float(scene.time_codes_per_second)) for k in range(2)]
     made, new = [], KB._new
     monkeypatch.setattr(KB, "MIN_BYTES", 1)
     monkeypatch.setattr(KB, "_new", lambda *a: made.append(a) or new(*a))
     monkeypatch.setattr(distributed, "_buffers", KB.BufferPool())
-    distributed.run_chunk(jobs[0], scene)
+    distributed.run_clip(jobs[0], scene)
     assert made
     made.clear()
-    distributed.run_chunk(jobs[1], scene)
+    distributed.run_clip(jobs[1], scene)
     assert made == []
     assert all(Path(j.path).is_file() for j in jobs)

@@ -130,11 +130,11 @@ def test_rig_of_a_gltf_character_with_auto_weights(shared_assets, tmp_path, caps
     ref = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(24 * t), np.float64)
     rig = readers.load(out)
     np.testing.assert_allclose(rig.times, 24 * scene.times, atol=1e-5)
-    got = rig.skin([24 * t], method="lbs", space="output").points[str(prim.GetPath())]
+    got = rig.skin([24 * t], method="lbs", space="local").points[str(prim.GetPath())]
     np.testing.assert_allclose(got[0], ref, atol=1e-5 * np.abs(ref).max())
     # the glTF character's own skinning at t, with the automatic weights: the same motion
     auto = replace_weights(scene, "auto")
-    mine = auto.skin([t], method="lbs", space="output").points[auto.meshes[0].name]
+    mine = auto.skin([t], method="lbs", space="local").points[auto.meshes[0].name]
     np.testing.assert_allclose(mine[0], ref, atol=1e-4 * np.abs(ref).max())
 
 

@@ -382,10 +382,11 @@ def test_running_sum_matches_blender(tmp_path):
 
 def test_rigid_prims_both_rules(tmp_path):
     """A Cube bound with constant influences (three joints) moves as the affine map DQS makes of
-    its frame: from Python (rigid_transforms) and in a baked USD cache."""
+    its frame: from Python (dqskin.pipeline.rigid_transforms) and in a baked USD cache."""
     from pxr import Sdf, Usd, UsdGeom, UsdSkel, Vt
 
-    from dqskin.readers.usd import load_rigid_prims, rigid_transforms
+    from dqskin.pipeline import rigid_transforms
+    from dqskin.readers.usd import load_rigid_prims
 
     path = tmp_path / "rig.usda"
     write_usd_rig(path, np.random.default_rng(31))
@@ -411,7 +412,8 @@ def test_rigid_prims_both_rules(tmp_path):
     scene = dqskin.load(path)
     (rigid,) = load_rigid_prims(scene)
     for rule in RULES:
-        got = rigid_transforms(scene, rigid, scene.times, "dqs", sign_reference=rule)
+        got = rigid_transforms(scene, rigid, scene.times,
+                               dqskin.SkinOptions(method="dqs", sign_reference=rule))
         np.testing.assert_allclose(got, want[rule], atol=5e-5, err_msg=rule)
         out = tmp_path / f"{rule}.usda"
         rc, text = run_cli("skin", path, "--out", out, "--method", "dqs", "--sign-reference", rule)

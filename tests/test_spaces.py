@@ -187,18 +187,18 @@ def test_world_through_animated_skeleton_and_gprim_parents(tmp_path, device):
         check_world(path, device)
 
 
-def test_output_is_local_and_unknown_spaces_are_refused(shared_assets):
+def test_space_tracks_and_unknown_spaces_are_refused(shared_assets):
     scene = dqskin.load(shared_assets / "usd-wg/CesiumMan/CesiumMan.usdz")
     (m,) = scene.meshes
-    assert space_track(m, "output") is space_track(m, "local") is m.output_transforms
+    assert space_track(m, "local") is m.output_transforms
     assert space_track(m, "world") is m.world_transforms is not None
     assert space_track(m, "skeleton") is None
     t = scene.times[:3]
-    a = scene.skin(t, space="output").points[m.name]
-    assert np.array_equal(a, scene.skin(t, space="local").points[m.name])
+    a = scene.skin(t, space="local").points[m.name]
     assert np.abs(a - scene.skin(t, space="world").points[m.name]).max() > 0.1
-    with pytest.raises(InputError, match="space='prim'"):
-        scene.skin(t, space="prim")
+    for bad in ("prim", "output"):
+        with pytest.raises(InputError, match=f"space={bad!r}"):
+            scene.skin(t, space=bad)
 
 
 # -- glTF and rigged meshes: their local space is the world ------------------------------------
@@ -206,16 +206,16 @@ def test_output_is_local_and_unknown_spaces_are_refused(shared_assets):
 GLTF_SUFFIXES = (".gltf", ".glb")
 
 
-def test_gltf_world_is_local_is_output(shared_assets, device):
-    """On every shared glTF asset: world, local and output are the same results."""
+def test_gltf_world_is_local(shared_assets, device):
+    """On every shared glTF asset: world and local are the same results."""
     files = sorted(p for p in shared_assets.rglob("*") if p.suffix.lower() in GLTF_SUFFIXES)
     assert len(files) >= 5
     for path in files:
         scene = dqskin.load(path)
         t = scene.times[:: max(1, len(scene.times) // 5)]
         kw = {"normals": True, "velocities": True, "device": device}
-        out = scene.skin(t, space="output", **kw)
-        for space in ("local", "world"):
+        out = scene.skin(t, space="local", **kw)
+        for space in ("world",):
             got = scene.skin(t, space=space, **kw)
             for m in scene.meshes:
                 assert m.world_transforms is None

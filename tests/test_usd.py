@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
 
-from dqskin.readers.usd import load_rigid_prims, load_usd, rigid_transforms
+from dqskin.options import SkinOptions
+from dqskin.pipeline import rigid_transforms
+from dqskin.readers.usd import load_rigid_prims, load_usd
 
 TOKENS = {"lbs": "classicLinear", "dqs": "dualQuaternion"}
 BAKE = "openusd/pxr/usd/usdSkel/testenv/testUsdSkelBakeSkinning"
@@ -149,7 +151,7 @@ def test_rigid_prims_match_pixar_baseline(shared_assets, method, device):
     assert sorted(r.name for r in rigid) == ["/Root/Cube", "/Root/Cylinder", "/Root/Sphere"]
     base = Usd.Stage.Open(str(shared_assets / BAKE / "baseline" / f"{method}.baked.usda"))
     for r in rigid:
-        ours = rigid_transforms(scene, r, scene.times, device=device)
+        ours = rigid_transforms(scene, r, scene.times, SkinOptions(device=device))
         attr = base.GetPrimAtPath(r.name).GetAttribute("xformOp:transform")
         ref = np.stack([np.array(attr.Get(t)).T for t in scene.times])
         assert_close(ours, ref, np.abs(ref).max(), r.name)
@@ -388,7 +390,7 @@ def test_velocities_through_blend_shapes_and_animated_parents(tmp_path, method, 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_batched_velocities_equal_the_per_mesh_ones(tmp_path, method, device):
-    """Two meshes skin in one batched launch (:func:`dqskin.crowd.skin_meshes`): their velocities
+    """Two meshes skin in one batched launch (:mod:`dqskin.pipeline`): their velocities
     through blend shapes, a moving skeleton parent and a rotating gprim parent (output transforms)
     equal the per-mesh loop's, which the central-difference test above checks."""
     import dataclasses

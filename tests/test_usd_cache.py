@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 
+from dqskin.options import SkinOptions
 from dqskin.readers.usd import load_usd
 from dqskin.writers.usd_cache import UsdCacheWriter, write_usd_cache
 
@@ -50,7 +51,7 @@ def test_cache_matches_pixar_baseline(shared_assets, tmp_path, method, device):
     skinned = scene.skin(device=device, normals=True)
     points, normals = skinned.points, skinned.normals
     out = write_usd_cache(scene, tmp_path / "cache.usdc", scene.times, points, normals,
-                          device=device)
+                          options=SkinOptions(device=device))
     assert digest(src) == before
     stage = Usd.Stage.Open(out)
     base = Usd.Stage.Open(str(shared_assets / BAKE / "baseline" / f"{method}.baked.usda"))
@@ -85,7 +86,7 @@ def test_round_trip_is_exact(shared_assets, tmp_path, ext, device):
     times = np.array([2.0, 3.5, 7.0])
     points, normals, velocities = random_frames(scene, times)
     out = write_usd_cache(scene, tmp_path / f"cache{ext}", times, points, normals,
-                          velocities=velocities, device=device)
+                          velocities=velocities, options=SkinOptions(device=device))
     assert digest(src) == before
     assert os.listdir(tmp_path) == [f"cache{ext}"]  # no temporary file left behind
     magic = open(out, "rb").read(8)
@@ -143,7 +144,7 @@ def Xform "World"
     skinned = scene.skin([1.0, 15.0], device=device, normals=True)
     points, normals = skinned.points, skinned.normals
     out = write_usd_cache(scene, tmp_path / "cache.usda", [1.0, 15.0], points, normals,
-                          device=device)
+                          options=SkinOptions(device=device))
     stage = Usd.Stage.Open(out)
     base = Usd.Stage.Open(str(shared_assets / BAKE / "baseline" / "dqs.baked.usda"))
     assert_unskinned(stage)
@@ -193,7 +194,7 @@ def test_overwrites_previous_output_atomically(shared_assets, tmp_path, device):
     out = tmp_path / "cache.usdc"
     for seed in (1, 2):
         points, _, _ = random_frames(scene, [4.0], seed)
-        write_usd_cache(scene, out, [4.0], points, device=device)
+        write_usd_cache(scene, out, [4.0], points, options=SkinOptions(device=device))
         fresh = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(out)))  # read from disk
         got = fresh.GetPrimAtPath("/Root/Mesh").GetAttribute("points").Get(4)
         np.testing.assert_array_equal(got, points["/Root/Mesh"][0])
@@ -217,7 +218,8 @@ def test_indexed_primvar_normals_are_flattened(shared_assets, tmp_path, device):
     np.testing.assert_array_equal(mesh.normals, unique[np.arange(12) % 3])
     skinned = scene.skin([5.0], device=device, normals=True)
     points, normals = skinned.points, skinned.normals
-    out = write_usd_cache(scene, tmp_path / "cache.usda", [5.0], points, normals, device=device)
+    out = write_usd_cache(scene, tmp_path / "cache.usda", [5.0], points, normals,
+                          options=SkinOptions(device=device))
     cache = Usd.Stage.Open(out)
     written = UsdGeom.PrimvarsAPI(cache.GetPrimAtPath(mesh.name)).GetPrimvar("normals")
     assert not written.IsIndexed()
@@ -230,7 +232,8 @@ def test_usdz_source_keeps_uvs_materials_and_topology(shared_assets, tmp_path, d
     src = shared_assets / "usd-wg/CesiumMan/CesiumMan.usdz"
     scene = load_usd(src)
     points = scene.skin([1.0, 24.0], device=device).points
-    out = write_usd_cache(scene, tmp_path / "cesium.usdc", [1.0, 24.0], points, device=device)
+    out = write_usd_cache(scene, tmp_path / "cesium.usdc", [1.0, 24.0], points,
+                          options=SkinOptions(device=device))
     source, cache = Usd.Stage.Open(str(src)), Usd.Stage.Open(out)
     assert_unskinned(cache)
     (name,) = points
@@ -370,10 +373,10 @@ def test_crate_cache_streams_what_the_sdf_layer_holds(shared_assets, tmp_path):
         f"{scene.meshes[0].name}.points") == t
 
 
-def test_a_single_layer_bake_skins_pieces_of_bounded_bytes(tmp_path, monkeypatch):
+def test_a_single_layer_bake_skins_chunks_of_bounded_bytes(tmp_path, monkeypatch):
     """A single-layer USD bake streams its chunks to the file, so the chunk is what it holds:
-    256 frames, or fewer when they would exceed ``usd_cache.PIECE_BYTES`` of samples (at least
-    ``SUBCHUNK``); a given ``chunk`` is used as given."""
+    256 frames, or fewer when they would exceed ``usd_cache.CHUNK_BYTES`` of samples (at least
+    ``CHUNK_MIN_FRAMES``); a given ``chunk`` is used as given."""
     from dqskin import bake
     from dqskin.scene import Scene
     from dqskin.writers import usd_cache
@@ -388,10 +391,10 @@ def test_a_single_layer_bake_skins_pieces_of_bounded_bytes(tmp_path, monkeypatch
     monkeypatch.setattr(Scene, "skin_chunks", spy)
     src = Path(__file__).resolve().parents[1] / "assets" / "humanoid.usda"
     bake(src, tmp_path / "a.usdc", clips=False)
-    monkeypatch.setattr(usd_cache, "PIECE_BYTES", 1)
+    monkeypatch.setattr(usd_cache, "CHUNK_BYTES", 1)
     bake(src, tmp_path / "b.usdc", clips=False)
     bake(src, tmp_path / "c.usdc", clips=False, chunk=5)
-    assert sizes == [256, usd_cache.SUBCHUNK, 5]
+    assert sizes == [256, usd_cache.CHUNK_MIN_FRAMES, 5]
 
 
 def test_a_usd_bake_imports_only_what_it_uses(tmp_path):

@@ -144,7 +144,8 @@ def run_usdskel(src, dst):
 def run_dqskin(src, dst, which):
     """``which``: single | clips0 | clips1 | clips2 | clips1t1 | clips2t1 (``tN``: N threads per
     worker), ``+nv`` for normals and velocities."""
-    from dqskin.baking import bake
+    from dqskin import SkinOptions
+    from dqskin.baking import BakeSettings, bake
     from dqskin.distributed import bake_clips
     from dqskin.readers import load
     nv = which.endswith("+nv")
@@ -159,9 +160,10 @@ def run_dqskin(src, dst, which):
         from pxr import Work
         os.environ["DQSKIN_THREADS"] = threads
         Work.SetConcurrencyLimitArgument(int(threads))
-    done = bake_clips(scene, dst, scene.times, method="lbs", normals=nv, velocities=nv,
-                      workers=int(workers) or None,
-                      threads=int(threads or 0) or None, force=True)
+    done = bake_clips(scene, dst, scene.times,
+                      SkinOptions(method="lbs", normals=nv, velocities=nv),
+                      BakeSettings(workers=int(workers) or None, force=True),
+                      threads=int(threads or 0) or None)
     peaks = {}
     for task in done["tasks"]:
         peaks[task["pid"]] = max(peaks.get(task["pid"], 0.0), task["peak_rss_mb"])

@@ -33,9 +33,9 @@ What a loaded :class:`~dqskin.scene.Mesh` holds for a skinned ``UsdGeom.PointBas
   analytic time derivative; None when there are neither.
 
 Skinned prims that are not point-based (``Sphere``, ``Cube``, …, bound with constant
-influences) have no points for a :class:`Scene`; :func:`load_rigid_prims` returns them and
-:func:`rigid_transforms` computes their per-time local transform with the engine, as
-``UsdSkel.BakeSkinning`` bakes them into ``xformOp:transform``.
+influences) have no points for a :class:`Scene`; :func:`load_rigid_prims` returns them (this module
+reads, it never skins) and :func:`dqskin.pipeline.rigid_transforms` computes their per-time local
+transform with the engine, as ``UsdSkel.BakeSkinning`` bakes them into ``xformOp:transform``.
 """
 
 import contextlib
@@ -57,13 +57,12 @@ from ..animation import Animation, Deformer, TransformTrack, segment_rates
 from ..errors import InputError, LimitError, Param
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
-from ..skinning import skin_points
 from . import LOADER_SUFFIXES
 from .usd_anim import JointTracks
 from .usd_xform import XformChain, read_local_to_world
 
 __all__ = ["SKINNING_METHODS", "SUFFIXES", "load", "RigidPrim", "UsdSkelAnimation",
-           "load_rigid_prims", "load_usd", "rigid_transforms"]
+           "load_rigid_prims", "load_usd"]
 
 SUFFIXES = LOADER_SUFFIXES["usd"]
 """File extensions :func:`load_usd` (and :func:`load`) reads."""
@@ -1349,46 +1348,3 @@ def load_rigid_prims(scene: Scene) -> list[RigidPrim]:
         r.skeleton = index[name]
         out.append(r)
     return out
-
-
-def rigid_transforms(scene, prim, times, method=None, *, device=None, interp="trs",
-                     sign_reference="largest_weight"):
-    """Local transforms of a rigidly skinned prim, skinned by the engine.
-
-    The skinned transform is recovered exactly from four skinned points (origin and the three
-    unit axes of the prim's space): with one set of influences for every point, LBS and DQS
-    (scale/shear residual included) are affine maps.
-
-    Parameters
-    ----------
-    scene : Scene
-    prim : RigidPrim
-    times : (F,) float
-    method : {"lbs", "dqs", "blend", "cor"} or None
-        None uses the prim's own ``skinning_method``; "blend" mixes half and half; "cor" is DQS
-        here (a rigid prim has no triangles to find a center of rotation from: COR's fallback).
-    interp : str
-        Joint interpolation (:data:`dqskin.animation.INTERPOLATIONS`), as for the meshes.
-    sign_reference : {"largest_weight", "running_sum"}
-        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
-
-    Returns
-    -------
-    (F, 4, 4) float64
-        Prim space → parent space, column-vector convention (``xformOp:transform``, transposed).
-    """
-    t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-    x = scene.skinning_transforms(t, prim.skeleton, device=device, interp=interp)
-    frame = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=np.float64)
-    idx = np.tile(prim.joint_indices, (4, 1))
-    wts = np.tile(prim.joint_weights, (4, 1))
-    meth = method or prim.skinning_method
-    meth = "dqs" if meth == "cor" else meth
-    q = skin_points(frame, idx, wts, x, meth, geom_bind_transform=prim.geom_bind_transform,
-                    blend_weights=np.full(4, 0.5) if meth == "blend" else None,
-                    sign_reference=sign_reference, device=device)
-    q = q.astype(np.float64).reshape(t.shape[0], 4, 3)
-    m = np.tile(np.eye(4), (t.shape[0], 1, 1))
-    m[:, :3, 3] = q[:, 0]
-    m[:, :3, :3] = (q[:, 1:] - q[:, :1]).transpose(0, 2, 1)
-    return m if prim.parent_transforms is None else prim.parent_transforms.at(t) @ m

@@ -34,9 +34,10 @@ import re
 import sys
 import time
 from contextlib import nullcontext
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib.resources import files
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -44,6 +45,7 @@ from .. import metrics as M
 from ..errors import InputError, LimitError, Param, output_exists
 from ..files.atomic import atomic_path
 from ..metrics import METRICS, worst
+from ..options import SkinOptions, split_changes
 from ..readers import load
 from ..scene import DEFAULT_BLEND, Scene
 from ..skinning import METHODS
@@ -52,8 +54,8 @@ from .html import build_html, method_label
 from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
 from .viewer import VIEWER_FRAMES, encode, viewer_times
 
-__all__ = ["BLEND_WEIGHT", "MAX_RAYS", "SWEEP_RIGS", "TIE", "run_compare", "skeleton_up_axis",
-           "summary_lines", "sweeps"]
+__all__ = ["BLEND_WEIGHT", "MAX_RAYS", "SWEEP_RIGS", "TIE", "RenderSettings", "run_compare",
+           "skeleton_up_axis", "summary_lines", "sweeps"]
 
 BLEND_WEIGHT = DEFAULT_BLEND
 """DQS fraction of every vertex for ``method="blend"`` (0 = LBS, 1 = DQS)."""
@@ -128,14 +130,16 @@ def _renderable(scene):
     return keep, skipped
 
 
-def _skin(scene, times, methods, device, sign_reference="largest_weight"):
-    """Skin every renderable mesh in skeleton space with each method, bind points (no blend
-    shapes), through the scene's one loop (meshes without faces are skipped)."""
+def _skin(scene, times, methods, options):
+    """Skin every renderable mesh in skeleton space with each method and ``options``, bind
+    points (no blend shapes), through the engine's one path (meshes without faces are
+    skipped)."""
     renderable, skipped = _renderable(scene)
-    xforms = {s: scene.skinning_transforms(times, s, device=device)
+    opts = options.replace(space="skeleton", blend_shapes=False, normals=False, tangents=False,
+                           velocities=False)
+    xforms = {s: scene.skinning_transforms(times, s, device=opts.device, interp=opts.interp)
               for s in sorted({m.skeleton for m in renderable})}
-    posed = {meth: scene.skin(times, meth, device=device, space="skeleton", blend_shapes=False,
-                              sign_reference=sign_reference).points for meth in methods}
+    posed = {meth: scene.skin(times, meth, options=opts).points for meth in methods}
     meshes = []
     for m in renderable:
         g = np.asarray(m.geom_bind_transform, dtype=np.float64)
@@ -307,9 +311,11 @@ def _render_count(times, methods, views, heat, closeup):
     return len(times) * len(views) * per_frame + per_frame * bool(closeup)
 
 
-def _render(meshes, times, methods, views, up_axis, width, supersample, adaptive, frames_dir,
-            closeup, distance, bar, device):
-    """Render every panel to ``frames_dir``; returns {view: [paths per frame]} and the close-up."""
+def _render(meshes, times, methods, render, frames_dir, closeup, distance, bar, device):
+    """Render every panel to ``frames_dir`` with ``render`` (:class:`RenderSettings`, its up
+    axis set); returns {view: [paths per frame]} and the close-up."""
+    views, up_axis, width = render.views, render.up_axis, render.width
+    supersample, adaptive = render.supersample, render.adaptive
     faces, posed = _combined(meshes, methods)
     lo = np.min([p.min(axis=(0, 1)) for p in posed.values()], axis=0).astype(np.float64)
     hi = np.max([p.max(axis=(0, 1)) for p in posed.values()], axis=0).astype(np.float64)
@@ -372,12 +378,13 @@ def _rotation_angles(x):
                       0.5 * (np.trace(r, axis1=-2, axis2=-1) - 1))
 
 
-def sweeps(assets_dir, *, methods=("lbs", "dqs"), device=None, sign_reference="largest_weight"):
+def sweeps(assets_dir, *, methods=("lbs", "dqs"), options: SkinOptions | None = None):
     """Artifact curves of the skinning methods against the joint angle on the procedural rigs.
 
     Every frame of ``twist_cylinder.usda`` (twist 0→180°) and ``bending_arm.usda`` (bend 0→150°)
-    in ``assets_dir`` is skinned with LBS, DQS and ``methods``; the angle is the rotation angle of
-    the animated joint's skinning transform.
+    in ``assets_dir`` is skinned with LBS, DQS and ``methods`` (and ``options``' device, sign
+    rule, interpolation); the angle is the rotation angle of the animated joint's skinning
+    transform.
 
     Returns
     -------
@@ -388,6 +395,7 @@ def sweeps(assets_dir, *, methods=("lbs", "dqs"), device=None, sign_reference="l
         ``{"skipped": reason}`` when a rig file is missing.
     """
     methods = tuple(dict.fromkeys(("lbs", "dqs") + tuple(methods)))
+    options = SkinOptions() if options is None else options
     out = {}
     for name, (file, fraction, divisor) in SWEEP_RIGS.items():
         path = Path(assets_dir) / file
@@ -396,7 +404,7 @@ def sweeps(assets_dir, *, methods=("lbs", "dqs"), device=None, sign_reference="l
             continue
         scene = load(path)
         times = np.asarray(scene.times, dtype=np.float64)
-        meshes, _, xforms = _skin(scene, times, methods, device, sign_reference)
+        meshes, _, xforms = _skin(scene, times, methods, options)
         mesh = meshes[0]
         skel = scene.skeletons[mesh.skeleton]
         theta_all = _rotation_angles(xforms[mesh.skeleton])
@@ -404,7 +412,7 @@ def sweeps(assets_dir, *, methods=("lbs", "dqs"), device=None, sign_reference="l
         theta = theta_all[:, joint]
         entry = {"asset": file, "joint": skel.joint_names[joint], "fraction": fraction,
                  "angle_deg": _json_floats(np.degrees(theta)), "methods": list(methods)}
-        for meth, m in _measure(mesh, skel, methods, device).items():
+        for meth, m in _measure(mesh, skel, methods, options.device).items():
             entry[meth] = {k: (None if m[k] is None else _json_floats(m[k])) for k in METRICS}
         entry["reference"] = {"lbs_volume_ratio": _json_floats(
             1 - fraction * (1 - np.cos(theta)) / divisor)}
@@ -463,10 +471,10 @@ def skeleton_up_axis(scene):
     return "Y" if abs(up[1]) >= abs(up[2]) else "Z"
 
 
-def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, views=VIEWS,
-                device=None, width=512, supersample=2, progress=True, force=False,
-                sweeps_dir="default", up_axis=None, clip=None, max_rays=MAX_RAYS,
-                sign_reference="largest_weight", viewer_frames=VIEWER_FRAMES, adaptive=True):
+def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None,
+                options: SkinOptions | None = None, render: "RenderSettings | None" = None,
+                progress=True, force=False, sweeps_dir="default", clip=None,
+                viewer_frames=VIEWER_FRAMES, **changes):
     """Compare skinning methods on an asset and write ``report.html``, ``metrics.json`` and
     ``frames/*.png`` in ``out_dir``.
 
@@ -482,34 +490,26 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         The heat map of the per-vertex LBS↔DQS distance needs both ``lbs`` and ``dqs``.
     frames : sequence of float, optional
         Times in the asset's unit; default :func:`default_frames` of the asset's times.
-    views : sequence of {"front", "side", "three_quarter"}
-    device : str, optional
-        Warp device.
-    width : int
-        Size of each rendered image: about ``width²`` pixels, shaped to the view's aspect ratio
-        (within 1:2 and 2:1); the close-up is ``width × width``.
-    supersample : int
-        Anti-aliasing rays per pixel along each axis.
-    adaptive : bool
-        Cast the ``supersample²`` rays only for pixels on an edge, one ray through the centre
-        elsewhere (:meth:`MeshRenderer.render`'s ``adaptive``); False super-samples every pixel.
+    options : dqskin.SkinOptions, optional
+        Device, sign rule, interpolation and centers-of-rotation settings of the skinning (its
+        method, outputs and space are the report's: each of ``methods``, points only, skeleton
+        space, no blend shapes).
+    render : RenderSettings, optional
+        Views, image size, anti-aliasing, the ray limit and the cameras' up axis.
     progress : bool
         One tqdm progress bar on stderr for the whole comparison.
     sweeps_dir : str, Path or None
         Folder of the procedural rigs for the angle sweeps (:func:`sweeps`); ``"default"`` is
         the repository's ``assets/`` folder, None leaves the sweeps out. A missing folder or rig
         is noted in the report.
-    up_axis : {"Y", "Z"}, optional
-        Up axis of the skeleton space for the cameras; default :func:`skeleton_up_axis`.
     clip : str or int, optional
         glTF animation to load.
-    max_rays : int
-        Refuse ``width × supersample`` above this, before rendering anything.
-    sign_reference : {"largest_weight", "running_sum"}
-        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
     viewer_frames : int
         Frames of the animated viewer (:func:`dqskin.report.viewer.viewer_times`: evenly spaced
         over the clip, plus the compared frames); 0 leaves the viewer out.
+    **changes
+        Fields of :class:`dqskin.SkinOptions` (``device``, ``sign_reference``, ...) or of
+        :class:`RenderSettings` (``width``, ``views``, ...) replacing those given.
 
     Returns
     -------
@@ -517,21 +517,26 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
         The contents of ``metrics.json``.
     """
     t0 = time.perf_counter()
+    skin_changes, render_changes = split_changes("run_compare", changes, SkinOptions,
+                                                 RenderSettings)
+    options = SkinOptions.build(options, **skin_changes)
+    render = replace(RenderSettings() if render is None else render, **render_changes)
     methods = _choice_list("methods", methods, tuple(METHODS))
-    views = _choice_list("views", views, VIEWS)
+    render = replace(render, views=_choice_list("views", render.views, VIEWS))
+    width, supersample = render.width, render.supersample
     for name, v, low in (("width", width, 16), ("supersample", supersample, 1),
                          ("viewer_frames", viewer_frames, 0)):
         if isinstance(v, bool) or int(v) != v or v < low:
             raise InputError(Param(name), f": expected an integer >= {low}, got {v!r}")
-    if width * supersample > max_rays:
+    if width * supersample > render.max_rays:
         rays = width * supersample
         raise LimitError(Param("width", width), " × ", Param("supersample", supersample),
                          f" casts {rays:,} rays per image side, more than the limit of "
-                         f"{max_rays:,}; raise ", Param("max_rays"), " to allow more")
+                         f"{render.max_rays:,}; raise ", Param("max_rays"), " to allow more")
     with _progress_bar(progress) as bar:
         bar.set_postfix_str("loading")
         scene = input_path if isinstance(input_path, Scene) else load(input_path, clip=clip)
-        up = skeleton_up_axis(scene) if up_axis is None else up_axis
+        up = skeleton_up_axis(scene) if render.up_axis is None else render.up_axis
         if up not in ("Y", "Z"):
             raise InputError(f"{scene.path}: up axis must be Y or Z, got {up!r}")
         if frames is None:
@@ -545,12 +550,58 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None, vie
 
         all_times = viewer_times(scene.times, times, viewer_frames) if viewer_frames else times
         heat = "lbs" in methods and "dqs" in methods
-        bar.total = (1 + 2 * len(methods) + _render_count(times, methods, views, heat, True)
+        bar.total = (1 + 2 * len(methods) + _render_count(times, methods, render.views, heat,
+                                                          True)
                      + bool(viewer_frames) + 2 * (sweeps_dir is not None) + 1)
         bar.update()  # loaded
-        return _compare(scene, out, frames_dir, times, all_times, methods, views, up, width,
-                        supersample, adaptive, sweeps_dir, sign_reference, bool(viewer_frames),
-                        heat, bar, device, t0)
+        return _compare(_Report(scene, out, frames_dir, times, all_times, methods, options,
+                                replace(render, up_axis=up), sweeps_dir, bool(viewer_frames),
+                                heat), bar, t0)
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How :func:`run_compare` renders its panels.
+
+    Attributes
+    ----------
+    views : sequence of {"front", "side", "three_quarter"}
+    width : int
+        Size of each rendered image: about ``width²`` pixels, shaped to the view's aspect ratio
+        (within 1:2 and 2:1); the close-up is ``width × width``.
+    supersample : int
+        Anti-aliasing rays per pixel along each axis.
+    adaptive : bool
+        Cast the ``supersample²`` rays only for pixels on an edge, one ray through the centre
+        elsewhere (:meth:`MeshRenderer.render`'s ``adaptive``); False super-samples every pixel.
+    max_rays : int
+        Refuse ``width × supersample`` above this, before rendering anything.
+    up_axis : {"Y", "Z"} or None
+        Up axis of the skeleton space for the cameras; None: :func:`skeleton_up_axis`.
+    """
+
+    views: tuple = VIEWS
+    width: int = 512
+    supersample: int = 2
+    adaptive: bool = True
+    max_rays: int = MAX_RAYS
+    up_axis: str | None = None
+
+
+class _Report(NamedTuple):
+    """One :func:`run_compare` once its arguments are checked."""
+
+    scene: Scene
+    out: Path
+    frames_dir: Path
+    times: np.ndarray
+    all_times: np.ndarray
+    methods: tuple
+    options: SkinOptions
+    render: RenderSettings
+    sweeps_dir: str | Path | None
+    viewer: bool
+    heat: bool
 
 
 def _progress_bar(enabled):
@@ -574,11 +625,13 @@ class _NoBar:
         pass
 
 
-def _compare(scene, out, frames_dir, times, all_times, methods, views, up, width, supersample,
-             adaptive, sweeps_dir, sign_reference, viewer, heat, bar, device, t0):
+def _compare(report: _Report, bar, t0):
     """The body of :func:`run_compare` once its arguments are checked; ``bar`` counts steps."""
+    (scene, out, frames_dir, times, all_times, methods, options, render, sweeps_dir, viewer,
+     heat) = report
+    device = options.device
     bar.set_postfix_str("skinning")
-    meshes, skipped, xforms = _skin(scene, all_times, methods, device, sign_reference)
+    meshes, skipped, xforms = _skin(scene, all_times, methods, options)
     bar.update(len(methods))
     pick = np.searchsorted(all_times, times)  # the compared frames among the viewer's
     viewer_posed = _combined(meshes, methods) if viewer else None
@@ -607,8 +660,8 @@ def _compare(scene, out, frames_dir, times, all_times, methods, views, up, width
     t_metrics = time.perf_counter()
 
     bar.set_postfix_str("rendering")
-    panels, closeup_path, dmax = _render(meshes, times, methods, views, up, width, supersample,
-                                         adaptive, frames_dir, closeup, distance, bar, device)
+    panels, closeup_path, dmax = _render(meshes, times, methods, render, frames_dir, closeup,
+                                         distance, bar, device)
     if closeup is None:
         bar.update(len(methods) + heat)
     t_render = time.perf_counter()
@@ -626,8 +679,7 @@ def _compare(scene, out, frames_dir, times, all_times, methods, views, up, width
     if sweeps_dir is not None:
         folder = _default_assets() if sweeps_dir == "default" else Path(sweeps_dir)
         bar.set_postfix_str("sweeps")
-        sweep_data = (sweeps(folder, methods=methods, device=device,
-                             sign_reference=sign_reference) if folder.is_dir()
+        sweep_data = (sweeps(folder, methods=methods, options=options) if folder.is_dir()
                       else {"skipped": f"{folder}: rig folder not found"})
         bar.update(2)
 
@@ -657,8 +709,8 @@ def _compare(scene, out, frames_dir, times, all_times, methods, views, up, width
         "blend_weight": BLEND_WEIGHT if "blend" in methods else None,
         "frames": _json_floats(times),
         "time_codes_per_second": float(scene.time_codes_per_second),
-        "up_axis": up,
-        "views": list(views),
+        "up_axis": render.up_axis,
+        "views": list(render.views),
         "space": "skeleton",
         "ring_width": M.RING_WIDTH,
         "tie": TIE,
@@ -672,8 +724,8 @@ def _compare(scene, out, frames_dir, times, all_times, methods, views, up, width
                    "closeup": None if closeup_path is None else rel(closeup_path),
                    "heat_range": [0.0, dmax] if heat else None},
         "sweeps": sweep_data,
-        "render": {"width": int(width), "supersample": int(supersample),
-                   "antialiasing": "adaptive" if adaptive else "full",
+        "render": {"width": int(render.width), "supersample": int(render.supersample),
+                   "antialiasing": "adaptive" if render.adaptive else "full",
                    "vertices": int(sum(len(m.rest) for m in meshes)),
                    "faces": int(sum(len(m.faces) for m in meshes))},
     }

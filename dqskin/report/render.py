@@ -24,7 +24,7 @@ import warp as wp
 from .._warp import Device, resolve_device
 from ..errors import InputError
 from ..files.atomic import atomic_path
-from ..kernels import render as K
+from ..kernels import render as KR
 from ..topology import check_faces, incidence
 
 __all__ = ["ADAPTIVE_DEPTH_JUMP", "ADAPTIVE_NORMAL_ANGLE", "VIEWS", "Camera", "MeshRenderer",
@@ -235,10 +235,10 @@ class Camera:
         half = min(half, np.arctan(np.tan(half) * aspect))
         return cls(c + back * radius / np.sin(half), c, up, fov=fov)
 
-    def _params(self, aspect: float) -> K.CameraParams:
+    def _params(self, aspect: float) -> KR.CameraParams:
         forward, right, up = self.basis()
         half_w, half_h = self.half_extents(aspect)
-        p = K.CameraParams()
+        p = KR.CameraParams()
         p.eye, p.forward, p.right, p.up = (wp.vec3(*map(float, v))
                                            for v in (self.eye, forward, right, up))
         p.half_w, p.half_h = float(half_w), float(half_h)
@@ -279,8 +279,8 @@ class Shading:
             raise InputError("light: direction has zero length")
         return d / n
 
-    def _params(self, camera: Camera) -> K.ShadingParams:
-        p = K.ShadingParams()
+    def _params(self, camera: Camera) -> KR.ShadingParams:
+        p = KR.ShadingParams()
         p.light = wp.vec3(*map(float, self.light_world(camera)))
         p.base_color = wp.vec3(*map(float, _vec3("base_color", self.base_color)))
         p.background = wp.vec3(*map(float, _vec3("background", self.background)))
@@ -348,7 +348,7 @@ class MeshRenderer:
         self._update_normals()
 
     def _update_normals(self) -> None:
-        K.vertex_normals(points=self.mesh.points, faces=self._faces, vf_offsets=self._vf_offsets,
+        KR.vertex_normals(points=self.mesh.points, faces=self._faces, vf_offsets=self._vf_offsets,
                          vf_faces=self._vf_faces, out=self._normals, device=self.device)
 
     def update(self, points: npt.ArrayLike) -> None:
@@ -445,7 +445,7 @@ class MeshRenderer:
             def scratch(dtype, used=True):
                 return wp.empty(n if used else 1, dtype=dtype, device=d)
 
-            K.render_adaptive(factor=s, transparent=transparent,
+            KR.render_adaptive(factor=s, transparent=transparent,
                               depth_jump=ADAPTIVE_DEPTH_JUMP,
                               normal_cos=float(np.cos(np.radians(ADAPTIVE_NORMAL_ANGLE))),
                               centres_a=scratch(wp.vec4), centres_b=scratch(wp.vec4, layers > 1),
@@ -457,12 +457,12 @@ class MeshRenderer:
         else:
             sw, sh = width * s, height * s
             samples = [wp.empty(sw * sh, dtype=wp.vec4, device=d) for _ in range(layers)]
-            K.render(width=sw, height=sh, out_a=samples[0],
+            KR.render(width=sw, height=sh, out_a=samples[0],
                      out_b=samples[-1] if layers > 1 else wp.empty(1, dtype=wp.vec4, device=d),
                      depth=wp.empty(sw * sh, dtype=float, device=d),
                      facing=wp.empty(sw * sh, dtype=wp.vec3, device=d), **common)
             for sample, out in zip(samples, outs):
-                K.downsample(samples=sample, factor=s, transparent=transparent, out=out,
+                KR.downsample(samples=sample, factor=s, transparent=transparent, out=out,
                              device=d)
         images = [o.numpy() for o in outs]
         images = [img if transparent else img[..., :3].copy() for img in images]
@@ -472,9 +472,9 @@ class MeshRenderer:
 
     def _layer(self, camera: Camera, scalars: npt.ArrayLike | None,
                scalar_range: tuple[float, float] | None, colormap: str, shading: Shading,
-               where: str) -> K.Layer:
+               where: str) -> KR.Layer:
         """A :class:`dqskin.kernels.render.Layer`: constant colour or heat map, lit."""
-        layer = K.Layer()
+        layer = KR.Layer()
         layer.lut = self._lut(colormap)
         layer.scalar_min, layer.scalar_scale = 0.0, 0.0
         if scalars is None:

@@ -9,7 +9,7 @@ removed (``SkelBindingAPI``, ``skel:*`` and ``primvars:skel:*`` properties, ``Sk
 is dropped. ``Skeleton`` prims are kept but deactivated (unbound from their animation they would
 be drawn in the rest pose); ``SkelAnimation`` prims stay as inert data.
 
-Two pieces serve both USD outputs, the single layer (:class:`UsdCacheWriter`) and the value
+Two classes serve both USD outputs, the single layer (:class:`UsdCacheWriter`) and the value
 clips of :mod:`dqskin.writers.usd_clips`: :class:`CacheLayer` (the flattened, unbound copy of the
 source and where each skinned value goes in it, as picklable :class:`Target` records) and
 :class:`SampleWriter` (checked chunks of skinned frames → time samples: streamed into a crate
@@ -33,12 +33,15 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 from ..errors import InputError
 from ..files.atomic import atomic_path, check_parent
 from ..files.crate import CrateSamples, UnsupportedCrate
-from ..readers.usd import load_rigid_prims, rigid_transforms
+from ..options import SkinOptions
+from ..pipeline import rigid_transforms
+from ..readers.usd import load_rigid_prims
 from ..shapes import frames_of
 
-__all__ = ["CACHE_EXTENSIONS", "CLIPS_FOLDER_SUFFIX", "PIECE_BYTES", "PIECE_FRAMES", "SUBCHUNK",
+__all__ = ["CACHE_EXTENSIONS", "CHUNK_BYTES", "CHUNK_FRAMES", "CHUNK_MIN_FRAMES",
+           "CLIPS_FOLDER_SUFFIX",
            "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter", "clips_folder",
-           "export_layer", "frame_bytes", "piece_frames", "write_usd_cache"]
+           "chunk_frames", "export_layer", "frame_bytes", "write_usd_cache"]
 
 CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
 """Extensions :func:`write_usd_cache` writes (``.usd`` is binary crate)."""
@@ -53,26 +56,27 @@ def frame_bytes(scene, normals: bool = True, velocities: bool = True) -> int:
                     for m in scene.meshes)
 
 
-SUBCHUNK = 32
-"""Fewest frames skinned at a time (a piece: see :data:`PIECE_BYTES`)."""
+CHUNK_MIN_FRAMES = 32
+"""Fewest frames skinned at a time (a chunk: see :data:`CHUNK_BYTES`)."""
 
-PIECE_FRAMES = 256
-"""Most frames skinned at a time (a piece: see :data:`PIECE_BYTES`): a task keeps pieces of a
-small mesh this short, so that skinning one overlaps writing the one before."""
+CHUNK_FRAMES = 256
+"""Most frames skinned at a time (a chunk: see :data:`CHUNK_BYTES`), and the chunk of ``.npz``
+and per-frame bakes: a task keeps chunks of a small mesh this short, so that skinning one
+overlaps writing the one before."""
 
-PIECE_BYTES = 64 << 20
-"""Skinned points, normals and velocities a task holds per piece it skins: pieces are
-:data:`SUBCHUNK` frames or as many more as fit, up to :data:`PIECE_FRAMES`, since each
-:meth:`dqskin.Scene.skin` call costs milliseconds whatever its size (32-frame pieces of a
+CHUNK_BYTES = 64 << 20
+"""Skinned points, normals and velocities a task holds per chunk it skins: chunks are
+:data:`CHUNK_MIN_FRAMES` frames or as many more as fit, up to :data:`CHUNK_FRAMES`, since each
+:meth:`dqskin.Scene.skin` call costs milliseconds whatever its size (32-frame chunks of a
 3,273-point mesh cost 0.8 of 4.2 CPU-s of a 10,000-frame bake)."""
 
 
-def piece_frames(scene, normals=True, velocities=True) -> int:
-    """Frames per piece skinned at a time (:data:`PIECE_BYTES` of samples, at least
-    :data:`SUBCHUNK`, at most :data:`PIECE_FRAMES`): the clip tasks' pieces, and the chunks of a
-    single-layer USD bake (which streams them to its file, so this is what it holds)."""
-    n = max(SUBCHUNK, PIECE_BYTES // max(frame_bytes(scene, normals, velocities), 1))
-    return min(n, PIECE_FRAMES)
+def chunk_frames(scene, options: SkinOptions) -> int:
+    """Frames per chunk skinned at a time with ``options`` (:data:`CHUNK_BYTES` of samples, at
+    least :data:`CHUNK_MIN_FRAMES`, at most :data:`CHUNK_FRAMES`): the chunks of a clip layer,
+    and of a single-layer USD bake (which streams them to its file, so this is what it holds)."""
+    size = frame_bytes(scene, options.normals, options.velocities)
+    return min(max(CHUNK_MIN_FRAMES, CHUNK_BYTES // max(size, 1)), CHUNK_FRAMES)
 
 
 CLIPS_FOLDER_SUFFIX = ".clips"
@@ -458,15 +462,12 @@ class SampleWriter:
         worker received.
     rigid : list of dqskin.readers.usd.RigidPrim
         Skinned prims without points, baked as ``xformOp:transform`` samples.
-    method, device, interp, sign_reference
+    options : dqskin.SkinOptions
         As for :class:`UsdCacheWriter`.
     """
 
-    def __init__(self, scene, target, rigid, *, method=None, device=None, interp="trs",
-                 sign_reference="largest_weight"):
-        self.scene, self.target, self.rigid = scene, target, rigid
-        self.method, self.device, self.interp = method, device, interp
-        self.sign_reference = sign_reference
+    def __init__(self, scene, target, rigid, options: SkinOptions):
+        self.scene, self.target, self.rigid, self.options = scene, target, rigid, options
         self.meshes = {m.name: m for m in scene.meshes}
         self._pads = {}  # prim → extent padding, resolved on the thread that owns the layer
 
@@ -520,8 +521,7 @@ class SampleWriter:
             if name in vel:
                 values.append(((name, "velocities"), convert(vel[name])))
         for r in self.rigid:
-            xf = rigid_transforms(self.scene, r, t, self.method, device=self.device,
-                                  interp=self.interp, sign_reference=self.sign_reference)
+            xf = rigid_transforms(self.scene, r, t, self.options)
             values.append(((r.name, "xformOp:transform"),
                            xf if raw else [Gf.Matrix4d(m.T.tolist()) for m in xf]))
         return t, values
@@ -617,18 +617,11 @@ class UsdCacheWriter:
         ``overwrite``). Must not be the source file or any layer it reads.
     source_path : str or os.PathLike, optional
         The stage to copy; ``scene.path`` by default.
-    method : {"lbs", "dqs", "blend", "cor"} or None
-        Skinning method for the skinned prims without points (``Sphere``, ``Cube``, ...), baked
-        as ``xformOp:transform`` samples as ``UsdSkel.BakeSkinning`` does; None uses each prim's
-        own. Pass the method that produced the points.
-    device : str, optional
-        Warp device for those transforms.
-    interp : str
-        Joint interpolation for those transforms (:data:`dqskin.animation.INTERPOLATIONS`); pass
-        the one that produced the points.
-    sign_reference : {"largest_weight", "running_sum"}
-        DQS sign rule for those transforms (:data:`dqskin.skinning.SignReference`); pass the one
-        that produced the points.
+    options : dqskin.SkinOptions, optional
+        The options that produced the points: the skinned prims without points (``Sphere``,
+        ``Cube``, ...) are skinned with them (``method``: None uses each prim's own; ``interp``,
+        ``sign_reference``, ``device``) and baked as ``xformOp:transform`` samples as
+        ``UsdSkel.BakeSkinning`` does. Default: :class:`~dqskin.options.SkinOptions` defaults.
     overwrite : bool
         Replace an existing ``out_path`` (the last writer wins). False claims it exclusively:
         :meth:`close` raises FileExistsError if it exists by then (another run finished first).
@@ -638,13 +631,13 @@ class UsdCacheWriter:
     interrupt.
     """
 
-    def __init__(self, scene, out_path, *, source_path=None, method=None, device=None,
-                 interp="trs", overwrite=True, sign_reference="largest_weight"):
+    def __init__(self, scene, out_path, options: SkinOptions | None = None, *, source_path=None,
+                 overwrite=True):
         self.cache = CacheLayer(scene, out_path, source_path=source_path)
         self.scene, self.out, self.src = scene, self.cache.out, self.cache.src
         self.layer = self.cache.layer
-        self.samples = SampleWriter(scene, self.cache.target, self.cache.rigid, method=method,
-                                    device=device, interp=interp, sign_reference=sign_reference)
+        self.samples = SampleWriter(scene, self.cache.target, self.cache.rigid,
+                                    SkinOptions() if options is None else options)
         self._t_min, self._t_max = np.inf, -np.inf
         self._claim = atomic_path(self.out, overwrite=overwrite)
         self._sink = None  # the layer or CrateSamples samples go to, chosen by the first chunk
@@ -768,7 +761,7 @@ class UsdCacheWriter:
 
 
 def write_usd_cache(scene, out_path, times, points, normals=None, *, velocities=None,
-                    source_path=None, method=None, device=None, interp="trs", overwrite=True):
+                    options: SkinOptions | None = None, source_path=None, overwrite=True):
     """Write skinned points (and normals, velocities) for all ``times`` as a new USD stage.
 
     One :class:`UsdCacheWriter` chunk; see it for the parameters.
@@ -784,7 +777,7 @@ def write_usd_cache(scene, out_path, times, points, normals=None, *, velocities=
         Unsupported extension, output equal to an input file, unknown mesh names, or arrays
         whose shape disagrees with ``times`` and the mesh.
     """
-    with UsdCacheWriter(scene, out_path, source_path=source_path, method=method, device=device,
-                        interp=interp, overwrite=overwrite) as writer:
+    with UsdCacheWriter(scene, out_path, options, source_path=source_path,
+                        overwrite=overwrite) as writer:
         writer.write(times, points, normals, velocities)
     return writer.out

@@ -47,6 +47,7 @@ from pxr import Sdf, Tf, Usd, Vt
 from ..errors import InputError, OutputExistsError, Param, output_exists
 from ..files.atomic import atomic_path, check_interrupted
 from ..files.crate import BOOTSTRAP, CrateSamples, Hasher
+from ..options import SkinOptions
 from ..readers.usd import _tf_message
 from ..scene import Scene
 from .usd_cache import (
@@ -432,9 +433,9 @@ class ClipBake:
         Time codes to bake (in any order; baked sorted, each once).
     chunk : int
         Frames each clip layer owns.
-    options : dict
-        Skinning options that change the result (method, interp, normals, velocities); part of
-        the plan key.
+    options : dqskin.SkinOptions
+        What the clips hold (normals, velocities) and are skinned with; the fields that change
+        the result (:meth:`~dqskin.options.SkinOptions.plan`) are part of the plan key.
     force : bool
         Start over: an existing ``out`` and the clip files of an earlier bake are replaced (the
         ``out`` of an earlier clip bake is removed at once: it reads those clip files).
@@ -452,9 +453,9 @@ class ClipBake:
     """
 
     def __init__(self, scene: Scene, out: str | os.PathLike, times: npt.ArrayLike, chunk: int,
-                 options: dict[str, Any], *, force: bool = False, resume: bool = False,
+                 options: SkinOptions, *, force: bool = False, resume: bool = False,
                  inputs: Iterable[str | os.PathLike] = ()) -> None:
-        normals, velocities = options.get("normals", True), options.get("velocities", True)
+        normals, velocities = options.normals, options.velocities
         self.cache = CacheLayer(scene, out)
         self.out, self.folder = Path(out), clips_folder(out)
         check_outside(out, input_files(self.cache.stage, self.cache.src, inputs), self.cache.src)
@@ -470,7 +471,7 @@ class ClipBake:
                 "first": float(self.times[0]), "last": float(self.times[-1]),
                 "times_sha256": hashlib.sha256(self.times.tobytes()).hexdigest(),
                 "chunk": int(chunk), "chunks": len(self.bounds),
-                "options": {k: options[k] for k in sorted(options)},
+                "options": dict(sorted(options.plan().items())),
                 "attributes": sorted(t.attr for t in self.targets.values())}
         self.key = hashlib.sha256(json.dumps(plan, sort_keys=True).encode()).hexdigest()
         self.plan = dict(plan, key=self.key, out=self.out.name)  # (the name: not in the key)

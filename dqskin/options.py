@@ -1,0 +1,176 @@
+"""What a skinning run is asked for: one frozen, typed value passed whole from the CLI down.
+
+:class:`SkinOptions` holds every knob of the engine (method, sign rule, interpolation, which
+outputs, the space they are reported in, the device, the centers-of-rotation settings
+:class:`CorOptions`), each default written here once. :meth:`dqskin.Scene.skin`,
+:func:`dqskin.bake`, :func:`dqskin.report.compare.run_compare`, :class:`dqskin.Crowd` and the
+clip workers (:mod:`dqskin.distributed`) take it; keyword arguments of those entry points build
+or override one (:meth:`SkinOptions.build`). It is hashable, comparable and picklable (a clip
+bake sends it to its Dask workers); :meth:`SkinOptions.replace` derives another.
+"""
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, cast
+
+from .animation import INTERPOLATIONS, Interpolation
+from .cor import SIGMA
+from .errors import InputError, Param
+from .skinning import METHODS, SIGN_REFERENCES, Method, SignReference
+from .spaces import SPACES, Space
+
+__all__ = ["SPACES", "CorOptions", "SkinOptions", "Space", "split_changes"]
+
+
+
+def _choice(name, value, choices, none=False):
+    if (value is None and none) or (isinstance(value, str) and value in choices):
+        return
+    raise InputError(Param(name, value), f": expected one of {list(choices)}"
+                     + (" or None" if none else ""))
+
+
+@dataclass(frozen=True)
+class CorOptions:
+    """How ``method="cor"`` computes each mesh's centers of rotation
+    (:func:`dqskin.cor.rotation_centers`).
+
+    Attributes
+    ----------
+    sigma : float
+        Similarity width, > 0 (:data:`dqskin.cor.SIGMA`).
+    subdivide : float or None
+        Subdivide triangles to this weight distance (> 0) for the integral; None: one term per
+        triangle.
+    cluster : float, "auto" or None
+        Cluster the weights on a grid of this step (> 0), "auto" for large meshes only, None for
+        exact centers.
+    """
+
+    sigma: float = SIGMA
+    subdivide: float | None = None
+    cluster: float | str | None = "auto"
+
+    def __post_init__(self):
+        for name, none in (("sigma", False), ("subdivide", True), ("cluster", True)):
+            v = getattr(self, name)
+            if (v is None and none) or (name == "cluster" and v == "auto"):
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or v <= 0:
+                raise InputError(Param(f"cor.{name}", v), ": expected a finite number > 0"
+                                 + ("" if not none else " or None")
+                                 + (' or "auto"' if name == "cluster" else ""))
+            object.__setattr__(self, name, float(v))
+
+    def skinner_arguments(self) -> dict:
+        """The ``cor_*`` keyword arguments of :class:`dqskin.Skinner`."""
+        return dict(cor_sigma=self.sigma, cor_subdivide=self.subdivide, cor_cluster=self.cluster)
+
+
+@dataclass(frozen=True)
+class SkinOptions:
+    """Everything that decides what skinning produces, besides the data.
+
+    Attributes
+    ----------
+    method : {"lbs", "dqs", "blend", "cor"} or None
+        None: each mesh's own ``skinning_method``.
+    sign_reference : {"largest_weight", "running_sum"}
+        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
+    interp : str
+        Joint interpolation between keys (:data:`dqskin.animation.INTERPOLATIONS`).
+    normals, tangents, velocities : bool
+        Also skin the rest normals, the rest tangents (directions only; the handedness stays
+        ``mesh.tangents[:, 3]``), and compute point velocities (length units per second, the
+        analytic joint motion of :mod:`dqskin.motion` through every time-varying input).
+    blend_shapes : bool
+        Apply each mesh's ``deformer`` (blend shapes, morph targets, animated points); False
+        skins the bind points.
+    space : {"local", "skeleton", "world"}
+        Where results are reported (:data:`Space`).
+    device : str or None
+        Warp device ("cpu", "cuda:0"); None: CUDA when present, else the CPU.
+    cor : CorOptions
+        Centers of rotation of ``method="cor"``.
+
+    Raises
+    ------
+    dqskin.errors.InputError
+        A field out of its range, naming it.
+    """
+
+    method: Method | None = None
+    sign_reference: SignReference = "largest_weight"
+    interp: Interpolation = "trs"
+    normals: bool = False
+    tangents: bool = False
+    velocities: bool = False
+    blend_shapes: bool = True
+    space: Space = "local"
+    device: str | None = None
+    cor: CorOptions = field(default_factory=CorOptions)
+
+    def __post_init__(self):
+        _choice("method", self.method, tuple(METHODS), none=True)
+        _choice("sign_reference", self.sign_reference, SIGN_REFERENCES)
+        _choice("interp", self.interp, INTERPOLATIONS)
+        _choice("space", self.space, SPACES)
+        for name in ("normals", "tangents", "velocities", "blend_shapes"):
+            v = getattr(self, name)
+            if not isinstance(v, bool):
+                if type(v).__name__ != "bool_":  # (NumPy's)
+                    raise InputError(Param(name, v), ": expected True or False")
+                object.__setattr__(self, name, bool(v))
+        if self.device is not None:
+            object.__setattr__(self, "device", str(self.device))  # (a wp.Device: its name)
+        if not isinstance(self.cor, CorOptions):
+            raise InputError(Param("cor", self.cor), ": expected a CorOptions")
+
+    @classmethod
+    def build(cls, options: "SkinOptions | None" = None, **changes: Any) -> "SkinOptions":
+        """``options`` (default: every default) with the fields in ``changes`` replaced; a
+        ``cor`` given as a dict builds a :class:`CorOptions`. TypeError for an unknown field."""
+        base = cls() if options is None else options
+        if not isinstance(base, SkinOptions):
+            raise InputError(Param("options", base), ": expected a SkinOptions or None")
+        if isinstance(changes.get("cor"), dict):
+            changes["cor"] = CorOptions(**changes["cor"])
+        return dataclasses.replace(base, **changes) if changes else base
+
+    @classmethod
+    def baking(cls, **changes: Any) -> "SkinOptions":
+        """The options of a bake (:func:`dqskin.bake`, ``dqskin skin``): normals and velocities
+        on, then ``changes``."""
+        return cls.build(cls(normals=True, velocities=True), **changes)
+
+    def replace(self, **changes: Any) -> "SkinOptions":
+        """A copy with ``changes`` (:meth:`build` on this one)."""
+        return self.build(self, **changes)
+
+    def method_of(self, mesh) -> Method:
+        """The method ``mesh`` is skinned with: :attr:`method`, else the mesh's own."""
+        return cast(Method, self.method or mesh.skinning_method)
+
+    def plan(self) -> dict[str, Any]:
+        """The fields that change a clip bake's samples, as recorded in its plan (and key): the
+        method, interpolation, sign rule, normals and velocities, and the centers-of-rotation
+        settings when they are not the defaults."""
+        out: dict[str, Any] = dict(method=self.method, interp=self.interp,
+                                   sign_reference=self.sign_reference, normals=self.normals,
+                                   velocities=self.velocities)
+        if self.cor != CorOptions():
+            out["cor"] = dataclasses.asdict(self.cor)
+        return out
+
+
+def split_changes(function: str, changes: dict, *kinds) -> list:
+    """``changes`` (keyword arguments of ``function``) split by the dataclass among ``kinds``
+    that has each as a field: one dict per kind. TypeError, as Python's, for a keyword no kind
+    has."""
+    names = [{f.name for f in dataclasses.fields(k)} for k in kinds]
+    unknown = sorted(set(changes).difference(*names))
+    if unknown:
+        raise TypeError(f"{function}() got an unexpected keyword argument {unknown[0]!r}")
+    return [{k: v for k, v in changes.items() if k in n} for n in names]

@@ -1,0 +1,197 @@
+"""SkinOptions: defaults, validation, pickling; and every entry point (Scene.skin, skin_chunks,
+bake, the compare report, Crowd, the clip workers) giving the same result for the same options,
+checked against float64 NumPy skinning from the equations."""
+
+import dataclasses
+import pickle
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import warp as wp
+
+import dqskin
+from dqskin import CorOptions, SkinOptions
+from dqskin.animation import TransformTrack
+from dqskin.errors import InputError
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_crowd import lbs64, oracle_transforms  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+HUMANOID = ROOT / "assets" / "humanoid.usda"  # seven meshes, one skeleton
+ARM = ROOT / "assets" / "bending_arm.usda"  # one mesh
+
+
+def test_defaults_are_the_documented_ones():
+    o = SkinOptions()
+    assert (o.method, o.sign_reference, o.interp, o.space, o.device) == (
+        None, "largest_weight", "trs", "local", None)
+    assert (o.normals, o.tangents, o.velocities, o.blend_shapes) == (False, False, False, True)
+    assert o.cor == CorOptions() and (o.cor.sigma, o.cor.subdivide, o.cor.cluster) == (
+        dqskin.cor.SIGMA, None, "auto")
+    b = SkinOptions.baking()
+    assert b == o.replace(normals=True, velocities=True)
+    assert SkinOptions.baking(method="dqs", velocities=False) == SkinOptions(method="dqs",
+                                                                              normals=True)
+
+
+def test_frozen_hashable_picklable():
+    o = SkinOptions(method="cor", sign_reference="running_sum", interp="sclerp", normals=True,
+                    space="skeleton", device=wp.get_device("cpu"),
+                    cor=CorOptions(sigma=0.2, subdivide=0.1, cluster=None))
+    assert o.device == "cpu"  # a wp.Device is kept by name (picklable)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        o.method = "lbs"
+    assert pickle.loads(pickle.dumps(o)) == o
+    assert hash(pickle.loads(pickle.dumps(o))) == hash(o)
+    assert o.replace(method="dqs").method == "dqs" and o.method == "cor"
+    assert SkinOptions.build(o, cor={"cluster": 0.01}).cor == CorOptions(cluster=0.01)
+    with pytest.raises(TypeError):
+        o.replace(colour="red")
+
+
+@pytest.mark.parametrize("field, value", [
+    ("method", "dq"), ("method", 3), ("sign_reference", "largest"), ("interp", "linear"),
+    ("space", "output"), ("space", "world "), ("normals", "yes"), ("velocities", 1),
+    ("tangents", None), ("blend_shapes", "False"), ("cor", {"sigma": 1})])
+def test_each_field_is_checked_and_named(field, value):
+    with pytest.raises(InputError, match=f"^{field}="):
+        SkinOptions(**{field: value})
+
+
+@pytest.mark.parametrize("field, value", [
+    ("sigma", 0), ("sigma", -1.0), ("sigma", float("nan")), ("sigma", None), ("subdivide", 0),
+    ("subdivide", float("inf")), ("cluster", "exact"), ("cluster", -0.5), ("cluster", True)])
+def test_cor_fields_are_checked_and_named(field, value):
+    with pytest.raises(InputError, match=f"^cor.{field}="):
+        CorOptions(**{field: value})
+
+
+def test_plan_keeps_the_earlier_keys():
+    """A clip bake's plan records the same option keys as before SkinOptions (so an earlier
+    bake's --resume still matches), plus the CoR settings only when not the defaults."""
+    o = SkinOptions.baking(method="dqs")
+    assert o.plan() == dict(method="dqs", interp="trs", sign_reference="largest_weight",
+                            normals=True, velocities=True)
+    assert o.replace(cor=CorOptions(cluster=None)).plan()["cor"] == dict(
+        sigma=dqskin.cor.SIGMA, subdivide=None, cluster=None)
+
+
+def _lbs_oracle(scene, times):
+    """mesh → (F, V, 3) float64 LBS points in skeleton space, from the equations."""
+    out = {}
+    for m in scene.meshes:
+        out[m.name] = lbs64(m, oracle_transforms(scene, m.skeleton, times, np.eye(4)))
+    return out
+
+
+def _assert_matches(got, want, what):
+    for name, ref in want.items():
+        np.testing.assert_allclose(got[name], ref, atol=3e-5 * np.abs(ref).max(),
+                                   err_msg=f"{what}: {name}")
+
+
+def test_every_entry_point_gives_the_same_points(tmp_path):
+    """One SkinOptions (LBS, skeleton space, bind points) through Scene.skin, skin_chunks, bake
+    (.npz), the compare report's skinning, a Crowd of one instance at the identity, and a clip
+    worker (run_clip, into a clip layer): the same points, and the float64 oracle's."""
+    from pxr import Usd
+
+    from dqskin.baking import BakeSettings
+    from dqskin.report.compare import _skin
+    from dqskin.writers.usd_clips import clips_folder
+
+    scene = dqskin.load(HUMANOID)
+    times = np.asarray(scene.times[::7][:6], np.float64)
+    opts = SkinOptions(method="lbs", space="skeleton", blend_shapes=False)
+    want = _lbs_oracle(scene, times)
+    direct = scene.skin(times, options=opts).points
+    _assert_matches(direct, want, "Scene.skin")
+    chunks = {n: np.concatenate([r.points[n] for _, r in scene.skin_chunks(times, 4,
+                                                                           options=opts)])
+              for n in direct}
+    for n in direct:
+        np.testing.assert_array_equal(chunks[n], direct[n], err_msg=f"skin_chunks {n}")
+    dqskin.bake(scene, tmp_path / "a.npz", times, options=opts)
+    with np.load(tmp_path / "a.npz") as z:
+        for k, m in enumerate(scene.meshes):
+            np.testing.assert_array_equal(z[f"points_{k}"], direct[m.name], err_msg=m.name)
+    meshes, _, _ = _skin(scene, times, ["lbs"], opts)
+    for sm in meshes:
+        np.testing.assert_array_equal(sm.posed["lbs"], direct[sm.name], err_msg=sm.name)
+    crowd = dqskin.Crowd()
+    crowd.add(scene, name="c")
+    parts = crowd.split(crowd.skin(times, options=opts))
+    _assert_matches({k[2:]: v for k, v in parts.items()}, want, "Crowd")
+    # a clip bake (the workers' run_clip path, in this process): local space, as written
+    local = opts.replace(space="local")
+    shot = tmp_path / "shot.usda"
+    dqskin.bake(scene, shot, times, options=local,
+                settings=BakeSettings(clips=True, chunk=3))
+    assert clips_folder(shot).is_dir()
+    ref = scene.skin(times, options=local).points
+    stage = Usd.Stage.Open(str(shot))
+    for m in scene.meshes:
+        attr = stage.GetPrimAtPath(m.name).GetAttribute("points")
+        got = np.stack([np.asarray(attr.Get(float(t)), np.float32) for t in times])
+        np.testing.assert_array_equal(got, ref[m.name], err_msg=f"clip layer {m.name}")
+
+
+def test_one_launch_and_per_mesh_batches_agree():
+    """The pipeline's two kinds of batch: the seven meshes in one launch (largest-weight sign
+    rule), or a batch per mesh (running sum, which never batches): both the float64 oracle's
+    for LBS (the sign rule does not change LBS), with normals and velocities alike."""
+    from dqskin.pipeline import one_launch
+    scene = dqskin.load(HUMANOID)
+    times = np.asarray(scene.times[:5], np.float64)
+    one = SkinOptions(method="lbs", normals=True, velocities=True)
+    per = one.replace(sign_reference="running_sum")
+    assert one_launch(scene, one) and not one_launch(scene, per)
+    a, b = scene.skin(times, options=one), scene.skin(times, options=per)
+    for kind in ("points", "normals", "velocities"):
+        da, db = getattr(a, kind), getattr(b, kind)
+        assert set(da) == set(db) and da
+        for n in da:
+            np.testing.assert_allclose(da[n], db[n], atol=2e-5 * max(1, np.abs(db[n]).max()),
+                                       err_msg=f"{kind} {n}")
+    _assert_matches(scene.skin(times, options=one.replace(space="skeleton")).points,
+                    _lbs_oracle(scene, times), "skeleton space")
+
+
+class _Shift(TransformTrack):
+    key_times = np.zeros(1)
+
+    def with_derivative(self, times):
+        t = np.atleast_1d(np.asarray(times, np.float64))
+        m = np.tile(np.eye(4), (len(t), 1, 1))
+        m[:, :3, 3] = [10.0, -2.0, 3.0]
+        return m, np.zeros_like(m)
+
+
+def test_spaces_pick_their_track():
+    """"skeleton": no transform; "local": ``output_transforms``; "world": ``world_transforms``
+    where the mesh has one, else as "local"."""
+    scene = dqskin.load(ARM)
+    (m,) = scene.meshes
+    t = np.asarray(scene.times[:3], np.float64)
+    skel = scene.skin(t, "dqs", space="skeleton").points[m.name]
+    m.output_transforms = _Shift()
+    local = scene.skin(t, "dqs", space="local").points[m.name]
+    np.testing.assert_allclose(local, skel + np.float32([10, -2, 3]), atol=1e-4)
+    np.testing.assert_array_equal(scene.skin(t, "dqs", space="world").points[m.name], local)
+    m.output_transforms = None
+    m.world_transforms = _Shift()  # what a loader giving world transforms sets
+    np.testing.assert_array_equal(scene.skin(t, "dqs", space="local").points[m.name], skel)
+    np.testing.assert_allclose(scene.skin(t, "dqs", space="world").points[m.name],
+                               skel + np.float32([10, -2, 3]), atol=1e-4)
+
+
+def test_crowd_refuses_what_it_cannot_skin():
+    scene = dqskin.load(ARM)
+    crowd = dqskin.Crowd()
+    crowd.add(scene)
+    for bad in (dict(normals=True), dict(sign_reference="running_sum"), dict(method="cor")):
+        with pytest.raises(ValueError):
+            crowd.skin(scene.times[:2], **bad)
