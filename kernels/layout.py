@@ -48,6 +48,36 @@ class InfluenceLayout:
     vertex."""
 
 
+# A kernel reads the layout's arrays through these: Warp gives the top-level arrays of a 1-D
+# launch compile-time strides (``wp_linear_contiguous``) but not the arrays inside a struct, whose
+# every access then multiplies by a stride loaded at run time (one thread: normals and velocities
+# 1.4-1.7x slower, the scalar DQS kernels 1.2-1.5x). The layout's arrays are contiguous by
+# construction (:class:`dqskin.influences.Influences`, ``blend`` and ``centers`` uploaded
+# whole), so their stride is the element size.
+_CONTIGUOUS = """
+    auto r = a;
+    r.strides[0] = sizeof(*a.data);
+    return r;"""
+
+
+@wp.func_native(_CONTIGUOUS)
+def contiguous_vec4i(a: wp.array(dtype=wp.vec4i)) -> wp.array(dtype=wp.vec4i):
+    """``a`` with its stride the element size, known to the compiler (``a`` contiguous)."""
+    ...
+
+
+@wp.func_native(_CONTIGUOUS)
+def contiguous_vec4(a: wp.array(dtype=wp.vec4)) -> wp.array(dtype=wp.vec4):
+    """``a`` with its stride the element size, known to the compiler (``a`` contiguous)."""
+    ...
+
+
+@wp.func_native(_CONTIGUOUS)
+def contiguous_float(a: wp.array(dtype=float)) -> wp.array(dtype=float):
+    """``a`` with its stride the element size, known to the compiler (``a`` contiguous)."""
+    ...
+
+
 @wp.func
 def _exchange(wa: float, ia: int, oa: int, wb: float, ib: int, ob: int):
     """One compare-exchange of a sorting network on ``(weight, joint, input slot)``: the larger

@@ -75,7 +75,7 @@ from .grid import (
     launch,
     launch_rows,
 )
-from .layout import InfluenceLayout
+from .layout import InfluenceLayout, contiguous_float, contiguous_vec4, contiguous_vec4i
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
@@ -359,21 +359,23 @@ def flat_pivot(indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec
 
 @wp.func(inline=True)
 def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pivot: int,
-               indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4), groups: int,
                inf: InfluenceLayout, unsorted: int, running_sum: int,
                affines: wp.array(dtype=mat34), dqs: wp.array(dtype=vec8),
                residuals: wp.array(dtype=wp.mat33), has_residual: wp.array(dtype=wp.int32),
                method: int, residual: bool):
-    """Point ``p`` of vertex ``v`` skinned with ``method`` at frame ``f`` (its joints from ``o``);
-    ``indices``, ``weights`` and ``groups`` are ``inf``'s (read once by the kernel), ``unsorted``
-    and ``running_sum`` its sign rule or the kernel's compile-time one; ``method`` and
+    """Point ``p`` of vertex ``v`` skinned with ``method`` at frame ``f`` (its joints from ``o``;
+    group 0 of its influences, ``iv`` and ``wv``, already read); ``unsorted`` and
+    ``running_sum``: ``inf``'s sign rule or the kernel's compile-time one; ``method`` and
     ``residual`` (the frame may have scale/shear) are compile-time constants, so only one
     method's code remains."""
+    indices = contiguous_vec4i(inf.indices)
+    weights = contiguous_vec4(inf.weights)
+    groups = inf.groups
     if method == LBS:
         return affine_gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(
             p[0], p[1], p[2], 1.0)
     if method == COR:
-        c4 = inf.centers[v]
+        c4 = contiguous_vec4(inf.centers)[v]
         if c4[3] != 0.0:
             c = wp.vec3(c4[0], c4[1], c4[2])
             y = p - c
@@ -394,7 +396,7 @@ def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pi
     if method == BLEND:
         lbs = affine_gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(
             p[0], p[1], p[2], 1.0)
-    return by_method(method, lbs, d, inf.blend, v)
+    return by_method(method, lbs, d, contiguous_float(inf.blend), v)
 
 
 SIGN_RULES = (None, "sorted", "searched", "running")
@@ -435,8 +437,8 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
         flags: wp.array(dtype=wp.int32),
     ):
         t = wp.tid() + row_offset
-        indices = inf.indices
-        weights = inf.weights
+        indices = contiguous_vec4i(inf.indices)
+        weights = contiguous_vec4(inf.weights)
         if wp.static(packet):  # eight vertices a thread
             vertex_count = out.shape[0] // frame_count
             pr, pfirst, pend = frame_rows(t, (vertex_count + 7) // 8, frame_count)
@@ -461,9 +463,8 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
             pivot = iv[0]  # LBS has no sign rule: no search
             if wp.static(method != LBS):
                 pivot = flat_pivot(indices, weights, t, g, iv, wv, us)
-            out[t] = skin_frame(points[t], t, 0, 0, iv, wv, pivot, indices, weights, g, inf, us,
-                                rs, affines, dqs, residuals, has_residual, wp.static(method),
-                                wp.static(residual))
+            out[t] = skin_frame(points[t], t, 0, 0, iv, wv, pivot, inf, us, rs, affines, dqs,
+                                residuals, has_residual, wp.static(method), wp.static(residual))
             return
         vertex_count = out.shape[0] // frame_count
         v, first, end = frame_rows(t, vertex_count, frame_count)
@@ -475,8 +476,8 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
         for f in range(first, end):
             out[wp.int64(f) * wp.int64(vertex_count) + wp.int64(v)] = skin_frame(
                 points[wp.int64(f) * wp.int64(point_stride) + wp.int64(v)], v, f, f * joint_count,
-                iv, wv, pivot, indices, weights, g, inf, us, rs, affines, dqs, residuals,
-                has_residual, wp.static(method), wp.static(residual))
+                iv, wv, pivot, inf, us, rs, affines, dqs, residuals, has_residual,
+                wp.static(method), wp.static(residual))
 
     rigid = "_rigid" if method in (DQS, COR) and not residual else ""
     one = "_one_frame" if single else ""
@@ -571,8 +572,8 @@ def skin_vectors_kernel(
     inverse-transpose matrices and the rotations UsdSkel derives from them; for tangents the
     matrices themselves and their polar rotations.
     """
-    indices = inf.indices
-    weights = inf.weights
+    indices = contiguous_vec4i(inf.indices)
+    weights = contiguous_vec4(inf.weights)
     groups = inf.groups
     running_sum = inf.running_sum
     unsorted = inf.unsorted
@@ -593,7 +594,7 @@ def skin_vectors_kernel(
             dqs = dqs_vector(x, v, f, o, iv, wv, pivot, indices, weights, groups, running_sum,
                              rotations, residuals, has_residual)
         out[wp.int64(f) * wp.int64(rows) + wp.int64(n)] = wp.normalize(
-            by_method(method, lbs, dqs, inf.blend, v))
+            by_method(method, lbs, dqs, contiguous_float(inf.blend), v))
 
 
 @wp.kernel

@@ -38,7 +38,7 @@ from .dqmath import (
     vec8,
 )
 from .grid import launch
-from .layout import InfluenceLayout
+from .layout import InfluenceLayout, contiguous_float, contiguous_vec4, contiguous_vec4i
 from .skin import (
     BLEND,
     COR,
@@ -205,8 +205,8 @@ def velocity_kernel(
 ):
     """Velocities of skinned points, flat as the point kernels. ``points``, ``point_velocities``
     (Fp·V) bind space, Fp 1 or F; ``out`` (F·V) skeleton space per unit time."""
-    indices = inf.indices
-    weights = inf.weights
+    indices = contiguous_vec4i(inf.indices)
+    weights = contiguous_vec4(inf.weights)
     g = inf.groups
     running_sum = inf.running_sum
     unsorted = inf.unsorted
@@ -217,7 +217,7 @@ def velocity_kernel(
     pivot = flat_pivot(indices, weights, v, g, iv, wv, unsorted)
     c4 = wp.vec4()
     if method == COR:
-        c4 = inf.centers[v]
+        c4 = contiguous_vec4(inf.centers)[v]
     for f in range(first, end):
         o = f * joint_count
         p = points[wp.int64(f) * wp.int64(point_stride) + wp.int64(v)]
@@ -248,8 +248,8 @@ def velocity_kernel(
                     * wp.vec4(c4[0], c4[1], c4[2], 1.0))
             else:
                 dqs_v = dqs_apply_derivative(b, bd, x, xd)
-        out[wp.int64(f) * wp.int64(rows) + wp.int64(v)] = by_method(method, lbs, dqs_v,
-                                                                    inf.blend, v)
+        out[wp.int64(f) * wp.int64(rows) + wp.int64(v)] = by_method(
+            method, lbs, dqs_v, contiguous_float(inf.blend), v)
 
 
 # ---------------------------------------------------------------------------------------------
