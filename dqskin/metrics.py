@@ -18,7 +18,7 @@ import warp as wp
 
 from . import quat
 from ._warp import resolve_device
-from .influences import Influences
+from .influences import Influences, check_joint_range
 from .kernels import metrics as K
 from .linalg import polar
 from .shapes import frames_of
@@ -247,8 +247,7 @@ def dominant_pair_regions(joint_indices, joint_weights, parents, *, min_weight=0
     fraction = np.full(idx.shape[0], np.nan)
     if inf.influence_count < 2 or inf.vertex_count == 0:
         return regions, fraction
-    if inf.joint_count_min > par.shape[0]:
-        raise ValueError(f"joint_indices: index out of range [0, {par.shape[0]})")
+    check_joint_range(inf.joint_count_min - 1, par.shape[0])
     (a, b) = idx[:, :2].T
     wa, wb = np.take_along_axis(w, inf.order[:, :2], 1).T
     strong = (wb >= min_weight) & (wa + wb >= min_pair * w.sum(axis=1))

@@ -701,10 +701,11 @@ _no_flags = {}
 
 def skin_points(*, method, points, influences, joints, rigid, out, device, flags=None):
     """Skin ``points`` (Fp, V) into ``out`` (F, V) with ``method`` (:data:`LBS`, :data:`DQS`,
-    :data:`BLEND`, :data:`COR`). ``rigid`` (no frame has a residual) selects the DQS or COR
-    kernel without the residual code. ``flags``: a zeroed (1,) ``int32`` array that a packet
-    launch (:func:`takes_packets`; others raise) sets to 1 when a point is not finite, an index
-    is outside the joints or a weight is negative or not finite: inputs unchecked on the host."""
+    :data:`BLEND`, :data:`COR`) and ``influences`` (an :class:`~.layout.InfluenceLayout`).
+    ``rigid`` (no frame has a residual) selects the DQS or COR kernel without the residual code.
+    ``flags``: a zeroed (1,) ``int32`` array that a packet launch (:func:`takes_packets`; others
+    raise) sets to 1 when a point is not finite, an index is outside the joints or a weight is
+    negative or not finite: inputs unchecked on the host."""
     residual = method == BLEND or (method != LBS and not rigid)
     frames, verts = out.shape
     sign = None
@@ -735,7 +736,8 @@ def skin_points(*, method, points, influences, joints, rigid, out, device, flags
 
 def skin_vectors(*, method, vectors, vector_vertex, influences, linears, rotations, residuals,
                  has_residual, out, device):
-    """Skin directions ``vectors`` (Fp, N) into ``out`` (F, N), normalized (see
+    """Skin directions ``vectors`` (Fp, N) into ``out`` (F, N) with ``influences`` (an
+    :class:`~.layout.InfluenceLayout`), normalized (see
     :func:`skin_vectors_kernel` for which per-joint arrays normals and tangents take)."""
     frames, rows = out.shape
     launch_frames(skin_vectors_kernel, rows, frames,
