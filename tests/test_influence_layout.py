@@ -9,6 +9,7 @@ import warp as wp
 from scipy.spatial.transform import Rotation
 from test_sign_reference import dqs_reference
 
+import dqskin
 from dqskin.errors import InputError
 from dqskin.influences import Influences, check_influences, check_joint_range, weight_order
 from dqskin.kernels import skin as K
@@ -136,3 +137,15 @@ def test_one_joint_range_check():
     with pytest.raises(InputError, match=msg + "bones"):
         check_joint_range(4, 4, "bones")
     Influences(idx, w).check_joint_count(5)
+
+
+def test_skinner_takes_a_built_layout():
+    """A Skinner built on an :class:`Influences` (as MeshBatch builds one) skins as one built on
+    its arrays; a layout of another vertex count is refused."""
+    rng = np.random.default_rng(2)
+    points, idx, w, M = rig(rng, 40, 3)
+    inf = Influences(idx, w)
+    got = dqskin.Skinner(points, inf, None, device="cpu").skin(M, "dqs")
+    np.testing.assert_array_equal(got, dqskin.Skinner(points, idx, w, device="cpu").skin(M, "dqs"))
+    with pytest.raises(InputError, match="joint_indices: 40 vertices for 39 points"):
+        dqskin.Skinner(points[:39], inf, None, device="cpu")
