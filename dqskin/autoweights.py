@@ -52,6 +52,7 @@ import warp as wp
 from . import cache as _cache
 from ._warp import Device, resolve_device
 from .errors import InputError, Param
+from .influences import weight_order
 from .kernels import bone_heat as BH
 from .skeleton import Skeleton
 
@@ -143,7 +144,7 @@ def sparsify(weights: np.ndarray, max_influences: int = 8) -> tuple[np.ndarray, 
         raise InputError(Param("max_influences", max_influences), ": must be at least 1")
     idx = np.argpartition(-w, K - 1, axis=1)[:, :K] if K < J else np.tile(np.arange(J), (V, 1))
     wk = np.take_along_axis(w, idx, 1)
-    order = np.argsort(-wk, axis=1, kind="stable")
+    order = weight_order(wk)  # the kernels' layout order
     idx, wk = np.take_along_axis(idx, order, 1), np.take_along_axis(wk, order, 1)
     s = wk.sum(1, keepdims=True)
     empty = s[:, 0] <= 0

@@ -26,6 +26,7 @@ import warp as wp
 from ._warp import Device, resolve_device
 from .animation import Interpolation, check_times
 from .errors import InputError, Param
+from .influences import Influences
 from .kernels import buffers as KB
 from .kernels import fk as FK
 from .options import SkinOptions
@@ -118,24 +119,17 @@ class MeshBatch:
 
     def __init__(self, meshes, joint_offsets, joint_counts, device: Device = None) -> None:
         self.meshes = list(meshes)
-        self.vertices, V = _ranges([len(m.points) for m in self.meshes])
-        K = max([np.shape(m.joint_weights)[1] if np.ndim(m.joint_weights) == 2 else 1
-                 for m in self.meshes] + [0])
+        influences, self.vertices = Influences.concatenate(
+            [(m.joint_indices, m.joint_weights) for m in self.meshes], joint_offsets,
+            joint_counts, [m.name for m in self.meshes])
+        V = influences.vertex_count
         points = np.empty((V, 3), np.float32)
-        idx = np.zeros((V, K), np.int32)
-        wts = np.zeros((V, K), np.float32)
         blend = np.empty(V, np.float32)
-        for m, sl, off, count in zip(self.meshes, self.vertices, joint_offsets, joint_counts):
-            i = np.asarray(m.joint_indices).reshape(sl.stop - sl.start, -1)
-            if i.size and (i.min() < 0 or i.max() >= count):
-                raise InputError(f"{m.name}: joint index {int(i.max())} out of range for its "
-                                 f"skeleton's {count} joints")
+        for m, sl in zip(self.meshes, self.vertices):
             g = np.asarray(m.geom_bind_transform, np.float64)
             points[sl] = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
-            idx[sl, :i.shape[1]] = i + off
-            wts[sl, :i.shape[1]] = np.asarray(m.joint_weights, np.float32).reshape(i.shape)
             blend[sl] = m.blend_or_default()
-        self.skinner = Skinner(points, idx, wts, blend_weights=blend, device=device)
+        self.skinner = Skinner(points, influences, None, blend_weights=blend, device=device)
 
     @property
     def vertex_count(self):

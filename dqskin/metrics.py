@@ -20,7 +20,7 @@ import warp as wp
 from . import quat
 from ._warp import Device, resolve_device
 from .errors import InputError
-from .influences import Influences
+from .influences import Influences, check_joint_range
 from .kernels import metrics as KM
 from .linalg import polar
 from .shapes import frames_of
@@ -254,8 +254,7 @@ def dominant_pair_regions(joint_indices: npt.ArrayLike, joint_weights: npt.Array
     fraction = np.full(idx.shape[0], np.nan)
     if inf.influence_count < 2 or inf.vertex_count == 0:
         return regions, fraction
-    if inf.joint_count_min > par.shape[0]:
-        raise InputError(f"joint_indices: index out of range [0, {par.shape[0]})")
+    check_joint_range(inf.joint_count_min - 1, par.shape[0])
     (a, b) = idx[:, :2].T
     wa, wb = np.take_along_axis(w, inf.order[:, :2], 1).T
     strong = (wb >= min_weight) & (wa + wb >= min_pair * w.sum(axis=1))

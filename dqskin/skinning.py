@@ -117,9 +117,11 @@ class Skinner:
     ----------
     points : (V, 3) float
         Rest points in mesh space.
-    joint_indices : (V, K) int
+    joint_indices : (V, K) int, or dqskin.influences.Influences
         Joint of each influence, ``0 <= index < J``. Any ``K`` (1, 4, 8, ...); pad with weight 0.
-    joint_weights : (V, K) float
+        An :class:`~dqskin.influences.Influences` (already validated, e.g.
+        :meth:`~dqskin.influences.Influences.concatenate`'s) with ``joint_weights=None``.
+    joint_weights : (V, K) float, or None
         Influence weights, finite and non-negative; used as given (never renormalized, as UsdSkel).
     geom_bind_transform : (4, 4) float, optional
         Mesh space → bind space, column-vector convention. Identity by default.
@@ -140,8 +142,9 @@ class Skinner:
         Warp device; CUDA when present, else CPU.
     """
 
-    def __init__(self, points: npt.ArrayLike, joint_indices: npt.ArrayLike,
-                 joint_weights: npt.ArrayLike, *, geom_bind_transform: npt.ArrayLike | None = None,
+    def __init__(self, points: npt.ArrayLike, joint_indices: npt.ArrayLike | Influences,
+                 joint_weights: npt.ArrayLike | None, *,
+                 geom_bind_transform: npt.ArrayLike | None = None,
                  blend_weights: npt.ArrayLike | None = None, faces: npt.ArrayLike | None = None,
                  cor_sigma: float = SIGMA, cor_subdivide: float | None = None,
                  cor_cluster: float | str | None = "auto",
@@ -153,6 +156,11 @@ class Skinner:
         unchecked = self._unchecked  # values left to the kernels (a one-shot call's)
 
         def influences():  # its error is raised after one about the points
+            if isinstance(joint_indices, Influences) and joint_weights is None:
+                if joint_indices.vertex_count != pts.shape[0]:
+                    return None, InputError(f"joint_indices: {joint_indices.vertex_count} "
+                                            f"vertices for {pts.shape[0]} points")
+                return joint_indices, None
             try:
                 return Influences(joint_indices, joint_weights, vertex_count=pts.shape[0],
                                   check_values=not unchecked), None
@@ -192,11 +200,10 @@ class Skinner:
                 raise InputError(f"blend_weights: expected ({self.vertex_count},) values in [0, 1]")
             self._blend = wp.array(b, dtype=wp.float32, device=d)
         self._no_centers = _empty(wp.vec4, d)
-        order = self._layout_order
-        self._layouts = {order: self.influences.upload(d, order, copy=self._copy_uploads)}
-        self._inf = K.influences(blend=self._blend, centers=self._no_centers,
-                                 unsorted=order == "input",
-                                 **self._layouts[order])  # the default: UsdSkel's rule
+        # the default: UsdSkel's rule (built now, so that a one-shot call's upload aliases)
+        self._inf = self.influences.layout(d, self._layout_order, blend=self._blend,
+                                           centers=self._no_centers, copy=self._copy_uploads)
+        self._layouts = {}  # (COR, running sum) → the kernels' InfluenceLayout
 
     def rotation_centers(self) -> np.ndarray:
         """(V, 3) float64 centers of rotation of ``method="cor"`` in bind space, NaN for vertices
@@ -217,19 +224,22 @@ class Skinner:
         return self._centers[0]
 
     def _influences(self, code, sign_reference):
-        """The kernels' :class:`~dqskin.kernels.skin.Influences` for a method code and sign rule."""
+        """The kernels' :class:`~dqskin.kernels.layout.InfluenceLayout` for a method code and
+        sign rule (made once for each)."""
         running = _check_sign_reference(sign_reference) == "running_sum" and code != K.LBS
         if not running and code != K.COR:  # (LBS has no sign rule)
             return self._inf
-        order = "input" if running else self._layout_order
-        if order not in self._layouts:
-            self._layouts[order] = self.influences.upload(self.device, order)
-        centers = self._no_centers
-        if code == K.COR:
-            self.rotation_centers()
-            centers = self._centers[1]
-        return K.influences(blend=self._blend, centers=centers, running_sum=running,
-                            unsorted=order == "input", **self._layouts[order])
+        key = (code == K.COR, running)
+        layout = self._layouts.get(key)
+        if layout is None:
+            centers = self._no_centers
+            if code == K.COR:
+                self.rotation_centers()
+                centers = self._centers[1]
+            layout = self._layouts[key] = self.influences.layout(
+                self.device, "input" if running else self._layout_order, blend=self._blend,
+                centers=centers, running_sum=running)
+        return layout
 
     _unchecked = False
     """True (:class:`_OneCall`, when :func:`skin_points` allows): the values of points, indices
@@ -241,7 +251,7 @@ class Skinner:
         inputs; or checked on the host now, where no packet kernel runs)."""
         if not self._unchecked:
             return None
-        if not K.takes_packets(code, inf.running_sum, inf.indices.shape[1], joint_count,
+        if not K.takes_packets(code, inf.running_sum, inf.groups, joint_count,
                                self.device):
             self._check_values(joint_count)
             return None

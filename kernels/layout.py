@@ -1,4 +1,12 @@
-"""The influence layout of :class:`dqskin.kernels.skin.Influences`, built on the device.
+"""The influence layout every kernel that blends influences reads (:class:`InfluenceLayout`), and
+its weight sort built on the device.
+
+The layout (packed by :class:`dqskin.influences.Influences`, the only place that builds one): a
+vertex's ``K`` influences in ``C = max(1, ceil(K / 4))`` groups of four, ``indices`` and
+``weights`` flat 1-D arrays of ``V·C`` ``wp.vec4i`` / ``wp.vec4`` (group ``c`` of vertex ``v`` at
+``v·C + c``; a 1-D array is what Warp compiles with constant strides), zero-padded (joint 0,
+weight 0); sorted by descending weight, so slot 0 is the DQS pivot, or (``unsorted``) in input
+order with the pivot searched per vertex.
 
 :class:`dqskin.influences.Influences` sorts each vertex's ``K`` influences by descending weight
 (stable: the first input first on ties) and zero-pads them to ``C = max(1, ceil(K / 4))`` groups
@@ -14,6 +22,60 @@ import warp as wp
 from .grid import launch_rows
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
+
+
+@wp.struct
+class InfluenceLayout:
+    """A mesh's influences and per-vertex method data, as the skinning and velocity kernels read
+    them (see the module docstring)."""
+
+    indices: wp.array(dtype=wp.vec4i)
+    """(V·C,) joint indices, four per group."""
+    weights: wp.array(dtype=wp.vec4)
+    """(V·C,) weights, same layout."""
+    groups: int
+    """C, the groups of four per vertex."""
+    blend: wp.array(dtype=float)
+    """(V,) DQS fraction of the blend method; empty otherwise."""
+    centers: wp.array(dtype=wp.vec4)
+    """(V,) centers of rotation of the COR method (bind space, ``w = 1``; ``w = 0``: none, the
+    vertex falls back to DQS); empty otherwise."""
+    running_sum: int
+    """Sign reference of the rotation blends: 0 the pivot (largest weight, UsdSkel); nonzero the
+    running sum of the blend so far, the slots in their input order (Blender)."""
+    unsorted: int
+    """Nonzero: the slots are in input order and the pivot of ``running_sum = 0`` is searched per
+    vertex."""
+
+
+# A kernel reads the layout's arrays through these: Warp gives the top-level arrays of a 1-D
+# launch compile-time strides (``wp_linear_contiguous``) but not the arrays inside a struct, whose
+# every access then multiplies by a stride loaded at run time (one thread: normals and velocities
+# 1.4-1.7x slower, the scalar DQS kernels 1.2-1.5x). The layout's arrays are contiguous by
+# construction (:class:`dqskin.influences.Influences`, ``blend`` and ``centers`` uploaded
+# whole), so their stride is the element size.
+_CONTIGUOUS = """
+    auto r = a;
+    r.strides[0] = sizeof(*a.data);
+    return r;"""
+
+
+@wp.func_native(_CONTIGUOUS)
+def contiguous_vec4i(a: wp.array(dtype=wp.vec4i)) -> wp.array(dtype=wp.vec4i):
+    """``a`` with its stride the element size, known to the compiler (``a`` contiguous)."""
+    ...
+
+
+@wp.func_native(_CONTIGUOUS)
+def contiguous_vec4(a: wp.array(dtype=wp.vec4)) -> wp.array(dtype=wp.vec4):
+    """``a`` with its stride the element size, known to the compiler (``a`` contiguous)."""
+    ...
+
+
+@wp.func_native(_CONTIGUOUS)
+def contiguous_float(a: wp.array(dtype=float)) -> wp.array(dtype=float):
+    """``a`` with its stride the element size, known to the compiler (``a`` contiguous)."""
+    ...
 
 
 @wp.func
@@ -38,15 +100,17 @@ def _four(joint_indices: wp.array2d(dtype=wp.int32), joint_weights: wp.array2d(d
 def layout_kernel(
     joint_indices: wp.array2d(dtype=wp.int32),
     joint_weights: wp.array2d(dtype=float),
+    groups: int,
     row_offset: int,
     # outputs
-    indices: wp.array2d(dtype=wp.vec4i),
-    weights: wp.array2d(dtype=wp.vec4),
+    indices: wp.array(dtype=wp.vec4i),
+    weights: wp.array(dtype=wp.vec4),
 ):
-    """Vertex ``row_offset + tid``: its (K,) influences → (C,) groups, largest weight first,
-    padded with joint 0 and weight 0."""
+    """Vertex ``row_offset + tid``: its (K,) influences → ``groups`` groups (flat, from
+    ``v·groups``), largest weight first, padded with joint 0 and weight 0."""
     v = wp.tid() + row_offset
     count = joint_weights.shape[1]
+    first = v * groups
     if count <= 4:  # the common case: a 5-exchange sorting network in registers
         w0, i0 = _four(joint_indices, joint_weights, v, 0)
         w1, i1 = _four(joint_indices, joint_weights, v, 1)
@@ -58,12 +122,12 @@ def layout_kernel(
         w0, i0, o0, w2, i2, o2 = _exchange(w0, i0, o0, w2, i2, o2)
         w1, i1, o1, w3, i3, o3 = _exchange(w1, i1, o1, w3, i3, o3)
         w1, i1, o1, w2, i2, o2 = _exchange(w1, i1, o1, w2, i2, o2)
-        indices[v, 0] = wp.vec4i(i0, i1, i2, i3)
-        weights[v, 0] = wp.vec4(w0, w1, w2, w3)
+        indices[first] = wp.vec4i(i0, i1, i2, i3)
+        weights[first] = wp.vec4(w0, w1, w2, w3)
         return
-    for c in range(indices.shape[1]):
-        indices[v, c] = wp.vec4i(0, 0, 0, 0)
-        weights[v, c] = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    for c in range(groups):
+        indices[first + c] = wp.vec4i(0, 0, 0, 0)
+        weights[first + c] = wp.vec4(0.0, 0.0, 0.0, 0.0)
     for k in range(count):
         wk = joint_weights[v, k]
         rank = int(0)
@@ -73,16 +137,18 @@ def layout_kernel(
                 rank += 1
         c = rank // 4
         slot = rank - 4 * c
-        iv = indices[v, c]
-        wv = weights[v, c]
+        iv = indices[first + c]
+        wv = weights[first + c]
         iv[slot] = joint_indices[v, k]
         wv[slot] = wk
-        indices[v, c] = iv
-        weights[v, c] = wv
+        indices[first + c] = iv
+        weights[first + c] = wv
 
 
 def layout(*, joint_indices, joint_weights, indices, weights, device):
-    """Fill ``indices`` (V, C) ``wp.vec4i`` and ``weights`` (V, C) ``wp.vec4`` from the (V, K)
-    ``joint_indices`` (int32) and ``joint_weights`` (float32, finite)."""
-    launch_rows(layout_kernel, indices.shape[0], [joint_indices, joint_weights],
-                [indices, weights], device, min_chunk=65536)
+    """Fill ``indices`` (V·C,) ``wp.vec4i`` and ``weights`` (V·C,) ``wp.vec4`` from the (V, K)
+    ``joint_indices`` (int32) and ``joint_weights`` (float32, finite), sorted by weight."""
+    rows = joint_weights.shape[0]
+    if rows:
+        launch_rows(layout_kernel, rows, [joint_indices, joint_weights, indices.shape[0] // rows],
+                    [indices, weights], device, min_chunk=65536)

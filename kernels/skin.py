@@ -16,26 +16,27 @@ Semantics follow UsdSkel (``UsdSkelSkinPointsLBS/DQS``):
   center ``c`` (:mod:`dqskin.cor`), ``R`` the rotation of the DQS blend's real part (the same
   sign rule), ``Σ wᵢ·Sᵢ`` applied to ``p − c`` on frames with a residual; DQS where the vertex has
   no center.
-* Sign rule (``Influences.running_sum``): 0, each joint's sign is taken against the pivot in slot 0
-  (UsdSkel); otherwise against the running sum of the blend so far, the influences in their input
-  order (Blender's Preserve Volume; the layout is then unsorted).
+* Sign rule (``InfluenceLayout.running_sum``): 0, each joint's sign is taken against the pivot
+  in slot 0 (UsdSkel); otherwise against the running sum of the blend so far, the influences in
+  their input order (Blender's Preserve Volume; the layout is then unsorted).
 
 Normals use the inverse transpose of each linear part; tangents the linear part itself; both are
 normalized after blending.
 
-Influence layout (:class:`Influences`, built once per mesh by
-:class:`dqskin.influences.Influences`): ``indices`` (V, C) ``wp.vec4i`` and ``weights`` (V, C)
-``wp.vec4`` -- ``K`` influences in ``C = ceil(K/4)`` groups of four, sorted by descending weight
-and zero-padded, so slot 0 is the antipodality pivot (the largest weight, first on ties, as
+Influence layout: one :class:`~.layout.InfluenceLayout` argument (built once per mesh by
+:class:`dqskin.influences.Influences`): flat ``indices`` (V·C,) ``wp.vec4i`` and ``weights``
+(V·C,) ``wp.vec4`` -- ``K`` influences in ``C = ceil(K/4)`` groups of four, sorted by descending
+weight and zero-padded, so slot 0 is the antipodality pivot (the largest weight, first on ties, as
 UsdSkel); or, ``unsorted``, in input order with the pivot searched per vertex (a one-shot call
-whose ``(V, 4k)`` int32/float32 arrays are read in place: no layout pass). Per-(frame, joint)
-data is a :class:`Joints` (from :func:`prepare_points`). The kernels read these arrays as flat 1-D
-views (:func:`influence_args`; the blends :func:`gather`, :func:`dq_gather` and
+whose ``(V, 4k)`` int32/float32 arrays are read in place: no layout pass); the per-vertex
+``blend`` and ``centers`` and the sign rule beside them. Per-(frame, joint) data is a
+:class:`Joints` (from :func:`prepare_points`). A kernel reads the layout's arrays into locals once
+and hands them to the blends (:func:`gather`, :func:`dq_gather` and
 :func:`~.blend.affine_gather`, which the velocity kernels share): one thread per vertex of a
 single frame, or per (frame block, vertex), a block of frames read with the vertex's influences
 once (:func:`frame_rows`). A 1-D launch over 1-D arrays is what Warp compiles with constant
-strides and an inlined task loop on the CPU (2-D arrays or arrays inside structs cost 25-30% on
-one thread). The point kernels are specialized at compile time for the method, rigid frames, a
+strides and an inlined task loop on the CPU (2-D arrays cost 25-30% on one thread). The point
+kernels are specialized at compile time for the method, rigid frames, a
 single frame (a kernel of its own, with no frame-block code) and, for DQS, the sorted layout's
 sign rule (no running-sum or pivot-search code): code a launch does not run still slows it. On
 the CPU, LBS and DQS (sorted or searched pivot) of one group of four influences launch
@@ -75,6 +76,7 @@ from .grid import (
     launch,
     launch_rows,
 )
+from .layout import InfluenceLayout, contiguous_float, contiguous_vec4, contiguous_vec4i
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
@@ -86,28 +88,6 @@ COR = wp.constant(3)
 
 POINT_FRAME_BLOCK = wp.constant(FRAME_BLOCK)
 """Frames a point-kernel thread skins (one vertex, :data:`~dqskin.kernels.grid.FRAME_BLOCK`)."""
-
-
-class Influences:
-    """A mesh's influences in the kernels' layout (see the module docstring)."""
-
-    __slots__ = ("indices", "weights", "blend", "centers", "running_sum", "unsorted")
-
-    indices: wp.array2d(dtype=wp.vec4i)
-    """(V, C) joint indices, four per group, largest weight first."""
-    weights: wp.array2d(dtype=wp.vec4)
-    """(V, C) weights, same layout."""
-    blend: wp.array(dtype=float)
-    """(V,) DQS fraction of ``method=BLEND``; empty otherwise."""
-    centers: wp.array(dtype=wp.vec4)
-    """(V,) centers of rotation of ``method=COR`` (bind space, ``w = 1``; ``w = 0``: none, the
-    vertex falls back to DQS); empty otherwise."""
-    running_sum: int
-    """Sign reference of the rotation blends: 0 the pivot in slot 0 (largest weight, UsdSkel);
-    nonzero the running sum of the blend so far, the slots in their input order (Blender)."""
-    unsorted: int
-    """Nonzero: the slots are in input order, not sorted by weight, and the pivot of
-    ``running_sum = 0`` is searched per vertex (:func:`flat_pivot`)."""
 
 
 class Joints:
@@ -379,20 +359,23 @@ def flat_pivot(indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec
 
 @wp.func(inline=True)
 def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pivot: int,
-               indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4), groups: int,
-               blend: wp.array(dtype=float), centers: wp.array(dtype=wp.vec4), unsorted: int,
-               running_sum: int,
+               inf: InfluenceLayout, unsorted: int, running_sum: int,
                affines: wp.array(dtype=mat34), dqs: wp.array(dtype=vec8),
                residuals: wp.array(dtype=wp.mat33), has_residual: wp.array(dtype=wp.int32),
                method: int, residual: bool):
-    """Point ``p`` of vertex ``v`` skinned with ``method`` at frame ``f`` (its joints from ``o``);
-    ``method`` and ``residual`` (the frame may have scale/shear) are compile-time constants, so
-    only one method's code remains."""
+    """Point ``p`` of vertex ``v`` skinned with ``method`` at frame ``f`` (its joints from ``o``;
+    group 0 of its influences, ``iv`` and ``wv``, already read); ``unsorted`` and
+    ``running_sum``: ``inf``'s sign rule or the kernel's compile-time one; ``method`` and
+    ``residual`` (the frame may have scale/shear) are compile-time constants, so only one
+    method's code remains."""
+    indices = contiguous_vec4i(inf.indices)
+    weights = contiguous_vec4(inf.weights)
+    groups = inf.groups
     if method == LBS:
         return affine_gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(
             p[0], p[1], p[2], 1.0)
     if method == COR:
-        c4 = centers[v]
+        c4 = contiguous_vec4(inf.centers)[v]
         if c4[3] != 0.0:
             c = wp.vec3(c4[0], c4[1], c4[2])
             y = p - c
@@ -413,11 +396,11 @@ def skin_frame(p: wp.vec3, v: int, f: int, o: int, iv: wp.vec4i, wv: wp.vec4, pi
     if method == BLEND:
         lbs = affine_gather(affines, o, indices, weights, v, groups, iv, wv) * wp.vec4(
             p[0], p[1], p[2], 1.0)
-    return by_method(method, lbs, d, blend, v)
+    return by_method(method, lbs, d, contiguous_float(inf.blend), v)
 
 
 SIGN_RULES = (None, "sorted", "searched", "running")
-"""A point kernel's sign rule: None read at run time (``Influences.running_sum`` and
+"""A point kernel's sign rule: None read at run time (``InfluenceLayout.running_sum`` and
 ``unsorted``), or fixed at compile time (DQS): the pivot in slot 0 of the sorted layout (a
 Skinner's default), the pivot searched per vertex in input order (one-shot calls), the running
 sum in input order (no pivot to search)."""
@@ -438,13 +421,7 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
     def kernel(
         points: wp.array(dtype=wp.vec3),
         point_stride: int,
-        indices: wp.array(dtype=wp.vec4i),
-        weights: wp.array(dtype=wp.vec4),
-        groups: int,
-        blend: wp.array(dtype=float),
-        centers: wp.array(dtype=wp.vec4),
-        running_sum: int,
-        unsorted: int,
+        inf: InfluenceLayout,
         affines: wp.array(dtype=mat34),
         dqs: wp.array(dtype=vec8),
         residuals: wp.array(dtype=wp.mat33),
@@ -458,6 +435,8 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
         flags: wp.array(dtype=wp.int32),
     ):
         t = wp.tid() + row_offset
+        indices = contiguous_vec4i(inf.indices)
+        weights = contiguous_vec4(inf.weights)
         if wp.static(packet):  # eight vertices a thread
             vertex_count = out.shape[0] // frame_count
             pr, pfirst, pend = frame_rows(t, (vertex_count + 7) // 8, frame_count)
@@ -472,19 +451,18 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
                                 f * joint_count, pr * 8, vertex_count, out, obase, joint_count,
                                 check, flags)
             return
-        g = groups
+        g = inf.groups
         # the sign-rule flags, constants (folded by the C++ compiler) unless read at run time
-        rs = running_sum * wp.static(int(sign is None)) + wp.static(int(sign == "running"))
-        us = unsorted * wp.static(int(sign is None)) + wp.static(int(sign == "searched"))
+        rs = inf.running_sum * wp.static(int(sign is None)) + wp.static(int(sign == "running"))
+        us = inf.unsorted * wp.static(int(sign is None)) + wp.static(int(sign == "searched"))
         if wp.static(single):  # one frame: vertex t, no frame loop
             iv = indices[t * g]
             wv = weights[t * g]
             pivot = iv[0]  # LBS has no sign rule: no search
             if wp.static(method != LBS):
                 pivot = flat_pivot(indices, weights, t, g, iv, wv, us)
-            out[t] = skin_frame(points[t], t, 0, 0, iv, wv, pivot, indices, weights, g, blend,
-                                centers, us, rs, affines, dqs, residuals,
-                                has_residual, wp.static(method), wp.static(residual))
+            out[t] = skin_frame(points[t], t, 0, 0, iv, wv, pivot, inf, us, rs, affines, dqs,
+                                residuals, has_residual, wp.static(method), wp.static(residual))
             return
         vertex_count = out.shape[0] // frame_count
         v, first, end = frame_rows(t, vertex_count, frame_count)
@@ -496,8 +474,8 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
         for f in range(first, end):
             out[wp.int64(f) * wp.int64(vertex_count) + wp.int64(v)] = skin_frame(
                 points[wp.int64(f) * wp.int64(point_stride) + wp.int64(v)], v, f, f * joint_count,
-                iv, wv, pivot, indices, weights, g, blend, centers, us, rs, affines,
-                dqs, residuals, has_residual, wp.static(method), wp.static(residual))
+                iv, wv, pivot, inf, us, rs, affines, dqs, residuals, has_residual,
+                wp.static(method), wp.static(residual))
 
     rigid = "_rigid" if method in (DQS, COR) and not residual else ""
     one = "_one_frame" if single else ""
@@ -572,13 +550,7 @@ def skin_vectors_kernel(
     vectors: wp.array(dtype=wp.vec3),
     vector_stride: int,
     vector_vertex: wp.array(dtype=wp.int32),
-    indices: wp.array(dtype=wp.vec4i),
-    weights: wp.array(dtype=wp.vec4),
-    groups: int,
-    blend: wp.array(dtype=float),
-    centers: wp.array(dtype=wp.vec4),
-    running_sum: int,
-    unsorted: int,
+    inf: InfluenceLayout,
     linears: wp.array(dtype=wp.mat33),
     rotations: wp.array(dtype=wp.quat),
     residuals: wp.array(dtype=wp.mat33),
@@ -597,6 +569,11 @@ def skin_vectors_kernel(
     inverse-transpose matrices and the rotations UsdSkel derives from them; for tangents the
     matrices themselves and their polar rotations.
     """
+    indices = contiguous_vec4i(inf.indices)
+    weights = contiguous_vec4(inf.weights)
+    groups = inf.groups
+    running_sum = inf.running_sum
+    unsorted = inf.unsorted
     rows = out.shape[0] // frame_count
     n, first, end = frame_rows(wp.tid() + row_offset, rows, frame_count)
     v = vector_vertex[n]
@@ -614,7 +591,7 @@ def skin_vectors_kernel(
             dqs = dqs_vector(x, v, f, o, iv, wv, pivot, indices, weights, groups, running_sum,
                              rotations, residuals, has_residual)
         out[wp.int64(f) * wp.int64(rows) + wp.int64(n)] = wp.normalize(
-            by_method(method, lbs, dqs, blend, v))
+            by_method(method, lbs, dqs, contiguous_float(inf.blend), v))
 
 
 @wp.kernel
@@ -635,14 +612,6 @@ def transform_frames_kernel(
 
 # ---------------------------------------------------------------------------------------------
 # launchers: keyword arguments, chunked over the CPU cores by dqskin.kernels.grid
-
-
-def influences(*, indices, weights, blend, centers, running_sum=False, unsorted=False):
-    """The :class:`Influences` of a mesh's device arrays."""
-    s = Influences()
-    s.indices, s.weights, s.blend, s.centers = indices, weights, blend, centers
-    s.running_sum, s.unsorted = int(bool(running_sum)), int(bool(unsorted))
-    return s
 
 
 def joints(*, affines, dqs, residuals, has_residual):
@@ -707,13 +676,6 @@ def frame_rows_array(values, rows):
     return _flat(values), stride
 
 
-def influence_args(influences):
-    """The flat :class:`Influences` arguments of the point and velocity kernels."""
-    inf = influences
-    return [_flat(inf.indices), _flat(inf.weights), inf.indices.shape[1], inf.blend, inf.centers,
-            inf.running_sum, inf.unsorted]
-
-
 def launch_frames(kernel, rows, frames, inputs, outputs, device, row_size=1):
     """Launch a flat kernel (:func:`frame_rows`) over ``rows`` × ``frames``: one thread per row
     of a single frame, else per (frame block, row); chunks of threads on the CPU cores.
@@ -736,10 +698,11 @@ _no_flags = {}
 
 def skin_points(*, method, points, influences, joints, rigid, out, device, flags=None):
     """Skin ``points`` (Fp, V) into ``out`` (F, V) with ``method`` (:data:`LBS`, :data:`DQS`,
-    :data:`BLEND`, :data:`COR`). ``rigid`` (no frame has a residual) selects the DQS or COR
-    kernel without the residual code. ``flags``: a zeroed (1,) ``int32`` array that a packet
-    launch (:func:`takes_packets`; others raise) sets to 1 when a point is not finite, an index
-    is outside the joints or a weight is negative or not finite: inputs unchecked on the host."""
+    :data:`BLEND`, :data:`COR`) and ``influences`` (an :class:`~.layout.InfluenceLayout`).
+    ``rigid`` (no frame has a residual) selects the DQS or COR kernel without the residual code.
+    ``flags``: a zeroed (1,) ``int32`` array that a packet launch (:func:`takes_packets`; others
+    raise) sets to 1 when a point is not finite, an index is outside the joints or a weight is
+    negative or not finite: inputs unchecked on the host."""
     residual = method == BLEND or (method != LBS and not rigid)
     frames, verts = out.shape
     sign = None
@@ -747,7 +710,7 @@ def skin_points(*, method, points, influences, joints, rigid, out, device, flags
         sign = ("running" if influences.running_sum else
                 "searched" if influences.unsorted else "sorted")
     jn = joints
-    packet = takes_packets(method, influences.running_sum, influences.indices.shape[1],
+    packet = takes_packets(method, influences.running_sum, influences.groups,
                            jn.affines.shape[1], device)
     if flags is None:
         key = str(device)
@@ -763,18 +726,19 @@ def skin_points(*, method, points, influences, joints, rigid, out, device, flags
                                   sign, packet)]
     size = packets.VERTICES if packet else 1
     launch_frames(kernel, -(-verts // size), frames,
-                  [*frame_rows_array(points, verts), *influence_args(influences),
+                  [*frame_rows_array(points, verts), influences,
                    _flat(jn.affines), _flat(jn.dqs), _flat(jn.residuals), jn.has_residual,
                    jn.affines.shape[1], frames, check], [out, flags], device, row_size=size)
 
 
 def skin_vectors(*, method, vectors, vector_vertex, influences, linears, rotations, residuals,
                  has_residual, out, device):
-    """Skin directions ``vectors`` (Fp, N) into ``out`` (F, N), normalized (see
+    """Skin directions ``vectors`` (Fp, N) into ``out`` (F, N) with ``influences`` (an
+    :class:`~.layout.InfluenceLayout`), normalized (see
     :func:`skin_vectors_kernel` for which per-joint arrays normals and tangents take)."""
     frames, rows = out.shape
     launch_frames(skin_vectors_kernel, rows, frames,
-                  [*frame_rows_array(vectors, rows), vector_vertex, *influence_args(influences),
+                  [*frame_rows_array(vectors, rows), vector_vertex, influences,
                    _flat(linears), _flat(rotations), _flat(residuals), has_residual,
                    linears.shape[1], frames, int(method)], [out], device)
 

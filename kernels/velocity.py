@@ -38,6 +38,7 @@ from .dqmath import (
     vec8,
 )
 from .grid import launch
+from .layout import InfluenceLayout, contiguous_float, contiguous_vec4, contiguous_vec4i
 from .skin import (
     BLEND,
     COR,
@@ -49,7 +50,6 @@ from .skin import (
     frame_rows_array,
     gather,
     group,
-    influence_args,
     launch_frames,
     prepare_points,
     rotation_only,
@@ -188,13 +188,7 @@ def velocity_kernel(
     point_stride: int,
     point_velocities: wp.array(dtype=wp.vec3),
     velocity_stride: int,
-    indices: wp.array(dtype=wp.vec4i),
-    weights: wp.array(dtype=wp.vec4),
-    groups: int,
-    blend: wp.array(dtype=float),
-    centers: wp.array(dtype=wp.vec4),
-    running_sum: int,
-    unsorted: int,
+    inf: InfluenceLayout,
     affines: wp.array(dtype=mat34),
     dqs: wp.array(dtype=vec8),
     residuals: wp.array(dtype=wp.mat33),
@@ -211,15 +205,19 @@ def velocity_kernel(
 ):
     """Velocities of skinned points, flat as the point kernels. ``points``, ``point_velocities``
     (Fp·V) bind space, Fp 1 or F; ``out`` (F·V) skeleton space per unit time."""
+    indices = contiguous_vec4i(inf.indices)
+    weights = contiguous_vec4(inf.weights)
+    g = inf.groups
+    running_sum = inf.running_sum
+    unsorted = inf.unsorted
     rows = out.shape[0] // frame_count
     v, first, end = frame_rows(wp.tid() + row_offset, rows, frame_count)
-    g = groups
     iv = indices[v * g]
     wv = weights[v * g]
     pivot = flat_pivot(indices, weights, v, g, iv, wv, unsorted)
     c4 = wp.vec4()
     if method == COR:
-        c4 = centers[v]
+        c4 = contiguous_vec4(inf.centers)[v]
     for f in range(first, end):
         o = f * joint_count
         p = points[wp.int64(f) * wp.int64(point_stride) + wp.int64(v)]
@@ -250,7 +248,8 @@ def velocity_kernel(
                     * wp.vec4(c4[0], c4[1], c4[2], 1.0))
             else:
                 dqs_v = dqs_apply_derivative(b, bd, x, xd)
-        out[wp.int64(f) * wp.int64(rows) + wp.int64(v)] = by_method(method, lbs, dqs_v, blend, v)
+        out[wp.int64(f) * wp.int64(rows) + wp.int64(v)] = by_method(
+            method, lbs, dqs_v, contiguous_float(inf.blend), v)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -293,7 +292,7 @@ def velocities(*, method, points, point_velocities, influences, joints, rates, o
         point_velocities = wp.zeros((1, verts), dtype=wp.vec3, device=device)
     launch_frames(velocity_kernel, verts, frames,
                   [*frame_rows_array(points, verts), *frame_rows_array(point_velocities, verts),
-                   *influence_args(influences), flat(jn.affines), flat(jn.dqs),
+                   influences, flat(jn.affines), flat(jn.dqs),
                    flat(jn.residuals), jn.has_residual, flat(rates.affines), flat(rates.dqs),
                    flat(rates.residuals), jn.affines.shape[1], frames, int(method)], [out],
                   device)

@@ -10,6 +10,9 @@ from scipy.spatial.transform import Rotation
 import dqskin
 from dqskin.influences import Influences
 
+EMPTY_BLEND = wp.empty(0, dtype=float, device="cpu")
+EMPTY_CENTERS = wp.empty(0, dtype=wp.vec4, device="cpu")
+
 
 def lbs64(points, idx, w, M, geom_bind=np.eye(4)):
     """``Σ wᵢ·Mᵢ·G·p`` in float64."""
@@ -38,15 +41,15 @@ def test_device_layout_is_the_stable_descending_sort(K):
     w = rng.integers(0, 4, size=(V, K)).astype(np.float32) / 4  # many ties and zeros
     idx = rng.integers(0, 50, size=(V, K))
     inf = Influences(idx, w)
-    dev = inf.upload("cpu")
+    dev = inf.layout("cpu", blend=EMPTY_BLEND, centers=EMPTY_CENTERS)
     order = np.argsort(-w, axis=1, kind="stable")
     C = -(-K // 4)
     want_i = np.zeros((V, 4 * C), np.int32)
     want_w = np.zeros((V, 4 * C), np.float32)
     want_i[:, :K] = np.take_along_axis(idx, order, 1)
     want_w[:, :K] = np.take_along_axis(w, order, 1)
-    np.testing.assert_array_equal(dev["indices"].numpy().reshape(V, -1), want_i)
-    np.testing.assert_array_equal(dev["weights"].numpy().reshape(V, -1), want_w)
+    np.testing.assert_array_equal(dev.indices.numpy().reshape(V, -1), want_i)
+    np.testing.assert_array_equal(dev.weights.numpy().reshape(V, -1), want_w)
     # and the host layout (what metrics read) agrees
     np.testing.assert_array_equal(inf.indices.reshape(V, -1), want_i)
     np.testing.assert_array_equal(inf.order, order)
@@ -54,9 +57,9 @@ def test_device_layout_is_the_stable_descending_sort(K):
 
 def test_no_influences_layout():
     inf = Influences(np.zeros((5, 0), np.int32), np.zeros((5, 0), np.float32))
-    dev = inf.upload("cpu")
-    assert dev["indices"].shape == (5, 1)
-    assert not dev["weights"].numpy().any()
+    dev = inf.layout("cpu", blend=EMPTY_BLEND, centers=EMPTY_CENTERS)
+    assert dev.indices.shape == (5,) and dev.groups == 1
+    assert not dev.weights.numpy().any()
 
 
 @pytest.mark.parametrize("geom_bind", ["identity", "affine"])

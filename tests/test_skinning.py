@@ -183,7 +183,7 @@ def _launch_dqs(prep, sk):
     F, V = j.dqs.shape[0], sk.vertex_count
     out = wp.empty((F, V), dtype=wp.vec3, device=sk.device)
     kernel = K.SKIN_POINTS_KERNELS[(K.DQS, True, F == 1, "sorted", False)]
-    K.launch_frames(kernel, V, F, [*K.frame_rows_array(sk._points, V), *K.influence_args(sk._inf),
+    K.launch_frames(kernel, V, F, [*K.frame_rows_array(sk._points, V), sk._inf,
                                    K._flat(j.affines), K._flat(j.dqs), K._flat(j.residuals),
                                    j.has_residual, j.affines.shape[1], F, 0],
                     [out, wp.empty(0, dtype=wp.int32, device=sk.device)], sk.device)
