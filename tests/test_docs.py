@@ -149,7 +149,9 @@ def test_mkdocs_build_strict(tmp_path):
                 assert f"<code>{flag}</code>" in cli, f"dqskin {name} {flag}"
     api = (site / "reference" / "api" / "index.html").read_text()
     for name in ("load", "Scene", "Scene.skin", "SkinnedFrames", "Skinner", "skin_points",
-                 "Skeleton", "bake", "Crowd", "rig_mesh", "errors.InputError"):
+                 "Skeleton", "bake", "Crowd", "rig_mesh", "errors.InputError", "SkinOptions",
+                 "CorOptions", "baking.BakeSettings", "spaces.SPACES", "errors.OutputExistsError",
+                 "errors.UnknownNameError", "report.compare.run_compare"):
         assert f'id="dqskin.{name}"' in api, name
 
 
