@@ -19,9 +19,9 @@ _initialized = False
 def init_warp() -> None:
     """``wp.init()``, once per process and under a lock. Warp's own is not thread-safe: two
     threads making their first dqskin call at once (a pipeline's worker threads, the concurrent
-    tasks of a ``dask worker --nthreads N``) each created a runtime, and the second one cleared
-    the module hashes the first was loading a kernel module with (``KeyError`` in
-    ``Module.load``, 1 run in 4 with four threads)."""
+    tasks of a ``dask worker --nthreads N``) would each create a runtime, and the second would
+    clear the module hashes the first is loading a kernel module with (``KeyError`` in
+    ``Module.load``)."""
     global _initialized
     if not _initialized:
         with _init_lock:

@@ -236,8 +236,8 @@ class _Keys:
             raise InputError(f"{where}: key transforms have NaN or infinite entries")
         self.times = kt
         self.joint_count = m.shape[1]
-        # in blocks of keys: the SVD's temporaries for every key at once peaked at 3x the result
-        # (97 MB for 10,000 keys of 19 joints: a clip worker's memory grew with the key count)
+        # in blocks of keys: the SVD's temporaries for every key at once would be a multiple of
+        # the result, so a clip worker's memory would grow with the key count
         q = np.empty(m.shape[:2] + (4,))
         self.residual = np.empty(m.shape[:2] + (3, 3))
         for a in range(0, m.shape[0], _KEY_BLOCK):
@@ -369,7 +369,7 @@ class _Keys:
         key, where piecewise interpolants have a kink, the derivatives are the mean of both sides
         (what a renderer's shutter interval around the key sees): the mean of ``η̇`` and of the
         residual's ``Ṡ``, from which ``Ṁ`` follows linearly at the key's pose (a bake samples
-        at the keys: each side's matrices were computed before, for a third more time).
+        at the keys, so each side's matrices are not computed).
         """
         eta, eta_dot = self.dual_quaternions(t, interp, "right")
         s, s_dot = self.residual_at(t, "right")

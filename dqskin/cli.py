@@ -771,7 +771,7 @@ def _wants_workers(argv):
 def _run(argv):
     workers = _wants_workers(sys.argv[1:] if argv is None else argv)
     try:
-        if workers:  # first: the workers' forkserver imports beside dqskin's (~1.5 s a bake)
+        if workers:  # first: the workers' forkserver imports beside dqskin's (seconds of start-up)
             from .forkserver import prestart_workers
             try:
                 prestart_workers()

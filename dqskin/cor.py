@@ -327,10 +327,9 @@ def rotation_centers(points: npt.ArrayLike, faces: npt.ArrayLike, joint_indices:
         (default): exact up to :data:`AUTO_TERMS` similarity terms, else the :data:`CLUSTER`
         grid (1/256), logged at INFO level. The error scales with the grid step ``g`` and the
         weights' falloff width ``ℓ`` (1 / the steepest weight gradient: the distance over which
-        a weight would change by 1): a center moves by up to about ``g·ℓ`` (measured
-        0.5–0.6·g·ℓ on the tests' chain, ℓ = 1.5, and on the benchmark tube, ℓ = 4), a skinned
-        point by its center's error times ``|Σ wⱼ·Lⱼ − R|`` (less; ≤ 0.1·g·ℓ on both); sharp
-        falloffs barely move, smooth ones over a whole limb move the most.
+        a weight would change by 1): a center moves by up to about ``g·ℓ``, a skinned point by
+        its center's error times ``|Σ wⱼ·Lⱼ − R|`` (less); sharp falloffs barely move, smooth
+        ones over a whole limb move the most.
         ``tools/bench_cor.py --exact`` prints both errors.
     cache : bool
         Read and write the on-disk cache (:func:`dqskin.cache.cache_dir`).

@@ -5,7 +5,8 @@
 * :class:`InputError` (also a ``ValueError``, so ``except ValueError`` keeps working): a file,
   prim, field or argument that cannot be used; :class:`LimitError`: an input beyond a size or
   count limit (raise the limit, or ask for less); :class:`UnknownNameError` (also a
-  ``KeyError``, as a lookup by name raised before): a name the input lacks (a mesh of a scene).
+  ``KeyError``, as a failed lookup by name is in Python): a name the input lacks (a mesh of a
+  scene).
 * :class:`OutputExistsError` (also a ``FileExistsError``): an output refused because something
   is already there (``force=True`` replaces what dqskin made; never an input).
 * :class:`DqskinError` itself: what dqskin depends on failed, not the input (a Dask scheduler
@@ -99,7 +100,7 @@ class LimitError(InputError):
 class UnknownNameError(InputError, KeyError):
     """A name (a mesh of a scene) that the input does not hold; the message lists those it does.
 
-    Also a ``KeyError``: a lookup by name raised ``KeyError`` before these classes existed.
+    Also a ``KeyError``, as a failed lookup by name is in Python (``except KeyError`` catches it).
     """
 
 

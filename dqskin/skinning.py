@@ -329,7 +329,7 @@ class Skinner:
             if kind == "joints":
                 flags = wp.zeros(frames, dtype=wp.int32, device=self.device)
                 buf = K.joints(has_residual=flags, **buf)
-                # read back each call: on the CPU a NumPy view made once (~10 µs a view)
+                # read back each call: on the CPU a NumPy view made once (a view costs per call)
                 self._cache[("has_residual", frames, joints)] = (
                     flags.numpy() if self.device.is_cpu else flags)
             elif kind == "rates":
@@ -341,7 +341,7 @@ class Skinner:
         d = self.device
         xs = skinning_transforms
         if (type(xs) is np.ndarray and xs.dtype.kind == "f" and xs.ndim in (3, 4)
-                and xs.shape[-2:] == (4, 4)):  # the common case, checked in a few µs
+                and xs.shape[-2:] == (4, 4)):  # the common case, checked cheaply
             batched = xs.ndim == 4
             xs = xs if batched else xs[None]
         elif isinstance(xs, wp.array):

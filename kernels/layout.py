@@ -50,8 +50,8 @@ class InfluenceLayout:
 
 # A kernel reads the layout's arrays through these: Warp gives the top-level arrays of a 1-D
 # launch compile-time strides (``wp_linear_contiguous``) but not the arrays inside a struct, whose
-# every access then multiplies by a stride loaded at run time (one thread: normals and velocities
-# 1.4-1.7x slower, the scalar DQS kernels 1.2-1.5x). The layout's arrays are contiguous by
+# every access then multiplies by a stride loaded at run time (slower, most for the normal and
+# velocity kernels). The layout's arrays are contiguous by
 # construction (:class:`dqskin.influences.Influences`, ``blend`` and ``centers`` uploaded
 # whole), so their stride is the element size.
 _CONTIGUOUS = """

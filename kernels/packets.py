@@ -74,7 +74,7 @@ _DQS_SORTED = """
         }"""
 
 # the four joints first, the pivot's real part selected among them by ``slot`` (no loads of its
-# own: ~1.3x the pivot loaded lane by lane, one thread, 1M points)
+# own: faster than loading the pivot lane by lane)
 _DQS_SEARCHED = """
         V T[4][8], B[8], p[4];
         for (int k = 0; k < 4; ++k) LOAD(k, T[k]);

@@ -35,13 +35,13 @@ and hands them to the blends (:func:`gather`, :func:`dq_gather` and
 :func:`~.blend.affine_gather`, which the velocity kernels share): one thread per vertex of a
 single frame, or per (frame block, vertex), a block of frames read with the vertex's influences
 once (:func:`frame_rows`). A 1-D launch over 1-D arrays is what Warp compiles with constant
-strides and an inlined task loop on the CPU (2-D arrays cost 25-30% on one thread). The point
+strides and an inlined task loop on the CPU (2-D arrays are slower on one thread). The point
 kernels are specialized at compile time for the method, rigid frames, a
 single frame (a kernel of its own, with no frame-block code) and, for DQS, the sorted layout's
 sign rule (no running-sum or pivot-search code): code a launch does not run still slows it. On
 the CPU, LBS and DQS (sorted or searched pivot) of one group of four influences launch
 packet kernels instead: a thread skins eight vertices in the lanes of clang vectors
-(:mod:`.packets`; 2-3× the one-vertex kernels on one thread).
+(:mod:`.packets`; faster than the one-vertex kernels on one thread).
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
 """
 
@@ -488,7 +488,7 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
                       + ("the only frame." if single else "frame block ``t div V``, vertex "
                          "``t mod V``."))
     # one Warp module per method, forward-only as this one: a process builds, hashes and loads
-    # only the kernels of the methods it uses (an LBS bake's first skin call 65 → 36 ms)
+    # only the kernels of the methods it uses (a shorter first skin call)
     module = f"{__name__}.{label}"
     wp.set_module_options({"enable_backward": False}, module=module)
     return wp.kernel(kernel, name=name, module=module)

@@ -279,7 +279,7 @@ def velocities(*, method, points, point_velocities, influences, joints, rates, o
     """Velocities of ``points`` skinned with ``method`` into ``out`` (F, V); ``point_velocities``
     None: the rest points do not move. LBS then has ``ṗ' = Σ wᵢ·Ȧᵢ·[p, 1]``, the LBS of the
     points with the rates ``Ȧ`` as affines: :func:`~.skin.skin_points`' kernel (the packet kernel
-    on the CPU: 3-4x the velocity kernel there)."""
+    on the CPU: faster than the velocity kernel there)."""
     frames, verts = out.shape
     jn = joints
     if point_velocities is None:

@@ -123,7 +123,7 @@ def frame_plot_png(metrics: dict[str, Any]) -> bytes:
 
     t = np.asarray(metrics["frames"], dtype=np.float64)
     panels = list(METRIC_TITLES) + (["distance"] if metrics.get("lbs_dqs_distance") else [])
-    fig = Figure(figsize=(5.2 * len(panels), 3.6))  # fixed margins: a layout engine costs ~1 s
+    fig = Figure(figsize=(5.2 * len(panels), 3.6))  # fixed margins: a layout engine is slow
     fig.subplots_adjust(left=0.04, right=0.99, bottom=0.14, top=0.91, wspace=0.2)
     for ax, metric in zip(fig.subplots(1, len(panels), squeeze=False)[0], panels):
         if metric == "distance":

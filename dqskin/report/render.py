@@ -715,5 +715,5 @@ def save_png(path: str | os.PathLike, image: npt.ArrayLike) -> Path:
     img = _as_image("image", image)
     path = Path(path)
     with atomic_path(path) as tmp:
-        Image.fromarray(img).save(tmp, format="PNG", compress_level=3)  # ~1.5× faster than 6
+        Image.fromarray(img).save(tmp, format="PNG", compress_level=3)  # faster than the default 6
     return path
