@@ -1,6 +1,6 @@
 """The documentation builds without a broken link or reference, its CLI reference is the parser's,
-the Python examples of the README and the how-to guides run as written, and so do the README's
-``dqskin`` commands.
+the Python examples of the README, Getting started, the concept pages and the how-to guides run
+as written, and so do the README's ``dqskin`` commands.
 
 A ```python block that cannot run is marked in the Markdown by ``<!-- no-run: why -->`` on the
 line above it; :data:`MAX_NO_RUN` keeps them few.
@@ -16,7 +16,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
-PAGES = [ROOT / "README.md", *sorted((ROOT / "docs" / "guides").glob("*.md"))]
+PAGES = [ROOT / "README.md", ROOT / "docs" / "getting-started.md",
+         *sorted((ROOT / "docs" / "concepts").glob("*.md")),
+         *sorted((ROOT / "docs" / "guides").glob("*.md"))]
 MAX_NO_RUN = 2
 README_MAX_LINES = 300
 _BLOCK = re.compile(r"^(<!-- no-run: (?P<why>[^>]*?) -->\n)?```python\n(?P<code>.*?)^```",
@@ -120,9 +122,9 @@ def test_readme_commands_run(workdir, request):
     assert len(list((workdir / "out" / "cesium").glob("f_*.obj"))) == 3  # 0, 0.5 and 1 s
 
 
-@pytest.mark.parametrize("page", [p for p in PAGES if p.parent.name == "guides"],
-                         ids=lambda p: p.stem)
-def test_guide_examples_run(page, workdir, request):
+@pytest.mark.parametrize("page", [p for p in PAGES if p.name != "README.md"
+                                  and python_blocks(p.read_text())], ids=lambda p: p.stem)
+def test_page_examples_run(page, workdir, request):
     run_page(page, workdir, request)
 
 
