@@ -50,7 +50,7 @@ def per_second(rate: float, *derivatives: npt.ArrayLike | None) -> tuple[np.ndar
 
 def moved_velocities(v: npt.ArrayLike, out: np.ndarray, out_rate: np.ndarray | None, rate: float,
                      skinned_points: Callable[[], np.ndarray]) -> np.ndarray:
-    """(F, V, 3) float32 velocities per second in a moving output space: ``O·v + rate·(Ȯ·p +
+    """(F, V, 3) float32 velocities per second in a moving target space: ``O·v + rate·(Ȯ·p +
     ȯ)`` for per-second ``v`` (F, V, 3) in skeleton space, output transforms ``out`` (F, 4, 4),
     their derivatives per unit of time ``out_rate`` and ``skinned_points()`` (called only when
     the output transform moves) the skinned points ``p`` in skeleton space."""

@@ -3,7 +3,7 @@
 Loaders (:mod:`dqskin.readers.usd`, :mod:`dqskin.readers.gltf`) fill these containers;
 :meth:`Scene.skin` runs the same engine (:mod:`dqskin.pipeline`) for every format: animation →
 local transforms → forward kinematics (dual quaternions) → skinning transforms
-→ per-vertex skinning → output space.
+→ per-vertex skinning → the space asked for (:mod:`dqskin.spaces`).
 """
 
 from collections.abc import Iterator
