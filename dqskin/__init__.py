@@ -20,7 +20,7 @@ _EXPORTS = {
     "autoweights": None, "rigging": None, "errors": None, "DqskinError": "errors",
     "InputError": "errors", "Interrupted": "errors", "LimitError": "errors",
     "OutputExistsError": "errors", "UnknownNameError": "errors",
-    "SkinOptions": "options", "CorOptions": "options",
+    "SkinOptions": "options", "CorOptions": "options", "BakeSettings": "baking",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -262,6 +262,10 @@ def _bake_usd(job: _Job) -> str:
         raise InputError(Param("out", out), ": a USD point cache copies the input stage, so "
                          "it needs a USD input; for glTF write .npz or per-frame "
                          ".obj/.ply/.glb files")
+    if opts.space != "local":  # its points sit under the source's prims and their transforms
+        raise InputError(Param("space", opts.space), ": a USD point cache holds each prim's "
+                         "local points (space='local'); write .npz or per-frame files for "
+                         "other spaces")
     # a USD cache holds each time once (np.unique would import numpy.ma)
     counts = job.counts(int(np.count_nonzero(np.diff(np.sort(t)))) + 1)
     method = opts.method or "asset method"

@@ -378,8 +378,10 @@ class Crowd:
         method : {"dqs", "lbs", "blend"}, optional
             Shorthand for ``options.method``; a crowd skins "dqs" when neither gives one.
         options : dqskin.SkinOptions, optional
-            ``method``, ``interp``, ``sign_reference`` ("largest_weight" only) apply; a crowd
-            skins points, in crowd space.
+            ``method``, ``interp`` and ``sign_reference`` ("largest_weight" only) apply; a
+            crowd skins points only (InputError naming normals, tangents, velocities or another
+            sign rule when asked). ``space`` does not apply: the points are in crowd space
+            (each instance's skeleton space through its root transform).
         as_warp : bool
             Return the device array (F, V) ``wp.vec3`` without a copy.
         **changes
@@ -393,10 +395,16 @@ class Crowd:
         opts = SkinOptions.build(options, **changes)
         meth: Method = method or opts.method or "dqs"
         opts = opts.replace(method=meth)
-        if opts.sign_reference != "largest_weight" or opts.normals or opts.tangents \
-                or opts.velocities:
-            raise InputError("a crowd skins points with the largest-weight sign rule; got ",
-                             Param("options", opts))
+        refused = [Param(k, getattr(opts, k)) for k in ("normals", "tangents", "velocities")
+                   if getattr(opts, k)]
+        if opts.sign_reference != "largest_weight":
+            refused.append(Param("sign_reference", opts.sign_reference))
+        if refused:
+            parts: list[str | Param] = ["a crowd skins points only, in crowd space, with the "
+                                        "largest-weight sign rule; not "]
+            for i, p in enumerate(refused):
+                parts += [", " if i else "", p]
+            raise InputError(*parts)
         self._check_method(meth)
         batch = self._build()  # one set of instances for the transforms and the skinning
         return skin_batch(batch.meshes, self._skinning_transforms(batch, times, opts.interp),

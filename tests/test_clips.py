@@ -420,7 +420,7 @@ def test_resume_over_other_settings_says_what_differs(tmp_path):
     out = tmp_path / "shot.usd"
     bake(scene, out, scene.times[:8], chunk=4, clips=True, method="lbs", normals=False)
     out.unlink()  # unfinished, as after an interrupt
-    with pytest.raises(ValueError, match=r"in chunks of 4 frames \(now 3\), with method 'lbs' "
+    with pytest.raises(ValueError, match=r"in clips of 4 frames \(now 3\), with method 'lbs' "
                                          r"\(now 'dqs'\), with normals False \(now True\)"):
         bake(scene, out, scene.times[:8], chunk=3, clips=True, method="dqs", resume=True)
     with pytest.raises(ValueError, match=r"of 8 frames from 0 to 7 \(now 6 from 0 to 5"):
@@ -631,7 +631,7 @@ def test_resume_keeps_verified_chunks_and_redoes_missing_or_corrupt(humanoid, tm
     time.sleep(0.01)
     with pytest.raises(FileExistsError, match="resume=True"):
         bake(scene, shot, chunk=CHUNK, clips=True)
-    with pytest.raises(ValueError, match=rf"in chunks of {CHUNK} frames \(now {CHUNK + 1}\)"):
+    with pytest.raises(ValueError, match=rf"in clips of {CHUNK} frames \(now {CHUNK + 1}\)"):
         bake(scene, shot, chunk=CHUNK + 1, resume=True)
     summary = bake(scene, shot, chunk=CHUNK, resume=True)
     assert "5 kept from the earlier run" in summary

@@ -362,6 +362,19 @@ def test_command_line(tmp_path, capsys, device):
         bad.run(bad)
 
 
+def test_progress_bar_only_on_a_terminal(tmp_path, capsys, monkeypatch, device):
+    """Without --quiet, the bar is drawn on a terminal and nowhere else (a log gets none)."""
+    import sys
+    args = ["compare", str(TWIST), "--frames", "0:24:12", "--views", "front", "--methods",
+            "lbs", "--width", "16", "--supersample", "1", "--no-sweeps", "--device", device]
+    for tty, out in ((False, "a"), (True, "b")):
+        monkeypatch.setattr(sys.stderr, "isatty", lambda tty=tty: tty)
+        parsed = build_parser().parse_args([*args, "--out", str(tmp_path / out)])
+        assert parsed.run(parsed) == 0
+        err = capsys.readouterr().err
+        assert ("compare" in err) is tty, err
+
+
 def test_cameras_use_the_skeleton_spaces_up_axis(shared_assets):
     """usd-wg's CesiumMan keeps its skeleton under a Z_UP group (−90° about x) on a Y-up stage,
     so its skeleton space is Z-up; the glTF's skeleton space is the Y-up world."""

@@ -192,6 +192,21 @@ def test_crowd_refuses_what_it_cannot_skin():
     scene = dqskin.load(ARM)
     crowd = dqskin.Crowd()
     crowd.add(scene)
-    for bad in (dict(normals=True), dict(sign_reference="running_sum"), dict(method="cor")):
-        with pytest.raises(ValueError):
+    for bad, named in ((dict(normals=True), "normals=True"),
+                       (dict(sign_reference="running_sum"), "sign_reference='running_sum'"),
+                       (dict(tangents=True, velocities=True), "tangents=True, velocities=True"),
+                       (dict(method="cor"), "'cor'")):
+        with pytest.raises(InputError, match=named):
             crowd.skin(scene.times[:2], **bad)
+
+
+@pytest.mark.parametrize("space", ["world", "skeleton"])
+def test_a_usd_cache_holds_local_points_only(tmp_path, space):
+    """A USD cache's points sit under the source's prims, whose transforms still apply: any
+    other space would be moved twice, so it is refused before anything is written."""
+    with pytest.raises(InputError, match=f"space='{space}'"):
+        dqskin.bake(ARM, tmp_path / "a.usda", space=space)
+    assert list(tmp_path.iterdir()) == []
+    npz = tmp_path / "a.npz"
+    dqskin.bake(ARM, npz, space=space)  # other outputs take any space
+    assert npz.is_file()

@@ -497,7 +497,8 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None,
     render : RenderSettings, optional
         Views, image size, anti-aliasing, the ray limit and the cameras' up axis.
     progress : bool
-        One tqdm progress bar on stderr for the whole comparison.
+        One tqdm progress bar on stderr for the whole comparison (only when stderr is a
+        terminal).
     sweeps_dir : str, Path or None
         Folder of the procedural rigs for the angle sweeps (:func:`sweeps`); ``"default"`` is
         the repository's ``assets/`` folder, None leaves the sweeps out. A missing folder or rig
@@ -607,7 +608,7 @@ class _Report(NamedTuple):
 def _progress_bar(enabled):
     """One tqdm bar on stderr for the whole comparison, loading included (its ``total`` is set
     once the frames are known); a do-nothing context when disabled."""
-    if not enabled:
+    if not (enabled and sys.stderr.isatty()):  # a log gets no bar
         return nullcontext(_NoBar())
     from tqdm import tqdm
 

@@ -530,7 +530,7 @@ class ClipBake:
                         f"{old.get('last'):g} (now {new['frames']} from {new['first']:g} to "
                         f"{new['last']:g}: other times selected)")
         if old.get("chunk") != new["chunk"]:
-            said.append(f"in chunks of {old.get('chunk')} frames (now {new['chunk']})")
+            said.append(f"in clips of {old.get('chunk')} frames (now {new['chunk']})")
         opts, was = new["options"], old.get("options") or {}
         said += [f"with {k} {was.get(k)!r} (now {opts.get(k)!r})"
                  for k in sorted(set(opts) | set(was)) if opts.get(k) != was.get(k)]
