@@ -502,7 +502,8 @@ def build_parser():
                    "centers of rotation (precomputed per mesh, cached in ~/.cache/dqskin)")
     s.add_argument("--cor-exact", action="store_true",
                    help="cor: exact centers even on meshes so large that the default clusters "
-                   "their weights on a 1/256 grid (slower; see the documentation's Concepts: Methods page)")
+                   "their weights on a 1/256 grid (slower; see the documentation's Concepts: "
+                   "Methods page)")
     _add_sign_reference(s)
     s.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
                    "asset's time unit (USD time codes, glTF seconds)")
