@@ -416,8 +416,7 @@ def cmd_compare(args):
 
 
 def _add_sign_reference(parser):
-    from .options import SkinOptions
-    from .skinning import SIGN_REFERENCES
+    from .options import SIGN_REFERENCES, SkinOptions
     parser.add_argument("--sign-reference", choices=SIGN_REFERENCES,
                         default=SkinOptions.sign_reference,
                         help="DQS sign rule: largest_weight = UsdSkel's (default), running_sum = "
@@ -425,16 +424,16 @@ def _add_sign_reference(parser):
 
 
 def _add_compare_arguments(parser):
+    from .options import METHOD_NAMES
     from .report.compare import MAX_RAYS
     from .report.render import VIEWS
     from .report.viewer import VIEWER_FRAMES
-    from .skinning import METHODS
     from .times import MAX_FRAMES
     parser.add_argument("input", help="character file (.usd/.usda/.usdc/.usdz, .gltf/.glb)")
     parser.add_argument("--out", required=True, help="output folder: report.html, metrics.json, "
                         "frames/*.png")
     parser.add_argument("--methods", default="lbs,dqs",
-                        help=f"comma-separated from {', '.join(METHODS)} (default: lbs,dqs)")
+                        help=f"comma-separated from {', '.join(METHOD_NAMES)} (default: lbs,dqs)")
     parser.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
                         "asset's time unit; default: up to 10 evenly spaced samples")
     parser.add_argument("--views", default=",".join(VIEWS),
@@ -480,9 +479,7 @@ def _add_rigging_arguments(parser):
 def build_parser():
     import argparse
 
-    from .animation import INTERPOLATIONS
-    from .options import SkinOptions
-    from .skinning import METHODS
+    from .options import INTERPOLATIONS, METHOD_NAMES, SkinOptions
     from .times import MAX_FRAMES
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
@@ -497,7 +494,7 @@ def build_parser():
     s.add_argument("--out", required=True, help=".usd/.usda/.usdc cache, .npz, or a per-frame "
                    "pattern like out/frame_{:04d}.obj (.obj/.ply/.glb with normals and UVs, "
                    ".stl/.off geometry only; a name without {} for one frame only)")
-    s.add_argument("--method", choices=list(METHODS), default=None,
+    s.add_argument("--method", choices=list(METHOD_NAMES), default=None,
                    help="default: what the asset asks for (LBS for glTF); cor = optimized "
                    "centers of rotation (precomputed per mesh, cached in ~/.cache/dqskin)")
     s.add_argument("--cor-exact", action="store_true",

@@ -24,13 +24,13 @@ import numpy.typing as npt
 import warp as wp
 
 from ._warp import Device, resolve_device
-from .animation import Interpolation, check_times
+from .animation import check_times
 from .errors import InputError, Param
 from .influences import Influences
 from .kernels import buffers as KB
 from .kernels import fk as FK
-from .options import SkinOptions
-from .skinning import Method, Skinner
+from .options import Interpolation, Method, SkinOptions
+from .skinning import Skinner
 from .validation import check_transforms
 
 __all__ = ["BATCH_METHODS", "Crowd", "JointBatch", "MeshBatch", "skin_batch"]

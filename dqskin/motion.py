@@ -28,13 +28,14 @@ import numpy.typing as npt
 
 from . import dq
 from ._warp import Device
-from .animation import Animation, Interpolation, _motion, check_times, sample_with_derivative
+from .animation import Animation, _motion, check_times, sample_with_derivative
 from .errors import InputError
 from .influences import check_influences
 from .linalg import vee
+from .options import Interpolation, Method, SignReference
 from .shapes import as_real, frames_of
 from .skeleton import Skeleton, check_parents
-from .skinning import Method, SignReference, Skinner
+from .skinning import Skinner
 
 __all__ = ["forward_kinematics_derivative", "joint_twists", "moved_velocities", "per_second",
            "skinned_velocities", "skinning_transforms_with_derivative"]

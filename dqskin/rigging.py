@@ -25,10 +25,10 @@ from ._warp import Device
 from .autoweights import automatic_weights
 from .errors import InputError, Param
 from .influences import check_influences
+from .options import Method
 from .readers import bvh
 from .readers.mesh import load_mesh
 from .scene import Mesh, Scene
-from .skinning import Method
 
 __all__ = ["WEIGHT_FIELDS", "check_fit", "read_weights", "replace_weights", "rig_mesh",
            "skinned_difference"]

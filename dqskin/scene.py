@@ -14,13 +14,13 @@ import numpy as np
 import numpy.typing as npt
 
 from ._warp import Device, resolve_device
-from .animation import Deformer, Interpolation, TransformTrack, check_times, sample
+from .animation import Deformer, TransformTrack, check_times, sample
 from .errors import InputError, Param, UnknownNameError
 from .kernels import buffers as KB
-from .options import CorOptions, SkinOptions
+from .options import CorOptions, Interpolation, Method, SkinOptions
 from .pipeline import SkinnedFrames, skin_scene
 from .skeleton import Skeleton
-from .skinning import Method, Skinner
+from .skinning import Skinner
 from .validation import check_transforms
 
 __all__ = ["DEFAULT_BLEND", "Mesh", "Scene", "SkinnedFrames"]
@@ -196,7 +196,7 @@ class Scene:
                          interp: Interpolation = SkinOptions.interp) -> np.ndarray:
         """(F, J, 4, 4) float64 local joint transforms of one skeleton at ``times``.
 
-        ``interp`` is :data:`dqskin.animation.INTERPOLATIONS`: "trs" is the asset's own sampler
+        ``interp`` is :data:`dqskin.options.INTERPOLATIONS`: "trs" is the asset's own sampler
         (what glTF and USD players show); the others interpolate the keys with dual quaternions.
         ValueError naming the skeleton, time and joint when a transform is NaN, infinite or
         beyond float32 range.

@@ -15,7 +15,7 @@ import numpy.typing as npt
 import warp as wp
 
 from ._warp import Device, resolve_device
-from .cor import SIGMA, check_faces, rotation_centers
+from .cor import check_faces, rotation_centers
 from .errors import InputError
 from .influences import Influences
 from .kernels import buffers as KB
@@ -23,26 +23,14 @@ from .kernels import grid as KG
 from .kernels import skin as K
 from .kernels import velocity as KV
 from .kernels.dqmath import mat34, vec8
+from .options import METHOD_NAMES, SIGMA, SIGN_REFERENCES, Method, SignReference
 from .shapes import as_array, frames_of
 from .validation import check_finite, check_transforms, within_float32
 
-__all__ = ["METHODS", "Method", "SIGN_REFERENCES", "SignReference", "Skinner", "VectorKind",
-           "skin_points", "skin_normals"]
+__all__ = ["METHODS", "Skinner", "VectorKind", "skin_points", "skin_normals"]
 
-Method = Literal["lbs", "dqs", "blend", "cor"]
-"""Skinning methods: linear blend, dual quaternion, per-vertex blend of the two, optimized centers
-of rotation (:mod:`dqskin.cor`; needs the mesh's faces)."""
-
-METHODS = dict(zip(get_args(Method), (K.LBS, K.DQS, K.BLEND, K.COR)))
-"""Each :data:`Method` and its kernel code."""
-
-SignReference = Literal["largest_weight", "running_sum"]
-"""How DQS (and the rotation blends of "blend" and "cor") pick each joint quaternion's sign:
-against the vertex's largest-weight joint (UsdSkel; first on ties), or against the running sum of
-the blend so far, influences in their input order, a zero sum flipping nothing (Blender's
-Preserve Volume)."""
-
-SIGN_REFERENCES = get_args(SignReference)
+METHODS: dict[Method, int] = dict(zip(METHOD_NAMES, (K.LBS, K.DQS, K.BLEND, K.COR)))
+"""Each :data:`~dqskin.options.Method` and its kernel code."""
 
 VectorKind = Literal["normal", "tangent"]
 """How directions transform: normals by the inverse transpose, tangents by the matrix."""

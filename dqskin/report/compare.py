@@ -45,10 +45,9 @@ from .. import metrics as M
 from ..errors import InputError, LimitError, Param, output_exists
 from ..files.atomic import atomic_path
 from ..metrics import METRICS, worst
-from ..options import SkinOptions, split_changes
+from ..options import METHOD_NAMES, SkinOptions, split_changes
 from ..readers import load
 from ..scene import DEFAULT_BLEND, Scene
-from ..skinning import METHODS
 from ..times import default_frames
 from .html import build_html, method_label
 from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
@@ -521,7 +520,7 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None,
                                                  RenderSettings)
     options = SkinOptions.build(options, **skin_changes)
     render = replace(RenderSettings() if render is None else render, **render_changes)
-    methods = _choice_list("methods", methods, tuple(METHODS))
+    methods = _choice_list("methods", methods, METHOD_NAMES)
     render = replace(render, views=_choice_list("views", render.views, VIEWS))
     width, supersample = render.width, render.supersample
     for name, v, low in (("width", width, 16), ("supersample", supersample, 1),
