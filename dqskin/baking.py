@@ -14,7 +14,7 @@ import dataclasses
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -285,9 +285,9 @@ def _bake_usd_layer(job: _Job) -> bool:
     scene, out, t, opts, s = job
     src = scene.path
     check_output(out, job.sources, s.force)
-    clip_bake = None  # SHOT.clips/ beside SHOT.usd: locked, and replaced with --force
-    if usd_cache.clips_folder(out).is_dir():
-        from .writers import usd_clips as clip_bake
+    from .writers import usd_clips
+    clips = usd_cache.clips_folder(out).is_dir()  # SHOT.clips/ beside SHOT.usd: locked, and
+    # replaced with force
     wrote_velocities = False
 
     def check(res):
@@ -296,8 +296,8 @@ def _bake_usd_layer(job: _Job) -> bool:
         wrote_velocities |= bool(res.velocities)
 
     size = s.chunk or usd_cache.chunk_frames(scene, opts)
-    with clip_bake.bake_lock(out) if clip_bake else contextlib.nullcontext():
-        replaces = clip_bake is not None and clip_bake.holds_clip_bake(out)
+    with usd_clips.bake_lock(out) if clips else contextlib.nullcontext():
+        replaces = clips and usd_clips.holds_clip_bake(out)
         with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force) as writer:
             if replaces and not s.force:  # (an unfinished one: out itself does not exist)
                 raise OutputExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
@@ -305,11 +305,11 @@ def _bake_usd_layer(job: _Job) -> bool:
                                         Param("resume", True), ", or replace it with a "
                                         "single layer with ", Param("force", True))
             if replaces:  # its files are removed below
-                clip_bake.check_outside(out, clip_bake.input_files(
+                usd_clips.check_outside(out, usd_clips.input_files(
                     writer.cache.stage, src, s.inputs), src)
             writer.write_chunks((res for _, res in job.chunks(size, opts)), check, checked=True)
         if replaces:
-            clip_bake.remove_clip_bake(out)  # nothing reads it now
+            usd_clips.remove_clip_bake(out)  # nothing reads it now
     return wrote_velocities
 
 
@@ -356,7 +356,7 @@ def _bake_frames(job: _Job) -> str:
 def _usd_uv_interpolation(path):
     """``mesh name → interpolation of its primvars:st`` from the USD stage at ``path``, opened
     on first use (only asked when UV counts leave the mapping ambiguous)."""
-    stage = []
+    stage: list[Any] = []
 
     def lookup(name):
         from pxr import Usd, UsdGeom

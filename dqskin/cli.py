@@ -43,7 +43,7 @@ __all__ = ["EXIT_INPUT", "EXIT_INTERNAL", "Interrupted", "build_parser", "flag",
 EXIT_INPUT = 2
 EXIT_INTERNAL = 70  # os.EX_SOFTWARE: a bug in dqskin
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
-_signalled = []  # the signal numbers received while main runs (only the first one acts)
+_signalled: list[int] = []  # the signal numbers received while main runs (only the first one acts)
 _own_process = False  # while main runs as the process's entry point (not from Python)
 
 
@@ -107,7 +107,6 @@ def _quiet_libraries(verbose):
         warnings.simplefilter("ignore")
         logging.disable(logging.CRITICAL)
     import warp as wp
-    wp.config.quiet = not verbose
     if not verbose:
         wp.config.log_level = wp.LOG_ERROR
     _init_warp(verbose)
@@ -324,7 +323,7 @@ def cmd_info(args):
         anim = scene.animations[si]
         print(f"  skeleton {si} {skel.name!r}: {skel.joint_count} joints, "
               f"{'animated' if anim is not None else 'rest pose only'}")
-        children = {j: [] for j in range(-1, skel.joint_count)}
+        children: dict[int, list[int]] = {j: [] for j in range(-1, skel.joint_count)}
         for j, p in enumerate(skel.parents):
             children[int(p)].append(j)
 
@@ -604,6 +603,8 @@ def _exit(code):
     atexit._run_exitfuncs()  # logging, weakref finalizers (temporary folders), ...
     failed, message = False, None
     for stream in (sys.stdout, sys.__stdout__, sys.stderr, sys.__stderr__):
+        if stream is None:  # (no console: pythonw)
+            continue
         try:
             stream.flush()
         except BrokenPipeError:  # the reader went away: nobody to tell
@@ -830,7 +831,7 @@ def _run_command(argv):
             where = " -> ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
             msg = f"{where}: {exc.strerror}" if where else exc.strerror
         elif exc.errno is not None:  # a system error reworded to name its file (files.atomic)
-            msg = exc
+            msg = str(exc)
         else:  # an OSError that did not come from the system: a bug
             raise
         print(f"dqskin: error: {msg}", file=sys.stderr)

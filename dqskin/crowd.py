@@ -17,7 +17,7 @@ characters) with the same batches; it and a :class:`Crowd` skin them with :func:
 """
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -32,6 +32,10 @@ from .kernels import fk as FK
 from .options import Interpolation, Method, SkinOptions
 from .skinning import Skinner
 from .validation import check_transforms
+
+if TYPE_CHECKING:
+    from .scene import Mesh, Scene
+    from .skeleton import Skeleton
 
 __all__ = ["BATCH_METHODS", "Crowd", "JointBatch", "MeshBatch", "skin_batch"]
 
@@ -68,9 +72,10 @@ class JointBatch:
         starts = [sl.start for sl in self.joints] + [self.joint_count]
         inverse_bind = np.concatenate([s.inverse_bind_transforms for s in self.skeletons])
         d = self.device
-        self._parents = wp.array(parents.astype(np.int32), dtype=wp.int32, device=d)
-        self._starts = wp.array(np.asarray(starts, np.int32), dtype=wp.int32, device=d)
-        self._inverse_bind = wp.array(inverse_bind.astype(np.float32), dtype=wp.mat44, device=d)
+        self._parents: wp.array = wp.array(parents.astype(np.int32), dtype=wp.int32, device=d)
+        self._starts: wp.array = wp.array(np.asarray(starts, np.int32), dtype=wp.int32, device=d)
+        self._inverse_bind: wp.array = wp.array(inverse_bind.astype(np.float32), dtype=wp.mat44,
+                                                device=d)
 
     def skinning_transforms(self, local_transforms) -> wp.array:
         """(F, ΣJ) ``wp.mat44`` bind-relative transforms on the device, from each skeleton's
@@ -210,7 +215,7 @@ class Instance:
     """One placed character of a :class:`Crowd`."""
 
     name: str
-    character: object
+    character: "Scene"
     """A :class:`dqskin.Scene` (meshes, skeletons and their animations)."""
     time_offset: float
     """The instance shows its animation at ``t - time_offset`` (a USD layer offset)."""
@@ -245,7 +250,7 @@ class Crowd:
     def __init__(self, device: Device = None) -> None:
         self.device = resolve_device(device)
         self.instances: list[Instance] = []
-        self._batch = None  # _Batch of the instances, built on first use after a change
+        self._batch: _Batch | None = None  # of the instances, built on first use after a change
         self._version = 0  # add() count: a batch built from an older list is not kept
 
     def add(self, character, *, time_offset: float = 0.0,
@@ -280,7 +285,11 @@ class Crowd:
         instances = self.instances
         if not instances:
             raise InputError("crowd: no instances (add some first)")
-        skeletons, meshes, offsets, counts, names = [], [], [], [], []
+        skeletons: "list[Skeleton]" = []
+        meshes: "list[Mesh]" = []
+        offsets: list[int] = []
+        counts: list[int] = []
+        names: list[str] = []
         for inst in instances:
             first = len(skeletons)
             skeletons.extend(inst.character.skeletons)
@@ -325,7 +334,7 @@ class Crowd:
     def _local_transforms(times, instances, interp):
         t = check_times(times)
         F = t.shape[0]
-        groups = {}
+        groups: dict[tuple[int, int], list[int]] = {}
         for k, inst in enumerate(instances):
             for s in range(len(inst.character.skeletons)):
                 groups.setdefault((id(inst.character), s), []).append(k)

@@ -38,6 +38,7 @@ from .errors import DqskinError, InputError, Param
 from .files import atomic
 from .kernels import buffers as KB
 from .options import SkinOptions
+from .scene import Scene
 from .validation import check_skinned
 from .writers import usd_clips
 from .writers.usd_cache import SampleWriter, chunk_frames
@@ -45,7 +46,8 @@ from .writers.usd_cache import SampleWriter, chunk_frames
 __all__ = ["ClipJob", "bake_clips", "run_clip", "run_here", "worker_threads"]
 
 
-_scenes = {}  # this worker process's loaded asset: {(path, mtime, size): Scene}
+# this worker process's loaded asset: {(path, mtime, size): Scene}
+_scenes: dict[tuple[str, int, int], Scene] = {}
 _buffers = KB.BufferPool()  # this process's chunks of frames, reused from task to task (run_clip)
 
 
@@ -109,7 +111,6 @@ def _worker_plugin(own_cluster: bool):
         def setup(self, worker):
             import warp as wp
             from pxr import Work
-            wp.config.quiet = True
             wp.config.log_level = wp.LOG_ERROR
             state = getattr(worker, "state", worker)
             budget = worker_threads(getattr(state, "nthreads", 1))
@@ -247,7 +248,7 @@ def _commit_on_error(job, claim, digest, start):
     try:
         atomic.check_interrupted()
     except BaseException as exc:
-        recorded = exc
+        recorded: BaseException | None = exc
     else:
         recorded = None
     with atomic.critical():  # a recorded interrupt is raised at the end of this block

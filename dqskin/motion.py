@@ -21,7 +21,7 @@ References: [K] and [MS] as in :mod:`dqskin.animation`.
 """
 
 from collections.abc import Callable
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -250,5 +250,6 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
     sk = Skinner(rest, idx, wts, geom_bind_transform=geom_bind_transform,
                  blend_weights=blend_weights, faces=faces, device=device)
     per_frame = pts.shape[0] > 1 or rest_points is not None
-    return sk.skin_velocities(x, x_dot, method, points=pts if per_frame else None,
-                              point_velocities=point_velocities, sign_reference=sign_reference)
+    return cast(np.ndarray, sk.skin_velocities(
+        x, x_dot, method, points=pts if per_frame else None, point_velocities=point_velocities,
+        sign_reference=sign_reference))

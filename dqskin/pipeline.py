@@ -17,6 +17,7 @@ skin through :func:`dqskin.crowd.skin_batch`, the rigidly bound USD prims throug
 """
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,9 +26,12 @@ from .animation import check_times
 from .crowd import BATCH_METHODS, JointBatch, MeshBatch, skin_batch
 from .errors import InputError
 from .motion import moved_velocities, per_second, skinning_transforms_with_derivative
-from .options import SkinOptions
+from .options import Method, SkinOptions
 from .skinning import skin_points
 from .spaces import space_track
+
+if TYPE_CHECKING:
+    from .scene import Mesh
 
 __all__ = ["SkinnedFrames", "one_launch", "rigid_transforms", "skin_scene"]
 
@@ -121,7 +125,7 @@ class _Poses:
         scene, options = self.scene, self.options
         if not self.batched:
             return [_One(self, m) for m in scene.meshes]
-        groups = {}
+        groups: "dict[Method, list[Mesh]]" = {}
         for m in scene.meshes:
             groups.setdefault(options.method_of(m), []).append(m)
         return [_Many(self, meth, meshes) for meth, meshes in groups.items()]
@@ -253,7 +257,9 @@ class _Many:
         for i, m in enumerate(meshes):
             v = v_all[:, batch.vertices[i]]
             if i in outs:
-                v = moved_velocities(v, *outs[i], tcps, lambda i=i: skel[:, batch.vertices[i]])
+                out, out_rate = outs[i]
+                columns = batch.vertices[i]
+                v = moved_velocities(v, out, out_rate, tcps, lambda: skel[:, columns])
             result.velocities[m.name] = v
 
 

@@ -63,7 +63,7 @@ def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_cou
         raise InputError(f"{p}: cannot read weights: {exc}") from None
     except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
         # missing, empty, truncated or damaged archive
-        raise InputError(f"{p}: cannot read weights: {exc or type(exc).__name__}") from None
+        raise InputError(f"{p}: cannot read weights: {str(exc) or type(exc).__name__}") from None
     names = [str(n) for n in np.ravel(names)]
     try:
         idx, wts = check_influences(idx, wts, vertex_count, len(names))

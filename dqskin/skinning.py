@@ -8,7 +8,7 @@ bind (skeleton) space before skinning. Results are float32 in skeleton space. Sa
 """
 
 import threading
-from typing import Literal, get_args
+from typing import Any, Literal, cast, get_args
 
 import numpy as np
 import numpy.typing as npt
@@ -62,7 +62,7 @@ def _transforms(name, skinning_transforms):
     raise InputError(f"{name}: expected (J, 4, 4) or (F, J, 4, 4), got {x.shape}")
 
 
-_empties = {}
+_empties: dict[tuple[Any, str], wp.array] = {}
 
 
 def _empty(dtype, device):
@@ -171,7 +171,7 @@ class Skinner:
                                             (4, 4)).reshape(1, 4, 4))[0]
         self.geom_bind_transform = g
         self._identity_bind = np.array_equal(g, np.eye(4))
-        self._cache = {}
+        self._cache: dict[Any, Any] = {}
         self._lock = threading.Lock()
         d = self.device
         self._points = self._upload(pts[None])
@@ -179,7 +179,7 @@ class Skinner:
         self.faces = None if faces is None else check_faces(faces, self.vertex_count)
         self.cor_sigma, self.cor_subdivide = float(cor_sigma), cor_subdivide
         self.cor_cluster = cor_cluster
-        self._centers = None
+        self._centers: tuple[np.ndarray, wp.array] | None = None
         if blend_weights is None:
             self._blend = _empty(wp.float32, d)
         else:
@@ -191,7 +191,8 @@ class Skinner:
         # the default: UsdSkel's rule (built now, so that a one-shot call's upload aliases)
         self._inf = self.influences.layout(d, self._layout_order, blend=self._blend,
                                            centers=self._no_centers, copy=self._copy_uploads)
-        self._layouts = {}  # (COR, running sum) → the kernels' InfluenceLayout
+        # (COR, running sum) → the kernels' InfluenceLayout
+        self._layouts: dict[tuple[bool, bool], K.InfluenceLayout] = {}
 
     def rotation_centers(self) -> np.ndarray:
         """(V, 3) float64 centers of rotation of ``method="cor"`` in bind space, NaN for vertices
@@ -223,6 +224,7 @@ class Skinner:
             centers = self._no_centers
             if code == K.COR:
                 self.rotation_centers()
+                assert self._centers is not None
                 centers = self._centers[1]
             layout = self._layouts[key] = self.influences.layout(
                 self.device, "input" if running else self._layout_order, blend=self._blend,
@@ -403,7 +405,7 @@ class Skinner:
             xf = np.zeros((frames, 4, 4))
             xf[:, :3, :3] = lin
             xf[:, 3, 3] = 1.0
-        xforms = wp.array(xf.astype(np.float32), dtype=wp.mat44, device=self.device)
+        xforms: wp.array = wp.array(xf.astype(np.float32), dtype=wp.mat44, device=self.device)
         K.transform_frames(xforms=xforms, normalize=normals, values=out, device=self.device)
 
     @staticmethod
@@ -522,7 +524,7 @@ class Skinner:
                 if n != self.vertex_count:
                     raise InputError(f"vectors: {n} vectors for {self.vertex_count} points; pass "
                                      "vector_vertex for face-varying data")
-                vv = np.arange(n, dtype=np.int32)
+                vv: np.ndarray = np.arange(n, dtype=np.int32)
             else:
                 vv = np.asarray(vector_vertex, dtype=np.int64).reshape(-1)
                 if vv.shape != (n,) or (n and (vv.min() < 0 or vv.max() >= self.vertex_count)):
@@ -534,7 +536,7 @@ class Skinner:
             except np.linalg.LinAlgError:
                 raise InputError("geom_bind_transform: singular, normals cannot follow") from None
             d = self.device
-            src = wp.array((vec @ gm.T).astype(np.float32), dtype=wp.vec3, device=d)
+            src: wp.array = wp.array((vec @ gm.T).astype(np.float32), dtype=wp.vec3, device=d)
             if kind == "normal":
                 lin, rot, res = (prep["normal_linears"], prep["normal_rotations"],
                                  prep["normal_residuals"])
@@ -631,7 +633,7 @@ def skin_points(points: npt.ArrayLike, joint_indices: npt.ArrayLike, joint_weigh
                   blend_weights=blend_weights, faces=faces, device=device,
                   unchecked=_kernel_checkable(points, joint_indices, joint_weights, method,
                                               sign_reference, geom_bind_transform, device))
-    return sk.skin(skinning_transforms, method, sign_reference=sign_reference)
+    return cast(np.ndarray, sk.skin(skinning_transforms, method, sign_reference=sign_reference))
 
 
 def _kernel_checkable(points, joint_indices, joint_weights, method, sign_reference,
@@ -681,8 +683,9 @@ def skin_normals(normals: npt.ArrayLike, joint_indices: npt.ArrayLike,
     sk = Skinner(np.zeros((idx.shape[0], 3)), joint_indices, joint_weights,
                  geom_bind_transform=geom_bind_transform, blend_weights=blend_weights,
                  device=device)
-    return sk.skin_vectors(skinning_transforms, normals, method, kind="normal",
-                           vector_vertex=normal_vertex, sign_reference=sign_reference)
+    return cast(np.ndarray, sk.skin_vectors(skinning_transforms, normals, method, kind="normal",
+                                            vector_vertex=normal_vertex,
+                                            sign_reference=sign_reference))
 
 
 class _OneCall(Skinner):

@@ -188,8 +188,8 @@ def _measure(mesh, skeleton, methods, device):
     out = {}
     for k, meth in enumerate(methods):
         part = slice(k * frames, (k + 1) * frames)
-        out[meth] = {"volume_ratio": None if ratio is None else np.asarray(ratio[part],
-                                                                           dtype=np.float64),
+        out[meth] = {"volume_ratio": None if ratio is None else np.asarray(ratio,
+                                                                           np.float64)[part],
                      "volume_ratio_reason": reason,
                      "min_section_ratio": section[part], "min_section_joint": section_joint[part],
                      "max_bulge_ratio": bulge[part], "max_bulge_joint": bulge_joint[part]}
@@ -332,7 +332,7 @@ def _render(meshes, times, methods, render, frames_dir, closeup, distance, bar, 
     labels = [_label(m) for m in methods] + (["|LBS - DQS|"] if heat else [])
 
     def panel(f, cams, dims):
-        images = {v: [] for v in cams}
+        images: dict[str, list[np.ndarray]] = {v: [] for v in cams}
         heat_images = {}
         for meth in methods:
             renderers[meth].update(posed[meth][f])
@@ -344,7 +344,7 @@ def _render(meshes, times, methods, render, frames_dir, closeup, distance, bar, 
                               "colormap": _HEAT_COLORMAP, "shading": _HEAT_SHADING}
                 img = renderers[meth].render(cam, supersample=supersample, adaptive=adaptive,
                                              second_layer=second, **dims[v])
-                if second is not None:
+                if isinstance(img, tuple):  # (the second layer's image too)
                     img, heat_images[v] = img
                     bar.update()
                 images[v].append(img)
@@ -353,7 +353,7 @@ def _render(meshes, times, methods, render, frames_dir, closeup, distance, bar, 
             images[v].append(add_colorbar(img, heat_range, _HEAT_COLORMAP, label="distance"))
         return {v: side_by_side(imgs, labels) for v, imgs in images.items()}
 
-    paths = {v: [] for v in views}
+    paths: dict[str, list[Path]] = {v: [] for v in views}
     for f in range(len(times)):
         for v, img in panel(f, cameras, sizes).items():
             paths[v].append(save_png(frames_dir / f"{v}_{f:03d}.png", img))
@@ -666,7 +666,7 @@ def _compare(report: _Report, bar, t0):
     t_render = time.perf_counter()
 
     viewer_data = None
-    if viewer:
+    if viewer_posed is not None:
         bar.set_postfix_str("viewer data")
         faces, posed = viewer_posed
         rest = np.concatenate([m.rest for m in meshes])

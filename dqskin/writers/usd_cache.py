@@ -365,7 +365,8 @@ class CacheLayer:
             return self.targets[key]
         layer = self.layer
         spec = _prim_spec(layer, name)
-        info, pad = (), 0.0
+        info: tuple[tuple[str, str], ...] = ()
+        pad = 0.0
         if what == "xformOp:transform":
             attr = what
             order = _attribute(layer, spec, "xformOpOrder", Sdf.ValueTypeNames.TokenArray,
@@ -469,7 +470,8 @@ class SampleWriter:
     def __init__(self, scene, target, rigid, options: SkinOptions):
         self.scene, self.target, self.rigid, self.options = scene, target, rigid, options
         self.meshes = {m.name: m for m in scene.meshes}
-        self._pads = {}  # prim → extent padding, resolved on the thread that owns the layer
+        self._pads: dict[str, float] = {}  # prim → extent padding, resolved on the thread that
+        # owns the layer
 
     def _pad(self, name):
         pad = self._pads.get(name)
@@ -640,7 +642,8 @@ class UsdCacheWriter:
                                     SkinOptions() if options is None else options)
         self._t_min, self._t_max = np.inf, -np.inf
         self._claim = atomic_path(self.out, overwrite=overwrite)
-        self._sink = None  # the layer or CrateSamples samples go to, chosen by the first chunk
+        # the layer or CrateSamples samples go to, chosen by the first chunk
+        self._sink: Sdf.Layer | CrateSamples | None = None
 
     def __enter__(self):
         self._claim.open()
