@@ -18,7 +18,8 @@ from .errors import InputError, Param
 from .spaces import SPACES, Space
 
 if TYPE_CHECKING:
-    pass
+    from .readers.usd import RigidPrim
+    from .scene import Mesh
 
 __all__ = ["INTERPOLATIONS", "METHOD_NAMES", "SIGMA", "SIGN_REFERENCES", "SPACES", "CorOptions",
            "Interpolation", "Method", "SignReference", "SkinOptions", "Space", "split_changes"]
@@ -50,7 +51,7 @@ SIGMA = 0.1
 """Width of the centers-of-rotation similarity kernel (Le & Hodgins' value; :mod:`dqskin.cor`)."""
 
 
-def _choice(name, value, choices, none=False):
+def _choice(name: str, value: object, choices: tuple[str, ...], none: bool = False) -> None:
     if (value is None and none) or (isinstance(value, str) and value in choices):
         return
     raise InputError(Param(name, value), f": expected one of {list(choices)}"
@@ -78,7 +79,7 @@ class CorOptions:
     subdivide: float | None = None
     cluster: float | str | None = "auto"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name, none in (("sigma", False), ("subdivide", True), ("cluster", True)):
             v = getattr(self, name)
             if (v is None and none) or (name == "cluster" and v == "auto"):
@@ -138,7 +139,7 @@ class SkinOptions:
     device: str | None = None
     cor: CorOptions = field(default_factory=CorOptions)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _choice("method", self.method, METHOD_NAMES, none=True)
         _choice("sign_reference", self.sign_reference, SIGN_REFERENCES)
         _choice("interp", self.interp, INTERPOLATIONS)
@@ -175,7 +176,7 @@ class SkinOptions:
         """A copy with ``changes`` (:meth:`build` on this one)."""
         return self.build(self, **changes)
 
-    def method_of(self, mesh) -> Method:
+    def method_of(self, mesh: "Mesh | RigidPrim") -> Method:
         """The method ``mesh`` is skinned with: :attr:`method`, else the mesh's own."""
         return cast(Method, self.method or mesh.skinning_method)
 
@@ -191,7 +192,7 @@ class SkinOptions:
         return out
 
 
-def split_changes(function: str, changes: dict, *kinds) -> list:
+def split_changes(function: str, changes: dict[str, Any], *kinds: type) -> list[dict[str, Any]]:
     """``changes`` (keyword arguments of ``function``) split by the dataclass among ``kinds``
     that has each as a field: one dict per kind. TypeError, as Python's, for a keyword no kind
     has."""

@@ -17,9 +17,10 @@ skin through :func:`dqskin.crowd.skin_batch`, the rigidly bound USD prims throug
 """
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ._warp import resolve_device
 from .animation import check_times
@@ -31,7 +32,8 @@ from .skinning import skin_points
 from .spaces import space_track
 
 if TYPE_CHECKING:
-    from .scene import Mesh
+    from .readers.usd import RigidPrim
+    from .scene import Mesh, Scene
 
 __all__ = ["SkinnedFrames", "one_launch", "rigid_transforms", "skin_scene"]
 
@@ -59,7 +61,7 @@ class SkinnedFrames:
     tangents: dict = field(default_factory=dict)
 
 
-def one_launch(scene, options: SkinOptions) -> bool:
+def one_launch(scene: "Scene", options: SkinOptions) -> bool:
     """Whether ``scene``'s meshes are skinned in one launch per method: more than one mesh,
     every method batchable (:data:`~dqskin.crowd.BATCH_METHODS`), no tangents, and UsdSkel's
     sign rule (the batch layout sorts influences for it)."""
@@ -68,7 +70,8 @@ def one_launch(scene, options: SkinOptions) -> bool:
             and all(options.method_of(m) in BATCH_METHODS for m in scene.meshes))
 
 
-def skin_scene(scene, times, options: SkinOptions, cache: dict) -> SkinnedFrames:
+def skin_scene(scene: "Scene", times: npt.ArrayLike, options: SkinOptions,
+               cache: dict[Any, Any]) -> SkinnedFrames:
     """Skin every mesh of ``scene`` at ``times`` (checked) with ``options``; ``cache`` keeps
     the uploaded skinners and batches between calls (:attr:`dqskin.Scene._skinners`)."""
     t = check_times(times)
@@ -275,7 +278,8 @@ def _apply_normals(n, xf):
     return y / np.maximum(np.linalg.norm(y, axis=-1, keepdims=True), 1e-30)
 
 
-def rigid_transforms(scene, prim, times, options: SkinOptions):
+def rigid_transforms(scene: "Scene", prim: "RigidPrim", times: npt.ArrayLike,
+                     options: SkinOptions) -> np.ndarray:
     """Local transforms of a rigidly skinned prim without points
     (:class:`dqskin.readers.usd.RigidPrim`), skinned by the engine.
 

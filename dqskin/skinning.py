@@ -149,6 +149,11 @@ class Skinner:
                     return None, InputError(f"joint_indices: {joint_indices.vertex_count} "
                                             f"vertices for {pts.shape[0]} points")
                 return joint_indices, None
+            if isinstance(joint_indices, Influences):
+                return None, InputError("joint_weights: expected None with joint_indices an "
+                                        "Influences")
+            if joint_weights is None:
+                return None, InputError("joint_weights: required with joint_indices an array")
             try:
                 return Influences(joint_indices, joint_weights, vertex_count=pts.shape[0],
                                   check_values=not unchecked), None
