@@ -23,7 +23,7 @@ from .errors import InputError, OutputExistsError, Param, output_exists
 from .files.atomic import atomic_path, check_interrupted, check_parent
 from .options import SkinOptions, split_changes
 from .readers import format_of, gltf, usd
-from .scene import Scene
+from .scene import Scene, SkinnedFrames
 from .validation import check_skinned
 from .writers import mesh_files, npz, usd_cache
 
@@ -135,7 +135,7 @@ class BakeSettings:
         return self.workers is not None or bool(self.scheduler) or self.resume
 
 
-def check_clip_arguments(out, settings: BakeSettings) -> None:
+def check_clip_arguments(out: str | Path, settings: BakeSettings) -> None:
     """Raise InputError, naming the parameter, for settings :func:`bake` refuses: a chunk or
     worker count below 1, clips or their options (``workers``, ``scheduler``, ``resume``) with a
     non-USD ``out``, those options with ``clips=False``, ``workers`` with ``scheduler``,
@@ -167,7 +167,7 @@ def check_clip_arguments(out, settings: BakeSettings) -> None:
 
 def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None = None, *,
          options: SkinOptions | None = None, settings: BakeSettings | None = None,
-         **changes) -> str:
+         **changes: Any) -> str:
     """Skin ``scene`` at ``times`` and write ``out``.
 
     Every chunk's joint transforms are checked as they are sampled
@@ -228,10 +228,10 @@ class _Job(NamedTuple):
     settings: BakeSettings
 
     @property
-    def sources(self):
+    def sources(self) -> list[str | Path]:
         return [self.scene.path, *self.settings.inputs]
 
-    def counts(self, frames=None):
+    def counts(self, frames: int | None = None) -> str:
         n = len(self.scene.meshes)
         return (f"{_plural(n, 'mesh', 'meshes')} × "
                 f"{_plural(len(self.times) if frames is None else frames, 'frame')}")
@@ -290,7 +290,7 @@ def _bake_usd_layer(job: _Job) -> bool:
     # replaced with force
     wrote_velocities = False
 
-    def check(res):
+    def check(res: SkinnedFrames) -> None:
         nonlocal wrote_velocities
         check_skinned(src, res)
         wrote_velocities |= bool(res.velocities)
@@ -358,7 +358,7 @@ def _usd_uv_interpolation(path):
     on first use (only asked when UV counts leave the mapping ambiguous)."""
     stage: list[Any] = []
 
-    def lookup(name):
+    def lookup(name: str) -> str | None:
         from pxr import Usd, UsdGeom
         if not stage:
             stage.append(Usd.Stage.Open(str(path)))

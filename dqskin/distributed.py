@@ -27,9 +27,11 @@ import contextlib
 import os
 import sys
 import time
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -42,6 +44,9 @@ from .scene import Scene
 from .validation import check_skinned
 from .writers import usd_clips
 from .writers.usd_cache import SampleWriter, chunk_frames
+
+if TYPE_CHECKING:
+    from .baking import BakeSettings
 
 __all__ = ["ClipJob", "bake_clips", "run_clip", "run_here", "worker_threads"]
 
@@ -84,7 +89,7 @@ class ClipJob:
     time_codes_per_second: float
 
 
-def worker_threads(nthreads: int, environ=os.environ) -> dict:
+def worker_threads(nthreads: int, environ: Mapping[str, str] = os.environ) -> dict[str, str]:
     """The thread budget of a worker process with Dask ``nthreads`` task threads:
     ``{"DQSKIN_THREADS": .., "PXR_WORK_THREAD_LIMIT": ..}`` (dqskin's CPU launch pool, USD's
     thread pool), each the variable's value when set in ``environ`` (a LocalCluster of
@@ -169,7 +174,7 @@ def _result(job, digest, t0, c0):
                 peak_rss_mb=_peak_rss_mb(), started=ended - seconds, ended=ended)
 
 
-def run_clip(job: ClipJob, scene=None) -> dict:
+def run_clip(job: ClipJob, scene: Scene | None = None) -> dict[str, Any]:
     """Skin one clip and write its layer; ``scene`` defaults to the worker's copy of
     ``job.source``. Returns ``index``, ``checksum`` (:data:`~.writers.usd_clips.CHECKSUM`),
     ``seconds``, ``cpu_seconds`` (of the whole process while the task ran: all its threads, a
@@ -187,7 +192,8 @@ def run_clip(job: ClipJob, scene=None) -> dict:
     return _result(job, digest, t0, c0)
 
 
-def run_here(jobs: list, scene, done) -> None:
+def run_here(jobs: "list[ClipJob]", scene: Scene,
+             done: Callable[[dict[str, Any]], object]) -> None:
     """Every job, in order, in this process (``done(result)`` after each; results as
     :func:`run_clip`'s), pipelined across chunks instead of :func:`run_clip` one by one: one
     :meth:`dqskin.Scene.skin_chunks` stream of chunks
@@ -208,7 +214,8 @@ def run_here(jobs: list, scene, done) -> None:
     writer = _sample_writer(scene, jobs[0])
     stream = scene.skin_chunks(np.concatenate([j.times for j in jobs]),
                                [n for c in chunks for n in c], options=jobs[0].options)
-    pending = None  # (job, claim, checksum, start) of the finished, unrecorded layer
+    # (job, claim, checksum, start) of the finished, unrecorded layer
+    pending: tuple[ClipJob, atomic.atomic_path, str | None, tuple[float, float]] | None = None
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values") as values:
         try:
             start = time.perf_counter(), time.process_time()
@@ -262,7 +269,8 @@ def _commit_on_error(job, claim, digest, start):
                 atomic.interrupt(recorded)
 
 
-def bake_clips(scene, out, times, options: SkinOptions, settings, *, threads=None) -> dict:
+def bake_clips(scene: Scene, out: str | Path, times: np.ndarray, options: SkinOptions,
+               settings: "BakeSettings", *, threads: int | None = None) -> dict[str, Any]:
     """Bake ``scene`` at ``times`` to the value-clip cache ``out``
     (:class:`~.writers.usd_clips.ClipBake`) with ``options`` (for the meshes and the rigidly
     bound prims; :meth:`SkinOptions.plan` goes into the plan key) and ``settings``

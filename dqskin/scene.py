@@ -6,7 +6,7 @@ local transforms → forward kinematics (dual quaternions) → skinning transfor
 → per-vertex skinning → output space.
 """
 
-from collections.abc import Iterator
+from collections.abc import Generator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -254,7 +254,7 @@ class Scene:
 
     def skin_chunks(self, times: npt.ArrayLike, chunk: "int | list[int]", *,
                     buffers: "KB.BufferPool | None" = None, options: SkinOptions | None = None,
-                    **changes: Any) -> Iterator[tuple[slice, "SkinnedFrames"]]:
+                    **changes: Any) -> Generator[tuple[slice, SkinnedFrames], None, None]:
         """Yield ``(slice, SkinnedFrames)`` for consecutive chunks of ``chunk`` frames (or of
         the sizes in a list ``chunk``, which must add up to the frame count), so memory stays
         bounded; ``options`` and ``changes`` as for :meth:`skin`.
