@@ -46,6 +46,8 @@ from .writers import usd_clips
 from .writers.usd_cache import SampleWriter, chunk_frames
 
 if TYPE_CHECKING:
+    from distributed import WorkerPlugin
+
     from .baking import BakeSettings
 
 __all__ = ["ClipJob", "bake_clips", "run_clip", "run_here", "worker_threads"]
@@ -99,7 +101,7 @@ def worker_threads(nthreads: int, environ: Mapping[str, str] = os.environ) -> di
     return {k: environ.get(k) or budget for k in ("DQSKIN_THREADS", "PXR_WORK_THREAD_LIMIT")}
 
 
-def _worker_plugin(own_cluster: bool):
+def _worker_plugin(own_cluster: bool) -> "WorkerPlugin":
     """A Dask worker plugin, for every worker process (restarted ones too): Warp's banner and
     module-load messages off (the worker's stdout is the caller's), and the process's thread
     budget (:func:`worker_threads`) applied to dqskin's launch pool and USD's thread pool (a
