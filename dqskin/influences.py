@@ -48,13 +48,13 @@ def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None
     if not idx.size or not values:
         return idx, wts, -1
     if idx.size >= _BESIDE_MIN:  # the weights on another core
-        weights_ok, hi = beside(lambda: nonnegative_max(wts) is not None,
-                                lambda: nonnegative_max(idx))
+        weights_ok, largest = beside(lambda: nonnegative_max(wts) is not None,
+                                     lambda: nonnegative_max(idx))
     else:
-        weights_ok, hi = None, nonnegative_max(idx)
-    if hi is None:
+        weights_ok, largest = None, nonnegative_max(idx)
+    if largest is None:
         raise InputError(f"joint_indices: negative index {int(idx.min())}")
-    hi = int(hi)
+    hi = int(largest)
     if joint_count is not None:
         check_joint_range(hi, joint_count)
     if weights_ok is None:
