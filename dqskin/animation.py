@@ -66,9 +66,8 @@ from .errors import InputError
 from .linalg import hat, polar
 from .options import INTERPOLATIONS, Interpolation
 
-__all__ = ["Animation", "Deformer", "Interpolation", "KeyedAnimation",
-           "TransformTrack", "check_times", "ramp", "sample", "sample_with_derivative",
-           "segment_rates"]
+__all__ = ["Animation", "Deformer", "KeyedAnimation", "TransformTrack", "check_times", "ramp",
+           "sample", "sample_with_derivative", "segment_rates"]
 
 
 _TRS_TOLERANCE = 1e-5  # relative: "trs" velocities need the player to be linear TRS between keys

@@ -222,7 +222,7 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
         blend shapes), so these are the derivatives of their positions. Default: ``points``
         when it is (V, 3); required for ``"cor"`` with per-frame (F, V, 3) points.
     sign_reference : {"largest_weight", "running_sum"}
-        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
+        Sign rule of the rotation blends (:data:`dqskin.options.SignReference`).
     device : str, optional
         Warp device.
 

@@ -120,7 +120,7 @@ class Skinner:
         (:func:`dqskin.cor.rotation_centers`, bind space) are computed on its first use, from the
         rest points (not from ``points`` passed per call), and cached on disk.
     cor_sigma : float
-        Similarity width of the centers (:data:`dqskin.cor.SIGMA`).
+        Similarity width of the centers (:data:`dqskin.options.SIGMA`).
     cor_subdivide : float, optional
         Refine the centers' integral by subdividing triangles to this weight distance (the
         paper's 0.1; :func:`dqskin.cor.rotation_centers`); None: one term per triangle.
@@ -437,7 +437,8 @@ class Skinner:
         output_transforms : (4, 4) or (F, 4, 4) float, optional
             Applied to the skinned points on the device (e.g. skeleton space → prim space).
         sign_reference : {"largest_weight", "running_sum"}
-            Sign rule of the rotation blends (:data:`SignReference`); LBS ignores it.
+            Sign rule of the rotation blends (:data:`~dqskin.options.SignReference`); LBS ignores
+            it.
         as_warp : bool
             Return the device array ``wp.array2d(dtype=wp.vec3)`` of shape (F, V) without a copy.
 
@@ -510,7 +511,7 @@ class Skinner:
             Point transforms applied after skinning (normals get their inverse transpose and are
             renormalized; tangents their linear part).
         sign_reference : {"largest_weight", "running_sum"}
-            Sign rule of the rotation blends (:data:`SignReference`).
+            Sign rule of the rotation blends (:data:`~dqskin.options.SignReference`).
 
         Returns
         -------
@@ -580,7 +581,7 @@ class Skinner:
         point_velocities : (V, 3) or (F, V, 3) float, optional
             ``d points / dt`` in mesh space (e.g. from blend shapes); zero by default.
         sign_reference : {"largest_weight", "running_sum"}
-            Sign rule of the rotation blends (:data:`SignReference`).
+            Sign rule of the rotation blends (:data:`~dqskin.options.SignReference`).
 
         Returns
         -------
@@ -626,7 +627,7 @@ def skin_points(points: npt.ArrayLike, joint_indices: npt.ArrayLike, joint_weigh
     faces : (T, 3) int, optional
         Triangles, required for ``"cor"``.
     sign_reference : {"largest_weight", "running_sum"}
-        Sign rule of the rotation blends (:data:`SignReference`).
+        Sign rule of the rotation blends (:data:`~dqskin.options.SignReference`).
     device : str, optional
 
     Returns
@@ -677,7 +678,7 @@ def skin_normals(normals: npt.ArrayLike, joint_indices: npt.ArrayLike,
     normal_vertex : (N,) int, optional
         Vertex of each normal (faceVarying normals).
     sign_reference : {"largest_weight", "running_sum"}
-        Sign rule of the rotation blends (:data:`SignReference`).
+        Sign rule of the rotation blends (:data:`~dqskin.options.SignReference`).
 
     Returns
     -------
