@@ -4,7 +4,7 @@ interpolants, with analytic time derivatives.
 Sampling
 --------
 :func:`sample` evaluates an :class:`Animation` at any times with one of
-:data:`INTERPOLATIONS`:
+:data:`dqskin.options.INTERPOLATIONS`:
 
 ``"trs"``
     ``animation.local_transforms(times)`` unchanged: what the asset's own player does (glTF
@@ -57,7 +57,6 @@ References
 import abc
 import weakref
 from collections.abc import Callable
-from typing import Literal, get_args
 
 import numpy as np
 import numpy.typing as npt
@@ -65,16 +64,11 @@ import numpy.typing as npt
 from . import dq, quat
 from .errors import InputError
 from .linalg import hat, polar
+from .options import INTERPOLATIONS, Interpolation
 
-__all__ = ["INTERPOLATIONS", "Animation", "Deformer", "Interpolation", "KeyedAnimation",
-           "TransformTrack", "check_times", "ramp", "sample", "sample_with_derivative",
-           "segment_rates"]
+__all__ = ["Animation", "Deformer", "KeyedAnimation", "TransformTrack", "check_times", "ramp",
+           "sample", "sample_with_derivative", "segment_rates"]
 
-Interpolation = Literal["trs", "sclerp", "dlb", "spline", "catmull-rom"]
-"""Pose interpolation between keys (see the module docstring)."""
-
-INTERPOLATIONS = get_args(Interpolation)
-"""Every :data:`Interpolation`, in order."""
 
 _TRS_TOLERANCE = 1e-5  # relative: "trs" velocities need the player to be linear TRS between keys
 

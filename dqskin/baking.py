@@ -14,7 +14,7 @@ import dataclasses
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -23,7 +23,7 @@ from .errors import InputError, OutputExistsError, Param, output_exists
 from .files.atomic import atomic_path, check_interrupted, check_parent
 from .options import SkinOptions, split_changes
 from .readers import format_of, gltf, usd
-from .scene import Scene
+from .scene import Scene, SkinnedFrames
 from .validation import check_skinned
 from .writers import mesh_files, npz, usd_cache
 
@@ -135,7 +135,7 @@ class BakeSettings:
         return self.workers is not None or bool(self.scheduler) or self.resume
 
 
-def check_clip_arguments(out, settings: BakeSettings) -> None:
+def check_clip_arguments(out: str | Path, settings: BakeSettings) -> None:
     """Raise InputError, naming the parameter, for settings :func:`bake` refuses: a chunk or
     worker count below 1, clips or their options (``workers``, ``scheduler``, ``resume``) with a
     non-USD ``out``, those options with ``clips=False``, ``workers`` with ``scheduler``,
@@ -167,7 +167,7 @@ def check_clip_arguments(out, settings: BakeSettings) -> None:
 
 def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None = None, *,
          options: SkinOptions | None = None, settings: BakeSettings | None = None,
-         **changes) -> str:
+         **changes: Any) -> str:
     """Skin ``scene`` at ``times`` and write ``out``.
 
     Every chunk's joint transforms are checked as they are sampled
@@ -228,10 +228,10 @@ class _Job(NamedTuple):
     settings: BakeSettings
 
     @property
-    def sources(self):
+    def sources(self) -> list[str | Path]:
         return [self.scene.path, *self.settings.inputs]
 
-    def counts(self, frames=None):
+    def counts(self, frames: int | None = None) -> str:
         n = len(self.scene.meshes)
         return (f"{_plural(n, 'mesh', 'meshes')} × "
                 f"{_plural(len(self.times) if frames is None else frames, 'frame')}")
@@ -289,19 +289,19 @@ def _bake_usd_layer(job: _Job) -> bool:
     scene, out, t, opts, s = job
     src = scene.path
     check_output(out, job.sources, s.force)
-    clip_bake = None  # SHOT.clips/ beside SHOT.usd: locked, and replaced with --force
-    if usd_cache.clips_folder(out).is_dir():
-        from .writers import usd_clips as clip_bake
+    from .writers import usd_clips
+    clips = usd_cache.clips_folder(out).is_dir()  # SHOT.clips/ beside SHOT.usd: locked, and
+    # replaced with force
     wrote_velocities = False
 
-    def check(res):
+    def check(res: SkinnedFrames) -> None:
         nonlocal wrote_velocities
         check_skinned(src, res)
         wrote_velocities |= bool(res.velocities)
 
     size = s.chunk or usd_cache.chunk_frames(scene, opts)
-    with clip_bake.bake_lock(out) if clip_bake else contextlib.nullcontext():
-        replaces = clip_bake is not None and clip_bake.holds_clip_bake(out)
+    with usd_clips.bake_lock(out) if clips else contextlib.nullcontext():
+        replaces = clips and usd_clips.holds_clip_bake(out)
         with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force) as writer:
             if replaces and not s.force:  # (an unfinished one: out itself does not exist)
                 raise OutputExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
@@ -309,11 +309,11 @@ def _bake_usd_layer(job: _Job) -> bool:
                                         Param("resume", True), ", or replace it with a "
                                         "single layer with ", Param("force", True))
             if replaces:  # its files are removed below
-                clip_bake.check_outside(out, clip_bake.input_files(
+                usd_clips.check_outside(out, usd_clips.input_files(
                     writer.cache.stage, src, s.inputs), src)
             writer.write_chunks((res for _, res in job.chunks(size, opts)), check, checked=True)
         if replaces:
-            clip_bake.remove_clip_bake(out)  # nothing reads it now
+            usd_clips.remove_clip_bake(out)  # nothing reads it now
     return wrote_velocities
 
 
@@ -360,9 +360,9 @@ def _bake_frames(job: _Job) -> str:
 def _usd_uv_interpolation(path):
     """``mesh name → interpolation of its primvars:st`` from the USD stage at ``path``, opened
     on first use (only asked when UV counts leave the mapping ambiguous)."""
-    stage = []
+    stage: list[Any] = []
 
-    def lookup(name):
+    def lookup(name: str) -> str | None:
         from pxr import Usd, UsdGeom
         if not stage:
             stage.append(Usd.Stage.Open(str(path)))

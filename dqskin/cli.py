@@ -28,12 +28,20 @@ All argument parsing lives here; each command calls the library (:func:`dqskin.b
   progress bars only on a terminal.
 """
 
+import argparse
 import math
 import signal
 import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from types import FrameType
+from typing import TYPE_CHECKING, Any, NoReturn
 
-from .errors import DqskinError, InputError, Interrupted
+from .errors import DqskinError, InputError, Interrupted, Param
+
+if TYPE_CHECKING:
+    from .options import SkinOptions
+    from .scene import Scene
 
 # (nothing heavy above: main installs its signal handlers before importing anything else)
 
@@ -43,7 +51,7 @@ __all__ = ["EXIT_INPUT", "EXIT_INTERNAL", "Interrupted", "build_parser", "flag",
 EXIT_INPUT = 2
 EXIT_INTERNAL = 70  # os.EX_SOFTWARE: a bug in dqskin
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
-_signalled = []  # the signal numbers received while main runs (only the first one acts)
+_signalled: list[int] = []  # the signal numbers received while main runs (only the first one acts)
 _own_process = False  # while main runs as the process's entry point (not from Python)
 
 
@@ -55,7 +63,7 @@ NEGATED = {"normals": "--no-normals", "velocities": "--no-velocities", "clips": 
            "sweeps": "--no-sweeps"}
 
 
-def flag(param):
+def flag(param: Param) -> str:
     """``param`` as typed on the command line: ``--force``, ``--no-clips``, ``--chunk 0``."""
     import shlex
     name = FLAGS.get(param.name, "--" + param.name.replace("_", "-"))
@@ -68,7 +76,7 @@ def flag(param):
     return f"{name} {shlex.quote(text)}"
 
 
-def _on_signal(signum, frame):
+def _on_signal(signum: int, frame: FrameType | None) -> None:
     if _signalled:
         return  # the first signal interrupts; clean-up then runs to its end
     _signalled.append(signum)
@@ -80,7 +88,7 @@ def _on_signal(signum, frame):
     raise exc
 
 
-def install_signal_handlers():
+def install_signal_handlers() -> "dict[signal.Signals, Any] | None":
     """Route SIGINT and SIGTERM to :class:`Interrupted`; returns the previous handlers (None
     outside the main thread, where Python cannot set them)."""
     import threading
@@ -88,7 +96,7 @@ def install_signal_handlers():
         return None
     hook = sys.unraisablehook
 
-    def unraisable(info):
+    def unraisable(info: "sys.UnraisableHookArgs") -> None:
         # A signal landing in a finalizer (a Warp array's __del__) cannot raise there; the
         # interrupt is recorded and raised again at the next check, so say nothing now.
         if not isinstance(info.exc_value, Interrupted):
@@ -98,7 +106,7 @@ def install_signal_handlers():
     return {s: signal.signal(s, _on_signal) for s in SIGNALS}
 
 
-def _quiet_libraries(verbose):
+def _quiet_libraries(verbose: bool) -> None:
     """Silence library chatter unless ``verbose``: Python warnings, log records, and Warp (its
     banner, module-load timings, and the CUDA-driver notice its native init prints to fd 2)."""
     import logging
@@ -107,13 +115,12 @@ def _quiet_libraries(verbose):
         warnings.simplefilter("ignore")
         logging.disable(logging.CRITICAL)
     import warp as wp
-    wp.config.quiet = not verbose
     if not verbose:
         wp.config.log_level = wp.LOG_ERROR
     _init_warp(verbose)
 
 
-def _init_warp(verbose):
+def _init_warp(verbose: bool) -> None:
     """Warp's initialization (:func:`dqskin._warp.init_warp`, once, under its lock); without
     ``verbose`` what its native code writes to stderr is captured and shown only if it fails."""
     from ._warp import init_warp
@@ -139,7 +146,7 @@ def _init_warp(verbose):
             os.close(saved)
 
 
-def _regular_file(path):
+def _regular_file(path: str | Path) -> Path:
     """InputError unless ``path`` is a regular file (a folder, ``/dev/null`` or a FIFO is not)."""
     p = Path(path)
     if not p.exists():
@@ -149,17 +156,17 @@ def _regular_file(path):
     return p
 
 
-def default_asset():
+def default_asset() -> Path:
     """The bundled humanoid rig (package data ``dqskin.assets``, made by tools/make_assets.py)."""
     from importlib.resources import files
-    return files("dqskin.assets") / "humanoid.usda"
+    return Path(str(files("dqskin.assets") / "humanoid.usda"))  # (a folder: an installed package)
 
 
-def _clip(text):
+def _clip(text: str | None) -> str | int | None:
     return int(text) if isinstance(text, str) and text.isdigit() else text
 
 
-def skin_options(args):
+def skin_options(args: argparse.Namespace) -> "SkinOptions":
     """The one :class:`dqskin.SkinOptions` of a command's parsed arguments (those it has:
     ``--method``, ``--sign-reference``, ``--interp``, ``--no-normals``, ``--no-velocities``,
     ``--device``, ``--cor-exact``; a bake's defaults, :meth:`SkinOptions.baking`, for the
@@ -172,7 +179,7 @@ def skin_options(args):
     return SkinOptions.baking(**given)
 
 
-def cmd_skin(args):
+def cmd_skin(args: argparse.Namespace) -> int:
     import tempfile
 
     from .baking import BakeSettings, bake, check_clip_arguments, check_output, output_kind
@@ -205,19 +212,19 @@ def cmd_skin(args):
     return 0
 
 
-def cmd_flatten(args):
+def cmd_flatten(args: argparse.Namespace) -> int:
     from .writers.usd_clips import flatten
     src = _regular_file(args.input)
     print(f"wrote {flatten(src, args.out, overwrite=args.force)}")
     return 0
 
 
-def _rigging(args):
+def _rigging(args: argparse.Namespace) -> bool:
     """Whether ``--skeleton``, ``--weights`` or ``--scale`` were given."""
     return any(getattr(args, k, None) is not None for k in ("skeleton", "weights", "scale"))
 
 
-def _inputs(args):
+def _inputs(args: argparse.Namespace) -> list[str]:
     """The files ``skin``/``compare``/``rig`` read: INPUT, ``--skeleton``, ``--weights FILE``
     (no output may replace one of them)."""
     weights = getattr(args, "weights", None)
@@ -225,7 +232,8 @@ def _inputs(args):
                            if f is not None and f != "auto"]
 
 
-def _load_input(args, cache_out=None, rig_dir=None):
+def _load_input(args: argparse.Namespace, cache_out: str | None = None,
+                rig_dir: str | None = None) -> "Scene":
     """The scene of ``skin``/``compare``/``rig``: the character file, or with ``--skeleton`` a
     plain mesh bound to a BVH (:func:`dqskin.rigging.rig_mesh`); ``--weights`` replaces the
     influences (:func:`dqskin.rigging.replace_weights`). ``cache_out``: the cache ``skin`` will
@@ -256,6 +264,7 @@ def _load_input(args, cache_out=None, rig_dir=None):
                          scale=args.scale, max_influences=args.max_influences, device=args.device)
         if usd_out:
             from .writers.usd_rig import write_rig
+            assert rig_dir is not None, "a USD cache_out comes with a rig_dir"
             rig = Path(rig_dir) / f"{src.stem or 'mesh'}.usdc"
             write_rig(scene, rig)
             scene = readers.load(rig)
@@ -276,7 +285,8 @@ def _load_input(args, cache_out=None, rig_dir=None):
     return scene
 
 
-def _print_weight_difference(asset, scene, label, device, samples=100):
+def _print_weight_difference(asset: "Scene", scene: "Scene", label: str, device: str | None,
+                             samples: int = 100) -> None:
     """One line per mesh: how far the new weights move the skinned points from the asset's own
     (LBS, at up to ``samples`` of the asset's times)."""
     import numpy as np
@@ -289,7 +299,7 @@ def _print_weight_difference(asset, scene, label, device, samples=100):
               f"{mean:.3f}%, 95th percentile {p95:.3f}% of its height at the worst time")
 
 
-def cmd_rig(args):
+def cmd_rig(args: argparse.Namespace) -> int:
     """``dqskin rig``: bind (or re-weight) and write a UsdSkel rig."""
     from .baking import check_output
     from .writers.usd_rig import write_rig
@@ -300,7 +310,7 @@ def cmd_rig(args):
     return 0
 
 
-def cmd_info(args):
+def cmd_info(args: argparse.Namespace) -> int:
     import numpy as np
 
     from . import readers
@@ -324,7 +334,7 @@ def cmd_info(args):
         anim = scene.animations[si]
         print(f"  skeleton {si} {skel.name!r}: {skel.joint_count} joints, "
               f"{'animated' if anim is not None else 'rest pose only'}")
-        children = {j: [] for j in range(-1, skel.joint_count)}
+        children: dict[int, list[int]] = {j: [] for j in range(-1, skel.joint_count)}
         for j, p in enumerate(skel.parents):
             children[int(p)].append(j)
 
@@ -355,7 +365,7 @@ def cmd_info(args):
     return 0
 
 
-def cmd_demo(args):
+def cmd_demo(args: argparse.Namespace) -> int:
     from . import readers
     from .baking import bake
     from .report.compare import run_compare
@@ -373,9 +383,9 @@ def cmd_demo(args):
     print(f"dqskin demo: comparing LBS and DQS on {asset.name}")
     metrics = run_compare(scene, report, options=options, force=True)
 
-    def worst(values, pick):
-        values = [v for v in values if v is not None]
-        return f"{pick(values):.3f}" if values else "n/a"
+    def worst(values: list[float | None], pick: Callable[[list[float]], float]) -> str:
+        given = [v for v in values if v is not None]
+        return f"{pick(given):.3f}" if given else "n/a"
 
     for name, per in metrics["meshes"].items():
         lbs, dqs = per["lbs"], per["dqs"]
@@ -386,7 +396,7 @@ def cmd_demo(args):
     return 0
 
 
-def cmd_compare(args):
+def cmd_compare(args: argparse.Namespace) -> int:
     """``dqskin compare``: :func:`dqskin.report.compare.run_compare`, then a summary."""
     from .report.compare import RenderSettings, run_compare, summary_lines
     from .times import parse_frames
@@ -415,26 +425,25 @@ def cmd_compare(args):
     return 0
 
 
-def _add_sign_reference(parser):
-    from .options import SkinOptions
-    from .skinning import SIGN_REFERENCES
+def _add_sign_reference(parser: argparse.ArgumentParser) -> None:
+    from .options import SIGN_REFERENCES, SkinOptions
     parser.add_argument("--sign-reference", choices=SIGN_REFERENCES,
                         default=SkinOptions.sign_reference,
                         help="DQS sign rule: largest_weight = UsdSkel's (default), running_sum = "
                         "Blender's Preserve Volume")
 
 
-def _add_compare_arguments(parser):
+def _add_compare_arguments(parser: argparse.ArgumentParser) -> None:
+    from .options import METHOD_NAMES
     from .report.compare import MAX_RAYS
     from .report.render import VIEWS
     from .report.viewer import VIEWER_FRAMES
-    from .skinning import METHODS
     from .times import MAX_FRAMES
     parser.add_argument("input", help="character file (.usd/.usda/.usdc/.usdz, .gltf/.glb)")
     parser.add_argument("--out", required=True, help="output folder: report.html, metrics.json, "
                         "frames/*.png")
     parser.add_argument("--methods", default="lbs,dqs",
-                        help=f"comma-separated from {', '.join(METHODS)} (default: lbs,dqs)")
+                        help=f"comma-separated from {', '.join(METHOD_NAMES)} (default: lbs,dqs)")
     parser.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
                         "asset's time unit; default: up to 10 evenly spaced samples")
     parser.add_argument("--views", default=",".join(VIEWS),
@@ -463,7 +472,7 @@ def _add_compare_arguments(parser):
     parser.add_argument("--force", action="store_true", help="overwrite an existing report")
 
 
-def _add_rigging_arguments(parser):
+def _add_rigging_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--skeleton", help="a .bvh: INPUT is then a plain "
                         "mesh (.obj/.ply/.stl/.off/.glb) in the BVH's rest pose (every channel "
                         "zero), bound to its skeleton and animated by its motion")
@@ -477,12 +486,8 @@ def _add_rigging_arguments(parser):
                         "automatic weights (default: 8)")
 
 
-def build_parser():
-    import argparse
-
-    from .animation import INTERPOLATIONS
-    from .options import SkinOptions
-    from .skinning import METHODS
+def build_parser() -> argparse.ArgumentParser:
+    from .options import INTERPOLATIONS, METHOD_NAMES, SkinOptions
     from .times import MAX_FRAMES
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
@@ -497,7 +502,7 @@ def build_parser():
     s.add_argument("--out", required=True, help=".usd/.usda/.usdc cache, .npz, or a per-frame "
                    "pattern like out/frame_{:04d}.obj (.obj/.ply/.glb with normals and UVs, "
                    ".stl/.off geometry only; a name without {} for one frame only)")
-    s.add_argument("--method", choices=list(METHODS), default=None,
+    s.add_argument("--method", choices=list(METHOD_NAMES), default=None,
                    help="default: what the asset asks for (LBS for glTF); cor = optimized "
                    "centers of rotation (precomputed per mesh, cached in ~/.cache/dqskin)")
     s.add_argument("--cor-exact", action="store_true",
@@ -576,7 +581,7 @@ def build_parser():
     return ap
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status (see the module docstring).
 
     Called without ``argv`` (the process's entry point) it keeps its signal handlers until the
@@ -592,7 +597,7 @@ def main(argv=None):
     return code
 
 
-def _exit(code):
+def _exit(code: int) -> NoReturn:
     """End the process with ``code`` once Python's exit handlers have run and the standard
     streams are flushed, without the interpreter's finalization (unloading USD's, Warp's and
     Dask's native libraries is slow): everything dqskin writes is complete and closed by then
@@ -608,6 +613,8 @@ def _exit(code):
     atexit._run_exitfuncs()  # logging, weakref finalizers (temporary folders), ...
     failed, message = False, None
     for stream in (sys.stdout, sys.__stdout__, sys.stderr, sys.__stderr__):
+        if stream is None:  # (no console: pythonw)
+            continue
         try:
             stream.flush()
         except BrokenPipeError:  # the reader went away: nobody to tell
@@ -628,7 +635,7 @@ def _exit(code):
     os._exit(code)
 
 
-def _main(argv):
+def _main(argv: Sequence[str] | None) -> int:
     previous = release = bug = None
     try:
         previous = install_signal_handlers()  # first: Ctrl-C in start-up is an interrupt too
@@ -692,7 +699,7 @@ def _report_bug(exc, native="", verbose=False):
     return EXIT_INTERNAL
 
 
-def _version():
+def _version() -> str:
     from importlib.metadata import PackageNotFoundError, version
     try:
         return version("dqskin")
@@ -700,14 +707,14 @@ def _version():
         return "(not installed)"
 
 
-def _checkpoint():
+def _checkpoint() -> None:
     """Raise :class:`Interrupted` if a signal came while a library swallowed the exception (USD
     runs Python module loads from C++ and reports their errors as warnings)."""
     if _signalled:
         raise Interrupted(_signalled[0])
 
 
-def _hold_native_stderr():
+def _hold_native_stderr() -> Callable[[], str] | None:
     """Point file descriptor 2 at a temporary file, ``sys.stderr`` staying on the real stderr;
     returns ``release()``, which restores it and returns what was written there (None when
     stderr cannot be redirected)."""
@@ -724,7 +731,7 @@ def _hold_native_stderr():
     os.dup2(capture.fileno(), 2)
     previous, sys.stderr = sys.stderr, stream
 
-    def release():
+    def release() -> str:
         import contextlib
         with contextlib.suppress(OSError, ValueError):
             stream.flush()
@@ -739,15 +746,14 @@ def _hold_native_stderr():
     return release
 
 
-def _wants_workers(argv):
+def _wants_workers(argv: Sequence[str]) -> bool:
     """Whether ``argv`` asks ``skin`` to bake on a LocalCluster: ``--workers N`` without
     ``--scheduler`` or an option the bake refuses with it. Read before the full parser (whose
     choices import dqskin's modules) by a parser of just these options: a hint only, the bake's
     own checks decide."""
-    import argparse
-
     class Quiet(argparse.ArgumentParser):
-        def error(self, message):  # raised, not printed: the full parser reports errors
+        # raised, not printed: the full parser reports errors
+        def error(self, message: str) -> NoReturn:
             raise argparse.ArgumentError(None, message)
 
     argv = list(argv)
@@ -769,7 +775,7 @@ def _wants_workers(argv):
             and (a.chunk is None or a.chunk >= 1) and a.skeleton is None and a.weights is None)
 
 
-def _run(argv):
+def _run(argv: Sequence[str] | None) -> int:
     workers = _wants_workers(sys.argv[1:] if argv is None else argv)
     try:
         if workers:  # first: the workers' forkserver imports beside dqskin's (seconds of start-up)
@@ -785,7 +791,7 @@ def _run(argv):
             stop_workers()
 
 
-def _stdout_reader_gone():
+def _stdout_reader_gone() -> bool:
     """Whether stdout is a pipe whose reading end is closed (``poll`` reports an error on it):
     a broken pipe elsewhere (a socket, a child process) is an error like any other."""
     import os
@@ -802,7 +808,7 @@ def _stdout_reader_gone():
         return False
 
 
-def _reader_gone(redirect=True):
+def _reader_gone(redirect: bool = True) -> int:
     """The reader of stdout went away (``dqskin info X | head``): no message, the status of a
     process ended by SIGPIPE, as ``cat`` and ``grep`` end; with ``redirect`` (the process's own
     run, not a call from Python) stdout's descriptor is pointed at the null device, so what is
@@ -818,7 +824,7 @@ def _reader_gone(redirect=True):
     return 128 + signal.SIGPIPE
 
 
-def _run_command(argv):
+def _run_command(argv: Sequence[str] | None) -> int:
     try:
         args = build_parser().parse_args(argv)  # imports NumPy: an interrupt may land in there
         _quiet_libraries(args.verbose)
@@ -834,7 +840,7 @@ def _run_command(argv):
             where = " -> ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
             msg = f"{where}: {exc.strerror}" if where else exc.strerror
         elif exc.errno is not None:  # a system error reworded to name its file (files.atomic)
-            msg = exc
+            msg = str(exc)
         else:  # an OSError that did not come from the system: a bug
             raise
         print(f"dqskin: error: {msg}", file=sys.stderr)

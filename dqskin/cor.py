@@ -3,7 +3,7 @@ of Rotation", ACM TOG 35(4), SIGGRAPH 2016), precomputed once per mesh and cache
 
 Each vertex ``v`` gets a center ``p*ᵥ``: the average of the triangle centroids ``cₜ``, weighted by
 area ``aₜ`` times the similarity ``s(wᵥ, wₜ)`` of the vertex's skinning weights to the triangle's
-(the mean of its corners'), ``σ`` = :data:`SIGMA` (the paper's value); see
+(the mean of its corners'), ``σ`` = :data:`dqskin.options.SIGMA` (the paper's value); see
 :mod:`dqskin.kernels.cor` for the formula. ``method="cor"`` then skins ``v`` by the rotation of the
 normalized, sign-aligned quaternion blend ``R`` and the LBS image of its center:
 ``v' = R·(v − p*) + Σ wⱼ·Aⱼ·[p*, 1]``.
@@ -46,14 +46,13 @@ from ._warp import Device, resolve_device
 from .errors import InputError
 from .influences import check_influences
 from .kernels import cor as KC
+from .options import SIGMA
 from .shapes import as_real
 
-__all__ = ["ALGORITHM_VERSION", "SIGMA", "check_faces", "rotation_centers"]
+__all__ = ["ALGORITHM_VERSION", "check_faces", "rotation_centers"]
 
 log = logging.getLogger(__name__)
 
-SIGMA = 0.1
-"""Width of the similarity kernel (Le & Hodgins' value)."""
 
 CLUSTER = 1.0 / 256
 """Weight grid of ``cluster="auto"`` when it clusters (see :func:`rotation_centers`)."""
@@ -315,7 +314,7 @@ def rotation_centers(points: npt.ArrayLike, faces: npt.ArrayLike, joint_indices:
     joint_indices, joint_weights : (V, K) int, (V, K) float
         Influences (as :class:`dqskin.Skinner`); repeated joints of a vertex are summed.
     sigma : float
-        Similarity width, :data:`SIGMA` by default.
+        Similarity width, :data:`dqskin.options.SIGMA` by default.
     subdivide : float, optional
         Refine the integral as the paper does: split triangles 1→4 at their edge midpoints (weights
         interpolated) until the weights at the ends of every edge are within this Euclidean

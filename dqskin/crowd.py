@@ -16,22 +16,27 @@ their skeleton's bind space, joint indices offset onto the concatenated joints, 
 characters) with the same batches; it and a :class:`Crowd` skin them with :func:`skin_batch`.
 """
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 import warp as wp
 
 from ._warp import Device, resolve_device
-from .animation import Interpolation, check_times
+from .animation import check_times
 from .errors import InputError, Param
 from .influences import Influences
 from .kernels import buffers as KB
 from .kernels import fk as FK
-from .options import SkinOptions
-from .skinning import Method, Skinner
+from .options import Interpolation, Method, SkinOptions
+from .skinning import Skinner
 from .validation import check_transforms
+
+if TYPE_CHECKING:
+    from .scene import Mesh, Scene
+    from .skeleton import Skeleton
 
 __all__ = ["BATCH_METHODS", "Crowd", "JointBatch", "MeshBatch", "skin_batch"]
 
@@ -39,7 +44,7 @@ BATCH_METHODS = ("lbs", "dqs", "blend")
 """Methods a :class:`MeshBatch` skins in one launch (the others need per-mesh data)."""
 
 
-def _ranges(counts):
+def _ranges(counts: Sequence[int]) -> tuple[list[slice], int]:
     starts = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)]).astype(np.int64)
     return [slice(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:])], int(starts[-1])
 
@@ -59,7 +64,7 @@ class JointBatch:
     joint_count : int
     """
 
-    def __init__(self, skeletons, device: Device = None) -> None:
+    def __init__(self, skeletons: "Iterable[Skeleton]", device: Device = None) -> None:
         self.device = resolve_device(device)
         self.skeletons = list(skeletons)
         self.joints, self.joint_count = _ranges([s.joint_count for s in self.skeletons])
@@ -68,11 +73,12 @@ class JointBatch:
         starts = [sl.start for sl in self.joints] + [self.joint_count]
         inverse_bind = np.concatenate([s.inverse_bind_transforms for s in self.skeletons])
         d = self.device
-        self._parents = wp.array(parents.astype(np.int32), dtype=wp.int32, device=d)
-        self._starts = wp.array(np.asarray(starts, np.int32), dtype=wp.int32, device=d)
-        self._inverse_bind = wp.array(inverse_bind.astype(np.float32), dtype=wp.mat44, device=d)
+        self._parents: wp.array = wp.array(parents.astype(np.int32), dtype=wp.int32, device=d)
+        self._starts: wp.array = wp.array(np.asarray(starts, np.int32), dtype=wp.int32, device=d)
+        self._inverse_bind: wp.array = wp.array(inverse_bind.astype(np.float32), dtype=wp.mat44,
+                                                device=d)
 
-    def skinning_transforms(self, local_transforms) -> wp.array:
+    def skinning_transforms(self, local_transforms: Sequence[np.ndarray]) -> wp.array:
         """(F, ΣJ) ``wp.mat44`` bind-relative transforms on the device, from each skeleton's
         checked (F, J, 4, 4) local transforms (one host copy, uploaded on a GPU and read in place
         on the CPU, one FK launch, one bind-relative launch)."""
@@ -82,11 +88,12 @@ class JointBatch:
             host[:, sl] = local
         d = self.device
         # on the CPU the kernel reads the host copy in place (no second copy)
-        local = wp.array(host.reshape(-1, 4, 4), dtype=wp.mat44, device=d,
-                         copy=not wp.get_device(d).is_cpu)
+        device_local: wp.array = wp.array(host.reshape(-1, 4, 4), dtype=wp.mat44, device=d,
+                                copy=not wp.get_device(d).is_cpu)
         shape = (F, self.joint_count)
         poses = FK.world_poses(F * self.joint_count, d)
-        FK.forward_kinematics(parents=self._parents, skeleton_start=self._starts, local=local,
+        FK.forward_kinematics(parents=self._parents, skeleton_start=self._starts,
+                              local=device_local,
                               out=poses, device=d)
         world = poses.matrices.reshape(shape)
         out = KB.empty(shape, wp.mat44, d)
@@ -117,7 +124,8 @@ class MeshBatch:
     skinner : dqskin.Skinner
     """
 
-    def __init__(self, meshes, joint_offsets, joint_counts, device: Device = None) -> None:
+    def __init__(self, meshes: "Iterable[Mesh]", joint_offsets: Sequence[int],
+                 joint_counts: Sequence[int], device: Device = None) -> None:
         self.meshes = list(meshes)
         influences, self.vertices = Influences.concatenate(
             [(m.joint_indices, m.joint_weights) for m in self.meshes], joint_offsets,
@@ -132,10 +140,10 @@ class MeshBatch:
         self.skinner = Skinner(points, influences, None, blend_weights=blend, device=device)
 
     @property
-    def vertex_count(self):
+    def vertex_count(self) -> int:
         return self.skinner.vertex_count
 
-    def bind_points(self, per_mesh, frames):
+    def bind_points(self, per_mesh: dict[int, np.ndarray], frames: int) -> np.ndarray | None:
         """(F, V, 3) float32 bind-space rest points: ``per_mesh`` maps a mesh index to its
         (F, Vm, 3) mesh-space points (deformed), the others keep their rest points; None when no
         mesh has any."""
@@ -148,7 +156,8 @@ class MeshBatch:
             out[:, self.vertices[i]] = p @ g[:3, :3].T + g[:3, 3]
         return out
 
-    def bind_velocities(self, per_mesh, frames):
+    def bind_velocities(self, per_mesh: dict[int, np.ndarray],
+                        frames: int) -> np.ndarray | None:
         """(F, V, 3) float32 bind-space rest-point velocities (zero for meshes not in
         ``per_mesh``); None when no mesh has any."""
         if not per_mesh:
@@ -159,7 +168,8 @@ class MeshBatch:
             out[:, self.vertices[i]] = v @ g[:3, :3].T
         return out
 
-    def bind_normals(self, meshes, per_mesh, frames):
+    def bind_normals(self, meshes: Sequence[int], per_mesh: dict[int, np.ndarray],
+                     frames: int) -> tuple[np.ndarray, np.ndarray, list[slice]]:
         """``(vectors (Fp, N, 3) float32 bind space, vector_vertex (N,) int32, slices)`` of the
         normals of ``meshes`` (indices): a mesh's deformed normals in ``per_mesh`` (F, N, 3),
         else its rest normals; normals move by the inverse transpose of the geom-bind linear
@@ -186,8 +196,9 @@ class MeshBatch:
         return vectors, np.concatenate(vv).astype(np.int32), slices
 
 
-def skin_batch(batch: MeshBatch, skinning_transforms, method: Method, options: SkinOptions, *,
-               points=None, as_warp: bool = False):
+def skin_batch(batch: MeshBatch, skinning_transforms: npt.ArrayLike | wp.array, method: Method,
+               options: SkinOptions, *, points: npt.ArrayLike | None = None,
+               as_warp: bool = False) -> np.ndarray | wp.array:
     """(F, V, 3) float32 points of every mesh of ``batch`` (bind space, or crowd space for a
     :class:`Crowd`) in one launch: its skinner with ``method`` and ``options``' sign rule;
     ``points`` (F, V, 3) bind-space rest points when deformed. ``as_warp``: the device array."""
@@ -210,7 +221,7 @@ class Instance:
     """One placed character of a :class:`Crowd`."""
 
     name: str
-    character: object
+    character: "Scene"
     """A :class:`dqskin.Scene` (meshes, skeletons and their animations)."""
     time_offset: float
     """The instance shows its animation at ``t - time_offset`` (a USD layer offset)."""
@@ -245,10 +256,10 @@ class Crowd:
     def __init__(self, device: Device = None) -> None:
         self.device = resolve_device(device)
         self.instances: list[Instance] = []
-        self._batch = None  # _Batch of the instances, built on first use after a change
+        self._batch: _Batch | None = None  # of the instances, built on first use after a change
         self._version = 0  # add() count: a batch built from an older list is not kept
 
-    def add(self, character, *, time_offset: float = 0.0,
+    def add(self, character: "Scene", *, time_offset: float = 0.0,
             root_transform: npt.ArrayLike | None = None, name: str | None = None) -> str:
         """Place one more instance of ``character`` (a :class:`dqskin.Scene`); returns its name
         (default ``"i<index>"``). ValueError for a non-finite offset or root transform, a
@@ -280,7 +291,11 @@ class Crowd:
         instances = self.instances
         if not instances:
             raise InputError("crowd: no instances (add some first)")
-        skeletons, meshes, offsets, counts, names = [], [], [], [], []
+        skeletons: "list[Skeleton]" = []
+        meshes: "list[Mesh]" = []
+        offsets: list[int] = []
+        counts: list[int] = []
+        names: list[str] = []
         for inst in instances:
             first = len(skeletons)
             skeletons.extend(inst.character.skeletons)
@@ -325,7 +340,7 @@ class Crowd:
     def _local_transforms(times, instances, interp):
         t = check_times(times)
         F = t.shape[0]
-        groups = {}
+        groups: dict[tuple[int, int], list[int]] = {}
         for k, inst in enumerate(instances):
             for s in range(len(inst.character.skeletons)):
                 groups.setdefault((id(inst.character), s), []).append(k)
@@ -368,7 +383,7 @@ class Crowd:
 
     def skin(self, times: npt.ArrayLike, method: Method | None = None, *,
              options: SkinOptions | None = None, as_warp: bool = False,
-             **changes) -> np.ndarray | wp.array:
+             **changes: Any) -> np.ndarray | wp.array:
         """Skin every instance at ``times`` with one method (:func:`skin_batch`).
 
         Parameters

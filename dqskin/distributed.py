@@ -27,9 +27,11 @@ import contextlib
 import os
 import sys
 import time
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,14 +40,21 @@ from .errors import DqskinError, InputError, Param
 from .files import atomic
 from .kernels import buffers as KB
 from .options import SkinOptions
+from .scene import Scene
 from .validation import check_skinned
 from .writers import usd_clips
 from .writers.usd_cache import SampleWriter, chunk_frames
 
+if TYPE_CHECKING:
+    from distributed import WorkerPlugin
+
+    from .baking import BakeSettings
+
 __all__ = ["ClipJob", "bake_clips", "run_clip", "run_here", "worker_threads"]
 
 
-_scenes = {}  # this worker process's loaded asset: {(path, mtime, size): Scene}
+# this worker process's loaded asset: {(path, mtime, size): Scene}
+_scenes: dict[tuple[str, int, int], Scene] = {}
 _buffers = KB.BufferPool()  # this process's chunks of frames, reused from task to task (run_clip)
 
 
@@ -82,7 +91,7 @@ class ClipJob:
     time_codes_per_second: float
 
 
-def worker_threads(nthreads: int, environ=os.environ) -> dict:
+def worker_threads(nthreads: int, environ: Mapping[str, str] = os.environ) -> dict[str, str]:
     """The thread budget of a worker process with Dask ``nthreads`` task threads:
     ``{"DQSKIN_THREADS": .., "PXR_WORK_THREAD_LIMIT": ..}`` (dqskin's CPU launch pool, USD's
     thread pool), each the variable's value when set in ``environ`` (a LocalCluster of
@@ -92,7 +101,7 @@ def worker_threads(nthreads: int, environ=os.environ) -> dict:
     return {k: environ.get(k) or budget for k in ("DQSKIN_THREADS", "PXR_WORK_THREAD_LIMIT")}
 
 
-def _worker_plugin(own_cluster: bool):
+def _worker_plugin(own_cluster: bool) -> "WorkerPlugin":
     """A Dask worker plugin, for every worker process (restarted ones too): Warp's banner and
     module-load messages off (the worker's stdout is the caller's), and the process's thread
     budget (:func:`worker_threads`) applied to dqskin's launch pool and USD's thread pool (a
@@ -109,7 +118,6 @@ def _worker_plugin(own_cluster: bool):
         def setup(self, worker):
             import warp as wp
             from pxr import Work
-            wp.config.quiet = True
             wp.config.log_level = wp.LOG_ERROR
             state = getattr(worker, "state", worker)
             budget = worker_threads(getattr(state, "nthreads", 1))
@@ -168,7 +176,7 @@ def _result(job, digest, t0, c0):
                 peak_rss_mb=_peak_rss_mb(), started=ended - seconds, ended=ended)
 
 
-def run_clip(job: ClipJob, scene=None) -> dict:
+def run_clip(job: ClipJob, scene: Scene | None = None) -> dict[str, Any]:
     """Skin one clip and write its layer; ``scene`` defaults to the worker's copy of
     ``job.source``. Returns ``index``, ``checksum`` (:data:`~.writers.usd_clips.CHECKSUM`),
     ``seconds``, ``cpu_seconds`` (of the whole process while the task ran: all its threads, a
@@ -186,7 +194,8 @@ def run_clip(job: ClipJob, scene=None) -> dict:
     return _result(job, digest, t0, c0)
 
 
-def run_here(jobs: list, scene, done) -> None:
+def run_here(jobs: "list[ClipJob]", scene: Scene,
+             done: Callable[[dict[str, Any]], object]) -> None:
     """Every job, in order, in this process (``done(result)`` after each; results as
     :func:`run_clip`'s), pipelined across chunks instead of :func:`run_clip` one by one: one
     :meth:`dqskin.Scene.skin_chunks` stream of chunks
@@ -207,7 +216,8 @@ def run_here(jobs: list, scene, done) -> None:
     writer = _sample_writer(scene, jobs[0])
     stream = scene.skin_chunks(np.concatenate([j.times for j in jobs]),
                                [n for c in chunks for n in c], options=jobs[0].options)
-    pending = None  # (job, claim, checksum, start) of the finished, unrecorded layer
+    # (job, claim, checksum, start) of the finished, unrecorded layer
+    pending: tuple[ClipJob, atomic.atomic_path, str | None, tuple[float, float]] | None = None
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values") as values:
         try:
             start = time.perf_counter(), time.process_time()
@@ -247,7 +257,7 @@ def _commit_on_error(job, claim, digest, start):
     try:
         atomic.check_interrupted()
     except BaseException as exc:
-        recorded = exc
+        recorded: BaseException | None = exc
     else:
         recorded = None
     with atomic.critical():  # a recorded interrupt is raised at the end of this block
@@ -261,7 +271,8 @@ def _commit_on_error(job, claim, digest, start):
                 atomic.interrupt(recorded)
 
 
-def bake_clips(scene, out, times, options: SkinOptions, settings, *, threads=None) -> dict:
+def bake_clips(scene: Scene, out: str | Path, times: np.ndarray, options: SkinOptions,
+               settings: "BakeSettings", *, threads: int | None = None) -> dict[str, Any]:
     """Bake ``scene`` at ``times`` to the value-clip cache ``out``
     (:class:`~.writers.usd_clips.ClipBake`) with ``options`` (for the meshes and the rigidly
     bound prims; :meth:`SkinOptions.plan` goes into the plan key) and ``settings``

@@ -8,9 +8,13 @@ non-negative weights, the joint-index range: :func:`check_joint_range`), the wei
 (:meth:`Influences.concatenate`) and the upload to the kernels' one argument,
 :class:`dqskin.kernels.layout.InfluenceLayout` (:meth:`Influences.layout`)."""
 
+from collections.abc import Sequence
+
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
+from ._warp import Device
 from .errors import InputError
 from .kernels import buffers as KB
 from .kernels import layout as KL
@@ -44,13 +48,13 @@ def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None
     if not idx.size or not values:
         return idx, wts, -1
     if idx.size >= _BESIDE_MIN:  # the weights on another core
-        weights_ok, hi = beside(lambda: nonnegative_max(wts) is not None,
-                                lambda: nonnegative_max(idx))
+        weights_ok, largest = beside(lambda: nonnegative_max(wts) is not None,
+                                     lambda: nonnegative_max(idx))
     else:
-        weights_ok, hi = None, nonnegative_max(idx)
-    if hi is None:
+        weights_ok, largest = None, nonnegative_max(idx)
+    if largest is None:
         raise InputError(f"joint_indices: negative index {int(idx.min())}")
-    hi = int(hi)
+    hi = int(largest)
     if joint_count is not None:
         check_joint_range(hi, joint_count)
     if weights_ok is None:
@@ -64,7 +68,8 @@ def _validated(joint_indices, joint_weights, vertex_count=None, joint_count=None
     return idx, wts, hi
 
 
-def check_joint_range(largest, joint_count, joints="joints", where="joint_indices"):
+def check_joint_range(largest: int, joint_count: int, joints: str = "joints",
+                      where: str = "joint_indices") -> None:
     """The one joint-index range check: InputError ``"<where>: index <largest> out of range for
     <joint_count> <joints>"`` unless ``largest < joint_count`` (indices already known
     non-negative)."""
@@ -72,13 +77,15 @@ def check_joint_range(largest, joint_count, joints="joints", where="joint_indice
         raise InputError(f"{where}: index {int(largest)} out of range for {joint_count} {joints}")
 
 
-def weight_order(weights):
+def weight_order(weights: npt.ArrayLike) -> np.ndarray:
     """``(V, K)`` int: each row's slots by descending weight, stable (the first slot first on
     ties): the order of the kernels' layout (slot 0 the DQS pivot, as UsdSkel)."""
     return np.argsort(-np.asarray(weights), axis=1, kind="stable")
 
 
-def check_influences(joint_indices, joint_weights, vertex_count=None, joint_count=None):
+def check_influences(joint_indices: npt.ArrayLike, joint_weights: npt.ArrayLike,
+                     vertex_count: int | None = None,
+                     joint_count: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Validate per-vertex influences; returns ``(indices (V, K) int64, weights (V, K) float32)``.
 
     1-D inputs are one influence per vertex. Raises InputError naming ``joint_indices`` or
@@ -127,18 +134,23 @@ class Influences:
         :meth:`check_values` with ``check_values=False``).
     """
 
-    def __init__(self, joint_indices, joint_weights, *, vertex_count=None, check_values=True):
+    def __init__(self, joint_indices: npt.ArrayLike, joint_weights: npt.ArrayLike, *,
+                 vertex_count: int | None = None, check_values: bool = True) -> None:
         idx, wts, hi = _validated(joint_indices, joint_weights, vertex_count,
                                   values=check_values)
         self.vertex_count, self.influence_count = idx.shape
         self.group_count = max(1, -(-self.influence_count // 4))  # K = 0: one group of zeros
         self._input = idx, wts  # indices in the caller's integer dtype (no copy)
-        self._sorted = None  # (order, indices, weights) on the host, computed when first asked
-        self._uploads = {}  # (device, order) → (indices, weights) flat device arrays
+        # (order, indices, weights) on the host, computed when first asked
+        self._sorted: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        # (device, order) → (indices, weights) flat device arrays
+        self._uploads: dict[tuple[str, str], tuple[wp.array, wp.array]] = {}
         self.joint_count_min = hi + 1
 
     @classmethod
-    def concatenate(cls, parts, joint_offsets, joint_counts, names=None):
+    def concatenate(cls, parts: Sequence[tuple[npt.ArrayLike, npt.ArrayLike]],
+                    joint_offsets: Sequence[int], joint_counts: Sequence[int],
+                    names: Sequence[str] | None = None) -> "tuple[Influences, list[slice]]":
         """Many meshes' influences on one vertex axis and one joint axis.
 
         Parameters
@@ -159,16 +171,16 @@ class Influences:
             axis, weight 0); each mesh's vertices on the concatenated axis. Raises InputError
             naming the mesh for an index outside its joints.
         """
-        parts = [(np.asarray(i), np.asarray(w)) for i, w in parts]
-        counts = [int(i.shape[0]) if i.ndim else 0 for i, _ in parts]
+        arrays = [(np.asarray(i), np.asarray(w)) for i, w in parts]
+        counts = [int(i.shape[0]) if i.ndim else 0 for i, _ in arrays]
         starts = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)]).astype(np.int64)
         slices = [slice(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:])]
-        K = max([w.shape[1] if w.ndim == 2 else 1 for _, w in parts] + [0])
+        K = max([w.shape[1] if w.ndim == 2 else 1 for _, w in arrays] + [0])
         V = int(starts[-1])
         idx = np.zeros((V, K), np.int32)
         wts = np.zeros((V, K), np.float32)
-        names = names or [f"mesh {n}" for n in range(len(parts))]
-        for (i, w), sl, off, count, name in zip(parts, slices, joint_offsets, joint_counts,
+        names = names or [f"mesh {n}" for n in range(len(arrays))]
+        for (i, w), sl, off, count, name in zip(arrays, slices, joint_offsets, joint_counts,
                                                 names):
             i = i.reshape(sl.stop - sl.start, -1)
             if i.size:
@@ -180,12 +192,12 @@ class Influences:
             wts[sl, :i.shape[1]] = np.asarray(w, np.float32).reshape(i.shape)
         return cls(idx, wts, vertex_count=V), slices
 
-    def check_values(self):
+    def check_values(self) -> None:
         """Check the values of indices and weights (``check_values=False`` left them to a
         kernel): InputError as the constructor raises."""
         self.joint_count_min = _validated(*self._input)[2] + 1
 
-    def _host_layout(self):
+    def _host_layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if self._sorted is None:
             idx, wts = self._input
             order = weight_order(wts)
@@ -193,23 +205,31 @@ class Influences:
                                                    np.take_along_axis(wts, order, 1))
         return self._sorted
 
-    order = property(lambda self: self._host_layout()[0])
-    indices = property(lambda self: self._host_layout()[1])
-    weights = property(lambda self: self._host_layout()[2])
+    @property
+    def order(self) -> np.ndarray:
+        return self._host_layout()[0]
 
     @property
-    def given(self):
+    def indices(self) -> np.ndarray:
+        return self._host_layout()[1]
+
+    @property
+    def weights(self) -> np.ndarray:
+        return self._host_layout()[2]
+
+    @property
+    def given(self) -> tuple[np.ndarray, np.ndarray]:
         """``(indices (V, K) int64, weights (V, K) float32)`` as given (validated, unsorted)."""
         return self._input[0].astype(np.int64), self._input[1]
 
-    def _groups(self, idx, wts):
+    def _groups(self, idx: np.ndarray, wts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(V, K) → ``(indices (V, C, 4) int32, weights (V, C, 4) float32)``, zero-padded."""
         pad = 4 * self.group_count - idx.shape[1]
         V = self.vertex_count
         return (np.pad(idx, ((0, 0), (0, pad))).astype(np.int32).reshape(V, self.group_count, 4),
                 np.pad(wts, ((0, 0), (0, pad))).reshape(V, self.group_count, 4))
 
-    def check_joint_count(self, joint_count):
+    def check_joint_count(self, joint_count: int) -> None:
         """InputError when ``joint_count`` skinning transforms cannot cover the indices (the
         zero-weight padding points at joint 0, so points need at least one joint)."""
         if self.joint_count_min:
@@ -217,7 +237,8 @@ class Influences:
         if joint_count == 0 and self.vertex_count:
             raise InputError("skinning_transforms: no joints to skin the points with")
 
-    def layout(self, device, order="weight", *, blend, centers, running_sum=False, copy=True):
+    def layout(self, device: Device, order: str = "weight", *, blend: wp.array, centers: wp.array,
+               running_sum: bool = False, copy: bool = True) -> KL.InfluenceLayout:
         """The kernels' :class:`~dqskin.kernels.layout.InfluenceLayout` on ``device``.
 
         Parameters

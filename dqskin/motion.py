@@ -21,20 +21,21 @@ References: [K] and [MS] as in :mod:`dqskin.animation`.
 """
 
 from collections.abc import Callable
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 import numpy.typing as npt
 
 from . import dq
 from ._warp import Device
-from .animation import Animation, Interpolation, _motion, check_times, sample_with_derivative
+from .animation import Animation, _motion, check_times, sample_with_derivative
 from .errors import InputError
 from .influences import check_influences
 from .linalg import vee
+from .options import Interpolation, Method, SignReference
 from .shapes import as_real, frames_of
 from .skeleton import Skeleton, check_parents
-from .skinning import Method, SignReference, Skinner
+from .skinning import Skinner
 
 __all__ = ["forward_kinematics_derivative", "joint_twists", "moved_velocities", "per_second",
            "skinned_velocities", "skinning_transforms_with_derivative"]
@@ -221,7 +222,7 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
         blend shapes), so these are the derivatives of their positions. Default: ``points``
         when it is (V, 3); required for ``"cor"`` with per-frame (F, V, 3) points.
     sign_reference : {"largest_weight", "running_sum"}
-        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
+        Sign rule of the rotation blends (:data:`dqskin.options.SignReference`).
     device : str, optional
         Warp device.
 
@@ -249,5 +250,6 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
     sk = Skinner(rest, idx, wts, geom_bind_transform=geom_bind_transform,
                  blend_weights=blend_weights, faces=faces, device=device)
     per_frame = pts.shape[0] > 1 or rest_points is not None
-    return sk.skin_velocities(x, x_dot, method, points=pts if per_frame else None,
-                              point_velocities=point_velocities, sign_reference=sign_reference)
+    return cast(np.ndarray, sk.skin_velocities(
+        x, x_dot, method, points=pts if per_frame else None, point_velocities=point_velocities,
+        sign_reference=sign_reference))

@@ -12,19 +12,46 @@ bake sends it to its Dask workers); :meth:`SkinOptions.replace` derives another.
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, Literal, cast, get_args
 
-from .animation import INTERPOLATIONS, Interpolation
-from .cor import SIGMA
 from .errors import InputError, Param
-from .skinning import METHODS, SIGN_REFERENCES, Method, SignReference
 from .spaces import SPACES, Space
 
-__all__ = ["SPACES", "CorOptions", "SkinOptions", "Space", "split_changes"]
+if TYPE_CHECKING:
+    from .readers.usd import RigidPrim
+    from .scene import Mesh
+
+__all__ = ["INTERPOLATIONS", "METHOD_NAMES", "SIGMA", "SIGN_REFERENCES", "SPACES", "CorOptions",
+           "Interpolation", "Method", "SignReference", "SkinOptions", "Space", "split_changes"]
+
+Method = Literal["lbs", "dqs", "blend", "cor"]
+"""Skinning methods: linear blend, dual quaternion, per-vertex blend of the two, optimized centers
+of rotation (:mod:`dqskin.cor`; needs the mesh's faces)."""
+
+METHOD_NAMES: tuple[Method, ...] = get_args(Method)
+"""Every :data:`Method`, in order (:data:`dqskin.skinning.METHODS` maps each to its kernel
+code)."""
+
+SignReference = Literal["largest_weight", "running_sum"]
+"""How DQS (and the rotation blends of "blend" and "cor") pick each joint quaternion's sign:
+against the vertex's largest-weight joint (UsdSkel; first on ties), or against the running sum of
+the blend so far, influences in their input order, a zero sum flipping nothing (Blender's
+Preserve Volume)."""
+
+SIGN_REFERENCES: tuple[SignReference, ...] = get_args(SignReference)
+"""Every :data:`SignReference`, in order."""
+
+Interpolation = Literal["trs", "sclerp", "dlb", "spline", "catmull-rom"]
+"""Pose interpolation between keys (:mod:`dqskin.animation`)."""
+
+INTERPOLATIONS: tuple[Interpolation, ...] = get_args(Interpolation)
+"""Every :data:`Interpolation`, in order."""
+
+SIGMA = 0.1
+"""Width of the centers-of-rotation similarity kernel (Le & Hodgins' value; :mod:`dqskin.cor`)."""
 
 
-
-def _choice(name, value, choices, none=False):
+def _choice(name: str, value: object, choices: tuple[str, ...], none: bool = False) -> None:
     if (value is None and none) or (isinstance(value, str) and value in choices):
         return
     raise InputError(Param(name, value), f": expected one of {list(choices)}"
@@ -39,7 +66,7 @@ class CorOptions:
     Attributes
     ----------
     sigma : float
-        Similarity width, > 0 (:data:`dqskin.cor.SIGMA`).
+        Similarity width, > 0 (:data:`SIGMA`).
     subdivide : float or None
         Subdivide triangles to this weight distance (> 0) for the integral; None: one term per
         triangle.
@@ -52,7 +79,7 @@ class CorOptions:
     subdivide: float | None = None
     cluster: float | str | None = "auto"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name, none in (("sigma", False), ("subdivide", True), ("cluster", True)):
             v = getattr(self, name)
             if (v is None and none) or (name == "cluster" and v == "auto"):
@@ -78,9 +105,9 @@ class SkinOptions:
     method : {"lbs", "dqs", "blend", "cor"} or None
         None: each mesh's own ``skinning_method``.
     sign_reference : {"largest_weight", "running_sum"}
-        Sign rule of the rotation blends (:data:`dqskin.skinning.SignReference`).
+        Sign rule of the rotation blends (:data:`SignReference`).
     interp : str
-        Joint interpolation between keys (:data:`dqskin.animation.INTERPOLATIONS`).
+        Joint interpolation between keys (:data:`INTERPOLATIONS`).
     normals, tangents, velocities : bool
         Also skin the rest normals, the rest tangents (directions only; the handedness stays
         ``mesh.tangents[:, 3]``), and compute point velocities (length units per second, the
@@ -112,8 +139,8 @@ class SkinOptions:
     device: str | None = None
     cor: CorOptions = field(default_factory=CorOptions)
 
-    def __post_init__(self):
-        _choice("method", self.method, tuple(METHODS), none=True)
+    def __post_init__(self) -> None:
+        _choice("method", self.method, METHOD_NAMES, none=True)
         _choice("sign_reference", self.sign_reference, SIGN_REFERENCES)
         _choice("interp", self.interp, INTERPOLATIONS)
         _choice("space", self.space, SPACES)
@@ -149,7 +176,7 @@ class SkinOptions:
         """A copy with ``changes`` (:meth:`build` on this one)."""
         return self.build(self, **changes)
 
-    def method_of(self, mesh) -> Method:
+    def method_of(self, mesh: "Mesh | RigidPrim") -> Method:
         """The method ``mesh`` is skinned with: :attr:`method`, else the mesh's own."""
         return cast(Method, self.method or mesh.skinning_method)
 
@@ -165,7 +192,7 @@ class SkinOptions:
         return out
 
 
-def split_changes(function: str, changes: dict, *kinds) -> list:
+def split_changes(function: str, changes: dict[str, Any], *kinds: type) -> list[dict[str, Any]]:
     """``changes`` (keyword arguments of ``function``) split by the dataclass among ``kinds``
     that has each as a field: one dict per kind. TypeError, as Python's, for a keyword no kind
     has."""

@@ -17,17 +17,23 @@ skin through :func:`dqskin.crowd.skin_batch`, the rigidly bound USD prims throug
 """
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ._warp import resolve_device
 from .animation import check_times
 from .crowd import BATCH_METHODS, JointBatch, MeshBatch, skin_batch
 from .errors import InputError
 from .motion import moved_velocities, per_second, skinning_transforms_with_derivative
-from .options import SkinOptions
+from .options import Method, SkinOptions
 from .skinning import skin_points
 from .spaces import space_track
+
+if TYPE_CHECKING:
+    from .readers.usd import RigidPrim
+    from .scene import Mesh, Scene
 
 __all__ = ["SkinnedFrames", "one_launch", "rigid_transforms", "skin_scene"]
 
@@ -55,7 +61,7 @@ class SkinnedFrames:
     tangents: dict = field(default_factory=dict)
 
 
-def one_launch(scene, options: SkinOptions) -> bool:
+def one_launch(scene: "Scene", options: SkinOptions) -> bool:
     """Whether ``scene``'s meshes are skinned in one launch per method: more than one mesh,
     every method batchable (:data:`~dqskin.crowd.BATCH_METHODS`), no tangents, and UsdSkel's
     sign rule (the batch layout sorts influences for it)."""
@@ -64,7 +70,8 @@ def one_launch(scene, options: SkinOptions) -> bool:
             and all(options.method_of(m) in BATCH_METHODS for m in scene.meshes))
 
 
-def skin_scene(scene, times, options: SkinOptions, cache: dict) -> SkinnedFrames:
+def skin_scene(scene: "Scene", times: npt.ArrayLike, options: SkinOptions,
+               cache: dict[Any, Any]) -> SkinnedFrames:
     """Skin every mesh of ``scene`` at ``times`` (checked) with ``options``; ``cache`` keeps
     the uploaded skinners and batches between calls (:attr:`dqskin.Scene._skinners`)."""
     t = check_times(times)
@@ -121,7 +128,7 @@ class _Poses:
         scene, options = self.scene, self.options
         if not self.batched:
             return [_One(self, m) for m in scene.meshes]
-        groups = {}
+        groups: "dict[Method, list[Mesh]]" = {}
         for m in scene.meshes:
             groups.setdefault(options.method_of(m), []).append(m)
         return [_Many(self, meth, meshes) for meth, meshes in groups.items()]
@@ -253,7 +260,9 @@ class _Many:
         for i, m in enumerate(meshes):
             v = v_all[:, batch.vertices[i]]
             if i in outs:
-                v = moved_velocities(v, *outs[i], tcps, lambda i=i: skel[:, batch.vertices[i]])
+                out, out_rate = outs[i]
+                columns = batch.vertices[i]
+                v = moved_velocities(v, out, out_rate, tcps, lambda: skel[:, columns])
             result.velocities[m.name] = v
 
 
@@ -269,7 +278,8 @@ def _apply_normals(n, xf):
     return y / np.maximum(np.linalg.norm(y, axis=-1, keepdims=True), 1e-30)
 
 
-def rigid_transforms(scene, prim, times, options: SkinOptions):
+def rigid_transforms(scene: "Scene", prim: "RigidPrim", times: npt.ArrayLike,
+                     options: SkinOptions) -> np.ndarray:
     """Local transforms of a rigidly skinned prim without points
     (:class:`dqskin.readers.usd.RigidPrim`), skinned by the engine.
 

@@ -25,10 +25,10 @@ from ._warp import Device
 from .autoweights import automatic_weights
 from .errors import InputError, Param
 from .influences import check_influences
+from .options import Method
 from .readers import bvh
 from .readers.mesh import load_mesh
 from .scene import Mesh, Scene
-from .skinning import Method
 
 __all__ = ["WEIGHT_FIELDS", "check_fit", "read_weights", "replace_weights", "rig_mesh",
            "skinned_difference"]
@@ -63,7 +63,7 @@ def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_cou
         raise InputError(f"{p}: cannot read weights: {exc}") from None
     except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
         # missing, empty, truncated or damaged archive
-        raise InputError(f"{p}: cannot read weights: {exc or type(exc).__name__}") from None
+        raise InputError(f"{p}: cannot read weights: {str(exc) or type(exc).__name__}") from None
     names = [str(n) for n in np.ravel(names)]
     try:
         idx, wts = check_influences(idx, wts, vertex_count, len(names))

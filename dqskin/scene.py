@@ -6,21 +6,22 @@ local transforms → forward kinematics (dual quaternions) → skinning transfor
 → per-vertex skinning → the space asked for (:mod:`dqskin.spaces`).
 """
 
-from collections.abc import Iterator
+from collections.abc import Generator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from ._warp import Device, resolve_device
-from .animation import Deformer, Interpolation, TransformTrack, check_times, sample
+from .animation import Deformer, TransformTrack, check_times, sample
 from .errors import InputError, Param, UnknownNameError
 from .kernels import buffers as KB
-from .options import CorOptions, SkinOptions
+from .options import CorOptions, Interpolation, Method, SkinOptions
 from .pipeline import SkinnedFrames, skin_scene
 from .skeleton import Skeleton
-from .skinning import Method, Skinner
+from .skinning import Skinner
 from .validation import check_transforms
 
 __all__ = ["DEFAULT_BLEND", "Mesh", "Scene", "SkinnedFrames"]
@@ -95,7 +96,7 @@ class Mesh:
     blend_weights: np.ndarray | None = None
     tangents: np.ndarray | None = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         # read-only arrays: a Skinner uploaded from them stays valid (replace a mesh, then call
         # Scene.invalidate, to change one)
         for name in ("points", "faces", "joint_indices", "joint_weights", "normals",
@@ -106,7 +107,7 @@ class Mesh:
                 a.flags.writeable = False
                 setattr(self, name, a)
 
-    def blend_or_default(self):
+    def blend_or_default(self) -> np.ndarray:
         """(V,) float32 blend weights, ½ where none were given."""
         if self.blend_weights is not None:
             return np.asarray(self.blend_weights, np.float32)
@@ -151,7 +152,7 @@ class Scene:
     clip: str | None = None
     _skinners: dict = field(default_factory=dict, repr=False, compare=False)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for m in self.meshes:
             if not 0 <= m.skeleton < len(self.skeletons):
                 raise InputError(f"{self.path}: mesh {m.name!r}: skeleton {m.skeleton} out of "
@@ -196,7 +197,7 @@ class Scene:
                          interp: Interpolation = SkinOptions.interp) -> np.ndarray:
         """(F, J, 4, 4) float64 local joint transforms of one skeleton at ``times``.
 
-        ``interp`` is :data:`dqskin.animation.INTERPOLATIONS`: "trs" is the asset's own sampler
+        ``interp`` is :data:`dqskin.options.INTERPOLATIONS`: "trs" is the asset's own sampler
         (what glTF and USD players show); the others interpolate the keys with dual quaternions.
         ValueError naming the skeleton, time and joint when a transform is NaN, infinite or
         beyond float32 range.
@@ -217,7 +218,7 @@ class Scene:
             self.local_transforms(times, skeleton, interp=interp), device=device)
 
     def skin(self, times: npt.ArrayLike | None = None, method: Method | None = None, *,
-             options: SkinOptions | None = None, **changes) -> SkinnedFrames:
+             options: SkinOptions | None = None, **changes: Any) -> SkinnedFrames:
         """Skin every mesh at ``times`` (:func:`dqskin.pipeline.skin_scene`, the one skinning
         path of the engine).
 
@@ -253,7 +254,7 @@ class Scene:
 
     def skin_chunks(self, times: npt.ArrayLike, chunk: "int | list[int]", *,
                     buffers: "KB.BufferPool | None" = None, options: SkinOptions | None = None,
-                    **changes) -> Iterator[tuple[slice, "SkinnedFrames"]]:
+                    **changes: Any) -> Generator[tuple[slice, SkinnedFrames], None, None]:
         """Yield ``(slice, SkinnedFrames)`` for consecutive chunks of ``chunk`` frames (or of
         the sizes in a list ``chunk``, which must add up to the frame count), so memory stays
         bounded; ``options`` and ``changes`` as for :meth:`skin`.
@@ -278,7 +279,7 @@ class Scene:
         pool = KB.BufferPool() if buffers is None else buffers
         opts = SkinOptions.build(options, **changes)
 
-        def skin(tt):
+        def skin(tt: np.ndarray) -> SkinnedFrames:
             with KB.reusing(pool):
                 return skin_scene(self, tt, opts, self._skinners)
 

@@ -8,14 +8,14 @@ bind (skeleton) space before skinning. Results are float32 in skeleton space. Sa
 """
 
 import threading
-from typing import Literal, get_args
+from typing import Any, Literal, cast, get_args
 
 import numpy as np
 import numpy.typing as npt
 import warp as wp
 
 from ._warp import Device, resolve_device
-from .cor import SIGMA, check_faces, rotation_centers
+from .cor import check_faces, rotation_centers
 from .errors import InputError
 from .influences import Influences
 from .kernels import buffers as KB
@@ -23,26 +23,14 @@ from .kernels import grid as KG
 from .kernels import skin as K
 from .kernels import velocity as KV
 from .kernels.dqmath import mat34, vec8
+from .options import METHOD_NAMES, SIGMA, SIGN_REFERENCES, Method, SignReference
 from .shapes import as_array, frames_of
 from .validation import check_finite, check_transforms, within_float32
 
-__all__ = ["METHODS", "Method", "SIGN_REFERENCES", "SignReference", "Skinner", "VectorKind",
-           "skin_points", "skin_normals"]
+__all__ = ["METHODS", "Skinner", "VectorKind", "skin_points", "skin_normals"]
 
-Method = Literal["lbs", "dqs", "blend", "cor"]
-"""Skinning methods: linear blend, dual quaternion, per-vertex blend of the two, optimized centers
-of rotation (:mod:`dqskin.cor`; needs the mesh's faces)."""
-
-METHODS = dict(zip(get_args(Method), (K.LBS, K.DQS, K.BLEND, K.COR)))
-"""Each :data:`Method` and its kernel code."""
-
-SignReference = Literal["largest_weight", "running_sum"]
-"""How DQS (and the rotation blends of "blend" and "cor") pick each joint quaternion's sign:
-against the vertex's largest-weight joint (UsdSkel; first on ties), or against the running sum of
-the blend so far, influences in their input order, a zero sum flipping nothing (Blender's
-Preserve Volume)."""
-
-SIGN_REFERENCES = get_args(SignReference)
+METHODS: dict[Method, int] = dict(zip(METHOD_NAMES, (K.LBS, K.DQS, K.BLEND, K.COR)))
+"""Each :data:`~dqskin.options.Method` and its kernel code."""
 
 VectorKind = Literal["normal", "tangent"]
 """How directions transform: normals by the inverse transpose, tangents by the matrix."""
@@ -74,7 +62,7 @@ def _transforms(name, skinning_transforms):
     raise InputError(f"{name}: expected (J, 4, 4) or (F, J, 4, 4), got {x.shape}")
 
 
-_empties = {}
+_empties: dict[tuple[Any, str], wp.array] = {}
 
 
 def _empty(dtype, device):
@@ -132,7 +120,7 @@ class Skinner:
         (:func:`dqskin.cor.rotation_centers`, bind space) are computed on its first use, from the
         rest points (not from ``points`` passed per call), and cached on disk.
     cor_sigma : float
-        Similarity width of the centers (:data:`dqskin.cor.SIGMA`).
+        Similarity width of the centers (:data:`dqskin.options.SIGMA`).
     cor_subdivide : float, optional
         Refine the centers' integral by subdividing triangles to this weight distance (the
         paper's 0.1; :func:`dqskin.cor.rotation_centers`); None: one term per triangle.
@@ -161,6 +149,11 @@ class Skinner:
                     return None, InputError(f"joint_indices: {joint_indices.vertex_count} "
                                             f"vertices for {pts.shape[0]} points")
                 return joint_indices, None
+            if isinstance(joint_indices, Influences):
+                return None, InputError("joint_weights: expected None with joint_indices an "
+                                        "Influences")
+            if joint_weights is None:
+                return None, InputError("joint_weights: required with joint_indices an array")
             try:
                 return Influences(joint_indices, joint_weights, vertex_count=pts.shape[0],
                                   check_values=not unchecked), None
@@ -183,7 +176,7 @@ class Skinner:
                                             (4, 4)).reshape(1, 4, 4))[0]
         self.geom_bind_transform = g
         self._identity_bind = np.array_equal(g, np.eye(4))
-        self._cache = {}
+        self._cache: dict[Any, Any] = {}
         self._lock = threading.Lock()
         d = self.device
         self._points = self._upload(pts[None])
@@ -191,7 +184,7 @@ class Skinner:
         self.faces = None if faces is None else check_faces(faces, self.vertex_count)
         self.cor_sigma, self.cor_subdivide = float(cor_sigma), cor_subdivide
         self.cor_cluster = cor_cluster
-        self._centers = None
+        self._centers: tuple[np.ndarray, wp.array] | None = None
         if blend_weights is None:
             self._blend = _empty(wp.float32, d)
         else:
@@ -203,7 +196,8 @@ class Skinner:
         # the default: UsdSkel's rule (built now, so that a one-shot call's upload aliases)
         self._inf = self.influences.layout(d, self._layout_order, blend=self._blend,
                                            centers=self._no_centers, copy=self._copy_uploads)
-        self._layouts = {}  # (COR, running sum) → the kernels' InfluenceLayout
+        # (COR, running sum) → the kernels' InfluenceLayout
+        self._layouts: dict[tuple[bool, bool], K.InfluenceLayout] = {}
 
     def rotation_centers(self) -> np.ndarray:
         """(V, 3) float64 centers of rotation of ``method="cor"`` in bind space, NaN for vertices
@@ -235,6 +229,7 @@ class Skinner:
             centers = self._no_centers
             if code == K.COR:
                 self.rotation_centers()
+                assert self._centers is not None
                 centers = self._centers[1]
             layout = self._layouts[key] = self.influences.layout(
                 self.device, "input" if running else self._layout_order, blend=self._blend,
@@ -415,7 +410,7 @@ class Skinner:
             xf = np.zeros((frames, 4, 4))
             xf[:, :3, :3] = lin
             xf[:, 3, 3] = 1.0
-        xforms = wp.array(xf.astype(np.float32), dtype=wp.mat44, device=self.device)
+        xforms: wp.array = wp.array(xf.astype(np.float32), dtype=wp.mat44, device=self.device)
         K.transform_frames(xforms=xforms, normalize=normals, values=out, device=self.device)
 
     @staticmethod
@@ -442,7 +437,8 @@ class Skinner:
         output_transforms : (4, 4) or (F, 4, 4) float, optional
             Applied to the skinned points on the device (e.g. skeleton space → prim space).
         sign_reference : {"largest_weight", "running_sum"}
-            Sign rule of the rotation blends (:data:`SignReference`); LBS ignores it.
+            Sign rule of the rotation blends (:data:`~dqskin.options.SignReference`); LBS ignores
+            it.
         as_warp : bool
             Return the device array ``wp.array2d(dtype=wp.vec3)`` of shape (F, V) without a copy.
 
@@ -515,7 +511,7 @@ class Skinner:
             Point transforms applied after skinning (normals get their inverse transpose and are
             renormalized; tangents their linear part).
         sign_reference : {"largest_weight", "running_sum"}
-            Sign rule of the rotation blends (:data:`SignReference`).
+            Sign rule of the rotation blends (:data:`~dqskin.options.SignReference`).
 
         Returns
         -------
@@ -534,7 +530,7 @@ class Skinner:
                 if n != self.vertex_count:
                     raise InputError(f"vectors: {n} vectors for {self.vertex_count} points; pass "
                                      "vector_vertex for face-varying data")
-                vv = np.arange(n, dtype=np.int32)
+                vv: np.ndarray = np.arange(n, dtype=np.int32)
             else:
                 vv = np.asarray(vector_vertex, dtype=np.int64).reshape(-1)
                 if vv.shape != (n,) or (n and (vv.min() < 0 or vv.max() >= self.vertex_count)):
@@ -546,7 +542,7 @@ class Skinner:
             except np.linalg.LinAlgError:
                 raise InputError("geom_bind_transform: singular, normals cannot follow") from None
             d = self.device
-            src = wp.array((vec @ gm.T).astype(np.float32), dtype=wp.vec3, device=d)
+            src: wp.array = wp.array((vec @ gm.T).astype(np.float32), dtype=wp.vec3, device=d)
             if kind == "normal":
                 lin, rot, res = (prep["normal_linears"], prep["normal_rotations"],
                                  prep["normal_residuals"])
@@ -585,7 +581,7 @@ class Skinner:
         point_velocities : (V, 3) or (F, V, 3) float, optional
             ``d points / dt`` in mesh space (e.g. from blend shapes); zero by default.
         sign_reference : {"largest_weight", "running_sum"}
-            Sign rule of the rotation blends (:data:`SignReference`).
+            Sign rule of the rotation blends (:data:`~dqskin.options.SignReference`).
 
         Returns
         -------
@@ -631,7 +627,7 @@ def skin_points(points: npt.ArrayLike, joint_indices: npt.ArrayLike, joint_weigh
     faces : (T, 3) int, optional
         Triangles, required for ``"cor"``.
     sign_reference : {"largest_weight", "running_sum"}
-        Sign rule of the rotation blends (:data:`SignReference`).
+        Sign rule of the rotation blends (:data:`~dqskin.options.SignReference`).
     device : str, optional
 
     Returns
@@ -643,7 +639,7 @@ def skin_points(points: npt.ArrayLike, joint_indices: npt.ArrayLike, joint_weigh
                   blend_weights=blend_weights, faces=faces, device=device,
                   unchecked=_kernel_checkable(points, joint_indices, joint_weights, method,
                                               sign_reference, geom_bind_transform, device))
-    return sk.skin(skinning_transforms, method, sign_reference=sign_reference)
+    return cast(np.ndarray, sk.skin(skinning_transforms, method, sign_reference=sign_reference))
 
 
 def _kernel_checkable(points, joint_indices, joint_weights, method, sign_reference,
@@ -682,7 +678,7 @@ def skin_normals(normals: npt.ArrayLike, joint_indices: npt.ArrayLike,
     normal_vertex : (N,) int, optional
         Vertex of each normal (faceVarying normals).
     sign_reference : {"largest_weight", "running_sum"}
-        Sign rule of the rotation blends (:data:`SignReference`).
+        Sign rule of the rotation blends (:data:`~dqskin.options.SignReference`).
 
     Returns
     -------
@@ -693,8 +689,9 @@ def skin_normals(normals: npt.ArrayLike, joint_indices: npt.ArrayLike,
     sk = Skinner(np.zeros((idx.shape[0], 3)), joint_indices, joint_weights,
                  geom_bind_transform=geom_bind_transform, blend_weights=blend_weights,
                  device=device)
-    return sk.skin_vectors(skinning_transforms, normals, method, kind="normal",
-                           vector_vertex=normal_vertex, sign_reference=sign_reference)
+    return cast(np.ndarray, sk.skin_vectors(skinning_transforms, normals, method, kind="normal",
+                                            vector_vertex=normal_vertex,
+                                            sign_reference=sign_reference))
 
 
 class _OneCall(Skinner):

@@ -6,10 +6,13 @@ tracks that move them on: ``output_transforms`` (skeleton → the mesh's local s
 velocities by the chain rule through its time derivative (:meth:`dqskin.Scene.skin`).
 """
 
-from typing import Literal, get_args
+from typing import TYPE_CHECKING, Literal, cast, get_args
 
-from .animation import TransformTrack
 from .errors import InputError, Param
+
+if TYPE_CHECKING:
+    from .animation import TransformTrack
+    from .scene import Mesh
 
 __all__ = ["SPACES", "Space", "check_space", "space_track"]
 
@@ -34,10 +37,10 @@ def check_space(space: str) -> Space:
     if space not in SPACES:
         raise InputError(Param("space", space),
                          f": must be one of {', '.join(map(repr, SPACES))}")
-    return space
+    return cast(Space, space)
 
 
-def space_track(mesh, space: Space) -> TransformTrack | None:
+def space_track(mesh: "Mesh", space: Space) -> "TransformTrack | None":
     """The track taking ``mesh``'s skeleton-space results to ``space`` (None: none needed).
 
     Parameters

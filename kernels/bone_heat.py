@@ -10,6 +10,7 @@ evaluations and about ``V`` rays.
 
 import warp as wp
 
+from .._warp import Device
 from .grid import launch_rows
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
@@ -71,8 +72,10 @@ def heat_sources_kernel(
 # launcher: keyword arguments, chunked over the CPU cores by dqskin.kernels.grid
 
 
-def heat_sources(*, mesh, points, heads, tails, epsilon, ray_offset, check_visibility,
-                 min_distance, nearest, closest, device):
+def heat_sources(*, mesh: wp.uint64, points: wp.array, heads: wp.array, tails: wp.array,
+                 epsilon: float, ray_offset: float, check_visibility: bool,
+                 min_distance: wp.array, nearest: wp.array, closest: wp.array,
+                 device: Device) -> None:
     """Fill ``min_distance`` (V,) float, ``nearest`` (V,) int (the nearest bone) and ``closest``
     (V, B) int8 (1: within ``1 + epsilon`` of the nearest distance and visible) for ``points``
     (V,) ``wp.vec3`` and bone segments ``heads``/``tails`` (B,) ``wp.vec3``; ``mesh`` is the

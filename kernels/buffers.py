@@ -23,8 +23,12 @@ import os
 import sys
 import threading
 import weakref
+from collections.abc import Iterator
+from typing import Any
 
 import warp as wp
+
+from .._warp import Device
 
 HUGE_PAGE = 1 << 21
 """Transparent huge page size on x86-64 and most arm64 kernels (2 MiB)."""
@@ -58,12 +62,12 @@ class BufferPool:
     takes a buffer of the longer ones). What the pool holds is freed with it; a buffer still
     in use, when its array goes."""
 
-    def __init__(self):
-        self._free = []  # buffers (wp.array) nothing else references
+    def __init__(self) -> None:
+        self._free: list[wp.array] = []  # buffers (wp.array) nothing else references
         # reentrant: a collection inside take() may run a finalizer, which gives a buffer back
         self._lock = threading.RLock()
 
-    def take(self, nbytes: int, device) -> "wp.array | None":
+    def take(self, nbytes: int, device: wp.Device) -> "wp.array | None":
         """The smallest free buffer of ``nbytes`` to twice that on ``device``, or None (a small
         request does not take, and keep, a much larger buffer: an array cached by its caller
         keeps its buffer for good)."""
@@ -81,11 +85,12 @@ class BufferPool:
         return len(self._free)
 
 
-_POOL = contextvars.ContextVar("dqskin_buffer_pool", default=None)
+_POOL: contextvars.ContextVar[BufferPool | None] = contextvars.ContextVar("dqskin_buffer_pool",
+                                                                          default=None)
 
 
 @contextlib.contextmanager
-def reusing(pool: BufferPool):
+def reusing(pool: BufferPool) -> Iterator[None]:
     """Within the block (this thread or task: a context variable), :func:`empty` takes its CPU
     buffers of :data:`MIN_BYTES` or more from ``pool`` (kept by the caller across blocks), and
     they go back to it when their arrays go."""
@@ -96,35 +101,36 @@ def reusing(pool: BufferPool):
         _POOL.reset(token)
 
 
-def empty(shape, dtype, device) -> wp.array:
+def empty(shape: int | tuple[int, ...] | list[int], dtype: Any, device: Device) -> wp.array:
     """``wp.empty(shape, dtype, device)`` (uninitialized); on the CPU, a buffer of
     :data:`MIN_BYTES` or more asks for huge pages over its aligned interior before anything
     touches it (a hint: a refusal is ignored), and inside :func:`reusing` is a free one of the
     pool's when it has one large enough."""
     pool = _POOL.get()
-    device = wp.get_device(device)
-    if pool is None or not device.is_cpu:
-        return _new(shape, dtype, device)
-    shape = tuple(shape) if isinstance(shape, (tuple, list)) else (int(shape),)
+    dev = wp.get_device(device)
+    if pool is None or not dev.is_cpu:
+        return _new(shape, dtype, dev)
+    dims = tuple(shape) if isinstance(shape, (tuple, list)) else (int(shape),)
     nbytes = wp.types.type_size_in_bytes(dtype)
-    for n in shape:
+    for n in dims:
         nbytes *= n
     if nbytes < MIN_BYTES:
-        return _new(shape, dtype, device)
-    base = pool.take(nbytes, device)
+        return _new(dims, dtype, dev)
+    base = pool.take(nbytes, dev)
     if base is None:
-        base = _new(shape, dtype, device)
+        base = _new(dims, dtype, dev)
     # the caller gets an alias of the pool's buffer; when the alias goes, the buffer goes back
     # (the finalizer holds it, so it lives as long as the alias whatever becomes of the pool)
-    alias = wp.array(ptr=base.ptr, dtype=dtype, shape=shape, capacity=base.capacity,
-                     device=device)
+    alias: wp.array = wp.array(ptr=base.ptr, dtype=dtype, shape=dims, capacity=base.capacity,
+                     device=dev)
     weakref.finalize(alias, pool.give, base).atexit = False
     return alias
 
 
-def _new(shape, dtype, device) -> wp.array:
+def _new(shape: int | tuple[int, ...] | list[int], dtype: Any, device: Device) -> wp.array:
     a = wp.empty(shape, dtype=dtype, device=device)
-    if _MADVISE is not None and a.device.is_cpu and a.capacity >= MIN_BYTES:
+    if (_MADVISE is not None and a.device is not None and a.device.is_cpu
+            and a.capacity >= MIN_BYTES):
         lo = (a.ptr + HUGE_PAGE - 1) & ~(HUGE_PAGE - 1)
         hi = (a.ptr + a.capacity) & ~(HUGE_PAGE - 1)
         if hi > lo:

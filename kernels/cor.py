@@ -14,6 +14,7 @@ equal terms; the factor 2 cancels in the ratio and is left out.
 
 import warp as wp
 
+from .._warp import Device
 from .grid import launch_rows
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
@@ -55,8 +56,9 @@ def centers_kernel(
         centers[u] = wp.vec4d()
 
 
-def centers(*, row_offsets, row_entries, row_weights, entry_weights, entry_areas, entry_moments,
-            sigma, out, device):
+def centers(*, row_offsets: wp.array, row_entries: wp.array, row_weights: wp.array,
+            entry_weights: wp.array, entry_areas: wp.array, entry_moments: wp.array,
+            sigma: float, out: wp.array, device: Device) -> None:
     """Fill ``out`` (U,) ``wp.vec4d`` with the centers of ``U`` weight vectors (see
     :func:`centers_kernel`), chunked over the CPU cores."""
     launch_rows(centers_kernel, out.shape[0],

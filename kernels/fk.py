@@ -29,6 +29,7 @@ one-frame path, with the same expressions, so both give the same bits.
 
 import warp as wp
 
+from .._warp import Device
 from . import fk_native as native
 from .buffers import empty
 from .dqmath import dq_from_rt, dq_mul, mat44_linear, polar_rotation, vec8
@@ -328,7 +329,7 @@ class WorldPoses:
 
     __slots__ = ("matrices", "dqs", "residuals", "rigid", "invalid")
 
-    def __init__(self, count, device):
+    def __init__(self, count: int, device: Device) -> None:
         self.matrices = empty(count, wp.mat44, device)
         self.dqs = empty(count, vec8, device)
         self.residuals = empty(count, wp.mat33, device)
@@ -338,12 +339,14 @@ class WorldPoses:
         can then run only when needed, to name the frame and joint."""
 
 
-def world_poses(count, device):
+def world_poses(count: int, device: Device) -> WorldPoses:
     """A :class:`WorldPoses` of ``count`` (F·J) uninitialized joints on ``device``."""
     return WorldPoses(count, device)
 
 
-def forward_kinematics(*, parents, skeleton_start, local, out, device):
+def forward_kinematics(*, parents: wp.array, skeleton_start: wp.array,
+                       local: wp.array | tuple[wp.array, wp.array, wp.array], out: WorldPoses,
+                       device: Device) -> None:
     """FK of every skeleton for every frame: ``local`` is a flat (F·J,) ``wp.mat44`` array or a
     ``(translations, rotations, scales)`` tuple of (F·J,) arrays; fills ``out``
     (:func:`world_poses`). One thread per (frame, skeleton); on the CPU those rows are split
@@ -368,6 +371,7 @@ def forward_kinematics(*, parents, skeleton_start, local, out, device):
     launch_rows(kernel, frames * skeletons, inputs, outputs, device, min_chunk=64)
 
 
-def bind_relative(*, world, inverse_bind, skinning, device):
+def bind_relative(*, world: wp.array, inverse_bind: wp.array, skinning: wp.array,
+                  device: Device) -> None:
     """``skinning[f, j] = world[f, j] @ inverse_bind[j]``."""
     launch(bind_relative_kernel, world.shape, [world, inverse_bind], [skinning], device)

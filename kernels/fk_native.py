@@ -98,7 +98,7 @@ _VECTOR_STEP = _VECTOR_TYPES + """
 """
 
 
-def step_source(scalar_on_cpu=False):
+def step_source(scalar_on_cpu: bool = False) -> str:
     """C++ of :func:`rigid_step`: vectors on the CPU, scalars on CUDA (and on the CPU too with
     ``scalar_on_cpu``, for the tests)."""
     cond = "1" if scalar_on_cpu else "defined(__CUDA_ARCH__)"
@@ -139,7 +139,7 @@ _MATRIX_TAIL = """
 """
 
 
-def matrix_source(scalar_on_cpu=False):
+def matrix_source(scalar_on_cpu: bool = False) -> str:
     """C++ of :func:`rigid_matrix` (see :func:`step_source`)."""
     cond = "1" if scalar_on_cpu else "defined(__CUDA_ARCH__)"
     return (f"#if {cond}\n" + _SCALAR_MATRIX + "#else\n" + _VECTOR_MATRIX + "#endif\n"
@@ -199,7 +199,7 @@ _VECTOR_CHECK = _VECTOR_TYPES + """
 """
 
 
-def check_source(scalar_on_cpu=False):
+def check_source(scalar_on_cpu: bool = False) -> str:
     """C++ of :func:`local_check` (see :func:`step_source`)."""
     cond = "1" if scalar_on_cpu else "defined(__CUDA_ARCH__)"
     return f"#if {cond}\n" + _SCALAR_CHECK + "#else\n" + _VECTOR_CHECK + "#endif\n"
@@ -333,7 +333,7 @@ _PACKET_VECTOR = """
 """
 
 
-def packet_source(all_fallback=False):
+def packet_source(all_fallback: bool = False) -> str:
     """C++ of :func:`rigid_packet`: vectors on the CPU; on CUDA (and with ``all_fallback``, the
     tests' twin) it takes no lane, so the kernel's one-frame path does every joint."""
     cond = "1" if all_fallback else "defined(__CUDA_ARCH__)"

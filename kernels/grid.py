@@ -18,10 +18,14 @@ import ctypes
 import os
 import threading
 import weakref
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any, TypeVar
 
 import warp as wp
 import warp._src.context as _context
+
+from .._warp import Device
 
 __all__ = ["FRAME_BLOCK", "MIN_WORK", "beside", "cpu_threads", "is_cpu", "launch", "launch_rows"]
 
@@ -37,22 +41,25 @@ costs more than it saves)."""
 
 _pool = None
 _pool_lock = threading.Lock()
+_A = TypeVar("_A")
+_B = TypeVar("_B")
+
 _CORES = os.cpu_count() or 1  # os.cpu_count() costs ~10 µs a call
 _recorded = threading.local()
 _RECORDED_MAX = 32
 _RECORDED_GRID = 1 << 16  # larger grids: the packing cost is noise
 
 
-def cpu_threads():
+def cpu_threads() -> int:
     """Threads used for CPU launches (``DQSKIN_THREADS`` or the core count)."""
     return max(1, int(os.environ.get("DQSKIN_THREADS", _CORES)))
 
 
-_warm = set()  # (kernel, device) launched at least once in this process
+_warm: set[tuple[wp.Kernel, str]] = set()  # (kernel, device) launched at least once in this process
 _warm_lock = threading.Lock()
 
 
-def _launch(kernel, dim, args, device):
+def _launch(kernel: wp.Kernel, dim: tuple[int, ...], args: list[Any], device: Device) -> None:
     """Replay this thread's recorded launch of ``kernel`` on ``dim`` and ``device``, else
     :func:`_record` one; the first launch of a kernel on a device holds a lock: Warp's
     ``Module.load`` is not thread-safe, and two pool threads loading one module at once can
@@ -61,7 +68,7 @@ def _launch(kernel, dim, args, device):
     name = device if type(device) is str else str(device)
     launches = getattr(_recorded, "launches", None)
     hit = None if launches is None else launches.pop((kernel, dim, name), None)
-    if hit is not None:
+    if launches is not None and hit is not None:
         launches[(kernel, dim, name)] = hit  # most recent last
         if _capturing():
             wp.launch(kernel, dim=dim, inputs=args, device=device)
@@ -191,7 +198,7 @@ def _pool_map(tasks):
         fut.result()
 
 
-def beside(fn, main):
+def beside(fn: Callable[[], _A], main: Callable[[], _B]) -> tuple[_A, _B]:
     """``(fn(), main())`` with ``fn`` on a pool thread while ``main`` runs on this one (both
     release the GIL for the work that matters, e.g. NumPy reductions); sequential on one core or
     from a pool thread (no waiting on the pool from inside it). An exception of ``main`` is
@@ -208,7 +215,7 @@ def beside(fn, main):
     return fut.result(), second
 
 
-def is_cpu(device):
+def is_cpu(device: Device) -> bool:
     """Whether ``device`` (a ``wp.Device``, a name or None) is the CPU; a Device without a
     look-up."""
     cpu = getattr(device, "is_cpu", None)
@@ -223,15 +230,19 @@ def _threads_for(work, device):
     return min(cpu_threads(), work)
 
 
-def launch(kernel, dim, inputs, outputs, device):
+def launch(kernel: wp.Kernel, dim: int | Iterable[int], inputs: Sequence[Any],
+           outputs: Sequence[Any], device: Device) -> None:
     """``wp.launch`` for grids that need no chunking (per joint, per frame, small images)."""
-    if type(dim) is not tuple:
-        dim = (dim,) if isinstance(dim, int) else tuple(int(d) for d in dim)
-    if min(dim) > 0:
-        _launch(kernel, dim, [*inputs, *outputs], device)
+    if type(dim) is tuple:
+        grid = dim
+    else:
+        grid = (dim,) if isinstance(dim, int) else tuple(int(d) for d in dim)
+    if min(grid) > 0:
+        _launch(kernel, grid, [*inputs, *outputs], device)
 
 
-def launch_rows(kernel, count, inputs, outputs, device, min_chunk=4096, inner=()):
+def launch_rows(kernel: wp.Kernel, count: int, inputs: Sequence[Any], outputs: Sequence[Any],
+                device: Device, min_chunk: int = 4096, inner: tuple[int, ...] = ()) -> None:
     """Launch ``kernel`` over ``range(count)`` rows, split in chunks on the CPU.
 
     ``kernel`` takes ``inputs``, then ``row_offset``, then ``outputs``; its grid is
@@ -240,7 +251,7 @@ def launch_rows(kernel, count, inputs, outputs, device, min_chunk=4096, inner=()
     if count <= 0 or any(int(d) <= 0 for d in inner):
         return
 
-    def run(offset, n):
+    def run(offset: int, n: int) -> None:
         _launch(kernel, (n, *inner), [*inputs, offset, *outputs], device)
 
     chunks = _threads_for(count // min_chunk, device)

@@ -19,6 +19,7 @@ network on ``(weight, input slot)`` in registers instead: the same order, severa
 
 import warp as wp
 
+from .._warp import Device
 from .grid import launch_rows
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
@@ -145,7 +146,8 @@ def layout_kernel(
         weights[first + c] = wv
 
 
-def layout(*, joint_indices, joint_weights, indices, weights, device):
+def layout(*, joint_indices: wp.array, joint_weights: wp.array, indices: wp.array,
+           weights: wp.array, device: Device) -> None:
     """Fill ``indices`` (V·C,) ``wp.vec4i`` and ``weights`` (V·C,) ``wp.vec4`` from the (V, K)
     ``joint_indices`` (int32) and ``joint_weights`` (float32, finite), sorted by weight."""
     rows = joint_weights.shape[0]

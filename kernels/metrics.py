@@ -9,6 +9,7 @@ CPU cores. Undefined values (zero-length references, vertices outside any region
 
 import warp as wp
 
+from .._warp import Device
 from .grid import launch_rows
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
@@ -93,19 +94,22 @@ def _launch_items(kernel, inputs, outputs, device):
     launch_rows(kernel, frames * items, inputs, outputs, device)
 
 
-def volumes(*, points, faces, origins, out, device):
+def volumes(*, points: wp.array, faces: wp.array, origins: wp.array, out: wp.array,
+            device: Device) -> None:
     """Signed tetrahedron volumes (see :func:`face_volume_kernel`) of ``points`` (F, V) over
     ``faces`` (T,) ``wp.vec3i`` with one ``origins`` (F,) point per frame, into ``out`` (F, T)."""
     _launch_items(face_volume_kernel, [points, faces, origins], [out], device)
 
 
-def edge_strain(*, points, rest_points, edges, out, device):
+def edge_strain(*, points: wp.array, rest_points: wp.array, edges: wp.array, out: wp.array,
+                device: Device) -> None:
     """Strain of ``edges`` (E,) ``wp.vec2i`` between ``points`` (F, V) and ``rest_points``
     (F or 1, V), into ``out`` (F, E)."""
     _launch_items(edge_strain_kernel, [points, rest_points, edges], [out], device)
 
 
-def distances(*, points, reference, out, device):
+def distances(*, points: wp.array, reference: wp.array, out: wp.array,
+              device: Device) -> None:
     """``|points − reference|`` per vertex, ``points`` (F, V), ``reference`` (F or 1, V), into
     ``out`` (F, V)."""
     _launch_items(distance_kernel, [points, reference], [out], device)

@@ -321,7 +321,7 @@ _VECTOR_LOAD_AFFINE = """
         transpose8(r_, OUT); transpose4(q_, OUT + 8); } while (0)"""
 
 
-def packet_source(method, searched=False, scalar_on_cpu=False):
+def packet_source(method: str, searched: bool = False, scalar_on_cpu: bool = False) -> str:
     """C++ of a packet snippet: ``method`` ``"lbs"`` or ``"dqs"`` (rigid), ``searched`` the DQS
     pivot rule (see the module docstring); ``scalar_on_cpu`` compiles the scalar (CUDA) branch for
     the CPU too (the tests' twin)."""

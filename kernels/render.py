@@ -14,6 +14,7 @@ index ``i = y·width + x``.
 
 import warp as wp
 
+from .._warp import Device
 from .grid import launch, launch_rows
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
@@ -364,15 +365,18 @@ def downsample_kernel(
 # launchers: keyword arguments, chunked over the CPU cores by dqskin.kernels.grid
 
 
-def vertex_normals(*, points, faces, vf_offsets, vf_faces, out, device):
+def vertex_normals(*, points: wp.array, faces: wp.array, vf_offsets: wp.array,
+                   vf_faces: wp.array, out: wp.array, device: Device) -> None:
     """Unit area-weighted normals of ``points`` (V,) into ``out`` (V,); ``faces`` (3T,) int32
     flat triangles, ``vf_offsets`` (V+1,) and ``vf_faces`` the vertex → face CSR lists."""
     launch_rows(vertex_normals_kernel, out.shape[0], [points, faces, vf_offsets, vf_faces], [out],
                 device)
 
 
-def render(*, mesh, faces, normals, camera, layer_a, layer_b, layers, width, height, out_a,
-           out_b, depth, facing, device):
+def render(*, mesh: wp.uint64, faces: wp.array, normals: wp.array, camera: CameraParams,
+           layer_a: Layer, layer_b: Layer, layers: int, width: int, height: int,
+           out_a: wp.array, out_b: wp.array, depth: wp.array, facing: wp.array,
+           device: Device) -> None:
     """Ray cast every pixel of a ``width × height`` (super-sampled) image into ``out_a`` (and
     ``out_b`` for ``layers`` = 2) (width·height,) ``wp.vec4``, hit distances into ``depth`` and
     normals into ``facing``; ``mesh`` is a ``wp.Mesh`` id, the layers :class:`Layer` (see
@@ -382,9 +386,12 @@ def render(*, mesh, faces, normals, camera, layer_a, layer_b, layers, width, hei
                  int(height)], [out_a, out_b, depth, facing], device)
 
 
-def render_adaptive(*, mesh, faces, normals, camera, layer_a, layer_b, layers, factor,
-                    transparent, depth_jump, normal_cos, centres_a, centres_b, depth, facing,
-                    out_a, out_b, device):
+def render_adaptive(*, mesh: wp.uint64, faces: wp.array, normals: wp.array,
+                    camera: CameraParams, layer_a: Layer, layer_b: Layer, layers: int,
+                    factor: int, transparent: bool, depth_jump: float, normal_cos: float,
+                    centres_a: wp.array, centres_b: wp.array, depth: wp.array,
+                    facing: wp.array, out_a: wp.array, out_b: wp.array,
+                    device: Device) -> None:
     """Adaptive anti-aliasing into the 8-bit RGBA ``out_a`` (and ``out_b``) (H, W, 4): one ray
     per pixel (:func:`render_centres_kernel`, into the scratch arrays ``centres_*``, ``depth``,
     ``facing`` of H·W), then ``factor × factor`` rays for the pixels on an edge
@@ -399,7 +406,8 @@ def render_adaptive(*, mesh, faces, normals, camera, layer_a, layer_b, layers, f
                           float(depth_jump), float(normal_cos)], [out_a, out_b], device)
 
 
-def downsample(*, samples, factor, transparent, out, device):
+def downsample(*, samples: wp.array, factor: int, transparent: bool, out: wp.array,
+               device: Device) -> None:
     """Box-filter ``samples`` (H·factor · W·factor,) ``wp.vec4`` into the 8-bit RGBA ``out``
     (H, W, 4)."""
     launch(downsample_kernel, out.shape[:2], [samples, int(factor), int(transparent)], [out],

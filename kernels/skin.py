@@ -46,10 +46,12 @@ Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, 
 """
 
 import weakref
+from collections.abc import Sequence
 from typing import Any
 
 import warp as wp
 
+from .._warp import Device
 from ..errors import InputError
 from . import packets
 from .blend import affine_gather
@@ -614,14 +616,16 @@ def transform_frames_kernel(
 # launchers: keyword arguments, chunked over the CPU cores by dqskin.kernels.grid
 
 
-def joints(*, affines, dqs, residuals, has_residual):
+def joints(*, affines: wp.array, dqs: wp.array, residuals: wp.array,
+           has_residual: wp.array) -> Joints:
     """The :class:`Joints` of (F, J) work arrays."""
     s = Joints()
     s.affines, s.dqs, s.residuals, s.has_residual = affines, dqs, residuals, has_residual
     return s
 
 
-def prepare_points(*, xforms, joints, device, affines_only=False):
+def prepare_points(*, xforms: wp.array, joints: Joints, device: Device,
+                   affines_only: bool = False) -> None:
     """Fill ``joints`` (a :class:`Joints` of (F, J) arrays) from ``xforms`` (F, J) ``wp.mat44``;
     ``affines_only``: only ``joints.affines`` (all LBS reads), the rest left as it was."""
     kernel = prepare_affines_kernel if affines_only else prepare_points_kernel
@@ -631,8 +635,10 @@ def prepare_points(*, xforms, joints, device, affines_only=False):
                 [joints.affines, joints.dqs, joints.residuals, joints.has_residual], device)
 
 
-def prepare_vectors(*, xforms, linears, rotations, normal_linears, normal_residuals,
-                    normal_rotations, device, linears_only=False):
+def prepare_vectors(*, xforms: wp.array, linears: wp.array, rotations: wp.array,
+                    normal_linears: wp.array, normal_residuals: wp.array,
+                    normal_rotations: wp.array, device: Device,
+                    linears_only: bool = False) -> None:
     """Per (frame, joint) data of :func:`skin_vectors` (see :func:`prepare_vectors_kernel`);
     ``linears_only``: ``linears`` and ``normal_linears`` only (all LBS reads)."""
     kernel = prepare_linears_kernel if linears_only else prepare_vectors_kernel
@@ -664,7 +670,7 @@ def _flat(a):
     return view
 
 
-def frame_rows_array(values, rows):
+def frame_rows_array(values: wp.array, rows: int) -> tuple[wp.array, int]:
     """``(flat view, frame stride)`` of (Fp, rows) per-frame inputs, Fp 1 or F: stride 0 when one
     row serves every frame (also a row broadcast with stride 0)."""
     stride = rows if values.shape[0] > 1 else 0
@@ -676,7 +682,8 @@ def frame_rows_array(values, rows):
     return _flat(values), stride
 
 
-def launch_frames(kernel, rows, frames, inputs, outputs, device, row_size=1):
+def launch_frames(kernel: wp.Kernel, rows: int, frames: int, inputs: Sequence[Any],
+                  outputs: Sequence[wp.array], device: Device, row_size: int = 1) -> None:
     """Launch a flat kernel (:func:`frame_rows`) over ``rows`` × ``frames``: one thread per row
     of a single frame, else per (frame block, row); chunks of threads on the CPU cores.
     ``row_size``: the rows (vertices) a thread's row stands for, to size the chunks."""
@@ -686,7 +693,8 @@ def launch_frames(kernel, rows, frames, inputs, outputs, device, row_size=1):
                 device, min_chunk=-(-MIN_WORK // (min(frames, FRAME_BLOCK) * row_size)))
 
 
-def takes_packets(method, running_sum, groups, joint_count, device):
+def takes_packets(method: int, running_sum: int, groups: int, joint_count: int,
+                  device: Device) -> bool:
     """Whether :func:`skin_points` runs a packet kernel (:mod:`.packets`): on the CPU, LBS or DQS
     (not the running-sum rule) of one group of four influences, with at least one joint."""
     return ((method == LBS or (method == DQS and not running_sum)) and groups == 1
@@ -696,7 +704,8 @@ def takes_packets(method, running_sum, groups, joint_count, device):
 _no_flags = {}
 
 
-def skin_points(*, method, points, influences, joints, rigid, out, device, flags=None):
+def skin_points(*, method: int, points: wp.array, influences: InfluenceLayout, joints: Joints,
+                rigid: bool, out: wp.array, device: Device, flags: wp.array | None = None) -> None:
     """Skin ``points`` (Fp, V) into ``out`` (F, V) with ``method`` (:data:`LBS`, :data:`DQS`,
     :data:`BLEND`, :data:`COR`) and ``influences`` (an :class:`~.layout.InfluenceLayout`).
     ``rigid`` (no frame has a residual) selects the DQS or COR kernel without the residual code.
@@ -731,8 +740,10 @@ def skin_points(*, method, points, influences, joints, rigid, out, device, flags
                    jn.affines.shape[1], frames, check], [out, flags], device, row_size=size)
 
 
-def skin_vectors(*, method, vectors, vector_vertex, influences, linears, rotations, residuals,
-                 has_residual, out, device):
+def skin_vectors(*, method: int, vectors: wp.array, vector_vertex: wp.array,
+                 influences: InfluenceLayout, linears: wp.array, rotations: wp.array,
+                 residuals: wp.array, has_residual: wp.array, out: wp.array,
+                 device: Device) -> None:
     """Skin directions ``vectors`` (Fp, N) into ``out`` (F, N) with ``influences`` (an
     :class:`~.layout.InfluenceLayout`), normalized (see
     :func:`skin_vectors_kernel` for which per-joint arrays normals and tangents take)."""
@@ -743,6 +754,7 @@ def skin_vectors(*, method, vectors, vector_vertex, influences, linears, rotatio
                    linears.shape[1], frames, int(method)], [out], device)
 
 
-def transform_frames(*, xforms, normalize, values, device):
+def transform_frames(*, xforms: wp.array, normalize: bool, values: wp.array,
+                     device: Device) -> None:
     """In place ``values[f, i] = xforms[f]·[values[f, i], 1]`` (normalized with ``normalize``)."""
     launch(transform_frames_kernel, values.shape, [xforms, int(normalize)], [values], device)

@@ -23,6 +23,7 @@ skinning) and its derivative ``Rᵀ·Ȧ = [ω]×·S + Ṡ``: the skew part gives
 
 import warp as wp
 
+from .._warp import Device
 from .blend import affine_gather
 from .dqmath import (
     FACTOR_EPSILON,
@@ -43,6 +44,7 @@ from .skin import (
     BLEND,
     COR,
     LBS,
+    Joints,
     by_method,
     dq_gather,
     flat_pivot,
@@ -256,14 +258,15 @@ def velocity_kernel(
 # launchers
 
 
-def joint_rates(*, affines, dqs, residuals):
+def joint_rates(*, affines: wp.array, dqs: wp.array, residuals: wp.array) -> JointRates:
     """The :class:`JointRates` of (F, J) work arrays."""
     r = JointRates()
     r.affines, r.dqs, r.residuals = affines, dqs, residuals
     return r
 
 
-def prepare(*, xforms, xform_derivatives, joints, rates, device, affines_only=False):
+def prepare(*, xforms: wp.array, xform_derivatives: wp.array, joints: Joints,
+            rates: JointRates, device: Device, affines_only: bool = False) -> None:
     """Fill ``joints`` and ``rates`` from the (F, J) ``wp.mat44`` transforms and derivatives;
     ``affines_only``: their 3×4 affines only (all LBS reads)."""
     prepare_points(xforms=xforms, joints=joints, device=device, affines_only=affines_only)
@@ -275,7 +278,9 @@ def prepare(*, xforms, xform_derivatives, joints, rates, device, affines_only=Fa
            [rates.affines, rates.dqs, rates.residuals, joints.has_residual], device)
 
 
-def velocities(*, method, points, point_velocities, influences, joints, rates, out, device):
+def velocities(*, method: int, points: wp.array, point_velocities: wp.array | None,
+               influences: InfluenceLayout, joints: Joints, rates: JointRates, out: wp.array,
+               device: Device) -> None:
     """Velocities of ``points`` skinned with ``method`` into ``out`` (F, V); ``point_velocities``
     None: the rest points do not move. LBS then has ``ṗ' = Σ wᵢ·Ȧᵢ·[p, 1]``, the LBS of the
     points with the rates ``Ȧ`` as affines: :func:`~.skin.skin_points`' kernel (the packet kernel

@@ -37,7 +37,7 @@ def _private_cache(tmp_path_factory):
 
 
 def _devices():
-    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_ERROR
     wp.init()
     return ["cpu"] + (["cuda:0"] if wp.get_cuda_device_count() > 0 else [])
 

@@ -92,7 +92,7 @@ def test_first_calls_from_threads_load_the_kernel_module_once(tmp_path):
         import trimesh
         import warp as wp
         import warp._src.context as context
-        wp.config.quiet = True
+        wp.config.log_level = wp.LOG_ERROR
         real, guard, inside, overlaps = context.Module.load, threading.Lock(), {}, []
         def load(self, *args, **kwargs):
             cold = not self.execs

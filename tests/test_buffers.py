@@ -34,7 +34,7 @@ import warp as wp
 from dqskin._warp import init_warp
 from dqskin.kernels import buffers as KB
 from test_buffers import _vm_flags
-wp.config.quiet = True
+wp.config.log_level = wp.LOG_ERROR
 init_warp()
 n = 3 * KB.HUGE_PAGE // 12  # vec3: 3 huge pages
 big = KB.empty((2, n), wp.vec3, "cpu")

@@ -149,3 +149,8 @@ def test_skinner_takes_a_built_layout():
     np.testing.assert_array_equal(got, dqskin.Skinner(points, idx, w, device="cpu").skin(M, "dqs"))
     with pytest.raises(InputError, match="joint_indices: 40 vertices for 39 points"):
         dqskin.Skinner(points[:39], inf, None, device="cpu")
+    with pytest.raises(InputError, match="joint_weights: expected None with joint_indices an "
+                       "Influences"):
+        dqskin.Skinner(points, inf, w, device="cpu")
+    with pytest.raises(InputError, match="joint_weights: required with joint_indices an array"):
+        dqskin.Skinner(points, idx, None, device="cpu")

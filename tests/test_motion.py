@@ -14,9 +14,10 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from dqskin import animation, dq, motion
 from dqskin.animation import Animation
+from dqskin.options import INTERPOLATIONS
 
 CESIUM = "khronos-gltf/CesiumMan/CesiumMan.glb"
-INTERPS = animation.INTERPOLATIONS
+INTERPS = INTERPOLATIONS
 
 # --------------------------------------------------------------------------------------------
 # independent float64 helpers

@@ -250,7 +250,7 @@ def test_first_calls_from_threads_at_once_initialize_warp_once():
         import numpy as np
         import warp as wp
         import warp._src.context as context
-        wp.config.quiet = True
+        wp.config.log_level = wp.LOG_ERROR
         made = []
         real = context.Runtime.__init__
         def slow(self, *args, **kwargs):

@@ -30,7 +30,7 @@ def test_defaults_are_the_documented_ones():
         None, "largest_weight", "trs", "local", None)
     assert (o.normals, o.tangents, o.velocities, o.blend_shapes) == (False, False, False, True)
     assert o.cor == CorOptions() and (o.cor.sigma, o.cor.subdivide, o.cor.cluster) == (
-        dqskin.cor.SIGMA, None, "auto")
+        dqskin.options.SIGMA, None, "auto")
     b = SkinOptions.baking()
     assert b == o.replace(normals=True, velocities=True)
     assert SkinOptions.baking(method="dqs", velocities=False) == SkinOptions(method="dqs",
@@ -76,7 +76,7 @@ def test_plan_keeps_the_earlier_keys():
     assert o.plan() == dict(method="dqs", interp="trs", sign_reference="largest_weight",
                             normals=True, velocities=True)
     assert o.replace(cor=CorOptions(cluster=None)).plan()["cor"] == dict(
-        sigma=dqskin.cor.SIGMA, subdivide=None, cluster=None)
+        sigma=dqskin.options.SIGMA, subdivide=None, cluster=None)
 
 
 def _lbs_oracle(scene, times):

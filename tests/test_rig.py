@@ -229,6 +229,16 @@ def test_damaged_weight_files_are_named(capture, tmp_path, capsys):
         assert f"{f}: cannot read weights" in err and "Traceback" not in err, err
 
 
+def test_a_weight_file_error_without_a_message_names_its_type(tmp_path, monkeypatch):
+    def load(*args, **kwargs):
+        raise EOFError()  # (what a reader may raise with no text)
+
+    monkeypatch.setattr(np, "load", load)
+    f = tmp_path / "w.npz"
+    with pytest.raises(ValueError, match=re.escape(f"{f}: cannot read weights: EOFError")):
+        read_weights(f, ["root"], 1)
+
+
 def test_outputs_never_replace_an_input(capture, tmp_path, capsys):
     """``--force`` replaces outputs, never the mesh, skeleton or weights a command reads."""
     path, mesh, motion = capture

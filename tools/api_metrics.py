@@ -7,6 +7,12 @@ of every public class, properties included. Fully annotated: every parameter but
 ``self``/``cls`` has an annotation, and so does the return (``__init__`` excepted). Each
 function counts once, under the module that defines it.
 
+Warp kernels and functions (``@wp.kernel``, ``@wp.func``: ``warp`` ``Kernel`` and ``Function``
+objects, counted by the Python function they wrap) count as fully annotated when every
+parameter carries a type (the Warp type Warp's code generator requires); their return is
+exempt, as ``__init__``'s is: a kernel returns nothing, and a Warp function's return type is
+the one Warp infers from its body, not a Python return a caller could annotate against.
+
 Usage: ``python tools/api_metrics.py [ROOT] [--list]`` where ROOT is a source tree holding
 ``dqskin/`` and ``kernels/`` (default: this checkout). The tree is imported in a subprocess of
 its own, ``dqskin.kernels`` mapped to ``ROOT/kernels`` as the installed package does.
@@ -44,8 +50,9 @@ def _public(name):
     return not name.startswith("_")
 
 
-def _fully_annotated(fn, bound):
-    """True when every parameter (but a bound first one) and the return are annotated."""
+def _fully_annotated(fn, bound, warp=False):
+    """True when every parameter (but a bound first one) and the return (not for ``warp``: a
+    Warp kernel or function) are annotated."""
     fn = inspect.unwrap(fn)
     try:
         sig = inspect.signature(fn, follow_wrapped=False, eval_str=False)
@@ -54,7 +61,8 @@ def _fully_annotated(fn, bound):
     params = list(sig.parameters.values())[1 if bound else 0:]
     if any(p.annotation is inspect.Parameter.empty for p in params):
         return False
-    return fn.__name__ == "__init__" or sig.return_annotation is not inspect.Signature.empty
+    return (warp or fn.__name__ == "__init__"
+            or sig.return_annotation is not inspect.Signature.empty)
 
 
 def _collect(root):
@@ -73,8 +81,9 @@ def _collect(root):
     def add(fn, bound):
         if ours(fn):
             fn0 = inspect.unwrap(fn)
+            warp = type(fn).__module__.split(".")[0] == "warp"  # a wp.Kernel or wp.Function
             found[f"{fn0.__module__}.{fn0.__qualname__}"] = (fn0.__module__,
-                                                            _fully_annotated(fn0, bound))
+                                                            _fully_annotated(fn0, bound, warp))
 
     def add_class(cls):
         for name, member in vars(cls).items():

@@ -23,6 +23,8 @@ def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         mesh = trimesh.load(p, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files
         raise InputError(f"{p}: cannot read mesh ({exc})") from None
+    if not isinstance(mesh, trimesh.Trimesh):  # (force="mesh" makes one of any file it reads)
+        raise InputError(f"{p}: cannot read mesh (no triangles)")
     if len(mesh.vertices) == 0:
         raise InputError(f"{p}: mesh has no vertices")
     return np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.int32)

@@ -33,22 +33,23 @@ import json
 import re
 import sys
 import time
+from collections.abc import Iterable, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 from importlib.resources import files
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from .. import metrics as M
 from ..errors import InputError, LimitError, Param, output_exists
 from ..files.atomic import atomic_path
 from ..metrics import METRICS, worst
-from ..options import SkinOptions, split_changes
+from ..options import METHOD_NAMES, Method, SkinOptions, split_changes
 from ..readers import load
 from ..scene import DEFAULT_BLEND, Scene
-from ..skinning import METHODS
 from ..times import default_frames
 from .html import build_html, method_label
 from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
@@ -89,7 +90,8 @@ _HEAT_SHADING = Shading(ambient=0.55, diffuse=0.45, rim=0.0)
 _HEAT_COLORMAP = "viridis"
 
 
-def _choice_list(name, values, allowed):
+def _choice_list(name: str, values: str | Iterable[str],
+                 allowed: Sequence[str]) -> tuple[Any, ...]:
     items = [values] if isinstance(values, str) else list(values)
     if not items:
         raise InputError(Param(name), f": empty; choose from {', '.join(allowed)}")
@@ -189,8 +191,8 @@ def _measure(mesh, skeleton, methods, device):
     out = {}
     for k, meth in enumerate(methods):
         part = slice(k * frames, (k + 1) * frames)
-        out[meth] = {"volume_ratio": None if ratio is None else np.asarray(ratio[part],
-                                                                           dtype=np.float64),
+        out[meth] = {"volume_ratio": None if ratio is None else np.asarray(ratio,
+                                                                           np.float64)[part],
                      "volume_ratio_reason": reason,
                      "min_section_ratio": section[part], "min_section_joint": section_joint[part],
                      "max_bulge_ratio": bulge[part], "max_bulge_joint": bulge_joint[part]}
@@ -333,7 +335,7 @@ def _render(meshes, times, methods, render, frames_dir, closeup, distance, bar, 
     labels = [_label(m) for m in methods] + (["|LBS - DQS|"] if heat else [])
 
     def panel(f, cams, dims):
-        images = {v: [] for v in cams}
+        images: dict[str, list[np.ndarray]] = {v: [] for v in cams}
         heat_images = {}
         for meth in methods:
             renderers[meth].update(posed[meth][f])
@@ -345,7 +347,7 @@ def _render(meshes, times, methods, render, frames_dir, closeup, distance, bar, 
                               "colormap": _HEAT_COLORMAP, "shading": _HEAT_SHADING}
                 img = renderers[meth].render(cam, supersample=supersample, adaptive=adaptive,
                                              second_layer=second, **dims[v])
-                if second is not None:
+                if isinstance(img, tuple):  # (the second layer's image too)
                     img, heat_images[v] = img
                     bar.update()
                 images[v].append(img)
@@ -354,7 +356,7 @@ def _render(meshes, times, methods, render, frames_dir, closeup, distance, bar, 
             images[v].append(add_colorbar(img, heat_range, _HEAT_COLORMAP, label="distance"))
         return {v: side_by_side(imgs, labels) for v, imgs in images.items()}
 
-    paths = {v: [] for v in views}
+    paths: dict[str, list[Path]] = {v: [] for v in views}
     for f in range(len(times)):
         for v, img in panel(f, cameras, sizes).items():
             paths[v].append(save_png(frames_dir / f"{v}_{f:03d}.png", img))
@@ -378,7 +380,8 @@ def _rotation_angles(x):
                       0.5 * (np.trace(r, axis1=-2, axis2=-1) - 1))
 
 
-def sweeps(assets_dir, *, methods=("lbs", "dqs"), options: SkinOptions | None = None):
+def sweeps(assets_dir: str | Path, *, methods: Sequence[Method] = ("lbs", "dqs"),
+           options: SkinOptions | None = None) -> dict[str, Any]:
     """Artifact curves of the skinning methods against the joint angle on the procedural rigs.
 
     Every frame of ``twist_cylinder.usda`` (twist 0→180°) and ``bending_arm.usda`` (bend 0→150°)
@@ -396,7 +399,7 @@ def sweeps(assets_dir, *, methods=("lbs", "dqs"), options: SkinOptions | None = 
     """
     methods = tuple(dict.fromkeys(("lbs", "dqs") + tuple(methods)))
     options = SkinOptions() if options is None else options
-    out = {}
+    out: dict[str, Any] = {}
     for name, (file, fraction, divisor) in SWEEP_RIGS.items():
         path = Path(assets_dir) / file
         if not path.is_file():
@@ -454,7 +457,7 @@ def _prepare_out(out_dir, force):
     return out, frames
 
 
-def skeleton_up_axis(scene):
+def skeleton_up_axis(scene: Scene) -> str:
     """The skeleton-space axis ("Y" or "Z") that points closest to the stage's up direction.
 
     Rendering happens in skeleton space; a USD skeleton under a rotating transform (a converter's
@@ -471,10 +474,13 @@ def skeleton_up_axis(scene):
     return "Y" if abs(up[1]) >= abs(up[2]) else "Z"
 
 
-def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None,
+def run_compare(input_path: str | Path | Scene, out_dir: str | Path, *,
+                methods: Method | Sequence[Method] = ("lbs", "dqs"),
+                frames: npt.ArrayLike | None = None,
                 options: SkinOptions | None = None, render: "RenderSettings | None" = None,
-                progress=True, force=False, sweeps_dir="default", clip=None,
-                viewer_frames=VIEWER_FRAMES, **changes):
+                progress: bool = True, force: bool = False,
+                sweeps_dir: str | Path | None = "default", clip: str | int | None = None,
+                viewer_frames: int = VIEWER_FRAMES, **changes: Any) -> dict[str, Any]:
     """Compare skinning methods on an asset and write ``report.html``, ``metrics.json`` and
     ``frames/*.png`` in ``out_dir``.
 
@@ -522,7 +528,7 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None,
                                                  RenderSettings)
     options = SkinOptions.build(options, **skin_changes)
     render = replace(RenderSettings() if render is None else render, **render_changes)
-    methods = _choice_list("methods", methods, tuple(METHODS))
+    methods = _choice_list("methods", methods, METHOD_NAMES)
     render = replace(render, views=_choice_list("views", render.views, VIEWS))
     width, supersample = render.width, render.supersample
     for name, v, low in (("width", width, 16), ("supersample", supersample, 1),
@@ -545,7 +551,8 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None,
         else:
             times = np.asarray(frames, dtype=np.float64).reshape(-1)
             if times.size == 0 or not np.all(np.isfinite(times)):
-                raise InputError(Param("frames"), f": expected finite times, got {list(frames)!r}")
+                raise InputError(Param("frames"),
+                                 f": expected finite times, got {times.tolist()!r}")
         _renderable(scene)
         out, frames_dir = _prepare_out(out_dir, force)
 
@@ -555,7 +562,7 @@ def run_compare(input_path, out_dir, *, methods=("lbs", "dqs"), frames=None,
                                                           True)
                      + bool(viewer_frames) + 2 * (sweeps_dir is not None) + 1)
         bar.update()  # loaded
-        return _compare(_Report(scene, out, frames_dir, times, all_times, methods, options,
+        return _compare(_Report(scene, out, frames_dir, times, all_times, tuple(methods), options,
                                 replace(render, up_axis=up), sweeps_dir, bool(viewer_frames),
                                 heat), bar, t0)
 
@@ -597,7 +604,7 @@ class _Report(NamedTuple):
     frames_dir: Path
     times: np.ndarray
     all_times: np.ndarray
-    methods: tuple
+    methods: tuple[Method, ...]
     options: SkinOptions
     render: RenderSettings
     sweeps_dir: str | Path | None
@@ -626,7 +633,7 @@ class _NoBar:
         pass
 
 
-def _compare(report: _Report, bar, t0):
+def _compare(report: _Report, bar: Any, t0: float) -> dict[str, Any]:
     """The body of :func:`run_compare` once its arguments are checked; ``bar`` counts steps."""
     (scene, out, frames_dir, times, all_times, methods, options, render, sweeps_dir, viewer,
      heat) = report
@@ -668,7 +675,7 @@ def _compare(report: _Report, bar, t0):
     t_render = time.perf_counter()
 
     viewer_data = None
-    if viewer:
+    if viewer_posed is not None:
         bar.set_postfix_str("viewer data")
         faces, posed = viewer_posed
         rest = np.concatenate([m.rest for m in meshes])
@@ -752,7 +759,7 @@ def _compare(report: _Report, bar, t0):
     return result
 
 
-def summary_lines(result):
+def summary_lines(result: dict[str, Any]) -> list[str]:
     """The summary of a :func:`run_compare` result as text lines: each metric's worst value per
     method and the best method."""
     lines = []

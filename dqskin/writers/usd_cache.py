@@ -22,12 +22,15 @@ import contextlib
 import ctypes
 import itertools
 import os
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from types import SimpleNamespace
+from types import SimpleNamespace, TracebackType
+from typing import TYPE_CHECKING, Any, Literal, TypeAlias
 
 import numpy as np
+import numpy.typing as npt
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
 from ..errors import InputError
@@ -37,6 +40,10 @@ from ..options import SkinOptions
 from ..pipeline import rigid_transforms
 from ..readers.usd import load_rigid_prims
 from ..shapes import frames_of
+
+if TYPE_CHECKING:
+    from ..readers.usd import RigidPrim
+    from ..scene import Scene, SkinnedFrames
 
 __all__ = ["CACHE_EXTENSIONS", "CHUNK_BYTES", "CHUNK_FRAMES", "CHUNK_MIN_FRAMES",
            "CLIPS_FOLDER_SUFFIX",
@@ -48,8 +55,20 @@ CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
 
 _SKEL_API = "SkelBindingAPI"
 
+Frames = Mapping[str, npt.ArrayLike]
+"""Per mesh name (prim path), (F, N, 3) values of ``F`` frames."""
 
-def frame_bytes(scene, normals: bool = True, velocities: bool = True) -> int:
+TargetLookup = Callable[[str, str], "Target"]
+"""``(prim, what) → Target``: :meth:`CacheLayer.target` or a lookup in its targets."""
+
+Sink: TypeAlias = "Sdf.Layer | CrateSamples"
+"""Where samples go: an ``Sdf.Layer`` or a :class:`~dqskin.files.crate.CrateSamples`."""
+
+Prepared = tuple[np.ndarray, list[tuple[tuple[str, str], Any]]]
+"""What :meth:`SampleWriter.prepare` returns: the times and ``[((prim, what), values)]``."""
+
+
+def frame_bytes(scene: "Scene", normals: bool = True, velocities: bool = True) -> int:
     """Bytes of one frame's point, normal and velocity samples of ``scene``'s meshes (float32)."""
     return 12 * sum(len(m.points) * (2 if velocities else 1)
                     + (len(m.normals) if normals and m.normals is not None else 0)
@@ -71,7 +90,7 @@ CHUNK_BYTES = 64 << 20
 3,273-point mesh cost 0.8 of 4.2 CPU-s of a 10,000-frame bake)."""
 
 
-def chunk_frames(scene, options: SkinOptions) -> int:
+def chunk_frames(scene: "Scene", options: SkinOptions) -> int:
     """Frames per chunk skinned at a time with ``options`` (:data:`CHUNK_BYTES` of samples, at
     least :data:`CHUNK_MIN_FRAMES`, at most :data:`CHUNK_FRAMES`): the chunks of a clip layer,
     and of a single-layer USD bake (which streams them to its file, so this is what it holds)."""
@@ -84,10 +103,10 @@ CLIPS_FOLDER_SUFFIX = ".clips"
 (:mod:`.usd_clips`)."""
 
 
-def clips_folder(out) -> Path:
+def clips_folder(out: str | os.PathLike) -> Path:
     """The folder of the clip layers of ``out`` (``SHOT.usd`` → ``SHOT.clips``)."""
-    out = Path(out)
-    return out.with_name(out.stem + CLIPS_FOLDER_SUFFIX)
+    path = Path(out)
+    return path.with_name(path.stem + CLIPS_FOLDER_SUFFIX)
 
 
 def _frames(name, what, a, frames, count, finite=True):
@@ -298,10 +317,10 @@ class Target:
 
     attr: str
     type_name: str
-    info: tuple = ()
+    info: tuple[tuple[str, str], ...] = ()
     pad: float = 0.0
 
-    def spec(self, layer):
+    def spec(self, layer: Sdf.Layer) -> Sdf.AttributeSpec:
         """The attribute spec in ``layer``, made (with ``over`` prims above it) if absent."""
         path = Sdf.Path(self.attr)
         spec = layer.GetAttributeAtPath(path)
@@ -331,7 +350,8 @@ class CacheLayer:
         The stage to copy; ``scene.path`` by default.
     """
 
-    def __init__(self, scene, out_path, *, source_path=None):
+    def __init__(self, scene: "Scene", out_path: str | os.PathLike, *,
+                 source_path: str | os.PathLike | None = None) -> None:
         out = os.fspath(out_path)
         check_parent(out)
         src = os.fspath(scene.path if source_path is None else source_path)
@@ -353,10 +373,10 @@ class CacheLayer:
         self.rigid = _rigid_prims(stage, scene)
         self.layer = stage.Flatten()
         _remove_skel_binding(self.layer)
-        self.targets = {}
-        self._target_prims = set()  # prims with a target (ancestors' extentsHint dropped)
+        self.targets: dict[tuple[str, str], Target] = {}
+        self._target_prims: set[str] = set()  # prims with a target (ancestors' extentsHint dropped)
 
-    def target(self, name, what):
+    def target(self, name: str, what: str) -> Target:
         """The :class:`Target` of ``what`` (``points``, ``extent``, ``normals``, ``velocities``,
         ``xformOp:transform``) on prim ``name``; its spec is made in :attr:`layer` (time samples
         cleared, stale ancestor ``extentsHint`` dropped) on first use."""
@@ -365,7 +385,8 @@ class CacheLayer:
             return self.targets[key]
         layer = self.layer
         spec = _prim_spec(layer, name)
-        info, pad = (), 0.0
+        info: tuple[tuple[str, str], ...] = ()
+        pad = 0.0
         if what == "xformOp:transform":
             attr = what
             order = _attribute(layer, spec, "xformOpOrder", Sdf.ValueTypeNames.TokenArray,
@@ -402,7 +423,8 @@ class CacheLayer:
         self._target_prims.add(name)
         return target
 
-    def all_targets(self, *, normals=True, velocities=True):
+    def all_targets(self, *, normals: bool = True,
+                    velocities: bool = True) -> dict[tuple[str, str], Target]:
         """Every :class:`Target` :meth:`dqskin.Scene.skin` fills with these options (points and
         extent of every mesh, normals of meshes that have them, velocities) and every rigid
         prim's ``xformOp:transform``, keyed ``(prim, what)``."""
@@ -417,7 +439,7 @@ class CacheLayer:
             self.target(r.name, "xformOp:transform")
         return dict(self.targets)
 
-    def set_metadata(self, t_min, t_max, note="point cache"):
+    def set_metadata(self, t_min: float, t_max: float, note: str = "point cache") -> None:
         """Time range, frame rate, up axis and units of the cache."""
         layer, scene = self.layer, self.scene
         with Sdf.ChangeBlock():
@@ -430,20 +452,21 @@ class CacheLayer:
             layer.documentation = f"dqskin {note} of {self.src}"
 
 
-def export_layer(layer, claim, out=None, tmp=None):
+def export_layer(layer: Sdf.Layer, claim: atomic_path, out: str | os.PathLike | None = None,
+                 tmp: Path | None = None) -> Path:
     """Write ``layer`` to the temporary file of ``claim`` (an :class:`~.atomic.atomic_path`, not
     committed here), or to ``tmp`` in its folder; ``.usd`` is crate. ValueError naming ``out``
     (default the claimed path)."""
-    out = os.fspath(claim.path if out is None else out)
+    name = os.fspath(claim.path if out is None else out)
     tmp = claim.open() if tmp is None else tmp
     args = {"format": "usdc"} if Path(tmp).suffix.lower() == ".usd" else {}
     try:
         ok = layer.Export(str(tmp), args=args)
     except Tf.ErrorException as exc:
-        raise InputError(f"{out}: USD could not write the layer "
-                         f"({str(exc).replace(str(tmp), out)})") from None
+        raise InputError(f"{name}: USD could not write the layer "
+                         f"({str(exc).replace(str(tmp), name)})") from None
     if not ok:
-        raise InputError(f"{out}: USD could not write the layer")
+        raise InputError(f"{name}: USD could not write the layer")
     return tmp
 
 
@@ -466,18 +489,22 @@ class SampleWriter:
         As for :class:`UsdCacheWriter`.
     """
 
-    def __init__(self, scene, target, rigid, options: SkinOptions):
+    def __init__(self, scene: "Scene", target: TargetLookup, rigid: "list[RigidPrim]",
+                 options: SkinOptions) -> None:
         self.scene, self.target, self.rigid, self.options = scene, target, rigid, options
         self.meshes = {m.name: m for m in scene.meshes}
-        self._pads = {}  # prim → extent padding, resolved on the thread that owns the layer
+        self._pads: dict[str, float] = {}  # prim → extent padding, resolved on the thread that
+        # owns the layer
 
-    def _pad(self, name):
+    def _pad(self, name: str) -> float:
         pad = self._pads.get(name)
         if pad is None:
             pad = self._pads[name] = self.target(name, "points").pad
         return pad
 
-    def prepare(self, times, points, normals=None, velocities=None, checked=False, raw=False):
+    def prepare(self, times: npt.ArrayLike, points: Frames, normals: Frames | None = None,
+                velocities: Frames | None = None, checked: bool = False,
+                raw: bool = False) -> Prepared:
         """Check a chunk (see :meth:`UsdCacheWriter.write`) and turn it into USD values, touching
         no layer (so it can run on another thread than :meth:`apply`): returns the checked
         float64 times and ``[((prim, what), values)]``, one Vt array or Gf matrix per time, or
@@ -497,7 +524,8 @@ class SampleWriter:
             if unknown:
                 raise InputError(f"{what}: no mesh {unknown[0]!r} in {self.scene.path}; meshes: "
                                  f"{sorted(meshes)}")
-        def finite(a):  # checked float32 values need no second pass (others may overflow)
+        # checked float32 values need no second pass (others may overflow)
+        def finite(a: npt.ArrayLike) -> bool:
             return not (checked and getattr(a, "dtype", None) == np.float32)
 
         pts = {n: _frames(n, "points", p, F, meshes[n].points.shape[0], finite(p))
@@ -526,7 +554,7 @@ class SampleWriter:
                            xf if raw else [Gf.Matrix4d(m.T.tolist()) for m in xf]))
         return t, values
 
-    def apply(self, layer, prepared):
+    def apply(self, layer: Sink, prepared: Prepared) -> np.ndarray:
         """Set the samples :meth:`prepare` made in ``layer`` (raw for a
         :class:`~.crate.CrateSamples`); returns their times."""
         t, values = prepared
@@ -543,13 +571,17 @@ class SampleWriter:
                     layer.SetTimeSample(attr, ti, v)
         return t
 
-    def write(self, layer, times, points, normals=None, velocities=None):
+    def write(self, layer: Sink, times: npt.ArrayLike, points: Frames,
+              normals: Frames | None = None, velocities: Frames | None = None) -> np.ndarray:
         """Add samples at ``times`` to ``layer`` (see :meth:`UsdCacheWriter.write`); returns the
         checked times as float64."""
         return self.apply(layer, self.prepare(times, points, normals, velocities,
                                               raw=isinstance(layer, CrateSamples)))
 
-    def write_chunks(self, layer, chunks, check=None, checked=False, executor=None):
+    def write_chunks(self, layer: Sink, chunks: "Iterable[SkinnedFrames]",
+                     check: "Callable[[SkinnedFrames], None] | None" = None,
+                     checked: bool = False,
+                     executor: ThreadPoolExecutor | None = None) -> tuple[float, float]:
         """Write every :class:`dqskin.scene.SkinnedFrames` of the iterable ``chunks`` to
         ``layer``, pipelined: chunk ``k + 1`` is checked (``check(frames)``, then
         :meth:`prepare`) on a helper thread while chunk ``k``'s samples are set here (NumPy and
@@ -562,7 +594,7 @@ class SampleWriter:
         Returns the ``(min, max)`` time written (``(inf, -inf)`` for no chunk)."""
         raw = isinstance(layer, CrateSamples)
 
-        def prep(res):
+        def prep(res: "SkinnedFrames") -> Prepared:
             if check is not None:
                 check(res)
             return self.prepare(res.times, res.points, res.normals, res.velocities,
@@ -631,8 +663,9 @@ class UsdCacheWriter:
     interrupt.
     """
 
-    def __init__(self, scene, out_path, options: SkinOptions | None = None, *, source_path=None,
-                 overwrite=True):
+    def __init__(self, scene: "Scene", out_path: str | os.PathLike,
+                 options: SkinOptions | None = None, *,
+                 source_path: str | os.PathLike | None = None, overwrite: bool = True) -> None:
         self.cache = CacheLayer(scene, out_path, source_path=source_path)
         self.scene, self.out, self.src = scene, self.cache.out, self.cache.src
         self.layer = self.cache.layer
@@ -640,25 +673,27 @@ class UsdCacheWriter:
                                     SkinOptions() if options is None else options)
         self._t_min, self._t_max = np.inf, -np.inf
         self._claim = atomic_path(self.out, overwrite=overwrite)
-        self._sink = None  # the layer or CrateSamples samples go to, chosen by the first chunk
+        # the layer or CrateSamples samples go to, chosen by the first chunk
+        self._sink: Sink | None = None
 
-    def __enter__(self):
+    def __enter__(self) -> "UsdCacheWriter":
         self._claim.open()
         return self
 
-    def __exit__(self, exc_type, exc, tb):
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> Literal[False]:
         if exc_type is None:
             self.close()
         else:
             self._discard()
         return False
 
-    def _discard(self):
+    def _discard(self) -> None:
         if isinstance(self._sink, CrateSamples):
             self._sink.abort()
         self._claim.discard()
 
-    def _sink_for(self, first):
+    def _sink_for(self, first: "SkinnedFrames | SimpleNamespace") -> Sink:
         """Where samples go (chosen once, from the first chunk ``first``): the layer for
         ``.usda``; else a :class:`~.crate.CrateSamples` in the claimed temporary file over the
         layer exported once with the spec of every value ``first`` holds (and of every rigid
@@ -697,9 +732,9 @@ class UsdCacheWriter:
             self.samples.target = self._frozen_target(dict(self.cache.targets))
         return self._sink
 
-    def _frozen_target(self, targets):
+    def _frozen_target(self, targets: dict[tuple[str, str], Target]) -> TargetLookup:
         """The target lookup once the copy is exported: only what it declares."""
-        def target(name, what):
+        def target(name: str, what: str) -> Target:
             try:
                 return targets[name, what]
             except KeyError:
@@ -708,7 +743,8 @@ class UsdCacheWriter:
                                  "chunk in every later one (.usda takes any)") from None
         return target
 
-    def write(self, times, points, normals=None, velocities=None):
+    def write(self, times: npt.ArrayLike, points: Frames, normals: Frames | None = None,
+              velocities: Frames | None = None) -> None:
         """Add samples for ``times``.
 
         Parameters
@@ -730,19 +766,21 @@ class UsdCacheWriter:
         t = self.samples.write(sink, times, points, normals, velocities)
         self._t_min, self._t_max = min(self._t_min, t.min()), max(self._t_max, t.max())
 
-    def write_chunks(self, chunks, check=None, checked=False):
+    def write_chunks(self, chunks: "Iterable[SkinnedFrames]",
+                     check: "Callable[[SkinnedFrames], None] | None" = None,
+                     checked: bool = False) -> None:
         """:meth:`write` every :class:`dqskin.scene.SkinnedFrames` of ``chunks``, checking and
         converting the next on a helper thread (:meth:`SampleWriter.write_chunks`)."""
-        chunks = iter(chunks)
-        first = next(chunks, None)
+        rest = iter(chunks)
+        first = next(rest, None)
         if first is None:
             return
         sink = self._sink_for(first)
-        lo, hi = self.samples.write_chunks(sink, itertools.chain([first], chunks), check,
+        lo, hi = self.samples.write_chunks(sink, itertools.chain([first], rest), check,
                                            checked)
         self._t_min, self._t_max = min(self._t_min, lo), max(self._t_max, hi)
 
-    def close(self):
+    def close(self) -> str:
         """Set the stage metadata and write the file atomically. Returns ``out_path``."""
         claim = self._claim
         try:
@@ -760,8 +798,10 @@ class UsdCacheWriter:
         return self.out
 
 
-def write_usd_cache(scene, out_path, times, points, normals=None, *, velocities=None,
-                    options: SkinOptions | None = None, source_path=None, overwrite=True):
+def write_usd_cache(scene: "Scene", out_path: str | os.PathLike, times: npt.ArrayLike,
+                    points: Frames, normals: Frames | None = None, *,
+                    velocities: Frames | None = None, options: SkinOptions | None = None,
+                    source_path: str | os.PathLike | None = None, overwrite: bool = True) -> str:
     """Write skinned points (and normals, velocities) for all ``times`` as a new USD stage.
 
     One :class:`UsdCacheWriter` chunk; see it for the parameters.
