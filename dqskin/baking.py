@@ -11,6 +11,7 @@ file per frame (:mod:`dqskin.writers.mesh_files`). Every output is written atomi
 
 import contextlib
 import dataclasses
+import numbers
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -78,7 +79,7 @@ def _plural(n, word, plural=None):
     return f"{n} {word if n == 1 else plural or word + 's'}"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class BakeSettings:
     """How :func:`dqskin.bake` writes, apart from what is skinned (:class:`dqskin.SkinOptions`).
 
@@ -126,7 +127,23 @@ class BakeSettings:
     resume: bool = False
     inputs: tuple = ()
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
+        for name in ("chunk", "workers"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, numbers.Integral)):
+                raise InputError(Param(name, v), ": expected a whole number or None")
+            if v is not None and v < 1:
+                raise InputError(Param(name, v), ": must be at least 1")
+            object.__setattr__(self, name, None if v is None else int(v))
+        for name in ("force", "progress", "resume"):
+            if not isinstance(getattr(self, name), bool):
+                raise InputError(Param(name, getattr(self, name)), ": expected True or False")
+        if self.clips is not None and not isinstance(self.clips, bool):
+            raise InputError(Param("clips", self.clips), ": expected True, False or None")
+        if self.scheduler is not None and not isinstance(self.scheduler, str):
+            raise InputError(Param("scheduler", self.scheduler), ": expected an address or None")
+        if isinstance(self.inputs, (str, Path)):  # one path is not a sequence of paths
+            raise InputError(Param("inputs", self.inputs), ": expected a sequence of paths")
         object.__setattr__(self, "inputs", tuple(self.inputs))
 
     @property
@@ -136,21 +153,16 @@ class BakeSettings:
 
 
 def check_clip_arguments(out: str | Path, settings: BakeSettings) -> None:
-    """Raise InputError, naming the parameter, for settings :func:`bake` refuses: a chunk or
-    worker count below 1, clips or their options (``workers``, ``scheduler``, ``resume``) with a
-    non-USD ``out``, those options with ``clips=False``, ``workers`` with ``scheduler``,
-    ``resume`` with ``force``."""
-    chunk, workers, scheduler, resume = (settings.chunk, settings.workers, settings.scheduler,
-                                         settings.resume)
-    if chunk is not None and int(chunk) < 1:
-        raise InputError(Param("chunk", chunk), ": must be at least 1")
+    """Raise InputError, naming the parameters, for settings :func:`bake` refuses together
+    (each field alone is checked by :class:`BakeSettings`): clips or their options
+    (``workers``, ``scheduler``, ``resume``) with a non-USD ``out``, those options with
+    ``clips=False``, ``workers`` with ``scheduler``, ``resume`` with ``force``."""
+    workers, scheduler, resume = settings.workers, settings.scheduler, settings.resume
     asked = settings.distributed
     if output_kind(out) != "usd" and (settings.clips or asked):
         raise InputError(Param("out", out), ": value clips, ", Param("workers"), ", ",
                          Param("scheduler"), " and ", Param("resume", True),
                          " are for USD caches (.usd/.usdc/.usda)")
-    if workers is not None and int(workers) < 1:
-        raise InputError(Param("workers", workers), ": must be at least 1")
     if resume and settings.force:
         raise InputError(Param("resume", True), " and ", Param("force", True), ": give one (",
                          Param("resume", True), " completes the earlier bake, ",
@@ -206,14 +218,16 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     skin_changes, bake_changes = split_changes("bake", changes, SkinOptions, BakeSettings)
     opts = SkinOptions.build(SkinOptions.baking() if options is None else options,
                              **skin_changes)
+    if not isinstance(settings, BakeSettings | None):
+        raise InputError(Param("settings", settings), ": expected a BakeSettings or None")
     settings = dataclasses.replace(BakeSettings() if settings is None else settings,
                                    **bake_changes)
+    kind = output_kind(out)
+    check_clip_arguments(out, settings)  # before loading
     if not isinstance(scene, Scene):
         from .readers import load
         scene = load(scene)
     t = scene.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
-    kind = output_kind(out)
-    check_clip_arguments(out, settings)
     job = _Job(scene, out, t, opts, settings)
     return {"usd": _bake_usd, "npz": _bake_npz, "frames": _bake_frames}[kind](job)
 

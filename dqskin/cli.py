@@ -169,11 +169,11 @@ def _clip(text: str | None) -> str | int | None:
 def skin_options(args: argparse.Namespace) -> "SkinOptions":
     """The one :class:`dqskin.SkinOptions` of a command's parsed arguments (those it has:
     ``--method``, ``--sign-reference``, ``--interp``, ``--no-normals``, ``--no-velocities``,
-    ``--device``, ``--cor-exact``; a bake's defaults, :meth:`SkinOptions.baking`, for the
-    rest)."""
+    ``--device``, ``--space``, ``--cor-exact``; a bake's defaults, :meth:`SkinOptions.baking`,
+    for the rest)."""
     from .options import CorOptions, SkinOptions
     given = {k: getattr(args, k) for k in ("method", "sign_reference", "interp", "normals",
-                                           "velocities", "device") if hasattr(args, k)}
+                                           "velocities", "device", "space") if hasattr(args, k)}
     if getattr(args, "cor_exact", False):
         given["cor"] = CorOptions(cluster=None)
     return SkinOptions.baking(**given)
@@ -488,6 +488,7 @@ def _add_rigging_arguments(parser: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     from .options import INTERPOLATIONS, METHOD_NAMES, SkinOptions
+    from .spaces import SPACES
     from .times import MAX_FRAMES
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
@@ -510,6 +511,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "their weights on a 1/256 grid (slower; see the documentation's Concepts: "
                    "Methods page)")
     _add_sign_reference(s)
+    s.add_argument("--space", choices=list(SPACES), default=SkinOptions.space,
+                   help=".npz and per-frame files: each mesh's own space (default), the scene's "
+                   "world space (stage units) or its skeleton's bind space; a USD cache holds "
+                   "local points")
     s.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
                    "asset's time unit (USD time codes, glTF seconds)")
     s.add_argument("--fps", type=float, help="resample the clip at this many frames per second "

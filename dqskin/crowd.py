@@ -16,6 +16,7 @@ their skeleton's bind space, joint indices offset onto the concatenated joints, 
 characters) with the same batches; it and a :class:`Crowd` skin them with :func:`skin_batch`.
 """
 
+import numbers
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -262,13 +263,14 @@ class Crowd:
     def add(self, character: "Scene", *, time_offset: float = 0.0,
             root_transform: npt.ArrayLike | None = None, name: str | None = None) -> str:
         """Place one more instance of ``character`` (a :class:`dqskin.Scene`); returns its name
-        (default ``"i<index>"``). ValueError for a non-finite offset or root transform, a
-        repeated name, or a character without meshes."""
+        (default ``"i<index>"``). InputError (a ValueError) for a non-finite offset or root
+        transform, a repeated name, or a character without meshes."""
         if not getattr(character, "meshes", None):
             raise InputError("character: no skinned meshes")
+        if isinstance(time_offset, bool) or not isinstance(time_offset, numbers.Real) \
+                or not np.isfinite(time_offset):
+            raise InputError(Param("time_offset", time_offset), ": expected a finite number")
         off = float(time_offset)
-        if not np.isfinite(off):
-            raise InputError(f"time_offset: {time_offset!r} is not finite")
         root = np.eye(4) if root_transform is None else check_transforms(
             "root_transform", np.asarray(root_transform, np.float64).reshape(1, 4, 4))[0]
         if not np.allclose(root[3], [0, 0, 0, 1]):
@@ -395,8 +397,9 @@ class Crowd:
         options : dqskin.SkinOptions, optional
             ``method``, ``interp`` and ``sign_reference`` ("largest_weight" only) apply; a
             crowd skins points only (InputError naming normals, tangents, velocities or another
-            sign rule when asked). ``space`` does not apply: the points are in crowd space
-            (each instance's skeleton space through its root transform).
+            sign rule when asked, or a device other than the crowd's). ``space`` and
+            ``blend_shapes`` do not apply: the points are the skinned bind points in crowd
+            space (each instance's skeleton space through its root transform).
         as_warp : bool
             Return the device array (F, V) ``wp.vec3`` without a copy.
         **changes
@@ -414,6 +417,8 @@ class Crowd:
                    if getattr(opts, k)]
         if opts.sign_reference != "largest_weight":
             refused.append(Param("sign_reference", opts.sign_reference))
+        if opts.device is not None and str(resolve_device(opts.device)) != str(self.device):
+            refused.append(Param("device", opts.device))  # (the crowd's: Crowd(device=...))
         if refused:
             parts: list[str | Param] = ["a crowd skins points only, in crowd space, with the "
                                         "largest-weight sign rule; not "]

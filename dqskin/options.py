@@ -11,6 +11,7 @@ bake sends it to its Dask workers); :meth:`SkinOptions.replace` derives another.
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal, cast, get_args
 
@@ -58,7 +59,7 @@ def _choice(name: str, value: object, choices: tuple[str, ...], none: bool = Fal
                      + (" or None" if none else ""))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class CorOptions:
     """How ``method="cor"`` computes each mesh's centers of rotation
     (:func:`dqskin.cor.rotation_centers`).
@@ -84,19 +85,15 @@ class CorOptions:
             v = getattr(self, name)
             if (v is None and none) or (name == "cluster" and v == "auto"):
                 continue
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v) \
                     or v <= 0:
                 raise InputError(Param(f"cor.{name}", v), ": expected a finite number > 0"
                                  + ("" if not none else " or None")
                                  + (' or "auto"' if name == "cluster" else ""))
             object.__setattr__(self, name, float(v))
 
-    def skinner_arguments(self) -> dict:
-        """The ``cor_*`` keyword arguments of :class:`dqskin.Skinner`."""
-        return dict(cor_sigma=self.sigma, cor_subdivide=self.subdivide, cor_cluster=self.cluster)
 
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SkinOptions:
     """Everything that decides what skinning produces, besides the data.
 
@@ -147,7 +144,7 @@ class SkinOptions:
         for name in ("normals", "tangents", "velocities", "blend_shapes"):
             v = getattr(self, name)
             if not isinstance(v, bool):
-                if type(v).__name__ != "bool_":  # (NumPy's)
+                if not _numpy_bool(v):
                     raise InputError(Param(name, v), ": expected True or False")
                 object.__setattr__(self, name, bool(v))
         if self.device is not None:
@@ -157,13 +154,11 @@ class SkinOptions:
 
     @classmethod
     def build(cls, options: "SkinOptions | None" = None, **changes: Any) -> "SkinOptions":
-        """``options`` (default: every default) with the fields in ``changes`` replaced; a
-        ``cor`` given as a dict builds a :class:`CorOptions`. TypeError for an unknown field."""
+        """``options`` (default: every default) with the fields in ``changes`` replaced.
+        TypeError for an unknown field, as Python's for an unknown keyword."""
         base = cls() if options is None else options
         if not isinstance(base, SkinOptions):
             raise InputError(Param("options", base), ": expected a SkinOptions or None")
-        if isinstance(changes.get("cor"), dict):
-            changes["cor"] = CorOptions(**changes["cor"])
         return dataclasses.replace(base, **changes) if changes else base
 
     @classmethod
@@ -182,14 +177,24 @@ class SkinOptions:
 
     def plan(self) -> dict[str, Any]:
         """The fields that change a clip bake's samples, as recorded in its plan (and key): the
-        method, interpolation, sign rule, normals and velocities, and the centers-of-rotation
-        settings when they are not the defaults."""
+        method, interpolation, sign rule, normals and velocities, and the blend-shape and
+        centers-of-rotation settings when they are not the defaults (so the keys of bakes with
+        the defaults stay as they were)."""
         out: dict[str, Any] = dict(method=self.method, interp=self.interp,
                                    sign_reference=self.sign_reference, normals=self.normals,
                                    velocities=self.velocities)
+        if not self.blend_shapes:
+            out["blend_shapes"] = False
         if self.cor != CorOptions():
             out["cor"] = dataclasses.asdict(self.cor)
         return out
+
+
+def _numpy_bool(v: object) -> bool:
+    """Whether ``v`` is NumPy's bool scalar (its type is named ``bool`` in NumPy 2, ``bool_``
+    before), told without importing NumPy."""
+    t = type(v)
+    return t.__module__ == "numpy" and t.__name__ in ("bool", "bool_")
 
 
 def split_changes(function: str, changes: dict[str, Any], *kinds: type) -> list[dict[str, Any]]:

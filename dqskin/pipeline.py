@@ -103,9 +103,10 @@ class _Poses:
                     self.rates[s] = self._rates(s, local)
             return
         key = ("joints", tuple(scene.skeletons[s] for s in used), self.device)
-        if key not in cache:
-            cache[key] = JointBatch([scene.skeletons[s] for s in used], options.device)
-        self.joints = cache[key]
+        joints = cache.get(key)  # one look-up: Scene.invalidate may drop it from another thread
+        if joints is None:
+            joints = cache[key] = JointBatch([scene.skeletons[s] for s in used], options.device)
+        self.joints = joints
         self.where = dict(zip(used, self.joints.joints))
         local = [scene.local_transforms(t, s, interp=interp) for s in used]
         self.all_xforms = self.joints.skinning_transforms(local)
@@ -141,7 +142,9 @@ class _One:
         self.poses, self.mesh = poses, mesh
         options = poses.options
         self.method = options.method_of(mesh)
-        self.skinner = poses.scene.skinner(mesh, options.device, options.cor)
+        # the centers-of-rotation settings matter to "cor" only: one skinner for the others
+        cor = options.cor if self.method == "cor" else None
+        self.skinner = poses.scene.skinner(mesh, options.device, cor)
         self.xforms = poses.xforms[mesh.skeleton]
         self.deformer = mesh.deformer if options.blend_shapes else None
 

@@ -6,6 +6,7 @@ local transforms → forward kinematics (dual quaternions) → skinning transfor
 → per-vertex skinning → the space asked for (:mod:`dqskin.spaces`).
 """
 
+import numbers
 from collections.abc import Generator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -181,7 +182,7 @@ class Scene:
             sk = Skinner(mesh.points, mesh.joint_indices, mesh.joint_weights,
                          geom_bind_transform=mesh.geom_bind_transform,
                          blend_weights=mesh.blend_or_default(), faces=mesh.faces,
-                         device=device, **cor.skinner_arguments())
+                         device=device, cor=cor)
             self._skinners[key] = sk
         return sk
 
@@ -267,13 +268,16 @@ class Scene:
         them back to (e.g. one per process across many calls); default, one of this call's.
         """
         t = check_times(times)
+        sizes = list(chunk) if isinstance(chunk, (list, tuple)) else [chunk]
+        if not sizes or any(isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1
+                            for n in sizes):
+            raise InputError(Param("chunk", chunk), ": expected whole numbers of frames >= 1")
         if isinstance(chunk, (list, tuple)):
             ends = np.cumsum(chunk, dtype=np.int64)
-            if not chunk or min(chunk) < 1 or ends[-1] != len(t):
-                raise InputError(f"chunk sizes must be at least 1 and add up to {len(t)} frames")
+            if ends[-1] != len(t):
+                raise InputError(Param("chunk", chunk), f": the sizes add up to {ends[-1]} "
+                                 f"frames, not {len(t)}")
             slices = [slice(int(e - n), int(e)) for n, e in zip(chunk, ends)]
-        elif int(chunk) < 1:
-            raise InputError(Param("chunk", chunk), ": must be at least 1")
         else:
             slices = [slice(lo, min(lo + chunk, len(t))) for lo in range(0, len(t), chunk)]
         pool = KB.BufferPool() if buffers is None else buffers

@@ -16,14 +16,14 @@ import warp as wp
 
 from ._warp import Device, resolve_device
 from .cor import check_faces, rotation_centers
-from .errors import InputError
+from .errors import InputError, Param
 from .influences import Influences
 from .kernels import buffers as KB
 from .kernels import grid as KG
 from .kernels import skin as K
 from .kernels import velocity as KV
 from .kernels.dqmath import mat34, vec8
-from .options import METHOD_NAMES, SIGMA, SIGN_REFERENCES, Method, SignReference
+from .options import METHOD_NAMES, SIGN_REFERENCES, CorOptions, Method, SignReference
 from .shapes import as_array, frames_of
 from .validation import check_finite, check_transforms, within_float32
 
@@ -119,13 +119,9 @@ class Skinner:
         Triangles, required for ``method="cor"``: its centers of rotation
         (:func:`dqskin.cor.rotation_centers`, bind space) are computed on its first use, from the
         rest points (not from ``points`` passed per call), and cached on disk.
-    cor_sigma : float
-        Similarity width of the centers (:data:`dqskin.options.SIGMA`).
-    cor_subdivide : float, optional
-        Refine the centers' integral by subdividing triangles to this weight distance (the
-        paper's 0.1; :func:`dqskin.cor.rotation_centers`); None: one term per triangle.
-    cor_cluster : float, "auto" or None
-        Weight clustering of the centers (:func:`dqskin.cor.rotation_centers`); None: exact.
+    cor : dqskin.CorOptions, optional
+        How the centers are computed (similarity width, subdivision, weight clustering:
+        :func:`dqskin.cor.rotation_centers`); default :class:`~dqskin.options.CorOptions`.
     device : str, optional
         Warp device; CUDA when present, else CPU.
     """
@@ -134,9 +130,7 @@ class Skinner:
                  joint_weights: npt.ArrayLike | None, *,
                  geom_bind_transform: npt.ArrayLike | None = None,
                  blend_weights: npt.ArrayLike | None = None, faces: npt.ArrayLike | None = None,
-                 cor_sigma: float = SIGMA, cor_subdivide: float | None = None,
-                 cor_cluster: float | str | None = "auto",
-                 device: Device = None) -> None:
+                 cor: CorOptions | None = None, device: Device = None) -> None:
         self.device = resolve_device(device)
         pts = as_array("points", points, None, (3,))
         if pts.ndim != 2:
@@ -182,8 +176,9 @@ class Skinner:
         self._points = self._upload(pts[None])
         self._rest_points = pts  # mesh space; bind space (float64) only when "cor" needs it
         self.faces = None if faces is None else check_faces(faces, self.vertex_count)
-        self.cor_sigma, self.cor_subdivide = float(cor_sigma), cor_subdivide
-        self.cor_cluster = cor_cluster
+        self.cor = CorOptions() if cor is None else cor
+        if not isinstance(self.cor, CorOptions):
+            raise InputError(Param("cor", cor), ": expected a CorOptions")
         self._centers: tuple[np.ndarray, wp.array] | None = None
         if blend_weights is None:
             self._blend = _empty(wp.float32, d)
@@ -208,8 +203,8 @@ class Skinner:
             g = self.geom_bind_transform
             rest_bind = np.asarray(self._rest_points, np.float64) @ g[:3, :3].T + g[:3, 3]
             c = rotation_centers(rest_bind, self.faces, *self.influences.given,
-                                 sigma=self.cor_sigma, subdivide=self.cor_subdivide,
-                                 cluster=self.cor_cluster,
+                                 sigma=self.cor.sigma, subdivide=self.cor.subdivide,
+                                 cluster=self.cor.cluster,
                                  device=self.device)
             c4 = np.zeros((self.vertex_count, 4), np.float32)
             ok = ~np.isnan(c[:, 0])

@@ -33,7 +33,7 @@ from test_sign_reference import (
 )
 
 import dqskin
-from dqskin import cor
+from dqskin import CorOptions, cor
 from dqskin.motion import skinned_velocities
 from dqskin.skinning import Skinner
 
@@ -248,7 +248,7 @@ def test_clustering_within_the_documented_bound(monkeypatch, caplog):
     for g in (1 / 32, 1 / 256):
         c = cor.rotation_centers(pts, faces, idx, w, cluster=g, cache=False)
         np.testing.assert_array_equal(np.isnan(c[:, 0]), np.isnan(exact[:, 0]))
-        got = Skinner(pts, idx, w, faces=faces, cor_cluster=g).skin(xf, "cor")
+        got = Skinner(pts, idx, w, faces=faces, cor=CorOptions(cluster=g)).skin(xf, "cor")
         err[g] = (np.nanmax(np.linalg.norm(c - exact, axis=1)),
                   np.linalg.norm(got - want, axis=-1).max())
         assert 1e-6 < err[g][0] <= g * 1.5 and err[g][1] <= g * 1.5, (g, err[g])
@@ -278,7 +278,7 @@ def test_subdivision_matches_reference_and_refines():
     fine = cor.rotation_centers(pts, faces, idx, w, subdivide=0.04, cache=False)
     err = {name: np.nanmax(np.abs(c - fine)) for name, c in (("coarse", coarse), ("0.1", got))}
     assert err["0.1"] < 0.5 * err["coarse"], err  # the refinement converges
-    sk = Skinner(pts, idx, w, faces=faces, cor_subdivide=0.1)
+    sk = Skinner(pts, idx, w, faces=faces, cor=CorOptions(subdivide=0.1))
     np.testing.assert_array_equal(sk.rotation_centers(), got)
 
 
@@ -646,7 +646,7 @@ def test_cor_options_through_scene_and_cli(tmp_path, monkeypatch):
     assert np.abs(clustered - want).max() > 2e-4  # (the default clusters here)
     exact = dqskin.SkinOptions(method="cor", cor=dqskin.CorOptions(cluster=None))
     np.testing.assert_allclose(scene.skin(options=exact).points["/Rig/Mesh"], want, atol=5e-5)
-    np.testing.assert_allclose(scene.skin(method="cor", cor={"cluster": None})
+    np.testing.assert_allclose(scene.skin(method="cor", cor=CorOptions(cluster=None))
                                .points["/Rig/Mesh"], want, atol=5e-5)
     for flags, exact in (([], False), (["--cor-exact"], True)):
         out = tmp_path / f"cor{len(flags)}.npz"

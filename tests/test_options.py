@@ -4,6 +4,7 @@ checked against float64 NumPy skinning from the equations."""
 
 import dataclasses
 import pickle
+import re
 import sys
 from pathlib import Path
 
@@ -47,7 +48,14 @@ def test_frozen_hashable_picklable():
     assert pickle.loads(pickle.dumps(o)) == o
     assert hash(pickle.loads(pickle.dumps(o))) == hash(o)
     assert o.replace(method="dqs").method == "dqs" and o.method == "cor"
-    assert SkinOptions.build(o, cor={"cluster": 0.01}).cor == CorOptions(cluster=0.01)
+    assert SkinOptions.build(o, cor=CorOptions(cluster=0.01)).cor == CorOptions(cluster=0.01)
+    with pytest.raises(InputError, match="cor="):  # one type for the settings, not a dict
+        SkinOptions.build(o, cor={"cluster": 0.01})
+    with pytest.raises(TypeError):  # fields by name only
+        SkinOptions("dqs")  # type: ignore[misc]
+    # NumPy scalars are numbers and bools like Python's
+    numpy_made = SkinOptions(normals=np.True_, cor=CorOptions(sigma=np.float32(0.25)))
+    assert numpy_made.normals is True and numpy_made.cor.sigma == 0.25
     with pytest.raises(TypeError):
         o.replace(colour="red")
 
@@ -77,6 +85,16 @@ def test_plan_keeps_the_earlier_keys():
                             normals=True, velocities=True)
     assert o.replace(cor=CorOptions(cluster=None)).plan()["cor"] == dict(
         sigma=dqskin.options.SIGMA, subdivide=None, cluster=None)
+    assert o.replace(blend_shapes=False).plan()["blend_shapes"] is False
+
+
+def test_resume_refuses_clips_of_other_blend_shape_settings(tmp_path):
+    """Clips skinned with the blend shapes applied are not kept by a resume without them."""
+    from dqskin import BakeSettings
+    shot = tmp_path / "shot.usdc"
+    dqskin.bake(ARM, shot, settings=BakeSettings(clips=True, chunk=8))
+    with pytest.raises(InputError, match="blend_shapes"):
+        dqskin.bake(ARM, shot, blend_shapes=False, settings=BakeSettings(chunk=8, resume=True))
 
 
 def _lbs_oracle(scene, times):
@@ -210,3 +228,78 @@ def test_a_usd_cache_holds_local_points_only(tmp_path, space):
     npz = tmp_path / "a.npz"
     dqskin.bake(ARM, npz, space=space)  # other outputs take any space
     assert npz.is_file()
+
+
+@pytest.mark.parametrize("changes, named", [
+    (dict(chunk="8"), "chunk='8'"), (dict(chunk=0), "chunk=0: must be at least 1"),
+    (dict(workers=True), "workers=True"), (dict(force="yes"), "force='yes'"),
+    (dict(clips=1), "clips=1"), (dict(inputs="a.bvh"), "inputs='a.bvh'"),
+])
+def test_bake_settings_are_checked_and_named(changes, named):
+    from dqskin import BakeSettings
+    with pytest.raises(InputError, match=re.escape(named)):
+        BakeSettings(**changes)
+
+
+def test_bake_refuses_its_arguments_before_loading(tmp_path):
+    """A refused argument is reported before the input is read: the missing file is never
+    looked for."""
+    missing = tmp_path / "missing.usda"
+    with pytest.raises(InputError, match="chunk=0"):
+        dqskin.bake(missing, tmp_path / "x.npz", chunk=0)
+    with pytest.raises(InputError, match="settings="):
+        dqskin.bake(missing, tmp_path / "x.npz", settings={"chunk": 8})
+    with pytest.raises(InputError, match="no such file"):
+        dqskin.bake(missing, tmp_path / "x.npz")
+
+
+def test_bad_arguments_of_crowds_and_chunks_are_input_errors():
+    scene = dqskin.load(ARM)
+    crowd = dqskin.Crowd(device="cpu")
+    with pytest.raises(InputError, match="time_offset='x'"):
+        crowd.add(scene, time_offset="x")
+    crowd.add(scene)
+    with pytest.raises(InputError, match="device='cuda:0'"):
+        crowd.skin(scene.times[:2], device="cuda:0")
+    for chunk in ("a", 0, [2, 0], []):
+        with pytest.raises(InputError, match="chunk="):
+            next(scene.skin_chunks(scene.times[:4], chunk))
+    with pytest.raises(InputError, match="add up to 3 frames, not 4"):
+        next(scene.skin_chunks(scene.times[:4], [1, 2]))
+
+
+def test_one_skinner_per_mesh_whatever_the_cor_settings_of_other_methods():
+    """CoR settings change only "cor"'s centers: LBS and DQS with other settings reuse the
+    mesh's one skinner."""
+    scene = dqskin.load(ARM)
+    t = scene.times[:2]
+    exact = CorOptions(cluster=None)
+    scene.skin(t, "lbs")
+    scene.skin(t, "dqs", cor=exact)
+    scene.skin(t, "lbs", cor=CorOptions(sigma=0.2))
+    assert len(scene._skinners) == 1
+    scene.skin(t, "cor", cor=exact)
+    assert len(scene._skinners) == 2
+
+
+def test_command_line_space(tmp_path):
+    """dqskin skin --space world writes world points (an .npz), the same as the API's; a USD
+    cache refuses it, naming the flag."""
+    from dqskin.cli import main
+    src = tmp_path / "placed.usda"
+    src.write_text(f'''#usda 1.0
+def "Placed" (prepend references = @{HUMANOID}@)
+{{
+    double3 xformOp:translate = (100, 0, -5)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+''')
+    out = tmp_path / "w.npz"
+    assert main(["skin", str(src), "--out", str(out), "--frames", "0:2", "--space", "world"]) == 0
+    scene = dqskin.load(src)
+    want = scene.skin([0.0, 1.0, 2.0], space="world")
+    with np.load(out) as z:
+        for k, m in enumerate(scene.meshes):
+            np.testing.assert_array_equal(z[f"points_{k}"], want.points[m.name])
+            assert np.abs(z[f"points_{k}"][..., 0].mean() - 100) < 50  # placed at x = 100
+    assert main(["skin", str(src), "--out", str(tmp_path / "w.usda"), "--space", "world"]) == 2

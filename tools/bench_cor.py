@@ -118,7 +118,7 @@ def cluster_error(scene, mesh, pts, centers, xf):
         xf = tube_bend(len(scene.skeletons[0].joint_names))
     skinned = [dqskin.Skinner(mesh.points, mesh.joint_indices, mesh.joint_weights,
                               geom_bind_transform=mesh.geom_bind_transform, faces=mesh.faces,
-                              cor_cluster=c).skin(xf, "cor").astype(np.float64)
+                              cor=dqskin.CorOptions(cluster=c)).skin(xf, "cor").astype(np.float64)
                for c in ("auto", None)]  # (the exact one reads the cache just filled)
     size = float(np.linalg.norm(np.ptp(pts, axis=0)))
     c_err = float(np.nanmax(np.linalg.norm(centers - exact, axis=1), initial=0.0))
@@ -192,7 +192,8 @@ def bench_kernels(rounds=15, V=200_000, F=8, J=64, K=4):
     idx, w = rng.integers(0, J, (V, K)), rng.random((V, K)).astype(np.float32)
     xf = np.tile(np.eye(4), (F, J, 1, 1))
     xf[..., :3, :3] = Rotation.random(F * J, random_state=1).as_matrix().reshape(F, J, 3, 3)
-    sk = dqskin.Skinner(pts, idx, w, faces=rng.integers(0, V, (1000, 3)), cor_cluster=None)
+    sk = dqskin.Skinner(pts, idx, w, faces=rng.integers(0, V, (1000, 3)),
+                        cor=dqskin.CorOptions(cluster=None))
     prep, frames, _ = sk._prepare(xf)
     out = wp.empty((frames, V), dtype=wp.vec3, device=sk.device)
     cases = {"lbs": (K_.LBS, "largest_weight"), "dqs": (K_.DQS, "largest_weight"),
