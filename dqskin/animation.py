@@ -64,7 +64,7 @@ import numpy.typing as npt
 from . import dq, quat
 from .errors import InputError
 from .linalg import hat, polar
-from .options import INTERPOLATIONS, Interpolation
+from .options import DEFAULT_INTERP, INTERPOLATIONS, Interpolation
 
 __all__ = ["Animation", "Deformer", "KeyedAnimation", "TransformTrack", "check_times", "ramp",
            "sample", "sample_with_derivative", "segment_rates"]
@@ -472,7 +472,7 @@ def _motion(animation: Animation, times: npt.ArrayLike, interp: Interpolation,
 
 
 def sample(animation: Animation, times: npt.ArrayLike,
-           interp: Interpolation = "trs") -> np.ndarray:
+           interp: Interpolation = DEFAULT_INTERP) -> np.ndarray:
     """Local joint transforms of ``animation`` at ``times``.
 
     Parameters
@@ -497,7 +497,8 @@ def sample(animation: Animation, times: npt.ArrayLike,
 
 
 def sample_with_derivative(animation: Animation, times: npt.ArrayLike,
-                           interp: Interpolation = "trs", *, local: npt.ArrayLike | None = None
+                           interp: Interpolation = DEFAULT_INTERP, *,
+                           local: npt.ArrayLike | None = None
                            ) -> tuple[np.ndarray, np.ndarray]:
     """Local joint transforms and their analytic time derivatives.
 

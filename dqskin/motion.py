@@ -32,7 +32,7 @@ from .animation import Animation, _motion, check_times, sample_with_derivative
 from .errors import InputError
 from .influences import check_influences
 from .linalg import vee
-from .options import Interpolation, Method, SignReference
+from .options import DEFAULT_INTERP, DEFAULT_SIGN_REFERENCE, Interpolation, Method, SignReference
 from .shapes import as_real, frames_of
 from .skeleton import Skeleton, check_parents
 from .skinning import Skinner
@@ -101,7 +101,8 @@ def forward_kinematics_derivative(parents: npt.ArrayLike, local: npt.ArrayLike,
     return world, world_dot
 
 
-def joint_twists(animation: Animation, times: npt.ArrayLike, interp: Interpolation = "trs", *,
+def joint_twists(animation: Animation, times: npt.ArrayLike,
+                 interp: Interpolation = DEFAULT_INTERP, *,
                  frame: Literal["local", "world"] = "local",
                  parents: npt.ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Angular and linear velocity of every joint, from the interpolant's analytic derivative.
@@ -143,7 +144,8 @@ def joint_twists(animation: Animation, times: npt.ArrayLike, interp: Interpolati
 
 
 def skinning_transforms_with_derivative(skeleton: Skeleton, animation: Animation | None,
-                                        times: npt.ArrayLike, interp: Interpolation = "trs", *,
+                                        times: npt.ArrayLike,
+                                        interp: Interpolation = DEFAULT_INTERP, *,
                                         local: npt.ArrayLike | None = None
                                         ) -> tuple[np.ndarray, np.ndarray]:
     """Bind-relative skinning transforms ``W·B⁻¹`` and their derivatives ``Ẇ·B⁻¹``, float64.
@@ -189,7 +191,7 @@ def skinned_velocities(points: npt.ArrayLike, joint_indices: npt.ArrayLike,
                        blend_weights: npt.ArrayLike | None = None,
                        faces: npt.ArrayLike | None = None,
                        rest_points: npt.ArrayLike | None = None,
-                       sign_reference: SignReference = "largest_weight",
+                       sign_reference: SignReference = DEFAULT_SIGN_REFERENCE,
                        device: Device = None) -> np.ndarray:
     """Velocities of skinned points, by the chain rule (Warp, one thread per vertex).
 

@@ -22,8 +22,9 @@ if TYPE_CHECKING:
     from .readers.usd import RigidPrim
     from .scene import Mesh
 
-__all__ = ["INTERPOLATIONS", "METHOD_NAMES", "SIGMA", "SIGN_REFERENCES", "SPACES", "CorOptions",
-           "Interpolation", "Method", "SignReference", "SkinOptions", "Space", "split_changes"]
+__all__ = ["DEFAULT_INTERP", "DEFAULT_SIGN_REFERENCE", "INTERPOLATIONS", "METHOD_NAMES", "SIGMA",
+           "SIGN_REFERENCES", "SPACES", "CorOptions", "Interpolation", "Method", "SignReference",
+           "SkinOptions", "Space", "split_changes"]
 
 Method = Literal["lbs", "dqs", "blend", "cor"]
 """Skinning methods: linear blend, dual quaternion, per-vertex blend of the two, optimized centers
@@ -42,11 +43,18 @@ Preserve Volume)."""
 SIGN_REFERENCES: tuple[SignReference, ...] = get_args(SignReference)
 """Every :data:`SignReference`, in order."""
 
+DEFAULT_SIGN_REFERENCE: SignReference = "largest_weight"
+"""The sign rule of every call that does not name one: UsdSkel's."""
+
 Interpolation = Literal["trs", "sclerp", "dlb", "spline", "catmull-rom"]
 """Pose interpolation between keys (:mod:`dqskin.animation`)."""
 
 INTERPOLATIONS: tuple[Interpolation, ...] = get_args(Interpolation)
 """Every :data:`Interpolation`, in order."""
+
+DEFAULT_INTERP: Interpolation = "trs"
+"""The interpolation of every call that does not name one: the asset's own sampler (what glTF
+and USD players show)."""
 
 SIGMA = 0.1
 """Width of the centers-of-rotation similarity kernel (Le & Hodgins' value; :mod:`dqskin.cor`)."""
@@ -126,8 +134,8 @@ class SkinOptions:
     """
 
     method: Method | None = None
-    sign_reference: SignReference = "largest_weight"
-    interp: Interpolation = "trs"
+    sign_reference: SignReference = DEFAULT_SIGN_REFERENCE
+    interp: Interpolation = DEFAULT_INTERP
     normals: bool = False
     tangents: bool = False
     velocities: bool = False

@@ -23,7 +23,14 @@ from .kernels import grid as KG
 from .kernels import skin as K
 from .kernels import velocity as KV
 from .kernels.dqmath import mat34, vec8
-from .options import METHOD_NAMES, SIGN_REFERENCES, CorOptions, Method, SignReference
+from .options import (
+    DEFAULT_SIGN_REFERENCE,
+    METHOD_NAMES,
+    SIGN_REFERENCES,
+    CorOptions,
+    Method,
+    SignReference,
+)
 from .shapes import as_array, frames_of
 from .validation import check_finite, check_transforms, within_float32
 
@@ -417,7 +424,7 @@ class Skinner:
 
     def skin(self, skinning_transforms: npt.ArrayLike | wp.array, method: Method = "dqs", *,
              points: npt.ArrayLike | None = None, output_transforms: npt.ArrayLike | None = None,
-             sign_reference: SignReference = "largest_weight",
+             sign_reference: SignReference = DEFAULT_SIGN_REFERENCE,
              as_warp: bool = False) -> np.ndarray | wp.array:
         """Skin the points for one or many frames.
 
@@ -487,7 +494,7 @@ class Skinner:
                      method: Method = "dqs", *, kind: VectorKind = "normal",
                      vector_vertex: npt.ArrayLike | None = None,
                      output_transforms: npt.ArrayLike | None = None,
-                     sign_reference: SignReference = "largest_weight",
+                     sign_reference: SignReference = DEFAULT_SIGN_REFERENCE,
                      as_warp: bool = False) -> np.ndarray | wp.array:
         """Skin normals or tangents; results are unit length. ``method="cor"`` turns directions
         as DQS does (the same rotation; its centers only move points).
@@ -562,7 +569,7 @@ class Skinner:
                         skinning_transform_derivatives: npt.ArrayLike | wp.array,
                         method: Method = "dqs", *, points: npt.ArrayLike | None = None,
                         point_velocities: npt.ArrayLike | None = None,
-                        sign_reference: SignReference = "largest_weight",
+                        sign_reference: SignReference = DEFAULT_SIGN_REFERENCE,
                         as_warp: bool = False) -> np.ndarray | wp.array:
         """Velocities of the skinned points, by the chain rule (:mod:`dqskin.kernels.velocity`).
 
@@ -602,7 +609,7 @@ def skin_points(points: npt.ArrayLike, joint_indices: npt.ArrayLike, joint_weigh
                 skinning_transforms: npt.ArrayLike, method: Method = "dqs", *,
                 geom_bind_transform: npt.ArrayLike | None = None,
                 blend_weights: npt.ArrayLike | None = None, faces: npt.ArrayLike | None = None,
-                sign_reference: SignReference = "largest_weight",
+                sign_reference: SignReference = DEFAULT_SIGN_REFERENCE,
                 device: Device = None) -> np.ndarray:
     """Skin points with LBS, DQS, a per-vertex blend or optimized centers of rotation (one call;
     see :class:`Skinner`).
@@ -660,7 +667,7 @@ def skin_normals(normals: npt.ArrayLike, joint_indices: npt.ArrayLike,
                  method: Method = "dqs", *, geom_bind_transform: npt.ArrayLike | None = None,
                  blend_weights: npt.ArrayLike | None = None,
                  normal_vertex: npt.ArrayLike | None = None,
-                 sign_reference: SignReference = "largest_weight",
+                 sign_reference: SignReference = DEFAULT_SIGN_REFERENCE,
                  device: Device = None) -> np.ndarray:
     """Skin normals consistently with :func:`skin_points` (inverse-transpose for LBS and scale).
 

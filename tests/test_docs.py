@@ -152,8 +152,9 @@ def test_mkdocs_build_strict(tmp_path):
     api = (site / "reference" / "api" / "index.html").read_text()
     for name in ("load", "Scene", "Scene.skin", "SkinnedFrames", "Skinner", "skin_points",
                  "Skeleton", "bake", "Crowd", "rig_mesh", "errors.InputError", "SkinOptions",
-                 "CorOptions", "baking.BakeSettings", "spaces.SPACES", "errors.OutputExistsError",
-                 "errors.UnknownNameError", "report.compare.run_compare"):
+                 "CorOptions", "BakeSettings", "options.DEFAULT_SIGN_REFERENCE", "spaces.SPACES",
+                 "errors.OutputExistsError", "errors.UnknownNameError",
+                 "report.compare.run_compare"):
         assert f'id="dqskin.{name}"' in api, name
 
 
