@@ -249,6 +249,14 @@ def test_cli_info_and_error(tmp_path, capsys):
     assert "unknown channel" in capsys.readouterr().err
 
 
+def test_summary_names_the_scale_parameter_as_the_caller_spells_it(tmp_path):
+    """The size line names rig_mesh's ``scale`` (from Python) or the CLI's ``--scale`` flag."""
+    from dqskin.cli import flag
+    motion = bvh.read_bvh(_write_generated(tmp_path / "gen.bvh", seed=1))
+    assert bvh.summary_lines(motion)[-1].endswith("or be matched with scale")
+    assert bvh.summary_lines(motion, flag)[-1].endswith("or be matched with --scale")
+
+
 def test_seeded_corruptions_give_value_errors_only(shared_assets, tmp_path):
     """Truncations, dropped, swapped and garbled words of a real capture: each either loads or
     raises ValueError naming the file, never another exception."""
