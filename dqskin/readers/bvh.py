@@ -166,7 +166,7 @@ def scaled(motion: BvhMotion, scale: float) -> BvhMotion:
     ``scale``: a skeleton in the units of a mesh."""
     scale = float(scale)
     if not (np.isfinite(scale) and scale > 0):
-        raise InputError(f"scale {scale}: must be a positive finite number")
+        raise InputError(Param("scale", scale), ": must be a positive finite number")
     values = motion.values.copy()
     for names, cols in zip(motion.channels, motion._columns):
         for name, col in zip(names, cols):
@@ -306,10 +306,10 @@ def read_bvh(path: str | os.PathLike) -> BvhMotion:
 
     Raises
     ------
-    ValueError
-        Unreadable file; missing or misplaced keywords, unknown channels, non-numbers, duplicate
-        joint names; a missing or non-positive ``Frames:``/``Frame Time:``; a frame line with the
-        wrong number of values. The message names the file and line.
+    InputError
+        (a ValueError) Unreadable file; missing or misplaced keywords, unknown channels,
+        non-numbers, duplicate joint names; a missing or non-positive ``Frames:``/``Frame Time:``; a
+        frame line with the wrong number of values. The message names the file and line.
     """
     p = Path(path)
     try:
