@@ -6,7 +6,7 @@ import threading
 
 import warp as wp
 
-from .errors import InputError
+from .errors import InputError, Param
 
 Device = str | wp.Device | None
 """A Warp device or its name (``"cpu"``, ``"cuda:0"``); None picks CUDA when present."""
@@ -31,12 +31,12 @@ def init_warp() -> None:
 
 
 def resolve_device(device: Device = None) -> wp.Device:
-    """Warp device for ``device`` (``None`` → CUDA when present, else CPU); ValueError if there
-    is no such device."""
+    """Warp device for ``device`` (``None`` → CUDA when present, else CPU); InputError (a
+    ValueError) naming the ``device`` parameter if there is no such device."""
     init_warp()
     if device is None:
         return wp.get_device("cuda:0" if wp.get_cuda_device_count() > 0 else "cpu")
     try:
         return wp.get_device(device)
     except (RuntimeError, ValueError) as exc:
-        raise InputError(f"device {device!r}: {exc}") from None
+        raise InputError(Param("device", device), f": {exc}") from None

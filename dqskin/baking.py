@@ -48,7 +48,8 @@ def sample_bytes(scene: Scene, frames: int, normals: bool = True, velocities: bo
 
 
 def output_kind(out: str | Path) -> str:
-    """"usd", "npz" or "frames" for an output path; ValueError for anything else."""
+    """"usd", "npz" or "frames" for an output path; InputError (a ValueError) for anything
+    else."""
     suffix = Path(str(out)).suffix.lower()
     if suffix in usd_cache.CACHE_EXTENSIONS:
         return "usd"
@@ -63,8 +64,9 @@ def output_kind(out: str | Path) -> str:
 
 
 def check_output(out: str | Path, inputs: list, force: bool) -> Path:
-    """``out`` as a Path; ValueError if it is one of ``inputs``, FileExistsError if it exists
-    and not ``force``, NotADirectoryError if a folder above it is a file."""
+    """``out`` as a Path; InputError (a ValueError) if it is one of ``inputs``,
+    OutputExistsError (a FileExistsError) if it exists and not ``force``, NotADirectoryError if
+    a folder above it is a file."""
     out = Path(out)
     for src in inputs:
         if out.resolve() == Path(src).resolve():
@@ -292,7 +294,7 @@ def _bake_usd(job: _Job) -> str:
         done = bake_clips(scene, out, t, opts, s)
         kept = f", {done['kept']} kept from the earlier run" if done["kept"] else ""
         return (f"wrote {out}: {counts} ({method}{', velocities' if opts.velocities else ''}) "
-                f"as {_plural(done['chunks'], 'clip')} in {done['folder']}{kept}")
+                f"as {_plural(done['clips'], 'clip')} in {done['folder']}{kept}")
     wrote_velocities = _bake_usd_layer(job)
     return f"wrote {out}: {counts} ({method}{', velocities' if wrote_velocities else ''})"
 

@@ -58,9 +58,8 @@ _own_process = False  # while main runs as the process's entry point (not from P
 # The flag that sets an API parameter named in an error message (:class:`dqskin.errors.Param`),
 # where it is not ``--`` + the name with ``-`` for ``_``; and the ``--no-...`` flag that sets one
 # to False. The one place the command line's spelling of parameters lives.
-FLAGS = {"overwrite": "--force"}
-NEGATED = {"normals": "--no-normals", "velocities": "--no-velocities", "clips": "--no-clips",
-           "sweeps": "--no-sweeps"}
+FLAGS = {"overwrite": "--force", "times": "--frames"}
+NEGATED = {"normals": "--no-normals", "velocities": "--no-velocities", "clips": "--no-clips"}
 
 
 def flag(param: Param) -> str:

@@ -96,7 +96,7 @@ def worker_threads(nthreads: int, environ: Mapping[str, str] = os.environ) -> di
     ``{"DQSKIN_THREADS": .., "PXR_WORK_THREAD_LIMIT": ..}`` (dqskin's CPU launch pool, USD's
     thread pool), each the variable's value when set in ``environ`` (a LocalCluster of
     :func:`bake_clips` sets both), else ``nthreads``: ``dask worker --nthreads 1`` per core gives
-    one-thread workers, ``--nthreads 4`` a pool of 4 shared by its 4 concurrent chunks."""
+    one-thread workers, ``--nthreads 4`` a pool of 4 shared by its 4 concurrent clips."""
     budget = str(max(1, int(nthreads)))
     return {k: environ.get(k) or budget for k in ("DQSKIN_THREADS", "PXR_WORK_THREAD_LIMIT")}
 
@@ -285,8 +285,8 @@ def bake_clips(scene: Scene, out: str | Path, times: np.ndarray, options: SkinOp
     Returns
     -------
     dict
-        ``chunks`` (clips in total), ``baked`` (this run), ``kept`` (verified from an earlier
-        run), ``folder``, and ``tasks``: what each task returned (pid, seconds, peak RSS).
+        ``clips`` (in total), ``baked`` (this run), ``kept`` (verified from an earlier run),
+        ``folder``, and ``tasks``: what each task returned (pid, seconds, peak RSS).
     """
     with usd_clips.bake_lock(out):  # one bake of ``out`` at a time, --resume and --force too
         # before starting workers
@@ -335,16 +335,16 @@ def _bake_clips(scene, out, times, options, settings, threads):
                 del preload
         bake.finish()
     except BaseException:
-        if bake is not None:  # (only when no chunk was kept: nothing for --resume to complete)
+        if bake is not None:  # (only when no clip was kept: nothing for --resume to complete)
             bake.abandon()
         raise
-    return dict(chunks=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
+    return dict(clips=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
                 folder=str(bake.folder), tasks=tasks)
 
 
 def _bar(total, done, progress):
     from tqdm import tqdm
-    return tqdm(total=total, initial=done, unit="chunk", desc="baking clips", file=sys.stderr,
+    return tqdm(total=total, initial=done, unit="clip", desc="baking clips", file=sys.stderr,
                 disable=not progress or total < 2 or not sys.stderr.isatty())
 
 
@@ -400,7 +400,7 @@ def _run_on_dask(client, jobs, done):
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
 
-    futures = {client.submit(run_clip, job, key=f"dqskin-chunk-{job.index}-{job.key[:12]}",
+    futures = {client.submit(run_clip, job, key=f"dqskin-clip-{job.index}-{job.key[:12]}",
                              pure=False): job for job in jobs}
     for fut in as_completed(futures):
         try:
@@ -409,6 +409,6 @@ def _run_on_dask(client, jobs, done):
             job = futures[fut]
             raise DqskinError(
                 f"{job.path}: the worker processes baking it died repeatedly (out of memory? "
-                "try a smaller ", Param("chunk"), "); finished chunks are kept: rerun with ",
+                "try a smaller ", Param("chunk"), "); finished clips are kept: rerun with ",
                 Param("resume", True)) from None
         done(result)

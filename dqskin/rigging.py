@@ -45,9 +45,9 @@ def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_cou
     """Influences from an ``.npz`` with :data:`WEIGHT_FIELDS`, re-indexed by joint name into
     ``joint_names`` order: ``(indices (V, K) int32, weights (V, K) float32)``.
 
-    Raises ValueError naming the file and field: an unreadable file (missing, empty, truncated,
-    not an ``.npz``), missing arrays, wrong shapes, joints the skeleton does not have, bad
-    indices or weights.
+    Raises InputError (a ValueError) naming the file and field: an unreadable file (missing, empty,
+    truncated, not an ``.npz``), missing arrays, wrong shapes, joints the skeleton does not have,
+    bad indices or weights.
     """
     p = Path(path)
     try:
@@ -79,9 +79,10 @@ def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_cou
 
 
 def check_fit(points: np.ndarray, joint_positions: np.ndarray, where: str) -> None:
-    """ValueError unless the mesh ``points`` and the skeleton's rest ``joint_positions`` are the
-    same size (within a factor 2) and overlap (most joints inside the mesh's bounding box, padded
-    by a tenth); the message gives the sizes and the ``scale`` that would match them."""
+    """InputError (a ValueError) unless the mesh ``points`` and the skeleton's rest
+    ``joint_positions`` are the same size (within a factor 2) and overlap (most joints inside the
+    mesh's bounding box, padded by a tenth); the message gives the sizes and the ``scale`` that
+    would match them."""
     lo, hi = points.min(0), points.max(0)
     size_mesh = float((hi - lo).max())
     jlo, jhi = joint_positions.min(0), joint_positions.max(0)
@@ -138,9 +139,9 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
 
     Raises
     ------
-    ValueError
-        Unreadable inputs, a mesh far from the skeleton or in other units (naming the fix), a
-        weights file that does not fit.
+    InputError
+        (a ValueError) Unreadable inputs, a mesh far from the skeleton or in other units (naming the
+        fix), a weights file that does not fit.
     """
     motion = skeleton if isinstance(skeleton, bvh.BvhMotion) else bvh.read_bvh(skeleton)
     if scale is not None and float(scale) != 1.0:

@@ -100,8 +100,8 @@ def location(index: Sequence[int] | np.ndarray, lead: int, joint_names: Sequence
 
 def check_finite(name: str, a: np.ndarray, lead: int, joint_names: Sequence[str] | None = None,
                  times: Sequence[float] | np.ndarray | None = None) -> None:
-    """Raise ValueError unless every value of ``a`` (``lead`` batch axes, then joints, then
-    components) is finite and fits float32, the device precision.
+    """Raise InputError (a ValueError) unless every value of ``a`` (``lead`` batch axes, then
+    joints, then components) is finite and fits float32, the device precision.
 
     The message names ``name``, the first offending frame (its batch index, or its time when
     ``times`` is given) and joint (by name when ``joint_names`` is given) and what is wrong, e.g.
@@ -126,17 +126,18 @@ def check_finite(name: str, a: np.ndarray, lead: int, joint_names: Sequence[str]
 
 def check_transforms(name: str, transforms: npt.ArrayLike, joint_names: Sequence[str] | None = None,
                      times: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
-    """Raise ValueError unless every entry of ``transforms`` (..., J, 4, 4) is real, finite and
-    within float32 range (:func:`check_finite`, the leading axes are frames); returns them as
-    float64."""
+    """Raise InputError (a ValueError) unless every entry of ``transforms`` (..., J, 4, 4) is
+    real, finite and within float32 range (:func:`check_finite`, the leading axes are frames);
+    returns them as float64."""
     x = as_real(name, transforms, np.float64)
     check_finite(name, x, max(x.ndim - 3, 0), joint_names, times)
     return x
 
 
 def check_skinned(path: str, result: "SkinnedFrames") -> None:
-    """Raise ValueError if any array of a :class:`dqskin.scene.SkinnedFrames` is not finite (joint
-    transforms too large for float32, or degenerate), naming the mesh, the array and the time."""
+    """Raise InputError (a ValueError) if any array of a :class:`dqskin.scene.SkinnedFrames` is
+    not finite (joint transforms too large for float32, or degenerate), naming the mesh, the
+    array and the time."""
     for what in ("points", "normals", "velocities"):
         for mesh, a in getattr(result, what).items():
             bad = ~np.isfinite(np.asarray(a)).all(axis=tuple(range(1, np.ndim(a))))

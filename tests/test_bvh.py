@@ -197,7 +197,7 @@ def test_scaled_scales_lengths_only(tmp_path):
     a, b = m.local_transforms(), s.local_transforms()
     np.testing.assert_allclose(b[..., :3, :3], a[..., :3, :3])
     np.testing.assert_allclose(b[..., :3, 3], 2.5 * a[..., :3, 3])
-    with pytest.raises(ValueError, match="positive"):
+    with pytest.raises(ValueError, match=r"^scale=0\.0: must be a positive"):
         bvh.scaled(m, 0)
 
 
@@ -247,6 +247,14 @@ def test_cli_info_and_error(tmp_path, capsys):
     bad.write_text(MALFORMED[2][0])
     assert main(["info", str(bad)]) == 2
     assert "unknown channel" in capsys.readouterr().err
+
+
+def test_summary_names_the_scale_parameter_as_the_caller_spells_it(tmp_path):
+    """The size line names rig_mesh's ``scale`` (from Python) or the CLI's ``--scale`` flag."""
+    from dqskin.cli import flag
+    motion = bvh.read_bvh(_write_generated(tmp_path / "gen.bvh", seed=1))
+    assert bvh.summary_lines(motion)[-1].endswith("or be matched with scale")
+    assert bvh.summary_lines(motion, flag)[-1].endswith("or be matched with --scale")
 
 
 def test_seeded_corruptions_give_value_errors_only(shared_assets, tmp_path):

@@ -3,7 +3,7 @@
 What USD shows through ``Usd.Stage.Open`` is checked against two references: a float64 oracle
 written from USD's own rule (linear interpolation between the bracketing samples, held outside
 the range) applied to :meth:`Scene.skin`'s frames, and today's single-layer cache, which it must
-equal exactly, sub-frames between two chunks included. Pixar's own baked baseline checks the
+equal exactly, sub-frames between two clips included. Pixar's own baked baseline checks the
 rigid prims. Resume, interruption, flattening and refusals too.
 """
 
@@ -37,7 +37,7 @@ CHUNK = 7
 
 
 def probe_times(times, chunk):
-    """Every frame; sub-frames inside each interval between two chunks and inside chunks;
+    """Every frame; sub-frames inside each interval between two clips and inside clips;
     times before and after the range."""
     t = np.asarray(times, np.float64)
     probes = set(t.tolist()) | {t[0] - 1.5, t[-1] + 2.25}
@@ -127,6 +127,21 @@ def test_force_removes_the_top_level_reading_the_clips_it_replaces(tmp_path):
     ClipBake(scene, out, scene.times[:6], 3, SkinOptions.baking(method="dqs"),
              force=True)
     assert not out.exists() and not list(clips_folder(out).glob("chunk_*"))
+
+
+def test_bake_clips_counts_clips_baked_and_kept(tmp_path):
+    """:func:`dqskin.distributed.bake_clips` returns the clips in total, baked by this run and
+    kept from an earlier one (9 frames in clips of 3: three; a resume keeps them all)."""
+    from dqskin.baking import BakeSettings
+    from dqskin.distributed import bake_clips
+    scene = load(HUMANOID)
+    out, opts = tmp_path / "shot.usd", SkinOptions.baking(method="lbs")
+    done = bake_clips(scene, out, scene.times[:9], opts, BakeSettings(chunk=3))
+    assert (done["clips"], done["baked"], done["kept"]) == (3, 3, 0)
+    again = bake_clips(scene, out, scene.times[:9], opts, BakeSettings(chunk=3, resume=True))
+    assert (again["clips"], again["baked"], again["kept"]) == (3, 0, 3)
+    assert sorted(p.name for p in clips_folder(out).glob("chunk_*.usdc")) == [
+        f"chunk_{k:05d}.usdc" for k in range(3)]
 
 
 @pytest.mark.parametrize("kind", ["folder", "link to a folder"])
@@ -846,7 +861,7 @@ def test_skinning_options_reach_the_clips_and_their_plan(humanoid, tmp_path):
 
 def test_skin_chunks_of_given_sizes_cover_the_frames_in_order(humanoid):
     """``Scene.skin_chunks`` with a list of sizes (what in-process clip bakes stream: each clip's
-    frames in pieces, across clips) gives those slices, each equal to skinning those frames."""
+    frames in chunks, across clips) gives those slices, each equal to skinning those frames."""
     scene = humanoid["scene"]
     t = np.asarray(scene.times[:9], np.float64)
     got = list(scene.skin_chunks(t, [3, 1, 5], normals=False, velocities=False))
@@ -890,12 +905,12 @@ def test_skin_chunks_reuse_the_buffers_of_chunks_the_caller_dropped(humanoid, mo
 
 
 @pytest.mark.parametrize("failure", ["check", "interrupt", "finish"])
-def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_path, monkeypatch,
-                                                                 failure):
-    """In-process bake, chunk 1 fails while being filled (a failed check, or Ctrl-C as the CLI
-    records it, raised in the main thread; or its layer cannot be finished, a full disk): chunk
+def test_a_failure_filling_the_next_clip_keeps_the_finished_one(humanoid, tmp_path, monkeypatch,
+                                                                failure):
+    """In-process bake, clip 1 fails while being filled (a failed check, or Ctrl-C as the CLI
+    records it, raised in the main thread; or its layer cannot be finished, a full disk): clip
     0, finished and hashed as it was written, is recorded and renamed, as the one-by-one bake
-    had it; ``--resume`` keeps it. Never a temporary file left, nor chunk 1."""
+    had it; ``--resume`` keeps it. Never a temporary file left, nor clip 1."""
     import dqskin.distributed as distributed
     from dqskin.files import atomic
     from dqskin.writers import usd_clips
@@ -903,11 +918,11 @@ def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_p
     shot = tmp_path / "shot.usd"
     calls = []
     if failure == "interrupt":
-        pieces = scene.skin_chunks
+        chunks = scene.skin_chunks
 
         def skin_chunks(*args, **kwargs):
-            for i, item in enumerate(pieces(*args, **kwargs)):
-                if i == 1:  # the first piece of chunk 1 (one piece a chunk here)
+            for i, item in enumerate(chunks(*args, **kwargs)):
+                if i == 1:  # the first chunk of clip 1 (one chunk a clip here)
                     atomic.interrupt(KeyboardInterrupt())
                 yield item
         monkeypatch.setattr(scene, "skin_chunks", skin_chunks)
@@ -917,10 +932,10 @@ def test_a_failure_filling_the_next_chunk_keeps_the_finished_one(humanoid, tmp_p
         def failing_check(path, res):
             calls.append(path)
             if len(calls) == 2:
-                raise ValueError("NaN in chunk 1")
+                raise ValueError("NaN in clip 1")
             return check(path, res)
         monkeypatch.setattr(distributed, "check_skinned", failing_check)
-    if failure == "finish":  # chunk 1's layer cannot be finished: the disk is full
+    if failure == "finish":  # clip 1's layer cannot be finished: the disk is full
         close, closed = usd_clips.CrateSamples.close, []
 
         def full(self, start, end):

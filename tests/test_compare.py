@@ -275,7 +275,7 @@ def test_multi_mesh_scene_renders_together(tmp_path, device):
         assert per["blend"]["volume_ratio"] is not None  # every mesh is closed
     assert (tmp_path / "frames" / "front_001.png").is_file()
     html = (tmp_path / "report.html").read_text(encoding="utf-8")
-    assert "Sweeps left out" in html
+    assert "Sweeps left out (not asked for)" in html and "--no-sweeps" not in html
 
 
 def _write_faceless(path):

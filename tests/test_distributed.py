@@ -1,9 +1,9 @@
 """Clip bakes on Dask (dqskin.distributed): a 2-process LocalCluster (the embedded default), and
 on one external ``dask scheduler`` + ``dask worker`` cluster on 127.0.0.1 shared by two tests:
-the CLI's ``--scheduler``, and a worker process killed mid-chunk.
+the CLI's ``--scheduler``, and a worker process killed mid-clip.
 
 Each result must equal the single-process single-layer cache bit for bit at every frame and at
-sub-frames across chunk boundaries (points, normals, velocities, extent); the oracle comparison of
+sub-frames across clip boundaries (points, normals, velocities, extent); the oracle comparison of
 that cache lives in tests/test_clips.py.
 """
 
@@ -109,15 +109,13 @@ def external_cluster(tmp_path_factory):
 
 
 def test_external_scheduler_and_workers_on_localhost(reference, external_cluster, tmp_path):
-    """The bake through the CLI's ``--scheduler``; each worker's thread budget follows its
-    ``--nthreads 1`` (dqskin's launch pool and USD's thread pool)."""
-    from distributed import Client
+    """The bake through the CLI's ``--scheduler``, one task a clip (named for it on the
+    cluster's dashboard); each worker's thread budget follows its ``--nthreads 1`` (dqskin's
+    launch pool and USD's thread pool)."""
+    from distributed import Client, get_task_stream
 
     from dqskin.cli import main
     shot = tmp_path / "shot.usd"
-    assert main(["skin", str(HUMANOID), "--out", str(shot), "--chunk", str(CHUNK),
-                 "--scheduler", external_cluster]) == 0
-    check(reference, shot)
 
     def budget():
         from pxr import Work
@@ -125,7 +123,14 @@ def test_external_scheduler_and_workers_on_localhost(reference, external_cluster
         from dqskin.kernels.grid import cpu_threads
         return cpu_threads(), Work.GetConcurrencyLimit()
     with Client(external_cluster, timeout="30s") as client:
+        with get_task_stream(client) as stream:
+            assert main(["skin", str(HUMANOID), "--out", str(shot), "--chunk", str(CHUNK),
+                         "--scheduler", external_cluster]) == 0
         assert set(client.run(budget).values()) == {(1, 1)}
+    check(reference, shot)
+    clips = sorted(int(t["key"].split("-")[2]) for t in stream.data
+                   if str(t["key"]).startswith("dqskin-clip-"))
+    assert clips == list(range(7))  # the humanoid's 49 frames in clips of 7
 
 
 def test_default_clips_are_sized_for_the_clusters_task_slots(external_cluster, tmp_path):
@@ -148,17 +153,17 @@ def test_default_clips_are_sized_for_the_clusters_task_slots(external_cluster, t
                                  probe_times(scene.times, size)) > 0
 
 
-def test_a_worker_killed_mid_chunk_is_replaced_and_the_bake_completes(reference, external_cluster,
-                                                                       tmp_path):
+def test_a_worker_killed_mid_clip_is_replaced_and_the_bake_completes(reference, external_cluster,
+                                                                      tmp_path):
     """A worker plugin makes the first worker that has finished a clip layer in its temporary
     file SIGKILL itself before the rename; its nanny starts a new worker process and Dask reruns
-    that chunk. (The plugin is removed afterwards, its patch undone.)"""
+    that clip. (The plugin is removed afterwards, its patch undone.)"""
     from distributed import Client, WorkerPlugin
 
     marker = tmp_path / "killed"
 
-    class KillOnceMidChunk(WorkerPlugin):
-        name = "kill-once-mid-chunk"
+    class KillOnceMidClip(WorkerPlugin):
+        name = "kill-once-mid-clip"
 
         def setup(self, worker):
             from dqskin.writers.usd_clips import ClipLayer
@@ -179,14 +184,14 @@ def test_a_worker_killed_mid_chunk_is_replaced_and_the_bake_completes(reference,
 
     shot = tmp_path / "shot.usd"
     with Client(external_cluster, timeout="30s") as client:
-        client.register_plugin(KillOnceMidChunk())
+        client.register_plugin(KillOnceMidClip())
         try:
             pids = set(client.run(os.getpid).values())
             summary = bake(HUMANOID, shot, chunk=CHUNK, scheduler=external_cluster)
             assert marker.exists(), "no worker was killed"
             assert set(client.run(os.getpid).values()) != pids  # the nanny started a new one
         finally:
-            client.unregister_worker_plugin(KillOnceMidChunk.name)
+            client.unregister_worker_plugin(KillOnceMidClip.name)
     assert "as 7 clips" in summary
     check(reference, shot)
 

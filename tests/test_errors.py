@@ -130,6 +130,64 @@ def test_a_frame_limit_names_max_frames_in_python_and_on_the_command_line(tmp_pa
     assert "raise --max-frames to allow more" in err and not out.exists()
 
 
+def test_an_unknown_device_names_the_device_parameter():
+    from dqskin._warp import resolve_device
+    with pytest.raises(InputError) as info:
+        resolve_device("bogus")
+    assert str(info.value).startswith("device='bogus': ")
+    assert info.value.message(cli.flag).startswith("--device bogus: ")
+
+
+def test_one_file_for_many_frames_names_bakes_times_parameter(tmp_path):
+    """bake selects frames with ``times`` (the CLI's ``--frames``)."""
+    with pytest.raises(InputError) as info:
+        dqskin.bake(dqskin.load(HUMANOID), tmp_path / "one.obj", [0.0, 1.0], device="cpu")
+    assert str(info.value).endswith("or select one frame with times")
+    assert info.value.message(cli.flag).endswith("or select one frame with --frames")
+
+
+def test_each_negated_flag_sets_its_api_parameter_to_false():
+    """``NEGATED`` holds the ``--no-...`` flags that set an API parameter (a SkinOptions or
+    BakeSettings field) to False, and every such flag of the parser."""
+    import argparse
+    import dataclasses
+
+    from dqskin.baking import BakeSettings
+    from dqskin.options import SkinOptions
+    api = {f.name for c in (SkinOptions, BakeSettings) for f in dataclasses.fields(c)}
+    negated = {}
+    parser = cli.build_parser()
+    subparsers = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    for sub in [parser, *(p for a in subparsers for p in a.choices.values())]:
+        for action in sub._actions:
+            for option in action.option_strings:
+                if option.startswith("--no-") and action.dest in api and (
+                        isinstance(action, argparse._StoreFalseAction)
+                        or isinstance(action, argparse.BooleanOptionalAction)):
+                    negated[action.dest] = option
+    assert cli.NEGATED == negated
+    for name, option in negated.items():
+        assert cli.flag(Param(name, False)) == option
+
+
+def test_library_text_names_no_command_line_flag():
+    """Flags are the CLI's spelling (:func:`dqskin.cli.flag`); messages and report text made by
+    the library name API parameters (:class:`Param`) or none. Docstrings may show commands."""
+    flag_text = re.compile(r"(?<![\w-])--[a-z]")
+    found = []
+    for path in sorted([*ROOT.glob("dqskin/**/*.py"), *ROOT.glob("kernels/**/*.py")]):
+        rel = path.relative_to(ROOT).as_posix()
+        if rel == "dqskin/cli.py":
+            continue
+        tree = ast.parse(path.read_text(), rel)
+        docstrings = {id(n.value) for n in ast.walk(tree)
+                      if isinstance(n, ast.Expr) and isinstance(n.value, ast.Constant)}
+        found += [f"{rel}:{n.lineno}: {n.value!r}" for n in ast.walk(tree)
+                  if isinstance(n, ast.Constant) and isinstance(n.value, str)
+                  and id(n) not in docstrings and flag_text.search(n.value)]
+    assert not found, "\n".join(found)
+
+
 # -- a bug exits 70 with a traceback file; bad input exits 2 without one ----------------------
 
 @pytest.mark.parametrize("kind", [ValueError, KeyError, TypeError, RuntimeError, OSError])

@@ -187,6 +187,55 @@ def test_world_through_animated_skeleton_and_gprim_parents(tmp_path, device):
         check_world(path, device)
 
 
+def crowd(tmp_path, count=4):
+    """``count`` references to the bundled humanoid: the first under an Xform without ops, the
+    others moved and turned (the last animated); in the second, the mesh Arm_L resets its xform
+    stack to a translation of its own (its space then differs from its skeleton's)."""
+    humanoid = Path(__file__).resolve().parents[1] / "assets" / "humanoid.usda"
+    src = Usd.Stage.Open(str(humanoid))
+    stage = Usd.Stage.CreateNew(str(tmp_path / "crowd.usda"))
+    for key in ("startTimeCode", "endTimeCode", "timeCodesPerSecond", "upAxis", "metersPerUnit"):
+        stage.SetMetadata(key, src.GetMetadata(key))
+    for i in range(count):
+        place = UsdGeom.Xform.Define(stage, f"/Crowd/P{i}")
+        if i:
+            move, turn = place.AddTranslateOp(), place.AddRotateYOp()
+            move.Set(Gf.Vec3d(150.0 * i, 0.0, -40.0 * i))
+            turn.Set(30.0 * i)
+            if i == count - 1:
+                move.Set(Gf.Vec3d(0.0, 0.0, 0.0), 0.0)
+                move.Set(Gf.Vec3d(200.0, 10.0, 50.0), 48.0)
+        stage.DefinePrim(f"/Crowd/P{i}/H").GetReferences().AddReference(str(humanoid))
+    arm = UsdGeom.Xformable(stage.OverridePrim("/Crowd/P1/H/Arm_L"))
+    arm.SetResetXformStack(True)
+    arm.AddTranslateOp().Set(Gf.Vec3d(5.0, -3.0, 2.0))
+    stage.GetRootLayer().Save()
+    return Path(stage.GetRootLayer().realPath)
+
+
+def test_a_crowd_reads_each_xform_op_once_and_matches_usdskel(tmp_path, device, monkeypatch):
+    """Many characters' meshes share their ancestors' transforms: each xform op of the stage is
+    read once at load (not once a mesh), and world points still equal UsdSkel's bake taken to
+    the world; the meshes of the unmoved character have no world track (world is their space)."""
+    from dqskin.readers import usd_xform
+    path = crowd(tmp_path)
+    stage = Usd.Stage.Open(str(path))
+    authored = sum(len(UsdGeom.Xformable(p).GetOrderedXformOps())
+                   for p in stage.Traverse() if p.IsA(UsdGeom.Xformable))
+    assert authored == 2 * 3 + 1
+    reads = []
+    op = usd_xform._Op.__init__
+    monkeypatch.setattr(usd_xform._Op, "__init__", lambda self, o: reads.append(o) or op(self, o))
+    scene = dqskin.load(path)
+    assert len(scene.meshes) == 4 * 7
+    assert len(reads) == authored
+    monkeypatch.undo()
+    for m in scene.meshes:
+        assert (m.world_transforms is None) == m.name.startswith("/Crowd/P0/"), m.name
+        assert (m.output_transforms is None) == (m.name != "/Crowd/P1/H/Arm_L"), m.name
+    check_world(path, device)
+
+
 def test_space_tracks_and_unknown_spaces_are_refused(shared_assets):
     scene = dqskin.load(shared_assets / "usd-wg/CesiumMan/CesiumMan.usdz")
     (m,) = scene.meshes
@@ -215,14 +264,13 @@ def test_gltf_world_is_local(shared_assets, device):
         t = scene.times[:: max(1, len(scene.times) // 5)]
         kw = {"normals": True, "velocities": True, "device": device}
         out = scene.skin(t, space="local", **kw)
-        for space in ("world",):
-            got = scene.skin(t, space=space, **kw)
-            for m in scene.meshes:
-                assert m.world_transforms is None
-                for kind in ("points", "normals", "velocities"):
-                    if m.name in getattr(out, kind):
-                        assert np.array_equal(getattr(got, kind)[m.name],
-                                              getattr(out, kind)[m.name]), (path, m.name, kind)
+        got = scene.skin(t, space="world", **kw)
+        for m in scene.meshes:
+            assert m.world_transforms is None
+            for kind in ("points", "normals", "velocities"):
+                if m.name in getattr(out, kind):
+                    assert np.array_equal(getattr(got, kind)[m.name],
+                                          getattr(out, kind)[m.name]), (path, m.name, kind)
 
 
 def test_rigged_mesh_world_is_local(shared_assets, tmp_path):

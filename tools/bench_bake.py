@@ -168,7 +168,7 @@ def run_dqskin(src, dst, which):
     for task in done["tasks"]:
         peaks[task["pid"]] = max(peaks.get(task["pid"], 0.0), task["peak_rss_mb"])
     tasks = done["tasks"]
-    return dict(worker_peak_mb=sorted(peaks.values()), chunks=done["chunks"],
+    return dict(worker_peak_mb=sorted(peaks.values()), clips=done["clips"],
                 task_span=(max(t["ended"] for t in tasks) - min(t["started"] for t in tasks)
                            if tasks else None),
                 task_seconds=float(np.mean([t["seconds"] for t in tasks])) if tasks else None,

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..animation import KeyedAnimation
-from ..errors import InputError
+from ..errors import InputError, Param, Spelling
 from ..scene import Scene
 from ..skeleton import Skeleton
 from . import LOADER_SUFFIXES
@@ -138,9 +138,11 @@ class BvhMotion:
                      time_codes_per_second=1.0 / self.frame_time, up_axis="Y")
 
 
-def summary_lines(motion: BvhMotion) -> list[str]:
+def summary_lines(motion: BvhMotion, spell: Spelling = str) -> list[str]:
     """What ``dqskin info`` adds for a BVH file: channels, End Sites, frame time, rotation
-    orders and the rest skeleton's size (the unit a mesh to bind must be in)."""
+    orders and the rest skeleton's size (the unit a mesh to bind must be in, or the ``scale``
+    of :func:`dqskin.rigging.rig_mesh` that matches a mesh to it), with parameters written by
+    ``spell`` (as :meth:`dqskin.errors.DqskinError.message`; the CLI: its flags)."""
     from collections import Counter
     orders = Counter("".join(c[0] for c in ch if c.endswith("rotation")) or "none"
                      for ch in motion.channels)
@@ -155,7 +157,8 @@ def summary_lines(motion: BvhMotion) -> list[str]:
             "rotation orders (as written, intrinsic): "
             + ", ".join(f"{o} ×{n}" for o, n in orders.most_common()),
             f"rest skeleton: {size[0]:.4g} × {size[1]:.4g} × {size[2]:.4g} units (x × y × z); a "
-            "mesh to bind must be in this unit and pose, or use --scale"]
+            "mesh to bind must be in this unit and pose, or be matched with "
+            + spell(Param("scale"))]
 
 
 def scaled(motion: BvhMotion, scale: float) -> BvhMotion:
@@ -163,7 +166,7 @@ def scaled(motion: BvhMotion, scale: float) -> BvhMotion:
     ``scale``: a skeleton in the units of a mesh."""
     scale = float(scale)
     if not (np.isfinite(scale) and scale > 0):
-        raise InputError(f"scale {scale}: must be a positive finite number")
+        raise InputError(Param("scale", scale), ": must be a positive finite number")
     values = motion.values.copy()
     for names, cols in zip(motion.channels, motion._columns):
         for name, col in zip(names, cols):
@@ -303,10 +306,10 @@ def read_bvh(path: str | os.PathLike) -> BvhMotion:
 
     Raises
     ------
-    ValueError
-        Unreadable file; missing or misplaced keywords, unknown channels, non-numbers, duplicate
-        joint names; a missing or non-positive ``Frames:``/``Frame Time:``; a frame line with the
-        wrong number of values. The message names the file and line.
+    InputError
+        (a ValueError) Unreadable file; missing or misplaced keywords, unknown channels,
+        non-numbers, duplicate joint names; a missing or non-positive ``Frames:``/``Frame Time:``; a
+        frame line with the wrong number of values. The message names the file and line.
     """
     p = Path(path)
     try:

@@ -24,8 +24,9 @@ Files are untrusted input. Before anything is read, the GLB container is checked
 every JSON member the loader uses is type-checked against the glTF 2.0 schema (references
 included), and every accessor's byte range (offset, stride, count, alignment) is checked against
 its bufferView and buffer. External buffers must stay inside the asset's folder (``data:`` URIs
-are fine). Whatever is wrong surfaces as one ``ValueError`` "file: glTF field: what is wrong";
-pygltflib only ever sees the checked members, with its warnings silenced.
+are fine). Whatever is wrong surfaces as one :class:`~dqskin.errors.InputError` (a
+``ValueError``) "file: glTF field: what is wrong"; pygltflib only ever sees the checked members,
+with its warnings silenced.
 """
 
 import base64
@@ -711,7 +712,7 @@ class _Reader:
         return doc
 
     def error(self, message):
-        """``ValueError("file: message")``, on one line."""
+        """``InputError("file: message")`` (a ValueError), on one line."""
         return InputError(f"{self.name}: {message}".replace("\n", " "))
 
     def item(self, kind, items, index, where):
@@ -1253,16 +1254,16 @@ def load_gltf(path: str | os.PathLike, *, clip: str | int | None = None) -> Scen
 
     Raises
     ------
-    ValueError
-        The only exception a bad file raises, on one line naming the file and the glTF field:
-        unreadable, corrupt GLB container or JSON, not glTF 2.x; a member of the wrong type,
-        missing or out of range; accessor data misaligned, overlapping (byteStride smaller than
-        an element) or past its bufferView or buffer; a buffer URI outside the asset's folder or
-        unreadable; no skinned or morphing mesh; joint index out of range; negative or NaN
+    InputError
+        (a ValueError) The only exception a bad file raises, on one line naming the file and the
+        glTF field: unreadable, corrupt GLB container or JSON, not glTF 2.x; a member of the wrong
+        type, missing or out of range; accessor data misaligned, overlapping (byteStride smaller
+        than an element) or past its bufferView or buffer; a buffer URI outside the asset's folder
+        or unreadable; no skinned or morphing mesh; joint index out of range; negative or NaN
         weights; accessor count mismatch (morph targets included); primitives of one mesh with
-        different numbers of morph targets; default or animated morph weights not one per target;
-        a ``weights`` channel on a node without morph targets; non-triangle primitives; unknown
-        clip (the message lists the clips).
+        different numbers of morph targets; default or animated morph weights not one per target; a
+        ``weights`` channel on a node without morph targets; non-triangle primitives; unknown clip
+        (the message lists the clips).
     """
     with np.errstate(all="ignore"):  # overflow is checked where it matters, as ValueError
         return _load(path, clip)

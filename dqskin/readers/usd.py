@@ -59,7 +59,7 @@ from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
 from . import LOADER_SUFFIXES
 from .usd_anim import JointTracks
-from .usd_xform import XformChain, read_local_to_world
+from .usd_xform import LocalToWorld, XformChain
 
 __all__ = ["SKINNING_METHODS", "SUFFIXES", "load", "RigidPrim", "UsdSkelAnimation",
            "load_rigid_prims", "load_usd"]
@@ -471,6 +471,7 @@ class _Loader:
         self.animations: list[UsdSkelAnimation | None] = []
         self.meshes: list[Mesh] = []
         self.rigid: list[RigidPrim] = []
+        self.spaces = LocalToWorld()  # every prim's xform ops, read once
         # skeleton prim path -> its local-to-world XformChain
         self.world_tracks: dict[str, XformChain] = {}
 
@@ -1001,35 +1002,15 @@ class _Loader:
 
 def _shared_space(loader, skel_prim, gprim):
     """True when the skeleton and the gprim share their local-to-world at every time: no xform
-    op (nor ``!resetXformStack!``) on either below their common ancestor, and that ancestor's
-    local-to-world finite and invertible (checked once per ancestor: a crowd's instances hold
-    many meshes each). Then skeleton space is gprim space and no transform chain is needed."""
+    op (nor ``!resetXformStack!``) on either below their common ancestor (the prims owning
+    their chains are at or above it), and that chain finite and invertible (evaluated once per
+    chain: a crowd's instances hold many meshes each). Then skeleton space is gprim space and no
+    transform chain is needed."""
     common = skel_prim.GetPath().GetCommonPrefix(gprim.GetPath())
-    for p in (skel_prim, gprim):
-        while p and p.GetPath() != common:
-            xf = UsdGeom.Xformable(p)
-            if xf and (xf.GetOrderedXformOps() or xf.GetResetXformStack()):
-                return False
-            p = p.GetParent()
-    spaces = loader.__dict__.setdefault("_shared_spaces", {})
-    if common not in spaces:
-        prim = loader.stage.GetPrimAtPath(common)
-        chain = XformChain(read_local_to_world(prim), [], name=f"{loader.path}: {common}")
-        try:
-            with np.errstate(all="ignore"):
-                m = chain.at(chain.key_times)
-            spaces[common] = bool(np.isfinite(m).all() and
-                                  (np.abs(np.linalg.det(m[:, :3, :3])) > 0).all())
-        except (ValueError, np.linalg.LinAlgError):
-            spaces[common] = False  # the full chain below names the problem
-    return spaces[common]
-
-
-def _is_identity(track):
-    """Whether ``track`` is one constant identity transform."""
-    with np.errstate(all="ignore"):
-        return (track.key_times.shape[0] == 1
-                and np.allclose(track.at(track.key_times), np.eye(4), rtol=0, atol=1e-12))
+    spaces = loader.spaces
+    if not all(common.HasPrefix(spaces.owner(p)) for p in (skel_prim, gprim)):
+        return False
+    return spaces.is_regular(gprim)  # (the common ancestor's chain)
 
 
 def _world_transforms(loader, gprim, skel_prim):
@@ -1037,11 +1018,11 @@ def _world_transforms(loader, gprim, skel_prim):
     skeleton), or None when the gprim's local-to-world is the identity at every time (world is
     then the gprim's space, where ``output_transforms`` already lead). The chain's values are
     checked by :func:`_output_transforms`: it composes them with the gprim's."""
-    if _is_identity(XformChain(read_local_to_world(gprim), [])):
+    if loader.spaces.is_identity(gprim):
         return None
     key = str(skel_prim.GetPath())
     if key not in loader.world_tracks:
-        loader.world_tracks[key] = XformChain(read_local_to_world(skel_prim), [],
+        loader.world_tracks[key] = XformChain(loader.spaces.ops(skel_prim), (),
                                               name=f"{loader.path}: {key}")
     return loader.world_tracks[key]
 
@@ -1051,7 +1032,7 @@ def _output_transforms(loader, where, skel_prim, gprim):
     at every time."""
     if _shared_space(loader, skel_prim, gprim):
         return None
-    track = XformChain(read_local_to_world(skel_prim), read_local_to_world(gprim),
+    track = XformChain(loader.spaces.ops(skel_prim), loader.spaces.ops(gprim),
                        name=f"{loader.path}: {where}")
     try:
         with np.errstate(all="ignore"):  # non-finite results are refused just below

@@ -11,18 +11,19 @@ chain is differentiated by the product rule. At an interior sample time, where t
 a kink, the derivative is the mean of both sides, as for joints.
 """
 
+from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
-from pxr import Gf, Usd, UsdGeom
+from pxr import Gf, Sdf, Usd, UsdGeom
 
 from .. import quat
 from ..animation import TransformTrack
 from ..errors import InputError
 from ..linalg import hat
 
-__all__ = ["XformChain", "read_local_to_world"]
+__all__ = ["LocalToWorld", "XformChain"]
 
 _T = UsdGeom.XformOp
 _AXES = {"X": 0, "Y": 1, "Z": 2}
@@ -126,35 +127,98 @@ def _axis_rotation(axis: int, angle: np.ndarray, rate: np.ndarray) -> tuple[np.n
     return r, dr
 
 
-def read_local_to_world(prim: Usd.Prim) -> list[_Op]:
-    """The xform ops from the root down to ``prim`` (after the last ``!resetXformStack!``), in
-    the order they compose: a list of :class:`_Op`, the outermost first."""
-    chain: list[_Op] = []
-    while prim and not prim.IsPseudoRoot():
-        xf = UsdGeom.Xformable(prim)
-        if xf:
-            chain[:0] = [_Op(op) for op in xf.GetOrderedXformOps()]
-            if xf.GetResetXformStack():
+class LocalToWorld:
+    """The local-to-world xform ops of the prims of one stage, each prim's ops read once.
+
+    A prim's chain is its ancestors' and its own ops from the root down (after the last
+    ``!resetXformStack!``), the outermost first. Prims below one *owner* (the nearest prim at or
+    above them with ops or a ``!resetXformStack!``; the root when none) share one chain, read
+    and evaluated once: a stage of many referenced characters holds many meshes a character.
+    """
+
+    def __init__(self) -> None:
+        # prim path → (its owner, the owner's ops)
+        self._chains: dict[Sdf.Path, tuple[Sdf.Path, tuple[_Op, ...]]] = {}
+        self._kinds: dict[Sdf.Path, tuple[bool, bool]] = {}  # owner → (identity, regular)
+
+    def _chain(self, prim: Usd.Prim) -> tuple[Sdf.Path, tuple[_Op, ...]]:
+        hit = self._chains.get(prim.GetPath())
+        if hit is not None:
+            return hit
+        pending = []  # (path, own ops, reset) from ``prim`` up to a known chain or a reset
+        chain: tuple[Sdf.Path, tuple[_Op, ...]] = (Sdf.Path.absoluteRootPath, ())
+        while prim and not prim.IsPseudoRoot():
+            hit = self._chains.get(prim.GetPath())
+            if hit is not None:
+                chain = hit
                 break
-        prim = prim.GetParent()
-    return chain
+            xf = UsdGeom.Xformable(prim)
+            own = tuple(_Op(op) for op in xf.GetOrderedXformOps()) if xf else ()
+            reset = bool(xf) and xf.GetResetXformStack()
+            pending.append((prim.GetPath(), own, reset))
+            if reset:
+                break
+            prim = prim.GetParent()
+        for path, own, reset in reversed(pending):
+            if reset:
+                chain = (path, own)
+            elif own:
+                chain = (path, chain[1] + own)
+            self._chains[path] = chain
+        return chain
+
+    def ops(self, prim: Usd.Prim) -> tuple[_Op, ...]:
+        """The xform ops from the root down to ``prim``, in the order they compose."""
+        return self._chain(prim)[1]
+
+    def owner(self, prim: Usd.Prim) -> Sdf.Path:
+        """The nearest prim at or above ``prim`` with xform ops or a ``!resetXformStack!`` (the
+        absolute root when none): ``prim``'s local-to-world is that prim's."""
+        return self._chain(prim)[0]
+
+    def _kind(self, prim: Usd.Prim) -> tuple[bool, bool]:
+        owner, ops = self._chain(prim)
+        kind = self._kinds.get(owner)
+        if kind is None:
+            chain = XformChain(ops, ())
+            try:
+                with np.errstate(all="ignore"):
+                    m = chain.at(chain.key_times)
+            except (ValueError, np.linalg.LinAlgError):  # (its users name the problem)
+                kind = (False, False)
+            else:
+                with np.errstate(all="ignore"):
+                    kind = (bool(m.shape[0] == 1
+                                 and np.allclose(m, np.eye(4), rtol=0, atol=1e-12)),
+                            bool(np.isfinite(m).all()
+                                 and (np.abs(np.linalg.det(m[:, :3, :3])) > 0).all()))
+            self._kinds[owner] = kind
+        return kind
+
+    def is_identity(self, prim: Usd.Prim) -> bool:
+        """Whether ``prim``'s local-to-world is one constant identity transform (within 1e-12)."""
+        return self._kind(prim)[0]
+
+    def is_regular(self, prim: Usd.Prim) -> bool:
+        """Whether ``prim``'s local-to-world is finite and invertible at every key time."""
+        return self._kind(prim)[1]
 
 
 class XformChain(TransformTrack):
     """``inverse(localToWorld(target)) @ localToWorld(source)``: ``source`` space → ``target``
-    space over time (skeleton → prim), from the ops read by :func:`read_local_to_world`."""
+    space over time (skeleton → prim), from the ops of :meth:`LocalToWorld.ops`."""
 
-    def __init__(self, source_ops: list[_Op], target_ops: list[_Op], *,
+    def __init__(self, source_ops: Sequence[_Op], target_ops: Sequence[_Op], *,
                  name: str = "transform") -> None:
         self.source, self.target, self.name = source_ops, target_ops, name
         keys = set()
-        for op in source_ops + target_ops:
+        for op in [*source_ops, *target_ops]:
             if op.times.shape[0] > 1:
                 keys.update(op.times.tolist())
         self.key_times = np.array(sorted(keys) or [0.0], dtype=np.float64)
 
     @staticmethod
-    def _compose(ops: list[_Op], t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _compose(ops: Sequence[_Op], t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         m = np.tile(np.eye(4), (t.shape[0], 1, 1))
         dm = np.zeros_like(m)
         for op in ops:

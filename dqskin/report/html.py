@@ -361,7 +361,7 @@ def build_html(metrics: dict[str, Any], out_dir: str | os.PathLike, *,
     parts.append("<h2>Angle sweeps on the procedural rigs</h2>")
     sw = m.get("sweeps")
     if sw is None:
-        parts.append("<p class=note>Sweeps left out (--no-sweeps).</p>")
+        parts.append("<p class=note>Sweeps left out (not asked for).</p>")
     elif "skipped" in sw:
         parts.append(f"<p class=note>Sweeps skipped: {_esc(sw['skipped'])}.</p>")
     else:

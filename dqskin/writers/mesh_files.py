@@ -58,7 +58,7 @@ def frame_paths(pattern: str | os.PathLike, frames: Iterable[int]) -> list[Path]
         raise InputError(Param("out", pattern), f": {len(paths)} frames but {len(set(paths))} "
                          "file name(s); one file per frame needs a '{}' field for the frame "
                          "number (e.g. out/frame_{:04d}.obj), or select one frame with ",
-                         Param("frames"))
+                         Param("times"))
     return paths
 
 

@@ -1,4 +1,4 @@
-"""USD value clips: a long bake as one crate layer per chunk of frames, read as one animation.
+"""USD value clips: a long bake as one crate layer per clip of frames, read as one animation.
 
 For ``--out SHOT.usd`` (any of ``.usd/.usdc/.usda``) a clip bake writes::
 
@@ -209,8 +209,8 @@ def input_files(stage: Usd.Stage, src: str | os.PathLike,
 
 def check_outside(out: str | os.PathLike, files: Iterable[str | os.PathLike],
                   src: str | os.PathLike) -> None:
-    """ValueError when one of ``files`` (``src`` and the layers it reads) is inside ``out``'s
-    clip folder, where a clip bake writes and ``--force`` removes."""
+    """InputError (a ValueError) when one of ``files`` (``src`` and the layers it reads) is
+    inside ``out``'s clip folder, where a clip bake writes and ``force`` removes."""
     inside = clips_folder(out).resolve()
     for f in sorted(map(str, files)):
         if os.path.exists(f) and inside in Path(f).resolve().parents:
@@ -448,8 +448,8 @@ class ClipBake:
     ------
     FileExistsError
         ``out`` or an earlier clip bake exists, without ``force`` (or ``resume``).
-    ValueError
-        ``resume`` over a bake of another input or other settings.
+    InputError
+        ``resume`` over a bake of another input or other settings (a ValueError).
     """
 
     def __init__(self, scene: Scene, out: str | os.PathLike, times: npt.ArrayLike, chunk: int,
@@ -540,8 +540,9 @@ class ClipBake:
 
     @staticmethod
     def _check_owner(out: str | os.PathLike) -> None:
-        """ValueError when ``out``'s clip folder holds an earlier bake of another top-level
-        file (``shot.usda`` beside ``shot.usd``: one ``shot.clips/``), ``force`` or not."""
+        """InputError (a ValueError) when ``out``'s clip folder holds an earlier bake of another
+        top-level file (``shot.usda`` beside ``shot.usd``: one ``shot.clips/``), ``force`` or
+        not."""
         out, folder = Path(out), clips_folder(out)
         owner = _recorded(out, "out")
         if isinstance(owner, str) and owner != out.name:
@@ -552,7 +553,7 @@ class ClipBake:
     def _claim(self, plan_file: Path) -> None:
         """Write the plan exclusively: of two runs baking to one output without ``force``, the
         second to get here fails (the check before it is not enough: both can pass it, then
-        write each other's chunks and remove each other's temporary files)."""
+        write each other's clips and remove each other's temporary files)."""
         self.folder.mkdir(parents=True, exist_ok=True)
         try:
             _write_json(plan_file, self.plan, overwrite=False)
@@ -565,8 +566,8 @@ class ClipBake:
     @staticmethod
     def check_free(out: str | os.PathLike, *, force: bool = False, resume: bool = False) -> None:
         """The refusals that need no plan (before starting workers): FileExistsError when
-        ``out`` or an unfinished clip bake exists, unless ``force`` or ``resume``; ValueError
-        when its clip folder belongs to another output (:meth:`_check_owner`)."""
+        ``out`` or an unfinished clip bake exists, unless ``force`` or ``resume``; InputError (a
+        ValueError) when its clip folder belongs to another output (:meth:`_check_owner`)."""
         ClipBake._check_owner(out)
         if force or resume:
             return
@@ -660,7 +661,7 @@ def flatten(src: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool =
     Every clip layer the stage's ``clips`` metadata names must resolve, and one with a dqskin
     record beside it (``chunk_00000.json``) must match it (:func:`verify_chunk`) and its
     folder's plan: USD would skip a missing clip and hold the samples around it, and copy a
-    damaged one (ValueError naming the layer; ``dqskin skin ... --resume`` redoes it). That
+    damaged one (InputError, a ValueError, naming the layer; ``resume`` redoes it). That
     check reads each such layer once more. ``.usd`` output is crate. ``out``
     appears only when complete (exclusively unless ``overwrite``); ``src`` is never modified.
     Returns ``out``.
@@ -698,9 +699,9 @@ def flatten(src: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool =
 
 
 def _check_clips(stage: Usd.Stage, src: str | os.PathLike) -> None:
-    """ValueError for a clip layer named in ``stage``'s ``clips`` metadata that does not
-    resolve, or that has a dqskin record beside it (:func:`_record_of`) and does not match it
-    or the plan of its folder (a chunk of another bake). Each such layer is read in full."""
+    """InputError (a ValueError) for a clip layer named in ``stage``'s ``clips`` metadata that
+    does not resolve, or that has a dqskin record beside it (:func:`_record_of`) and does not
+    match it or the plan of its folder (a clip of another bake). Each such layer is read in full."""
     seen: set[str] = set()
     plans: dict[Path, str | None] = {}
     for prim in stage.Traverse(Usd.TraverseInstanceProxies()):

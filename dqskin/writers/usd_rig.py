@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import InputError, Param
 from ..files.atomic import atomic_path
 from ..readers import gltf
-from ..readers.usd_xform import XformChain, read_local_to_world
+from ..readers.usd_xform import LocalToWorld, XformChain
 from ..scene import Scene
 from .usd_cache import export_layer
 
@@ -101,7 +101,7 @@ def _skeleton_to_world(scene: Scene, skel: Skeleton, source: Usd.Stage | None,
     prim = source.GetPrimAtPath(skel.name) if source is not None and skel.name and \
         str(skel.name).startswith("/") else None
     if prim:
-        track = XformChain(read_local_to_world(prim), [], name=f"{scene.path}: {skel.name}")
+        track = XformChain(LocalToWorld().ops(prim), (), name=f"{scene.path}: {skel.name}")
         return track.at(times)
     return np.broadcast_to(np.asarray(skel.world_transform, np.float64), (len(times), 4, 4))
 
