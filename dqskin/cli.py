@@ -324,7 +324,7 @@ def cmd_info(args: argparse.Namespace) -> int:
           f"{scene.meters_per_unit:g} m/unit")
     if Path(scene.path).suffix.lower() == ".bvh":
         from .readers import bvh
-        for line in bvh.summary_lines(bvh.read_bvh(scene.path)):
+        for line in bvh.summary_lines(bvh.read_bvh(scene.path), flag):
             print(f"  {line}")
     if scene.clips:
         print(f"  clips: {', '.join(scene.clips)} (loaded: {scene.clip})")

@@ -243,6 +243,7 @@ def test_cli_info_and_error(tmp_path, capsys):
     assert "j5" in out and "side3" in out and "problems: none" in out
     assert "End Sites, 5 frames of 0.04 s" in out and "rotation orders" in out
     assert "XYZ ×" in out and "ZYX ×" in out and "rest skeleton:" in out
+    assert "--scale" in out  # the command line's spelling of the rig's scale
     bad = tmp_path / "bad.bvh"
     bad.write_text(MALFORMED[2][0])
     assert main(["info", str(bad)]) == 2
