@@ -536,12 +536,12 @@ def build_parser() -> argparse.ArgumentParser:
                    "per layer; with workers, shorter for four or more a worker and evened "
                    "out over them; with --resume, the earlier bake's)")
     s.add_argument("--clips", action=argparse.BooleanOptionalAction, default=None,
-                   help="USD caches as value clips: OUT plus one layer per chunk in OUT's .clips "
+                   help="USD caches as value clips: OUT plus one layer per clip in OUT's .clips "
                    "folder (default: when the samples exceed 512 MiB, or with --workers, "
                    "--scheduler or --resume)")
-    s.add_argument("--workers", type=int, help="bake the clip chunks on a local Dask cluster of "
+    s.add_argument("--workers", type=int, help="bake the clips on a local Dask cluster of "
                    "N worker processes (default: in this process)")
-    s.add_argument("--scheduler", help="bake the clip chunks on a running Dask cluster "
+    s.add_argument("--scheduler", help="bake the clips on a running Dask cluster "
                    "(tcp://HOST:PORT; its workers must see INPUT and OUT at the same paths)")
     s.add_argument("--resume", action="store_true", help="complete an interrupted clip bake: "
                    "keep the clip layers that verify, bake the rest")
