@@ -12,7 +12,9 @@ file per frame (:mod:`dqskin.writers.mesh_files`). Every output is written atomi
 import contextlib
 import dataclasses
 import numbers
+import os
 import sys
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -22,7 +24,7 @@ import numpy.typing as npt
 
 from .errors import InputError, OutputExistsError, Param, output_exists
 from .files.atomic import atomic_path, check_interrupted, check_parent
-from .options import SkinOptions, split_changes
+from .options import SkinOptions, is_numpy_bool, split_changes
 from .readers import format_of, gltf, usd
 from .scene import Scene, SkinnedFrames
 from .validation import check_skinned
@@ -137,16 +139,22 @@ class BakeSettings:
             if v is not None and v < 1:
                 raise InputError(Param(name, v), ": must be at least 1")
             object.__setattr__(self, name, None if v is None else int(v))
-        for name in ("force", "progress", "resume"):
-            if not isinstance(getattr(self, name), bool):
-                raise InputError(Param(name, getattr(self, name)), ": expected True or False")
-        if self.clips is not None and not isinstance(self.clips, bool):
-            raise InputError(Param("clips", self.clips), ": expected True, False or None")
+        for name in ("force", "progress", "resume", "clips"):
+            v = getattr(self, name)
+            if name == "clips" and v is None:
+                continue
+            if not isinstance(v, bool) and not is_numpy_bool(v):
+                raise InputError(Param(name, v), ": expected True or False"
+                                 + (" or None" if name == "clips" else ""))
+            object.__setattr__(self, name, bool(v))
         if self.scheduler is not None and not isinstance(self.scheduler, str):
             raise InputError(Param("scheduler", self.scheduler), ": expected an address or None")
-        if isinstance(self.inputs, (str, Path)):  # one path is not a sequence of paths
-            raise InputError(Param("inputs", self.inputs), ": expected a sequence of paths")
-        object.__setattr__(self, "inputs", tuple(self.inputs))
+        given: object = self.inputs  # (whatever the caller passed)
+        paths = () if isinstance(given, (str, Path)) or not isinstance(given, Iterable) \
+            else tuple(given)
+        if not paths and given or not all(isinstance(p, (str, os.PathLike)) for p in paths):
+            raise InputError(Param("inputs", given), ": expected a sequence of paths")
+        object.__setattr__(self, "inputs", paths)
 
     @property
     def distributed(self) -> bool:
@@ -154,12 +162,19 @@ class BakeSettings:
         return self.workers is not None or bool(self.scheduler) or self.resume
 
 
-def check_clip_arguments(out: str | Path, settings: BakeSettings) -> None:
-    """Raise InputError, naming the parameters, for settings :func:`bake` refuses together
-    (each field alone is checked by :class:`BakeSettings`): clips or their options
-    (``workers``, ``scheduler``, ``resume``) with a non-USD ``out``, those options with
-    ``clips=False``, ``workers`` with ``scheduler``, ``resume`` with ``force``."""
+def check_clip_arguments(out: str | Path, settings: BakeSettings,
+                         options: SkinOptions | None = None) -> None:
+    """Raise InputError, naming the parameters, for what :func:`bake` refuses together, before
+    anything is loaded (each field alone is checked by :class:`BakeSettings` and
+    :class:`~dqskin.options.SkinOptions`): clips or their options (``workers``, ``scheduler``,
+    ``resume``) with a non-USD ``out``, those options with ``clips=False``, ``workers`` with
+    ``scheduler``, ``resume`` with ``force``, and a USD cache in a space other than "local"
+    (its points sit under the source's prims, whose transforms still apply)."""
     workers, scheduler, resume = settings.workers, settings.scheduler, settings.resume
+    if options is not None and options.space != "local" and output_kind(out) == "usd":
+        raise InputError(Param("space", options.space), ": a USD point cache holds each prim's "
+                         "local points (space='local'); write .npz or per-frame files for "
+                         "other spaces")
     asked = settings.distributed
     if output_kind(out) != "usd" and (settings.clips or asked):
         raise InputError(Param("out", out), ": value clips, ", Param("workers"), ", ",
@@ -225,7 +240,7 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     settings = dataclasses.replace(BakeSettings() if settings is None else settings,
                                    **bake_changes)
     kind = output_kind(out)
-    check_clip_arguments(out, settings)  # before loading
+    check_clip_arguments(out, settings, opts)  # before loading
     if not isinstance(scene, Scene):
         from .readers import load
         scene = load(scene)
@@ -278,10 +293,6 @@ def _bake_usd(job: _Job) -> str:
         raise InputError(Param("out", out), ": a USD point cache copies the input stage, so "
                          "it needs a USD input; for glTF write .npz or per-frame "
                          ".obj/.ply/.glb files")
-    if opts.space != "local":  # its points sit under the source's prims and their transforms
-        raise InputError(Param("space", opts.space), ": a USD point cache holds each prim's "
-                         "local points (space='local'); write .npz or per-frame files for "
-                         "other spaces")
     # a USD cache holds each time once (np.unique would import numpy.ma)
     counts = job.counts(int(np.count_nonzero(np.diff(np.sort(t)))) + 1)
     method = opts.method or "asset method"

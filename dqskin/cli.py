@@ -197,7 +197,7 @@ def cmd_skin(args: argparse.Namespace) -> int:
     settings = BakeSettings(chunk=args.chunk, force=args.force, progress=True, clips=args.clips,
                             workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                             inputs=tuple(inputs))
-    check_clip_arguments(args.out, settings)  # before loading INPUT
+    check_clip_arguments(args.out, settings, options)  # before loading INPUT
     _checkpoint()
     with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
         scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)

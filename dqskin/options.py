@@ -152,7 +152,7 @@ class SkinOptions:
         for name in ("normals", "tangents", "velocities", "blend_shapes"):
             v = getattr(self, name)
             if not isinstance(v, bool):
-                if not _numpy_bool(v):
+                if not is_numpy_bool(v):
                     raise InputError(Param(name, v), ": expected True or False")
                 object.__setattr__(self, name, bool(v))
         if self.device is not None:
@@ -198,7 +198,7 @@ class SkinOptions:
         return out
 
 
-def _numpy_bool(v: object) -> bool:
+def is_numpy_bool(v: object) -> bool:
     """Whether ``v`` is NumPy's bool scalar (its type is named ``bool`` in NumPy 2, ``bool_``
     before), told without importing NumPy."""
     t = type(v)

@@ -28,6 +28,7 @@ one layer for tools that do not read clips.
 """
 
 import contextlib
+import dataclasses
 import errno
 import hashlib
 import json
@@ -47,7 +48,7 @@ from pxr import Sdf, Tf, Usd, Vt
 from ..errors import InputError, OutputExistsError, Param, output_exists
 from ..files.atomic import atomic_path, check_interrupted
 from ..files.crate import BOOTSTRAP, CrateSamples, Hasher
-from ..options import SkinOptions
+from ..options import CorOptions, SkinOptions
 from ..readers.usd import _tf_message
 from ..scene import Scene
 from .usd_cache import (
@@ -63,6 +64,10 @@ __all__ = ["CHECKSUM", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "LOCK_
            "ClipLayer", "bake_lock", "check_outside", "chunk_bounds", "clip_frames",
            "clips_folder", "commit_clip", "flatten", "file_checksum", "holds_clip_bake",
            "input_files", "recorded_chunk", "remove_clip_bake", "verify_chunk", "write_clip"]
+
+
+_PLAN_DEFAULTS = {"blend_shapes": True, "cor": dataclasses.asdict(CorOptions())}
+"""The plan's option entries written only when not these (:meth:`SkinOptions.plan`)."""
 
 
 _FORMAT = "dqskin-usd-clips/1"
@@ -531,7 +536,9 @@ class ClipBake:
                         f"{new['last']:g}: other times selected)")
         if old.get("chunk") != new["chunk"]:
             said.append(f"in clips of {old.get('chunk')} frames (now {new['chunk']})")
-        opts, was = new["options"], old.get("options") or {}
+        # (a plan leaves out the settings that are at their defaults)
+        opts = {**_PLAN_DEFAULTS, **new["options"]}
+        was = {**_PLAN_DEFAULTS, **(old.get("options") or {})}
         said += [f"with {k} {was.get(k)!r} (now {opts.get(k)!r})"
                  for k in sorted(set(opts) | set(was)) if opts.get(k) != was.get(k)]
         if not said and old.get("attributes") != new["attributes"]:
