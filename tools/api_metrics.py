@@ -13,6 +13,10 @@ parameter carries a type (the Warp type Warp's code generator requires); their r
 exempt, as ``__init__``'s is: a kernel returns nothing, and a Warp function's return type is
 the one Warp infers from its body, not a Python return a caller could annotate against.
 
+Also printed: every function of ``dqskin/`` (private ones included, ``kernels/`` counted apart)
+that takes ten or more parameters (``self``/``cls`` not counted, ``*args``/``**kwargs`` one
+each), read from the source with :mod:`ast`.
+
 Usage: ``python tools/api_metrics.py [ROOT] [--list]`` where ROOT is a source tree holding
 ``dqskin/`` and ``kernels/`` (default: this checkout). The tree is imported in a subprocess of
 its own, ``dqskin.kernels`` mapped to ``ROOT/kernels`` as the installed package does.
@@ -156,6 +160,33 @@ def main(argv=None):
         for name, (_, annotated) in sorted(found.items()):
             if not annotated:
                 print("  not annotated:", name)
+    long = _long_parameter_lists(root)
+    for folder in ("dqskin", "kernels"):
+        rows = [(n, where) for n, where in long if where.startswith(folder + "/")]
+        print(f"functions in {folder}/ with >= {LONG} parameters: {len(rows)}")
+        for n, where in rows:
+            print(f"  {n:3d}  {where}")
+
+
+LONG = 10
+"""A parameter list this long or longer is counted."""
+
+
+def _long_parameter_lists(root: Path) -> list[tuple[int, str]]:
+    """``(parameter count, "path:function")`` of every function with at least :data:`LONG`
+    parameters under ``root/dqskin`` and ``root/kernels``, longest first."""
+    import ast
+    rows = []
+    for path in sorted([*(root / "dqskin").rglob("*.py"), *(root / "kernels").rglob("*.py")]):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                a = node.args
+                names = [x.arg for x in (*a.posonlyargs, *a.args, *a.kwonlyargs)
+                         if x.arg not in ("self", "cls")]
+                count = len(names) + (a.vararg is not None) + (a.kwarg is not None)
+                if count >= LONG:
+                    rows.append((count, f"{path.relative_to(root)}:{node.name}"))
+    return sorted(rows, key=lambda r: (-r[0], r[1]))
 
 
 if __name__ == "__main__":
