@@ -26,15 +26,15 @@ from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from types import SimpleNamespace, TracebackType
-from typing import TYPE_CHECKING, Any, Literal, TypeAlias
+from types import SimpleNamespace
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 import numpy.typing as npt
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
 from ..errors import InputError
-from ..files.atomic import atomic_path, check_parent
+from ..files.atomic import CommitOnSuccess, atomic_path, check_parent
 from ..files.crate import CrateSamples, UnsupportedCrate
 from ..options import SkinOptions
 from ..pipeline import rigid_transforms
@@ -625,7 +625,7 @@ class SampleWriter:
         return lo, hi
 
 
-class UsdCacheWriter:
+class UsdCacheWriter(CommitOnSuccess):
     """Incremental USD point-cache writer: open once, :meth:`write` chunks of frames, :meth:`close`.
 
     Use as a context manager; on an exception nothing is written. A ``.usdc``/``.usd`` cache is
@@ -680,15 +680,13 @@ class UsdCacheWriter:
         self._claim.open()
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> Literal[False]:
-        if exc_type is None:
-            self.close()
-        else:
-            self._discard()
-        return False
+    def commit(self) -> str:
+        """:meth:`close` (the context manager's end without an exception)."""
+        return self.close()
 
-    def _discard(self) -> None:
+    def discard(self) -> None:
+        """Nothing written: the temporary file removed (the context manager's end on an
+        exception)."""
         if isinstance(self._sink, CrateSamples):
             self._sink.abort()
         self._claim.discard()
@@ -792,7 +790,7 @@ class UsdCacheWriter:
                 self.cache.set_metadata(self._t_min, self._t_max)
                 export_layer(self.layer, claim)
         except BaseException:
-            self._discard()
+            self.discard()
             raise
         claim.commit()
         return self.out
