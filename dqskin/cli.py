@@ -400,9 +400,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from .report.compare import RenderSettings, run_compare, summary_lines
     from .times import parse_frames
     out = Path(args.out).resolve()
-    for src in _inputs(args):  # what the report writes: the folder, these files, frames/*
+    for src in _inputs(args):  # the report replaces its folder whole
         p = Path(src).resolve()
-        if p in (out, out / "report.html", out / "metrics.json") or p.parent == out / "frames":
+        if p == out or out in p.parents:
             raise InputError(f"--out {args.out}: refusing to write the report over the input "
                              f"{src}")
     source = _load_input(args) if _rigging(args) else _regular_file(args.input)

@@ -319,29 +319,74 @@ def test_bad_input(tmp_path):
             parse_frames(text)
 
 
+def _tree(folder):
+    """Every file under ``folder`` (hidden ones too) → its bytes."""
+    return {p.relative_to(folder).as_posix(): p.read_bytes()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
 def test_existing_report_needs_force(tmp_path, device):
+    """The report folder is written whole: an earlier report blocks it without force and is
+    replaced whole (its stale panels gone) with it; a folder holding anything else is never
+    replaced; an empty folder is fine."""
     small = dict(frames=[0, 24], views=("front",), width=24, supersample=1, progress=False,
-                 sweeps_dir=None, device=device)
-    (tmp_path / "report.html").write_text("old report")
-    frames = tmp_path / "frames"
-    frames.mkdir()
+                 sweeps_dir=None, viewer_frames=0, device=device)
+    out = tmp_path / "out"
+    frames = out / "frames"
+    out.mkdir()
+    run_compare(TWIST, out, **small)  # an empty folder
+    assert sorted(p.name for p in frames.iterdir()) == ["closeup.png", "front_000.png",
+                                                        "front_001.png"]
     (frames / "front_099.png").write_bytes(b"stale panel")
-    (frames / "notes.txt").write_text("mine")
+    before = _tree(out)
     with pytest.raises(FileExistsError, match="use force=True to overwrite"):
-        run_compare(TWIST, tmp_path, **small)
-    assert (tmp_path / "report.html").read_text() == "old report"
-    assert not (tmp_path / "metrics.json").exists()
-    run_compare(TWIST, tmp_path, force=True, **small)
-    assert (tmp_path / "report.html").read_text(encoding="utf-8").startswith("<!DOCTYPE html>")
-    assert not (frames / "front_099.png").exists()  # stale panel of an earlier run removed
-    assert (frames / "notes.txt").read_text() == "mine"  # anything else kept
-    (tmp_path / "report.html").unlink()
-    with pytest.raises(FileExistsError, match="metrics.json"):  # any earlier output blocks
-        run_compare(TWIST, tmp_path, **small)
-    (tmp_path / "metrics.json").unlink()
-    with pytest.raises(FileExistsError, match=r"frames/\w+\.png: exists"):
-        run_compare(TWIST, tmp_path, **small)
-    assert (frames / "front_000.png").is_file() and (frames / "notes.txt").is_file()
+        run_compare(TWIST, out, **small)
+    assert _tree(out) == before and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    run_compare(TWIST, out, force=True, **small)
+    assert not (frames / "front_099.png").exists()  # replaced whole: no stale panel
+    assert (out / "report.html").read_text(encoding="utf-8").startswith("<!DOCTYPE html>")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # nothing left beside it
+    (frames / "notes.txt").write_text("mine")
+    before = _tree(out)
+    for force in (False, True):
+        with pytest.raises(FileExistsError, match=r"not a dqskin report \('frames/notes.txt'\)"):
+            run_compare(TWIST, out, force=force, **small)
+        assert _tree(out) == before
+
+
+@pytest.mark.parametrize("stage", ["render", "report"])
+def test_interrupted_compare_leaves_nothing(tmp_path, monkeypatch, device, stage):
+    """An interrupt (here raised where a signal would land: after the first panel, or while the
+    page is built) leaves no new file: a new report folder is not created, and an earlier
+    report with other methods stays exactly as it was under force."""
+    import signal
+
+    import dqskin.report.compare as compare
+    from dqskin.errors import Interrupted
+
+    small = dict(frames=[0, 24], views=("front",), width=24, supersample=1, progress=False,
+                 sweeps_dir=None, viewer_frames=0, device=device)
+    old = tmp_path / "old"
+    run_compare(TWIST, old, methods=("lbs",), **small)
+    before = _tree(old)
+
+    def interrupt(*args, **kwargs):
+        raise Interrupted(signal.SIGINT)
+
+    if stage == "render":
+        save_png = compare.save_png
+
+        def first_then_interrupt(path, image):
+            save_png(path, image)
+            interrupt()
+        monkeypatch.setattr(compare, "save_png", first_then_interrupt)
+    else:
+        monkeypatch.setattr(compare, "build_html", interrupt)
+    for out, force in ((tmp_path / "new", False), (old, True)):
+        with pytest.raises(Interrupted):
+            run_compare(TWIST, out, methods=("lbs", "dqs", "blend"), force=force, **small)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old"]
+    assert _tree(old) == before
 
 
 def test_command_line(tmp_path, capsys, device):

@@ -20,6 +20,8 @@ complete, and a failed or interrupted write leaves nothing behind.
   (``--force``) the last writer wins through ``os.replace``: never a partial file.
 * :class:`atomic_group`: several files (one per frame) committed together at the end, so a set is
   all there or not at all.
+* :class:`atomic_folder`: a whole folder (a report) written in a private temporary folder and
+  renamed into place, replacing an earlier one only when it is complete.
 * Interrupts: a signal handler (the CLI's, :mod:`dqskin.cli`) calls :func:`interrupt` with the
   exception to raise. Inside :func:`critical` blocks (claiming, committing and removing temporary
   files) the exception is deferred to the end of the block, so those steps are never cut in
@@ -40,8 +42,8 @@ from typing import Literal, TypeVar
 
 from ..errors import OutputExistsError, Param
 
-__all__ = ["CommitOnSuccess", "atomic_group", "atomic_path", "check_interrupted", "check_parent",
-           "critical", "interrupt", "reset_interrupt"]
+__all__ = ["CommitOnSuccess", "atomic_folder", "atomic_group", "atomic_path", "check_interrupted",
+           "check_parent", "critical", "interrupt", "reset_interrupt"]
 
 _Writer = TypeVar("_Writer", bound="CommitOnSuccess")
 
@@ -321,3 +323,99 @@ class atomic_group(CommitOnSuccess):
                 m.discard()
             self.members = []
 
+
+
+class atomic_folder(CommitOnSuccess):
+    """A folder that appears whole: everything is written into a private temporary folder beside
+    ``path`` (``.NAME.XXXXXXXX``), which :meth:`commit` renames onto ``path``; :meth:`discard`
+    (or an exception in the ``with`` block, interrupts included) removes it, leaving ``path`` as
+    it was.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The folder to write.
+    overwrite : bool
+        False: commit raises :class:`~dqskin.errors.OutputExistsError` if ``path`` exists by then
+        and is not an empty folder (an empty one is replaced). True: an existing ``path`` is
+        replaced whole (moved aside, the new folder renamed in, the old one removed); whether it
+        may be replaced is the caller's to check first.
+    """
+
+    def __init__(self, path: str | os.PathLike, *, overwrite: bool = False) -> None:
+        self.path = Path(path)
+        self.overwrite = overwrite
+        self.tmp: Path | None = None
+
+    def open(self) -> Path:
+        """Create the temporary folder (and missing folders above ``path``); returns it."""
+        if self.tmp is not None:
+            return self.tmp
+        check_interrupted()
+        path = self.path
+        if not path.is_dir():
+            check_parent(path)  # (a file above it)
+        if path.exists() and not path.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, "exists and is not a directory", str(path))
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise type(exc)(f"{path}: cannot create folder {path.parent} "
+                            f"({exc.strerror or exc})") from None
+        try:
+            with critical():
+                try:
+                    self.tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+                except OSError as exc:
+                    raise _cannot_write(path, exc) from None
+        except BaseException:
+            self.discard()
+            raise
+        return self.tmp
+
+    def __enter__(self) -> "atomic_folder":  # (the folder is open once inside the block)
+        self.open()
+        return self
+
+    def commit(self) -> Path:
+        """Rename the temporary folder onto ``path`` (see ``overwrite``); returns ``path``."""
+        if self.tmp is None:
+            raise RuntimeError(f"{self.path}: nothing to commit (open() first)")
+        with critical():
+            tmp, path = self.tmp, self.path
+            aside: Path | None = None
+            try:
+                check_interrupted()  # nothing commits after an interrupt
+                os.chmod(tmp, 0o777 & ~_umask())  # the usual folder mode (mkdtemp's is 0700)
+                if self.overwrite and path.is_dir() and any(path.iterdir()):
+                    aside = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+                    os.rename(path, aside / path.name)
+                try:
+                    os.rename(tmp, path)  # onto nothing or an empty folder
+                except BaseException:
+                    if aside is not None:  # put the old folder back
+                        os.rename(aside / path.name, path)
+                        _remove_folder(aside)
+                        aside = None
+                    raise
+            except OSError as exc:
+                self.discard()
+                if exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
+                    raise OutputExistsError(f"{path}: exists (written by another run "
+                                            "meanwhile?); use ", Param("force", True),
+                                            " to overwrite") from None
+                raise _cannot_write(path, exc) from None
+            except BaseException:
+                self.discard()
+                raise
+            self.tmp = None
+            if aside is not None:
+                _remove_folder(aside)
+        return path
+
+    def discard(self) -> None:
+        """Remove the temporary folder and everything in it (if any)."""
+        with critical():
+            if self.tmp is not None:
+                _remove_folder(self.tmp)
+                self.tmp = None

@@ -44,8 +44,8 @@ import numpy as np
 import numpy.typing as npt
 
 from .. import metrics as M
-from ..errors import InputError, LimitError, Param, output_exists
-from ..files.atomic import atomic_path
+from ..errors import InputError, LimitError, OutputExistsError, Param, output_exists
+from ..files.atomic import atomic_folder
 from ..metrics import METRICS, worst
 from ..options import METHOD_NAMES, Method, SkinOptions, split_changes
 from ..readers import load
@@ -435,26 +435,37 @@ def _default_assets():
     return Path(str(files("dqskin.assets")))
 
 
-def _prepare_out(out_dir, force):
-    """Create ``out_dir/frames``. Earlier outputs (the report, the metrics, panels named as this
-    module names them) raise FileExistsError, or with ``force`` the panels are removed."""
+_REPORT_FILES = ("report.html", "metrics.json")
+
+
+def _check_out(out_dir, force):
+    """``out_dir`` as a Path once it may be written: new, an empty folder, or (with ``force``) an
+    earlier report (``report.html``, ``metrics.json``, ``frames/`` of panels named as this module
+    names them, and nothing else: a folder holding anything else is never replaced)."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a directory")
+    if not out.is_dir():
+        return out
+    entries = sorted(out.iterdir())
+    if not entries:
+        return out
+    foreign = [p.name for p in entries if p.name not in _REPORT_FILES + ("frames",)]
     frames = out / "frames"
-    if frames.exists() and not frames.is_dir():
-        raise InputError(f"{frames}: exists and is not a directory")
-    panels = []
-    if frames.is_dir():
-        panels = sorted(p for p in frames.iterdir() if p.is_file() and _FRAME_FILE.match(p.name))
+    if frames.exists():
+        if not frames.is_dir() or frames.is_symlink():
+            foreign.append("frames")
+        else:
+            foreign += [f"frames/{p.name}" for p in sorted(frames.iterdir())
+                        if not (p.is_file() and _FRAME_FILE.match(p.name))]
+    if foreign:
+        shown = ", ".join(repr(n) for n in foreign[:5]) + (", ..." if len(foreign) > 5 else "")
+        raise OutputExistsError(f"{out}: holds files that are not a dqskin report ({shown}); a "
+                                "report is written as a whole folder: choose a new or empty one")
     if not force:
-        for p in [out / "report.html", out / "metrics.json"] + panels:
-            if p.exists():
-                raise output_exists(p)
-    frames.mkdir(parents=True, exist_ok=True)
-    for p in panels:
-        p.unlink()
-    return out, frames
+        raise output_exists(next(out / n for n in _REPORT_FILES + ("frames",)
+                                 if (out / n).exists()))
+    return out
 
 
 def skeleton_up_axis(scene: Scene) -> str:
@@ -489,9 +500,13 @@ def run_compare(input_path: str | Path | Scene, out_dir: str | Path, *,
     input_path : str, Path or dqskin.Scene
         A character file (:func:`dqskin.load`) or an already loaded scene.
     out_dir : str or Path
-        Created if needed. An earlier ``report.html``, ``metrics.json`` or panel in ``frames/``
-        raises FileExistsError unless ``force``; ``force`` also removes the earlier panels
-        (files named as this function names them; nothing else).
+        The report's folder, written whole: everything goes to a temporary folder beside it,
+        renamed to ``out_dir`` once complete (an error or an interrupt leaves nothing). It may
+        be new or an empty folder; an earlier report there raises
+        :class:`~dqskin.errors.OutputExistsError` (a FileExistsError) unless ``force``, which
+        replaces it whole once the new one is complete; a folder holding anything but a
+        report (``report.html``, ``metrics.json``, ``frames/*.png`` as named here) raises it
+        even with ``force``.
     methods : sequence of {"lbs", "dqs", "blend", "cor"}
         The heat map of the per-vertex LBS↔DQS distance needs both ``lbs`` and ``dqs``.
     frames : sequence of float, optional
@@ -554,7 +569,7 @@ def run_compare(input_path: str | Path | Scene, out_dir: str | Path, *,
                 raise InputError(Param("frames"),
                                  f": expected finite times, got {times.tolist()!r}")
         _renderable(scene)
-        out, frames_dir = _prepare_out(out_dir, force)
+        out = _check_out(out_dir, force)
 
         all_times = viewer_times(scene.times, times, viewer_frames) if viewer_frames else times
         heat = "lbs" in methods and "dqs" in methods
@@ -562,9 +577,13 @@ def run_compare(input_path: str | Path | Scene, out_dir: str | Path, *,
                                                           True)
                      + bool(viewer_frames) + 2 * (sweeps_dir is not None) + 1)
         bar.update()  # loaded
-        return _compare(_Report(scene, out, frames_dir, times, all_times, tuple(methods), options,
-                                replace(render, up_axis=up), sweeps_dir, bool(viewer_frames),
-                                heat), bar, t0)
+        with atomic_folder(out, overwrite=force) as folder:  # the report appears whole
+            assert folder.tmp is not None, "an open atomic_folder has its temporary folder"
+            frames_dir = folder.tmp / "frames"
+            frames_dir.mkdir()
+            return _compare(_Report(scene, folder.tmp, frames_dir, times, all_times,
+                                    tuple(methods), options, replace(render, up_axis=up),
+                                    sweeps_dir, bool(viewer_frames), heat), bar, t0)
 
 
 @dataclass(frozen=True)
@@ -751,11 +770,9 @@ def _compare(report: _Report, bar: Any, t0: float) -> dict[str, Any]:
     bar.update()
     result["timing_s"]["report"] = time.perf_counter() - t_sweeps
     result["timing_s"]["total"] = time.perf_counter() - t0
-    with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(result, indent=1, ensure_ascii=False, allow_nan=False),
-                       encoding="utf-8")
-    with atomic_path(out / "report.html") as tmp:
-        tmp.write_text(page, encoding="utf-8")
+    (out / "metrics.json").write_text(json.dumps(result, indent=1, ensure_ascii=False,
+                                                 allow_nan=False), encoding="utf-8")
+    (out / "report.html").write_text(page, encoding="utf-8")
     return result
 
 
