@@ -28,6 +28,7 @@ from .skeleton import check_parents
 from .topology import check_faces
 
 __all__ = ["METRICS", "PAIR_SHARE", "RING_WIDTH", "RingSections", "bone_directions",
+           "character_height",
            "dominant_pair_regions", "edge_strain", "joint_bend_twist", "joint_rings", "mesh_edges",
            "ring_sections", "vertex_distance", "volume", "volume_ratio", "worst"]
 
@@ -186,6 +187,24 @@ def edge_strain(points: npt.ArrayLike, rest_points: npt.ArrayLike, edges: npt.Ar
                   edges=wp.array(e.astype(np.int32), dtype=wp.vec2i, device=d), out=strain,
                   device=d)
     return _result(strain.numpy(), batched)
+
+
+def character_height(points: npt.ArrayLike) -> float:
+    """The size distances are given as a share of: the largest extent of the bounding box of
+    ``points`` (a character's height when standing, its span when lying or reaching out).
+
+    Parameters
+    ----------
+    points : (V, 3) float
+        A character's points in one pose (its rest pose), all its meshes together.
+
+    Returns
+    -------
+    float
+        In the points' length unit; 0.0 for no points.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    return float(np.ptp(p, axis=0).max()) if len(p) else 0.0
 
 
 def vertex_distance(points: npt.ArrayLike, reference_points: npt.ArrayLike, *,

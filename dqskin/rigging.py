@@ -25,6 +25,7 @@ from ._warp import Device
 from .autoweights import automatic_weights
 from .errors import InputError, Param
 from .influences import check_influences
+from .metrics import character_height
 from .options import Method
 from .readers import bvh
 from .readers.mesh import load_mesh
@@ -215,7 +216,7 @@ def skinned_difference(reference: Scene, other: Scene, times: npt.ArrayLike | No
     for m in reference.meshes:
         g = np.asarray(m.geom_bind_transform, np.float64)
         rest = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
-        height = float(np.ptp(rest, axis=0).max()) if len(rest) else 0.0
+        height = character_height(rest)
         d = np.linalg.norm(ref.points[m.name].astype(np.float64)
                            - got.points[m.name].astype(np.float64), axis=-1)
         d = d / (height or 1.0) * 100

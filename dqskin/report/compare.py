@@ -55,8 +55,8 @@ from .html import build_html, method_label
 from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
 from .viewer import VIEWER_FRAMES, encode, viewer_times
 
-__all__ = ["BLEND_WEIGHT", "MAX_RAYS", "SWEEP_RIGS", "TIE", "RenderSettings", "run_compare",
-           "skeleton_up_axis", "summary_lines", "sweeps"]
+__all__ = ["BLEND_WEIGHT", "DISTANCE_UNIT", "MAX_RAYS", "SWEEP_RIGS", "TIE", "RenderSettings",
+           "run_compare", "skeleton_up_axis", "summary_lines", "sweeps"]
 
 BLEND_WEIGHT = DEFAULT_BLEND
 """DQS fraction of every vertex for ``method="blend"`` (0 = LBS, 1 = DQS)."""
@@ -110,9 +110,10 @@ class _SkinnedMesh:
     name: str
     skeleton: int
     faces: np.ndarray  # (T, 3) int32
-    rest: np.ndarray  # (V, 3) float64
+    rest: np.ndarray  # (V, 3) float64, bind points in skeleton space (what metrics compare)
     rings: np.ndarray  # (V,) int32, see metrics.joint_rings
     ring_share: np.ndarray  # (R,) float64
+    ghost: np.ndarray  # (V, 3) float32: the rest pose in the posed points' space
     posed: dict = field(default_factory=dict)  # method → (F, V, 3) float32
 
 
@@ -142,6 +143,7 @@ def _skin(scene, times, methods, options):
     xforms = {s: scene.skinning_transforms(times, s, device=opts.device, interp=opts.interp)
               for s in sorted({m.skeleton for m in renderable})}
     posed = {meth: scene.skin(times, meth, options=opts).points for meth in methods}
+    ghosts = _rest_pose(scene, opts)
     meshes = []
     for m in renderable:
         g = np.asarray(m.geom_bind_transform, dtype=np.float64)
@@ -149,10 +151,19 @@ def _skin(scene, times, methods, options):
         rings, share = M.joint_rings(m.joint_indices, m.joint_weights,
                                      scene.skeletons[m.skeleton].parents)
         sm = _SkinnedMesh(m.name, m.skeleton, np.asarray(m.faces, dtype=np.int32), rest, rings,
-                          share)
+                          share, ghosts[m.name])
         sm.posed = {meth: posed[meth][m.name] for meth in methods}
         meshes.append(sm)
     return meshes, skipped, xforms
+
+
+def _rest_pose(scene, options):
+    """Every mesh in its skeleton's rest pose (no animation), skinned with LBS like the posed
+    frames (``options``' space): name → (V, 3) float32. For USD the rest pose is usually the
+    bind pose (identity skinning transforms); for glTF it holds the nodes above the joints (a
+    Z-up node, say), as the posed frames do."""
+    still = replace(scene, skeletons=[s.with_animation(None) for s in scene.skeletons])
+    return {k: v[0] for k, v in still.skin([0.0], "lbs", options=options).points.items()}
 
 
 def _nan_reduce(a, fn):
@@ -207,6 +218,11 @@ def _json_floats(a):
     return [float(v) if np.isfinite(v) else None for v in np.asarray(a, dtype=np.float64)]
 
 
+DISTANCE_UNIT = "% of character_height"
+"""Unit of every distance in the report and ``metrics.json`` (LBS↔DQS distances, the heat maps'
+ranges): percent of the character's height, the largest extent of the bounding box of every
+rendered mesh in its rest pose (``character_height``, in the scene's length unit)."""
+
 TIE = 0.01
 """Methods whose worst values differ by less than this (a ratio: 1% of volume or radius, under a
 pixel at report resolution) tie in the summary."""
@@ -240,13 +256,23 @@ def _summary(measures, meshes, skeletons, angles, times, methods, tie=TIE):
                 "time": float(times[best[2]]), "mesh": best[1], "joint": best[4],
                 "bend_deg": best[5], "twist_deg": best[6]}
         scored = {m: r["severity"] for m, r in by_method.items() if r is not None}
-        winner, leaders = None, []
+        winner, leaders, reason = None, [], None
         if scored:
             lowest = min(scored.values())
             leaders = [m for m, d in scored.items() if d <= lowest + tie]
             winner = leaders[0] if len(leaders) == 1 else "tie"
-        out[metric] = {"by_method": by_method, "winner": winner, "leaders": leaders}
+        elif metric == "volume_ratio":
+            reason = "; ".join(sorted({str(measures[m.name][meth]["volume_ratio_reason"])
+                                       for m in meshes for meth in methods})) or None
+        else:
+            reason = _NO_RINGS
+        out[metric] = {"by_method": by_method, "winner": winner, "leaders": leaders,
+                       "unmeasured": reason}
     return out
+
+
+_NO_RINGS = ("no joint ring to measure (a ring: 4 or more vertices blended between a joint and "
+             "its parent)")
 
 
 def _closeup_target(measures, meshes, skeletons, xforms, methods):
@@ -353,7 +379,8 @@ def _render(meshes, times, methods, render, frames_dir, closeup, distance, bar, 
                 images[v].append(img)
                 bar.update()
         for v, img in heat_images.items():
-            images[v].append(add_colorbar(img, heat_range, _HEAT_COLORMAP, label="distance"))
+            images[v].append(add_colorbar(img, heat_range, _HEAT_COLORMAP,
+                                          label="% of height"))
         return {v: side_by_side(imgs, labels) for v, imgs in images.items()}
 
     paths: dict[str, list[Path]] = {v: [] for v in views}
@@ -674,9 +701,11 @@ def _compare(report: _Report, bar: Any, t0: float) -> dict[str, Any]:
     bar.update(len(methods))
     angles = {s: M.joint_bend_twist(x, skeletons[s].bind_transforms[:, :3, 3],
                                     skeletons[s].parents) for s, x in xforms.items()}
+    height = M.character_height(np.concatenate([m.ghost for m in meshes]))
+    percent = 100.0 / height if height > 0 else float("nan")
     distance, dist_json = None, None
     if heat:
-        per_mesh = [M.vertex_distance(m.posed["lbs"], m.posed["dqs"], device=device)
+        per_mesh = [M.vertex_distance(m.posed["lbs"], m.posed["dqs"], device=device) * percent
                     for m in meshes]
         distance = np.concatenate(per_mesh, axis=1)
         dist_json = {m.name: {"max": _json_floats(d.max(axis=1)),
@@ -697,8 +726,8 @@ def _compare(report: _Report, bar: Any, t0: float) -> dict[str, Any]:
     if viewer_posed is not None:
         bar.set_postfix_str("viewer data")
         faces, posed = viewer_posed
-        rest = np.concatenate([m.rest for m in meshes])
-        viewer_data = (all_times, encode(posed, rest, faces))
+        ghost = np.concatenate([m.ghost for m in meshes])
+        viewer_data = (all_times, encode(posed, ghost, faces))
         bar.update()
     t_viewer = time.perf_counter()
 
@@ -741,6 +770,8 @@ def _compare(report: _Report, bar: Any, t0: float) -> dict[str, Any]:
         "space": "skeleton",
         "ring_width": M.RING_WIDTH,
         "tie": TIE,
+        "character_height": height,
+        "distance_unit": DISTANCE_UNIT,
         "meshes": {m.name: {meth: mesh_json(m, meth) for meth in methods} for m in meshes},
         "skipped_meshes": skipped,
         "lbs_dqs_distance": dist_json,
@@ -760,7 +791,8 @@ def _compare(report: _Report, bar: Any, t0: float) -> dict[str, Any]:
         meta, blob = viewer_data[1]
         result["viewer"] = {"frames": _json_floats(viewer_data[0]),
                             "vertices": meta["vertices"], "data_bytes": len(blob),
-                            "heat_max": meta["heat_max"]}
+                            "heat_max": None if meta["heat_max"] is None
+                            else _json_float(meta["heat_max"] * percent)}
     t_sweeps = time.perf_counter()
     result["timing_s"] = {"skin": t_skin - t0, "metrics": t_metrics - t_skin,
                           "render": t_render - t_metrics, "viewer": t_viewer - t_render,
@@ -778,14 +810,19 @@ def _compare(report: _Report, bar: Any, t0: float) -> dict[str, Any]:
 
 def summary_lines(result: dict[str, Any]) -> list[str]:
     """The summary of a :func:`run_compare` result as text lines: each metric's worst value per
-    method and the best method."""
+    method and the best method (or the methods that tie, or why it was not measured)."""
     lines = []
     for metric, s in result["summary"].items():
         worst_values = ", ".join(f"{_label(m)} {r['value']:.3f} @ t={r['time']:g}"
                                  for m, r in s["by_method"].items() if r is not None)
-        if worst_values:
-            best = s["winner"]
-            if best == "tie":
-                best = "tie (" + ", ".join(_label(m) for m in s["leaders"]) + ")"
-            lines.append(f"  {metric}: {worst_values}; best: {best}")
+        if not worst_values:
+            lines.append(f"  {metric}: not measured ({s.get('unmeasured') or 'no value'})")
+            continue
+        best = s["winner"]
+        if best == "tie":
+            best = ("tie: " + ", ".join(_label(m) for m in s["leaders"])
+                    + f" within {result.get('tie', TIE):g}")
+        else:
+            best = _label(best)
+        lines.append(f"  {metric}: {worst_values}; best: {best}")
     return lines

@@ -132,6 +132,7 @@ def frame_plot_png(metrics: dict[str, Any]) -> bytes:
             ax.plot(t, d.max(axis=0), "o-", color="k", label="max")
             ax.plot(t, m.mean(axis=0), "s--", color="0.5", label="mean")
             ax.set_title("|LBS − DQS| vertex distance")
+            ax.set_ylabel("% of height")
         else:
             for meth in metrics["methods"]:
                 ax.plot(t, _scene_series(metrics, metric, meth), "o-", color=method_color(meth),
@@ -185,11 +186,23 @@ def sweep_plot_png(sweeps: dict[str, Any]) -> bytes | None:
     return _figure_png(fig)
 
 
+def _ties_all(summary: dict[str, Any], methods: Sequence[str]) -> bool:
+    """Whether every method (two or more) ties on a metric's summary entry."""
+    return (len(methods) > 1 and summary["winner"] == "tie"
+            and len(summary.get("leaders", [])) == len(methods))
+
+
 def _summary_table(metrics: dict[str, Any]) -> str:
     methods = metrics["methods"]
     head = "".join(f"<th>{method_label(m)} worst</th>" for m in methods)
     rows = []
     for metric, s in metrics["summary"].items():
+        if all(r is None for r in s["by_method"].values()):
+            why = s.get("unmeasured") or "no value"
+            rows.append(f"<tr><th class=l>{METRIC_TITLES[metric]}</th><td class=l "
+                        f"colspan={len(methods) + 1}>not measured: {_esc(why)}</td></tr>")
+            continue
+        leaders = s.get("leaders", []) if s["winner"] == "tie" else [s["winner"]]
         cells = []
         for m in methods:
             r = s["by_method"][m]
@@ -199,15 +212,16 @@ def _summary_table(metrics: dict[str, Any]) -> str:
             where = f"t = {r['time']:g}, {r['mesh']}" + (f", {r['joint']}" if r["joint"] else "")
             if r.get("bend_deg") is not None:
                 where += f" (bend {r['bend_deg']:.0f}°, twist {r['twist_deg']:.0f}°)"
-            win = ' class="win"' if s["winner"] == m else ""
+            win = ' class="win"' if m in leaders else ""
             cells.append(f"<td{win}><b>{r['value']:.4f}</b><br><span class=note>"
                          f"{_esc(where)}</span></td>")
         winner = s["winner"]
-        if winner == "tie":
-            winner = "tie: " + ", ".join(method_label(x) for x in s.get("leaders", []))
-        elif winner is not None:
+        if _ties_all(s, methods):
+            winner = f"tie: every method within {metrics.get('tie', 0.01):g}"
+        elif winner == "tie":
+            winner = "tie: " + ", ".join(method_label(x) for x in leaders)
+        else:
             winner = method_label(winner)
-        winner = winner or "—"
         rows.append(f"<tr><th class=l>{METRIC_TITLES[metric]}</th>{''.join(cells)}"
                     f"<td class=l>{_esc(winner)}</td></tr>")
     return (f"<table><tr><th class=l>metric</th>{head}<th class=l>best</th></tr>"
@@ -239,10 +253,13 @@ def _mesh_table(metrics: dict[str, Any]) -> str:
 
 
 def _worst_frames(metrics: dict[str, Any]) -> list[tuple[int, list[str]]]:
-    """Frame indices to show: each metric's worst frame (worst method first), then the frame of
-    the largest LBS↔DQS distance; at most :data:`_MAX_WORST_FRAMES`, with the reasons."""
+    """Frame indices to show: each metric's worst frame (worst method first; none where every
+    method ties), then the frame of the largest LBS↔DQS distance; at most
+    :data:`_MAX_WORST_FRAMES`, with the reasons."""
     picks = []
     for metric, s in metrics["summary"].items():
+        if _ties_all(s, metrics["methods"]):
+            continue  # nothing tells the methods apart
         ranked = sorted(((r["severity"], m, r) for m, r in s["by_method"].items()
                          if r is not None), key=lambda x: -x[0])
         for _, method, r in ranked[:1]:
@@ -252,7 +269,8 @@ def _worst_frames(metrics: dict[str, Any]) -> list[tuple[int, list[str]]]:
     if dist:
         d = np.nanmax(np.stack([_array(v["max"]) for v in dist.values()]), axis=0)
         if np.isfinite(d).any():
-            picks.append((int(np.nanargmax(d)), f"largest LBS↔DQS distance ({np.nanmax(d):.3g})"))
+            picks.append((int(np.nanargmax(d)), f"largest LBS↔DQS distance "
+                          f"({np.nanmax(d):.3g}% of height)"))
     frames: dict[int, list[str]] = {}
     for f, why in picks:
         frames.setdefault(f, []).append(why)
@@ -276,13 +294,21 @@ def _viewer_section(m: dict[str, Any],
     settings = {"times": [float(x) for x in times], "labels": labels,
                 "colors": [method_color(x) for x in methods], "up_axis": m["up_axis"],
                 "fps": m["time_codes_per_second"], "worst": worst_frames,
-                "heat_label": heat_label,
+                "heat_label": heat_label, "heat_max": m.get("viewer", {}).get("heat_max"),
+                "heat_unit": "% of height",
                 "colormap": np.round(colormap_lut("viridis", 256), 4).tolist()}
+    height = m["character_height"]
+    step = f"{meta['step']:.3g} units" + (f" ({100 * meta['step'] / height:.2g}% of height)"
+                                          if height > 0 else "")
     return ("<h2>Animated viewer</h2><p class=note>Every method plays in sync, "
             f"{len(times)} frames (the compared ones among them); drag to orbit, right-drag to "
-            "pan, wheel to zoom. Heat map: per-vertex " + _esc(heat_label) + " over the same "
-            "colour range in every frame. Rest pose: the bind pose as a grey ghost. Positions "
-            f"are quantized to {meta['step']:.3g} units.</p>" + viewer_html(meta, blob, settings))
+            "pan, wheel to zoom. Show or hide each method with its box in the legend; "
+            "<i>A/B</i> shows two methods in the same place, one at a time: <i>flip</i> (or the "
+            "key F) switches between them. Heat map: per-vertex " + _esc(heat_label) + " in % of "
+            "the character's height, over the same colour range in every frame. Rest pose: the "
+            "character in its skeleton's rest pose (no animation), in the same space as the "
+            f"frames, as a grey ghost. Positions are quantized to {step}.</p>"
+            + viewer_html(meta, blob, settings))
 
 
 def build_html(metrics: dict[str, Any], out_dir: str | os.PathLike, *,
@@ -347,9 +373,13 @@ def build_html(metrics: dict[str, Any], out_dir: str | os.PathLike, *,
     heat = m["images"].get("heat_range")
     if heat:
         parts.append(f"<p class=note>Heat map: per-vertex distance between the LBS and DQS "
-                     f"results drawn on the DQS surface, colour range 0 – {heat[1]:.3g} "
-                     "(same for every frame).</p>")
-    for f, reasons in _worst_frames(m):
+                     f"results drawn on the DQS surface, colour range 0 – {heat[1]:.3g}% of the "
+                     "character's height (same for every frame).</p>")
+    worst_frames = _worst_frames(m)
+    if not worst_frames:
+        parts.append("<p class=note>No frame stands out: the methods tie on every measured "
+                     "metric.</p>")
+    for f, reasons in worst_frames:
         parts.append(f"<h3>t = {t[f]:g}: {_esc('; '.join(reasons))}</h3>")
         for view, paths in m["images"]["frames"].items():
             png = (out / paths[f]).read_bytes()
@@ -382,6 +412,9 @@ def build_html(metrics: dict[str, Any], out_dir: str | os.PathLike, *,
     parts.append(
         "<h2>Definitions</h2><ul class=note>"
         "<li>All measures in skeleton space; blend shapes are not applied.</li>"
+        f"<li><b>distances</b> (LBS↔DQS, heat maps) are in % of the character's height: the "
+        "largest extent of the bounding box of every rendered mesh in its rest pose, "
+        f"{m['character_height']:.4g} scene units here.</li>"
         "<li><b>volume ratio</b>: enclosed volume over rest volume (closed meshes only).</li>"
         "<li><b>joint region and rings</b>: a joint's region is the vertices whose two largest "
         "weights are the joint and its parent; each is put in a <i>ring</i> by its share of "

@@ -132,17 +132,31 @@
     controls.enableDamping = false;
     controls.addEventListener("change", () => { dirty = true; });
 
-    const state = { frame: 0, playing: true, heat: false, rest: false, overlay: false };
+    const state = { frame: 0, playing: true, heat: false, rest: false, overlay: false,
+                    visible: new Array(M).fill(true), ab: false, pair: [0, Math.min(1, M - 1)],
+                    side: 0 };
     let dirty = true;
 
+    // the methods drawn: in A/B mode the pair's current side alone, else the visible ones
+    function shown() {
+      if (state.ab) return [state.pair[state.side]];
+      const out = [];
+      for (let m = 0; m < M; m++) if (state.visible[m]) out.push(m);
+      return out;
+    }
+
     function layout() {
-      const width = state.overlay ? size.x : spacing * (M - 1) + size.x;
+      const on = shown(), n = on.length, together = state.overlay || state.ab;
+      const width = together ? size.x : spacing * Math.max(n - 1, 0) + size.x;
       for (let m = 0; m < M; m++) {
-        const dx = state.overlay ? 0 : spacing * (m - (M - 1) / 2);
+        const k = on.indexOf(m);
+        groups[m].visible = k >= 0;
+        const dx = together || k < 0 ? 0 : spacing * (k - (n - 1) / 2);
         groups[m].position.copy(right).multiplyScalar(dx);
+        const faded = state.overlay && !state.ab && k > 0;
         const mat = posed[m].material;
-        mat.transparent = state.overlay && m > 0;
-        mat.opacity = state.overlay && m > 0 ? 0.55 : 1.0;
+        mat.transparent = faded;
+        mat.opacity = faded ? 0.55 : 1.0;
         mat.needsUpdate = true;
       }
       const tall = up.y ? size.y : size.z;
@@ -210,16 +224,67 @@
       legend();
     }
 
+    // one box per method (show/hide), built once
+    const boxes = meta.methods.map((_, m) => {
+      const label = document.createElement("label");
+      const box = document.createElement("input");
+      box.type = "checkbox"; box.checked = true; box.dataset.method = String(m);
+      box.addEventListener("change", () => setVisible(m, box.checked));
+      const swatch = document.createElement("span");
+      swatch.className = "sw"; swatch.style.background = cfg.colors[m];
+      label.append(box, swatch, cfg.labels[m]);
+      $("dqv-methods").append(label);
+      return box;
+    });
+    for (const id of ["dqv-a", "dqv-b"]) {
+      cfg.labels.forEach((text, m) => {
+        const opt = document.createElement("option");
+        opt.value = String(m); opt.textContent = text;
+        $(id).append(opt);
+      });
+    }
+    $("dqv-a").value = String(state.pair[0]);
+    $("dqv-b").value = String(state.pair[1]);
+
     function legend() {
-      const parts = meta.methods.map((_, m) =>
-        `<span><span class="sw" style="background:${cfg.colors[m]}"></span>${cfg.labels[m]}` +
-        "</span>");
-      parts.push(`<span class="note">${state.overlay ? "overlaid (first opaque)"
-                                                       : "left to right"}</span>`);
+      const note = document.createElement("span");
+      note.className = "note";
+      note.textContent = state.ab
+        ? `A/B: ${cfg.labels[state.pair[state.side]]} (${state.side ? "B" : "A"}); flip: F`
+        : state.overlay ? "overlaid (first opaque)" : "left to right";
+      const parts = [note];
       if (state.heat) {
-        parts.push(`<span>heat: ${cfg.heat_label}, 0 – ${fmt(meta.heat_max)}</span>`);
+        const heat = document.createElement("span");
+        heat.textContent = `heat: ${cfg.heat_label}, 0 – ` +
+          (cfg.heat_max === null || cfg.heat_max === undefined ? fmt(meta.heat_max)
+                                                                : `${fmt(cfg.heat_max)}${cfg.heat_unit}`);
+        parts.push(heat);
       }
-      $("dqv-legend").innerHTML = parts.join("");
+      $("dqv-legend").replaceChildren(...parts);
+      $("dqv-flip").disabled = !state.ab;
+    }
+
+    function setVisible(m, on) {
+      state.visible[m] = Boolean(on);
+      boxes[m].checked = state.visible[m];
+      layout(); legend();
+    }
+
+    function setAB(on, a, b) {
+      if (a !== undefined) state.pair[0] = Math.max(0, Math.min(M - 1, a | 0));
+      if (b !== undefined) state.pair[1] = Math.max(0, Math.min(M - 1, b | 0));
+      state.ab = Boolean(on) && M > 1;
+      state.side = 0;
+      $("dqv-ab").checked = state.ab;
+      $("dqv-a").value = String(state.pair[0]);
+      $("dqv-b").value = String(state.pair[1]);
+      layout(); legend();
+    }
+
+    function flip() {
+      if (!state.ab) return;
+      state.side = 1 - state.side;
+      layout(); legend();
     }
 
     const fmt = (x) => (Math.abs(x) >= 1e4 || (Math.abs(x) < 1e-3 && x !== 0)
@@ -267,6 +332,15 @@
     $("dqv-overlay").addEventListener("change", (e) => {
       state.overlay = e.target.checked; layout(); legend();
     });
+    $("dqv-ab").disabled = M < 2;
+    $("dqv-ab").addEventListener("change", (e) => setAB(e.target.checked));
+    $("dqv-a").addEventListener("change", (e) => setAB(state.ab, Number(e.target.value)));
+    $("dqv-b").addEventListener("change", (e) => setAB(state.ab, undefined,
+                                                         Number(e.target.value)));
+    $("dqv-flip").addEventListener("click", flip);
+    document.addEventListener("keydown", (e) => {
+      if ((e.key === "f" || e.key === "F") && !e.ctrlKey && !e.metaKey && !e.altKey) flip();
+    });
     const worst = $("dqv-worst");
     if (cfg.worst.length) worst.append("worst frames: ");
     for (const w of cfg.worst) {
@@ -303,6 +377,9 @@
       worstFrame: (i) => nearest(cfg.worst[i].time),
       positions: (m) => Array.from(posed[m].geometry.attributes.position.array),
       offset: (m) => groups[m].position.toArray(),
+      setVisible, visible: () => state.visible.slice(),
+      setAB, flip, shown: () => shown(),
+      restPositions: () => Array.from(ghosts[0].geometry.attributes.position.array),
       canvas,
     });
     api.ready = true;

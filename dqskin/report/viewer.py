@@ -205,7 +205,8 @@ def viewer_html(meta: Mapping[str, Any], blob: bytes, settings: Mapping[str, Any
     settings : dict
         JSON-safe page settings read by viewer.js: ``times`` (F,), ``labels`` and ``colors``
         (per method), ``up_axis``, ``fps`` (time codes per second), ``worst`` (list of
-        ``{"time", "why"}``), ``heat_label``.
+        ``{"time", "why"}``), ``heat_label``; optionally ``heat_max`` and ``heat_unit`` (the
+        heat range as the legend states it: the report gives % of the character's height).
 
     Returns
     -------
@@ -223,8 +224,13 @@ def viewer_html(meta: Mapping[str, Any], blob: bytes, settings: Mapping[str, Any
         '<label><input type="checkbox" id="dqv-heat"> heat map</label>'
         '<label><input type="checkbox" id="dqv-rest"> rest pose</label>'
         '<label><input type="checkbox" id="dqv-overlay"> overlaid</label>'
+        '<label><input type="checkbox" id="dqv-ab"> A/B</label>'
+        '<select id="dqv-a" aria-label="method A"></select>'
+        '<select id="dqv-b" aria-label="method B"></select>'
+        '<button type="button" id="dqv-flip" title="show the other method (key F)">flip</button>'
         '</div>'
-        '<div class="viewer-bar"><span id="dqv-legend" class="legend"></span>'
+        '<div class="viewer-bar"><span id="dqv-methods" class="legend"></span>'
+        '<span id="dqv-legend" class="legend"></span>'
         '<span id="dqv-worst"></span></div>'
         '<div id="dqv-stage"><canvas id="dqv-canvas"></canvas>'
         '<div id="dqv-status" class="note">loading the viewer…</div></div>'
