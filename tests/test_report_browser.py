@@ -228,3 +228,66 @@ def test_viewer_plays_in_webgl(report, tmp_path):
         assert _problems(driver.get_log("browser")) == []
     finally:
         driver.quit()
+
+
+def _share(image, color):
+    """Share of the non-background pixels of ``image`` in the hue of ``color`` (#rrggbb)."""
+    ink = np.abs(image - 250.0).max(axis=2) > 24
+    if not ink.any():
+        return 0.0
+    rgb = np.array([int(color[i:i + 2], 16) for i in (1, 3, 5)], dtype=np.float64)
+    hue = image[ink] / np.maximum(image[ink].sum(axis=1, keepdims=True), 1)
+    return float((np.abs(hue - rgb / rgb.sum()).max(axis=1) < 0.08).mean())
+
+
+def test_viewer_show_hide_and_ab_flip(report, tmp_path):
+    """Each method's box hides and shows it (the others close ranks); A/B draws one of two
+    methods at a time in the same place, and flip (button or key F) swaps them."""
+    driver = _driver(tmp_path, "1400,1000")
+    try:
+        driver.set_page_load_timeout(60)
+        driver.get(report.as_uri())
+        assert _wait(driver, "const v = window.dqskinViewer; "
+                             "return v && (v.ready || v.error) && [v.ready, v.error]") == [True,
+                                                                                          None]
+        api = "window.dqskinViewer"
+        config, _ = _embedded(report)
+        red, blue, purple = config["colors"]  # lbs, dqs, blend
+        driver.execute_script(f"{api}.setFrame(20)")
+        time.sleep(0.3)
+        assert all(_share(_canvas(driver), c) > 0.05 for c in (red, blue, purple))
+
+        # hide DQS by its box in the legend
+        driver.find_element("css selector", '#dqv-methods input[data-method="1"]').click()
+        time.sleep(0.3)
+        assert driver.execute_script(f"return {api}.visible()") == [True, False, True]
+        assert driver.execute_script(f"return {api}.shown()") == [0, 2]
+        img = _canvas(driver)
+        assert _share(img, blue) < 0.01 and _share(img, red) > 0.05 and _share(img, purple) > 0.05
+        lbs_x, blend_x = (driver.execute_script(f"return {api}.offset({m})")[0] for m in (0, 2))
+        assert lbs_x == pytest.approx(-blend_x) and lbs_x < 0  # the two left close ranks
+        driver.execute_script(f"{api}.setVisible(1, true)")
+
+        # A/B between LBS and DQS: one at a time, same place
+        driver.execute_script(f"{api}.setAB(true, 0, 1)")
+        time.sleep(0.3)
+        assert driver.execute_script(f"return {api}.shown()") == [0]
+        a = _canvas(driver)
+        assert _share(a, red) > 0.3 and _share(a, blue) < 0.01 and _share(a, purple) < 0.01
+        driver.find_element("id", "dqv-flip").click()
+        time.sleep(0.3)
+        assert driver.execute_script(f"return {api}.shown()") == [1]
+        b = _canvas(driver)
+        assert _share(b, blue) > 0.3 and _share(b, red) < 0.01
+        assert driver.execute_script(f"return {api}.offset(0)") == \
+            driver.execute_script(f"return {api}.offset(1)") == [0, 0, 0]
+        ink_a, ink_b = (np.abs(x - 250.0).max(axis=2) > 24 for x in (a, b))
+        assert (ink_a & ink_b).sum() > 0.8 * min(ink_a.sum(), ink_b.sum())  # the same place
+        driver.find_element("css selector", "body").send_keys("f")
+        time.sleep(0.2)
+        assert driver.execute_script(f"return {api}.shown()") == [0]
+        driver.execute_script(f"{api}.setAB(false)")
+        assert driver.execute_script(f"return {api}.shown()") == [0, 1, 2]
+        assert _problems(driver.get_log("browser")) == []
+    finally:
+        driver.quit()
