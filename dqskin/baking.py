@@ -13,7 +13,6 @@ import contextlib
 import dataclasses
 import numbers
 import os
-import sys
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +24,7 @@ import numpy.typing as npt
 from .errors import InputError, OutputExistsError, Param, output_exists
 from .files.atomic import atomic_path, check_interrupted, check_parent
 from .options import SkinOptions, is_numpy_bool, split_changes
+from .progress import progress_bar
 from .readers import format_of, gltf, usd
 from .scene import Scene, SkinnedFrames
 from .validation import check_skinned
@@ -270,20 +270,16 @@ class _Job(NamedTuple):
     def chunks(self, chunk, options):
         """:meth:`Scene.skin_chunks` of ``chunk`` frames with ``options``, with a progress bar
         over frames (only on a terminal; tqdm is imported only then)."""
-        bar = None
         times = self.times
-        if self.settings.progress and len(times) > 2 * chunk and sys.stderr.isatty():
-            from tqdm import tqdm
-            bar = tqdm(total=len(times), unit="frame", desc="skinning", file=sys.stderr)
+        bar = progress_bar(enabled=self.settings.progress and len(times) > 2 * chunk,
+                           total=len(times), unit="frame", desc="skinning")
         try:
             for sl, res in self.scene.skin_chunks(times, chunk, options=options):
                 check_interrupted()  # in case a library swallowed it
                 yield sl, res
-                if bar is not None:
-                    bar.update(sl.stop - sl.start)
+                bar.update(sl.stop - sl.start)
         finally:
-            if bar is not None:
-                bar.close()
+            bar.close()
 
 
 def _bake_usd(job: _Job) -> str:

@@ -25,7 +25,6 @@ again on another worker (up to its ``allowed-failures``, 3 by default).
 
 import contextlib
 import os
-import sys
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -40,6 +39,7 @@ from .errors import DqskinError, InputError, Param
 from .files import atomic
 from .kernels import buffers as KB
 from .options import SkinOptions
+from .progress import progress_bar
 from .scene import Scene
 from .validation import check_skinned
 from .writers import usd_clips
@@ -343,9 +343,8 @@ def _bake_clips(scene, out, times, options, settings, threads):
 
 
 def _bar(total, done, progress):
-    from tqdm import tqdm
-    return tqdm(total=total, initial=done, unit="clip", desc="baking clips", file=sys.stderr,
-                disable=not progress or total < 2 or not sys.stderr.isatty())
+    return progress_bar(enabled=progress and total >= 2, total=total, initial=done, unit="clip",
+                        desc="baking clips")
 
 
 @contextlib.contextmanager

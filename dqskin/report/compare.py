@@ -31,10 +31,8 @@ embedded as data URIs; opens from disk without a network).
 
 import json
 import re
-import sys
 import time
 from collections.abc import Iterable, Sequence
-from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 from importlib.resources import files
 from pathlib import Path
@@ -48,6 +46,7 @@ from ..errors import InputError, LimitError, OutputExistsError, Param, output_ex
 from ..files.atomic import atomic_folder
 from ..metrics import METRICS, worst
 from ..options import METHOD_NAMES, Method, SkinOptions, split_changes
+from ..progress import progress_bar
 from ..readers import load
 from ..scene import DEFAULT_BLEND, Scene
 from ..times import default_frames
@@ -582,7 +581,9 @@ def run_compare(input_path: str | Path | Scene, out_dir: str | Path, *,
         raise LimitError(Param("width", width), " × ", Param("supersample", supersample),
                          f" casts {rays:,} rays per image side, more than the limit of "
                          f"{render.max_rays:,}; raise ", Param("max_rays"), " to allow more")
-    with _progress_bar(progress) as bar:
+    # one bar for the whole comparison, loading included (its total is set once frames are known)
+    with progress_bar(enabled=progress, total=None, desc="compare", unit="step", leave=False,
+                      dynamic_ncols=True) as bar:
         bar.set_postfix_str("loading")
         scene = input_path if isinstance(input_path, Scene) else load(input_path, clip=clip)
         up = skeleton_up_axis(scene) if render.up_axis is None else render.up_axis
@@ -656,27 +657,6 @@ class _Report(NamedTuple):
     sweeps_dir: str | Path | None
     viewer: bool
     heat: bool
-
-
-def _progress_bar(enabled):
-    """One tqdm bar on stderr for the whole comparison, loading included (its ``total`` is set
-    once the frames are known); a do-nothing context when disabled."""
-    if not (enabled and sys.stderr.isatty()):  # a log gets no bar
-        return nullcontext(_NoBar())
-    from tqdm import tqdm
-
-    return tqdm(total=None, desc="compare", unit="step", file=sys.stderr, leave=False,
-                dynamic_ncols=True)
-
-
-class _NoBar:
-    total = None
-
-    def update(self, n=1):
-        pass
-
-    def set_postfix_str(self, text):
-        pass
 
 
 def _compare(report: _Report, bar: Any, t0: float) -> dict[str, Any]:

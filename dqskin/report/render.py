@@ -25,6 +25,7 @@ from .._warp import Device, resolve_device
 from ..errors import InputError
 from ..files.atomic import atomic_path
 from ..kernels import render as KR
+from ..progress import progress_bar
 from ..topology import check_faces, incidence
 
 __all__ = ["ADAPTIVE_DEPTH_JUMP", "ADAPTIVE_NORMAL_ANGLE", "VIEWS", "Camera", "MeshRenderer",
@@ -507,7 +508,8 @@ class MeshRenderer:
             Heat-map values, fixed or per frame. Pass ``scalar_range`` to keep colours comparable
             across frames (the default range is per frame).
         progress : bool
-            Show a tqdm progress bar.
+            A progress bar on stderr (drawn only when stderr is a terminal:
+            :func:`dqskin.progress.progress_bar`).
         **kwargs
             As :meth:`render`.
 
@@ -523,11 +525,8 @@ class MeshRenderer:
                                                (pts.shape[0], self.vertex_count)):
             raise InputError(f"scalars: expected ({self.vertex_count},) or "
                              f"({pts.shape[0]}, {self.vertex_count}), got {sv.shape}")
-        indices = range(pts.shape[0])
-        if progress:
-            from tqdm import tqdm
-
-            indices = tqdm(indices, desc="render", unit="frame")
+        indices = progress_bar(range(pts.shape[0]), enabled=progress, desc="render",
+                               unit="frame")
         images: list[np.ndarray | tuple[np.ndarray, np.ndarray]] = []
         for i in indices:
             self.update(pts[i])
