@@ -314,7 +314,14 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     from . import readers
     from .validation import scene_problems
-    scene = readers.load(_regular_file(args.input), clip=_clip(args.clip))
+    src = _regular_file(args.input)
+    if src.suffix.lower() in readers.LOADER_SUFFIXES["usd"]:
+        from . import point_cache
+        stage = point_cache.open_stage(src)  # (held: the loader below reuses its layers)
+        if point_cache.is_point_cache(stage):
+            print("\n".join(point_cache.info_lines(point_cache.cache_info(stage))))
+            return 0
+    scene = readers.load(src, clip=_clip(args.clip))
     print(f"{scene.path}")
     t = np.asarray(scene.times)
     tcps = scene.time_codes_per_second

@@ -26,7 +26,7 @@ class NoBar:
                  **_: Any) -> None:
         self.iterable = iterable
         self.total = total
-        self.n = 0
+        self.n: float = 0
 
     def __iter__(self) -> Iterator[Any]:
         return iter(() if self.iterable is None else self.iterable)

@@ -142,7 +142,8 @@ def test_file_roles_import_one_way():
 HEAVY = ("warp", "pxr", "dask", "trimesh", "pygltflib")
 LOADERS = ("dqskin.readers.", "dqskin.writers.", "dqskin.scene")
 SMALL = ["dqskin", "dqskin.errors", "dqskin.files", "dqskin.files.atomic", "dqskin.files.direct",
-         "dqskin.readers", "dqskin.writers", "dqskin.cache", "dqskin.options", "dqskin.spaces"]
+         "dqskin.readers", "dqskin.writers", "dqskin.cache", "dqskin.options", "dqskin.spaces",
+         "dqskin.progress"]
 
 
 @pytest.mark.parametrize("module", SMALL)
