@@ -106,6 +106,45 @@ def test_atomic_group_is_all_or_nothing(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.txt"]
 
 
+def test_atomic_folder_appears_whole(tmp_path):
+    """A folder is renamed into place complete: an error leaves nothing; exclusive, it fails if
+    another run put a folder there meanwhile (an empty folder is replaced); with overwrite the
+    earlier folder is replaced whole (nothing of it stays) and only on commit."""
+    import os
+
+    from dqskin.files.atomic import atomic_folder
+    out = tmp_path / "report"
+    with pytest.raises(RuntimeError):
+        with atomic_folder(out) as folder:
+            (folder.tmp / "a.txt").write_text("a")
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
+    out.mkdir()  # empty: claimed
+    with atomic_folder(out) as folder:
+        (folder.tmp / "a.txt").write_text("first")
+    assert sorted(p.name for p in out.iterdir()) == ["a.txt"]
+    assert oct(out.stat().st_mode & 0o777) == oct(0o777 & ~_umask())
+    folder = atomic_folder(out)
+    (folder.open() / "b.txt").write_text("second")
+    with pytest.raises(FileExistsError, match="report: exists"):
+        folder.commit()
+    assert (out / "a.txt").read_text() == "first" and [p.name for p in tmp_path.iterdir()] == [
+        "report"]
+    folder = atomic_folder(out, overwrite=True)
+    (folder.open() / "b.txt").write_text("second")
+    assert (out / "a.txt").read_text() == "first"  # not before commit
+    folder.commit()
+    assert sorted(p.name for p in out.iterdir()) == ["b.txt"]
+    assert sorted(os.listdir(tmp_path)) == ["report"]
+
+
+def _umask():
+    import os
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def test_atomic_errors_name_the_target(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("x")

@@ -165,17 +165,8 @@ class atomic_path:
         check_interrupted()
         path = check_parent(self.path)
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise type(exc)(f"{path}: cannot create folder {path.parent} "
-                            f"({exc.strerror or exc})") from None
-        try:
             with critical():  # an interrupt here is raised after self.tmp is known
-                try:
-                    folder = tempfile.mkdtemp(prefix=f".{path.stem}.", dir=path.parent)
-                except OSError as exc:
-                    raise _cannot_write(path, exc) from None
-                self.tmp = Path(folder) / path.name
+                self.tmp = _private_folder(path, f".{path.stem}.") / path.name
         except BaseException:
             self.discard()
             raise
@@ -231,6 +222,20 @@ class atomic_path:
                 and exc.filename in (None, str(tmp))):
             raise _cannot_write(self.path, exc) from None
         return False
+
+
+def _private_folder(path: Path, prefix: str) -> Path:
+    """A new private folder beside ``path`` named ``prefix`` + random characters (the folders
+    above it created first); errors name ``path``."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise type(exc)(f"{path}: cannot create folder {path.parent} "
+                        f"({exc.strerror or exc})") from None
+    try:
+        return Path(tempfile.mkdtemp(prefix=prefix, dir=path.parent))
+    except OSError as exc:
+        raise _cannot_write(path, exc) from None
 
 
 def _remove_folder(folder: Path) -> None:
@@ -358,16 +363,8 @@ class atomic_folder(CommitOnSuccess):
         if path.exists() and not path.is_dir():
             raise NotADirectoryError(errno.ENOTDIR, "exists and is not a directory", str(path))
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise type(exc)(f"{path}: cannot create folder {path.parent} "
-                            f"({exc.strerror or exc})") from None
-        try:
             with critical():
-                try:
-                    self.tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
-                except OSError as exc:
-                    raise _cannot_write(path, exc) from None
+                self.tmp = _private_folder(path, f".{path.name}.")
         except BaseException:
             self.discard()
             raise
