@@ -557,7 +557,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--force", action="store_true", help="overwrite existing outputs")
     _add_rigging_arguments(s)
     s.set_defaults(run=cmd_skin)
-    i = sub.add_parser("info", help="skeleton tree, meshes, influences, time range, problems",
+    i = sub.add_parser("info", help="skeleton tree, meshes, influences, time range, problems; "
+                       "for a USD point cache its prims, frames, attributes and bounds",
                        parents=[common])
     i.add_argument("input")
     i.add_argument("--clip")

@@ -348,7 +348,7 @@ class atomic_folder(CommitOnSuccess):
     """
 
     def __init__(self, path: str | os.PathLike, *, overwrite: bool = False) -> None:
-        self.path = Path(path)
+        self.path = Path(os.path.abspath(path))  # ("." has no name to put a folder beside)
         self.overwrite = overwrite
         self.tmp: Path | None = None
 

@@ -22,11 +22,15 @@ The ``blend`` method mixes the two with a DQS fraction of :data:`BLEND_WEIGHT` o
 
 All meshes are rendered together in skeleton space (up axis ``scene.up_axis`` unless given), one
 camera per view framed once from the bounds over every frame and method, so the images line up.
+The viewer's rest-pose ghost is the character in its skeleton's rest pose (no animation) skinned
+the same way, so it lies in the frames' space for every input (a glTF skeleton space holds the
+nodes above the joints). Distances are in % of the character's height (:data:`DISTANCE_UNIT`).
 
 Outputs in ``DIR``: ``frames/<view>_<k>.png`` (one panel per compared frame ``k`` and view:
 one image per method and a heat map of the per-vertex LBS↔DQS distance), ``frames/closeup.png``
 (the joint with the worst ``min_section_ratio``), ``metrics.json`` and ``report.html`` (images
-embedded as data URIs; opens from disk without a network).
+embedded as data URIs; opens from disk without a network). The folder is written whole
+(:class:`dqskin.files.atomic.atomic_folder`): nothing appears until the report is complete.
 """
 
 import json
