@@ -112,15 +112,8 @@ def open_stage(path: "str | os.PathLike | Usd.Stage") -> "Usd.Stage":
     """The USD stage of ``path`` (a stage is returned as it is); InputError if unreadable."""
     if hasattr(path, "Traverse"):
         return path
-    from pxr import Tf, Usd
-    try:
-        stage = Usd.Stage.Open(os.fspath(path))
-    except Tf.ErrorException as e:
-        reason = " ".join(str(e).split())
-        raise InputError(f"{path}: not a readable USD stage ({reason})") from None
-    if stage is None:
-        raise InputError(f"{path}: not a readable USD stage")
-    return stage
+    from .readers import usd
+    return usd.open_stage(path)
 
 
 def is_point_cache(stage: "str | os.PathLike | Usd.Stage") -> bool:

@@ -62,7 +62,7 @@ from .usd_anim import JointTracks
 from .usd_xform import LocalToWorld, XformChain
 
 __all__ = ["SKINNING_METHODS", "SUFFIXES", "load", "RigidPrim", "UsdSkelAnimation",
-           "load_rigid_prims", "load_usd"]
+           "load_rigid_prims", "load_usd", "open_stage"]
 
 SUFFIXES = LOADER_SUFFIXES["usd"]
 """File extensions :func:`load_usd` (and :func:`load`) reads."""
@@ -1304,6 +1304,21 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
         raise InputError(f"{path}: ", Param("clip"), " applies to glTF files; USD has one "
                          "animation per skeleton")
     return load_usd(path)
+
+
+def open_stage(path: str | os.PathLike) -> Usd.Stage:
+    """The stage of ``path`` opened as :func:`load_usd` opens it (the same checks first, every
+    payload loaded, USD's diagnostics trapped), for what reads a USD file that is not a
+    character (``dqskin info`` on a point cache).
+
+    Raises
+    ------
+    InputError
+        Not a file, not a USD suffix, or USD cannot open it.
+    """
+    loader = _Loader(path)
+    with _usd_diagnostics(process_stderr=True) as loader.warnings:
+        return loader._open()
 
 
 def load_rigid_prims(scene: Scene) -> list[RigidPrim]:
