@@ -281,7 +281,26 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
                                 device=args.device)
         _print_weight_difference(asset, scene, "automatic" if weights == "auto" else weights.name,
                                  args.device)
+    if (rig_dir is not None and cache_out is not None and src.suffix.lower() == ".fbx"
+            and Path(cache_out).suffix.lower() in (".usd", ".usda", ".usdc")):
+        scene = _on_rig(scene, Path(rig_dir))
     return scene
+
+
+def _on_rig(scene: "Scene", rig_dir: Path) -> "Scene":
+    """An FBX scene to bake as a USD point cache, which copies a USD stage: its UsdSkel rig,
+    written in ``rig_dir``, is the stage (topology, units, up axis, frame rate); the points are
+    still skinned from the FBX scene (its joints' exact transforms, which a rig's TRS joints
+    cannot always hold), its meshes renamed as the rig's prims."""
+    import dataclasses
+
+    from . import readers
+    from .writers.usd_rig import write_rig
+    rig = rig_dir / f"{Path(scene.path).stem or 'character'}.usdc"
+    write_rig(scene, rig)
+    prims = readers.load(rig).meshes
+    meshes = [dataclasses.replace(m, name=r.name) for m, r in zip(scene.meshes, prims)]
+    return dataclasses.replace(scene, path=str(rig), meshes=meshes, _skinners={})
 
 
 def _print_weight_difference(asset: "Scene", scene: "Scene", label: str, device: str | None,
