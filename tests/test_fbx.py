@@ -3,7 +3,6 @@ OBJ exports of ../shared/assets/ufbx (README there), and damaged files as bad in
 
 import io
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -11,13 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SHARED
+from test_cli import assert_clean_error, run
 
 import dqskin
 from dqskin.errors import InputError, UnknownNameError
 from dqskin.readers import fbx
-
-from conftest import SHARED
-from test_cli import assert_clean_error, run
 
 DATA = SHARED / "assets" / "ufbx" / "data"
 ORACLE = Path(__file__).with_name("fbx_oracle.py")
@@ -273,3 +271,46 @@ def test_extract_writes_no_pickles():
         meta = json.loads(str(z["meta"]))
         assert z["world"].dtype == np.float64
     assert meta["clips"] == ["Take 001"] and meta["meshes"][0]["method"] == 2
+
+
+def test_per_vertex_blend_everywhere(tmp_path):
+    """A mesh's own blend weights: the asset's method "blend" mixes LBS and DQS per vertex in
+    points and velocities; a UsdSkel rig keeps them as primvars:dqskin:blendWeights and reads
+    back as "blend"; weights outside [0, 1] there are bad input."""
+    import dataclasses
+
+    from pxr import Usd, UsdGeom
+
+    from dqskin.writers.usd_rig import write_rig
+
+    scene = dqskin.load(data("blender_279_sausage_7400_binary.fbx"), clip="Skeleton|Wiggle")
+    m = scene.meshes[0]
+    b = np.random.default_rng(7).random(len(m.points)).astype(np.float32)
+    scene.meshes = [dataclasses.replace(m, skinning_method="blend", blend_weights=b)]
+    scene.invalidate()
+    t = np.array([6.0, 11.5])
+    got = scene.skin(t, velocities=True, space="world")
+    lbs, dqs = (scene.skin(t, meth, space="world").points[m.name] for meth in ("lbs", "dqs"))
+    scale = size(lbs)
+    assert np.abs(dqs - lbs).max() > 1e-3 * scale  # the two methods differ here
+    want = (1 - b[:, None]) * lbs + b[:, None] * dqs
+    assert np.abs(got.points[m.name] - want).max() < 1e-5 * scale
+    h = 1e-2  # frames: central differences of the points, per second
+    ahead, behind = (scene.skin(t + d, space="world").points[m.name].astype(np.float64)
+                     for d in (h, -h))
+    rate = (ahead - behind) / (2 * h) * scene.time_codes_per_second
+    assert np.abs(got.velocities[m.name] - rate).max() < 1e-3 * np.abs(rate).max()
+    rig = tmp_path / "rig.usda"
+    write_rig(scene, rig)
+    back = dqskin.load(rig)
+    assert back.meshes[0].skinning_method == "blend"
+    np.testing.assert_array_equal(back.meshes[0].blend_weights, b)
+    again = back.skin(t, space="world").points[back.meshes[0].name]
+    assert np.abs(again - want).max() < 1e-5 * scale
+    stage = Usd.Stage.Open(str(rig))
+    prim = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
+    UsdGeom.PrimvarsAPI(prim).GetPrimvar("dqskin:blendWeights").Set(
+        [1.5] * len(b))
+    stage.GetRootLayer().Export(str(tmp_path / "bad.usda"))
+    with pytest.raises(InputError, match=r"blendWeights: values outside \[0, 1\]"):
+        dqskin.load(tmp_path / "bad.usda")

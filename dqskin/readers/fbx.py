@@ -1,4 +1,5 @@
-"""FBX characters (binary and ASCII, FBX 5.0 to 7.7) through ufbx, into a :class:`~dqskin.scene.Scene`.
+"""FBX characters (binary and ASCII, FBX 5.0 to 7.7) read by ufbx into a
+:class:`~dqskin.scene.Scene`.
 
 ufbx runs in a process of its own (:mod:`.fbx_extract`, the only module that calls it): what it
 evaluates comes back as plain arrays, and a file that makes ufbx fail, or crash, is one
