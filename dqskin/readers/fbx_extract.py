@@ -4,7 +4,8 @@
 (no pickles) of plain arrays and one JSON record (``meta``): the nodes that drive meshes, their
 world transforms at the file's stored pose and at every frame of the chosen animation stack
 (``CLIP``: a name, an index, or ``-`` for the first), every mesh's geometry, skin clusters and
-blend-shape weights. Errors: one line on stderr and exit status 2.
+blend-shape weights, and the seconds each step took (``timing_s``). Errors: one line on stderr
+and exit status 2.
 
 The ufbx bindings are young: a Python wrapper of a ufbx object that is fetched a second time
 (a node's ``parent`` after the node itself, say) crashes the process when one of the two
@@ -18,6 +19,7 @@ import json
 import math
 import os
 import sys
+import time
 
 import numpy as np
 
@@ -73,9 +75,12 @@ def _frames(begin, end, fps):
 
 
 def extract(path, clip):
+    start = time.perf_counter()
     import ufbx
 
+    imported = time.perf_counter()
     scene = _k(ufbx.load_file(path))
+    loaded = time.perf_counter()
     settings = _k(scene.settings)
     axes = settings.axes
     fps = float(settings.frames_per_second) or 24.0
@@ -163,6 +168,7 @@ def extract(path, clip):
     joints = sorted(needed, key=lambda j: (depth[j], j))
     stacks = _k(scene.anim_stacks)
     which, clips = _pick_stack(stacks, clip)
+    read = time.perf_counter()
     if which >= 0:
         stack = _k(stacks[which])
         anim = _k(stack.anim)
@@ -182,7 +188,11 @@ def extract(path, clip):
         for k, w in enumerate(weights):
             if meshes_meta[k]["shapes"]:
                 arrays[f"m{k}/shape_weights"] = np.asarray(w, np.float64)
+    done = time.perf_counter()
+    timing = {"import": imported - start, "load": loaded - imported, "meshes": read - loaded,
+              "frames": done - read}
     meta = {"fps": fps, "up": int(axes.up), "unit": float(settings.unit_meters),
+            "timing_s": timing,
             "clips": clips, "clip": clips[which] if which >= 0 else None, "joints": joints,
             "names": names, "parents": parents, "meshes": meshes_meta}
     arrays["meta"] = np.array(json.dumps(meta))
