@@ -457,7 +457,7 @@ def _add_compare_arguments(parser: argparse.ArgumentParser) -> None:
     from .report.render import VIEWS
     from .report.viewer import VIEWER_FRAMES
     from .times import MAX_FRAMES
-    parser.add_argument("input", help="character file (.usd/.usda/.usdc/.usdz, .gltf/.glb)")
+    parser.add_argument("input", help="character file (.usd/.usda/.usdc/.usdz, .gltf/.glb, .fbx)")
     parser.add_argument("--out", required=True, help="output folder: report.html, metrics.json, "
                         "frames/*.png")
     parser.add_argument("--methods", default="lbs,dqs",
@@ -483,7 +483,7 @@ def _add_compare_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--viewer-frames", type=int, default=VIEWER_FRAMES, help="frames of the "
                         "animated viewer in report.html, evenly spaced over the clip plus the "
                         f"compared ones; 0: no viewer (default: {VIEWER_FRAMES})")
-    parser.add_argument("--clip", help="glTF animation name or index")
+    parser.add_argument("--clip", help="glTF animation or FBX animation stack: name or index")
     _add_sign_reference(parser)
     parser.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -522,8 +522,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "pattern like out/frame_{:04d}.obj (.obj/.ply/.glb with normals and UVs, "
                    ".stl/.off geometry only; a name without {} for one frame only)")
     s.add_argument("--method", choices=list(METHOD_NAMES), default=None,
-                   help="default: what the asset asks for (LBS for glTF); cor = optimized "
-                   "centers of rotation (precomputed per mesh, cached in ~/.cache/dqskin)")
+                   help="default: what the asset asks for (LBS for glTF; an FBX skin's own); "
+                   "cor = optimized centers of rotation (precomputed per mesh, cached in "
+                   "~/.cache/dqskin)")
     s.add_argument("--cor-exact", action="store_true",
                    help="cor: exact centers even on meshes so large that the default clusters "
                    "their weights on a 1/256 grid (slower; see the documentation's Concepts: "
@@ -547,7 +548,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-normals", dest="normals", action="store_false",
                    help="don't skin normals into USD caches (they keep their rest values) nor "
                    "write them to .obj/.ply/.glb files")
-    s.add_argument("--clip", help="glTF animation name or index")
+    s.add_argument("--clip", help="glTF animation or FBX animation stack: name or index")
     s.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     s.add_argument("--chunk", type=int, help="frames per chunk (bounds memory; default 256, "
                    "fewer for a USD cache whose 256 frames exceed 64 MB) or per clip layer with "
@@ -586,7 +587,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("input", help="mesh in the BVH's rest pose (with --skeleton), or a character")
     r.add_argument("--out", required=True, help=".usda/.usd/.usdc UsdSkel rig")
     _add_rigging_arguments(r)
-    r.add_argument("--clip", help="glTF animation name or index")
+    r.add_argument("--clip", help="glTF animation or FBX animation stack: name or index")
     r.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     r.add_argument("--force", action="store_true", help="overwrite an existing output")
     r.set_defaults(run=cmd_rig)
