@@ -41,7 +41,9 @@ import os
 import signal
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -49,6 +51,9 @@ import numpy.typing as npt
 from ..animation import Deformer, check_times, segment_rates
 from ..errors import InputError, UnknownNameError
 from . import LOADER_SUFFIXES
+
+if TYPE_CHECKING:
+    from ..scene import Scene
 
 __all__ = ["SUFFIXES", "load"]
 
@@ -117,7 +122,8 @@ def _inverse(m: np.ndarray, what: str) -> np.ndarray:
     return np.linalg.inv(m)
 
 
-def _polygons(arrays: dict, key: str, name: str):
+def _polygons(arrays: dict, key: str,
+              name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Polygons of a mesh: ``(faces (T, 3), counts, indices, corner mask)``: triangles fanned
     from the polygons of three or more corners (points and lines dropped), those polygons'
     corner counts and vertex indices, and which face corners they keep."""
@@ -162,25 +168,38 @@ class _Shapes(Deformer):
         return np.einsum("fk,kvc->fvc", np.asarray(rates, np.float64), self.offsets)
 
 
-def _bind_groups(meshes: list[dict]) -> list[list[int]]:
+@dataclass
+class _Skin:
+    """What one mesh needs of its skeleton: the bind transforms of its nodes, its geometry-to-
+    skeleton transform, its influences (as nodes), method and blend weights."""
+
+    binds: dict[int, np.ndarray]
+    geom: np.ndarray
+    nodes: np.ndarray
+    weights: np.ndarray
+    method: str
+    blend: np.ndarray | None
+
+
+def _bind_groups(meshes: list[_Skin]) -> list[list[int]]:
     """Meshes grouped so that the bind transforms they need of each node agree (one skeleton per
     group)."""
     groups: list[tuple[list[int], dict[int, np.ndarray]]] = []
     for k, m in enumerate(meshes):
         for members, binds in groups:
-            shared = set(binds) & set(m["binds"])
-            if all(np.allclose(binds[n], m["binds"][n], rtol=_BIND_TOLERANCE,
+            shared = set(binds) & set(m.binds)
+            if all(np.allclose(binds[n], m.binds[n], rtol=_BIND_TOLERANCE,
                                atol=_BIND_TOLERANCE * max(1.0, float(np.abs(binds[n]).max())))
                    for n in shared):
                 members.append(k)
-                binds.update(m["binds"])
+                binds.update(m.binds)
                 break
         else:
-            groups.append(([k], dict(m["binds"])))
+            groups.append(([k], dict(m.binds)))
     return [members for members, _ in groups]
 
 
-def load(path: str | os.PathLike, *, clip: str | int | None = None) -> "Scene":  # noqa: F821
+def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     """Read an FBX character (see the module docstring).
 
     Parameters
@@ -217,7 +236,7 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> "Scene": 
     joint_nodes = list(meta["joints"])
     slot = {n: j for j, n in enumerate(joint_nodes)}
     mesh_names = _unique([m["name"] for m in meta["meshes"]], "mesh")
-    built = []
+    built: list[_Skin] = []
     for k, m in enumerate(meta["meshes"]):
         key, name = f"m{k}/", f"{p}: mesh {mesh_names[k]!r}"
         g2w = arrays[key + "geometry_to_world"]
@@ -243,13 +262,14 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> "Scene": 
             sv = arrays[key + "skin_vertices"]
             blend = (np.clip(sv[:, 2], 0.0, 1.0).astype(np.float32) if method == "blend"
                      else None)
-        built.append({"binds": binds, "geom": geom, "infl": infl, "method": method,
-                      "blend": blend})
-    skeletons, mesh_skeleton, mesh_slots = [], {}, {}
+        built.append(_Skin(binds, geom, infl[0], infl[1], method, blend))
+    skeletons: list[Skeleton] = []
+    mesh_skeleton: dict[int, int] = {}
+    mesh_slots: dict[int, dict[int, int]] = {}
     for members in _bind_groups(built):
         binds = {}
         for k in members:
-            binds.update(built[k]["binds"])
+            binds.update(built[k].binds)
         nodes = set(binds)
         for n in list(nodes):
             a = node_parent[n]
@@ -329,7 +349,7 @@ def _mesh(Mesh, arrays, k, name, b, skeleton, index, frames, where):
     key = f"m{k}/"
     rest = arrays[key + "points"]
     tris, counts, fvi, corner = _polygons(arrays, key, where)
-    nodes, weights = b["infl"]
+    nodes, weights = b.nodes, b.weights
     joints = np.where(nodes >= 0, np.vectorize(lambda n: index.get(n, 0), otypes=[np.int64])(
         np.maximum(nodes, 0)) if nodes.size else nodes, 0)
     normals = normal_vertex = uvs = None
@@ -353,7 +373,7 @@ def _mesh(Mesh, arrays, k, name, b, skeleton, index, frames, where):
                            arrays[key + "shape_weights"].reshape(len(frames), -1))
     return Mesh(name=name, points=rest.astype(np.float32), faces=tris,
                 joint_indices=joints.astype(np.int32), joint_weights=weights,
-                skeleton=skeleton, geom_bind_transform=b["geom"], skinning_method=b["method"],
+                skeleton=skeleton, geom_bind_transform=b.geom, skinning_method=b.method,
                 normals=normals, normal_vertex=normal_vertex, deformer=deformer,
                 face_vertex_counts=counts, face_vertex_indices=fvi.astype(np.int32), uvs=uvs,
-                blend_weights=b["blend"])
+                blend_weights=b.blend)

@@ -76,7 +76,7 @@ def _frames(begin, end, fps):
 
 def extract(path, clip):
     start = time.perf_counter()
-    import ufbx
+    import ufbx  # type: ignore[import-untyped]
 
     imported = time.perf_counter()
     scene = _k(ufbx.load_file(path))
@@ -97,8 +97,8 @@ def extract(path, clip):
     rest_world = np.stack([_matrix(n.node_to_world) for n in node_list]) if node_list \
         else np.zeros((0, 4, 4))
     arrays = {"rest_world": rest_world}
-    meshes_meta = []
-    needed = set()
+    meshes_meta: list[dict] = []
+    needed: set[int] = set()
     meshes = _k(scene.meshes)
     for mi in range(len(meshes)):
         mesh = _k(meshes[mi])
@@ -174,7 +174,7 @@ def extract(path, clip):
         anim = _k(stack.anim)
         frames = _frames(stack.time_begin, stack.time_end, fps)
         world = np.empty((len(frames), len(joints), 4, 4))
-        weights = [[] for _ in meshes_meta]
+        weights: list[list] = [[] for _ in meshes_meta]
         for f, frame in enumerate(frames):
             ev = _k(ufbx.evaluate_scene(scene, anim, float(frame / fps)))
             ev_nodes = _k(ev.nodes)
@@ -208,7 +208,7 @@ def _shape_weights(ev_meshes, count, weights):
         if len(_k(mesh.instances)) == 0:
             continue
         k += 1
-        row = []
+        row: list[float] = []
         blends = _k(mesh.blend_deformers)
         for bi in range(len(blends)):
             channels = _k(_k(blends[bi]).channels)
