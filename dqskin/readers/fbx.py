@@ -344,36 +344,39 @@ def _influences(sv: np.ndarray, sw: np.ndarray, bones: np.ndarray, V: int,
     return node, weight.astype(np.float32)
 
 
+def _corners(arrays: dict, key: str, what: str, corner: np.ndarray,
+             where: str) -> np.ndarray | None:
+    """The face-corner values ``what`` ("normals", "uvs") of the kept corners, float32, or None
+    when the mesh has none; InputError for indices out of range."""
+    if key + what not in arrays:
+        return None
+    index = arrays[f"{key}{what}_index"].astype(np.int64)
+    values = arrays[key + what]
+    if index.size != corner.size or (index.size and (index.min() < 0
+                                                     or index.max() >= len(values))):
+        raise InputError(f"{where}: {what} indices out of range")
+    return values[index[corner]].astype(np.float32)
+
+
 def _mesh(Mesh, arrays, k, name, b, skeleton, index, frames, where):
-    """The :class:`~dqskin.scene.Mesh` of mesh ``k``."""
+    """The :class:`~dqskin.scene.Mesh` of mesh ``k``; ``index``: node → joint of its
+    skeleton."""
     key = f"m{k}/"
     rest = arrays[key + "points"]
     tris, counts, fvi, corner = _polygons(arrays, key, where)
-    nodes, weights = b.nodes, b.weights
-    joints = np.where(nodes >= 0, np.vectorize(lambda n: index.get(n, 0), otypes=[np.int64])(
-        np.maximum(nodes, 0)) if nodes.size else nodes, 0)
-    normals = normal_vertex = uvs = None
-    if key + "normals" in arrays:
-        ni = arrays[key + "normal_index"].astype(np.int64)
-        values = arrays[key + "normals"]
-        if ni.size != corner.size or (ni.size and (ni.min() < 0 or ni.max() >= len(values))):
-            raise InputError(f"{where}: normal indices out of range")
-        normals = values[ni[corner]].astype(np.float32)
-        normal_vertex = fvi.astype(np.int32)
-    if key + "uvs" in arrays:
-        ui = arrays[key + "uv_index"].astype(np.int64)
-        values = arrays[key + "uvs"]
-        if ui.size != corner.size or (ui.size and (ui.min() < 0 or ui.max() >= len(values))):
-            raise InputError(f"{where}: UV indices out of range")
-        uvs = values[ui[corner]].astype(np.float32)
+    lut = np.zeros(max([*index, int(b.nodes.max(initial=0))]) + 1, np.int32)
+    lut[list(index)] = list(index.values())
+    joints = np.where(b.nodes >= 0, lut[np.maximum(b.nodes, 0)], 0)
+    normals = _corners(arrays, key, "normals", corner, where)
     deformer = None
     if key + "shape_offsets" in arrays and frames is not None and key + "shape_weights" in arrays:
         deformer = _Shapes(rest.astype(np.float64), arrays[key + "shape_offsets"],
                            np.asarray(frames, np.float64),
                            arrays[key + "shape_weights"].reshape(len(frames), -1))
     return Mesh(name=name, points=rest.astype(np.float32), faces=tris,
-                joint_indices=joints.astype(np.int32), joint_weights=weights,
+                joint_indices=joints.astype(np.int32), joint_weights=b.weights,
                 skeleton=skeleton, geom_bind_transform=b.geom, skinning_method=b.method,
-                normals=normals, normal_vertex=normal_vertex, deformer=deformer,
-                face_vertex_counts=counts, face_vertex_indices=fvi.astype(np.int32), uvs=uvs,
-                blend_weights=b.blend)
+                normals=normals, normal_vertex=None if normals is None else fvi.astype(np.int32),
+                deformer=deformer, face_vertex_counts=counts,
+                face_vertex_indices=fvi.astype(np.int32),
+                uvs=_corners(arrays, key, "uvs", corner, where), blend_weights=b.blend)

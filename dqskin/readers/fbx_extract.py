@@ -114,11 +114,11 @@ def extract(path, clip):
         normal = _k(mesh.vertex_normal)
         if normal.exists:
             arrays[key + "normals"] = _array(normal.values, np.float64, 3)
-            arrays[key + "normal_index"] = _array(normal.indices, np.int64)
+            arrays[key + "normals_index"] = _array(normal.indices, np.int64)
         uv = _k(mesh.vertex_uv)
         if uv.exists:
             arrays[key + "uvs"] = _array(uv.values, np.float64, 2)
-            arrays[key + "uv_index"] = _array(uv.indices, np.int64)
+            arrays[key + "uvs_index"] = _array(uv.indices, np.int64)
         node = ids[inst.typed_id]
         arrays[key + "geometry_to_world"] = _matrix(inst.geometry_to_world)
         meta = {"name": inst.name, "node": node, "method": None, "channels": 0,
