@@ -67,10 +67,17 @@ def _pick_stack(stacks, clip):
     raise LookupError(f"no animation stack {clip!r}; stacks: {names}")
 
 
-def _frames(begin, end, fps):
+MAX_FRAMES = 1_000_000
+"""Longest animation stack read, in frames."""
+
+
+def _frames(name, begin, end, fps):
     """Whole frames at ``fps`` from ``begin`` to ``end`` seconds (at least one)."""
     f0 = math.ceil(begin * fps - 1e-6)
     f1 = max(f0, math.floor(end * fps + 1e-6))
+    if f1 - f0 >= MAX_FRAMES:
+        raise ValueError(f"animation stack {name!r} spans {f1 - f0 + 1} frames at {fps:g} fps "
+                         f"(more than {MAX_FRAMES})")
     return np.arange(f0, f1 + 1, dtype=np.float64)
 
 
@@ -172,7 +179,7 @@ def extract(path, clip):
     if which >= 0:
         stack = _k(stacks[which])
         anim = _k(stack.anim)
-        frames = _frames(stack.time_begin, stack.time_end, fps)
+        frames = _frames(stack.name, stack.time_begin, stack.time_end, fps)
         world = np.empty((len(frames), len(joints), 4, 4))
         weights: list[list] = [[] for _ in meshes_meta]
         for f, frame in enumerate(frames):
