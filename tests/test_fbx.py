@@ -341,3 +341,16 @@ def test_blend_shape_deformer_closed_form():
     rates = shapes.point_velocities_at([0.5, 1.5])
     np.testing.assert_allclose(rates[0], [[0, 1, 0], [0, 0, 1]])
     np.testing.assert_allclose(rates[1], [[0, -1, 0], [0, 0, 1]])
+
+
+def test_endless_stack_is_refused(tmp_path):
+    """A stack whose end lies 160 years out (an edited ASCII file) is a LimitError, not a
+    million evaluations."""
+    from dqskin.errors import LimitError
+
+    text = data("maya_dual_quaternion_scale_7500_ascii.fbx").read_text()
+    stop = '"LocalStop", "KTime", "Time", "",230930790000'
+    assert stop + "\n" in text
+    (tmp_path / "long.fbx").write_text(text.replace(stop + "\n", stop + "000000\n"))
+    with pytest.raises(LimitError, match="spans 120000000 frames at 24 fps"):
+        dqskin.load(tmp_path / "long.fbx")

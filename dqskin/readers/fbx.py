@@ -49,7 +49,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..animation import Deformer, check_times, segment_rates
-from ..errors import InputError, UnknownNameError
+from ..errors import InputError, LimitError, UnknownNameError
 from . import LOADER_SUFFIXES
 
 if TYPE_CHECKING:
@@ -89,6 +89,8 @@ def _extract(path: Path, clip: str | int | None) -> tuple[dict, dict[str, np.nda
         text = why[-1] if why else f"exit status {done.returncode}"
         if text.startswith("LookupError: "):
             raise UnknownNameError(f"{path}: {text.removeprefix('LookupError: ')}")
+        if text.startswith("LimitExceeded: "):
+            raise LimitError(f"{path}: {text.removeprefix('LimitExceeded: ')}")
         raise InputError(f"{path}: not a readable FBX file ({text})")
     try:
         with np.load(io.BytesIO(done.stdout), allow_pickle=False) as z:
@@ -221,6 +223,8 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
         data is invalid (singular transforms, NaN, bad weights): the message names the file.
     dqskin.errors.UnknownNameError
         No stack ``clip``.
+    dqskin.errors.LimitError
+        A stack of more than 1,000,000 frames.
     """
     from ..animation import KeyedAnimation
     from ..scene import Mesh, Scene

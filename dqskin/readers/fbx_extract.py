@@ -71,12 +71,16 @@ MAX_FRAMES = 1_000_000
 """Longest animation stack read, in frames."""
 
 
+class LimitExceeded(Exception):
+    """The file asks for more than this reader takes (:data:`MAX_FRAMES`)."""
+
+
 def _frames(name, begin, end, fps):
     """Whole frames at ``fps`` from ``begin`` to ``end`` seconds (at least one)."""
     f0 = math.ceil(begin * fps - 1e-6)
     f1 = max(f0, math.floor(end * fps + 1e-6))
     if f1 - f0 >= MAX_FRAMES:
-        raise ValueError(f"animation stack {name!r} spans {f1 - f0 + 1} frames at {fps:g} fps "
+        raise LimitExceeded(f"animation stack {name!r} spans {f1 - f0 + 1} frames at {fps:g} fps "
                          f"(more than {MAX_FRAMES})")
     return np.arange(f0, f1 + 1, dtype=np.float64)
 
