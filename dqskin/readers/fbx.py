@@ -252,6 +252,9 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
             infl = (np.full((V, 1), m["node"], np.int64), np.ones((V, 1), np.float32))
             method, blend = "lbs", None
         else:
+            if m.get("skins", 1) > 1:
+                raise InputError(f"{name}: {m['skins']} skin deformers; dqskin skins a mesh "
+                                 "with one")
             geom = g2w if np.all(np.isfinite(g2w)) and abs(np.linalg.det(g2w)) > 1e-300 \
                 else np.eye(4)
             bones = arrays[key + "bones"]
