@@ -25,7 +25,7 @@ from .errors import InputError, OutputExistsError, Param, output_exists
 from .files.atomic import atomic_path, check_interrupted, check_parent
 from .options import SkinOptions, is_numpy_bool, split_changes
 from .progress import progress_bar
-from .readers import format_of, gltf, usd
+from .readers import fbx, format_of, gltf, usd
 from .scene import Scene, SkinnedFrames
 from .validation import check_skinned
 from .writers import mesh_files, npz, usd_cache
@@ -367,7 +367,7 @@ def _bake_frames(job: _Job) -> str:
     gltf_input = format_of(src) is gltf
     layout = mesh_files.MeshLayout(
         scene.meshes, Path(str(out)).suffix.lower(), normals=opts.normals,
-        uv_top_left=gltf_input, uv_interpolation=None if gltf_input else _usd_uv_interpolation(src))
+        uv_top_left=gltf_input, uv_interpolation=_uv_interpolation(src))
     with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=s.force) as writer:
         for sl, res in job.chunks(s.chunk or usd_cache.CHUNK_FRAMES,
                                   opts.replace(normals=layout.normals, velocities=False)):
@@ -378,6 +378,15 @@ def _bake_frames(job: _Job) -> str:
     span = f"{paths[0]}" if len(paths) == 1 else f"{paths[0]} … {paths[-1]}"
     return (f"wrote {_plural(len(paths), 'file')} {span}: {job.counts()}"
             + (f" ({', '.join(extras)})" if extras else ""))
+
+
+def _uv_interpolation(path):
+    """How the UVs of the input's meshes map to them, where their counts leave it ambiguous: a
+    USD stage's ``primvars:st`` interpolation; FBX UVs are per face corner."""
+    fmt = format_of(path)
+    if fmt is fbx:
+        return lambda name: "faceVarying"
+    return _usd_uv_interpolation(path) if fmt is usd else None
 
 
 def _usd_uv_interpolation(path):

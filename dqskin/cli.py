@@ -281,7 +281,26 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
                                 device=args.device)
         _print_weight_difference(asset, scene, "automatic" if weights == "auto" else weights.name,
                                  args.device)
+    if (rig_dir is not None and cache_out is not None and src.suffix.lower() == ".fbx"
+            and Path(cache_out).suffix.lower() in (".usd", ".usda", ".usdc")):
+        scene = _on_rig(scene, Path(rig_dir))
     return scene
+
+
+def _on_rig(scene: "Scene", rig_dir: Path) -> "Scene":
+    """An FBX scene to bake as a USD point cache, which copies a USD stage: its UsdSkel rig,
+    written in ``rig_dir``, is the stage (topology, units, up axis, frame rate); the points are
+    still skinned from the FBX scene (its joints' exact transforms, which a rig's TRS joints
+    cannot always hold), its meshes renamed as the rig's prims."""
+    import dataclasses
+
+    from . import readers
+    from .writers.usd_rig import write_rig
+    rig = rig_dir / f"{Path(scene.path).stem or 'character'}.usdc"
+    write_rig(scene, rig)
+    prims = readers.load(rig).meshes
+    meshes = [dataclasses.replace(m, name=r.name) for m, r in zip(scene.meshes, prims)]
+    return dataclasses.replace(scene, path=str(rig), meshes=meshes, _skinners={})
 
 
 def _print_weight_difference(asset: "Scene", scene: "Scene", label: str, device: str | None,
@@ -445,7 +464,7 @@ def _add_compare_arguments(parser: argparse.ArgumentParser) -> None:
     from .report.render import VIEWS
     from .report.viewer import VIEWER_FRAMES
     from .times import MAX_FRAMES
-    parser.add_argument("input", help="character file (.usd/.usda/.usdc/.usdz, .gltf/.glb)")
+    parser.add_argument("input", help="character file (.usd/.usda/.usdc/.usdz, .gltf/.glb, .fbx)")
     parser.add_argument("--out", required=True, help="output folder: report.html, metrics.json, "
                         "frames/*.png")
     parser.add_argument("--methods", default="lbs,dqs",
@@ -471,7 +490,7 @@ def _add_compare_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--viewer-frames", type=int, default=VIEWER_FRAMES, help="frames of the "
                         "animated viewer in report.html, evenly spaced over the clip plus the "
                         f"compared ones; 0: no viewer (default: {VIEWER_FRAMES})")
-    parser.add_argument("--clip", help="glTF animation name or index")
+    parser.add_argument("--clip", help="glTF animation or FBX animation stack: name or index")
     _add_sign_reference(parser)
     parser.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -510,8 +529,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "pattern like out/frame_{:04d}.obj (.obj/.ply/.glb with normals and UVs, "
                    ".stl/.off geometry only; a name without {} for one frame only)")
     s.add_argument("--method", choices=list(METHOD_NAMES), default=None,
-                   help="default: what the asset asks for (LBS for glTF); cor = optimized "
-                   "centers of rotation (precomputed per mesh, cached in ~/.cache/dqskin)")
+                   help="default: what the asset asks for (LBS for glTF; an FBX skin's own); "
+                   "cor = optimized centers of rotation (precomputed per mesh, cached in "
+                   "~/.cache/dqskin)")
     s.add_argument("--cor-exact", action="store_true",
                    help="cor: exact centers even on meshes so large that the default clusters "
                    "their weights on a 1/256 grid (slower; see the documentation's Concepts: "
@@ -535,7 +555,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-normals", dest="normals", action="store_false",
                    help="don't skin normals into USD caches (they keep their rest values) nor "
                    "write them to .obj/.ply/.glb files")
-    s.add_argument("--clip", help="glTF animation name or index")
+    s.add_argument("--clip", help="glTF animation or FBX animation stack: name or index")
     s.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     s.add_argument("--chunk", type=int, help="frames per chunk (bounds memory; default 256, "
                    "fewer for a USD cache whose 256 frames exceed 64 MB) or per clip layer with "
@@ -575,7 +595,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("input", help="mesh in the BVH's rest pose (with --skeleton), or a character")
     r.add_argument("--out", required=True, help=".usda/.usd/.usdc UsdSkel rig")
     _add_rigging_arguments(r)
-    r.add_argument("--clip", help="glTF animation name or index")
+    r.add_argument("--clip", help="glTF animation or FBX animation stack: name or index")
     r.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     r.add_argument("--force", action="store_true", help="overwrite an existing output")
     r.set_defaults(run=cmd_rig)

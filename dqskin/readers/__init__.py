@@ -1,7 +1,8 @@
 """Readers: what dqskin reads into a :class:`~dqskin.scene.Scene`, one module per format.
 
 Each format module owns its suffixes (``SUFFIXES``) and its loader; :func:`load` dispatches on
-them. Characters: :mod:`.usd` (UsdSkel) and :mod:`.gltf` (glTF 2.0 skins); motion capture:
+them. Characters: :mod:`.usd` (UsdSkel), :mod:`.gltf` (glTF 2.0 skins)
+and :mod:`.fbx` (FBX skins, read by ufbx in a process of its own); motion capture:
 :mod:`.bvh` (a skeleton and its animation, no mesh). Plain geometry: :mod:`.mesh`
 (:func:`~.mesh.load_mesh`). Outputs: :mod:`dqskin.writers`; the file machinery they share:
 :mod:`dqskin.files`. The suffixes are listed here (:data:`LOADER_SUFFIXES`) so that a format
@@ -24,7 +25,7 @@ if TYPE_CHECKING:
 __all__ = ["CHARACTER_SUFFIXES", "LOADER_SUFFIXES", "format_of", "load"]
 
 LOADER_SUFFIXES = {"usd": (".usd", ".usda", ".usdc", ".usdz"), "gltf": (".gltf", ".glb"),
-                   "bvh": (".bvh",)}
+                   "bvh": (".bvh",), "fbx": (".fbx",)}
 """Loader module (of this package) → the suffixes it reads (each module's ``SUFFIXES``)."""
 
 _LOADERS = {s: module for module, suffixes in LOADER_SUFFIXES.items() for s in suffixes}
@@ -38,9 +39,10 @@ def _loader(name: str) -> ModuleType:
 
 
 def format_of(path: str | os.PathLike) -> ModuleType | None:
-    """The format module that reads ``path`` (:mod:`.usd` or :mod:`.gltf`), by suffix, or None."""
+    """The format module that reads the character file ``path`` (:mod:`.usd`, :mod:`.gltf` or
+    :mod:`.fbx`), by suffix, or None."""
     name = _LOADERS.get(Path(path).suffix.lower())
-    return _loader(name) if name in ("usd", "gltf") else None
+    return _loader(name) if name in ("usd", "gltf", "fbx") else None
 
 
 def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
@@ -49,10 +51,11 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     Parameters
     ----------
     path : str or Path
-        ``.usd/.usda/.usdc/.usdz`` (UsdSkel), ``.gltf/.glb`` (glTF 2.0 skins) or ``.bvh`` (a
-        skeleton and its motion, no meshes; times are frame numbers).
+        ``.usd/.usda/.usdc/.usdz`` (UsdSkel), ``.gltf/.glb`` (glTF 2.0 skins), ``.fbx`` (FBX
+        skins, through ufbx; times are frame numbers) or ``.bvh`` (a skeleton and its motion, no
+        meshes; times are frame numbers).
     clip : str or int, optional
-        glTF animation to load (name or index); the first by default.
+        glTF animation or FBX animation stack to load (name or index); the first by default.
 
     Returns
     -------

@@ -61,14 +61,19 @@ from . import LOADER_SUFFIXES
 from .usd_anim import JointTracks
 from .usd_xform import LocalToWorld, XformChain
 
-__all__ = ["SKINNING_METHODS", "SUFFIXES", "load", "RigidPrim", "UsdSkelAnimation",
-           "load_rigid_prims", "load_usd", "open_stage"]
+__all__ = ["BLEND_WEIGHTS", "SKINNING_METHODS", "SUFFIXES", "load", "RigidPrim",
+           "UsdSkelAnimation", "load_rigid_prims", "load_usd", "open_stage"]
 
 SUFFIXES = LOADER_SUFFIXES["usd"]
 """File extensions :func:`load_usd` (and :func:`load`) reads."""
 
 SKINNING_METHODS = {"classicLinear": "lbs", "dualQuaternion": "dqs"}
 """``primvars:skel:skinningMethod`` tokens → dqskin method names."""
+
+BLEND_WEIGHTS = "dqskin:blendWeights"
+"""Primvar (``primvars:dqskin:blendWeights``, float per vertex in [0, 1], or one constant) of the
+DQS fraction of each vertex: where authored, the prim's method is "blend" with these weights
+(UsdSkel players ignore it and skin with ``primvars:skel:skinningMethod``)."""
 
 
 def _tf_message(exc: BaseException) -> str:
@@ -862,6 +867,22 @@ class _Loader:
                              f"{' or '.join(map(repr, SKINNING_METHODS))})")
         return SKINNING_METHODS[method]
 
+    def blend_weights(self, where, prim, point_count):
+        """(V,) float32 ``primvars:dqskin:blendWeights`` (:data:`BLEND_WEIGHTS`), or None."""
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(BLEND_WEIGHTS)
+        if not pv or not pv.HasAuthoredValue():
+            return None
+        value = pv.ComputeFlattened(Usd.TimeCode.Default())
+        b = np.asarray([] if value is None else value, dtype=np.float64).reshape(-1)
+        if b.size == 1 and pv.GetInterpolation() == UsdGeom.Tokens.constant:
+            b = np.full(point_count, b[0])
+        if b.size != point_count:
+            self.fail(where, f"primvars:{BLEND_WEIGHTS}: {b.size} values for {point_count} "
+                             "points")
+        if not np.all((b >= 0) & (b <= 1)):
+            self.fail(where, f"primvars:{BLEND_WEIGHTS}: values outside [0, 1] (or NaN)")
+        return b.astype(np.float32)
+
     def load_prim(self, q, skeleton, skel_prim):
         """A skinned point-based prim → :class:`Mesh`."""
         prim = q.GetPrim()
@@ -890,6 +911,9 @@ class _Loader:
             self.fail(where, "primvars:skel:geomBindTransform has NaN or infinite entries")
         deform = _RestDeformer.build(self, where, q, skeleton, points_attr, points, normals,
                                      normal_vertex)
+        blend = self.blend_weights(where, prim, V)
+        if blend is not None:
+            method = "blend"
         self.meshes.append(Mesh(
             name=where, points=points, faces=tris, joint_indices=idx, joint_weights=wts,
             skeleton=skeleton, geom_bind_transform=geom_bind,
@@ -898,7 +922,7 @@ class _Loader:
             output_transforms=_output_transforms(self, where, skel_prim, prim),
             world_transforms=_world_transforms(self, prim, skel_prim),
             deformer=deform,
-            face_vertex_counts=counts, face_vertex_indices=fvi, uvs=uvs))
+            face_vertex_counts=counts, face_vertex_indices=fvi, uvs=uvs, blend_weights=blend))
 
     def load_rigid(self, q, skeleton, skel_prim):
         """A skinned prim without points (Sphere, Cube, ...): moved as a whole by UsdSkel."""

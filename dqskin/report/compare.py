@@ -18,7 +18,9 @@ and frame (see :mod:`dqskin.metrics`):
 Each joint value comes with the joint's bend and twist relative to its parent at that frame
 (:func:`~dqskin.metrics.joint_bend_twist`).
 
-The ``blend`` method mixes the two with a DQS fraction of :data:`BLEND_WEIGHT` on every vertex.
+The ``blend`` method mixes the two with each mesh's own per-vertex DQS fractions
+(``Mesh.blend_weights``: an FBX file's DQ weights, ``primvars:dqskin:blendWeights``) and
+:data:`BLEND_WEIGHT` on every vertex of the others.
 
 All meshes are rendered together in skeleton space (up axis ``scene.up_axis`` unless given), one
 camera per view framed once from the bounds over every frame and method, so the images line up.
@@ -62,7 +64,8 @@ __all__ = ["BLEND_WEIGHT", "DISTANCE_UNIT", "MAX_RAYS", "SWEEP_RIGS", "TIE", "Re
            "run_compare", "skeleton_up_axis", "summary_lines", "sweeps"]
 
 BLEND_WEIGHT = DEFAULT_BLEND
-"""DQS fraction of every vertex for ``method="blend"`` (0 = LBS, 1 = DQS)."""
+"""DQS fraction of every vertex for ``method="blend"`` (0 = LBS, 1 = DQS) of meshes without their
+own ``blend_weights``."""
 
 SWEEP_RIGS = {
     "twist": ("twist_cylinder.usda", 0.5, 3.0),
@@ -83,9 +86,21 @@ MAX_RAYS = 8192
 
 
 
-def _label(method):
-    """A method's label in images and text (the blend with its DQS fraction)."""
-    return f"Blend ({BLEND_WEIGHT:g} DQS)" if method == "blend" else method_label(method)
+def _label(method, per_vertex=False):
+    """A method's label in images and text (the blend with its DQS fraction, or "per-vertex"
+    when a mesh has its own ``blend_weights``)."""
+    if method != "blend":
+        return method_label(method)
+    return "Blend (per-vertex DQS)" if per_vertex else f"Blend ({BLEND_WEIGHT:g} DQS)"
+
+
+def _own_blend(scene, methods):
+    """Mesh name → mean of its own blend weights, for the meshes that have them (when the blend
+    is compared)."""
+    if "blend" not in methods:
+        return {}
+    return {m.name: float(np.mean(m.blend_weights)) for m in scene.meshes
+            if m.blend_weights is not None and len(m.blend_weights)}
 
 
 _FRAME_FILE = re.compile(r"^(?:(?:%s)_\d{3}|closeup)\.png$" % "|".join(VIEWS))
@@ -342,7 +357,8 @@ def _render_count(times, methods, views, heat, closeup):
     return len(times) * len(views) * per_frame + per_frame * bool(closeup)
 
 
-def _render(meshes, times, methods, render, frames_dir, closeup, distance, bar, device):
+def _render(meshes, times, methods, render, frames_dir, closeup, distance, bar, device,
+            per_vertex=False):
     """Render every panel to ``frames_dir`` with ``render`` (:class:`RenderSettings`, its up
     axis set); returns {view: [paths per frame]} and the close-up."""
     views, up_axis, width = render.views, render.up_axis, render.width
@@ -361,7 +377,7 @@ def _render(meshes, times, methods, render, frames_dir, closeup, distance, bar, 
     heat_range = (0.0, dmax if dmax > 0 else 1.0)
     renderers = {meth: MeshRenderer(posed[meth][0], faces, device=device) for meth in methods}
     heat_renderer = renderers["dqs"] if heat else None
-    labels = [_label(m) for m in methods] + (["|LBS - DQS|"] if heat else [])
+    labels = [_label(m, per_vertex) for m in methods] + (["|LBS - DQS|"] if heat else [])
 
     def panel(f, cams, dims):
         images: dict[str, list[np.ndarray]] = {v: [] for v in cams}
@@ -700,8 +716,9 @@ def _compare(report: _Report, bar: Any, t0: float) -> dict[str, Any]:
     t_metrics = time.perf_counter()
 
     bar.set_postfix_str("rendering")
+    own_blend = _own_blend(scene, methods)
     panels, closeup_path, dmax = _render(meshes, times, methods, render, frames_dir, closeup,
-                                         distance, bar, device)
+                                         distance, bar, device, bool(own_blend))
     if closeup is None:
         bar.update(len(methods) + heat)
     t_render = time.perf_counter()
@@ -747,6 +764,7 @@ def _compare(report: _Report, bar: Any, t0: float) -> dict[str, Any]:
         "asset": str(scene.path),
         "methods": list(methods),
         "blend_weight": BLEND_WEIGHT if "blend" in methods else None,
+        "blend_per_vertex": own_blend,
         "frames": _json_floats(times),
         "time_codes_per_second": float(scene.time_codes_per_second),
         "up_axis": render.up_axis,
@@ -796,17 +814,18 @@ def summary_lines(result: dict[str, Any]) -> list[str]:
     """The summary of a :func:`run_compare` result as text lines: each metric's worst value per
     method and the best method (or the methods that tie, or why it was not measured)."""
     lines = []
+    per_vertex = bool(result.get("blend_per_vertex"))
     for metric, s in result["summary"].items():
-        worst_values = ", ".join(f"{_label(m)} {r['value']:.3f} @ t={r['time']:g}"
+        worst_values = ", ".join(f"{_label(m, per_vertex)} {r['value']:.3f} @ t={r['time']:g}"
                                  for m, r in s["by_method"].items() if r is not None)
         if not worst_values:
             lines.append(f"  {metric}: not measured ({s.get('unmeasured') or 'no value'})")
             continue
         best = s["winner"]
         if best == "tie":
-            best = ("tie: " + ", ".join(_label(m) for m in s["leaders"])
+            best = ("tie: " + ", ".join(_label(m, per_vertex) for m in s["leaders"])
                     + f" within {result.get('tie', TIE):g}")
         else:
-            best = _label(best)
+            best = _label(best, per_vertex)
         lines.append(f"  {metric}: {worst_values}; best: {best}")
     return lines

@@ -34,6 +34,18 @@ _NAMES = {"lbs": "LBS", "dqs": "DQS", "blend": "Blend", "cor": "CoR"}
 _PALETTE = ("#ff7f0e", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf")
 
 
+def _blend_note(m: dict) -> str:
+    """The methods row's note on the blend's DQS fractions."""
+    if m.get("blend_weight") is None:
+        return ""
+    own = m.get("blend_per_vertex") or {}
+    if not own:
+        return f" (blend: DQS fraction {m['blend_weight']:g} on every vertex)"
+    means = ", ".join(f"{_esc(k)} mean {v:.3g}" for k, v in own.items())
+    return (f" (blend: the asset's per-vertex DQS fractions: {means}; "
+            f"{m['blend_weight']:g} on every vertex of other meshes)")
+
+
 def method_label(method: str) -> str:
     """Display name of a skinning method (its upper-cased key when it has none)."""
     return _NAMES.get(method, str(method).upper())
@@ -285,8 +297,10 @@ def _viewer_section(m: dict[str, Any],
 
     times, (meta, blob) = viewer
     methods = m["methods"]
-    labels = [f"Blend ({m['blend_weight']:g} DQS)" if x == "blend" else method_label(x)
-              for x in methods]
+    blend = ("Blend (per-vertex DQS)" if m.get("blend_per_vertex")
+             else f"Blend ({m['blend_weight']:g} DQS)" if m.get("blend_weight") is not None
+             else "")
+    labels = [blend if x == "blend" else method_label(x) for x in methods]
     heat_label = (f"|{labels[0]} − {labels[1]}|" if len(methods) == 2
                   else "largest distance between any two methods")
     worst_frames = [{"time": m["frames"][f], "why": "; ".join(why)}
@@ -333,8 +347,7 @@ def build_html(metrics: dict[str, Any], out_dir: str | os.PathLike, *,
              f"<tr><th class=l>meshes</th><td>{len(m['meshes'])} rendered together: "
              f"{render['vertices']} vertices, {render['faces']} triangles</td></tr>"
              f"<tr><th class=l>methods</th><td>{', '.join(method_label(x) for x in m['methods'])}"
-             + (f" (blend: DQS fraction {m['blend_weight']:g} on every vertex)"
-                if m.get("blend_weight") is not None else "") + "</td></tr>"
+             + _blend_note(m) + "</td></tr>"
              f"<tr><th class=l>frames</th><td>{len(t)} times: "
              f"{_esc(', '.join(f'{x:g}' for x in t))}"
              f" ({m['time_codes_per_second']:g} per second)</td></tr>"

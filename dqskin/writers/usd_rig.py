@@ -7,7 +7,9 @@ with the animation sampled at the scene's times (``translations``, ``rotations``
 ``Mesh`` with ``SkelBindingAPI``: ``skel:skeleton``, ``primvars:skel:jointIndices`` and
 ``jointWeights`` (vertex interpolation, ``elementSize`` K), ``primvars:skel:geomBindTransform``
 and ``primvars:skel:skinningMethod`` (``classicLinear`` for "lbs", ``dualQuaternion`` for
-"dqs"). A skeleton placed in the world (in a USD scene its prim's local-to-world, time-sampled
+"dqs"; a "blend" mesh: the one nearer its mean blend weight, and its per-vertex weights as
+``primvars:dqskin:blendWeights``, which dqskin reads back as the "blend" method). A skeleton
+placed in the world (in a USD scene its prim's local-to-world, time-sampled
 when animated: a converter's ``Z_UP`` group, say) is written with its meshes under an ``Xform``
 (``/Root/Placement``) whose ``xformOp:transform`` is that placement: UsdSkel takes skinned
 points to the world by the skeleton's transform, and Blender's importer, which ignores a skinned
@@ -138,6 +140,8 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
     """
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
 
+    from ..readers.usd import BLEND_WEIGHTS
+
     out = Path(out)
     if out.suffix.lower() not in RIG_SUFFIXES:
         raise InputError(Param("out", out), f": a rig is written as {'/'.join(RIG_SUFFIXES)}")
@@ -215,6 +219,12 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
                                                                 np.float64).T.tolist()))
         if m.skinning_method in _METHODS:
             bind.CreateSkinningMethodAttr(_METHODS[m.skinning_method])
+        elif m.skinning_method == "blend":  # UsdSkel's nearest method, and the weights
+            b = m.blend_or_default()
+            bind.CreateSkinningMethodAttr(_METHODS["dqs" if b.mean() >= 0.5 else "lbs"])
+            UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
+                BLEND_WEIGHTS, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
+                Vt.FloatArray.FromNumpy(b))
     stage.GetRootLayer().documentation = f"dqskin rig of {scene.path}"
     claim = atomic_path(out, overwrite=force)
     try:
