@@ -29,15 +29,26 @@ from .options import Method
 from .readers import bvh
 from .readers.mesh import load_mesh
 from .scene import Mesh, Scene
+from .skeleton import Skeleton
 
-__all__ = ["WEIGHT_FIELDS", "check_fit", "read_weights", "replace_weights", "rig_mesh",
-           "skinned_difference"]
+__all__ = ["WEIGHT_FIELDS", "FitWarning", "check_fit", "fit_problems", "read_weights",
+           "replace_weights", "rig_mesh", "skinned_difference"]
 
 WEIGHT_FIELDS = ("joint_indices", "joint_weights", "joint_names")
 """Arrays of a weights ``.npz``: (V, K) int, (V, K) float, (J,) str."""
 
 _SIZE_RATIO = 2.0  # mesh and skeleton heights may differ by up to this factor
 _INSIDE = 0.75  # share of joints that must lie in the mesh's (padded) bounding box
+_FAR = 0.10  # a vertex farther than this share of the height from every bone is "far"
+_FAR_SHARE = 0.01  # ... and a fit with this share of far vertices is bad
+_OUTSIDE_SHARE = 0.10  # a fit with this share of its bones' midpoints outside the mesh is bad
+_FEET_BELOW = 0.02  # the skeleton's lowest point below the mesh's, as a share of its height
+_FEET_ABOVE = 0.08  # ... or above it
+
+
+class FitWarning(UserWarning):
+    """A rig that binds but fits its mesh badly (:func:`fit_problems`); one line, with the
+    figure."""
 
 
 def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_count: int
@@ -104,8 +115,67 @@ def check_fit(points: np.ndarray, joint_positions: np.ndarray, where: str) -> No
             f"{where}: the mesh is far from its skeleton (only {inside.sum()} of {inside.size} "
             f"rest joints inside the mesh's bounds; mesh centre {np.round(mc, 4).tolist()}, "
             f"skeleton centre {np.round(sc, 4).tolist()}): model the mesh in the BVH's rest pose "
-            "(every channel zero) and space, moved by "
-            f"{np.round(mc - sc, 4).tolist()} back onto the skeleton")
+            "(every channel zero) and space: add "
+            f"{np.round(sc - mc, 4).tolist()} to its points to move it onto the skeleton")
+
+
+def fit_problems(points: npt.ArrayLike, faces: npt.ArrayLike, skeleton: Skeleton, *,
+                 end_sites: list | None = None, up: int = 1) -> list[str]:
+    """How a skeleton's bind pose misfits a mesh, one line per problem (empty when it fits):
+
+    * vertices far from every bone: more than 1% of them farther than 10% of the mesh's height
+      from their nearest bone segment (:func:`dqskin.autoweights.bone_segments`);
+    * bones outside the mesh: more than 10% of the bones' midpoints outside the surface
+      (generalized winding number below ½);
+    * feet off the floor: the skeleton's lowest point (joints and End Sites) more than 2% of the
+      height below the mesh's lowest point, or more than 8% above it, along axis ``up``.
+
+    Parameters
+    ----------
+    points : (V, 3) float
+        Rest points, in the skeleton's space.
+    faces : (T, 3) int
+    skeleton : dqskin.Skeleton
+        Its bind transforms place the bones.
+    end_sites : list of (joint, (3,) float), optional
+        BVH End Sites (joint-local leaf tips).
+    up : int
+        The up axis (0, 1, 2): Y by default, as BVH.
+
+    Returns
+    -------
+    list of str
+        Each line names the problem and its figure in % of the mesh's height.
+    """
+    from .autoweights import bone_segments
+    from .geometry import segment_distances, winding_numbers
+    P = np.asarray(points, np.float64)
+    F = np.asarray(faces, np.int64).reshape(-1, 3)
+    height = float(np.ptp(P[:, up])) if len(P) else 0.0
+    if height <= 0:
+        return []
+    heads, tails, owner = bone_segments(skeleton, end_sites=end_sites)
+    out = []
+    near = segment_distances(P, heads, tails).min(1) / height
+    far = near > _FAR
+    if far.mean() > _FAR_SHARE:
+        out.append(f"{100 * far.mean():.1f}% of the vertices are farther than "
+                   f"{100 * _FAR:.0f}% of the height from every bone (farthest "
+                   f"{100 * near.max():.1f}%)")
+    long = np.linalg.norm(tails - heads, axis=1) > 1e-6 * height
+    if F.size and long.any():
+        mid = 0.5 * (heads[long] + tails[long])
+        outside = winding_numbers(mid, P, F) < 0.5
+        if outside.mean() > _OUTSIDE_SHARE:
+            names = sorted({skeleton.joint_names[j] for j in owner[long][outside]})
+            out.append(f"{outside.sum()} of {outside.size} bones lie outside the mesh "
+                       f"({', '.join(names[:4])}{' …' if len(names) > 4 else ''})")
+    tips = np.concatenate([heads, tails])
+    gap = (tips[:, up].min() - P[:, up].min()) / height
+    if gap < -_FEET_BELOW or gap > _FEET_ABOVE:
+        out.append(f"the skeleton's feet are {100 * abs(gap):.1f}% of the height "
+                   f"{'below' if gap < 0 else 'above'} the mesh's lowest point")
+    return out
 
 
 def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
