@@ -43,6 +43,7 @@ __all__ = ["embed_skeleton", "embedding_errors", "skeleton_tips"]
 
 _TIP_GROUP = 0.2  # tips closer than this share of the skeleton's height (along bones): one limb
 _RING = 0.01  # level-set width of the centre lines, share of the mesh's height
+_LIMB_START = 0.15  # rings merge (fingers, toes) nearer the tip than this share of the height
 _NEAR_LINE = 0.05  # a joint walks along a limb's centre line from a parent this near it
 _HIP_OVER_CROTCH = 1.04  # hip joints' height over the crotch's (CesiumMan, RiggedFigure, MakeHuman)
 
@@ -214,6 +215,7 @@ def _centre_line(surface, tip_vertex, step, stop):
     within half a step (at least one long edge) of its level, around the geodesic path."""
     d = surface.geodesic(tip_vertex)
     half = max(0.5 * step, surface.long_edge)
+    H = float(np.ptp(surface.points[:, 1]))
     jump = max(4 * step, 2 * surface.long_edge)
     line = [surface.points[tip_vertex]]
     k = 1
@@ -222,7 +224,7 @@ def _centre_line(surface, tip_vertex, step, stop):
         if mask.any():
             seed = int(np.nonzero(mask)[0][np.argmin(np.abs(d[mask] - k * step))])
             c = surface.ring_centroid(mask, seed)
-            if len(line) > 2 and np.linalg.norm(c - line[-1]) > jump:
+            if k * step > _LIMB_START * H and np.linalg.norm(c - line[-1]) > jump:
                 break  # the ring has merged with the body: the limb ends here
             line.append(c)
         k += 1
@@ -243,7 +245,7 @@ def _walk(line, start, length):
             disc = max(B * B - 4 * A * C, 0.0)
             u = (-B + np.sqrt(disc)) / (2 * A) if A > 0 else 0.0
             return a + np.clip(u, 0.0, 1.0) * d
-    return line[-1].copy()
+    return None
 
 
 def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton, *,
@@ -300,6 +302,7 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
               else np.array(sorted({int(j) for j in np.ravel(deforming)})))
     is_def = np.isin(np.arange(J), deform)
     tips0, owners = skeleton_tips(skeleton, end_sites, joints=deform)
+    site_tips = np.isin(owners, [int(j) for j, _ in end_sites or []])
     tips = tips0 @ R.T
     ref = np.concatenate([X_in[deform], tips])
     h_skel = float(np.ptp(ref[:, 1])) or 1.0
@@ -345,6 +348,8 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
         order = sorted(zip(rows, cols), key=lambda rc: -T[groups[rc[0]]][:, 1].max())
         for gi, ei in order:  # the highest (a head: the spine) first
             line = _centre_line(surface, ext[ei], _RING * H, 0.75 * H)[::-1]  # base → tip
+            if len(groups[gi]) == 1 and site_tips[groups[gi]].all():  # a tip on the surface
+                _walk_in(skeleton, X, X_in, Xr, placed, line, tips, owners, groups[gi], root, s)
             for j in _limb_joints(skeleton, owners[groups[gi]], root, children, all_=True):
                 if placed[j]:
                     continue
@@ -354,7 +359,8 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
                 if len(children[p]) > 1 or length < 1e-9 * H or far:
                     Xr[j] = Xr[p] + (X[j] - X[p])  # a limb's base, or off the limb: as scaled
                 else:
-                    Xr[j] = _walk(line, Xr[p], length)
+                    x = _walk(line, Xr[p], length)
+                    Xr[j] = line[-1] if x is None else x
                 placed[j] = True
     # the rest: their scaled offsets from their (placed) parents
     for j in range(J):
@@ -365,6 +371,61 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
     for j, x in overrides.items():
         out[j] = x
     return _with_positions(skeleton, out, deform)
+
+
+def _walk_in(skeleton, X, X_in, Xr, placed, line, tips, owners, group, root, s):
+    """Place the chain to a group's farthest End Site from the extremity inwards, each joint at
+    its scaled bone length along the centre line, while the line lasts; the joints between the
+    nearest placed ancestor and the first one walked keep their shape, stretched (a
+    similarity) to join them."""
+    par = skeleton.parents
+
+    def path(j):
+        out = []
+        while j >= 0 and j != root:
+            out.append(int(j))
+            j = par[j]
+        return out[::-1]
+
+    def reach(t):
+        p = path(owners[t])
+        pts = [X_in[root]] + [X_in[j] for j in p] + [tips[t]]
+        return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+
+    t = max(group, key=reach)
+    chain = path(owners[t])
+    limb = _limb_joints(skeleton, [owners[t]], root,
+                        [np.nonzero(par == j)[0] for j in range(len(par))])
+    base = next((j for j in limb if np.linalg.norm(X_in[j] - X_in[par[j]]) > 0), None)
+    if base is not None:  # the limb's base (a hip, a clavicle) is not walked
+        chain = chain[chain.index(base) + 1:]
+    back = line[::-1]  # tip → base
+    cur, nxt = back[0], tips[t]
+    first = None
+    for j in reversed(chain):
+        if placed[j]:
+            break
+        length = s * float(np.linalg.norm(nxt - X_in[j]))
+        x = _walk(back, cur, length) if length > 0 else cur.copy()
+        if x is None:
+            break
+        Xr[j], placed[j] = x, True
+        cur, nxt, first = x, X_in[j], j
+    if first is None:
+        return
+    # the joints between the placed ancestor and ``first``: stretched to join them
+    between = []
+    a = par[first]
+    while a >= 0 and not placed[a]:
+        between.append(a)
+        a = par[a]
+    if a < 0 or not between:
+        return
+    u, v = X[first] - X[a], Xr[first] - Xr[a]
+    nu = np.linalg.norm(u)
+    M = (np.linalg.norm(v) / nu if nu > 0 else 1.0) * best_rotation(u[None], v[None])
+    for j in between:
+        Xr[j], placed[j] = Xr[a] + M @ (X[j] - X[a]), True
 
 
 def _unit(v):
