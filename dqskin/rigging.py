@@ -116,9 +116,9 @@ def check_fit(points: np.ndarray, joint_positions: np.ndarray, where: str, *,
         mc, sc = 0.5 * (lo + hi), 0.5 * (jlo + jhi)
         raise InputError(
             f"{where}: the mesh is far from its skeleton (only {inside.sum()} of {inside.size} "
-            f"rest joints inside the mesh's bounds; mesh centre {np.round(mc, 4).tolist()}, "
-            f"skeleton centre {np.round(sc, 4).tolist()}): model the mesh in the BVH's rest pose "
-            "(every channel zero) and space: add "
+            f"rest joints and End Sites inside the mesh's bounds; bounding-box centres: mesh "
+            f"{np.round(mc, 4).tolist()}, skeleton {np.round(sc, 4).tolist()}): model the mesh "
+            "in the BVH's rest pose (every channel zero) and space: add "
             f"{np.round(sc - mc, 4).tolist()} to its points to move it onto the skeleton")
 
 
@@ -275,8 +275,11 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
         end_sites = _embedded_end_sites(skel, embedded, end_sites)
         skel = retarget(motion, embedded)
     else:
-        check_fit(points.astype(np.float64), skel.bind_transforms[:, :3, 3],
-                  f"{where} on {motion.path}", scale=1.0 if scale is None else float(scale))
+        bind = skel.bind_transforms
+        ends = [(bind[j] @ np.append(np.asarray(o, np.float64), 1.0))[:3] for j, o in end_sites]
+        check_fit(points.astype(np.float64), np.concatenate([bind[:, :3, 3]] + [
+            np.reshape(ends, (-1, 3))]), f"{where} on {motion.path}",
+            scale=1.0 if scale is None else float(scale))
     for line in fit_problems(points, faces, skel, end_sites=end_sites):
         warnings.warn(FitWarning(f"{where} on {motion.path}: {line}"), stacklevel=2)
     if weights is None or str(weights) == "auto":
