@@ -82,15 +82,15 @@ def skeleton_tips(skeleton: Skeleton, end_sites: list | None = None, *,
     for j, off in end_sites or []:
         sites.setdefault(int(j), []).append((bind[j] @ np.append(np.asarray(off, float), 1))[:3])
     tips, owners = [], []
-    for j in np.nonzero(keep & ~has_child)[0]:
+    for j in (int(k) for k in np.nonzero(keep & ~has_child)[0]):
         if sites.get(int(j)):
             for t in sites[int(j)]:
                 tips.append(t)
                 owners.append(j)
             continue
-        p = skeleton.parents[j]
+        p = int(skeleton.parents[j])
         while p >= 0 and np.linalg.norm(pos[p] - pos[j]) < 1e-9:
-            p = skeleton.parents[p]
+            p = int(skeleton.parents[p])
         tips.append(pos[j] + (leaf_fraction * (pos[j] - pos[p]) if p >= 0 else 0.0))
         owners.append(j)
     return np.asarray(tips, np.float64).reshape(-1, 3), np.asarray(owners, np.int64)
@@ -487,7 +487,7 @@ def _crotch(surface, v1, v2):
 
 
 def _check_overrides(joints, skeleton):
-    out = {}
+    out: dict[int, np.ndarray] = {}
     if not joints:
         return out
     index = {n: k for k, n in enumerate(skeleton.joint_names)}

@@ -48,16 +48,16 @@ def winding_numbers(queries: npt.ArrayLike, points: npt.ArrayLike, faces: npt.Ar
 def align_rotation(a: npt.ArrayLike, b: npt.ArrayLike) -> np.ndarray:
     """(3, 3) float64 the smallest rotation taking direction ``a`` (3,) onto direction ``b``
     (identity when either is zero; a half turn about an axis normal to ``a`` when opposite)."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    u, w = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    na, nb = np.linalg.norm(u), np.linalg.norm(w)
     if na < 1e-300 or nb < 1e-300:
         return np.eye(3)
-    a, b = a / na, b / nb
-    v, c = np.cross(a, b), float(a @ b)
+    u, w = u / na, w / nb
+    v, c = np.cross(u, w), float(u @ w)
     if c < -1.0 + 1e-12:
-        axis = np.cross(a, [1.0, 0.0, 0.0])
+        axis = np.cross(u, np.array([1.0, 0.0, 0.0]))
         if np.linalg.norm(axis) < 1e-6:
-            axis = np.cross(a, [0.0, 1.0, 0.0])
+            axis = np.cross(u, np.array([0.0, 1.0, 0.0]))
         axis /= np.linalg.norm(axis)
         return 2.0 * np.outer(axis, axis) - np.eye(3)
     k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
