@@ -14,8 +14,8 @@ kernel load), with the time of each phase, on
 
 Accuracy: each character's artist weights (CesiumMan, RiggedFigure, greenman) replaced by
 automatic ones (:func:`dqskin.rigging.replace_weights`) or by nearest-bone rigid weights, both
-skinned with LBS under the character's first clip (greenman: "2_move", its first is a still pose) at 24 frames
-per second; the error is the
+skinned with LBS under the character's first clip (greenman: "2_move", its first is a still
+pose) at 24 frames per second; the error is the
 distance to the artist's skinned points in % of the rest mesh's **vertical height** (its extent
 along the up axis of its bind pose: Z for CesiumMan and RiggedFigure, Y for greenman): the mean
 and the 95th percentile over the vertices, at the worst frame. Blender 5.0.1's best
