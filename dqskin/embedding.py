@@ -5,20 +5,31 @@ The input skeleton (e.g. a capture's, another person's) gives the hierarchy, the
 bones' relative lengths; its size, pose and placement are only a starting guess. The mesh gives
 the rest:
 
-1. **Extremities.** Geodesic distances over the mesh's edge graph from the surface point nearest
-   the skeleton's root; the mesh's extremities are picked by farthest-point sampling (the head,
-   the hands, the feet of a biped), as many as the skeleton has groups of leaf tips (its tips
-   closer than a fifth of its height along the bones are one group: a hand's fingers).
-2. **Limbs.** Each group of tips is matched to an extremity by direction from the root
-   (Hungarian assignment), after the skeleton is scaled to the mesh's height and stood on its
-   floor. A limb's centre line is the chain of centroids of the level sets of the geodesic
-   distance from its extremity (the rings around an arm, a leg, the neck).
-3. **Joints.** The root goes to the centroid of the mesh's horizontal cross-section at its
-   height; the joints of a limb are walked out along its centre line from the limb's base, each
-   at its bone's scaled length from its parent (the ends clamped to the centre line's end);
-   other joints (the spine, the clavicles) keep their place relative to the root, scaled.
-4. **Overrides.** ``joints`` (name → position) replace any joint's position, after the others
+1. **Extremities.** Geodesic distances over the mesh's edge graph (its parts joined at their
+   nearest points) from the surface point nearest the middle of its bounding box; the mesh's
+   extremities are picked by farthest-point sampling (the head, the hands, the feet of a biped),
+   as many as the skeleton has groups of leaf tips (tips closer than a fifth of its height along
+   the bones are one group: a hand's fingers). Each group is matched to an extremity by
+   direction from the root (Hungarian assignment).
+2. **Scale.** The skeleton is scaled so that its hip joints (the first joints, away from the
+   root, of the two limbs with the lowest extremities) are level with the mesh's crotch (the
+   highest point of the shortest surface path between the feet), else to the mesh's height; it
+   stands on the mesh's floor, its root at the centroid of the mesh's horizontal section there.
+3. **Centre lines.** A limb's centre line is the chain of centroids of the rings of geodesic
+   distance from its extremity (around a leg, an arm, the neck), up to where the ring merges
+   with the body (the centroid jumps; fingers and toes merging near the tip do not count).
+4. **Joints.** Limbs are placed highest extremity first (the head, so the spine). A limb that
+   ends in one BVH End Site is walked in from the extremity, each joint at its scaled bone
+   length along the centre line, down to (not including) the limb's base (a hip, a clavicle),
+   the joints between stretched to join; the others are walked out from their parents along the
+   centre line; a limb's base, and joints far from any centre line, keep their scaled offsets
+   from their parents.
+5. **Overrides.** ``joints`` (name → position) replace any joint's position, after the others
    are placed.
+
+The guess's pose matters for the matching and for the joints kept at their scaled offsets: a
+standing figure in a T, A or I pose, or any pose within about 10° per joint of the mesh's,
+is embedded; a limb far from its place in the guess may be matched to the wrong extremity.
 
 The bind rotations carry the rest-pose difference per joint: joint ``j`` of the result has the
 input's bind rotation turned by the rotation ``A_j`` that takes the input's bone directions (to
@@ -45,7 +56,6 @@ _TIP_GROUP = 0.2  # tips closer than this share of the skeleton's height (along 
 _RING = 0.01  # level-set width of the centre lines, share of the mesh's height
 _LIMB_START = 0.15  # rings merge (fingers, toes) nearer the tip than this share of the height
 _NEAR_LINE = 0.05  # a joint walks along a limb's centre line from a parent this near it
-_HIP_OVER_CROTCH = 1.04  # hip joints' height over the crotch's (CesiumMan, RiggedFigure, MakeHuman)
 
 
 def skeleton_tips(skeleton: Skeleton, end_sites: list | None = None, *,
@@ -324,7 +334,7 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
                 for g in (g1, g2)]
         drop = float(np.mean(X_in[hips, 1])) - ref[:, 1].min()
         if crotch > lo[1] and drop > 0:
-            s = _HIP_OVER_CROTCH * (crotch - lo[1]) / drop
+            s = (crotch - lo[1]) / drop  # the hip joints level with the crotch
     # scaled, standing on the floor, root at the centre of the mesh's section at its height
     X = (X_in - X_in[root]) * s
     T = (tips - X_in[root]) * s

@@ -23,7 +23,7 @@ from dqskin.readers.mesh import load_mesh
 from dqskin.retarget import world_transforms
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-from bench_embedding import MAKEHUMAN_MARKERS, displaced  # noqa: E402
+from bench_embedding import MAKEHUMAN_MARKERS, displaced, reposed  # noqa: E402
 
 FRAMES = 40
 
@@ -39,20 +39,22 @@ def _short_capture(src, folder, frames=FRAMES, step=6):
     return out
 
 
-@pytest.mark.parametrize("path, up, mean_max, worst_max", [
-    ("khronos-gltf/CesiumMan/CesiumMan.glb", 2, 3.0, 6.0),
-    ("usd-wg/RiggedFigure/RiggedFigure.usdz", 2, 4.5, 7.0),  # misses the 3% target: see docs
+@pytest.mark.parametrize("path, up, pose, mean_max, worst_max", [
+    ("khronos-gltf/CesiumMan/CesiumMan.glb", 2, False, 2.0, 3.5),
+    ("khronos-gltf/CesiumMan/CesiumMan.glb", 2, True, 2.5, 4.5),
+    ("usd-wg/RiggedFigure/RiggedFigure.usdz", 2, False, 3.0, 4.5),
 ])
-def test_embedding_finds_the_artists_joints(shared_assets, path, up, mean_max, worst_max):
-    """The character's own skeleton, shrunk and moved off the mesh, embedded from scratch:
-    every joint against the artist's, in % of the mesh's height."""
+def test_embedding_finds_the_artists_joints(shared_assets, path, up, pose, mean_max, worst_max):
+    """The character's own skeleton, shrunk and moved off the mesh (and re-posed: every joint
+    turned by 5–10°), embedded from scratch: every joint against the artist's, in % of the
+    mesh's height."""
     scene = readers.load(shared_assets / path)
     m = scene.meshes[0]
     skel = scene.skeletons[m.skeleton]
     g = m.geom_bind_transform
     pts = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
     used = np.unique(np.asarray(m.joint_indices)[np.asarray(m.joint_weights) > 0])
-    guess = displaced(skel, up=up)
+    guess = displaced(reposed(skel) if pose else skel, up=up)
     assert np.abs(guess.bind_transforms[used, :3, 3] - skel.bind_transforms[used, :3, 3]
                   ).max() > 0.5 * np.ptp(pts[:, up]), "the guess is nowhere near the answer"
     got = embed_skeleton((pts, m.faces), guess, deforming=used, up=up)
@@ -76,7 +78,7 @@ def test_embedding_a_capture_skeleton_in_makehuman(shared_assets):
     truth = np.array([markers[v] for v in MAKEHUMAN_MARKERS.values()])
     mean, worst, per = embedding_errors(got.bind_transforms[idx, :3, 3], truth,
                                         np.ptp(pts[:, 1]))
-    assert mean <= 3.5 and worst <= 6.5, (mean, worst, per)
+    assert mean <= 3.2 and worst <= 7.0, (mean, worst, per)
     # the elbows bend out of the capture's straight-down arms into the body's A-pose
     for side in "LR":
         e = skel.joint_names.index(("Left" if side == "L" else "Right") + "Elbow")

@@ -64,11 +64,33 @@ def displaced(skel, factor=0.6, up=1):
     return Skeleton(skel.joint_names, skel.parents, bind, name=skel.name)
 
 
-def run_character(name, path, up):
+def reposed(skel, degrees=10.0, seed=0):
+    """The skeleton with every joint's local rotation turned by a random rotation of up to
+    ``degrees`` (fixed ``seed``): another pose, the same bones."""
+    from scipy.spatial.transform import Rotation
+
+    from dqskin import Skeleton
+    from dqskin.retarget import world_transforms
+    bind = skel.bind_transforms
+    local = bind.copy()
+    has = skel.parents >= 0
+    local[has] = np.linalg.inv(bind[skel.parents[has]]) @ bind[has]
+    rng = np.random.default_rng(seed)
+    axes = rng.normal(size=(len(local), 3))
+    angles = np.radians(degrees) * rng.uniform(0.5, 1.0, len(local))  # half to all of it
+    turn = Rotation.from_rotvec(axes / np.linalg.norm(axes, axis=1)[:, None]
+                                * angles[:, None]).as_matrix()
+    local[:, :3, :3] = local[:, :3, :3] @ turn
+    world = world_transforms(skel.parents, local[None])[0]
+    return Skeleton(skel.joint_names, skel.parents, world, name=skel.name)
+
+
+def run_character(name, path, up, pose=False):
     from dqskin.embedding import embed_skeleton, embedding_errors
     pts, faces, skel, used = character(path, up)
+    guess = displaced(reposed(skel) if pose else skel, up=up)
     t0 = time.perf_counter()
-    got = embed_skeleton((pts, faces), displaced(skel, up=up), deforming=used, up=up)
+    got = embed_skeleton((pts, faces), guess, deforming=used, up=up)
     dt = time.perf_counter() - t0
     height = float(np.ptp(pts[:, up]))
     mean, worst, per = embedding_errors(got.bind_transforms[used, :3, 3],
@@ -103,6 +125,8 @@ def main(argv=None):
     import warp as wp
     wp.config.quiet = True
     rows = [(f"{n} ({Path(p).suffix[1:]})", *run_character(n, p, up)) for n, p, up in CHARACTERS]
+    rows += [(f"{n} ({Path(p).suffix[1:]}), guess re-posed", *run_character(n, p, up, True))
+             for n, p, up in CHARACTERS if p.endswith(".glb")]
     rows.append(("MakeHuman + CMU skeleton vs markers", *run_makehuman()))
     for label, mean, worst, per, dt in rows:
         print(f"{label}: mean {mean:.2f}%, worst {worst:.2f}% of height ({len(per)} joints, "
