@@ -103,7 +103,9 @@ def bone_segments(skeleton: Skeleton, *, end_sites: list | None = None,
     J = skeleton.joint_count
     scale = max(float(np.ptp(pos, axis=0).max()), 1e-12)
     tiny = 1e-6 * scale
-    heads, tails, owner = [], [], []
+    heads: list[np.ndarray] = []
+    tails: list[np.ndarray] = []
+    owner: list[int] = []
     guessed: list[int] = []  # leaf segments along their parent (no End Site)
     tips: dict[int, list[np.ndarray]] = {}
     for j, off in end_sites or []:
