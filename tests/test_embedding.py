@@ -23,7 +23,7 @@ from dqskin.readers.mesh import load_mesh
 from dqskin.retarget import world_transforms
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-from bench_embedding import MAKEHUMAN_MARKERS, displaced, reposed  # noqa: E402
+from bench_embedding import MAKEHUMAN_MARKERS, character, displaced, reposed  # noqa: E402
 
 FRAMES = 40
 
@@ -48,16 +48,11 @@ def test_embedding_finds_the_artists_joints(shared_assets, path, up, pose, mean_
     """The character's own skeleton, shrunk and moved off the mesh (and re-posed: every joint
     turned by 5–10°), embedded from scratch: every joint against the artist's, in % of the
     mesh's height."""
-    scene = readers.load(shared_assets / path)
-    m = scene.meshes[0]
-    skel = scene.skeletons[m.skeleton]
-    g = m.geom_bind_transform
-    pts = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
-    used = np.unique(np.asarray(m.joint_indices)[np.asarray(m.joint_weights) > 0])
+    pts, faces, skel, used = character(shared_assets / path)
     guess = displaced(reposed(skel) if pose else skel, up=up)
     assert np.abs(guess.bind_transforms[used, :3, 3] - skel.bind_transforms[used, :3, 3]
                   ).max() > 0.5 * np.ptp(pts[:, up]), "the guess is nowhere near the answer"
-    got = embed_skeleton((pts, m.faces), guess, deforming=used, up=up)
+    got = embed_skeleton((pts, faces), guess, deforming=used, up=up)
     assert got.joint_names == skel.joint_names
     np.testing.assert_array_equal(got.parents, skel.parents)
     mean, worst, _ = embedding_errors(got.bind_transforms[used, :3, 3],

@@ -41,7 +41,9 @@ MAKEHUMAN_MARKERS = {
 """CMU joint → MakeHuman marker (hm08 joint-* cubes)."""
 
 
-def character(path, up):
+def character(path):
+    """(points (V, 3) in skeleton space, faces, skeleton, deforming joints) of a character's
+    first mesh; ``path`` under ../shared/assets (or absolute)."""
     from dqskin import readers
     scene = readers.load(SHARED / path)
     m = scene.meshes[0]
@@ -87,7 +89,7 @@ def reposed(skel, degrees=10.0, seed=0):
 
 def run_character(name, path, up, pose=False):
     from dqskin.embedding import embed_skeleton, embedding_errors
-    pts, faces, skel, used = character(path, up)
+    pts, faces, skel, used = character(path)
     guess = displaced(reposed(skel) if pose else skel, up=up)
     t0 = time.perf_counter()
     got = embed_skeleton((pts, faces), guess, deforming=used, up=up)
