@@ -221,3 +221,27 @@ def test_bad_fit_says_so_in_one_line(tmp_path, capsys, shared_assets):
                  "--out", str(tmp_path / "rig.usda")]) == 0
     lines = [x for x in capsys.readouterr().err.splitlines() if x.startswith("warning:")]
     assert any(re.search(r"feet are \d+\.\d% of the height above", x) for x in lines), lines
+
+
+def test_joints_file_is_checked_and_named(tmp_path, capsys, shared_assets):
+    """--joints FILE.json: unreadable files, wrong shapes and unknown joints are refused naming
+    the file or the joint, before any weights; it needs --skeleton and cannot go with --as-is."""
+    capture = _short_capture(shared_assets / "cmu-mocap" / "scaled_131_02.bvh", tmp_path,
+                             frames=3)
+    body = shared_assets / "bodies" / "makehuman" / "base_body.obj"
+    cases = [("{not json", "cannot read joints"), ('{"LeftElbow": [1, 2]}', "expected"),
+             ('{"joints": {"Elbow": [1, 2, 3]}}', "'Elbow' is not a joint")]
+    for text, message in cases:
+        path = tmp_path / "j.json"
+        path.write_text(text)
+        assert main(["rig", str(body), "--skeleton", str(capture), "--joints", str(path),
+                     "--out", str(tmp_path / "r.usda")]) == 2
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err, (text, err)
+    for extra, message in ((["--as-is"], "--as-is"), ([], "needs --skeleton")):
+        argv = ["rig", str(body), "--joints", str(path), "--out", str(tmp_path / "r.usda")]
+        if extra:
+            argv[2:2] = ["--skeleton", str(capture), *extra]
+        assert main(argv) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "r.usda").exists()
