@@ -245,3 +245,36 @@ def test_joints_file_is_checked_and_named(tmp_path, capsys, shared_assets):
         assert main(argv) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "r.usda").exists()
+
+
+def test_retargeted_rig_bakes_the_same_in_usdskel(walk):
+    """UsdSkel.BakeSkinning of the written rig (bind rotations carrying the A-pose) equals
+    dqskin's skinning of it, and has the body's arms down like the capture's."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel
+    capture, body, rig, _ = walk
+    stage = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(rig)))
+    assert UsdSkel.BakeSkinning(stage.Traverse(), Gf.Interval(0, 3))
+    (prim,) = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    attr = UsdGeom.Mesh(prim).GetPointsAttr()
+    ref = np.stack([np.asarray(attr.Get(float(t)), np.float64) for t in range(4)])
+    got = readers.load(rig).skin(np.arange(4.0), method="lbs", space="local")
+    np.testing.assert_allclose(got.points[str(prim.GetPath())], ref,
+                               atol=2e-5 * np.abs(ref).max())
+    rest, _ = load_mesh(body)  # the A-pose's arms (9.9 dm apart) hang down as the capture's
+    assert np.ptp(ref[0][:, 0]) < 0.7 * np.ptp(rest[:, 0]), np.ptp(ref[0][:, 0])
+
+
+def test_scale_refusal_works_as_printed_over_a_given_scale(tmp_path, capsys, shared_assets):
+    """--as-is with a wrong --scale: the suggested --scale replaces it and fits."""
+    from test_autoweights import capsule_body
+    capture = _short_capture(shared_assets / "cmu-mocap" / "scaled_131_02.bvh", tmp_path,
+                             frames=3)
+    motion = bvh.read_bvh(capture)
+    pts, faces = capsule_body(motion.skeleton(), motion.end_sites, count=(6, 6))
+    trimesh.Trimesh(pts * 10.0, faces, process=False).export(tmp_path / "dm.obj")  # decimetres
+    argv = ["rig", str(tmp_path / "dm.obj"), "--skeleton", str(capture), "--as-is", "--out",
+            str(tmp_path / "rig.usda"), "--scale"]
+    assert main(argv + ["100"]) == 2
+    suggested = re.search(r"--scale ([0-9.]+)", capsys.readouterr().err).group(1)
+    assert float(suggested) == pytest.approx(10.0, rel=0.05)
+    assert main(argv + [suggested]) == 0, capsys.readouterr().err
