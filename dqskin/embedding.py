@@ -5,8 +5,9 @@ The input skeleton (e.g. a capture's, another person's) gives the hierarchy, the
 bones' relative lengths; its size, pose and placement are only a starting guess. The mesh gives
 the rest:
 
-1. **Extremities.** Geodesic distances over the mesh's edge graph (its parts joined at their
-   nearest points) from the surface point nearest the middle of its bounding box; the mesh's
+1. **Extremities.** Geodesic distances over the mesh's edge graph (its parts joined where
+   they touch and at their nearest points) from its centre (the middle of its longest shortest
+   path); the mesh's
    extremities are picked by farthest-point sampling (the head, the hands, the feet of a biped),
    as many as the skeleton has groups of leaf tips (tips closer than a fifth of its height along
    the bones are one group: a hand's fingers). Each group is matched to an extremity by
@@ -129,13 +130,20 @@ class _Surface:
         w = np.linalg.norm(P[e[:, 0]] - P[e[:, 1]], axis=1)
         g = sp.coo_matrix((w, (e[:, 0], e[:, 1])), shape=(N, N)).tocsr()
         g = g.maximum(g.T)
-        # join the parts (an eye, a separate limb) to their nearest point of the largest part
+        # join the parts (an eye, separate limbs): points of different parts closer than a long
+        # edge, and each part's nearest point to the largest part
         n, label = connected_components(g, directed=False)
         if n > 1:
+            rows, cols, vals = [], [], []
+            near = cKDTree(P).query_pairs(float(np.percentile(w, 90)), output_type="ndarray")
+            near = near[label[near[:, 0]] != label[near[:, 1]]]
+            rows += near[:, 0].tolist()
+            cols += near[:, 1].tolist()
+            vals += np.maximum(np.linalg.norm(P[near[:, 0]] - P[near[:, 1]], axis=1),
+                               1e-12).tolist()
             big = np.bincount(label).argmax()
             main = np.nonzero(label == big)[0]
             tree = cKDTree(P[main])
-            rows, cols, vals = [], [], []
             for c in range(n):
                 if c == big:
                     continue
@@ -146,7 +154,7 @@ class _Surface:
                 cols.append(main[k[i]])
                 vals.append(max(float(d[i]), 1e-12))
             extra = sp.coo_matrix((vals, (rows, cols)), shape=(N, N)).tocsr()
-            g = (g + extra + extra.T).tocsr()
+            g = g.maximum(extra).maximum(extra.T).tocsr()
         self.graph = g
         self.long_edge = float(np.percentile(w, 90)) if len(w) else 0.0
         area = np.zeros(N)
@@ -156,6 +164,17 @@ class _Surface:
             for k in range(3):
                 np.add.at(area, F[:, k], a / 3)
         self.area = np.maximum(area, 1e-30)
+
+    def centre(self):
+        """A central vertex: the middle of the longest shortest path (between the farthest
+        point from the bounding box's centre and the farthest from that): a biped's waist."""
+        mid = 0.5 * (self.points.min(0) + self.points.max(0))
+        d0 = self.geodesic(int(np.argmin(np.linalg.norm(self.points - mid, axis=1))))
+        da = self.geodesic(int(np.argmax(np.where(np.isfinite(d0), d0, -1))))
+        db = self.geodesic(int(np.argmax(np.where(np.isfinite(da), da, -1))))
+        total = da + db
+        on_path = total <= np.nanmin(total) * 1.02
+        return int(np.argmin(np.where(on_path, np.abs(da - db), np.inf)))
 
     def geodesic(self, sources):
         from scipy.sparse.csgraph import dijkstra
@@ -321,9 +340,7 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
         root = int(skeleton.parents[root])
     children = [np.nonzero((skeleton.parents == j) & is_def)[0] for j in range(J)]
     groups = _tip_groups(skeleton, tips0, owners, h_skel) if len(tips) else []
-    seed_v = int(np.argmin(np.linalg.norm(P - np.array([0.5 * (lo[0] + hi[0]), lo[1] + 0.5 * H,
-                                                        0.5 * (lo[2] + hi[2])]), axis=1)))
-    ext = _fps(surface.geodesic, surface.geodesic(seed_v), len(groups)) if groups else []
+    ext = _fps(surface.geodesic, surface.geodesic(surface.centre()), len(groups)) if groups else []
     s = H / h_skel
     legs = _legs(groups, tips, ext, P)
     if legs is not None:  # a biped: the crotch (top of the path between the feet) sets the scale
