@@ -25,8 +25,9 @@ rigidly.
 
 Bones: :func:`bone_segments` turns a skeleton's bind pose into segments, each owned by a joint:
 one from every joint to each child not at the same place ("bones pointed at their children"), and
-for a leaf one to its BVH End Site when known, else along its parent's direction (half that
-bone's length).
+for a leaf one to its BVH End Site when known, else pointed into the region of the mesh it owns
+(:func:`shape_leaves`: a head's skull and snout, a hand, a foot), or, without a mesh, along its
+parent's direction (half that bone's length).
 
 Cache: :func:`automatic_weights` stores results as ``.npz`` files (:mod:`dqskin.cache`) under
 :func:`dqskin.cache.cache_dir` (``$DQSKIN_CACHE_DIR``, else ``$XDG_CACHE_HOME/dqskin``, else
@@ -57,16 +58,19 @@ from .kernels import bone_heat as BH
 from .skeleton import Skeleton
 
 __all__ = ["ALGORITHM_VERSION", "automatic_weights", "bone_heat_weights", "bone_segments",
-           "sparsify"]
+           "shape_leaves", "sparsify"]
 
-ALGORITHM_VERSION = 2
+ALGORITHM_VERSION = 3
 """Bumped whenever the weights this module computes change; part of the cache key."""
 
+_LEAF_ITERATIONS = 2  # leaf bones re-pointed at the region they own, this many times
+_LEAF_PERCENTILE = 85  # ... as far as this percentile of the region along their direction
 _NEAR = 1.0e-4  # bones within (1 + _NEAR) of the nearest distance share the heat (as Blender)
 
 
 def bone_segments(skeleton: Skeleton, *, end_sites: list | None = None,
-                  leaf_fraction: float = 0.5, joints: npt.ArrayLike | None = None
+                  leaf_fraction: float = 0.5, joints: npt.ArrayLike | None = None,
+                  points: npt.ArrayLike | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bone segments of a skeleton's bind pose, in skeleton space: from each joint to each of
     its children (through children at the joint's own place, to theirs), else to its End Sites,
@@ -83,6 +87,9 @@ def bone_segments(skeleton: Skeleton, *, end_sites: list | None = None,
     joints : sequence of int, optional
         The joints that deform (own bones); all by default. A glTF skeleton also holds the
         skin's ancestors (an "Armature" node above the hips), which should not take weights.
+    points : (V, 3) float, optional
+        The mesh's rest points (skeleton space). When given, a leaf without an End Site points
+        into the region of the mesh it owns instead of along its parent (:func:`shape_leaves`).
 
     Returns
     -------
@@ -96,7 +103,10 @@ def bone_segments(skeleton: Skeleton, *, end_sites: list | None = None,
     J = skeleton.joint_count
     scale = max(float(np.ptp(pos, axis=0).max()), 1e-12)
     tiny = 1e-6 * scale
-    heads, tails, owner = [], [], []
+    heads: list[np.ndarray] = []
+    tails: list[np.ndarray] = []
+    owner: list[int] = []
+    guessed: list[int] = []  # leaf segments along their parent (no End Site)
     tips: dict[int, list[np.ndarray]] = {}
     for j, off in end_sites or []:
         tips.setdefault(int(j), []).append((bind[j] @ np.append(np.asarray(off, float), 1.0))[:3])
@@ -126,11 +136,62 @@ def bone_segments(skeleton: Skeleton, *, end_sites: list | None = None,
             while p >= 0 and np.linalg.norm(pos[j] - pos[p]) <= tiny:
                 p = skeleton.parents[p]
             ends = [pos[j] + leaf_fraction * (pos[j] - pos[p])] if p >= 0 else [pos[j]]
+            if p >= 0:
+                guessed.append(len(heads))
         for e in ends:
             heads.append(pos[j])
             tails.append(e)
             owner.append(j)
-    return np.asarray(heads), np.asarray(tails), np.asarray(owner, np.int32)
+    h, t = np.asarray(heads), np.asarray(tails)
+    if points is not None and guessed:
+        t = shape_leaves(points, h, t, guessed)
+    return h, t, np.asarray(owner, np.int32)
+
+
+def shape_leaves(points: npt.ArrayLike, heads: npt.ArrayLike, tails: npt.ArrayLike,
+                 leaves: npt.ArrayLike, *, iterations: int = _LEAF_ITERATIONS) -> np.ndarray:
+    """Tails of leaf bones pointed into the mesh region each owns (a head's skull and snout, a
+    hand, a foot, a tail) instead of along its parent.
+
+    The region of a leaf segment is the set of points nearer to it than to any other segment;
+    its tail goes from the head towards the region's centroid, as far as the region's 85th
+    percentile along that direction. Repeated ``iterations`` times (the regions follow the
+    tails).
+
+    Parameters
+    ----------
+    points : (V, 3) float
+        Rest points, skeleton space.
+    heads, tails : (B, 3) float
+        Bone segments.
+    leaves : sequence of int
+        The segments to shape.
+
+    Returns
+    -------
+    (B, 3) float64
+        ``tails`` with the leaves' replaced (unchanged where a region is empty or lies behind
+        the head).
+    """
+    from .geometry import segment_distances
+    P = np.asarray(points, np.float64)
+    h = np.asarray(heads, np.float64)
+    t = np.array(tails, np.float64)
+    for _ in range(iterations):
+        near = segment_distances(P, h, t).argmin(1)
+        for b in np.ravel(leaves):
+            region = P[near == b]
+            if len(region) < 3:
+                continue
+            v = region.mean(0) - h[b]
+            n = float(np.linalg.norm(v))
+            if n <= 0:
+                continue
+            u = v / n
+            reach = float(np.percentile((region - h[b]) @ u, _LEAF_PERCENTILE))
+            if reach > 0:
+                t[b] = h[b] + reach * u
+    return t
 
 
 def sparsify(weights: np.ndarray, max_influences: int = 8) -> tuple[np.ndarray, np.ndarray]:
@@ -349,7 +410,8 @@ def automatic_weights(points: npt.ArrayLike, faces: npt.ArrayLike, skeleton: Ske
     g = np.eye(4) if geom_bind_transform is None else np.asarray(geom_bind_transform, np.float64)
     pts = pts @ g[:3, :3].T + g[:3, 3]
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    heads, tails, owners = bone_segments(skeleton, end_sites=end_sites, joints=joints)
+    heads, tails, owners = bone_segments(skeleton, end_sites=end_sites, joints=joints,
+                                         points=pts)
     J = skeleton.joint_count
     path = None
     if cache:

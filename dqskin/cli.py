@@ -220,14 +220,16 @@ def cmd_flatten(args: argparse.Namespace) -> int:
 
 def _rigging(args: argparse.Namespace) -> bool:
     """Whether ``--skeleton``, ``--weights`` or ``--scale`` were given."""
-    return any(getattr(args, k, None) is not None for k in ("skeleton", "weights", "scale"))
+    return any(getattr(args, k, None) is not None
+               for k in ("skeleton", "weights", "scale", "joints"))
 
 
 def _inputs(args: argparse.Namespace) -> list[str]:
     """The files ``skin``/``compare``/``rig`` read: INPUT, ``--skeleton``, ``--weights FILE``
     (no output may replace one of them)."""
     weights = getattr(args, "weights", None)
-    return [args.input] + [f for f in (getattr(args, "skeleton", None), weights)
+    return [args.input] + [f for f in (getattr(args, "skeleton", None), weights,
+                                       getattr(args, "joints", None))
                            if f is not None and f != "auto"]
 
 
@@ -238,8 +240,10 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
     influences (:func:`dqskin.rigging.replace_weights`). ``cache_out``: the cache ``skin`` will
     write; a USD cache copies a USD stage, so a bound mesh is then written as a UsdSkel rig in
     the folder ``rig_dir`` (:func:`dqskin.writers.usd_rig.write_rig`) and that rig loaded."""
+    import warnings
+
     from . import readers
-    from .rigging import replace_weights, rig_mesh
+    from .rigging import FitWarning, replace_weights, rig_mesh
     if args.max_influences < 1:
         raise InputError(f"--max-influences {args.max_influences}: must be at least 1")
     if args.scale is not None and not (math.isfinite(args.scale) and args.scale > 0):
@@ -259,8 +263,20 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
             raise InputError(f"--out {cache_out}: a USD point cache copies a USD input stage; "
                              f"write the rig first (dqskin rig {src.name} --skeleton "
                              f"{Path(args.skeleton).name} --out rig.usda)")
-        scene = rig_mesh(src, _regular_file(args.skeleton), weights=weights or "auto",
-                         scale=args.scale, max_influences=args.max_influences, device=args.device)
+        joints = getattr(args, "joints", None)
+        as_is = getattr(args, "as_is", False)
+        if joints is not None and as_is:
+            raise InputError("--joints places joints of an embedded skeleton; --as-is binds the "
+                             "BVH's own")
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always", FitWarning)
+            scene = rig_mesh(src, _regular_file(args.skeleton), weights=weights or "auto",
+                             scale=args.scale, fit="as-is" if as_is else "embed",
+                             joints=None if joints is None else _regular_file(joints),
+                             max_influences=args.max_influences, device=args.device)
+        for w in said:
+            if issubclass(w.category, FitWarning):
+                print(f"warning: {w.message}", file=sys.stderr)
         if usd_out:
             from .writers.usd_rig import write_rig
             assert rig_dir is not None, "a USD cache_out comes with a rig_dir"
@@ -270,6 +286,8 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
         return scene
     if args.scale is not None:
         raise InputError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")
+    if getattr(args, "joints", None) is not None:
+        raise InputError("--joints places the joints of a --skeleton BVH; it needs --skeleton")
     scene = readers.load(src, clip=_clip(args.clip))
     if cache_out is not None and not scene.meshes and src.suffix.lower() == ".bvh":
         raise InputError(f"{src}: no mesh to skin (a BVH holds a skeleton and its motion); bind "
@@ -498,9 +516,15 @@ def _add_compare_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_rigging_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--skeleton", help="a .bvh: INPUT is then a plain "
-                        "mesh (.obj/.ply/.stl/.off/.glb) in the BVH's rest pose (every channel "
-                        "zero), bound to its skeleton and animated by its motion")
+    parser.add_argument("--skeleton", help="a .bvh: INPUT is then a plain mesh "
+                        "(.obj/.ply/.stl/.off/.glb, +Y up) in any rest pose, size and place: the "
+                        "BVH's skeleton is embedded in it and its motion retargeted (see --as-is)")
+    parser.add_argument("--as-is", action="store_true", help="with --skeleton: the mesh is "
+                        "modelled in the BVH's rest pose (every channel zero), space and unit: "
+                        "bind it to the BVH's own skeleton and motion")
+    parser.add_argument("--joints", metavar="FILE.json", help="with --skeleton: joint "
+                        "positions in the mesh's space, {name: [x, y, z]}, overriding the "
+                        "embedding")
     parser.add_argument("--weights", help="auto: bone-heat automatic weights (the default with "
                         "--skeleton; on a skinned glTF/USD input they replace the artist's), or "
                         "FILE.npz with joint_indices (V, K), joint_weights (V, K) and joint_names "

@@ -14,9 +14,10 @@ says how to fix it (``scale``: multiply the skeleton's lengths).
 import os
 import zipfile
 import zlib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -30,15 +31,27 @@ from .options import Method
 from .readers import bvh
 from .readers.mesh import load_mesh
 from .scene import Mesh, Scene
+from .skeleton import Skeleton
 
-__all__ = ["WEIGHT_FIELDS", "check_fit", "read_weights", "replace_weights", "rig_mesh",
-           "skinned_difference"]
+__all__ = ["WEIGHT_FIELDS", "FitWarning", "check_fit", "fit_problems", "read_joints",
+           "read_weights",
+           "replace_weights", "rig_mesh", "skinned_difference"]
 
 WEIGHT_FIELDS = ("joint_indices", "joint_weights", "joint_names")
 """Arrays of a weights ``.npz``: (V, K) int, (V, K) float, (J,) str."""
 
 _SIZE_RATIO = 2.0  # mesh and skeleton heights may differ by up to this factor
 _INSIDE = 0.75  # share of joints that must lie in the mesh's (padded) bounding box
+_FAR = 0.10  # a vertex farther than this share of the height from every bone is "far"
+_FAR_SHARE = 0.01  # ... and a fit with this share of far vertices is bad
+_OUTSIDE_SHARE = 0.10  # a fit with this share of its bones' midpoints outside the mesh is bad
+_FEET_BELOW = 0.02  # the skeleton's lowest point below the mesh's, as a share of its height
+_FEET_ABOVE = 0.08  # ... or above it
+
+
+class FitWarning(UserWarning):
+    """A rig that binds but fits its mesh badly (:func:`fit_problems`); one line, with the
+    figure."""
 
 
 def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_count: int
@@ -79,11 +92,12 @@ def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_cou
     return (remap[idx] if idx.size else idx.astype(np.int32)), wts
 
 
-def check_fit(points: np.ndarray, joint_positions: np.ndarray, where: str) -> None:
+def check_fit(points: np.ndarray, joint_positions: np.ndarray, where: str, *,
+              scale: float = 1.0) -> None:
     """InputError (a ValueError) unless the mesh ``points`` and the skeleton's rest
     ``joint_positions`` are the same size (within a factor 2) and overlap (most joints inside the
     mesh's bounding box, padded by a tenth); the message gives the sizes and the ``scale`` that
-    would match them."""
+    would match them (``scale``: the one the skeleton already has; the suggestion replaces it)."""
     lo, hi = points.min(0), points.max(0)
     size_mesh = float((hi - lo).max())
     jlo, jhi = joint_positions.min(0), joint_positions.max(0)
@@ -95,7 +109,7 @@ def check_fit(points: np.ndarray, joint_positions: np.ndarray, where: str) -> No
         raise InputError(
             f"{where}: the mesh is {ratio:.3g}× the size of the skeleton (mesh {size_mesh:.4g}, "
             f"skeleton {size_skel:.4g} units across): different units? Scale the skeleton to "
-            "the mesh with ", Param("scale", float(f"{ratio:.4g}")),
+            "the mesh with ", Param("scale", float(f"{ratio * scale:.4g}")),
             " (or export the mesh in the BVH's units)")
     pad = 0.1 * (hi - lo).max()
     inside = np.all((joint_positions >= lo - pad) & (joint_positions <= hi + pad), axis=1)
@@ -103,23 +117,103 @@ def check_fit(points: np.ndarray, joint_positions: np.ndarray, where: str) -> No
         mc, sc = 0.5 * (lo + hi), 0.5 * (jlo + jhi)
         raise InputError(
             f"{where}: the mesh is far from its skeleton (only {inside.sum()} of {inside.size} "
-            f"rest joints inside the mesh's bounds; mesh centre {np.round(mc, 4).tolist()}, "
-            f"skeleton centre {np.round(sc, 4).tolist()}): model the mesh in the BVH's rest pose "
-            "(every channel zero) and space, moved by "
-            f"{np.round(mc - sc, 4).tolist()} back onto the skeleton")
+            f"rest joints and End Sites inside the mesh's bounds; bounding-box centres: mesh "
+            f"{np.round(mc, 4).tolist()}, skeleton {np.round(sc, 4).tolist()}): model the mesh "
+            "in the BVH's rest pose (every channel zero) and space: add "
+            f"{np.round(sc - mc, 4).tolist()} to its points to move it onto the skeleton")
+
+
+def fit_problems(points: npt.ArrayLike, faces: npt.ArrayLike, skeleton: Skeleton, *,
+                 end_sites: list | None = None, up: int = 1) -> list[str]:
+    """How a skeleton's bind pose misfits a mesh, one line per problem (empty when it fits):
+
+    * vertices far from every bone: more than 1% of them farther than 10% of the mesh's height
+      from their nearest bone segment (:func:`dqskin.autoweights.bone_segments`);
+    * bones outside the mesh: more than 10% of the bones' midpoints outside the surface
+      (generalized winding number below ½);
+    * feet off the floor: the skeleton's lowest point (joints and End Sites) more than 2% of the
+      height below the mesh's lowest point, or more than 8% above it, along axis ``up``.
+
+    Parameters
+    ----------
+    points : (V, 3) float
+        Rest points, in the skeleton's space.
+    faces : (T, 3) int
+    skeleton : dqskin.Skeleton
+        Its bind transforms place the bones.
+    end_sites : list of (joint, (3,) float), optional
+        BVH End Sites (joint-local leaf tips).
+    up : int
+        The up axis (0, 1, 2): Y by default, as BVH.
+
+    Returns
+    -------
+    list of str
+        Each line names the problem and its figure in % of the mesh's height.
+    """
+    from .autoweights import bone_segments
+    from .geometry import segment_distances, winding_numbers
+    P = np.asarray(points, np.float64)
+    F = np.asarray(faces, np.int64).reshape(-1, 3)
+    height = float(np.ptp(P[:, up])) if len(P) else 0.0
+    if height <= 0:
+        return []
+    heads, tails, owner = bone_segments(skeleton, end_sites=end_sites)
+    out = []
+    near = segment_distances(P, heads, tails).min(1) / height
+    far = near > _FAR
+    if far.mean() > _FAR_SHARE:
+        out.append(f"{100 * far.mean():.1f}% of the vertices are farther than "
+                   f"{100 * _FAR:.0f}% of the height from every bone (farthest "
+                   f"{100 * near.max():.1f}%)")
+    long = np.linalg.norm(tails - heads, axis=1) > 1e-6 * height
+    if F.size and long.any():
+        mid = 0.5 * (heads[long] + tails[long])
+        outside = winding_numbers(mid, P, F) < 0.5
+        if outside.mean() > _OUTSIDE_SHARE:
+            names = sorted({skeleton.joint_names[j] for j in owner[long][outside]})
+            out.append(f"{outside.sum()} of {outside.size} bones lie outside the mesh "
+                       f"({', '.join(names[:4])}{' …' if len(names) > 4 else ''})")
+    tips = np.concatenate([heads, tails])
+    gap = (tips[:, up].min() - P[:, up].min()) / height
+    if gap < -_FEET_BELOW or gap > _FEET_ABOVE:
+        out.append(f"the skeleton's feet are {100 * abs(gap):.1f}% of the height "
+                   f"{'below' if gap < 0 else 'above'} the mesh's lowest point")
+    return out
+
+
+def read_joints(path: str | os.PathLike) -> dict[str, list[float]]:
+    """Joint positions from a ``.json`` file: ``{name: [x, y, z], ...}``, or that mapping under
+    a ``"joints"`` key. Raises InputError naming the file for anything else."""
+    import json
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{p}: cannot read joints: {exc}") from None
+    if isinstance(data, dict) and isinstance(data.get("joints"), dict):
+        data = data["joints"]
+    if not isinstance(data, dict) or not all(
+            isinstance(v, list) and len(v) == 3
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+            for v in data.values()):
+        raise InputError(f"{p}: expected {{joint name: [x, y, z], ...}} (optionally under "
+                         "\"joints\")")
+    return {str(k): [float(x) for x in v] for k, v in data.items()}
 
 
 def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
              skeleton: str | os.PathLike | bvh.BvhMotion, *,
              weights: str | os.PathLike | None = "auto", scale: float | None = None,
+             fit: Literal["embed", "as-is"] = "as-is",
+             joints: str | os.PathLike | Mapping[str, npt.ArrayLike] | None = None,
              max_influences: int = 8, cache: bool = True, device: Device = None) -> Scene:
-    """Bind a plain mesh in a BVH's rest pose to the BVH's skeleton and motion.
+    """Bind a plain mesh to a BVH's skeleton and motion.
 
     Parameters
     ----------
     mesh : path or (points (V, 3), faces (T, 3))
-        ``.obj/.ply/.stl/.off/.glb`` geometry (:func:`dqskin.load_mesh`), in the skeleton's
-        space and length unit (after ``scale``) and rest pose.
+        ``.obj/.ply/.stl/.off/.glb`` geometry (:func:`dqskin.load_mesh`), +Y up as BVH.
     skeleton : path or BvhMotion
         The ``.bvh`` file.
     weights : "auto", path or None
@@ -127,7 +221,16 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
         a path: an ``.npz`` read by :func:`read_weights`.
     scale : float, optional
         Multiplies the skeleton's lengths (offsets, End Sites, root positions) into the mesh's
-        unit, e.g. 0.0254 for a skeleton in inches and a mesh in metres.
+        unit, e.g. 0.0254 for a skeleton in inches and a mesh in metres (``fit="as-is"``).
+    fit : "embed" or "as-is"
+        "embed": the skeleton is placed in the mesh, whatever its rest pose, size and position
+        (:func:`dqskin.embedding.embed_skeleton`), and the motion retargeted to it
+        (:func:`dqskin.retarget.retarget`). "as-is": the mesh is modelled in the BVH's rest
+        pose (every channel zero), space and unit (after ``scale``); :func:`check_fit` refuses
+        one that is far from the skeleton or in other units and says how to fix it.
+    joints : path, or mapping of str to (3,) float, optional
+        ``fit="embed"``: joint positions (mesh space) that override the embedding, by name
+        (a ``.json`` file read by :func:`read_joints`).
     max_influences : int
         Influences kept per vertex by automatic weights.
 
@@ -138,13 +241,21 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
         one mesh (named after the mesh file) on skeleton 0, method "lbs"; the skeleton's space
         is the world (``output_transforms`` and ``world_transforms`` None).
 
+    Warns
+    -----
+    FitWarning
+        One per problem :func:`fit_problems` finds (a rig that binds but fits badly).
+
     Raises
     ------
     InputError
         (a ValueError) Unreadable inputs, a mesh far from the skeleton or in other units (naming the
-        fix), a weights file that does not fit.
+        fix), a weights or joints file that does not fit.
     """
+    import warnings
     motion = skeleton if isinstance(skeleton, bvh.BvhMotion) else bvh.read_bvh(skeleton)
+    if fit not in ("embed", "as-is"):
+        raise InputError(Param("fit", fit), ": expected 'embed' or 'as-is'")
     if scale is not None and float(scale) != 1.0:
         motion = bvh.scaled(motion, scale)
     if isinstance(mesh, tuple):
@@ -156,17 +267,68 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
     points = np.asarray(points, np.float32)
     faces = np.asarray(faces, np.int32).reshape(-1, 3)
     skel = motion.skeleton()
-    check_fit(points.astype(np.float64), skel.bind_transforms[:, :3, 3],
-              f"{where} on {motion.path}")
+    end_sites = motion.end_sites
+    if fit == "embed":
+        from .embedding import embed_skeleton
+        from .retarget import retarget
+        given = read_joints(joints) if isinstance(joints, (str, os.PathLike)) else joints
+        embedded = embed_skeleton((points, faces), skel, joints=given, end_sites=end_sites)
+        end_sites = _embedded_end_sites(skel, embedded, end_sites)
+        skel = retarget(motion, embedded)
+    else:
+        bind = skel.bind_transforms
+        ends = [(bind[j] @ np.append(np.asarray(o, np.float64), 1.0))[:3] for j, o in end_sites]
+        check_fit(points.astype(np.float64), np.concatenate([bind[:, :3, 3]] + [
+            np.reshape(ends, (-1, 3))]), f"{where} on {motion.path}",
+            scale=1.0 if scale is None else float(scale))
+    for line in fit_problems(points, faces, skel, end_sites=end_sites):
+        warnings.warn(FitWarning(f"{where} on {motion.path}: {line}"), stacklevel=2)
     if weights is None or str(weights) == "auto":
-        idx, w = automatic_weights(points, faces, skel, end_sites=motion.end_sites,
+        idx, w = automatic_weights(points, faces, skel, end_sites=end_sites,
                                    max_influences=max_influences, cache=cache, device=device)
     else:
         idx, w = read_weights(weights, skel.joint_names, len(points))
     m = Mesh(name=name, points=points, faces=faces, joint_indices=idx, joint_weights=w,
              skinning_method="lbs")
-    return Scene(motion.path, [m], [skel], np.arange(motion.frame_count, dtype=np.float64),
-                 time_codes_per_second=1.0 / motion.frame_time, up_axis="Y")
+    scene = Scene(motion.path, [m], [skel], np.arange(motion.frame_count, dtype=np.float64),
+                  time_codes_per_second=1.0 / motion.frame_time, up_axis="Y")
+    return _on_the_floor(scene, device) if fit == "embed" else scene
+
+
+_FLOOR_SAMPLES = 64  # frames skinned to put a retargeted body's feet on the floor
+
+
+def _on_the_floor(scene: Scene, device: Device) -> Scene:
+    """The scene with its root raised or lowered so that the skinned mesh's lowest point is on
+    the rest mesh's floor at the median frame (of up to 64 spread over the motion): a
+    retargeted walk's feet touch the ground when the capture's do."""
+    from .animation import KeyedAnimation
+    (m,) = scene.meshes
+    skel = scene.skeletons[0]
+    anim = skel.animation
+    assert isinstance(anim, KeyedAnimation), "a retargeted skeleton has keyed local transforms"
+    times = anim.key_times
+    pick = times[np.unique(np.linspace(0, len(times) - 1, min(_FLOOR_SAMPLES, len(times))
+                                       ).round().astype(int))]
+    low = scene.skin(pick, method="lbs", space="skeleton", device=device).points[m.name][..., 1]
+    shift = float(np.asarray(m.points, np.float64)[:, 1].min() - np.median(low.min(1)))
+    local = anim.local_transforms(times).copy()
+    local[:, skel.parents < 0, 1, 3] += shift
+    moved = skel.with_animation(KeyedAnimation(times, local, name=anim.name))
+    return replace(scene, skeletons=[moved], _skinners={})
+
+
+def _embedded_end_sites(source: Skeleton, embedded: Skeleton, end_sites: list) -> list:
+    """End Sites (joint-local) of an embedded skeleton: the source's, scaled by the ratio of the
+    joint's embedded bone to its source bone (the rotations carry the rest-pose difference)."""
+    a, b = source.bind_transforms[:, :3, 3], embedded.bind_transforms[:, :3, 3]
+    out = []
+    for j, off in end_sites:
+        p = source.parents[j]
+        la = float(np.linalg.norm(a[j] - a[p])) if p >= 0 else 0.0
+        k = float(np.linalg.norm(b[j] - b[p])) / la if la > 0 else 1.0
+        out.append((j, np.asarray(off, np.float64) * k))
+    return out
 
 
 def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,

@@ -61,7 +61,8 @@ def lbs_oracle(bvh_path, points, indices, weights):
 
 def _skin_cli(mesh, bvh_path, out, *extra):
     """``dqskin skin MESH --skeleton BVH ... --out OUT.npz``; the (F, V, 3) points written."""
-    assert main(["skin", str(mesh), "--skeleton", str(bvh_path), *extra, "--out", str(out)]) == 0
+    assert main(["skin", str(mesh), "--skeleton", str(bvh_path), "--as-is",
+                                                      *extra, "--out", str(out)]) == 0
     with np.load(out) as z:
         return z[[k for k in z.files if k.startswith("points")][0]]
 
@@ -92,7 +93,7 @@ def test_rig_round_trip_through_usdskel(capture, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("DQSKIN_CACHE_DIR", str(tmp_path / "cache"))
     path, mesh, motion = capture
     rig = tmp_path / "rig.usda"
-    assert main(["rig", str(mesh), "--skeleton", str(path), "--out", str(rig)]) == 0
+    assert main(["rig", str(mesh), "--skeleton", str(path), "--as-is", "--out", str(rig)]) == 0
     assert "UsdSkel rig" in capsys.readouterr().out
     scene = rig_mesh(mesh, path)
     (m,) = scene.meshes
@@ -146,13 +147,14 @@ def test_misfits_are_explained(capture, tmp_path, capsys):
     metres = tmp_path / "metres.obj"
     trimesh.Trimesh(pts * 0.0254, faces, process=False).export(metres)
     cases = [
-        (["skin", str(far), "--skeleton", str(path), "--out", str(tmp_path / "a.npz")],
+        (["skin", str(far), "--skeleton", str(path), "--as-is", "--out", str(tmp_path / "a.npz")],
          "far from its skeleton"),
-        (["skin", str(metres), "--skeleton", str(path), "--out", str(tmp_path / "a.npz")],
+        (["skin", str(metres), "--skeleton", str(path), "--as-is",
+                                                 "--out", str(tmp_path / "a.npz")],
          "--scale 0.0"),
         (["skin", str(mesh), "--scale", "2", "--out", str(tmp_path / "a.npz")],
          "needs --skeleton"),
-        (["rig", str(path), "--skeleton", str(path), "--out", str(tmp_path / "r.usda")],
+        (["rig", str(path), "--skeleton", str(path), "--as-is", "--out", str(tmp_path / "r.usda")],
          "cannot read mesh"),
         (["skin", str(path), "--out", str(tmp_path / "a.npz")], "no mesh to skin"),
     ]
@@ -162,7 +164,8 @@ def test_misfits_are_explained(capture, tmp_path, capsys):
         assert message in err and "Traceback" not in err, (argv, err)
     assert not list(tmp_path.glob("a.*")) and not (tmp_path / "r.usda").exists()
     # the suggested scale fixes the units
-    assert main(["skin", str(metres), "--skeleton", str(path), "--scale", "0.0254", "--out",
+    assert main(["skin", str(metres), "--skeleton", str(path), "--as-is",
+                                                        "--scale", "0.0254", "--out",
                  str(tmp_path / "ok.npz")]) == 0
 
 
@@ -202,7 +205,8 @@ def test_cli_compare_on_a_rigged_mesh(capture, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("DQSKIN_CACHE_DIR", str(tmp_path / "cache"))
     path, mesh, motion = capture
     out = tmp_path / "report"
-    assert main(["compare", str(mesh), "--skeleton", str(path), "--out", str(out), "--frames",
+    assert main(["compare", str(mesh), "--skeleton", str(path), "--as-is",
+                                                         "--out", str(out), "--frames",
                  "0,11", "--width", "48", "--supersample", "1", "--no-sweeps", "--quiet"]) == 0
     assert "report.html" in capsys.readouterr().out
     metrics = json.loads((out / "metrics.json").read_text())
@@ -222,7 +226,7 @@ def test_damaged_weight_files_are_named(capture, tmp_path, capsys):
         f.write_bytes(data)
         with pytest.raises(ValueError, match=re.escape(f"{f}: cannot read weights: ")):
             read_weights(f, J, V)
-        argv = ["skin", str(mesh), "--skeleton", str(path), "--weights", str(f), "--out",
+        argv = ["skin", str(mesh), "--skeleton", str(path), "--as-is", "--weights", str(f), "--out",
                 str(tmp_path / "x.npz")]
         assert main(argv) == 2, name
         err = capsys.readouterr().err
@@ -257,12 +261,14 @@ def test_outputs_never_replace_an_input(capture, tmp_path, capsys):
     (report / "frames").mkdir(parents=True)
     in_report = report / "metrics.json"
     in_report.write_bytes(wfile.read_bytes())
-    skin = ["skin", str(body), "--skeleton", str(walk), "--frames", "0", "--force", "--out"]
+    skin = ["skin", str(body), "--skeleton", str(walk), "--as-is",
+                                                 "--frames", "0", "--force", "--out"]
     cases = [skin + [str(body)], skin + [str(wfile), "--weights", str(wfile)],
              skin + [str(tmp_path / "f_{:04d}.obj")],
-             ["rig", str(body), "--skeleton", str(walk), "--weights", str(wusd), "--force",
+             ["rig", str(body), "--skeleton", str(walk), "--as-is",
+                                                  "--weights", str(wusd), "--force",
               "--out", str(wusd)],
-             ["compare", str(body), "--skeleton", str(walk), "--weights", str(in_report),
+             ["compare", str(body), "--skeleton", str(walk), "--as-is", "--weights", str(in_report),
               "--force", "--quiet", "--no-sweeps", "--out", str(report)]]
     before = {p: p.read_bytes() for p in (body, walk, wfile, wusd, in_report)}
     for argv in cases:
@@ -292,7 +298,7 @@ def test_bad_scale_and_influence_count_named_up_front(capture, tmp_path, capsys,
     monkeypatch.setattr("dqskin.rigging.automatic_weights", lambda *a, **k: 1 / 0)
     for flag, value in (("--scale", "0"), ("--scale", "-2"), ("--scale", "nan"),
                         ("--max-influences", "0")):
-        argv = ["skin", str(mesh), "--skeleton", str(path), flag, value, "--out",
+        argv = ["skin", str(mesh), "--skeleton", str(path), "--as-is", flag, value, "--out",
                 str(tmp_path / "x.npz")]
         assert main(argv) == 2, (flag, value)
         err = capsys.readouterr().err
@@ -360,7 +366,7 @@ def test_cli_skin_with_skeleton_to_a_usd_cache(capture, tmp_path, capsys):
     are the float64 LBS oracle's, nothing of the rig is left bound or behind."""
     path, mesh, motion = capture
     out = tmp_path / "walk.usdc"
-    assert main(["skin", str(mesh), "--skeleton", str(path), "--out", str(out)]) == 0
+    assert main(["skin", str(mesh), "--skeleton", str(path), "--as-is", "--out", str(out)]) == 0
     assert "1 mesh × 12 frames" in capsys.readouterr().out
     pts, _ = load_mesh(mesh)
     (m,) = rig_mesh(mesh, path).meshes
