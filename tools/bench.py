@@ -10,8 +10,9 @@ pipeline would); "one-shot" is ``dqskin.skin_points`` (validation, influence lay
 of the mesh included, as ``UsdSkel.SkinPoints`` converts its inputs every call). Kernels alone
 (:func:`bench_kernels`): one thread, dqskin's point kernels against minimal LBS/DQS kernels.
 FK: 1,000 skeletons × 64 joints. Crowds (:func:`bench_crowd`): 100 and 1,000 CesiumMen (glTF, from
-../shared; the bundled humanoid without it) against one mesh of the same total points. Prints
-tables and writes JSON.
+../shared; the bundled humanoid without it) against one mesh of the same total points. Sign rules
+(:func:`bench_sign_rules`): DQS with Blender's running sum against UsdSkel's rule on a
+598,959-point CesiumMan tiling. Prints tables and writes JSON.
 """
 
 import argparse
@@ -320,6 +321,54 @@ def bench_crowd(devices, rows, counts=(100, 1000), frames=16, repeat=3):
                                      mpts_per_s=V * frames / sec / 1e6))
 
 
+def bench_sign_rules(rows, copies=183, frames=48, repeat=5):
+    """DQS with Blender's sign rule (``running_sum``) against UsdSkel's (``largest_weight``) on
+    one mesh: CesiumMan's influences and walk tiled ``copies`` times (598,959 points), one frame
+    per ``Skinner.skin`` call, every sixth of its first ``frames`` frames; "before" is the
+    running sum on the one-vertex kernel (the packet kernels withheld), as the tree ran it
+    before the packet kernels took the rule."""
+    from dqskin.kernels import skin as KS
+
+    char = crowd_character()
+    mesh = char.meshes[0]
+    tile = (copies, 1)
+    sk = dqskin.Skinner(np.tile(mesh.points, tile), np.tile(mesh.joint_indices, tile),
+                        np.tile(mesh.joint_weights, tile),
+                        geom_bind_transform=mesh.geom_bind_transform, device="cpu")
+    t = np.arange(frames) / 24.0 if char.time_codes_per_second == 1 else np.arange(float(frames))
+    xf = char.skinning_transforms(t)[::6]
+    takes = KS.takes_packets
+
+    def run(rule, packet=True):
+        def fn():
+            if not packet:
+                KS.takes_packets = lambda *a: False
+            try:
+                for x in xf:
+                    sk.skin(x, "dqs", sign_reference=rule)
+            finally:
+                KS.takes_packets = takes
+        return fn
+
+    res = best_times({"largest_weight": run("largest_weight"), "running_sum": run("running_sum"),
+                      "running_sum, one-vertex kernel (before)": run("running_sum", False)},
+                     repeat)
+    for impl, sec in res.items():
+        rows.append(dict(kind="sign", impl=impl, vertices=sk.vertex_count,
+                         seconds=sec / len(xf), mpts_per_s=sk.vertex_count * len(xf) / sec / 1e6))
+
+
+def print_sign_table(sign):
+    base = next(r for r in sign if r["impl"] == "largest_weight")["seconds"]
+    print(f"\nDQS sign rules, {sign[0]['vertices']:,} points (CesiumMan tiled), one frame a "
+          "call, CPU (ratio = time ÷ largest_weight's, target ≤ 1.3 for running_sum)")
+    print("| rule | ms per frame | M points/s | ratio |")
+    print("|---|---|---|---|")
+    for r in sign:
+        print(f"| {r['impl']} | {r['seconds'] * 1e3:.2f} | {r['mpts_per_s']:.0f} | "
+              f"{r['seconds'] / base:.2f} |")
+
+
 def print_crowd_table(crowd):
     print(f"\nCrowds: {crowd[0]['frames']} frames per call (M point-frames/s; ratio = crowd "
           "skin time ÷ one-mesh time with a residual as the crowd has, target ≤ 1.3)")
@@ -351,6 +400,9 @@ def print_tables(rows):
     crowd = [r for r in rows if r["kind"] == "crowd"]
     if crowd:
         print_crowd_table(crowd)
+    sign = [r for r in rows if r["kind"] == "sign"]
+    if sign:
+        print_sign_table(sign)
     fk = [r for r in rows if r["kind"] == "fk"]
     if fk:
         print(f"\nFK: {fk[0]['skeletons']} skeletons × {fk[0]['joints']} joints (M joints/s)")
@@ -386,7 +438,8 @@ def main(argv=None):
     ap.add_argument("--json", default="out/bench.json")
     ap.add_argument("--quick", action="store_true", help="10k and 100k only, fewer repeats")
     ap.add_argument("--skip", default="",
-                    help="comma list of sections to skip: skin,kernel,overhead,fk,crowd,bake")
+                    help="comma list of sections to skip: "
+                    "skin,kernel,overhead,fk,crowd,sign,bake")
     ap.add_argument("--crowds", default="100,1000", help="crowd sizes (instances)")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
@@ -403,10 +456,10 @@ def main(argv=None):
     print(f"dqskin from {sources['dqskin']}, its kernels from {sources['kernels']}")
     devices = ["cpu"] + (["cuda:0"] if wp.get_cuda_device_count() > 0 else [])
     skip = set(filter(None, args.skip.split(",")))
-    unknown = skip - {"skin", "kernel", "overhead", "fk", "crowd", "bake"}
+    unknown = skip - {"skin", "kernel", "overhead", "fk", "crowd", "sign", "bake"}
     if unknown:
         ap.error(f"--skip: unknown section(s) {', '.join(sorted(unknown))}; "
-                 "sections: skin,kernel,overhead,fk,crowd,bake")
+                 "sections: skin,kernel,overhead,fk,crowd,sign,bake")
     rows = []
     if "skin" not in skip:
         bench_skinning(sizes, args.repeat, devices, rows)
@@ -418,6 +471,8 @@ def main(argv=None):
         bench_fk(devices, rows)
     if "crowd" not in skip:
         bench_crowd(devices, rows, [int(c) for c in args.crowds.split(",")])
+    if "sign" not in skip:
+        bench_sign_rules(rows)
     if "bake" not in skip:
         from bench_bake import bench_bake  # noqa: E402  (tools/ sibling)
         bench_bake(rows)
