@@ -358,6 +358,54 @@ def bench_sign_rules(rows, copies=183, frames=48, repeat=5):
                          seconds=sec / len(xf), mpts_per_s=sk.vertex_count * len(xf) / sec / 1e6))
 
 
+def bench_startup(rows, rounds=15):
+    """Start-up: ``dqskin --help`` and ``dqskin info`` on CesiumMan (USDZ, ../shared; the bundled
+    humanoid without it) against ``python -c "import numpy"``, each a fresh process started the
+    same way (the console script beside this interpreter), in ``rounds`` interleaved rounds;
+    wall time and, where ``/usr/bin/time`` runs them (a small process, so the child's peak is
+    its own, not this process's image it was forked from), peak memory."""
+    import subprocess
+    import tempfile
+
+    root = Path(__file__).resolve().parents[1]
+    usdz = root.parent / "shared" / "assets" / "usd-wg" / "CesiumMan" / "CesiumMan.usdz"
+    asset = usdz if usdz.exists() else root / "assets" / "humanoid.usda"
+    script = Path(sys.executable).with_name("dqskin")
+    dqskin_cmd = [str(script)] if script.exists() else [sys.executable, "-m", "dqskin.cli"]
+    cmds = {'python -c "import numpy"': [sys.executable, "-c", "import numpy"],
+            "dqskin --help": dqskin_cmd + ["--help"],
+            f"dqskin info {asset.name}": dqskin_cmd + ["info", str(asset)]}
+    gnu_time = Path("/usr/bin/time")
+    times = {k: [] for k in cmds}
+    peak = dict.fromkeys(cmds, 0.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        kb = Path(tmp) / "kb"
+        start = [str(gnu_time), "-f", "%M", "-o", str(kb)] if gnu_time.exists() else []
+        for _ in range(rounds):
+            for name, cmd in cmds.items():
+                t0 = time.perf_counter()
+                subprocess.run(start + cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                               check=True)
+                times[name].append(time.perf_counter() - t0)
+                if start:
+                    peak[name] = max(peak[name], float(kb.read_text().split()[-1]) / 1024)
+    for name, ts in times.items():
+        rows.append(dict(kind="startup", impl=name, seconds=float(np.median(ts)),
+                         worst=float(np.max(ts)), best=float(np.min(ts)), rounds=rounds,
+                         peak_mb=peak[name] or None))
+
+
+def print_startup_table(start):
+    base = start[0]
+    print(f"\nStart-up, fresh processes, {base['rounds']} interleaved rounds (ratio = median ÷ "
+          f"the median of {base['impl']}; targets: --help ≤ 2.5, info ≤ 5)")
+    print("| command | median s | best s | worst s | peak MB | ratio |")
+    print("|---|---|---|---|---|---|")
+    for r in start:
+        print(f"| {r['impl']} | {r['seconds']:.3f} | {r['best']:.3f} | {r['worst']:.3f} | "
+              f"{r['peak_mb'] or 0:.0f} | {r['seconds'] / base['seconds']:.2f} |")
+
+
 def print_sign_table(sign):
     base = next(r for r in sign if r["impl"] == "largest_weight")["seconds"]
     print(f"\nDQS sign rules, {sign[0]['vertices']:,} points (CesiumMan tiled), one frame a "
@@ -403,6 +451,9 @@ def print_tables(rows):
     sign = [r for r in rows if r["kind"] == "sign"]
     if sign:
         print_sign_table(sign)
+    start = [r for r in rows if r["kind"] == "startup"]
+    if start:
+        print_startup_table(start)
     fk = [r for r in rows if r["kind"] == "fk"]
     if fk:
         print(f"\nFK: {fk[0]['skeletons']} skeletons × {fk[0]['joints']} joints (M joints/s)")
@@ -439,7 +490,7 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="10k and 100k only, fewer repeats")
     ap.add_argument("--skip", default="",
                     help="comma list of sections to skip: "
-                    "skin,kernel,overhead,fk,crowd,sign,bake")
+                    "skin,kernel,overhead,fk,crowd,sign,startup,bake")
     ap.add_argument("--crowds", default="100,1000", help="crowd sizes (instances)")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
@@ -456,10 +507,11 @@ def main(argv=None):
     print(f"dqskin from {sources['dqskin']}, its kernels from {sources['kernels']}")
     devices = ["cpu"] + (["cuda:0"] if wp.get_cuda_device_count() > 0 else [])
     skip = set(filter(None, args.skip.split(",")))
-    unknown = skip - {"skin", "kernel", "overhead", "fk", "crowd", "sign", "bake"}
+    sections = ("skin", "kernel", "overhead", "fk", "crowd", "sign", "startup", "bake")
+    unknown = skip - set(sections)
     if unknown:
         ap.error(f"--skip: unknown section(s) {', '.join(sorted(unknown))}; "
-                 "sections: skin,kernel,overhead,fk,crowd,sign,bake")
+                 f"sections: {','.join(sections)}")
     rows = []
     if "skin" not in skip:
         bench_skinning(sizes, args.repeat, devices, rows)
@@ -473,6 +525,8 @@ def main(argv=None):
         bench_crowd(devices, rows, [int(c) for c in args.crowds.split(",")])
     if "sign" not in skip:
         bench_sign_rules(rows)
+    if "startup" not in skip:
+        bench_startup(rows)
     if "bake" not in skip:
         from bench_bake import bench_bake  # noqa: E402  (tools/ sibling)
         bench_bake(rows)
