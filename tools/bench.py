@@ -36,11 +36,12 @@ from dqskin.skeleton import forward_kinematics
 JOINTS, INFLUENCES = 64, 4
 
 
-def best_times(fns, repeat, burst_seconds=0.1):
+def best_times(fns, repeat, burst_seconds=0.1, rounds=None):
     """Per-call wall time of each callable: the best over ``repeat`` rounds of the mean of a burst
     of back-to-back calls (about ``burst_seconds`` long, so steady state, as in a pipeline).
     Rounds are interleaved so machine noise hits every implementation alike, with a pause before
-    each burst so the previous implementation's worker threads (TBB, BLAS) go idle."""
+    each burst so the previous implementation's worker threads (TBB, BLAS) go idle. ``rounds``:
+    a dict that receives each callable's per-round times too."""
     bursts = {}
     for name, fn in fns.items():
         fn()  # warm-up (kernel load, caches)
@@ -54,7 +55,10 @@ def best_times(fns, repeat, burst_seconds=0.1):
             t0 = time.perf_counter()
             for _ in range(bursts[name]):
                 fn()
-            best[name] = min(best[name], (time.perf_counter() - t0) / bursts[name])
+            per_call = (time.perf_counter() - t0) / bursts[name]
+            best[name] = min(best[name], per_call)
+            if rounds is not None:
+                rounds.setdefault(name, []).append(per_call)
     return best
 
 
@@ -260,7 +264,7 @@ def crowd_character():
     return dqskin.load(glb if glb.exists() else root / "assets" / "humanoid.usda")
 
 
-def bench_crowd(devices, rows, counts=(100, 1000), frames=16, repeat=3):
+def bench_crowd(devices, rows, counts=(100, 1000), frames=16, repeat=5):
     """A crowd of ``count`` instances of one character (random time offsets and root
     transforms) against one mesh with the same total points (4 influences, 64 joints), both
     skinning ``frames`` frames per call and reading the result back.
@@ -314,11 +318,13 @@ def bench_crowd(devices, rows, counts=(100, 1000), frames=16, repeat=3):
                 }
                 if count == min(counts):
                     fns["crowd end-to-end"] = lambda: (crowd.skin(t, method), wp.synchronize())
-                res = best_times(fns, repeat, burst_seconds=0.5)
+                per_round = {}
+                res = best_times(fns, repeat, burst_seconds=0.5, rounds=per_round)
                 for impl, sec in res.items():
                     rows.append(dict(kind="crowd", device=dev, method=method, instances=count,
                                      vertices=V, frames=frames, impl=impl, seconds=sec,
-                                     mpts_per_s=V * frames / sec / 1e6))
+                                     mpts_per_s=V * frames / sec / 1e6,
+                                     round_seconds=per_round[impl]))
 
 
 def bench_sign_rules(rows, copies=183, frames=48, repeat=5):
@@ -419,17 +425,22 @@ def print_sign_table(sign):
 
 def print_crowd_table(crowd):
     print(f"\nCrowds: {crowd[0]['frames']} frames per call (M point-frames/s; ratio = crowd "
-          "skin time ÷ one-mesh time with a residual as the crowd has, target ≤ 1.3)")
+          "skin time ÷ one-mesh time with a residual as the crowd has, best rounds; then the "
+          "median and worst of the ratios round by round; target ≤ 1.3)")
     impls = list(dict.fromkeys(r["impl"] for r in crowd))
-    print("| instances | points | device | method | " + " | ".join(impls) + " | ratio |")
-    print("|" + "---|" * (len(impls) + 5))
+    print("| instances | points | device | method | " + " | ".join(impls)
+          + " | ratio | median | worst |")
+    print("|" + "---|" * (len(impls) + 7))
     for key in dict.fromkeys((r["instances"], r["device"], r["method"]) for r in crowd):
         sel = {r["impl"]: r for r in crowd
                if (r["instances"], r["device"], r["method"]) == key}
         cells = " | ".join(f"{sel[i]['mpts_per_s']:.1f}" if i in sel else "-" for i in impls)
         ratio = sel["crowd skin"]["seconds"] / sel["one mesh, residual"]["seconds"]
+        by_round = np.array(sel["crowd skin"]["round_seconds"]) / np.array(
+            sel["one mesh, residual"]["round_seconds"])
         V = next(iter(sel.values()))["vertices"]
-        print(f"| {key[0]} | {V} | {key[1]} | {key[2]} | {cells} | {ratio:.2f} |")
+        print(f"| {key[0]} | {V} | {key[1]} | {key[2]} | {cells} | {ratio:.2f} | "
+              f"{np.median(by_round):.2f} | {by_round.max():.2f} |")
 
 
 def print_tables(rows):
@@ -492,6 +503,7 @@ def main(argv=None):
                     help="comma list of sections to skip: "
                     "skin,kernel,overhead,fk,crowd,sign,startup,bake")
     ap.add_argument("--crowds", default="100,1000", help="crowd sizes (instances)")
+    ap.add_argument("--crowd-frames", type=int, default=16, help="frames per crowd call")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
     if args.quick:
@@ -522,7 +534,8 @@ def main(argv=None):
     if "fk" not in skip:
         bench_fk(devices, rows)
     if "crowd" not in skip:
-        bench_crowd(devices, rows, [int(c) for c in args.crowds.split(",")])
+        bench_crowd(devices, rows, [int(c) for c in args.crowds.split(",")],
+                    frames=args.crowd_frames)
     if "sign" not in skip:
         bench_sign_rules(rows)
     if "startup" not in skip:
