@@ -26,6 +26,13 @@ All argument parsing lives here; each command calls the library (:func:`dqskin.b
 * Output: only dqskin's own lines. Warp's start-up messages (including its CUDA-driver notice,
   printed by native code), library warnings and log records are silenced unless ``--verbose``;
   progress bars only on a terminal.
+* Start-up: only what runs is loaded. This module imports nothing heavy at its top; the parser
+  (:func:`build_parser`) reads its choices and defaults from light modules only (``errors``,
+  ``options``, ``spaces``, ``times``, ``report.defaults``: no Warp, USD or Dask), so ``--help``
+  and usage errors answer without them; each command imports what it needs inside its function.
+  Warp is started quietly by :func:`_quiet_warp`: before the command (the default), or, for a
+  command whose parser sets ``warp=False`` (``info``, ``flatten``), by the command itself right
+  before Warp's first use (``info``: only when its skinning check must skin).
 """
 
 import argparse
@@ -105,14 +112,23 @@ def install_signal_handlers() -> "dict[signal.Signals, Any] | None":
     return {s: signal.signal(s, _on_signal) for s in SIGNALS}
 
 
-def _quiet_libraries(verbose: bool) -> None:
-    """Silence library chatter unless ``verbose``: Python warnings, log records, and Warp (its
-    banner, module-load timings, and the CUDA-driver notice its native init prints to fd 2)."""
+def _quiet_libraries(verbose: bool, warp: bool = True) -> None:
+    """Silence library chatter unless ``verbose``: Python warnings, log records and, with
+    ``warp`` (a command that starts Warp: :func:`_quiet_warp`), Warp."""
     import logging
     import warnings
     if not verbose:
         warnings.simplefilter("ignore")
         logging.disable(logging.CRITICAL)
+    if warp:
+        _quiet_warp(verbose)
+
+
+def _quiet_warp(verbose: bool) -> None:
+    """Import and initialize Warp, silenced unless ``verbose`` (its banner, module-load timings,
+    and the CUDA-driver notice its native init prints to fd 2). Every command that may start
+    Warp calls it first (:func:`_run_command`, or the command itself where Warp is needed only
+    sometimes, as ``info``): Warp's own start would print."""
     import warp as wp
     if not verbose:
         wp.config.log_level = wp.LOG_ERROR
@@ -401,7 +417,9 @@ def cmd_info(args: argparse.Namespace) -> int:
                             "summing to 1")
         if np.any(nnz == 0):
             problems.append(f"{m.name}: {(nnz == 0).sum()} points without influences")
-    problems += scene_problems(scene, device=args.device)  # what skin would refuse
+    # what skin would refuse; Warp only if the points must be skinned to know
+    problems += scene_problems(scene, device=args.device,
+                               before_skinning=lambda: _quiet_warp(args.verbose))
     print("  problems: " + ("none" if not problems else ""))
     for p in problems:
         print(f"    - {p}")
@@ -478,9 +496,7 @@ def _add_sign_reference(parser: argparse.ArgumentParser) -> None:
 
 def _add_compare_arguments(parser: argparse.ArgumentParser) -> None:
     from .options import METHOD_NAMES
-    from .report.compare import MAX_RAYS
-    from .report.render import VIEWS
-    from .report.viewer import VIEWER_FRAMES
+    from .report.defaults import MAX_RAYS, VIEWER_FRAMES, VIEWS
     from .times import MAX_FRAMES
     parser.add_argument("input", help="character file (.usd/.usda/.usdc/.usdz, .gltf/.glb, .fbx)")
     parser.add_argument("--out", required=True, help="output folder: report.html, metrics.json, "
@@ -544,6 +560,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="show library warnings and Warp's messages")
     ap = argparse.ArgumentParser(prog="dqskin", description="Dual-quaternion and linear-blend "
                                  "skinning on NVIDIA Warp")
+    ap.set_defaults(warp=True)  # Warp started before the command runs (_quiet_libraries), or
+    # (warp=False) by the command itself when it needs it
     ap.add_argument("--verbose", action="store_true",  # (its own action: a subcommand's
                     help="show library warnings and Warp's messages")  # default stays SUPPRESS)
     sub = ap.add_subparsers(dest="command", required=True)
@@ -608,7 +626,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--clip")
     i.add_argument("--device", help="cpu or cuda for the skinning check (default: cuda when "
                    "present)")
-    i.set_defaults(run=cmd_info)
+    i.set_defaults(run=cmd_info, warp=False)  # (Warp only for the skinning check: cmd_info)
     c = sub.add_parser("compare", help="offscreen LBS-vs-DQS report: report.html, metrics.json, "
                        "frames/*.png", parents=[common])
     _add_compare_arguments(c)
@@ -628,7 +646,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("input")
     f.add_argument("--out", required=True, help=".usd/.usdc/.usda")
     f.add_argument("--force", action="store_true", help="overwrite an existing output")
-    f.set_defaults(run=cmd_flatten)
+    f.set_defaults(run=cmd_flatten, warp=False)
     d = sub.add_parser("demo", help="run the main job on the bundled humanoid", parents=[common])
     d.add_argument("--asset", help="default: the bundled humanoid")
     d.add_argument("--out", default="out/demo")
@@ -883,7 +901,7 @@ def _reader_gone(redirect: bool = True) -> int:
 def _run_command(argv: Sequence[str] | None) -> int:
     try:
         args = build_parser().parse_args(argv)  # imports NumPy: an interrupt may land in there
-        _quiet_libraries(args.verbose)
+        _quiet_libraries(args.verbose, warp=args.warp)
         _checkpoint()
         code = args.run(args)
     except (DqskinError, OSError) as exc:

@@ -6,26 +6,39 @@ local transforms → forward kinematics (dual quaternions) → skinning transfor
 → per-vertex skinning → the space asked for (:mod:`dqskin.spaces`).
 """
 
+from __future__ import annotations
+
 import numbers
 from collections.abc import Generator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
-from ._warp import Device, resolve_device
 from .animation import Deformer, TransformTrack, check_times, sample
 from .errors import InputError, Param, UnknownNameError
-from .kernels import buffers as KB
 from .options import CorOptions, Interpolation, Method, SkinOptions
-from .pipeline import SkinnedFrames, skin_scene
 from .skeleton import Skeleton
-from .skinning import Skinner
 from .validation import check_transforms
 
+# Warp, the kernels and the skinning engine load when a scene is first skinned, not when it is
+# loaded (``dqskin info`` reads a scene without them)
+if TYPE_CHECKING:
+    from ._warp import Device
+    from .kernels import buffers as KB
+    from .pipeline import SkinnedFrames
+    from .skinning import Skinner
+
 __all__ = ["DEFAULT_BLEND", "Mesh", "Scene", "SkinnedFrames"]
+
+
+def __getattr__(name: str) -> Any:
+    if name == "SkinnedFrames":  # defined by the skinning engine, loaded on first use
+        from .pipeline import SkinnedFrames
+        return SkinnedFrames
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 DEFAULT_BLEND = 0.5
 """DQS fraction of ``method="blend"`` for meshes without their own ``blend_weights``."""
@@ -175,6 +188,8 @@ class Scene:
         """The :class:`dqskin.Skinner` of ``mesh`` on ``device`` with the centers-of-rotation
         settings ``cor`` (default :class:`~dqskin.options.CorOptions`), uploaded once and
         reused."""
+        from ._warp import resolve_device
+        from .skinning import Skinner
         cor = CorOptions() if cor is None else cor
         key = (mesh.name, str(resolve_device(device)), cor)
         sk = self._skinners.get(key)
@@ -251,10 +266,11 @@ class Scene:
         opts = SkinOptions.build(options, **changes)
         if method is not None:
             opts = opts.replace(method=method)
+        from .pipeline import skin_scene
         return skin_scene(self, self.times if times is None else times, opts, self._skinners)
 
     def skin_chunks(self, times: npt.ArrayLike, chunk: "int | list[int]", *,
-                    buffers: "KB.BufferPool | None" = None, options: SkinOptions | None = None,
+                    buffers: KB.BufferPool | None = None, options: SkinOptions | None = None,
                     **changes: Any) -> Generator[tuple[slice, SkinnedFrames], None, None]:
         """Yield ``(slice, SkinnedFrames)`` for consecutive chunks of ``chunk`` frames (or of
         the sizes in a list ``chunk``, which must add up to the frame count), so memory stays
@@ -267,6 +283,8 @@ class Scene:
         ``buffers``: the :class:`~dqskin.kernels.buffers.BufferPool` to take them from and give
         them back to (e.g. one per process across many calls); default, one of this call's.
         """
+        from .kernels import buffers as KB
+        from .pipeline import skin_scene
         t = check_times(times)
         sizes = list(chunk) if isinstance(chunk, (list, tuple)) else [chunk]
         if not sizes or any(isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1

@@ -1,20 +1,26 @@
 """Skeletons: joint hierarchy, bind and rest transforms, forward kinematics on the device."""
 
+from __future__ import annotations
+
 import copy
 from collections.abc import Sequence
-from typing import Literal, overload
+from typing import TYPE_CHECKING, Literal, overload
 
 import numpy as np
 import numpy.typing as npt
-import warp as wp
 
-from ._warp import Device, resolve_device
 from .animation import Animation
 from .errors import InputError
-from .kernels import buffers as KB
-from .kernels import fk as FK
 from .shapes import as_real
 from .validation import FLOAT32_MAX, check_finite, location
+
+# Warp and the FK kernels load on the first forward kinematics, not with the skeleton (a loaded
+# scene needs neither: ``dqskin info``)
+if TYPE_CHECKING:
+    import warp as wp
+
+    from ._warp import Device
+    from .kernels import fk as FK
 
 __all__ = ["LocalTransforms", "Skeleton", "check_parents", "forward_kinematics"]
 
@@ -278,6 +284,7 @@ class Skeleton:
             quaternions; the message names the argument, the frame and the joint, e.g.
             ``rotations: NaN at frame 3, joint 'Hips'``.
         """
+        from ._warp import resolve_device
         local = self.rest_transforms if local_transforms is None else local_transforms
         out, shape = _forward_kinematics(self.parents, local, resolve_device(device),
                                          self.joint_names)
@@ -315,6 +322,11 @@ class Skeleton:
             Local transforms of the wrong shape, NaN, infinite or beyond float32 (naming the
             argument, frame and joint), zero quaternions; a singular bind transform.
         """
+        import warp as wp
+
+        from ._warp import resolve_device
+        from .kernels import buffers as KB
+        from .kernels import fk as FK
         local = self.rest_transforms if local_transforms is None else local_transforms
         d = resolve_device(device)
         inverse_bind = self.inverse_bind_transforms.astype(np.float32)
@@ -369,6 +381,7 @@ def _check_matrices_after(out, loc, batch, joint_names=None):
 def _device_array(a, dtype, device):
     """Flat (n,) Warp array of ``dtype`` over contiguous float32 ``a``: on the CPU a view of
     ``a`` (the kernels only read it), else an upload."""
+    import warp as wp
     flat = a.reshape(-1, *dtype._shape_)
     return wp.array(flat, dtype=dtype, device=device, copy=not wp.get_device(device).is_cpu)
 
@@ -380,6 +393,7 @@ def _local_arrays(local_transforms, J, device, joint_names=None):
     (finite, within float32, non-zero quaternions: ValueError naming the argument, frame and
     joint); ``matrices``, the given matrices (None for TRS), are checked after the launch by
     :func:`_check_matrices_after`."""
+    import warp as wp
     if isinstance(local_transforms, (tuple, list)):
         host, batch = _trs_arrays(local_transforms, J, joint_names)
         return tuple(_device_array(a, t, device)
@@ -391,6 +405,9 @@ def _local_arrays(local_transforms, J, device, joint_names=None):
 def _forward_kinematics(parents, local_transforms, device, joint_names=None):
     """Launch FK; returns the filled :class:`dqskin.kernels.fk.WorldPoses` (flat (B·J,)) and
     their shape ``batch + (J,)``."""
+    import warp as wp
+
+    from .kernels import fk as FK
     par = check_parents(parents)
     J = par.shape[0]
     if J == 0:
@@ -461,5 +478,6 @@ def forward_kinematics(parents: npt.ArrayLike, local_transforms: LocalTransforms
         or zero quaternions: the message names the argument (``local_transforms``,
         ``translations``, ``rotations``, ``scales``), the frame (batch index) and the joint index.
     """
+    from ._warp import resolve_device
     out, shape = _forward_kinematics(parents, local_transforms, resolve_device(device))
     return _results(out, shape, return_dq)

@@ -649,8 +649,8 @@ def _kernel_checkable(points, joint_indices, joint_weights, method, sign_referen
     """Whether a one-shot call may leave the checks of its values to the packet kernel
     (:attr:`Skinner._unchecked`): the caller's arrays are read in place, as they are (CPU;
     (V, 3) float32 points, (V, 4) int32 indices and float32 weights, C-contiguous; no geom-bind
-    transform), by LBS or DQS with UsdSkel's sign rule: one host pass over each array fewer."""
-    if method not in ("lbs", "dqs") or sign_reference != "largest_weight":
+    transform), by LBS or DQS (either sign rule): one host pass over each array fewer."""
+    if method not in ("lbs", "dqs") or sign_reference not in SIGN_REFERENCES:
         return False
     if geom_bind_transform is not None and not np.array_equal(geom_bind_transform, np.eye(4)):
         return False

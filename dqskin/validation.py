@@ -8,23 +8,26 @@ exactly what ``dqskin skin`` (every writer) and the Python API refuse.
 * :func:`scene_problems`: every problem of a loaded scene at its times, as lines (``info``).
   ``skin`` meets the same checks chunk by chunk: joint transforms as
   :meth:`dqskin.Scene.local_transforms` samples them, results with :func:`check_skinned`.
+* :func:`points_stay_finite`: a float64 bound that proves skinned points finite without
+  skinning (``info`` then needs no device).
 """
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, cast
 
 import numpy as np
 import numpy.typing as npt
 
-from ._warp import Device
 from .errors import InputError
 from .shapes import as_real
 
 if TYPE_CHECKING:
-    from .scene import Scene, SkinnedFrames
+    from ._warp import Device
+    from .pipeline import SkinnedFrames
+    from .scene import Scene
 
 __all__ = ["FLOAT32_MAX", "check_finite", "check_skinned", "check_transforms", "location",
-           "nonnegative_max", "scene_problems", "within_float32"]
+           "nonnegative_max", "points_stay_finite", "scene_problems", "within_float32"]
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 """Largest magnitude a value may have to survive the device's float32."""
@@ -148,24 +151,99 @@ def check_skinned(path: str, result: "SkinnedFrames") -> None:
 
 
 def scene_problems(scene: "Scene", times: npt.ArrayLike | None = None, *, skin: bool = True,
-                   device: Device = None) -> list[str]:
+                   device: "Device" = None,
+                   before_skinning: Callable[[], None] | None = None) -> list[str]:
     """Every problem of ``scene`` at ``times`` (default its own): unusable bind transforms,
     non-finite or out-of-range animated joint transforms, and with ``skin`` non-finite skinned
-    results. Returns a list of one-line messages (empty when the scene can be skinned and
+    points (:meth:`dqskin.Scene.skin`'s defaults), skinned on ``device`` unless
+    :func:`points_stay_finite` proves them finite; ``before_skinning`` is called first when they
+    are skinned. Returns a list of one-line messages (empty when the scene can be skinned and
     written)."""
     t = scene.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
     problems: list[str] = []
-    usable: set[int] = set()
+    local: dict[int, np.ndarray] = {}
     for s, skel in enumerate(scene.skeletons):
         try:
             skel.inverse_bind_transforms  # noqa: B018  (raises for a singular bind pose)
-            scene.local_transforms(t, s)  # raises for NaN, infinite or out-of-range transforms
-            usable.add(s)
+            # raises for NaN, infinite or out-of-range transforms
+            local[s] = scene.local_transforms(t, s)
         except ValueError as exc:
             problems.append(str(exc))
-    if skin and usable and scene.meshes and all(m.skeleton in usable for m in scene.meshes):
+    if (skin and local and scene.meshes and all(m.skeleton in local for m in scene.meshes)
+            and not points_stay_finite(scene, t, local)):
+        if before_skinning is not None:
+            before_skinning()
         try:
             check_skinned(scene.path, scene.skin(t, device=device))
         except ValueError as exc:
             problems.append(str(exc))
     return problems
+
+
+_PROVEN = 1.0e30
+"""Largest bound :func:`points_stay_finite` accepts: 3.4·10⁸ times inside float32's limit, a
+margin for the float32 arithmetic's rounding and for the small constant factors (sums of three
+or four products) the bounds leave out."""
+
+
+def _fk_bound(parents: np.ndarray, local: np.ndarray) -> float:
+    """A bound on the values forward kinematics computes for (F, J, 4, 4) ``local`` transforms
+    (parents first): each world transform is its parent's times its local one, so its entries
+    and the composition's intermediates (rotations, residuals, translations) are within a small
+    factor of ``(1 + |parent|)·(1 + |local|)`` (the largest entries of the float64 products);
+    inf when they leave float64."""
+    with np.errstate(all="ignore"):
+        world = np.empty_like(local)
+        for j, p in enumerate(parents):
+            world[:, j] = local[:, j] if p < 0 else world[:, p] @ local[:, j]
+        big_world = float(np.max(np.abs(world), initial=0.0))
+        big_local = float(np.max(np.abs(local), initial=0.0))
+    bound = 4.0 * (1.0 + big_world) * (1.0 + big_local)
+    return bound if np.isfinite(bound) else np.inf
+
+
+def points_stay_finite(scene: "Scene", times: np.ndarray, local: dict[int, np.ndarray]) -> bool:
+    """Whether a float64 bound proves every skinned point of ``scene`` at ``times`` finite in
+    float32, without skinning: :meth:`dqskin.Scene.skin` with its default options, any method or
+    sign rule. False when the bound cannot tell (the points must be skinned to know).
+
+    For each mesh the bound takes the largest magnitudes: forward kinematics (:func:`_fk_bound`)
+    and the inverse bind transforms give the skinning transforms' ``A``; the geom-bind transform
+    and the rest points the bind-space points ``X``; the weight sums ``W``; the mesh's output
+    transform ``O``. LBS gives at most ``4·W·(1 + A)·(1 + X)``; DQS (the residual blend, then the
+    normalized blend, whose ``2/|r|²`` the kernels clamp at ``2·10³⁰``) at most
+    ``10¹⁶·(1 + W)·(1 + A)·(1 + X)``, the blend and centers of rotation as much. A mesh with a
+    deformer (blend shapes, animated points) is not bounded.
+
+    Parameters
+    ----------
+    scene : dqskin.Scene
+    times : (F,) float64
+    local : dict of int to (F, J, 4, 4) float64
+        Each skeleton's local transforms at ``times``, checked
+        (:meth:`dqskin.Scene.local_transforms`).
+    """
+    from .spaces import space_track
+    joints: dict[int, float] = {}
+    with np.errstate(all="ignore"):
+        for m in scene.meshes:
+            if m.deformer is not None:
+                return False
+            s = m.skeleton
+            if s not in joints:
+                skel = scene.skeletons[s]
+                ib = float(np.max(np.abs(skel.inverse_bind_transforms.astype(np.float32)),
+                                  initial=0.0))
+                fk = _fk_bound(np.asarray(skel.parents), local[s])
+                joints[s] = 4.0 * (1.0 + fk) * (1.0 + ib)  # bind-relative: world · bind⁻¹
+            track = space_track(m, "local")
+            out = 0.0 if track is None else float(np.max(np.abs(track.at(times)), initial=0.0))
+            a = 4.0 * (1.0 + out) * (1.0 + joints[s])  # an output transform folded in
+            g = float(np.max(np.abs(m.geom_bind_transform), initial=0.0))
+            x = 4.0 * (1.0 + g) * (1.0 + float(np.max(np.abs(m.points), initial=0.0)))
+            w = float(np.max(np.sum(np.abs(m.joint_weights, dtype=np.float64), axis=1),
+                             initial=0.0))
+            bound = 4.0 * (1.0 + out) * (1.0 + 1.0e16 * (1.0 + w) * (1.0 + a) * (1.0 + x))
+            if not (joints[s] <= _PROVEN and bound <= _PROVEN):  # (NaN: not proven)
+                return False
+    return True

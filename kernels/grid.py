@@ -15,6 +15,7 @@ packing on every call, which dominates small calls.
 """
 
 import ctypes
+import itertools
 import os
 import threading
 import weakref
@@ -32,6 +33,12 @@ __all__ = ["FRAME_BLOCK", "MIN_WORK", "beside", "cpu_threads", "is_cpu", "launch
 FRAME_BLOCK = 16
 """Frames one thread handles on a (frame block, row) grid: the joints of 16 frames stay in L1
 while every vertex of the block is skinned, and influences are read once per block."""
+
+
+PIECES_PER_THREAD = 4
+"""A large CPU launch is cut into this many pieces per thread, which the threads take in turn: a
+thread the system slows (another process on its core) leaves its later pieces to the others,
+instead of the launch waiting for its fixed half."""
 
 
 MIN_WORK = 32768
@@ -243,7 +250,9 @@ def launch(kernel: wp.Kernel, dim: int | Iterable[int], inputs: Sequence[Any],
 
 def launch_rows(kernel: wp.Kernel, count: int, inputs: Sequence[Any], outputs: Sequence[Any],
                 device: Device, min_chunk: int = 4096, inner: tuple[int, ...] = ()) -> None:
-    """Launch ``kernel`` over ``range(count)`` rows, split in chunks on the CPU.
+    """Launch ``kernel`` over ``range(count)`` rows, split in chunks on the CPU: one per thread,
+    or, when there is work for it, :data:`PIECES_PER_THREAD` per thread that the threads take
+    in turn.
 
     ``kernel`` takes ``inputs``, then ``row_offset``, then ``outputs``; its grid is
     ``(rows of the chunk,) + inner``. On CUDA one launch covers everything.
@@ -254,9 +263,19 @@ def launch_rows(kernel: wp.Kernel, count: int, inputs: Sequence[Any], outputs: S
     def run(offset: int, n: int) -> None:
         _launch(kernel, (n, *inner), [*inputs, offset, *outputs], device)
 
-    chunks = _threads_for(count // min_chunk, device)
-    if chunks <= 1:
+    threads = _threads_for(count // min_chunk, device)
+    if threads <= 1:
         run(0, count)
         return
-    bounds = [count * c // chunks for c in range(chunks + 1)]
-    _pool_map([(run, bounds[c], bounds[c + 1] - bounds[c]) for c in range(chunks)])
+    pieces = threads * max(1, min(PIECES_PER_THREAD, count // min_chunk // threads))
+    bounds = [count * c // pieces for c in range(pieces + 1)]
+    if pieces == threads:
+        _pool_map([(run, bounds[c], bounds[c + 1] - bounds[c]) for c in range(pieces)])
+        return
+    taken = itertools.count()  # the next piece: next() is atomic under the GIL
+
+    def work() -> None:
+        while (c := next(taken)) < pieces:
+            run(bounds[c], bounds[c + 1] - bounds[c])
+
+    _pool_map([(work,)] * threads)

@@ -1,6 +1,6 @@
-"""Point skinning eight vertices at a time on the CPU: LBS and rigid DQS of one group of four
-influences as native snippets that hold each quantity of eight vertices in one clang vector
-(structure of arrays), for :mod:`.skin`'s packet kernels.
+"""Point skinning eight vertices at a time on the CPU: LBS and DQS (each of the three sign
+rules) of one group of four influences as native snippets that hold each quantity of eight
+vertices in one clang vector (structure of arrays), for :mod:`.skin`'s packet kernels.
 
 Warp's CPU back end compiles a kernel to one scalar loop over its threads. A DQS vertex is a chain
 of ~100 dependent scalar operations (gather, sign tests, blend, normalization, transform); the
@@ -19,11 +19,13 @@ The scalar branch is also compiled for the CPU by the tests (``scalar_on_cpu``),
 on every machine.
 
 Semantics (as :mod:`.skin`): LBS ``p' = Σ wₖ·Aₖ·[p, 1]``; DQS ``p' = normalize(Σ ±wₖ·ηₖ)(p)``
-with each sign taken against the pivot: slot 0 of the sorted layout (``searched=False``: its own
-sign is +1) or the first largest weight of the input-order slots (``searched=True``: every slot,
-slot 0 included, is signed against it). A dot product of exactly ``-0.0`` or NaN flips nothing, as
-``wp.sign``. A zero blend leaves the point unchanged. The last packet of a frame may hold fewer
-than eight vertices: its missing lanes read lane 0's joints with zero weights and are not stored.
+with each sign taken against the pivot: slot 0 of the sorted layout (rule ``"sorted"``: its own
+sign is +1) or the first largest weight of the input-order slots (``"searched"``: every slot,
+slot 0 included, is signed against it); or (``"running"``, Blender's rule) against the sum of the
+blend so far, input order, slot 0's sign +1: each lane carries its own running sum. A dot product
+of exactly ``-0.0`` or NaN flips nothing, as ``wp.sign``. A zero blend leaves the point
+unchanged. The last packet of a frame may hold fewer than eight vertices: its missing lanes read
+lane 0's joints with zero weights and are not stored.
 With ``check`` the snippets also check their inputs (a one-shot call's, unchecked on the host:
 one pass over the caller's arrays fewer) and flag what the host checks would refuse; an index
 out of range never reads outside the joints.
@@ -90,6 +92,27 @@ _DQS_SEARCHED = """
             else
                 for (int c = 0; c < 8; ++c) B[c] += T[k][c] * s;
         }"""
+
+# the running sum (Blender): each sign against the blend so far, in input order, from the pairwise
+# dots of the four real parts (as :func:`.skin.dq_gather`: b_k · d_k = Σ_{m<k} s_m·w_m·(d_m · d_k),
+# the first term's sign +1), the lanes carrying their own sums; all four joints loaded first
+_DQS_RUNNING = """
+        V T[4][8], B[8];
+        for (int k = 0; k < 4; ++k) LOAD(k, T[k]);
+#define RDOT(A, C) (T[A][0] * T[C][0] + T[A][1] * T[C][1] + T[A][2] * T[C][2] + T[A][3] * T[C][3])
+        const V a1 = w0 * RDOT(0, 1);
+        const V s1 = a1 < 0.0f ? -w1 : w1;
+        const V a2 = w0 * RDOT(0, 2) + s1 * RDOT(1, 2);
+        const V s2 = a2 < 0.0f ? -w2 : w2;
+        const V a3 = w0 * RDOT(0, 3) + s1 * RDOT(1, 3) + s2 * RDOT(2, 3);
+        const V s3 = a3 < 0.0f ? -w3 : w3;
+#undef RDOT
+        for (int c = 0; c < 8; ++c) B[c] = T[0][c] * w0;
+        for (int c = 0; c < 8; ++c) B[c] += T[1][c] * s1;
+        for (int c = 0; c < 8; ++c) B[c] += T[2][c] * s2;
+        for (int c = 0; c < 8; ++c) B[c] += T[3][c] * s3;"""
+
+_DQS_RULES = {"sorted": _DQS_SORTED, "searched": _DQS_SEARCHED, "running": _DQS_RUNNING}
 
 # dqs_apply: x + 2·(r⃗×(r⃗×x + r_w·x) + r_w·d⃗ − d_w·r⃗ + r⃗×d⃗)/|r|²
 _DQS_APPLY = """
@@ -321,21 +344,22 @@ _VECTOR_LOAD_AFFINE = """
         transpose8(r_, OUT); transpose4(q_, OUT + 8); } while (0)"""
 
 
-def packet_source(method: str, searched: bool = False, scalar_on_cpu: bool = False) -> str:
-    """C++ of a packet snippet: ``method`` ``"lbs"`` or ``"dqs"`` (rigid), ``searched`` the DQS
-    pivot rule (see the module docstring); ``scalar_on_cpu`` compiles the scalar (CUDA) branch for
-    the CPU too (the tests' twin)."""
+def packet_source(method: str, rule: str = "sorted", scalar_on_cpu: bool = False) -> str:
+    """C++ of a packet snippet: ``method`` ``"lbs"`` or ``"dqs"`` (rigid), ``rule`` the DQS
+    sign rule, ``"sorted"``, ``"searched"`` or ``"running"`` (see the module docstring);
+    ``scalar_on_cpu`` compiles the scalar (CUDA) branch for the CPU too (the tests' twin)."""
     if method == "lbs":
         math = _LBS
         width, load = 12, _VECTOR_LOAD_AFFINE
         scalar_base = vector_base = ""
         undef = "\n#undef LOAD"
     else:
-        math = (_DQS_RESIDUAL + (_DQS_SEARCHED if searched else _DQS_SORTED) + _DQS_APPLY)
+        math = _DQS_RESIDUAL + _DQS_RULES[rule] + _DQS_APPLY
         width, load = 8, _VECTOR_LOAD_DQ + _VECTOR_LOAD_RESIDUAL
         scalar_base = "const float* RS = (const float*)residuals.data + 9 * (long long)o;"
         vector_base = "const char* RS = (const char*)residuals.data + 36 * (long long)o;"
         undef = "\n#undef LOAD\n#undef LOADS"
+    searched = method == "dqs" and rule == "searched"
     scalar_pivot = _SCALAR_PIVOT if searched else ""
     vector_pivot = _VECTOR_PIVOT if searched else ""
     scalar = (_SCALAR.replace("PIVOT", scalar_pivot).replace("MATH", math)
@@ -380,7 +404,7 @@ def dqs_sorted_packet(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
     ...
 
 
-@wp.func_native(packet_source("dqs", searched=True))
+@wp.func_native(packet_source("dqs", "searched"))
 def dqs_searched_packet(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                         indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
                         joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
@@ -391,9 +415,21 @@ def dqs_searched_packet(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
     ...
 
 
+@wp.func_native(packet_source("dqs", "running"))
+def dqs_running_packet(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
+                       indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
+                       joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
+                       scaled: int, o: int, v0: int, count: int,
+                       out: wp.array(dtype=wp.vec3), out_base: wp.int64, joint_count: int,
+                       check: int, flags: wp.array(dtype=wp.int32)) -> int:
+    """DQS, signs against the running sum (input order), otherwise as
+    :func:`dqs_sorted_packet`."""
+    ...
+
+
 VERTICES = 8
 """Vertices a packet kernel's thread skins."""
 
 PACKETS = {(0, None): lbs_packet, (1, "sorted"): dqs_sorted_packet,
-           (1, "searched"): dqs_searched_packet}
+           (1, "searched"): dqs_searched_packet, (1, "running"): dqs_running_packet}
 """The packet snippet of ``(method, sign rule)`` (:data:`.skin.LBS` 0, :data:`.skin.DQS` 1)."""

@@ -39,7 +39,7 @@ strides and an inlined task loop on the CPU (2-D arrays are slower on one thread
 kernels are specialized at compile time for the method, rigid frames, a
 single frame (a kernel of its own, with no frame-block code) and, for DQS, the sorted layout's
 sign rule (no running-sum or pivot-search code): code a launch does not run still slows it. On
-the CPU, LBS and DQS (sorted or searched pivot) of one group of four influences launch
+the CPU, LBS and DQS (each sign rule) of one group of four influences launch
 packet kernels instead: a thread skins eight vertices in the lanes of clang vectors
 (:mod:`.packets`; faster than the one-vertex kernels on one thread).
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
@@ -415,9 +415,9 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
     kernel slows the one-frame path); ``sign`` (DQS, one of :data:`SIGN_RULES`) fixes the sign
     rule at compile time, so only its code remains. The influence-group count stays a runtime
     argument: a kernel specialized for ``K <= 4`` is no faster and doubles the module's compile
-    time. ``packet`` (CPU; LBS, or DQS with the sorted or searched rule; one group of four
-    influences): thread ``t`` skins eight vertices at once (:mod:`.packets`), row ``t`` of
-    ``ceil(V / 8)`` per frame (one frame or a frame block alike)."""
+    time. ``packet`` (CPU; LBS, or DQS with any sign rule; one group of four influences):
+    thread ``t`` skins eight vertices at once (:mod:`.packets`), row ``t`` of ``ceil(V / 8)``
+    per frame (one frame or a frame block alike)."""
     packet_func = packets.PACKETS.get((method, sign)) if packet else None
 
     def kernel(
@@ -513,11 +513,12 @@ SKIN_POINTS_KERNELS = _point_kernels((
     (DQS, True, "sorted", False), (DQS, False, "sorted", False), (DQS, True, "sorted", True),
     (DQS, True, "searched", False), (DQS, False, "searched", False),
     (DQS, True, "searched", True), (DQS, True, "running", False), (DQS, False, "running", False),
+    (DQS, True, "running", True),
     (BLEND, True, None, False), (COR, True, None, False), (COR, False, None, False)))
 """The point-skinning kernels by ``(method, residual code, one frame, sign rule, packet)``: LBS
 needs no residual code and has no sign rule, BLEND always has the residual code; DQS kernels have
 their sign rule fixed (:data:`SIGN_RULES`), BLEND and COR read it at run time; packet kernels
-(:mod:`.packets`, the CPU's) for LBS and the sorted and searched DQS, which read each frame's
+(:mod:`.packets`, the CPU's) for LBS and DQS of each sign rule, which read each frame's
 residual flag (one kernel for rigid and scaled launches: the flag is one load per eight
 vertices) and have no one-frame variant (one frame runs the frame loop once, as fast as a
 variant of its own would)."""
@@ -696,9 +697,8 @@ def launch_frames(kernel: wp.Kernel, rows: int, frames: int, inputs: Sequence[An
 def takes_packets(method: int, running_sum: int, groups: int, joint_count: int,
                   device: Device) -> bool:
     """Whether :func:`skin_points` runs a packet kernel (:mod:`.packets`): on the CPU, LBS or DQS
-    (not the running-sum rule) of one group of four influences, with at least one joint."""
-    return ((method == LBS or (method == DQS and not running_sum)) and groups == 1
-            and joint_count > 0 and is_cpu(device))
+    (any sign rule) of one group of four influences, with at least one joint."""
+    return method in (LBS, DQS) and groups == 1 and joint_count > 0 and is_cpu(device)
 
 
 _no_flags = {}

@@ -18,7 +18,7 @@ def scalar_lbs(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
     ...
 
 
-@wp.func_native(P.packet_source("dqs", scalar_on_cpu=True))
+@wp.func_native(P.packet_source("dqs", "sorted", scalar_on_cpu=True))
 def scalar_sorted(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                   indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
                   joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
@@ -28,13 +28,23 @@ def scalar_sorted(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
     ...
 
 
-@wp.func_native(P.packet_source("dqs", searched=True, scalar_on_cpu=True))
+@wp.func_native(P.packet_source("dqs", "searched", scalar_on_cpu=True))
 def scalar_searched(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
                     indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
                     joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
                     scaled: int, o: int, v0: int, count: int,
                     out: wp.array(dtype=wp.vec3), out_base: wp.int64, joint_count: int,
                   check: int, flags: wp.array(dtype=wp.int32)) -> int:
+    ...
+
+
+@wp.func_native(P.packet_source("dqs", "running", scalar_on_cpu=True))
+def scalar_running(points: wp.array(dtype=wp.vec3), point_base: wp.int64,
+                   indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
+                   joints: wp.array(dtype=vec8), residuals: wp.array(dtype=wp.mat33),
+                   scaled: int, o: int, v0: int, count: int,
+                   out: wp.array(dtype=wp.vec3), out_base: wp.int64, joint_count: int,
+                   check: int, flags: wp.array(dtype=wp.int32)) -> int:
     ...
 
 
@@ -68,6 +78,7 @@ def _kernel(vector, scalar, joint_type, name, dqs):
 
 BOTH = {"lbs": _kernel(P.lbs_packet, scalar_lbs, mat34, "both_lbs", False),
         "sorted": _kernel(P.dqs_sorted_packet, scalar_sorted, vec8, "both_sorted", True),
-        "searched": _kernel(P.dqs_searched_packet, scalar_searched, vec8, "both_searched", True)}
+        "searched": _kernel(P.dqs_searched_packet, scalar_searched, vec8, "both_searched", True),
+        "running": _kernel(P.dqs_running_packet, scalar_running, vec8, "both_running", True)}
 """Kernels running both branches of each snippet, by rule (``"lbs"``, ``"sorted"``,
-``"searched"``)."""
+``"searched"``, ``"running"``)."""

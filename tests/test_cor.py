@@ -618,8 +618,9 @@ def test_scene_cli_and_compare(tmp_path, monkeypatch):
     assert rc == 0, text
     np.testing.assert_allclose(np.load(out)["points_0"], want, atol=5e-5)
     rules = []  # what compare asks the skinning path for
-    real = dqskin.scene.skin_scene
-    monkeypatch.setattr(dqskin.scene, "skin_scene", lambda scene, t, options, cache: (
+    from dqskin import pipeline
+    real = pipeline.skin_scene  # (the scene calls it from there)
+    monkeypatch.setattr(pipeline, "skin_scene", lambda scene, t, options, cache: (
         rules.append(options.sign_reference), real(scene, t, options, cache))[1])
     rc, text = run_cli("compare", path, "--out", tmp_path / "report", "--methods", "lbs,cor",
                        "--frames", "1", "--views", "front", "--width", "32", "--supersample",

@@ -75,8 +75,20 @@ def rig(rng, V, F=2):
     return points, idx, w, M
 
 
+def running_sum_dqs(points, idx, w, M):
+    """float64 DQS of (V, 3) points with Blender's rule (test_sign_reference's oracle)."""
+    from test_sign_reference import dqs_reference
+
+    return dqs_reference(points.astype(np.float64), idx, w.astype(np.float64), M[None],
+                         "running_sum")[0]
+
+
+ORACLES = {"lbs": numpy_lbs, "sorted": numpy_dqs, "searched": numpy_dqs,
+           "running": running_sum_dqs}
+
+
 @pytest.mark.parametrize("V", [1, 7, 8, 9, 203])
-@pytest.mark.parametrize("rule", ["lbs", "sorted", "searched"])
+@pytest.mark.parametrize("rule", ["lbs", "sorted", "searched", "running"])
 def test_packets_match_float64(rule, V):
     """Both branches against the float64 oracles, every frame; the sorted rule gets weights in
     descending order (its pivot is slot 0), the others input order. Lanes past the last vertex
@@ -87,7 +99,7 @@ def test_packets_match_float64(rule, V):
         order = np.argsort(-w, axis=1, kind="stable")
         idx, w = np.take_along_axis(idx, order, 1), np.take_along_axis(w, order, 1)
     vector, scalar = run_both(rule, points, idx, w, M)
-    oracle = numpy_lbs if rule == "lbs" else numpy_dqs
+    oracle = ORACLES[rule]
     for f in range(points.shape[0]):
         want = oracle(points[f], idx, w, M[f])
         assert rel_err(vector[f], want) <= 1e-5, f
@@ -121,7 +133,7 @@ def test_searched_pivot_is_the_first_largest_weight():
         assert rel_err(out[0], first) <= 1e-5
 
 
-@pytest.mark.parametrize("rule", ["lbs", "sorted", "searched"])
+@pytest.mark.parametrize("rule", ["lbs", "sorted", "searched", "running"])
 def test_zero_weights_and_nan_joints(rule):
     """All-zero weights: DQS leaves the point where it was (a zero blend normalizes to the
     identity, as Gf), LBS gives the origin (Σ 0·M·p); a NaN joint makes only its vertices NaN."""
@@ -140,7 +152,7 @@ def test_zero_weights_and_nan_joints(rule):
 
 
 @pytest.mark.parametrize("V", [5, 203])
-@pytest.mark.parametrize("rule", ["sorted", "searched"])
+@pytest.mark.parametrize("rule", ["sorted", "searched", "running"])
 def test_scaled_frames_blend_through_residuals(rule, V):
     """A frame with scale/shear (UsdSkel's DQS): ``p_s = Σ wₖ·Sₖ·p``, then the rigid blend
     (rotation and translation of the polar split) applied to ``p_s``; float64 oracle."""
@@ -153,18 +165,20 @@ def test_scaled_frames_blend_through_residuals(rule, V):
     vector, scalar = run_both(rule, points, idx, w, M, residuals=S)
     for f in range(2):
         blended = np.einsum("vk,vkij,vj->vi", w.astype(np.float64), S[f][idx], points[f])
-        want = numpy_dqs(blended, idx, w, M[f])
+        oracle = ORACLES[rule]
+        want = oracle(blended, idx, w, M[f])
         assert rel_err(vector[f], want) <= 1e-5, f
         assert rel_err(scalar[f], want) <= 1e-5, f
-        assert rel_err(vector[f], numpy_dqs(points[f], idx, w, M[f])) > 1e-2  # S mattered
+        assert rel_err(vector[f], oracle(points[f], idx, w, M[f])) > 1e-2  # S mattered
 
 
 @pytest.mark.parametrize("case,packet", [
     ("lbs", True), ("dqs", True), ("dqs scaled", True), ("dqs one-shot", True),
-    ("dqs blender", False), ("dqs 5 influences", False), ("blend", False)])
+    ("dqs blender", True), ("dqs blender one-shot", True), ("dqs 5 influences", False),
+    ("blend", False)])
 def test_launcher_picks_packet_kernels(monkeypatch, case, packet):
-    """On the CPU, LBS and DQS (the sorted layout, the one-shot's searched pivot, frames with
-    scale) of at most four influences launch the packet kernels; the running-sum rule, more
+    """On the CPU, LBS and DQS (the sorted layout, the one-shot's searched pivot, the running
+    sum, frames with scale) of at most four influences launch the packet kernels; more
     influences and the other methods launch the one-vertex kernels. Results against UsdSkel are
     in ``test_skinning.py``."""
     import dqskin
@@ -184,17 +198,18 @@ def test_launcher_picks_packet_kernels(monkeypatch, case, packet):
     if "scaled" in case:
         M[:, 0, 0] = 1.5
     method = case.split()[0]
+    rule = "running_sum" if "blender" in case else "largest_weight"
     if "one-shot" in case:
-        dqskin.skin_points(points, idx, w, M, method, device="cpu")
+        dqskin.skin_points(points, idx, w, M, method, sign_reference=rule, device="cpu")
     else:
         sk = dqskin.Skinner(points, idx, w, blend_weights=np.full(50, 0.5), device="cpu")
-        sk.skin(M, method, sign_reference="running_sum" if "blender" in case else "largest_weight")
+        sk.skin(M, method, sign_reference=rule)
     skins = [n for n in names if n.startswith("skin_")]
     assert skins and all(n.endswith("_packet") == packet for n in skins), skins
 
 
 @pytest.mark.parametrize("V", [13, 16])
-@pytest.mark.parametrize("rule", ["lbs", "sorted", "searched"])
+@pytest.mark.parametrize("rule", ["lbs", "sorted", "searched", "running"])
 @pytest.mark.parametrize("bad", ["none", "nan point", "inf point", "index -1", "index J",
                                  "negative weight", "nan weight", "inf weight", "-0.0 weight"])
 def test_checked_packets_flag_what_the_host_refuses(rule, bad, V):
@@ -223,3 +238,57 @@ def test_checked_packets_flag_what_the_host_refuses(rule, bad, V):
         fixed[where[1], 3] = 0
         for a, b in zip(outs, run_both(rule, points, fixed, w, M)):
             np.testing.assert_array_equal(a, b)
+
+
+def antipodal_rig(rng, V, F=2):
+    """A :func:`rig` whose joints rotate about one axis by angles spread over ±π (many pairs of
+    real parts on opposite hemispheres, the running sum's signs changing along the blend), one
+    joint rotated by exactly π about x (a real-part dot of exactly 0 with the identity, joint
+    0), zero weights (slot 0 too: a zero running sum) and scale on the second frame."""
+    points, idx, w, M = rig(rng, V, F)
+    angles = rng.uniform(-np.pi, np.pi, size=(F, J))
+    M[..., :3, :3] = Rotation.from_rotvec(
+        (angles[..., None] * np.array([0.3, -0.2, 0.93])).reshape(-1, 3)).as_matrix().reshape(
+        F, J, 3, 3)
+    M[:, 0, :3, :3] = np.eye(3)
+    M[:, 1, :3, :3] = np.diag([1.0, -1.0, -1.0])
+    idx[: V // 4, :2] = [0, 1]
+    w[rng.random(w.shape) < 0.15] = 0.0
+    w[::7, 0] = 0.0
+    M[1, :, :3, :3] *= np.array([1.0, 1.3, 0.8])
+    return points[0], idx, w, M
+
+
+@pytest.mark.parametrize("V", [9, 203, 4096 + 5])
+@pytest.mark.parametrize("rule", ["running_sum", "largest_weight"])
+def test_packets_equal_one_vertex_kernels(monkeypatch, rule, V):
+    """The packet kernels (Skinner and one-shot calls) give bit for bit what the one-vertex
+    kernels give, with each sign rule: several frames (a rigid one, a scaled one), one frame,
+    antipodal rigs; the packets within float64 of the oracle of the rule (rigid frame)."""
+    import dqskin
+    from dqskin.kernels import grid
+    from dqskin.kernels import skin as KS
+
+    rng = np.random.default_rng(V)
+    points, idx, w, M = antipodal_rig(rng, V)
+    names = []
+    real_launch, real_takes = grid._launch, KS.takes_packets
+    monkeypatch.setattr(grid, "_launch", lambda kernel, *a: (names.append(kernel.key),
+                                                              real_launch(kernel, *a)))
+
+    def both(packet):
+        monkeypatch.setattr(KS, "takes_packets", real_takes if packet else lambda *a: False)
+        names.clear()
+        sk = dqskin.Skinner(points, idx, w, device="cpu")
+        got = (sk.skin(M, "dqs", sign_reference=rule), sk.skin(M[0], "dqs", sign_reference=rule),
+               dqskin.skin_points(points, idx, w, M, "dqs", sign_reference=rule, device="cpu"))
+        skins = [n for n in names if n.startswith("skin_")]
+        assert skins and all(n.endswith("_packet") == packet for n in skins), skins
+        return got
+
+    packet, one_vertex = both(True), both(False)
+    for a, b in zip(packet, one_vertex):
+        np.testing.assert_array_equal(a, b)
+    oracle = running_sum_dqs if rule == "running_sum" else numpy_dqs
+    live = w.sum(1) > 0  # (an all-zero blend leaves the point: not the oracle's business)
+    assert rel_err(packet[1][live], oracle(points[live], idx[live], w[live], M[0])) <= 1e-5

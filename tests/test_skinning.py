@@ -285,22 +285,26 @@ def test_inputs_not_modified():
         np.testing.assert_array_equal(a, c)
 
 
-@pytest.mark.parametrize("V,F", [(50, 2000), (300, 370), (40000, 3)],
-                         ids=["frames", "mixed", "rows"])
+@pytest.mark.parametrize("V,F", [(50, 2000), (300, 370), (40000, 3), (100003, 2)],
+                         ids=["frames", "mixed", "rows", "pieces"])
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_frame_blocks_and_threads_cover_the_grid(device, monkeypatch, V, F, method):
     """Every (frame, vertex) is skinned once whichever way the grid is split: many frames and few
     vertices (split by frame blocks, a partial last block), few frames and many vertices (split
-    by vertices), with 3 worker threads."""
+    by vertices), with 3 worker threads; a grid large enough for more pieces than threads
+    (:data:`~dqskin.kernels.grid.PIECES_PER_THREAD`, taken in turn: ragged last pieces)."""
     monkeypatch.setenv("DQSKIN_THREADS", "3")
-    calls = []
-    real = grid._pool_map
+    calls, pieces = [], []
+    real, launch = grid._pool_map, grid._launch
     monkeypatch.setattr(grid, "_pool_map", lambda tasks: (calls.append(len(tasks)), real(tasks)))
+    monkeypatch.setattr(grid, "_launch", lambda k, dim, *a: (
+        pieces.append(dim[0]) if k.key.startswith("skin_") else None, launch(k, dim, *a)))
     rng = np.random.default_rng(V + F)
     points, idx, w, M, _ = random_rig(rng, V=V, K=4, J=6, F=F)
     ours = dqskin.skin_points(points, idx, w, M, method, device=device)
     if device == "cpu":
         assert calls and calls[-1] == 3  # the grid really was split three ways
+        assert (len(pieces) > 3) == (V > 50000), pieces  # in more pieces where it is large
     oracle = numpy_lbs if method == "lbs" else numpy_dqs
     for f in range(F):
         assert rel_err(ours[f], oracle(points, idx, w, M[f])) <= 1e-5, f

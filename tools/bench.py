@@ -10,8 +10,9 @@ pipeline would); "one-shot" is ``dqskin.skin_points`` (validation, influence lay
 of the mesh included, as ``UsdSkel.SkinPoints`` converts its inputs every call). Kernels alone
 (:func:`bench_kernels`): one thread, dqskin's point kernels against minimal LBS/DQS kernels.
 FK: 1,000 skeletons × 64 joints. Crowds (:func:`bench_crowd`): 100 and 1,000 CesiumMen (glTF, from
-../shared; the bundled humanoid without it) against one mesh of the same total points. Prints
-tables and writes JSON.
+../shared; the bundled humanoid without it) against one mesh of the same total points. Sign rules
+(:func:`bench_sign_rules`): DQS with Blender's running sum against UsdSkel's rule on a
+598,959-point CesiumMan tiling. Prints tables and writes JSON.
 """
 
 import argparse
@@ -35,11 +36,12 @@ from dqskin.skeleton import forward_kinematics
 JOINTS, INFLUENCES = 64, 4
 
 
-def best_times(fns, repeat, burst_seconds=0.1):
+def best_times(fns, repeat, burst_seconds=0.1, rounds=None):
     """Per-call wall time of each callable: the best over ``repeat`` rounds of the mean of a burst
     of back-to-back calls (about ``burst_seconds`` long, so steady state, as in a pipeline).
     Rounds are interleaved so machine noise hits every implementation alike, with a pause before
-    each burst so the previous implementation's worker threads (TBB, BLAS) go idle."""
+    each burst so the previous implementation's worker threads (TBB, BLAS) go idle. ``rounds``:
+    a dict that receives each callable's per-round times too."""
     bursts = {}
     for name, fn in fns.items():
         fn()  # warm-up (kernel load, caches)
@@ -53,7 +55,10 @@ def best_times(fns, repeat, burst_seconds=0.1):
             t0 = time.perf_counter()
             for _ in range(bursts[name]):
                 fn()
-            best[name] = min(best[name], (time.perf_counter() - t0) / bursts[name])
+            per_call = (time.perf_counter() - t0) / bursts[name]
+            best[name] = min(best[name], per_call)
+            if rounds is not None:
+                rounds.setdefault(name, []).append(per_call)
     return best
 
 
@@ -259,7 +264,7 @@ def crowd_character():
     return dqskin.load(glb if glb.exists() else root / "assets" / "humanoid.usda")
 
 
-def bench_crowd(devices, rows, counts=(100, 1000), frames=16, repeat=3):
+def bench_crowd(devices, rows, counts=(100, 1000), frames=16, repeat=5):
     """A crowd of ``count`` instances of one character (random time offsets and root
     transforms) against one mesh with the same total points (4 influences, 64 joints), both
     skinning ``frames`` frames per call and reading the result back.
@@ -313,26 +318,129 @@ def bench_crowd(devices, rows, counts=(100, 1000), frames=16, repeat=3):
                 }
                 if count == min(counts):
                     fns["crowd end-to-end"] = lambda: (crowd.skin(t, method), wp.synchronize())
-                res = best_times(fns, repeat, burst_seconds=0.5)
+                per_round = {}
+                res = best_times(fns, repeat, burst_seconds=0.5, rounds=per_round)
                 for impl, sec in res.items():
                     rows.append(dict(kind="crowd", device=dev, method=method, instances=count,
                                      vertices=V, frames=frames, impl=impl, seconds=sec,
-                                     mpts_per_s=V * frames / sec / 1e6))
+                                     mpts_per_s=V * frames / sec / 1e6,
+                                     round_seconds=per_round[impl]))
+
+
+def bench_sign_rules(rows, copies=183, frames=48, repeat=5):
+    """DQS with Blender's sign rule (``running_sum``) against UsdSkel's (``largest_weight``) on
+    one mesh: CesiumMan's influences and walk tiled ``copies`` times (598,959 points), one frame
+    per ``Skinner.skin`` call, every sixth of its first ``frames`` frames; "before" is the
+    running sum on the one-vertex kernel (the packet kernels withheld), as the tree ran it
+    before the packet kernels took the rule."""
+    from dqskin.kernels import skin as KS
+
+    char = crowd_character()
+    mesh = char.meshes[0]
+    tile = (copies, 1)
+    sk = dqskin.Skinner(np.tile(mesh.points, tile), np.tile(mesh.joint_indices, tile),
+                        np.tile(mesh.joint_weights, tile),
+                        geom_bind_transform=mesh.geom_bind_transform, device="cpu")
+    t = np.arange(frames) / 24.0 if char.time_codes_per_second == 1 else np.arange(float(frames))
+    xf = char.skinning_transforms(t)[::6]
+    takes = KS.takes_packets
+
+    def run(rule, packet=True):
+        def fn():
+            if not packet:
+                KS.takes_packets = lambda *a: False
+            try:
+                for x in xf:
+                    sk.skin(x, "dqs", sign_reference=rule)
+            finally:
+                KS.takes_packets = takes
+        return fn
+
+    res = best_times({"largest_weight": run("largest_weight"), "running_sum": run("running_sum"),
+                      "running_sum, one-vertex kernel (before)": run("running_sum", False)},
+                     repeat)
+    for impl, sec in res.items():
+        rows.append(dict(kind="sign", impl=impl, vertices=sk.vertex_count,
+                         seconds=sec / len(xf), mpts_per_s=sk.vertex_count * len(xf) / sec / 1e6))
+
+
+def bench_startup(rows, rounds=15):
+    """Start-up: ``dqskin --help`` and ``dqskin info`` on CesiumMan (USDZ, ../shared; the bundled
+    humanoid without it) against ``python -c "import numpy"``, each a fresh process started the
+    same way (the console script beside this interpreter), in ``rounds`` interleaved rounds;
+    wall time and, where ``/usr/bin/time`` runs them (a small process, so the child's peak is
+    its own, not this process's image it was forked from), peak memory."""
+    import subprocess
+    import tempfile
+
+    root = Path(__file__).resolve().parents[1]
+    usdz = root.parent / "shared" / "assets" / "usd-wg" / "CesiumMan" / "CesiumMan.usdz"
+    asset = usdz if usdz.exists() else root / "assets" / "humanoid.usda"
+    script = Path(sys.executable).with_name("dqskin")
+    dqskin_cmd = [str(script)] if script.exists() else [sys.executable, "-m", "dqskin.cli"]
+    cmds = {'python -c "import numpy"': [sys.executable, "-c", "import numpy"],
+            "dqskin --help": dqskin_cmd + ["--help"],
+            f"dqskin info {asset.name}": dqskin_cmd + ["info", str(asset)]}
+    gnu_time = Path("/usr/bin/time")
+    times = {k: [] for k in cmds}
+    peak = dict.fromkeys(cmds, 0.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        kb = Path(tmp) / "kb"
+        start = [str(gnu_time), "-f", "%M", "-o", str(kb)] if gnu_time.exists() else []
+        for _ in range(rounds):
+            for name, cmd in cmds.items():
+                t0 = time.perf_counter()
+                subprocess.run(start + cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                               check=True)
+                times[name].append(time.perf_counter() - t0)
+                if start:
+                    peak[name] = max(peak[name], float(kb.read_text().split()[-1]) / 1024)
+    for name, ts in times.items():
+        rows.append(dict(kind="startup", impl=name, seconds=float(np.median(ts)),
+                         worst=float(np.max(ts)), best=float(np.min(ts)), rounds=rounds,
+                         peak_mb=peak[name] or None))
+
+
+def print_startup_table(start):
+    base = start[0]
+    print(f"\nStart-up, fresh processes, {base['rounds']} interleaved rounds (ratio = median ÷ "
+          f"the median of {base['impl']}; targets: --help ≤ 2.5, info ≤ 5)")
+    print("| command | median s | best s | worst s | peak MB | ratio |")
+    print("|---|---|---|---|---|---|")
+    for r in start:
+        print(f"| {r['impl']} | {r['seconds']:.3f} | {r['best']:.3f} | {r['worst']:.3f} | "
+              f"{r['peak_mb'] or 0:.0f} | {r['seconds'] / base['seconds']:.2f} |")
+
+
+def print_sign_table(sign):
+    base = next(r for r in sign if r["impl"] == "largest_weight")["seconds"]
+    print(f"\nDQS sign rules, {sign[0]['vertices']:,} points (CesiumMan tiled), one frame a "
+          "call, CPU (ratio = time ÷ largest_weight's, target ≤ 1.3 for running_sum)")
+    print("| rule | ms per frame | M points/s | ratio |")
+    print("|---|---|---|---|")
+    for r in sign:
+        print(f"| {r['impl']} | {r['seconds'] * 1e3:.2f} | {r['mpts_per_s']:.0f} | "
+              f"{r['seconds'] / base:.2f} |")
 
 
 def print_crowd_table(crowd):
     print(f"\nCrowds: {crowd[0]['frames']} frames per call (M point-frames/s; ratio = crowd "
-          "skin time ÷ one-mesh time with a residual as the crowd has, target ≤ 1.3)")
+          "skin time ÷ one-mesh time with a residual as the crowd has, best rounds; then the "
+          "median and worst of the ratios round by round; target ≤ 1.3)")
     impls = list(dict.fromkeys(r["impl"] for r in crowd))
-    print("| instances | points | device | method | " + " | ".join(impls) + " | ratio |")
-    print("|" + "---|" * (len(impls) + 5))
+    print("| instances | points | device | method | " + " | ".join(impls)
+          + " | ratio | median | worst |")
+    print("|" + "---|" * (len(impls) + 7))
     for key in dict.fromkeys((r["instances"], r["device"], r["method"]) for r in crowd):
         sel = {r["impl"]: r for r in crowd
                if (r["instances"], r["device"], r["method"]) == key}
         cells = " | ".join(f"{sel[i]['mpts_per_s']:.1f}" if i in sel else "-" for i in impls)
         ratio = sel["crowd skin"]["seconds"] / sel["one mesh, residual"]["seconds"]
+        by_round = np.array(sel["crowd skin"]["round_seconds"]) / np.array(
+            sel["one mesh, residual"]["round_seconds"])
         V = next(iter(sel.values()))["vertices"]
-        print(f"| {key[0]} | {V} | {key[1]} | {key[2]} | {cells} | {ratio:.2f} |")
+        print(f"| {key[0]} | {V} | {key[1]} | {key[2]} | {cells} | {ratio:.2f} | "
+              f"{np.median(by_round):.2f} | {by_round.max():.2f} |")
 
 
 def print_tables(rows):
@@ -351,6 +459,12 @@ def print_tables(rows):
     crowd = [r for r in rows if r["kind"] == "crowd"]
     if crowd:
         print_crowd_table(crowd)
+    sign = [r for r in rows if r["kind"] == "sign"]
+    if sign:
+        print_sign_table(sign)
+    start = [r for r in rows if r["kind"] == "startup"]
+    if start:
+        print_startup_table(start)
     fk = [r for r in rows if r["kind"] == "fk"]
     if fk:
         print(f"\nFK: {fk[0]['skeletons']} skeletons × {fk[0]['joints']} joints (M joints/s)")
@@ -386,8 +500,10 @@ def main(argv=None):
     ap.add_argument("--json", default="out/bench.json")
     ap.add_argument("--quick", action="store_true", help="10k and 100k only, fewer repeats")
     ap.add_argument("--skip", default="",
-                    help="comma list of sections to skip: skin,kernel,overhead,fk,crowd,bake")
+                    help="comma list of sections to skip: "
+                    "skin,kernel,overhead,fk,crowd,sign,startup,bake")
     ap.add_argument("--crowds", default="100,1000", help="crowd sizes (instances)")
+    ap.add_argument("--crowd-frames", type=int, default=16, help="frames per crowd call")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
     if args.quick:
@@ -403,10 +519,11 @@ def main(argv=None):
     print(f"dqskin from {sources['dqskin']}, its kernels from {sources['kernels']}")
     devices = ["cpu"] + (["cuda:0"] if wp.get_cuda_device_count() > 0 else [])
     skip = set(filter(None, args.skip.split(",")))
-    unknown = skip - {"skin", "kernel", "overhead", "fk", "crowd", "bake"}
+    sections = ("skin", "kernel", "overhead", "fk", "crowd", "sign", "startup", "bake")
+    unknown = skip - set(sections)
     if unknown:
         ap.error(f"--skip: unknown section(s) {', '.join(sorted(unknown))}; "
-                 "sections: skin,kernel,overhead,fk,crowd,bake")
+                 f"sections: {','.join(sections)}")
     rows = []
     if "skin" not in skip:
         bench_skinning(sizes, args.repeat, devices, rows)
@@ -417,7 +534,12 @@ def main(argv=None):
     if "fk" not in skip:
         bench_fk(devices, rows)
     if "crowd" not in skip:
-        bench_crowd(devices, rows, [int(c) for c in args.crowds.split(",")])
+        bench_crowd(devices, rows, [int(c) for c in args.crowds.split(",")],
+                    frames=args.crowd_frames)
+    if "sign" not in skip:
+        bench_sign_rules(rows)
+    if "startup" not in skip:
+        bench_startup(rows)
     if "bake" not in skip:
         from bench_bake import bench_bake  # noqa: E402  (tools/ sibling)
         bench_bake(rows)

@@ -56,6 +56,7 @@ from ..progress import progress_bar
 from ..readers import load
 from ..scene import DEFAULT_BLEND, Scene
 from ..times import default_frames
+from .defaults import MAX_RAYS
 from .html import build_html, method_label
 from .render import VIEWS, Camera, MeshRenderer, Shading, add_colorbar, save_png, side_by_side
 from .viewer import VIEWER_FRAMES, encode, viewer_times
@@ -80,9 +81,6 @@ same, but the Jacobian's rank-one part (the blend changing along the bone) adds 
 ``(1 − cos θ)x²/(2a²)`` on the half-width-``a`` ramp, a sixth over the ramp, hence ``d = 6``. DQS
 keeps 1 in both (rigid rotation of each section)."""
 
-MAX_RAYS = 8192
-"""Default limit on rays per image side (``width × supersample``; ``--max-rays`` raises it): an
-8192² super-sampled image is already 768 MB of colour samples."""
 
 
 

@@ -27,12 +27,11 @@ from ..files.atomic import atomic_path
 from ..kernels import render as KR
 from ..progress import progress_bar
 from ..topology import check_faces, incidence
+from .defaults import VIEWS
 
 __all__ = ["ADAPTIVE_DEPTH_JUMP", "ADAPTIVE_NORMAL_ANGLE", "VIEWS", "Camera", "MeshRenderer",
            "Shading", "add_colorbar", "colormap_lut", "render", "save_png", "side_by_side"]
 
-VIEWS = ("front", "side", "three_quarter")
-"""Named view directions of :meth:`Camera.frame` (see :func:`_view_direction`)."""
 
 ADAPTIVE_DEPTH_JUMP = 0.01
 """Adaptive anti-aliasing: relative depth difference between neighbouring centre rays that marks

@@ -34,12 +34,10 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import InputError
+from .defaults import VIEWER_FRAMES
 
 __all__ = ["VIEWER_FRAMES", "decode", "encode", "viewer_html", "viewer_times"]
 
-VIEWER_FRAMES = 48
-"""Default number of frames the viewer plays (evenly spaced over the clip; plus the compared
-frames, so the worst frames are exact)."""
 
 _GRID = 65535
 
