@@ -76,11 +76,12 @@ def flag(param: Param) -> str:
 
 
 def _on_signal(signum: int, frame: FrameType | None) -> None:
-    if _signalled:
-        return  # the first signal interrupts; clean-up then runs to its end
+    atomic = sys.modules.get("dqskin.files.atomic")
+    if _signalled or (atomic is not None and atomic.finished()):
+        return  # the first signal interrupts; clean-up then runs to its end (or the output
+        # is complete: the run succeeded)
     _signalled.append(signum)
     exc = Interrupted(signum)
-    atomic = sys.modules.get("dqskin.files.atomic")
     if atomic is not None:
         atomic.interrupt(exc)  # raises now, or when the current commit/clean-up step ends
         return
@@ -713,8 +714,10 @@ def _version() -> str:
 
 def _checkpoint() -> None:
     """Raise :class:`Interrupted` if a signal came while a library swallowed the exception (USD
-    runs Python module loads from C++ and reports their errors as warnings)."""
-    if _signalled:
+    runs Python module loads from C++ and reports their errors as warnings), unless the run's
+    output was committed meanwhile (:func:`dqskin.files.atomic.finished`)."""
+    atomic = sys.modules.get("dqskin.files.atomic")
+    if _signalled and not (atomic is not None and atomic.finished()):
         raise Interrupted(_signalled[0])
 
 

@@ -194,29 +194,25 @@ def test_flatten_refuses_to_overwrite_one_of_its_clip_layers(tmp_path):
 
 def test_flatten_refuses_a_missing_or_damaged_clip_layer(tmp_path):
     """USD skips a missing clip (holding the samples around it) and copies a damaged one: flatten
-    checks every clip layer the metadata names against its record first, and writes nothing."""
+    checks every clip layer against the size and checksum the top level lists first, and writes
+    nothing."""
     out = tmp_path / "shot.usd"
     bake(load(HUMANOID), out, chunk=8, clips=True, normals=False, velocities=False)
     layer = sorted(clips_folder(out).glob("chunk_*.usdc"))[2]
     good = layer.read_bytes()
     layer.unlink()
-    with pytest.raises(ValueError, match=f"shot.usd: clip layer ./shot.clips/{layer.name} of "
-                                         "/Humanoid is missing"):
+    with pytest.raises(ValueError, match=f"shot.clips/{layer.name}: missing, damaged or not the "
+                                         "clip layer shot.usd was written with"):
         flatten(out, tmp_path / "a.usdc")
     flipped = bytearray(good)
     flipped[len(good) // 2] ^= 1
     for n, damaged in enumerate([bytes(flipped), good[:1000]]):
         layer.write_bytes(damaged)
-        with pytest.raises(ValueError, match=f"{layer.name}: does not match its record"):
+        with pytest.raises(ValueError, match=f"{layer.name}: missing, damaged or not the clip"):
             flatten(out, tmp_path / f"b{n}.usdc")
     assert sorted(p.name for p in tmp_path.glob("*.usdc")) == []
     layer.write_bytes(good)
     assert Sdf.Layer.FindOrOpen(str(flatten(out, tmp_path / "c.usdc"))) is not None
-    # a chunk of another bake (its record's plan is not the folder's) is refused too
-    plan = clips_folder(out) / "plan.json"
-    plan.write_text(plan.read_text().replace('"key": "', '"key": "0'))
-    with pytest.raises(ValueError, match="of another bake"):
-        flatten(out, tmp_path / "d.usdc")
 
 
 def _clip_stage(folder, sidecar=None):
@@ -303,7 +299,7 @@ def test_a_running_bake_holds_its_clip_folder(tmp_path):
     assert LOCK_FILE not in before
     with bake_lock(out):
         for extra in ({}, {"resume": True}, {"force": True}):
-            with pytest.raises(FileExistsError, match="another dqskin clip bake"):
+            with pytest.raises(FileExistsError, match="another dqskin run"):
                 bake(scene, out, scene.times[:8], **args, **extra)
         assert {p.name: p.read_bytes() for p in folder.iterdir() if p.name != LOCK_FILE} == before
     assert not (folder / LOCK_FILE).exists()
@@ -435,8 +431,9 @@ def test_resume_over_other_settings_says_what_differs(tmp_path):
     out = tmp_path / "shot.usd"
     bake(scene, out, scene.times[:8], chunk=4, clips=True, method="lbs", normals=False)
     out.unlink()  # unfinished, as after an interrupt
-    with pytest.raises(ValueError, match=r"in clips of 4 frames \(now 3\), with method 'lbs' "
-                                         r"\(now 'dqs'\), with normals False \(now True\)"):
+    with pytest.raises(ValueError, match=r"with chunk=4 \(now chunk=3\), with method='lbs' "
+                                         r"\(now method='dqs'\), with normals=False "
+                                         r"\(now normals=True\)"):
         bake(scene, out, scene.times[:8], chunk=3, clips=True, method="dqs", resume=True)
     with pytest.raises(ValueError, match=r"of 8 frames from 0 to 7 \(now 6 from 0 to 5"):
         bake(scene, out, scene.times[:6], chunk=4, clips=True, method="lbs", normals=False,
@@ -646,7 +643,7 @@ def test_resume_keeps_verified_chunks_and_redoes_missing_or_corrupt(humanoid, tm
     time.sleep(0.01)
     with pytest.raises(FileExistsError, match="resume=True"):
         bake(scene, shot, chunk=CHUNK, clips=True)
-    with pytest.raises(ValueError, match=rf"in clips of {CHUNK} frames \(now {CHUNK + 1}\)"):
+    with pytest.raises(ValueError, match=rf"with chunk={CHUNK} \(now chunk={CHUNK + 1}\)"):
         bake(scene, shot, chunk=CHUNK + 1, resume=True)
     summary = bake(scene, shot, chunk=CHUNK, resume=True)
     assert "5 kept from the earlier run" in summary
@@ -854,8 +851,8 @@ def test_skinning_options_reach_the_clips_and_their_plan(humanoid, tmp_path):
     names = [m.name for m in scene.meshes]
     assert_same_animation(Usd.Stage.Open(str(single)), Usd.Stage.Open(str(shot)), names,
                           probe_times(scene.times, CHUNK)[::3])
-    with pytest.raises(ValueError, match="with sign_reference 'running_sum' "
-                                         r"\(now 'largest_weight'\)"):
+    with pytest.raises(ValueError, match="with sign_reference='running_sum' "
+                                         r"\(now sign_reference='largest_weight'\)"):
         bake(scene, shot, chunk=CHUNK, resume=True, **dict(opts, sign_reference="largest_weight"))
 
 
