@@ -13,6 +13,7 @@ import contextlib
 import dataclasses
 import numbers
 import os
+import re
 import sys
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -22,7 +23,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from .errors import InputError, OutputExistsError, Param, output_exists
+from .errors import InputError, LimitError, OutputExistsError, Param, output_exists
 from .files.atomic import atomic_path, check_interrupted, check_parent
 from .options import SkinOptions, is_numpy_bool, split_changes
 from .readers import format_of, gltf, usd
@@ -30,18 +31,31 @@ from .scene import Scene, SkinnedFrames
 from .validation import check_skinned
 from .writers import mesh_files, npz, usd_cache
 
-__all__ = ["CLIPS_AUTO_BYTES", "OUTPUT_SUFFIXES", "BakeSettings", "bake",
-           "check_clip_arguments", "check_output", "output_kind", "sample_bytes"]
+__all__ = ["MAX_WORKERS_PER_CORE", "OUTPUT_SUFFIXES", "USDA_MAX_BYTES", "BakeSettings", "bake",
+           "check_clip_arguments", "check_output", "max_workers", "output_kind", "sample_bytes"]
 
 OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXES
 """Suffixes :func:`bake` writes (mesh files take a per-frame pattern like ``f_{:04d}.obj``)."""
 
 
-CLIPS_AUTO_BYTES = 512 << 20
-"""A USD cache whose samples would exceed this many bytes (:func:`sample_bytes`) is written as
-value clips unless ``clips=False``: a long bake then runs chunk by chunk, resumable, on Dask
-workers if asked (a ``.usda`` layer would also hold every sample in memory until saved; a
-``.usdc``/``.usd`` one streams them to its file)."""
+USDA_MAX_BYTES = 512 << 20
+"""Most bytes of samples (:func:`sample_bytes`) a single-layer ``.usda`` cache takes: a text
+layer holds every sample in memory until it is saved. Beyond it the bake is refused before
+skinning (LimitError): a ``.usdc``/``.usd`` layer streams its samples to its file and takes any
+size; value clips (``clips=True``) split them into layers."""
+
+MAX_WORKERS_PER_CORE = 4
+"""Local Dask worker processes allowed per CPU core (:func:`max_workers`)."""
+
+
+def max_workers() -> int:
+    """Most local worker processes a bake starts (``workers``): :data:`MAX_WORKERS_PER_CORE`
+    per CPU core (each worker is a process holding the asset, some 360 MB for a small one), or
+    the whole number in the environment variable ``DQSKIN_MAX_WORKERS``."""
+    given = os.environ.get("DQSKIN_MAX_WORKERS", "").strip()
+    if given.isdigit() and int(given) >= 1:
+        return int(given)
+    return MAX_WORKERS_PER_CORE * (os.cpu_count() or 1)
 
 
 def sample_bytes(scene: Scene, frames: int, normals: bool = True, velocities: bool = True) -> int:
@@ -104,14 +118,16 @@ class BakeSettings:
         only when stderr is a terminal).
     clips : bool or None
         USD output as value clips (:mod:`dqskin.writers.usd_clips`): a small top-level ``out``
-        and one crate layer per clip in ``out``'s ``.clips`` folder. None: clips when the
-        samples would exceed :data:`CLIPS_AUTO_BYTES` (512 MiB), or when ``workers``,
-        ``scheduler`` or ``resume`` ask for them.
+        and one crate layer per clip in ``out``'s ``.clips`` folder. None: clips when
+        ``workers``, ``scheduler`` or ``resume`` ask for them, else one layer (a ``.usda`` one
+        of at most :data:`USDA_MAX_BYTES` of samples).
     workers : int or None
         Bake the clips on a local Dask cluster of this many worker processes
-        (:mod:`dqskin.distributed`). None: in this process.
+        (:mod:`dqskin.distributed`), at most :func:`max_workers` (LimitError). None: in this
+        process.
     scheduler : str or None
-        ``tcp://HOST:PORT`` of a running Dask scheduler to bake the clips on instead; its
+        ``tcp://HOST:PORT`` of a running Dask scheduler to bake the clips on instead (other
+        protocols are refused); its
         workers read ``scene.path`` from the file (in-memory changes to the scene are not seen)
         and write to ``out``'s folder, so both must be at the same paths for them.
     resume : bool
@@ -147,8 +163,15 @@ class BakeSettings:
                 raise InputError(Param(name, v), ": expected True or False"
                                  + (" or None" if name == "clips" else ""))
             object.__setattr__(self, name, bool(v))
-        if self.scheduler is not None and not isinstance(self.scheduler, str):
-            raise InputError(Param("scheduler", self.scheduler), ": expected an address or None")
+        if self.scheduler is not None and (not isinstance(self.scheduler, str) or
+                                           not _TCP_ADDRESS.fullmatch(self.scheduler)):
+            raise InputError(Param("scheduler", self.scheduler), ": expected tcp://HOST:PORT "
+                             "(a Dask scheduler reached over plain TCP) or None")
+        if self.workers is not None and self.workers > max_workers():
+            raise LimitError(Param("workers", self.workers), f": more than the limit of "
+                             f"{max_workers()} local worker processes ({MAX_WORKERS_PER_CORE} "
+                             "per CPU core; each holds the asset); ask for fewer, or raise the "
+                             "limit with the environment variable DQSKIN_MAX_WORKERS")
         given: object = self.inputs  # (whatever the caller passed)
         paths = () if isinstance(given, (str, Path)) or not isinstance(given, Iterable) \
             else tuple(given)
@@ -162,14 +185,19 @@ class BakeSettings:
         return self.workers is not None or bool(self.scheduler) or self.resume
 
 
+_TCP_ADDRESS = re.compile(r"tcp://(\[[0-9A-Fa-f:.]+\]|[^\s/:\[\]@]+):\d{1,5}/?")
+
+
 def check_clip_arguments(out: str | Path, settings: BakeSettings,
                          options: SkinOptions | None = None) -> None:
     """Raise InputError, naming the parameters, for what :func:`bake` refuses together, before
     anything is loaded (each field alone is checked by :class:`BakeSettings` and
     :class:`~dqskin.options.SkinOptions`): clips or their options (``workers``, ``scheduler``,
     ``resume``) with a non-USD ``out``, those options with ``clips=False``, ``workers`` with
-    ``scheduler``, ``resume`` with ``force``, and a USD cache in a space other than "local"
-    (its points sit under the source's prims, whose transforms still apply)."""
+    ``scheduler``, ``resume`` with ``force``, a USD cache in a space other than "local"
+    (its points sit under the source's prims, whose transforms still apply), and clips of an
+    ``out`` whose path USD cannot name in clip metadata
+    (:func:`~dqskin.writers.usd_clips.check_clip_name`: a backslash, a newline)."""
     workers, scheduler, resume = settings.workers, settings.scheduler, settings.resume
     if options is not None and options.space != "local" and output_kind(out) == "usd":
         raise InputError(Param("space", options.space), ": a USD point cache holds each prim's "
@@ -192,6 +220,9 @@ def check_clip_arguments(out: str | Path, settings: BakeSettings,
         raise InputError(Param("workers"), ", ", Param("scheduler"), " and ",
                          Param("resume", True), " need value clips (not ", Param("clips", False),
                          ")")
+    if settings.clips or asked:
+        from .writers.usd_clips import check_clip_name
+        check_clip_name(out)
 
 
 def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None = None, *,
@@ -296,10 +327,14 @@ def _bake_usd(job: _Job) -> str:
     # a USD cache holds each time once (np.unique would import numpy.ma)
     counts = job.counts(int(np.count_nonzero(np.diff(np.sort(t)))) + 1)
     method = opts.method or "asset method"
-    clips = s.clips
-    if clips is None:
-        clips = s.distributed or sample_bytes(scene, len(t), opts.normals,
-                                              opts.velocities) > CLIPS_AUTO_BYTES
+    clips = s.distributed if s.clips is None else s.clips
+    if not clips and Path(out).suffix.lower() == ".usda":
+        need = sample_bytes(scene, len(t), opts.normals, opts.velocities)
+        if need > USDA_MAX_BYTES:
+            raise LimitError(Param("out", out), f": {need / (1 << 20):,.0f} MiB of samples, more "
+                             f"than the {USDA_MAX_BYTES >> 20} MiB a .usda layer takes (a text "
+                             "layer is held in memory whole); write .usdc or .usd (one layer of "
+                             "any size), or value clips with ", Param("clips", True))
     if clips:
         from .distributed import bake_clips
         done = bake_clips(scene, out, t, opts, s)
@@ -317,8 +352,10 @@ def _bake_usd_layer(job: _Job) -> bool:
     src = scene.path
     check_output(out, job.sources, s.force)
     from .writers import usd_clips
-    clips = usd_cache.clips_folder(out).is_dir()  # SHOT.clips/ beside SHOT.usd: locked, and
-    # replaced with force
+    # SHOT.clips/ of a dqskin clip bake beside SHOT.usd: locked, and replaced with force (no
+    # folder is made otherwise: the bake writes one file)
+    folder = usd_cache.clips_folder(out)
+    clips = folder.is_dir() and usd_clips.our_plan(folder) is not None
     wrote_velocities = False
 
     def check(res: SkinnedFrames) -> None:

@@ -287,6 +287,12 @@ def bake_clips(scene: Scene, out: str | Path, times: np.ndarray, options: SkinOp
     dict
         ``clips`` (in total), ``baked`` (this run), ``kept`` (verified from an earlier run),
         ``folder``, and ``tasks``: what each task returned (pid, seconds, peak RSS).
+
+    Raises
+    ------
+    KeyboardInterrupt
+        Interrupted: when finished clips are kept for ``resume``, the exception's ``resumable``
+        attribute is ``(kept, clips, folder)``.
     """
     with usd_clips.bake_lock(out):  # one bake of ``out`` at a time, --resume and --force too
         # before starting workers
@@ -334,9 +340,12 @@ def _bake_clips(scene, out, times, options, settings, threads):
                 bar.close()
                 del preload
         bake.finish()
-    except BaseException:
+    except BaseException as exc:
         if bake is not None:  # (only when no clip was kept: nothing for --resume to complete)
             bake.abandon()
+            kept = bake.kept()
+            if isinstance(exc, KeyboardInterrupt) and kept:
+                exc.resumable = (kept, len(bake.bounds), str(bake.folder))  # type: ignore
         raise
     return dict(clips=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
                 folder=str(bake.folder), tasks=tasks)
@@ -365,8 +374,9 @@ def _dask(workers, scheduler, threads=None):
     stack = contextlib.ExitStack()
     try:
         if scheduler:
+            _probe(scheduler, CONNECT_SECONDS)
             try:
-                client = Client(scheduler, timeout="20s")
+                client = Client(scheduler, timeout=f"{CONNECT_SECONDS}s")
             except (OSError, ValueError) as exc:
                 raise DqskinError(Param("scheduler", scheduler),
                                   f": cannot connect ({exc})") from None
@@ -376,6 +386,7 @@ def _dask(workers, scheduler, threads=None):
             threads = str(max(1, int(threads or (os.cpu_count() or 1) // int(workers))))
             # for the cluster's lifetime: a restarted worker is forked from the same server
             stack.enter_context(dask.config.set(forkserver.dask_config()))
+            stack.enter_context(dask.config.set(_worker_ttl(dask.config)))
             with forkserver.owning_forkserver():  # its first worker starts it, unless running
                 cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
                                        processes=True, host="127.0.0.1", dashboard_address=None,
@@ -393,6 +404,49 @@ def _dask(workers, scheduler, threads=None):
         if not scheduler:  # started by the cluster or by prestart_workers
             forkserver.stop_workers()
         stack.close()
+
+
+CONNECT_SECONDS = 20
+"""Seconds a ``scheduler`` has to accept the connection and greet (a Dask scheduler sends its
+handshake at once; a port that accepts and says nothing is refused after this long)."""
+
+WORKER_TTL = "60s"
+"""How long a worker of a bake's own LocalCluster may go without a heartbeat (a process stopped
+with SIGSTOP, or hung) before the scheduler drops it and its clips run on the others: Dask's
+``distributed.scheduler.worker-ttl`` (default 5 minutes), unless that is configured otherwise.
+The workers of an external ``scheduler`` follow that scheduler's own setting."""
+
+
+def _worker_ttl(config: Any) -> dict[str, str]:
+    """``{"distributed.scheduler.worker-ttl": WORKER_TTL}`` unless Dask's configuration (its
+    files or ``DASK_DISTRIBUTED__SCHEDULER__WORKER_TTL``) sets another value than Dask's
+    default."""
+    key = "distributed.scheduler.worker-ttl"
+    given = config.get(key, None)
+    return {key: WORKER_TTL} if given in (None, "5 minutes", "300s") else {}
+
+
+def _probe(address: str, seconds: float) -> None:
+    """DqskinError unless something at the ``tcp://HOST:PORT`` ``address`` accepts a connection
+    and sends its first bytes (a Dask scheduler's handshake) within ``seconds``: Dask's own
+    connect waits for ever on a port that accepts and never answers."""
+    import socket
+    host, _, port = address[len("tcp://"):].rstrip("/").rpartition(":")
+    host = host.strip("[]")
+    end = time.monotonic() + seconds
+    try:
+        with socket.create_connection((host, int(port)), timeout=seconds) as sock:
+            sock.settimeout(max(0.1, end - time.monotonic()))
+            first = sock.recv(1)
+    except TimeoutError:
+        raise DqskinError(Param("scheduler", address), f": no answer within {seconds:g} s (not a "
+                          "Dask scheduler, or one that does not respond)") from None
+    except OSError as exc:
+        raise DqskinError(Param("scheduler", address),
+                          f": cannot connect ({exc.strerror or exc})") from None
+    if not first:
+        raise DqskinError(Param("scheduler", address), ": closed the connection without a "
+                          "greeting (not a Dask scheduler?)")
 
 
 def _run_on_dask(client, jobs, done):

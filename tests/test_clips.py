@@ -678,18 +678,32 @@ def test_refusals(humanoid, tmp_path):
     assert src.read_bytes() == before
 
 
-def test_long_ranges_default_to_clips(humanoid, tmp_path, monkeypatch):
+def test_a_single_layer_is_one_layer_of_any_size_and_usda_is_bounded(humanoid, tmp_path,
+                                                                     monkeypatch):
+    """A .usdc/.usd out is one layer unless clips are asked for, however many samples (it used to
+    turn into value clips silently above 512 MiB: the file alone held no points), and leaves no
+    folder; a .usda beyond ``USDA_MAX_BYTES`` (a text layer is held in memory whole) is refused
+    before skinning, naming clips."""
     import dqskin.baking as baking
+    from dqskin.errors import LimitError
     scene = humanoid["scene"]
     need = baking.sample_bytes(scene, len(scene.times))
     per_point = 12 * (2 * sum(len(m.points) for m in scene.meshes)
                       + sum(len(m.normals) for m in scene.meshes if m.normals is not None))
     assert need == per_point * len(scene.times)
-    monkeypatch.setattr(baking, "CLIPS_AUTO_BYTES", need - 1)
-    assert "clips in" in bake(scene, tmp_path / "auto.usd", chunk=30)
-    monkeypatch.setattr(baking, "CLIPS_AUTO_BYTES", need)
-    assert "clips" not in bake(scene, tmp_path / "one.usd", chunk=30)
-    assert not clips_folder(tmp_path / "one.usd").exists()
+    monkeypatch.setattr(baking, "USDA_MAX_BYTES", need - 1)
+    for name in ("one.usd", "one.usdc"):
+        assert "clips" not in bake(scene, tmp_path / name, chunk=30)
+        assert not clips_folder(tmp_path / name).exists()
+        assert not Sdf.Layer.FindOrOpen(str(tmp_path / name)).GetPrimAtPath(
+            "/Humanoid").HasInfo("clips")
+    with pytest.raises(LimitError, match=r"one.usda.?: 9 MiB of samples, more than the 8 MiB "
+                                         r"a .usda layer takes .*clips=True"):
+        bake(scene, tmp_path / "one.usda", chunk=30)
+    assert not (tmp_path / "one.usda").exists() and not clips_folder(tmp_path / "one.usda").exists()
+    assert "clips in" in bake(scene, tmp_path / "one.usda", chunk=30, clips=True)
+    monkeypatch.setattr(baking, "USDA_MAX_BYTES", need)
+    assert "clips" not in bake(scene, tmp_path / "two.usda", chunk=30)
 
 
 def test_default_clip_length_holds_clip_bytes_of_samples(humanoid, tmp_path, monkeypatch):
@@ -822,11 +836,18 @@ def test_ctrl_c_then_resume_completes_the_same_cache(humanoid, tmp_path):
     done = len(list(folder.glob("chunk_*.usdc")))
     total = -(-(48 * 6 + 1) // 4)
     assert proc.returncode == 130, err
-    assert err.strip().splitlines()[-1] == "dqskin: interrupted"
+    # how many clips are kept, and the command that completes the bake (issue 29, item 8)
+    said = f"dqskin: interrupted; {done} of {total} clips are kept in {folder}; to complete " \
+           "the bake: dqskin "
+    last = err.strip().splitlines()[-1]
+    assert last.startswith(said), last
     assert not shot.exists()
     assert not [p for p in folder.iterdir() if p.name.startswith(".")]
     assert 0 < done < total, (done, total)
-    proc = subprocess.run(args + ["--resume"], capture_output=True, text=True, timeout=300)
+    import shlex
+    assert shlex.split(last[len(said):]) == args[3:] + ["--resume"]
+    proc = subprocess.run(args[:3] + shlex.split(last[len(said):]), capture_output=True,
+                          text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert f"{total} clips" in proc.stdout and f"{done} kept" in proc.stdout, proc.stdout
     scene = humanoid["scene"]

@@ -840,6 +840,13 @@ class ClipBake:
             with contextlib.suppress(OSError):
                 (self.folder / name).unlink()
 
+    def kept(self) -> int:
+        """How many clip layers of this plan are in place (each with its record): what a
+        ``resume`` would keep, unless one is damaged."""
+        return sum(1 for k in range(len(self.bounds))
+                   if self.clip_path(k).is_file()
+                   and (_record_of(self.clip_path(k)) or {}).get("plan") == self.key)
+
     def clip_path(self, index: int) -> Path:
         return self.folder / (_chunk_name(index, len(self.bounds)) + ".usdc")
 
