@@ -47,7 +47,7 @@ import xxhash
 from pxr import Sdf, Tf, Usd, Vt
 
 from ..errors import InputError, OutputExistsError, Param, output_exists
-from ..files.atomic import atomic_path, check_interrupted
+from ..files.atomic import atomic_path, check_interrupted, named_error
 from ..files.crate import BOOTSTRAP, CrateSamples, Hasher
 from ..options import CorOptions, SkinOptions
 from ..readers.usd import _tf_message
@@ -574,6 +574,10 @@ class ClipLayer:
                  tb: TracebackType | None) -> Literal[False]:
         if exc_type is not None:
             self.discard()
+        if isinstance(exc, OSError):  # (a full disk: naming the layer)
+            named = named_error(self.claim.path, exc)
+            if named is not exc:
+                raise named from None
         return False
 
 
