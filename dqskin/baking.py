@@ -163,8 +163,9 @@ class BakeSettings:
                 raise InputError(Param(name, v), ": expected True or False"
                                  + (" or None" if name == "clips" else ""))
             object.__setattr__(self, name, bool(v))
-        if self.scheduler is not None and (not isinstance(self.scheduler, str) or
-                                           not _TCP_ADDRESS.fullmatch(self.scheduler)):
+        address: object = self.scheduler  # (whatever the caller passed)
+        if address is not None and (not isinstance(address, str) or
+                                    not _TCP_ADDRESS.fullmatch(address)):
             raise InputError(Param("scheduler", self.scheduler), ": expected tcp://HOST:PORT "
                              "(a Dask scheduler reached over plain TCP) or None")
         if self.workers is not None and self.workers > max_workers():

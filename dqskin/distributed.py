@@ -345,7 +345,7 @@ def _bake_clips(scene, out, times, options, settings, threads):
             bake.abandon()
             kept = bake.kept()
             if isinstance(exc, KeyboardInterrupt) and kept:
-                exc.resumable = (kept, len(bake.bounds), str(bake.folder))  # type: ignore
+                exc.resumable = (kept, len(bake.bounds), str(bake.folder))  # type: ignore[attr-defined]
         raise
     return dict(clips=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
                 folder=str(bake.folder), tasks=tasks)

@@ -6,7 +6,6 @@ The reference for every "same animation" check is a single-layer cache of the sa
 through USD; damaged or swapped files are made by hand.
 """
 
-import json
 import os
 import shutil
 import socket
@@ -18,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pxr import Usd, UsdGeom
+from pxr import Usd
 
 from dqskin import bake
 from dqskin.baking import BakeSettings
