@@ -367,7 +367,7 @@ def _bake_usd_layer(job: _Job) -> bool:
     size = s.chunk or usd_cache.chunk_frames(scene, opts)
     with usd_clips.bake_lock(out) if clips else contextlib.nullcontext():
         replaces = clips and usd_clips.holds_clip_bake(out)
-        with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force) as writer:
+        with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force, final=True) as writer:
             if replaces and not s.force:  # (an unfinished one: out itself does not exist)
                 raise OutputExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
                                         f"of {Path(out).name}; complete it with ",
@@ -387,7 +387,7 @@ def _bake_npz(job: _Job) -> str:
     scene, out, t, opts, s = job
     check_output(out, job.sources, s.force)
     names = [m.name for m in scene.meshes]
-    with atomic_path(out, overwrite=s.force) as tmp:  # claimed for the whole run
+    with atomic_path(out, overwrite=s.force, final=True) as tmp:  # claimed for the whole run
         pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32) for m in scene.meshes}
         for sl, res in job.chunks(s.chunk or usd_cache.CHUNK_FRAMES,
                                   opts.replace(normals=False, velocities=False)):

@@ -53,8 +53,8 @@ if TYPE_CHECKING:
 __all__ = ["ClipJob", "bake_clips", "run_clip", "run_here", "worker_threads"]
 
 
-# this worker process's loaded asset: {(path, mtime, size): Scene}
-_scenes: dict[tuple[str, int, int], Scene] = {}
+# this worker process's loaded asset: {(path, mtime, size): (Scene, states of the files it read)}
+_scenes: dict[tuple[str, int, int], tuple[Scene, list]] = {}
 _buffers = KB.BufferPool()  # this process's chunks of frames, reused from task to task (run_clip)
 
 
@@ -131,16 +131,19 @@ def _worker_plugin(own_cluster: bool) -> "WorkerPlugin":
 
 
 def _worker_scene(path):
-    """The asset at ``path``, loaded once per worker process (reloaded if the file changed)."""
+    """The asset at ``path``, loaded once per worker process (reloaded if the file, or any layer
+    it reads, changed: a sublayer edited between two bakes on a long-lived cluster)."""
     st = os.stat(path)
     key = (path, st.st_mtime_ns, st.st_size)
-    if key not in _scenes:
+    if key not in _scenes or usd_clips.file_states(f for f, *_ in _scenes[key][1]) != \
+            _scenes[key][1]:
         from .readers import load
         global _buffers
         _scenes.clear()
         _buffers = KB.BufferPool()  # another asset's chunks: their own sizes
-        _scenes[key] = load(path)
-    return _scenes[key]
+        scene = load(path)
+        _scenes[key] = (scene, usd_clips.file_states(usd_clips.read_by(path)))
+    return _scenes[key][0]
 
 
 def _preload(path):

@@ -224,6 +224,23 @@ def test_resume_after_a_sublayer_changed_is_refused(tmp_path):
     assert not out.exists()
 
 
+def test_a_worker_reloads_the_asset_when_a_sublayer_changed(tmp_path):
+    """A long-lived worker process keeps its loaded asset between tasks; an edit to a layer the
+    asset reads (not the file named) makes it load the asset again (it kept baking the old
+    one)."""
+    import dqskin.distributed as dist
+    anim = tmp_path / "anim.usda"
+    shutil.copy(HUMANOID, anim)
+    root = tmp_path / "root.usda"
+    head = HUMANOID.read_text().split("\n)\n", 1)[0]
+    root.write_text(head.replace("(\n", '(\n    subLayers = [@./anim.usda@]\n', 1) + "\n)\n")
+    first = dist._worker_scene(str(root))
+    assert dist._worker_scene(str(root)) is first
+    anim.write_text(anim.read_text().replace("endTimeCode = 48", "endTimeCode = 48 "))
+    assert dist._worker_scene(str(root)) is not first
+    dist._scenes.clear()
+
+
 def test_nested_json_is_one_line_not_a_recursion_error(tmp_path):
     """A ``plan.json`` or clip record nested 100,000 deep: a one-line refusal naming the file
     (a RecursionError traceback)."""

@@ -160,11 +160,15 @@ class atomic_path:
     overwrite : bool
         True: replace an existing ``path`` (the last writer wins). False: exclusive; commit raises
         FileExistsError if ``path`` exists by then (created by another run meanwhile).
+    final : bool
+        The run's last output: :meth:`commit` marks the run finished (:func:`finished`).
     """
 
-    def __init__(self, path: str | os.PathLike, *, overwrite: bool = True) -> None:
+    def __init__(self, path: str | os.PathLike, *, overwrite: bool = True,
+                 final: bool = False) -> None:
         self.path = Path(path)
         self.overwrite = overwrite
+        self.final = final
         self.tmp: Path | None = None
 
     def open(self) -> Path:
@@ -192,11 +196,13 @@ class atomic_path:
             raise
         return self.tmp
 
-    def commit(self, final: bool = False) -> Path:
-        """Move the temporary file onto ``path`` (exclusively unless ``overwrite``). ``final``:
-        the run's last output; an interrupt arriving from the moment this commit starts is
-        dropped once the file is in place (:func:`finished`): the complete output stays, and the
-        run ends as a success (an interrupt before it leaves nothing)."""
+    def commit(self, final: bool | None = None) -> Path:
+        """Move the temporary file onto ``path`` (exclusively unless ``overwrite``). ``final``
+        (default: the constructor's): the run's last output; an interrupt arriving from the
+        moment this commit starts is dropped once the file is in place (:func:`finished`): the
+        complete output stays, and the run ends as a success (an interrupt before it leaves
+        nothing)."""
+        final = self.final if final is None else final
         if self.tmp is None:
             raise RuntimeError(f"{self.path}: nothing to commit (open() first)")
         with critical():

@@ -685,6 +685,9 @@ class UsdCacheWriter(CommitOnSuccess):
     overwrite : bool
         Replace an existing ``out_path`` (the last writer wins). False claims it exclusively:
         :meth:`close` raises FileExistsError if it exists by then (another run finished first).
+    final : bool
+        The run's last output (:class:`~.atomic.atomic_path`): an interrupt once it is in place
+        is ignored.
 
     As a context manager the writer claims its temporary folder on entry
     (``.STEM.XXXXXXXX/`` beside ``out_path``, :mod:`.atomic`) and removes it on an exception or
@@ -693,14 +696,15 @@ class UsdCacheWriter(CommitOnSuccess):
 
     def __init__(self, scene: "Scene", out_path: str | os.PathLike,
                  options: SkinOptions | None = None, *,
-                 source_path: str | os.PathLike | None = None, overwrite: bool = True) -> None:
+                 source_path: str | os.PathLike | None = None, overwrite: bool = True,
+                 final: bool = False) -> None:
         self.cache = CacheLayer(scene, out_path, source_path=source_path)
         self.scene, self.out, self.src = scene, self.cache.out, self.cache.src
         self.layer = self.cache.layer
         self.samples = SampleWriter(scene, self.cache.target, self.cache.rigid,
                                     SkinOptions() if options is None else options)
         self._t_min, self._t_max = np.inf, -np.inf
-        self._claim = atomic_path(self.out, overwrite=overwrite)
+        self._claim = atomic_path(self.out, overwrite=overwrite, final=final)
         self.target = Path(self.out)
         # the layer or CrateSamples samples go to, chosen by the first chunk
         self._sink: Sink | None = None

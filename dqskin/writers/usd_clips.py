@@ -66,9 +66,9 @@ from .usd_cache import (
 __all__ = ["CHECKSUM", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "LOCK_FILE",
            "MAX_JSON_BYTES", "ClipBake", "ClipLayer", "bake_lock", "check_clip_name",
            "check_outside", "chunk_bounds", "clip_frames", "clips_folder", "commit_clip",
-           "flatten", "file_checksum", "holds_clip_bake", "input_files", "made_by_dqskin",
-           "our_plan", "read_json", "recorded_chunk", "remove_clip_bake", "verify_chunk",
-           "write_clip"]
+           "flatten", "file_checksum", "file_states", "holds_clip_bake", "input_files",
+           "made_by_dqskin", "our_plan", "read_by", "read_json", "recorded_chunk",
+           "remove_clip_bake", "verify_chunk", "write_clip"]
 
 
 _PLAN_DEFAULTS = {"blend_shapes": True, "cor": dataclasses.asdict(CorOptions())}
@@ -332,7 +332,13 @@ def input_files(stage: Usd.Stage, src: str | os.PathLike,
     return [*_source_files(stage, src), *map(str, inputs)]
 
 
-def _file_states(files: Iterable[str | os.PathLike]) -> list[list[Any]]:
+def read_by(src: str | os.PathLike) -> list[str]:
+    """Every file the USD stage ``src`` reads (:func:`~.usd_cache.stage_files`, and ``src``)."""
+    stage = Usd.Stage.Open(os.fspath(src), Usd.Stage.LoadAll)
+    return [os.fspath(src), *(stage_files(stage) if stage is not None else [])]
+
+
+def file_states(files: Iterable[str | os.PathLike]) -> list[list[Any]]:
     """``[[path, bytes, mtime_ns], ...]`` of ``files`` (absolute, sorted; None for a missing
     one): what a plan records of every file a bake reads, so that ``resume`` refuses to go on
     after any of them changed (a sublayer edited between two runs would give one cache of two
@@ -699,7 +705,7 @@ class ClipBake:
                 "chunk": int(chunk), "chunks": len(self.bounds),
                 "options": dict(sorted(options.plan().items())),
                 "attributes": sorted(t.attr for t in self.targets.values()),
-                "layers": _file_states(f for f in read if not _same_path(f, src))}
+                "layers": file_states(f for f in read if not _same_path(f, src))}
         manifest = Sdf.Layer.CreateAnonymous(".usda")
         for target in self.targets.values():
             target.spec(manifest)
@@ -844,6 +850,17 @@ class ClipBake:
             with contextlib.suppress(OSError):
                 (self.folder / name).unlink()
 
+    def _verified(self, index: int) -> bool:
+        """Whether clip layer ``index`` of an earlier run of this plan matches its record
+        (:func:`verify_chunk`), and the record is of this clip's frames (not a neighbour's
+        copied over it)."""
+        path = self.clip_path(index)
+        record = _record_of(path)
+        t = self.chunk_times(index)
+        return (record is not None and record.get("frames") == len(t)
+                and record.get("first") == float(t[0]) and record.get("last") == float(t[-1])
+                and verify_chunk(path, self.key, record))
+
     def kept(self) -> int:
         """How many clip layers of this plan are in place (each with its record): what a
         ``resume`` would keep, unless one is damaged."""
@@ -864,8 +881,7 @@ class ClipBake:
         the plan and the manifest (and removes temporary files a killed run left)."""
         self.folder.mkdir(parents=True, exist_ok=True)
         _remove_temporaries(self.folder)
-        todo = [k for k in range(len(self.bounds))
-                if not (self.resumed and verify_chunk(self.clip_path(k), self.key))]
+        todo = [k for k in range(len(self.bounds)) if not (self.resumed and self._verified(k))]
         check_interrupted()
         _write_json(self.folder / "plan.json", self.plan)
         with atomic_path(self.folder / "manifest.usda") as tmp:
