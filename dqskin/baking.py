@@ -25,14 +25,15 @@ import numpy.typing as npt
 
 from .errors import InputError, LimitError, OutputExistsError, Param, output_exists
 from .files.atomic import atomic_path, check_interrupted, check_parent
+from .forkserver import MAX_WORKERS_PER_CORE, max_workers
 from .options import SkinOptions, is_numpy_bool, split_changes
 from .readers import format_of, gltf, usd
 from .scene import Scene, SkinnedFrames
 from .validation import check_skinned
 from .writers import mesh_files, npz, usd_cache
 
-__all__ = ["MAX_WORKERS_PER_CORE", "OUTPUT_SUFFIXES", "USDA_MAX_BYTES", "BakeSettings", "bake",
-           "check_clip_arguments", "check_output", "max_workers", "output_kind", "sample_bytes"]
+__all__ = ["OUTPUT_SUFFIXES", "USDA_MAX_BYTES", "BakeSettings", "bake", "check_clip_arguments",
+           "check_output", "output_kind", "sample_bytes"]
 
 OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXES
 """Suffixes :func:`bake` writes (mesh files take a per-frame pattern like ``f_{:04d}.obj``)."""
@@ -43,20 +44,6 @@ USDA_MAX_BYTES = 512 << 20
 layer holds every sample in memory until it is saved. Beyond it the bake is refused before
 skinning (LimitError): a ``.usdc``/``.usd`` layer streams its samples to its file and takes any
 size; value clips (``clips=True``) split them into layers."""
-
-MAX_WORKERS_PER_CORE = 4
-"""Local Dask worker processes allowed per CPU core (:func:`max_workers`)."""
-
-
-def max_workers() -> int:
-    """Most local worker processes a bake starts (``workers``): :data:`MAX_WORKERS_PER_CORE`
-    per CPU core (each worker is a process holding the asset, some 360 MB for a small one), or
-    the whole number in the environment variable ``DQSKIN_MAX_WORKERS``."""
-    given = os.environ.get("DQSKIN_MAX_WORKERS", "").strip()
-    if given.isdigit() and int(given) >= 1:
-        return int(given)
-    return MAX_WORKERS_PER_CORE * (os.cpu_count() or 1)
-
 
 def sample_bytes(scene: Scene, frames: int, normals: bool = True, velocities: bool = True) -> int:
     """Bytes of point, normal and velocity samples a USD cache of ``frames`` frames holds."""
@@ -123,7 +110,8 @@ class BakeSettings:
         of at most :data:`USDA_MAX_BYTES` of samples).
     workers : int or None
         Bake the clips on a local Dask cluster of this many worker processes
-        (:mod:`dqskin.distributed`), at most :func:`max_workers` (LimitError). None: in this
+        (:mod:`dqskin.distributed`), at most :func:`~dqskin.forkserver.max_workers`
+        (LimitError). None: in this
         process.
     scheduler : str or None
         ``tcp://HOST:PORT`` of a running Dask scheduler to bake the clips on instead (other

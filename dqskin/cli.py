@@ -796,7 +796,9 @@ def _wants_workers(argv: Sequence[str]) -> bool:
         a = p.parse_known_args(argv[1:])[0]
     except (argparse.ArgumentError, SystemExit):
         return False
-    return (a.workers is not None and a.workers >= 1 and not a.scheduler and a.clips is not False
+    from .forkserver import max_workers
+    return (a.workers is not None and 1 <= a.workers <= max_workers() and not a.scheduler
+            and a.clips is not False
             and (a.chunk is None or a.chunk >= 1) and a.skeleton is None and a.weights is None)
 
 

@@ -342,7 +342,7 @@ def test_scheduler_addresses_other_than_tcp_are_refused(address):
 
 
 def test_workers_beyond_the_limit_are_refused_before_anything_starts(monkeypatch):
-    from dqskin.baking import max_workers
+    from dqskin.forkserver import max_workers
     with pytest.raises(LimitError, match="more than the limit of .* DQSKIN_MAX_WORKERS"):
         BakeSettings(workers=99999999999999999999)
     monkeypatch.setenv("DQSKIN_MAX_WORKERS", "3")
