@@ -202,6 +202,30 @@ def test_force_over_a_dqskin_bake_keeps_other_files(shot, tmp_path):
     assert (folder / "chunk_00007.usdc").read_bytes() == b"someone else's"
 
 
+def test_two_single_layer_bakes_leave_no_folder_and_name_the_file(tmp_path):
+    """Two single-layer bakes to one ``same.usdc`` at once: one wins, the other's refusal names
+    ``same.usdc`` (it named a ``same.clips`` lock folder), and no ``same.clips/`` is left."""
+    scene = load(HUMANOID)
+    out = tmp_path / "same.usdc"
+    barrier, outcome = threading.Barrier(2), []
+
+    def run():
+        barrier.wait()
+        try:
+            bake(scene, out, scene.times[:6], clips=False)
+            outcome.append("ok")
+        except FileExistsError as exc:
+            outcome.append(str(exc))
+    threads = [threading.Thread(target=run) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(outcome)[-1] == "ok" and len(outcome) == 2, outcome
+    assert all(r == "ok" or r.startswith(f"{out}: exists") for r in outcome), outcome
+    assert sorted(os.listdir(tmp_path)) == ["same.usdc"]
+
+
 def test_resume_after_a_sublayer_changed_is_refused(tmp_path):
     """The input's animation is in a sublayer of the file given: ``--resume`` after that layer
     changed is refused, naming it (it kept the old clips and baked the rest from the edited
