@@ -284,7 +284,8 @@ def test_nested_json_is_one_line_not_a_recursion_error(tmp_path):
                            "--no-normals", "--no-velocities"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
-    assert "plan.json" in proc.stderr and "Recursion" not in proc.stderr
+    assert "plan.json: JSON nested too deeply" in proc.stderr, proc.stderr
+    assert "Recursion" not in proc.stderr
 
 
 def test_a_dangling_lock_link_says_how_to_go_on(tmp_path):

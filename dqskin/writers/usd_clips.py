@@ -4,7 +4,8 @@ For ``--out SHOT.usd`` (any of ``.usd/.usdc/.usda``) a clip bake writes::
 
     SHOT.usd                     top level: the source flattened and unbound, as the single-layer
                                  cache (:class:`~.usd_cache.CacheLayer`), without the samples;
-                                 ``clips`` metadata on each root prim above a skinned prim
+                                 ``clips`` metadata on each root prim above a skinned prim; the
+                                 size and checksum of every file below (:data:`LISTING`)
     SHOT.clips/plan.json         what is baked: source, times, chunking, options, and their key
     SHOT.clips/manifest.usda     the clip manifest: the attributes the clips hold
     SHOT.clips/chunk_00000.usdc  one chunk's time samples, streamed into a crate file as they
@@ -24,7 +25,10 @@ every clip), so those attributes have no value at the ``Default`` time code.
 Each clip layer is written beside its final name (:class:`ClipLayer`) and renamed into place
 only when complete, after its checksum record (:func:`write_clip`); :meth:`ClipBake.pending`
 verifies the chunks a previous run left (``resume``). :func:`flatten` turns a clip cache into
-one layer for tools that do not read clips.
+one layer for tools that do not read clips, once every file the top level lists verifies.
+A bake holds the folder exclusively (:func:`bake_lock`), a flatten shared
+(:func:`reading_lock`); ``force`` replaces only the files dqskin made there
+(:func:`made_by_dqskin`).
 """
 
 import contextlib
@@ -356,9 +360,16 @@ def file_states(files: Iterable[str | os.PathLike]) -> list[list[Any]]:
 def _foreign(path: Path) -> InputError:
     """The refusal of a file in a clip folder that dqskin did not make, at a name a clip bake
     writes (with ``force`` too: it replaces only what dqskin made)."""
-    return InputError(f"{path}: not made by dqskin (no dqskin record of it), where this clip "
-                      f"bake writes; move it out of {path.parent.name}/, or bake to another "
-                      "output")
+    why = "not made by dqskin (no dqskin record of it)"
+    if path.suffix == ".json":
+        try:
+            read_json(path)
+        except InputError as exc:  # (nested too deeply, not JSON: say so)
+            why = str(exc).removeprefix(f"{path}: ")
+        except OSError:
+            pass
+    return InputError(f"{path}: {why}, where this clip bake writes; move it out of "
+                      f"{path.parent.name}/, or bake to another output")
 
 
 _UNSAFE_NAME = re.compile(r"[\\\x00-\x1f\x7f]")
@@ -1023,6 +1034,12 @@ def _check_clips(stage: Usd.Stage, src: str | os.PathLike) -> None:
                                      Param("resume", True), " redoes it)")
                 path = Path(where)  # (a layer inside a package or elsewhere: no record)
                 if listed is not None:
+                    manifest = clips.GetClipManifestAssetPath(clip_set)
+                    if manifest is None or not manifest.resolvedPath or Path(os.path.realpath(
+                            manifest.resolvedPath)) != listed[0] / "manifest.usda":
+                        raise InputError(f"{src}: the clips of {prim.GetPath()} name another "
+                                         f"manifest than {listed[0] / 'manifest.usda'} "
+                                         f"({manifest.path if manifest else 'none'})")
                     path = Path(os.path.realpath(where))
                     if path.parent != listed[0] or path.name not in listed[1]:
                         raise InputError(f"{src}: clip layer {asset.path} of {prim.GetPath()} "
