@@ -155,7 +155,7 @@ class BakeSettings:
         if address is not None and (not isinstance(address, str) or
                                     not _TCP_ADDRESS.fullmatch(address)):
             raise InputError(Param("scheduler", self.scheduler), ": expected tcp://HOST:PORT "
-                             "(a Dask scheduler reached over plain TCP) or None")
+                             "(a Dask scheduler reached over plain TCP)")
         if self.workers is not None and self.workers > max_workers():
             raise LimitError(Param("workers", self.workers), f": more than the limit of "
                              f"{max_workers()} local worker processes ({MAX_WORKERS_PER_CORE} "

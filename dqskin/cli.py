@@ -75,6 +75,9 @@ def flag(param: Param) -> str:
         return f"no {name}"
     value = param.value
     text = format(value, "g") if isinstance(value, float) else str(value)
+    if not text.isprintable():  # a newline or escape: one line, as bash's $'...' reads it
+        escaped = text.encode("unicode_escape").decode("ascii").replace("'", "\\'")
+        return f"{name} $'{escaped}'"
     return f"{name} {shlex.quote(text)}"
 
 
