@@ -340,7 +340,7 @@ def _bake_usd_layer(job: _Job) -> bool:
     scene, out, t, opts, s = job
     src = scene.path
     check_output(out, job.sources, s.force)
-    from .writers import usd_clips
+    from .writers import clip_lock, usd_clips
     # SHOT.clips/ of a dqskin clip bake beside SHOT.usd: locked, and replaced with force (no
     # folder is made otherwise: the bake writes one file)
     folder = usd_cache.clips_folder(out)
@@ -353,7 +353,7 @@ def _bake_usd_layer(job: _Job) -> bool:
         wrote_velocities |= bool(res.velocities)
 
     size = s.chunk or usd_cache.chunk_frames(scene, opts)
-    with usd_clips.bake_lock(out) if clips else contextlib.nullcontext():
+    with clip_lock.bake_lock(out) if clips else contextlib.nullcontext():
         replaces = clips and usd_clips.holds_clip_bake(out)
         with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force, final=True) as writer:
             if replaces and not s.force:  # (an unfinished one: out itself does not exist)

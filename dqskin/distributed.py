@@ -42,7 +42,7 @@ from .kernels import buffers as KB
 from .options import SkinOptions
 from .scene import Scene
 from .validation import check_skinned
-from .writers import usd_clips
+from .writers import clip_lock, usd_clips
 from .writers.usd_cache import SampleWriter, chunk_frames
 
 if TYPE_CHECKING:
@@ -297,7 +297,7 @@ def bake_clips(scene: Scene, out: str | Path, times: np.ndarray, options: SkinOp
         Interrupted: when finished clips are kept for ``resume``, the exception's ``resumable``
         attribute is ``(kept, clips, folder)``.
     """
-    with usd_clips.bake_lock(out):  # one bake of ``out`` at a time, --resume and --force too
+    with clip_lock.bake_lock(out):  # one bake of ``out`` at a time, --resume and --force too
         # before starting workers
         usd_clips.ClipBake.check_free(out, force=settings.force, resume=settings.resume)
         return _bake_clips(scene, out, times, options, settings, threads)

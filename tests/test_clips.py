@@ -21,9 +21,8 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 
 from dqskin import SkinOptions, bake
 from dqskin.readers import load
+from dqskin.writers.clip_lock import LOCK_FILE, bake_lock
 from dqskin.writers.usd_clips import (
-    LOCK_FILE,
-    bake_lock,
     chunk_bounds,
     clips_folder,
     flatten,
@@ -327,7 +326,7 @@ def test_a_link_where_the_lock_goes_is_refused_not_followed(tmp_path):
 
 def test_the_lock_holds_across_processes_and_names_the_holder(tmp_path):
     out = tmp_path / "shot.usd"
-    code = ("import sys\nfrom dqskin.writers.usd_clips import bake_lock\n"
+    code = ("import sys\nfrom dqskin.writers.clip_lock import bake_lock\n"
             "with bake_lock(sys.argv[1]):\n"
             "    print('held', flush=True)\n    sys.stdin.readline()\n")
     holder = subprocess.Popen([sys.executable, "-c", code, str(out)], stdin=subprocess.PIPE,

@@ -23,14 +23,8 @@ from dqskin import bake
 from dqskin.baking import BakeSettings
 from dqskin.errors import DqskinError, InputError, LimitError
 from dqskin.readers import load
-from dqskin.writers.usd_clips import (
-    LOCK_FILE,
-    bake_lock,
-    clips_folder,
-    flatten,
-    read_json,
-    reading_lock,
-)
+from dqskin.writers.clip_lock import LOCK_FILE, bake_lock, reading_lock
+from dqskin.writers.usd_clips import clips_folder, flatten, read_json
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_clips import HUMANOID, assert_same_animation  # noqa: E402
