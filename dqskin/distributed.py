@@ -137,12 +137,16 @@ def _worker_scene(path):
     key = (path, st.st_mtime_ns, st.st_size)
     if key not in _scenes or usd_clips.file_states(f for f, *_ in _scenes[key][1]) != \
             _scenes[key][1]:
+        from pxr import Usd
+
         from .readers import load
         global _buffers
         _scenes.clear()
         _buffers = KB.BufferPool()  # another asset's chunks: their own sizes
-        scene = load(path)
-        _scenes[key] = (scene, usd_clips.file_states(usd_clips.read_by(path)))
+        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)  # (its layers stay open for the load)
+        read = usd_clips.input_files(stage, path) if stage is not None else [path]
+        _scenes[key] = (load(path), usd_clips.file_states(read))
+        del stage
     return _scenes[key][0]
 
 

@@ -70,7 +70,7 @@ __all__ = ["CHECKSUM", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "LISTI
            "MAX_JSON_BYTES", "ClipBake", "ClipLayer", "check_clip_name",
            "check_outside", "chunk_bounds", "clip_frames", "clips_folder", "commit_clip",
            "flatten", "file_checksum", "file_states", "holds_clip_bake", "input_files",
-           "made_by_dqskin", "our_plan", "read_by", "read_json", "recorded_chunk",
+           "made_by_dqskin", "our_plan", "read_json", "recorded_chunk",
            "remove_clip_bake", "verify_chunk", "write_clip"]
 
 
@@ -180,12 +180,6 @@ def input_files(stage: Usd.Stage, src: str | os.PathLike,
     """Every file a bake of ``src`` reads: the layers of its ``stage`` and ``inputs`` (the
     command's other files: ``--weights``, ``--skeleton``)."""
     return [*_source_files(stage, src), *map(str, inputs)]
-
-
-def read_by(src: str | os.PathLike) -> list[str]:
-    """Every file the USD stage ``src`` reads (:func:`~.usd_cache.stage_files`, and ``src``)."""
-    stage = Usd.Stage.Open(os.fspath(src), Usd.Stage.LoadAll)
-    return [os.fspath(src), *(stage_files(stage) if stage is not None else [])]
 
 
 def file_states(files: Iterable[str | os.PathLike]) -> list[list[Any]]:
