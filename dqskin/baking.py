@@ -99,7 +99,9 @@ class BakeSettings:
         and evened out over them, so possibly fewer than 128; with ``resume``, the earlier
         bake's).
     force : bool
-        Overwrite existing outputs (never the input); the last writer wins.
+        Overwrite existing outputs (never the input); the last writer wins. In a clip folder
+        only the files dqskin made are replaced; another tool's file where the bake writes is
+        refused (InputError).
     progress : bool
         A tqdm bar over frames (over clips with clips) on stderr (for three chunks or more, and
         only when stderr is a terminal).
@@ -251,6 +253,17 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     -------
     str
         A one-line summary of what was written.
+
+    Raises
+    ------
+    InputError
+        Bad input or settings (a ValueError), naming the file or parameter; LimitError beyond a
+        limit (``workers``, a ``.usda`` of more than :data:`USDA_MAX_BYTES` of samples).
+    OutputExistsError
+        ``out`` exists (without ``force``), or another bake of it runs.
+    KeyboardInterrupt
+        Interrupted; a clip bake that kept finished clips sets the exception's ``resumable`` to
+        ``(kept, clips, folder)`` (``resume=True`` completes it).
     """
     skin_changes, bake_changes = split_changes("bake", changes, SkinOptions, BakeSettings)
     opts = SkinOptions.build(SkinOptions.baking() if options is None else options,
