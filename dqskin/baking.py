@@ -13,6 +13,7 @@ import contextlib
 import dataclasses
 import numbers
 import os
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,8 +22,9 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from .errors import InputError, OutputExistsError, Param, output_exists
+from .errors import InputError, LimitError, OutputExistsError, Param, output_exists
 from .files.atomic import atomic_path, check_interrupted, check_parent
+from .forkserver import MAX_WORKERS_PER_CORE, max_workers
 from .options import SkinOptions, is_numpy_bool, split_changes
 from .progress import progress_bar
 from .readers import fbx, format_of, gltf, usd
@@ -30,19 +32,18 @@ from .scene import Scene, SkinnedFrames
 from .validation import check_skinned
 from .writers import mesh_files, npz, usd_cache
 
-__all__ = ["CLIPS_AUTO_BYTES", "OUTPUT_SUFFIXES", "BakeSettings", "bake",
-           "check_clip_arguments", "check_output", "output_kind", "sample_bytes"]
+__all__ = ["OUTPUT_SUFFIXES", "USDA_MAX_BYTES", "BakeSettings", "bake", "check_clip_arguments",
+           "check_output", "output_kind", "sample_bytes"]
 
 OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXES
 """Suffixes :func:`bake` writes (mesh files take a per-frame pattern like ``f_{:04d}.obj``)."""
 
 
-CLIPS_AUTO_BYTES = 512 << 20
-"""A USD cache whose samples would exceed this many bytes (:func:`sample_bytes`) is written as
-value clips unless ``clips=False``: a long bake then runs chunk by chunk, resumable, on Dask
-workers if asked (a ``.usda`` layer would also hold every sample in memory until saved; a
-``.usdc``/``.usd`` one streams them to its file)."""
-
+USDA_MAX_BYTES = 512 << 20
+"""Most bytes of samples (:func:`sample_bytes`) a single-layer ``.usda`` cache takes: a text
+layer holds every sample in memory until it is saved. Beyond it the bake is refused before
+skinning (LimitError): a ``.usdc``/``.usd`` layer streams its samples to its file and takes any
+size; value clips (``clips=True``) split them into layers."""
 
 def sample_bytes(scene: Scene, frames: int, normals: bool = True, velocities: bool = True) -> int:
     """Bytes of point, normal and velocity samples a USD cache of ``frames`` frames holds."""
@@ -98,20 +99,25 @@ class BakeSettings:
         and evened out over them, so possibly fewer than 128; with ``resume``, the earlier
         bake's).
     force : bool
-        Overwrite existing outputs (never the input); the last writer wins.
+        Overwrite existing outputs (never the input); the last writer wins. In a clip folder
+        only the files dqskin made are replaced; another tool's file where the bake writes is
+        refused (InputError).
     progress : bool
         A tqdm bar over frames (over clips with clips) on stderr (for three chunks or more, and
         only when stderr is a terminal).
     clips : bool or None
         USD output as value clips (:mod:`dqskin.writers.usd_clips`): a small top-level ``out``
-        and one crate layer per clip in ``out``'s ``.clips`` folder. None: clips when the
-        samples would exceed :data:`CLIPS_AUTO_BYTES` (512 MiB), or when ``workers``,
-        ``scheduler`` or ``resume`` ask for them.
+        and one crate layer per clip in ``out``'s ``.clips`` folder. None: clips when
+        ``workers``, ``scheduler`` or ``resume`` ask for them, else one layer (a ``.usda`` one
+        of at most :data:`USDA_MAX_BYTES` of samples).
     workers : int or None
         Bake the clips on a local Dask cluster of this many worker processes
-        (:mod:`dqskin.distributed`). None: in this process.
+        (:mod:`dqskin.distributed`), at most :func:`~dqskin.forkserver.max_workers`
+        (LimitError). None: in this
+        process.
     scheduler : str or None
-        ``tcp://HOST:PORT`` of a running Dask scheduler to bake the clips on instead; its
+        ``tcp://HOST:PORT`` of a running Dask scheduler to bake the clips on instead (other
+        protocols are refused); its
         workers read ``scene.path`` from the file (in-memory changes to the scene are not seen)
         and write to ``out``'s folder, so both must be at the same paths for them.
     resume : bool
@@ -147,8 +153,16 @@ class BakeSettings:
                 raise InputError(Param(name, v), ": expected True or False"
                                  + (" or None" if name == "clips" else ""))
             object.__setattr__(self, name, bool(v))
-        if self.scheduler is not None and not isinstance(self.scheduler, str):
-            raise InputError(Param("scheduler", self.scheduler), ": expected an address or None")
+        address: object = self.scheduler  # (whatever the caller passed)
+        if address is not None and (not isinstance(address, str) or
+                                    not _TCP_ADDRESS.fullmatch(address)):
+            raise InputError(Param("scheduler", self.scheduler), ": expected tcp://HOST:PORT "
+                             "(a Dask scheduler reached over plain TCP)")
+        if self.workers is not None and self.workers > max_workers():
+            raise LimitError(Param("workers", self.workers), f": more than the limit of "
+                             f"{max_workers()} local worker processes ({MAX_WORKERS_PER_CORE} "
+                             "per CPU core; each holds the asset); ask for fewer, or raise the "
+                             "limit with the environment variable DQSKIN_MAX_WORKERS")
         given: object = self.inputs  # (whatever the caller passed)
         paths = () if isinstance(given, (str, Path)) or not isinstance(given, Iterable) \
             else tuple(given)
@@ -162,14 +176,19 @@ class BakeSettings:
         return self.workers is not None or bool(self.scheduler) or self.resume
 
 
+_TCP_ADDRESS = re.compile(r"tcp://(\[[0-9A-Fa-f:.]+\]|[^\s/:\[\]@]+):\d{1,5}/?")
+
+
 def check_clip_arguments(out: str | Path, settings: BakeSettings,
                          options: SkinOptions | None = None) -> None:
     """Raise InputError, naming the parameters, for what :func:`bake` refuses together, before
     anything is loaded (each field alone is checked by :class:`BakeSettings` and
     :class:`~dqskin.options.SkinOptions`): clips or their options (``workers``, ``scheduler``,
     ``resume``) with a non-USD ``out``, those options with ``clips=False``, ``workers`` with
-    ``scheduler``, ``resume`` with ``force``, and a USD cache in a space other than "local"
-    (its points sit under the source's prims, whose transforms still apply)."""
+    ``scheduler``, ``resume`` with ``force``, a USD cache in a space other than "local"
+    (its points sit under the source's prims, whose transforms still apply), and clips of an
+    ``out`` whose path USD cannot name in clip metadata
+    (:func:`~dqskin.writers.usd_clips.check_clip_name`: a backslash, a newline)."""
     workers, scheduler, resume = settings.workers, settings.scheduler, settings.resume
     if options is not None and options.space != "local" and output_kind(out) == "usd":
         raise InputError(Param("space", options.space), ": a USD point cache holds each prim's "
@@ -192,6 +211,9 @@ def check_clip_arguments(out: str | Path, settings: BakeSettings,
         raise InputError(Param("workers"), ", ", Param("scheduler"), " and ",
                          Param("resume", True), " need value clips (not ", Param("clips", False),
                          ")")
+    if settings.clips or asked:
+        from .writers.usd_clips import check_clip_name
+        check_clip_name(out)
 
 
 def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None = None, *,
@@ -231,6 +253,17 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     -------
     str
         A one-line summary of what was written.
+
+    Raises
+    ------
+    InputError
+        Bad input or settings (a ValueError), naming the file or parameter; LimitError beyond a
+        limit (``workers``, a ``.usda`` of more than :data:`USDA_MAX_BYTES` of samples).
+    OutputExistsError
+        ``out`` exists (without ``force``), or another bake of it runs.
+    KeyboardInterrupt
+        Interrupted; a clip bake that kept finished clips sets the exception's ``resumable`` to
+        ``(kept, clips, folder)`` (``resume=True`` completes it).
     """
     skin_changes, bake_changes = split_changes("bake", changes, SkinOptions, BakeSettings)
     opts = SkinOptions.build(SkinOptions.baking() if options is None else options,
@@ -292,10 +325,14 @@ def _bake_usd(job: _Job) -> str:
     # a USD cache holds each time once (np.unique would import numpy.ma)
     counts = job.counts(int(np.count_nonzero(np.diff(np.sort(t)))) + 1)
     method = opts.method or "asset method"
-    clips = s.clips
-    if clips is None:
-        clips = s.distributed or sample_bytes(scene, len(t), opts.normals,
-                                              opts.velocities) > CLIPS_AUTO_BYTES
+    clips = s.distributed if s.clips is None else s.clips
+    if not clips and Path(out).suffix.lower() == ".usda":
+        need = sample_bytes(scene, len(t), opts.normals, opts.velocities)
+        if need > USDA_MAX_BYTES:
+            raise LimitError(Param("out", out), f": {need / (1 << 20):,.0f} MiB of samples, more "
+                             f"than the {USDA_MAX_BYTES >> 20} MiB a .usda layer takes (a text "
+                             "layer is held in memory whole); write .usdc or .usd (one layer of "
+                             "any size), or value clips with ", Param("clips", True))
     if clips:
         from .distributed import bake_clips
         done = bake_clips(scene, out, t, opts, s)
@@ -312,9 +349,11 @@ def _bake_usd_layer(job: _Job) -> bool:
     scene, out, t, opts, s = job
     src = scene.path
     check_output(out, job.sources, s.force)
-    from .writers import usd_clips
-    clips = usd_cache.clips_folder(out).is_dir()  # SHOT.clips/ beside SHOT.usd: locked, and
-    # replaced with force
+    from .writers import clip_lock, usd_clips
+    # SHOT.clips/ of a dqskin clip bake beside SHOT.usd: locked, and replaced with force (no
+    # folder is made otherwise: the bake writes one file)
+    folder = usd_cache.clips_folder(out)
+    clips = folder.is_dir() and usd_clips.our_plan(folder) is not None
     wrote_velocities = False
 
     def check(res: SkinnedFrames) -> None:
@@ -323,9 +362,9 @@ def _bake_usd_layer(job: _Job) -> bool:
         wrote_velocities |= bool(res.velocities)
 
     size = s.chunk or usd_cache.chunk_frames(scene, opts)
-    with usd_clips.bake_lock(out) if clips else contextlib.nullcontext():
+    with clip_lock.bake_lock(out) if clips else contextlib.nullcontext():
         replaces = clips and usd_clips.holds_clip_bake(out)
-        with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force) as writer:
+        with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force, final=True) as writer:
             if replaces and not s.force:  # (an unfinished one: out itself does not exist)
                 raise OutputExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
                                         f"of {Path(out).name}; complete it with ",
@@ -345,7 +384,7 @@ def _bake_npz(job: _Job) -> str:
     scene, out, t, opts, s = job
     check_output(out, job.sources, s.force)
     names = [m.name for m in scene.meshes]
-    with atomic_path(out, overwrite=s.force) as tmp:  # claimed for the whole run
+    with atomic_path(out, overwrite=s.force, final=True) as tmp:  # claimed for the whole run
         pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32) for m in scene.meshes}
         for sl, res in job.chunks(s.chunk or usd_cache.CHUNK_FRAMES,
                                   opts.replace(normals=False, velocities=False)):

@@ -70,24 +70,31 @@ NEGATED = {"normals": "--no-normals", "velocities": "--no-velocities", "clips": 
 
 
 def flag(param: Param) -> str:
-    """``param`` as typed on the command line: ``--force``, ``--no-clips``, ``--chunk 0``."""
+    """``param`` as typed on the command line: ``--force``, ``--no-clips``, ``--chunk 0``; ``no
+    --method`` for None (the flag not given)."""
     import shlex
     name = FLAGS.get(param.name, "--" + param.name.replace("_", "-"))
     if not param.has_value or param.value is True:
         return name
     if param.value is False:
         return NEGATED.get(param.name, f"no {name}")
+    if param.value is None:  # (the default: the flag not given)
+        return f"no {name}"
     value = param.value
     text = format(value, "g") if isinstance(value, float) else str(value)
+    if not text.isprintable():  # a newline or escape: one line, as bash's $'...' reads it
+        escaped = text.encode("unicode_escape").decode("ascii").replace("'", "\\'")
+        return f"{name} $'{escaped}'"
     return f"{name} {shlex.quote(text)}"
 
 
 def _on_signal(signum: int, frame: FrameType | None) -> None:
-    if _signalled:
-        return  # the first signal interrupts; clean-up then runs to its end
+    atomic = sys.modules.get("dqskin.files.atomic")
+    if _signalled or (atomic is not None and atomic.finished()):
+        return  # the first signal interrupts; clean-up then runs to its end (or the output
+        # is complete: the run succeeded)
     _signalled.append(signum)
     exc = Interrupted(signum)
-    atomic = sys.modules.get("dqskin.files.atomic")
     if atomic is not None:
         atomic.interrupt(exc)  # raises now, or when the current commit/clean-up step ends
         return
@@ -606,8 +613,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "out over them; with --resume, the earlier bake's)")
     s.add_argument("--clips", action=argparse.BooleanOptionalAction, default=None,
                    help="USD caches as value clips: OUT plus one layer per clip in OUT's .clips "
-                   "folder (default: when the samples exceed 512 MiB, or with --workers, "
-                   "--scheduler or --resume)")
+                   "folder (default: with --workers, --scheduler or --resume; else one layer)")
     s.add_argument("--workers", type=int, help="bake the clips on a local Dask cluster of "
                    "N worker processes (default: in this process)")
     s.add_argument("--scheduler", help="bake the clips on a running Dask cluster "
@@ -730,7 +736,7 @@ def _main(argv: Sequence[str] | None) -> int:
             finally:
                 logging.disable(disabled)
     except KeyboardInterrupt as exc:  # Interrupted, or SIGINT outside the main thread
-        print("dqskin: interrupted", file=sys.stderr)
+        print("dqskin: interrupted" + _resume_advice(exc, argv), file=sys.stderr)
         return getattr(exc, "exit_code", 128 + signal.SIGINT)
     except Exception as exc:  # not a DqskinError nor a system error about a file: a bug
         bug = exc
@@ -741,6 +747,22 @@ def _main(argv: Sequence[str] | None) -> int:
                 signal.signal(s, h)
     verbose = "--verbose" in (sys.argv[1:] if argv is None else argv)
     return _report_bug(bug, native, verbose)
+
+
+def _resume_advice(exc: BaseException, argv: Sequence[str] | None) -> str:
+    """For an interrupted clip bake that kept finished clips (the exception's ``resumable``,
+    :func:`dqskin.distributed.bake_clips`): how many, and the command that completes it (this
+    one with ``--resume`` in place of ``--force``)."""
+    resumable = getattr(exc, "resumable", None)
+    if not resumable:
+        return ""
+    import shlex
+    kept, total, folder = resumable
+    args = [a for a in (sys.argv[1:] if argv is None else argv) if a != "--force"]
+    if "--resume" not in args:
+        args.append("--resume")
+    return (f"; {kept} of {total} clips are kept in {folder}; to complete the bake: "
+            f"dqskin {shlex.join(args)}")
 
 
 def _report_bug(exc, native="", verbose=False):
@@ -783,8 +805,10 @@ def _version() -> str:
 
 def _checkpoint() -> None:
     """Raise :class:`Interrupted` if a signal came while a library swallowed the exception (USD
-    runs Python module loads from C++ and reports their errors as warnings)."""
-    if _signalled:
+    runs Python module loads from C++ and reports their errors as warnings), unless the run's
+    output was committed meanwhile (:func:`dqskin.files.atomic.finished`)."""
+    atomic = sys.modules.get("dqskin.files.atomic")
+    if _signalled and not (atomic is not None and atomic.finished()):
         raise Interrupted(_signalled[0])
 
 
@@ -845,7 +869,9 @@ def _wants_workers(argv: Sequence[str]) -> bool:
         a = p.parse_known_args(argv[1:])[0]
     except (argparse.ArgumentError, SystemExit):
         return False
-    return (a.workers is not None and a.workers >= 1 and not a.scheduler and a.clips is not False
+    from .forkserver import max_workers
+    return (a.workers is not None and 1 <= a.workers <= max_workers() and not a.scheduler
+            and a.clips is not False
             and (a.chunk is None or a.chunk >= 1) and a.skeleton is None and a.weights is None)
 
 

@@ -42,7 +42,7 @@ from .options import SkinOptions
 from .progress import progress_bar
 from .scene import Scene
 from .validation import check_skinned
-from .writers import usd_clips
+from .writers import clip_lock, usd_clips
 from .writers.usd_cache import SampleWriter, chunk_frames
 
 if TYPE_CHECKING:
@@ -53,8 +53,8 @@ if TYPE_CHECKING:
 __all__ = ["ClipJob", "bake_clips", "run_clip", "run_here", "worker_threads"]
 
 
-# this worker process's loaded asset: {(path, mtime, size): Scene}
-_scenes: dict[tuple[str, int, int], Scene] = {}
+# this worker process's loaded asset: {(path, mtime, size): (Scene, states of the files it read)}
+_scenes: dict[tuple[str, int, int], tuple[Scene, list]] = {}
 _buffers = KB.BufferPool()  # this process's chunks of frames, reused from task to task (run_clip)
 
 
@@ -131,16 +131,23 @@ def _worker_plugin(own_cluster: bool) -> "WorkerPlugin":
 
 
 def _worker_scene(path):
-    """The asset at ``path``, loaded once per worker process (reloaded if the file changed)."""
+    """The asset at ``path``, loaded once per worker process (reloaded if the file, or any layer
+    it reads, changed: a sublayer edited between two bakes on a long-lived cluster)."""
     st = os.stat(path)
     key = (path, st.st_mtime_ns, st.st_size)
-    if key not in _scenes:
+    if key not in _scenes or usd_clips.file_states(f for f, *_ in _scenes[key][1]) != \
+            _scenes[key][1]:
+        from pxr import Usd
+
         from .readers import load
         global _buffers
         _scenes.clear()
         _buffers = KB.BufferPool()  # another asset's chunks: their own sizes
-        _scenes[key] = load(path)
-    return _scenes[key]
+        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)  # (its layers stay open for the load)
+        read = usd_clips.input_files(stage, path) if stage is not None else [path]
+        _scenes[key] = (load(path), usd_clips.file_states(read))
+        del stage
+    return _scenes[key][0]
 
 
 def _preload(path):
@@ -287,8 +294,14 @@ def bake_clips(scene: Scene, out: str | Path, times: np.ndarray, options: SkinOp
     dict
         ``clips`` (in total), ``baked`` (this run), ``kept`` (verified from an earlier run),
         ``folder``, and ``tasks``: what each task returned (pid, seconds, peak RSS).
+
+    Raises
+    ------
+    KeyboardInterrupt
+        Interrupted: when finished clips are kept for ``resume``, the exception's ``resumable``
+        attribute is ``(kept, clips, folder)``.
     """
-    with usd_clips.bake_lock(out):  # one bake of ``out`` at a time, --resume and --force too
+    with clip_lock.bake_lock(out):  # one bake of ``out`` at a time, --resume and --force too
         # before starting workers
         usd_clips.ClipBake.check_free(out, force=settings.force, resume=settings.resume)
         return _bake_clips(scene, out, times, options, settings, threads)
@@ -334,9 +347,12 @@ def _bake_clips(scene, out, times, options, settings, threads):
                 bar.close()
                 del preload
         bake.finish()
-    except BaseException:
+    except BaseException as exc:
         if bake is not None:  # (only when no clip was kept: nothing for --resume to complete)
             bake.abandon()
+            kept = bake.kept()
+            if isinstance(exc, KeyboardInterrupt) and kept:
+                exc.resumable = (kept, len(bake.bounds), str(bake.folder))  # type: ignore[attr-defined]
         raise
     return dict(clips=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
                 folder=str(bake.folder), tasks=tasks)
@@ -364,8 +380,9 @@ def _dask(workers, scheduler, threads=None):
     stack = contextlib.ExitStack()
     try:
         if scheduler:
+            _probe(scheduler, CONNECT_SECONDS)
             try:
-                client = Client(scheduler, timeout="20s")
+                client = Client(scheduler, timeout=f"{CONNECT_SECONDS}s")
             except (OSError, ValueError) as exc:
                 raise DqskinError(Param("scheduler", scheduler),
                                   f": cannot connect ({exc})") from None
@@ -375,6 +392,7 @@ def _dask(workers, scheduler, threads=None):
             threads = str(max(1, int(threads or (os.cpu_count() or 1) // int(workers))))
             # for the cluster's lifetime: a restarted worker is forked from the same server
             stack.enter_context(dask.config.set(forkserver.dask_config()))
+            stack.enter_context(dask.config.set(_worker_ttl(dask.config)))
             with forkserver.owning_forkserver():  # its first worker starts it, unless running
                 cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
                                        processes=True, host="127.0.0.1", dashboard_address=None,
@@ -392,6 +410,49 @@ def _dask(workers, scheduler, threads=None):
         if not scheduler:  # started by the cluster or by prestart_workers
             forkserver.stop_workers()
         stack.close()
+
+
+CONNECT_SECONDS = 20
+"""Seconds a ``scheduler`` has to accept the connection and greet (a Dask scheduler sends its
+handshake at once; a port that accepts and says nothing is refused after this long)."""
+
+WORKER_TTL = "60s"
+"""How long a worker of a bake's own LocalCluster may go without a heartbeat (a process stopped
+with SIGSTOP, or hung) before the scheduler drops it and its clips run on the others: Dask's
+``distributed.scheduler.worker-ttl`` (default 5 minutes), unless that is configured otherwise.
+The workers of an external ``scheduler`` follow that scheduler's own setting."""
+
+
+def _worker_ttl(config: Any) -> dict[str, str]:
+    """``{"distributed.scheduler.worker-ttl": WORKER_TTL}`` unless Dask's configuration (its
+    files or ``DASK_DISTRIBUTED__SCHEDULER__WORKER_TTL``) sets another value than Dask's
+    default."""
+    key = "distributed.scheduler.worker-ttl"
+    given = config.get(key, None)
+    return {key: WORKER_TTL} if given in (None, "5 minutes", "300s") else {}
+
+
+def _probe(address: str, seconds: float) -> None:
+    """DqskinError unless something at the ``tcp://HOST:PORT`` ``address`` accepts a connection
+    and sends its first bytes (a Dask scheduler's handshake) within ``seconds``: Dask's own
+    connect waits for ever on a port that accepts and never answers."""
+    import socket
+    host, _, port = address[len("tcp://"):].rstrip("/").rpartition(":")
+    host = host.strip("[]")
+    end = time.monotonic() + seconds
+    try:
+        with socket.create_connection((host, int(port)), timeout=seconds) as sock:
+            sock.settimeout(max(0.1, end - time.monotonic()))
+            first = sock.recv(1)
+    except TimeoutError:
+        raise DqskinError(Param("scheduler", address), f": no answer within {seconds:g} s (not a "
+                          "Dask scheduler, or one that does not respond)") from None
+    except OSError as exc:
+        raise DqskinError(Param("scheduler", address),
+                          f": cannot connect ({exc.strerror or exc})") from None
+    if not first:
+        raise DqskinError(Param("scheduler", address), ": closed the connection without a "
+                          "greeting (not a Dask scheduler?)")
 
 
 def _run_on_dask(client, jobs, done):

@@ -17,8 +17,8 @@ import signal
 import sys
 from collections.abc import Iterator
 
-__all__ = ["PRELOAD", "dask_config", "freeze_heap", "keep_freed_memory", "prestart_workers",
-           "stop_workers"]
+__all__ = ["MAX_WORKERS_PER_CORE", "PRELOAD", "dask_config", "freeze_heap", "keep_freed_memory",
+           "max_workers", "prestart_workers", "stop_workers"]
 
 PRELOAD = ["distributed", "numpy", "dqskin.distributed", "dqskin.readers.usd"]
 """Modules the forkserver imports once; every worker process forked from it starts with them
@@ -32,6 +32,20 @@ _CONFIG = {"distributed.worker.multiprocessing-method": "forkserver",
 every worker hands each chunk's freed memory back to the system and faults it in again for the
 next, doubling the workers' system time; and without Dask's statistical profiler, which samples
 every thread's stack (it competes for the GIL with each chunk's short-lived threads)."""
+
+
+MAX_WORKERS_PER_CORE = 4
+"""Local Dask worker processes allowed per CPU core (:func:`max_workers`)."""
+
+
+def max_workers() -> int:
+    """Most local worker processes a bake starts (``workers``): :data:`MAX_WORKERS_PER_CORE`
+    per CPU core (each worker is a process holding the asset, some 360 MB for a small one), or
+    the whole number in the environment variable ``DQSKIN_MAX_WORKERS``."""
+    given = os.environ.get("DQSKIN_MAX_WORKERS", "").strip()
+    if given.isdigit() and int(given) >= 1:
+        return int(given)
+    return MAX_WORKERS_PER_CORE * (os.cpu_count() or 1)
 
 
 def _distributed_defaults() -> None:

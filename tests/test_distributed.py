@@ -202,7 +202,8 @@ def _forkserver_pid():
 
 
 @pytest.mark.parametrize("args", [["--workers", "0"], ["--workers", "2", "--no-clips"],
-                                  ["--workers", "2", "--chunk", "0"]])
+                                  ["--workers", "2", "--chunk", "0"],
+                                  ["--workers", "99999999999999999999"]])
 def test_refused_worker_arguments_start_no_forkserver(tmp_path, monkeypatch, capsys, args):
     """``--workers`` arguments the bake refuses fail before any worker process is prepared."""
     import dqskin.forkserver as forkserver

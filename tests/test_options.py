@@ -93,7 +93,7 @@ def test_resume_refuses_clips_of_other_blend_shape_settings(tmp_path):
     from dqskin import BakeSettings
     shot = tmp_path / "shot.usdc"
     dqskin.bake(ARM, shot, settings=BakeSettings(clips=True, chunk=8))
-    with pytest.raises(InputError, match=r"with blend_shapes True \(now False\)"):
+    with pytest.raises(InputError, match=r"with blend_shapes=True \(now blend_shapes=False\)"):
         dqskin.bake(ARM, shot, blend_shapes=False, settings=BakeSettings(chunk=8, resume=True))
 
 

@@ -43,7 +43,7 @@ from typing import Literal, TypeVar
 from ..errors import OutputExistsError, Param
 
 __all__ = ["CommitOnSuccess", "atomic_folder", "atomic_group", "atomic_path", "check_interrupted",
-           "check_parent", "critical", "interrupt", "reset_interrupt"]
+           "check_parent", "critical", "finished", "interrupt", "named_error", "reset_interrupt"]
 
 _Writer = TypeVar("_Writer", bound="CommitOnSuccess")
 
@@ -55,6 +55,7 @@ class _State:
     depth: int = 0
     pending: BaseException | None = None
     interrupted: BaseException | None = None
+    finished: bool = False
 
 
 _state = _State()
@@ -62,7 +63,10 @@ _state = _State()
 
 def interrupt(exc: BaseException) -> None:
     """Record an interrupt and raise ``exc`` now, or at the end of the current :func:`critical`
-    block. For signal handlers (main thread)."""
+    block; ignored once the run's output is in place (:func:`finished`). For signal handlers
+    (main thread)."""
+    if _state.finished:
+        return
     _state.interrupted = exc
     if _state.depth:
         _state.pending = exc
@@ -71,8 +75,16 @@ def interrupt(exc: BaseException) -> None:
 
 
 def reset_interrupt() -> None:
-    """Forget a recorded interrupt (a new run in the same process)."""
+    """Forget a recorded interrupt and a finished output (a new run in the same process)."""
     _state.pending = _state.interrupted = None
+    _state.finished = False
+
+
+def finished() -> bool:
+    """Whether the run's last output was committed (:meth:`atomic_path.commit` with ``final``):
+    an interrupt from then on is ignored, so a run that leaves its complete output says it
+    succeeded."""
+    return _state.finished
 
 
 def check_interrupted() -> None:
@@ -150,11 +162,15 @@ class atomic_path:
     overwrite : bool
         True: replace an existing ``path`` (the last writer wins). False: exclusive; commit raises
         FileExistsError if ``path`` exists by then (created by another run meanwhile).
+    final : bool
+        The run's last output: :meth:`commit` marks the run finished (:func:`finished`).
     """
 
-    def __init__(self, path: str | os.PathLike, *, overwrite: bool = True) -> None:
+    def __init__(self, path: str | os.PathLike, *, overwrite: bool = True,
+                 final: bool = False) -> None:
         self.path = Path(path)
         self.overwrite = overwrite
+        self.final = final
         self.tmp: Path | None = None
 
     def open(self) -> Path:
@@ -163,6 +179,7 @@ class atomic_path:
         if self.tmp is not None:
             return self.tmp
         check_interrupted()
+        _state.finished = False  # (another output: the run goes on)
         path = check_parent(self.path)
         try:
             with critical():  # an interrupt here is raised after self.tmp is known
@@ -172,8 +189,13 @@ class atomic_path:
             raise
         return self.tmp
 
-    def commit(self) -> Path:
-        """Move the temporary file onto ``path`` (exclusively unless ``overwrite``)."""
+    def commit(self, final: bool | None = None) -> Path:
+        """Move the temporary file onto ``path`` (exclusively unless ``overwrite``). ``final``
+        (default: the constructor's): the run's last output; an interrupt arriving from the
+        moment this commit starts is dropped once the file is in place (:func:`finished`): the
+        complete output stays, and the run ends as a success (an interrupt before it leaves
+        nothing)."""
+        final = self.final if final is None else final
         if self.tmp is None:
             raise RuntimeError(f"{self.path}: nothing to commit (open() first)")
         with critical():
@@ -188,6 +210,9 @@ class atomic_path:
                 else:
                     _link_exclusive(tmp, path)
                 _remove_folder(tmp.parent)
+                if final:
+                    _state.finished = True
+                    _state.pending = _state.interrupted = None
             except FileExistsError:
                 self.discard()
                 raise OutputExistsError(f"{path}: exists (written by another run meanwhile?); "
@@ -264,7 +289,11 @@ def _link_exclusive(tmp: Path, path: Path) -> None:
 
 class CommitOnSuccess(abc.ABC):
     """Context-manager protocol of the multi-file writers: ``commit()`` when the block ends
-    normally, ``discard()`` on any exception (interrupts included)."""
+    normally, ``discard()`` on any exception (interrupts included). A system error that names no
+    file (a full disk while writing) is raised naming :attr:`target` when a writer sets it."""
+
+    target: Path | None = None
+    """The file a writer of one output writes (named by its system errors)."""
 
     @abc.abstractmethod
     def commit(self) -> object:
@@ -279,11 +308,26 @@ class CommitOnSuccess(abc.ABC):
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> Literal[False]:
-        if exc_type is None:
-            self.commit()
-        else:
-            self.discard()
+        try:
+            if exc_type is None:
+                self.commit()
+            else:
+                self.discard()
+        except OSError as error:
+            raise named_error(self.target, error) from None
+        if isinstance(exc, OSError):
+            named = named_error(self.target, exc)
+            if named is not exc:
+                raise named from None
         return False
+
+
+def named_error(path: str | os.PathLike | None, exc: OSError) -> OSError:
+    """``exc`` naming ``path`` when it is a system error that names no file (a full disk while
+    writing ``path``), else ``exc`` itself."""
+    if path is None or exc.errno is None or exc.filename is not None:
+        return exc
+    return _cannot_write(Path(path), exc)
 
 
 class atomic_group(CommitOnSuccess):

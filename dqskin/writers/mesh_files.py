@@ -25,7 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import InputError, Param, output_exists
-from ..files.atomic import CommitOnSuccess, atomic_group
+from ..files.atomic import CommitOnSuccess, atomic_group, named_error
 
 if TYPE_CHECKING:
     import trimesh
@@ -331,8 +331,8 @@ class FrameWriter(CommitOnSuccess):
             tmp = self.group.add(path)
             try:
                 self._export(mesh, tmp, normals is not None)
-            except OSError:
-                raise
+            except OSError as exc:  # (a full disk: naming the frame's file)
+                raise named_error(path, exc) from None
             except Exception as exc:  # trimesh raises many types
                 raise InputError(f"{path}: trimesh cannot write it ({exc})") from None
             self.paths.append(path)

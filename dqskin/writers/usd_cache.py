@@ -31,14 +31,14 @@ from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 import numpy.typing as npt
-from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
+from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
 from ..errors import InputError
 from ..files.atomic import CommitOnSuccess, atomic_path, check_parent
 from ..files.crate import CrateSamples, UnsupportedCrate
 from ..options import SkinOptions
 from ..pipeline import rigid_transforms
-from ..readers.usd import load_rigid_prims
+from ..readers.usd import _tf_message, load_rigid_prims
 from ..shapes import frames_of
 
 if TYPE_CHECKING:
@@ -48,7 +48,8 @@ if TYPE_CHECKING:
 __all__ = ["CACHE_EXTENSIONS", "CHUNK_BYTES", "CHUNK_FRAMES", "CHUNK_MIN_FRAMES",
            "CLIPS_FOLDER_SUFFIX",
            "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter", "clips_folder",
-           "chunk_frames", "export_layer", "frame_bytes", "write_usd_cache"]
+           "chunk_frames", "export_layer", "frame_bytes", "layer_file", "stage_files",
+           "write_usd_cache"]
 
 CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
 """Extensions :func:`write_usd_cache` writes (``.usd`` is binary crate)."""
@@ -123,14 +124,41 @@ def _same_file(a, b):
         return os.path.realpath(a) == os.path.realpath(b)
 
 
+def layer_file(layer: Sdf.Layer) -> str | None:
+    """The file holding ``layer``: its real path, the package for a layer inside one (``.usdz``),
+    None for an anonymous layer. (A ``[`` in a file's own name is kept: ``br[1].usda``.)"""
+    real = layer.realPath
+    if not real:
+        return None
+    if Ar.IsPackageRelativePath(real):
+        return Ar.SplitPackageRelativePathOuter(real)[0]
+    return real
+
+
+def stage_files(stage: Usd.Stage) -> list[str]:
+    """Every file ``stage`` reads, sorted: its layer stack, references and payloads (its used
+    layers), and the layers and manifests its value clips name (opened only when values are
+    read, so not yet among the used layers)."""
+    files = {f for f in map(layer_file, stage.GetUsedLayers()) if f}
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies(Usd.PrimAllPrimsPredicate)):
+        api = Usd.ClipsAPI(prim)
+        sets = api.GetClips()
+        if not sets:
+            continue
+        for name in sets:
+            assets = [*(api.ComputeClipAssetPaths(name) or []),
+                      api.GetClipManifestAssetPath(name)]
+            for asset in assets:
+                if asset is not None and asset.resolvedPath:
+                    real = asset.resolvedPath
+                    files.add(Ar.SplitPackageRelativePathOuter(real)[0]
+                              if Ar.IsPackageRelativePath(real) else real)
+    return sorted(files)
+
+
 def _source_files(stage, source_path):
-    """Every file the source stage reads (root, sublayers, references, the usdz package)."""
-    files = {source_path}
-    for layer in stage.GetUsedLayers():
-        real = layer.realPath
-        if real:
-            files.add(real.split("[", 1)[0])
-    return files
+    """Every file the source stage reads (:func:`stage_files`) and ``source_path``."""
+    return {os.fspath(source_path), *stage_files(stage)}
 
 
 def _remove_skel_binding(layer):
@@ -462,9 +490,9 @@ def export_layer(layer: Sdf.Layer, claim: atomic_path, out: str | os.PathLike | 
     args = {"format": "usdc"} if Path(tmp).suffix.lower() == ".usd" else {}
     try:
         ok = layer.Export(str(tmp), args=args)
-    except Tf.ErrorException as exc:
+    except Tf.ErrorException as exc:  # (its first diagnostic: a full disk repeats one per block)
         raise InputError(f"{name}: USD could not write the layer "
-                         f"({str(exc).replace(str(tmp), name)})") from None
+                         f"({_tf_message(exc).replace(str(tmp), name)})") from None
     if not ok:
         raise InputError(f"{name}: USD could not write the layer")
     return tmp
@@ -657,6 +685,9 @@ class UsdCacheWriter(CommitOnSuccess):
     overwrite : bool
         Replace an existing ``out_path`` (the last writer wins). False claims it exclusively:
         :meth:`close` raises FileExistsError if it exists by then (another run finished first).
+    final : bool
+        The run's last output (:class:`~.atomic.atomic_path`): an interrupt once it is in place
+        is ignored.
 
     As a context manager the writer claims its temporary folder on entry
     (``.STEM.XXXXXXXX/`` beside ``out_path``, :mod:`.atomic`) and removes it on an exception or
@@ -665,14 +696,16 @@ class UsdCacheWriter(CommitOnSuccess):
 
     def __init__(self, scene: "Scene", out_path: str | os.PathLike,
                  options: SkinOptions | None = None, *,
-                 source_path: str | os.PathLike | None = None, overwrite: bool = True) -> None:
+                 source_path: str | os.PathLike | None = None, overwrite: bool = True,
+                 final: bool = False) -> None:
         self.cache = CacheLayer(scene, out_path, source_path=source_path)
         self.scene, self.out, self.src = scene, self.cache.out, self.cache.src
         self.layer = self.cache.layer
         self.samples = SampleWriter(scene, self.cache.target, self.cache.rigid,
                                     SkinOptions() if options is None else options)
         self._t_min, self._t_max = np.inf, -np.inf
-        self._claim = atomic_path(self.out, overwrite=overwrite)
+        self._claim = atomic_path(self.out, overwrite=overwrite, final=final)
+        self.target = Path(self.out)
         # the layer or CrateSamples samples go to, chosen by the first chunk
         self._sink: Sink | None = None
 

@@ -4,7 +4,8 @@ For ``--out SHOT.usd`` (any of ``.usd/.usdc/.usda``) a clip bake writes::
 
     SHOT.usd                     top level: the source flattened and unbound, as the single-layer
                                  cache (:class:`~.usd_cache.CacheLayer`), without the samples;
-                                 ``clips`` metadata on each root prim above a skinned prim
+                                 ``clips`` metadata on each root prim above a skinned prim; the
+                                 size and checksum of every file below (:data:`LISTING`)
     SHOT.clips/plan.json         what is baked: source, times, chunking, options, and their key
     SHOT.clips/manifest.usda     the clip manifest: the attributes the clips hold
     SHOT.clips/chunk_00000.usdc  one chunk's time samples, streamed into a crate file as they
@@ -24,7 +25,9 @@ every clip), so those attributes have no value at the ``Default`` time code.
 Each clip layer is written beside its final name (:class:`ClipLayer`) and renamed into place
 only when complete, after its checksum record (:func:`write_clip`); :meth:`ClipBake.pending`
 verifies the chunks a previous run left (``resume``). :func:`flatten` turns a clip cache into
-one layer for tools that do not read clips.
+one layer for tools that do not read clips, once every file the top level lists verifies.
+A bake holds the folder exclusively, a flatten shared (:mod:`.clip_lock`); ``force``
+replaces only the files dqskin made there (:func:`made_by_dqskin`).
 """
 
 import contextlib
@@ -35,7 +38,7 @@ import json
 import os
 import re
 import shutil
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any, Literal
@@ -46,11 +49,12 @@ import xxhash
 from pxr import Sdf, Tf, Usd, Vt
 
 from ..errors import InputError, OutputExistsError, Param, output_exists
-from ..files.atomic import atomic_path, check_interrupted
+from ..files.atomic import atomic_path, check_interrupted, named_error
 from ..files.crate import BOOTSTRAP, CrateSamples, Hasher
 from ..options import CorOptions, SkinOptions
 from ..readers.usd import _tf_message
 from ..scene import Scene
+from .clip_lock import reading_lock
 from .usd_cache import (
     CLIPS_FOLDER_SUFFIX,
     CacheLayer,
@@ -58,12 +62,16 @@ from .usd_cache import (
     clips_folder,
     export_layer,
     frame_bytes,
+    layer_file,
+    stage_files,
 )
 
-__all__ = ["CHECKSUM", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "LOCK_FILE", "ClipBake",
-           "ClipLayer", "bake_lock", "check_outside", "chunk_bounds", "clip_frames",
-           "clips_folder", "commit_clip", "flatten", "file_checksum", "holds_clip_bake",
-           "input_files", "recorded_chunk", "remove_clip_bake", "verify_chunk", "write_clip"]
+__all__ = ["CHECKSUM", "CLIP_BYTES", "CLIP_CHUNK", "CLIPS_FOLDER_SUFFIX", "LISTING",
+           "MAX_JSON_BYTES", "ClipBake", "ClipLayer", "check_clip_name",
+           "check_outside", "chunk_bounds", "clip_frames", "clips_folder", "commit_clip",
+           "flatten", "file_checksum", "file_states", "holds_clip_bake", "input_files",
+           "made_by_dqskin", "our_plan", "read_json", "recorded_chunk",
+           "remove_clip_bake", "verify_chunk", "write_clip"]
 
 
 _PLAN_DEFAULTS = {"blend_shapes": True, "cor": dataclasses.asdict(CorOptions())}
@@ -84,87 +92,6 @@ CLIP_BYTES = 32 << 20
 """Samples a clip layer holds at least by default, workers permitting (:func:`clip_frames`): a
 small mesh gets longer clips than :data:`CLIP_CHUNK` frames, since each clip has a fixed cost
 beyond its frames (a layer, its record, its checksum, a task)."""
-
-
-LOCK_FILE = ".lock"
-"""The file in a clip folder that the bake writing it holds locked (:func:`bake_lock`)."""
-
-_BUSY = (errno.EWOULDBLOCK, errno.EAGAIN)
-_NO_LOCKS = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL)
-
-
-@contextlib.contextmanager
-def bake_lock(out: str | os.PathLike) -> Iterator[None]:
-    """Hold ``out``'s clip folder (:func:`clips_folder`) for one bake: an exclusive ``flock`` on
-    its :data:`LOCK_FILE`, released when the block ends or the process does (however it ends).
-    A second bake of ``out`` (``resume`` and ``force`` included) then fails at once with
-    FileExistsError instead of removing or rewriting the files of one still running. Creates
-    the folder; removes the lock file at the end (still holding it: a run that opened it
-    meanwhile finds it gone and locks the next one), and the folder when this call made it
-    and it is left empty (a refused bake leaves nothing). Where the system or the file system
-    has no such locks (Windows; ``ENOLCK``), nothing is locked."""
-    folder = clips_folder(out)
-    if folder.exists() and not folder.is_dir():
-        raise NotADirectoryError(errno.ENOTDIR, "exists and is not a folder", str(folder))
-    made = not folder.exists()
-    folder.mkdir(parents=True, exist_ok=True)
-    fd = _lock(folder / LOCK_FILE)
-    try:
-        yield
-    finally:
-        if fd is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(folder / LOCK_FILE)
-            os.close(fd)
-        if made:
-            with contextlib.suppress(OSError):
-                folder.rmdir()  # only when empty
-
-
-def _lock(path: Path) -> int | None:
-    """A descriptor of ``path`` holding its exclusive lock (None where locks do not exist)."""
-    try:
-        import fcntl
-    except ImportError:
-        return None
-    nofollow = getattr(os, "O_NOFOLLOW", 0)  # (a link there is not followed, nor truncated)
-    for _ in range(8):
-        try:  # made as the umask allows: another user's bake may lock it after this one
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | nofollow, 0o666)
-        except PermissionError:  # another user's lock file (flock needs no write access)
-            fd = os.open(path, os.O_RDONLY | nofollow)
-        except FileNotFoundError:
-            if path.parent.is_dir():
-                raise
-            path.parent.mkdir(parents=True, exist_ok=True)  # the bake that made it removed it
-            continue
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as exc:
-            os.close(fd)
-            if exc.errno in _NO_LOCKS:
-                return None
-            if exc.errno in _BUSY:
-                try:
-                    pid = f" (pid {int(path.read_text().strip())})"
-                except (OSError, ValueError):
-                    pid = ""
-                raise OutputExistsError(
-                    f"{path.parent}: another dqskin clip bake{pid} is writing it; let it finish "
-                    "or stop it, then rerun (", Param("resume", True), " completes it, ",
-                    Param("force", True), " starts over)") from None
-            raise
-        try:
-            st, now = os.fstat(fd), os.stat(path)
-            if (st.st_dev, st.st_ino) == (now.st_dev, now.st_ino):
-                with contextlib.suppress(OSError):  # (read-only: no pid to tell)
-                    os.ftruncate(fd, 0)
-                    os.write(fd, f"{os.getpid()}\n".encode())
-                return fd
-        except FileNotFoundError:
-            pass
-        os.close(fd)  # the run that held it removed it meanwhile: lock the next one
-    raise OutputExistsError(f"{path}: removed and made again while locking it; rerun")
 
 
 def clip_frames(scene: Scene, frames: int, normals: bool = True, velocities: bool = True,
@@ -192,17 +119,60 @@ def clip_frames(scene: Scene, frames: int, normals: bool = True, velocities: boo
     return -(-F // (k * w))
 
 
+MAX_JSON_BYTES = 16 << 20
+"""Largest ``plan.json`` or clip record read (a plan of a million clips is a few hundred KB)."""
+
+
+def read_json(path: str | os.PathLike) -> Any:
+    """The JSON document in ``path``; InputError (a ValueError) naming it when it is not JSON,
+    nested too deeply to read, or over :data:`MAX_JSON_BYTES`; OSError when it cannot be
+    read."""
+    with open(path, "rb") as fh:
+        data = fh.read(MAX_JSON_BYTES + 1)
+    if len(data) > MAX_JSON_BYTES:
+        raise InputError(f"{path}: over {MAX_JSON_BYTES >> 20} MB; not a dqskin file")
+    try:
+        return json.loads(data)
+    except RecursionError:
+        raise InputError(f"{path}: JSON nested too deeply; not a dqskin file") from None
+    except ValueError as exc:
+        raise InputError(f"{path}: not JSON ({exc})") from None
+
+
+def _plan_key(plan: dict[str, Any]) -> str:
+    """The key of a plan: SHA-256 of its canonical JSON without ``key``, ``out`` and
+    ``manifest`` (the output's name and the manifest's checksum are not part of what is
+    baked)."""
+    body = {k: v for k, v in plan.items() if k not in ("key", "out", "manifest")}
+    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
+
+
+def our_plan(folder: str | os.PathLike) -> dict[str, Any] | None:
+    """The plan of the dqskin clip bake in ``folder`` (its ``plan.json``: this format, and a key
+    that is the hash of its content), or None: no plan, or another tool's (or an unreadable)
+    file."""
+    try:
+        plan = read_json(Path(folder) / "plan.json")
+    except (OSError, ValueError):
+        return None
+    try:
+        if isinstance(plan, dict) and plan.get("format") == _FORMAT and \
+                plan.get("key") == _plan_key(plan):
+            return plan
+    except (TypeError, ValueError):  # (not serializable as it was written: not ours)
+        pass
+    return None
+
+
 def _recorded(out: str | os.PathLike, key: str) -> Any:
-    """``key`` of the plan of the earlier bake in ``out``'s clip folder (its ``plan.json``), None
-    without one (or an unreadable one)."""
+    """``key`` of the plan of the earlier dqskin bake in ``out``'s clip folder (:func:`our_plan`),
+    None without one."""
     return _recorded_in(clips_folder(out), key)
 
 
 def _recorded_in(folder: str | os.PathLike, key: str) -> Any:
-    try:
-        return json.loads((Path(folder) / "plan.json").read_text()).get(key)
-    except (OSError, ValueError, AttributeError):
-        return None
+    plan = our_plan(folder)
+    return None if plan is None else plan.get(key)
 
 
 def input_files(stage: Usd.Stage, src: str | os.PathLike,
@@ -210,6 +180,55 @@ def input_files(stage: Usd.Stage, src: str | os.PathLike,
     """Every file a bake of ``src`` reads: the layers of its ``stage`` and ``inputs`` (the
     command's other files: ``--weights``, ``--skeleton``)."""
     return [*_source_files(stage, src), *map(str, inputs)]
+
+
+def file_states(files: Iterable[str | os.PathLike]) -> list[list[Any]]:
+    """``[[path, bytes, mtime_ns], ...]`` of ``files`` (absolute, sorted; None for a missing
+    one): what a plan records of every file a bake reads, so that ``resume`` refuses to go on
+    after any of them changed (a sublayer edited between two runs would give one cache of two
+    animations)."""
+    states = []
+    for f in sorted({str(Path(f).resolve()) for f in files}):
+        try:
+            st = os.stat(f)
+            states.append([f, st.st_size, st.st_mtime_ns])
+        except OSError:
+            states.append([f, None, None])
+    return states
+
+
+def _foreign(path: Path) -> InputError:
+    """The refusal of a file in a clip folder that dqskin did not make, at a name a clip bake
+    writes (with ``force`` too: it replaces only what dqskin made)."""
+    why = "not made by dqskin (no dqskin record of it)"
+    if path.suffix == ".json":
+        try:
+            read_json(path)
+        except InputError as exc:  # (nested too deeply, not JSON: say so)
+            why = str(exc).removeprefix(f"{path}: ")
+        except OSError:
+            pass
+    return InputError(f"{path}: {why}, where this clip bake writes; move it out of "
+                      f"{path.parent.name}/, or bake to another output")
+
+
+_UNSAFE_NAME = re.compile(r"[\\\x00-\x1f\x7f]")
+
+
+def check_clip_name(out: str | os.PathLike) -> None:
+    """InputError (a ValueError) when USD could not name the clip layers of ``out`` in its
+    metadata: a backslash (read as a folder separator) or a control character (a newline, a tab:
+    not allowed in an asset path) in its folder path or name, or a name that is not UTF-8."""
+    path = os.path.abspath(os.fspath(out))
+    bad = _UNSAFE_NAME.search(path)
+    try:
+        path.encode("utf-8")
+    except UnicodeEncodeError:
+        bad = bad or re.search(r"[\udc80-\udcff]", path)
+    if bad:
+        raise InputError(Param("out", os.fspath(out)), f": {bad.group()!r} in the path; USD "
+                         "cannot name value clips there (asset paths hold no backslash and no "
+                         "control character); choose another name")
 
 
 def check_outside(out: str | os.PathLike, files: Iterable[str | os.PathLike],
@@ -225,25 +244,78 @@ def check_outside(out: str | os.PathLike, files: Iterable[str | os.PathLike],
 
 
 def holds_clip_bake(out: str | os.PathLike) -> bool:
-    """Whether ``out``'s clip folder holds a clip bake of ``out`` (its plan names it)."""
+    """Whether ``out``'s clip folder holds a dqskin clip bake of ``out`` (:func:`our_plan`, naming
+    it)."""
     return _recorded(out, "out") == Path(out).name
 
 
 def remove_clip_bake(out: str | os.PathLike) -> None:
-    """Remove the clip bake of ``out`` that a single layer written there replaced: dqskin's own
-    files in its clip folder (others stay; the folder too)."""
-    _remove_files(clips_folder(out), _OURS)
+    """Remove the clip bake of ``out`` that a single layer written there replaced: the files
+    dqskin made in its clip folder (:func:`made_by_dqskin`; others stay, the folder too)."""
+    _remove_ours(clips_folder(out))
 
 
-def _remove_files(folder: Path, pattern: re.Pattern[str]) -> None:
-    """Remove ``folder``'s files whose names match, and its temporary folders (:mod:`.atomic`)."""
+def made_by_dqskin(path: str | os.PathLike, plan: dict[str, Any] | None = None) -> bool:
+    """Whether the file ``path`` in a clip folder is one a dqskin clip bake wrote there:
+    ``plan.json`` that is a dqskin plan (:func:`our_plan`), ``manifest.usda`` beside one (of
+    the checksum it records), a clip layer with its dqskin record (:func:`_record_of`, of its
+    size) or such a record. ``plan``: the folder's plan if already read. (Anything else there,
+    another tool's ``plan.json`` or ``chunk_00001.usdc`` included, is not dqskin's to remove or
+    replace.)"""
+    path = Path(path)
+    if plan is None:
+        plan = our_plan(path.parent)
+    try:
+        if path.name == "plan.json":
+            return plan is not None
+        if path.name == "manifest.usda":
+            m = None if plan is None else plan.get("manifest")
+            return plan is not None and (m is None or _matches(path, m))
+        if _CHUNK.match(path.name) and path.suffix == ".usdc":
+            record = _record_of(path)
+            return record is not None and record.get("bytes") == path.stat().st_size
+        if _CHUNK.match(path.name) and path.suffix == ".json":
+            return _record_of(path.with_suffix(".usdc")) is not None
+    except OSError:
+        return False
+    return False
+
+
+_CHUNK = re.compile(r"^chunk_\d+\.(usdc|json)$")
+
+
+def _matches(path: Path, record: Any) -> bool:
+    """Whether ``path`` has the size and checksum of ``record`` (``{"bytes": .., ALGORITHM: ..}``
+    with an algorithm of :data:`_HASHES`)."""
+    if not isinstance(record, dict):
+        return False
+    algorithm = next((a for a in _HASHES if isinstance(record.get(a), str)), None)
+    try:
+        return (algorithm is not None and path.is_file()
+                and path.stat().st_size == record.get("bytes")
+                and file_checksum(path, algorithm) == record[algorithm])
+    except OSError:
+        return False
+
+
+def _remove_ours(folder: Path) -> None:
+    """Remove the files dqskin made in ``folder`` (:func:`made_by_dqskin`) and its temporary
+    folders (:mod:`.atomic`); the plan last, so an interrupted removal can be done again."""
+    plan = our_plan(folder)
+    files = sorted((p for p in folder.iterdir() if _OURS.match(p.name) and not _TEMP.match(p.name)
+                    and p.is_file() and made_by_dqskin(p, plan)),
+                   key=lambda p: p.name == "plan.json")
+    _remove_temporaries(folder)
+    for p in files:
+        with contextlib.suppress(OSError):
+            p.unlink()
+
+
+def _remove_temporaries(folder: Path) -> None:
+    """Remove ``folder``'s temporary folders of clip bakes (:mod:`.atomic`)."""
     for p in folder.iterdir():
-        if pattern.match(p.name):
-            if _TEMP.match(p.name) and p.is_dir() and not p.is_symlink():
-                shutil.rmtree(p, ignore_errors=True)
-            elif p.is_file():
-                with contextlib.suppress(OSError):
-                    p.unlink()
+        if _TEMP.match(p.name) and p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
 
 
 def recorded_chunk(out: str | os.PathLike) -> int | None:
@@ -359,6 +431,10 @@ class ClipLayer:
                  tb: TracebackType | None) -> Literal[False]:
         if exc_type is not None:
             self.discard()
+        if isinstance(exc, OSError):  # (a full disk: naming the layer)
+            named = named_error(self.claim.path, exc)
+            if named is not exc:
+                raise named from None
         return False
 
 
@@ -415,7 +491,7 @@ def _record_of(path: str | os.PathLike) -> dict[str, Any] | None:
     """The dqskin record of clip layer ``path`` (``chunk_00000.json`` beside it: a dict naming
     the layer, with a plan key and a checksum), or None (another tool's file, or none)."""
     try:
-        record = json.loads(Path(path).with_suffix(".json").read_text())
+        record = read_json(Path(path).with_suffix(".json"))
     except (OSError, ValueError):
         return None
     if (isinstance(record, dict) and record.get("layer") == Path(path).name
@@ -463,7 +539,9 @@ class ClipBake:
         normals, velocities = options.normals, options.velocities
         self.cache = CacheLayer(scene, out)
         self.out, self.folder = Path(out), clips_folder(out)
-        check_outside(out, input_files(self.cache.stage, self.cache.src, inputs), self.cache.src)
+        check_clip_name(out)
+        read = input_files(self.cache.stage, self.cache.src, inputs)
+        check_outside(out, read, self.cache.src)
         # a cache is keyed by time: sorted, each once (the clip metadata's "active" and "times"
         # need increasing times: unsorted --frames gave a cache wrong at almost every time)
         self.times = np.unique(np.asarray(times, np.float64))
@@ -477,9 +555,16 @@ class ClipBake:
                 "times_sha256": hashlib.sha256(self.times.tobytes()).hexdigest(),
                 "chunk": int(chunk), "chunks": len(self.bounds),
                 "options": dict(sorted(options.plan().items())),
-                "attributes": sorted(t.attr for t in self.targets.values())}
-        self.key = hashlib.sha256(json.dumps(plan, sort_keys=True).encode()).hexdigest()
-        self.plan = dict(plan, key=self.key, out=self.out.name)  # (the name: not in the key)
+                "attributes": sorted(t.attr for t in self.targets.values()),
+                "layers": file_states(f for f in read if not _same_path(f, src))}
+        manifest = Sdf.Layer.CreateAnonymous(".usda")
+        for target in self.targets.values():
+            target.spec(manifest)
+        self.manifest = manifest.ExportToString().encode()
+        self.key = _plan_key(plan)
+        # (the name and the manifest's checksum: not in the key)
+        self.plan = dict(plan, key=self.key, out=self.out.name, manifest={
+            "bytes": len(self.manifest), "xxh3_128": xxhash.xxh3_128_hexdigest(self.manifest)})
         self.resumed = self._check_existing(force, resume)
         self.overwrite = force or self.resumed
 
@@ -490,17 +575,21 @@ class ClipBake:
             raise NotADirectoryError(errno.ENOTDIR, "exists and is not a folder", str(self.folder))
         if self.folder.is_dir():  # before anything is removed: a bake would fail on it midway
             layers = [self.clip_path(k) for k in range(len(self.bounds))]
+            plan = our_plan(self.folder)
             for p in [plan_file, self.folder / "manifest.usda", *layers,
                       *(q.with_suffix(".json") for q in layers)]:
                 if p.exists() and not p.is_file():  # (a link to a file is one)
                     raise InputError(f"{p}: not a file, where this clip bake writes one; move it "
                                      f"out of {self.folder.name}/")
+                if p.exists() and not made_by_dqskin(p, plan):  # --force never replaces it
+                    raise _foreign(p)
         earlier = plan_file.exists()
         self._check_owner(self.out)
         if earlier and resume and not force:
             if _recorded(self.out, "key") != self.key:
-                raise InputError(f"{self.folder}: an earlier bake {self._differs()}; rerun it "
-                                 "with those, or use ", Param("force", True), " to start over")
+                raise InputError(f"{self.folder}: an earlier bake ", *self._differs(),
+                                 "; rerun it with those, or use ", Param("force", True),
+                                 " to start over")
             return True
         if not force:
             self.check_free(self.out)
@@ -508,42 +597,56 @@ class ClipBake:
         elif self.folder.is_dir():
             if earlier and self.out.is_file():  # it reads the clips about to be replaced: an
                 self.out.unlink()  # interrupted --force left it showing a mix of two bakes
-            _remove_files(self.folder, _OURS)
+            _remove_ours(self.folder)
         return False
 
-    def _differs(self) -> str:
-        """What the earlier bake's plan has that this one's does not, in words."""
+    def _differs(self) -> list[str | Param]:
+        """What the earlier bake's plan has that this one's does not, in words (the options as
+        :class:`Param`: the command line spells them as typed)."""
         try:
-            return self._compare_plans(json.loads((self.folder / "plan.json").read_text()))
-        except (OSError, ValueError):
-            return "with an unreadable plan.json"
-        except (TypeError, AttributeError, KeyError):  # a plan.json edited by hand
-            return "with other settings"
+            return self._compare_plans(our_plan(self.folder))
+        except (TypeError, AttributeError, KeyError, ValueError):  # a plan.json edited by hand
+            return ["with other settings"]
 
-    def _compare_plans(self, old: object) -> str:
-        if not isinstance(old, dict) or old.get("format") != _FORMAT:
-            return "of another format"
+    def _compare_plans(self, old: dict[str, Any] | None) -> list[str | Param]:
+        if old is None:
+            return ["of another format (or with an unreadable plan.json)"]
         new = self.plan
         if old.get("source") != new["source"]:
-            return f"of another input ({old.get('source')})"
+            return [f"of another input ({old.get('source')})"]
         if (old.get("source_bytes"), old.get("source_mtime_ns")) != \
                 (new["source_bytes"], new["source_mtime_ns"]):
-            return "of this input before it changed (its size or modification time)"
-        said = []
+            return ["of this input before it changed (its size or modification time)"]
+        if old.get("layers") != new["layers"]:
+            was = {e[0]: e[1:] for e in old.get("layers") or []}  # path → [bytes, mtime]
+            now = {e[0]: e[1:] for e in new["layers"]}
+            changed = [p for p, st in now.items() if was.get(p) != st] + sorted(set(was) - set(now))
+            return [f"of this input before {changed[0] if changed else 'a layer it reads'} "
+                    "changed (its size or modification time)"]
+        said: list[list[str | Param]] = []
         if any(old.get(k) != new[k] for k in ("frames", "first", "last", "times_sha256")):
-            said.append(f"of {old.get('frames')} frames from {old.get('first'):g} to "
-                        f"{old.get('last'):g} (now {new['frames']} from {new['first']:g} to "
-                        f"{new['last']:g}: other times selected)")
+            said.append([f"of {old.get('frames')} frames from {old.get('first'):g} to "
+                         f"{old.get('last'):g} (now {new['frames']} from {new['first']:g} to "
+                         f"{new['last']:g}: other times selected)"])
         if old.get("chunk") != new["chunk"]:
-            said.append(f"in clips of {old.get('chunk')} frames (now {new['chunk']})")
+            said.append(["with ", Param("chunk", old.get("chunk")), " (now ",
+                         Param("chunk", new["chunk"]), ")"])
         # (a plan leaves out the settings that are at their defaults)
         opts = {**_PLAN_DEFAULTS, **new["options"]}
         was = {**_PLAN_DEFAULTS, **(old.get("options") or {})}
-        said += [f"with {k} {was.get(k)!r} (now {opts.get(k)!r})"
-                 for k in sorted(set(opts) | set(was)) if opts.get(k) != was.get(k)]
+        for k in sorted(set(opts) | set(was)):
+            if opts.get(k) == was.get(k):
+                continue
+            if all(v is None or isinstance(v, (bool, int, float, str))
+                   for v in (opts.get(k), was.get(k))):
+                said.append(["with ", Param(k, was.get(k)), " (now ", Param(k, opts.get(k)), ")"])
+            else:
+                said.append([f"with other {k} settings"])
         if not said and old.get("attributes") != new["attributes"]:
-            said.append("of other attributes")
-        return ", ".join(said) if said else "with other settings"
+            said.append(["of other attributes"])
+        if not said:
+            return ["with other settings"]
+        return [part for i, parts in enumerate(said) for part in ([", "] if i else []) + parts]
 
     @staticmethod
     def _check_owner(out: str | os.PathLike) -> None:
@@ -582,6 +685,8 @@ class ClipBake:
         if out.exists():
             raise output_exists(out)
         if (folder / "plan.json").exists():
+            if our_plan(folder) is None:
+                raise _foreign(folder / "plan.json")
             raise OutputExistsError(f"{folder}: an unfinished clip bake is there; use ",
                                     Param("resume", True), " to complete it or ",
                                     Param("force", True), " to start over")
@@ -596,6 +701,24 @@ class ClipBake:
             with contextlib.suppress(OSError):
                 (self.folder / name).unlink()
 
+    def _verified(self, index: int) -> bool:
+        """Whether clip layer ``index`` of an earlier run of this plan matches its record
+        (:func:`verify_chunk`), and the record is of this clip's frames (not a neighbour's
+        copied over it)."""
+        path = self.clip_path(index)
+        record = _record_of(path)
+        t = self.chunk_times(index)
+        return (record is not None and record.get("frames") == len(t)
+                and record.get("first") == float(t[0]) and record.get("last") == float(t[-1])
+                and verify_chunk(path, self.key, record))
+
+    def kept(self) -> int:
+        """How many clip layers of this plan are in place (each with its record): what a
+        ``resume`` would keep, unless one is damaged."""
+        return sum(1 for k in range(len(self.bounds))
+                   if self.clip_path(k).is_file()
+                   and (_record_of(self.clip_path(k)) or {}).get("plan") == self.key)
+
     def clip_path(self, index: int) -> Path:
         return self.folder / (_chunk_name(index, len(self.bounds)) + ".usdc")
 
@@ -608,21 +731,19 @@ class ClipBake:
         """Indices of the chunks to bake: all, or when resuming those that do not verify. Writes
         the plan and the manifest (and removes temporary files a killed run left)."""
         self.folder.mkdir(parents=True, exist_ok=True)
-        _remove_files(self.folder, _TEMP)
-        todo = [k for k in range(len(self.bounds))
-                if not (self.resumed and verify_chunk(self.clip_path(k), self.key))]
+        _remove_temporaries(self.folder)
+        todo = [k for k in range(len(self.bounds)) if not (self.resumed and self._verified(k))]
         check_interrupted()
         _write_json(self.folder / "plan.json", self.plan)
-        manifest = Sdf.Layer.CreateAnonymous(".usda")
-        for target in self.targets.values():
-            target.spec(manifest)
         with atomic_path(self.folder / "manifest.usda") as tmp:
-            if not manifest.Export(str(tmp)):
-                raise InputError(f"{self.folder / 'manifest.usda'}: USD could not write it")
+            tmp.write_bytes(self.manifest)
         return todo
 
     def finish(self) -> Path:
-        """Check every chunk is in place, then write the top level (atomically). Returns it."""
+        """Check every chunk is in place, then write the top level (atomically), recording the
+        size and checksum of every clip layer and of the manifest in its ``customLayerData``
+        (:data:`LISTING`: what :func:`flatten` verifies). Returns it."""
+        listed = {}
         for k in range(len(self.bounds)):  # in place, of this plan (not a late write of a
             record = _record_of(self.clip_path(k))  # stopped bake's remote worker)
             if not self.clip_path(k).is_file():
@@ -630,7 +751,14 @@ class ClipBake:
             if record is None or record["plan"] != self.key:
                 raise InputError(f"{self.clip_path(k)}: its record is missing or of another "
                                  "bake; rerun with ", Param("resume", True), " to redo it")
+            algorithm = next(a for a in _HASHES if a in record)
+            listed[self.clip_path(k).name] = {"bytes": record["bytes"],
+                                              algorithm: record[algorithm]}
         layer, t = self.cache.layer, self.times
+        data = dict(layer.customLayerData)
+        data[LISTING] = {"format": _FORMAT, "plan": self.key, "folder": self.folder.name,
+                         "manifest": self.plan["manifest"], "layers": listed}
+        layer.customLayerData = data
         with Sdf.ChangeBlock():
             for target in self.targets.values():
                 spec = layer.GetAttributeAtPath(target.attr)
@@ -655,9 +783,16 @@ class ClipBake:
         except BaseException:
             claim.discard()
             raise
-        claim.commit()
-        _remove_files(self.folder, _TEMP)
+        claim.commit(final=True)
+        _remove_temporaries(self.folder)
         return self.out
+
+
+LISTING = "dqskinClips"
+"""The key of a clip cache's top-level ``customLayerData`` that lists what it reads: ``format``,
+``plan`` (its key), ``folder`` (the clip folder's name, beside the top level), ``manifest`` and
+``layers`` (clip layer name → its record): ``{"bytes": size, ALGORITHM: checksum}``
+(:data:`CHECKSUM`, or an older algorithm of a layer kept from an earlier bake)."""
 
 
 def flatten(src: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool = False) -> Path:
@@ -665,13 +800,19 @@ def flatten(src: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool =
     clip's samples become ordinary time samples, for tools that do not read value clips. The
     whole animation is held in memory while writing.
 
-    Every clip layer the stage's ``clips`` metadata names must resolve, and one with a dqskin
-    record beside it (``chunk_00000.json``) must match it (:func:`verify_chunk`) and its
-    folder's plan: USD would skip a missing clip and hold the samples around it, and copy a
-    damaged one (InputError, a ValueError, naming the layer; ``resume`` redoes it). That
-    check reads each such layer once more. ``.usd`` output is crate. ``out``
-    appears only when complete (exclusively unless ``overwrite``); ``src`` is never modified.
-    Returns ``out``.
+    Every clip layer the stage's ``clips`` metadata names must resolve. A dqskin clip cache
+    lists the size and checksum of each of its clip layers and of its manifest (:data:`LISTING`):
+    each must be in place and match (a missing, damaged, swapped or emptied file, or one of
+    another bake, is refused; USD would skip a missing clip and hold the samples around it,
+    copy a damaged one, and read no animation through a wrong manifest). Clips of a cache
+    without that list that have a dqskin record beside them (``chunk_00000.json``) must match it
+    (:func:`verify_chunk`) and its folder's plan; in a folder of a dqskin plan, every clip must
+    have one. Any failure is an InputError (a ValueError) naming the file (``resume`` redoes a
+    clip). That check reads each such layer once more. While it reads, ``src``'s clip folder
+    is held (:func:`~.clip_lock.reading_lock`): a bake of ``src`` running is refused, and none
+    starts.
+    ``.usd`` output is crate. ``out`` appears only when complete (exclusively unless
+    ``overwrite``); ``src`` is never modified. Returns ``out``.
     """
     out = Path(out)
     if out.suffix.lower() not in (".usd", ".usdc", ".usda"):
@@ -680,6 +821,13 @@ def flatten(src: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool =
         raise InputError(f"{src}: no such file")
     if out.exists() and not overwrite:  # (checked again when it is claimed)
         raise output_exists(out, "overwrite")
+    folder = clips_folder(src)
+    with reading_lock(folder, src) if folder.is_dir() else contextlib.nullcontext():
+        return _flatten(src, out, overwrite)
+
+
+def _flatten(src: str | os.PathLike, out: Path, overwrite: bool) -> Path:
+    """:func:`flatten` once ``src``'s clip folder is held."""
     try:
         stage = Usd.Stage.Open(str(src))
     except Tf.ErrorException as exc:
@@ -691,17 +839,18 @@ def flatten(src: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool =
         flat = stage.Flatten()  # opens every clip layer: only then are all the inputs known
     except Tf.ErrorException as exc:
         raise InputError(f"{src}: cannot flatten: {_tf_message(exc)}") from None
-    for layer in stage.GetUsedLayers():
-        real = layer.realPath and layer.realPath.split("[", 1)[0]
-        if real and out.exists() and os.path.samefile(real, out):
+    for real in stage_files(stage):
+        if out.exists() and os.path.exists(real) and os.path.samefile(real, out):
             raise InputError(f"{out}: refusing to overwrite an input of {src}")
+    if LISTING in flat.customLayerData:  # (its clips are in the samples now)
+        flat.customLayerData = {k: v for k, v in flat.customLayerData.items() if k != LISTING}
     claim = atomic_path(out, overwrite=overwrite)
     try:
         export_layer(flat, claim)
     except BaseException:
         claim.discard()
         raise
-    claim.commit()
+    claim.commit(final=True)
     return out
 
 
@@ -709,8 +858,9 @@ def _check_clips(stage: Usd.Stage, src: str | os.PathLike) -> None:
     """InputError (a ValueError) for a clip layer named in ``stage``'s ``clips`` metadata that
     does not resolve, or that has a dqskin record beside it (:func:`_record_of`) and does not
     match it or the plan of its folder (a clip of another bake). Each such layer is read in full."""
+    listed = _check_listing(stage, src)
     seen: set[str] = set()
-    plans: dict[Path, str | None] = {}
+    plans: dict[Path, dict[str, Any] | None] = {}
     for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
         clips = Usd.ClipsAPI(prim)
         for clip_set in clips.GetClips() or {}:
@@ -724,13 +874,74 @@ def _check_clips(stage: Usd.Stage, src: str | os.PathLike) -> None:
                                      "missing (for a dqskin clip bake, baking again with ",
                                      Param("resume", True), " redoes it)")
                 path = Path(where)  # (a layer inside a package or elsewhere: no record)
+                if listed is not None:
+                    manifest = clips.GetClipManifestAssetPath(clip_set)
+                    if manifest is None or not manifest.resolvedPath or Path(os.path.realpath(
+                            manifest.resolvedPath)) != listed[0] / "manifest.usda":
+                        raise InputError(f"{src}: the clips of {prim.GetPath()} name another "
+                                         f"manifest than {listed[0] / 'manifest.usda'} "
+                                         f"({manifest.path if manifest else 'none'})")
+                    path = Path(os.path.realpath(where))
+                    if path.parent != listed[0] or path.name not in listed[1]:
+                        raise InputError(f"{src}: clip layer {asset.path} of {prim.GetPath()} "
+                                         f"is not one of the clips its list ({LISTING}) names")
+                    continue  # (verified)
+                if path.parent not in plans:
+                    plans[path.parent] = our_plan(path.parent)
+                    _check_manifest(path.parent, plans[path.parent])
                 record = _record_of(path) if path.is_file() else None
                 if record is None:
+                    if plans[path.parent] is not None:
+                        raise InputError(f"{path}: its dqskin record {path.stem}.json is missing "
+                                         "or unreadable (baking again with ",
+                                         Param("resume", True), " redoes it)")
                     continue
-                if path.parent not in plans:
-                    plans[path.parent] = _recorded_in(path.parent, "key")
-                plan = plans[path.parent] or record["plan"]
+                plan = (plans[path.parent] or {}).get("key") or record["plan"]
                 if not verify_chunk(path, plan, record):
                     raise InputError(f"{path}: does not match its record {path.stem}.json "
                                      "(damaged, incomplete or of another bake; baking again "
                                      "with ", Param("resume", True), " redoes it)")
+
+
+def _check_listing(stage: Usd.Stage, src: str | os.PathLike) -> tuple[Path, set[str]] | None:
+    """Verify the files a dqskin clip cache lists (:data:`LISTING`): its manifest and every
+    clip layer in place, of the recorded size and checksum (each read in full); InputError (a
+    ValueError) naming the first that is not. Returns the clip folder and the names of its
+    layers, or None for a stage without that list."""
+    root = stage.GetRootLayer()
+    data = root.customLayerData.get(LISTING)
+    if data is None:
+        return None
+    where = layer_file(root)
+    try:
+        if not where or not isinstance(data, dict) or data.get("format") != _FORMAT:
+            raise TypeError
+        folder = Path(os.path.realpath(Path(where).parent / str(data["folder"])))
+        layers = dict(data["layers"])
+        manifest = data["manifest"]
+    except (TypeError, KeyError, ValueError):
+        raise InputError(f"{src}: its list of clip files ({LISTING}) is damaged; bake it "
+                         "again") from None
+    if not _matches(folder / "manifest.usda", manifest):
+        raise InputError(f"{folder / 'manifest.usda'}: missing, damaged or not the manifest "
+                         f"{Path(src).name} was written with (its size and checksum differ "
+                         "from its list); bake it again (", Param("resume", True),
+                         " keeps the clips that verify)")
+    for name in sorted(layers):
+        path = folder / name
+        if not _matches(path, layers[name]):
+            raise InputError(f"{path}: missing, damaged or not the clip layer "
+                             f"{Path(src).name} was written with (its size and checksum "
+                             "differ from its list); baking again with ",
+                             Param("resume", True), " redoes it")
+    return folder, set(layers)
+
+
+def _check_manifest(folder: Path, plan: dict[str, Any] | None) -> None:
+    """InputError (a ValueError) when the folder of a dqskin plan that records its manifest's
+    checksum has no such manifest."""
+    if plan is not None and plan.get("manifest") is not None and \
+            not _matches(folder / "manifest.usda", plan["manifest"]):
+        raise InputError(f"{folder / 'manifest.usda'}: missing, damaged or not the manifest of "
+                         f"the bake in {folder.name}/ (its size and checksum differ from "
+                         "plan.json); bake it again")
