@@ -120,6 +120,11 @@ class BakeSettings:
     inputs : tuple of paths
         Other files the scene was read from (a mesh, a BVH, a weights file): like
         ``scene.path``, no output may replace them.
+    fps : float or None
+        Output frame rate (:func:`dqskin.times.frame_rate`; default the scene's own): the
+        frame numbers of per-frame files are ``times`` in frames at this rate, and a USD cache
+        of a scene that is not a USD stage has these frame numbers as time codes and this rate
+        as ``timeCodesPerSecond`` and ``framesPerSecond``.
     """
 
     chunk: int | None = None
@@ -130,6 +135,7 @@ class BakeSettings:
     scheduler: str | None = None
     resume: bool = False
     inputs: tuple = ()
+    fps: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("chunk", "workers"):
@@ -155,6 +161,9 @@ class BakeSettings:
         if not paths and given or not all(isinstance(p, (str, os.PathLike)) for p in paths):
             raise InputError(Param("inputs", given), ": expected a sequence of paths")
         object.__setattr__(self, "inputs", paths)
+        if self.fps is not None:
+            from .times import check_fps
+            object.__setattr__(self, "fps", check_fps(self.fps))
 
     @property
     def distributed(self) -> bool:
@@ -168,13 +177,14 @@ def check_clip_arguments(out: str | Path, settings: BakeSettings,
     anything is loaded (each field alone is checked by :class:`BakeSettings` and
     :class:`~dqskin.options.SkinOptions`): clips or their options (``workers``, ``scheduler``,
     ``resume``) with a non-USD ``out``, those options with ``clips=False``, ``workers`` with
-    ``scheduler``, ``resume`` with ``force``, and a USD cache in a space other than "local"
-    (its points sit under the source's prims, whose transforms still apply)."""
+    ``scheduler``, ``resume`` with ``force``, and a USD cache in skeleton space (its points sit
+    under the source's prims, whose transforms take them to the world: "local" and "world" make
+    the same cache)."""
     workers, scheduler, resume = settings.workers, settings.scheduler, settings.resume
-    if options is not None and options.space != "local" and output_kind(out) == "usd":
+    if options is not None and options.space == "skeleton" and output_kind(out) == "usd":
         raise InputError(Param("space", options.space), ": a USD point cache holds each prim's "
-                         "local points (space='local'); write .npz or per-frame files for "
-                         "other spaces")
+                         "local points, placed in the world by its prims; write .npz or "
+                         "per-frame files for skeleton space")
     asked = settings.distributed
     if output_kind(out) != "usd" and (settings.clips or asked):
         raise InputError(Param("out", out), ": value clips, ", Param("workers"), ", ",
@@ -211,17 +221,21 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     scene : dqskin.Scene, str or Path
         A loaded scene, or a file to load (:func:`dqskin.load`).
     out : str or Path
-        ``.usd/.usda/.usdc`` (USD input only: a point cache of the source stage with points,
-        extent, and normals and velocities as asked), ``.npz`` (points and faces), or a per-frame
-        pattern ``dir/f_{:04d}.obj`` (``.obj .ply .stl .off .glb``; all meshes in one file; a
-        name without ``{}`` only for one frame; ``.obj/.ply/.glb`` also get skinned normals and
-        UVs, see :mod:`dqskin.writers.mesh_files`). Per-frame files are committed together.
+        ``.usd/.usda/.usdc`` (a point cache with points, extent, and normals and velocities as
+        asked: of the source stage for a USD input, else of a UsdSkel rig of the scene with
+        frame numbers as time codes), ``.npz`` (points and faces), or a per-frame pattern
+        ``dir/f_{:04d}.obj`` (``.obj .ply .stl .off .glb``; all meshes in one file; a name
+        without ``{}`` only for one frame; ``.obj/.ply/.glb`` also get skinned normals, UVs and
+        the base-colour material, see :mod:`dqskin.writers.mesh_files`). Per-frame files are
+        committed together. Points are in ``options.space``: world by default (the points a
+        USD cache of the same bake shows through its prims' local-to-world).
     times : (F,) float, optional
-        Default ``scene.times``.
+        Asset times (``scene.times`` unit); default ``scene.times``. Per-frame files are
+        numbered, and a USD cache of a non-USD scene timed, in frames at ``settings.fps``.
     options : dqskin.SkinOptions, optional
-        What is skinned (default :meth:`SkinOptions.baking`: normals and velocities on; they
-        are written into USD caches, normals into ``.obj/.ply/.glb`` files). The method and
-        sign rule also skin the rigidly bound prims of a USD cache.
+        What is skinned (default :meth:`SkinOptions.baking`: normals and velocities on, world
+        space; they are written into USD caches, normals into ``.obj/.ply/.glb`` files). The
+        method and sign rule also skin the rigidly bound prims of a USD cache.
     settings : BakeSettings, optional
         How it is written (chunks, clips, workers, ``force``, ...).
     **changes
@@ -287,15 +301,18 @@ class _Job(NamedTuple):
 
 
 def _bake_usd(job: _Job) -> str:
-    """A USD point cache: value clips or one layer."""
-    scene, out, t, opts, s = job
+    """A USD point cache: value clips or one layer; a scene that is not a USD stage through a
+    rig of it (:func:`_bake_usd_scene`)."""
+    opts = job.options.replace(space="local")  # (the prims above place the points)
+    job = job._replace(options=opts)
+    scene, out, t, _, s = job
+    method = opts.method or "asset method"
     if format_of(scene.path) is not usd:
-        raise InputError(Param("out", out), ": a USD point cache copies the input stage, so "
-                         "it needs a USD input; for glTF write .npz or per-frame "
-                         ".obj/.ply/.glb files")
+        frames = _bake_usd_scene(job)
+        return (f"wrote {out}: {job.counts(frames)} ({method}"
+                f"{', velocities' if opts.velocities else ''})")
     # a USD cache holds each time once (np.unique would import numpy.ma)
     counts = job.counts(int(np.count_nonzero(np.diff(np.sort(t)))) + 1)
-    method = opts.method or "asset method"
     clips = s.clips
     if clips is None:
         clips = s.distributed or sample_bytes(scene, len(t), opts.normals,
@@ -308,6 +325,67 @@ def _bake_usd(job: _Job) -> str:
                 f"as {_plural(done['clips'], 'clip')} in {done['folder']}{kept}")
     wrote_velocities = _bake_usd_layer(job)
     return f"wrote {out}: {counts} ({method}{', velocities' if wrote_velocities else ''})"
+
+
+def _bake_usd_scene(job: _Job) -> int:
+    """A single-layer USD point cache of a scene read from any other format (glTF, a mesh bound
+    to a BVH, ...): the cache is a UsdSkel rig of the scene (:func:`~.writers.usd_rig.rig_stage`,
+    its meshes, topology, UVs and normals), unbound, with the skinned samples of the scene
+    itself in world space (the rig's placement groups cleared); time codes are the frame
+    numbers at the output rate (:attr:`BakeSettings.fps`). Returns the number of frames
+    written."""
+    import tempfile
+
+    from pxr import Sdf, UsdGeom
+
+    from .times import frame_rate
+    from .writers.usd_rig import rig_stage
+    scene, out, t, opts, s = job
+    if s.clips or s.distributed:
+        raise InputError(Param("out", out), ": value clips (", Param("clips", True), ", ",
+                         Param("workers"), ", ", Param("scheduler"), ", ", Param("resume", True),
+                         f") are baked from a USD stage and {scene.path} is not one; bake one "
+                         "layer, or write it as a UsdSkel rig first "
+                         "(dqskin.writers.usd_rig.write_rig) and bake that")
+    check_output(out, job.sources, s.force)
+    rate = frame_rate(scene, s.fps)
+    codes = t * rate / float(scene.time_codes_per_second)
+    whole = np.round(codes)
+    codes = np.where(np.abs(codes - whole) <= 1e-6, whole, codes)
+    if len(np.unique(codes)) != len(codes) or np.any(np.diff(codes) <= 0):
+        raise InputError(Param("times"), ": a USD cache needs increasing times")
+    stage, paths = rig_stage(scene, t, codes, rate)
+    opts = opts.replace(space="world")
+    for path in paths.values():  # the points are in the world: nothing above them moves
+        for above in Sdf.Path(path).GetParentPath().GetPrefixes():
+            prim = stage.GetPrimAtPath(above)
+            if prim.IsA(UsdGeom.Xformable):
+                UsdGeom.Xformable(prim).ClearXformOpOrder()
+    with_normals = {p for p in paths.values()
+                    if stage.GetPrimAtPath(p).GetAttribute("normals").HasAuthoredValue()}
+    named = dataclasses.replace(
+        scene, times=codes, time_codes_per_second=rate, frame_rate=None, _skinners={},
+        meshes=[dataclasses.replace(m, name=paths[m.name], normals=m.normals
+                                    if paths[m.name] in with_normals else None)
+                for m in scene.meshes])
+
+    def renamed(res: SkinnedFrames, sl: slice) -> SkinnedFrames:
+        check_skinned(scene.path, res)
+        return SkinnedFrames(
+            codes[sl], {paths[k]: v for k, v in res.points.items()},
+            {paths[k]: v for k, v in res.normals.items() if paths[k] in with_normals},
+            {paths[k]: v for k, v in res.velocities.items()})
+
+    with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as folder:
+        rig = Path(folder) / "rig.usdc"
+        stage.GetRootLayer().Export(str(rig))
+        with usd_cache.UsdCacheWriter(named, out, opts, source_path=rig,
+                                      overwrite=s.force) as writer:
+            writer.cache.src = os.fspath(scene.path)  # (what the cache says it was made of)
+            writer.write_chunks((renamed(res, sl) for sl, res in
+                                 job.chunks(s.chunk or usd_cache.chunk_frames(scene, opts),
+                                            opts)), checked=True)
+    return len(t)
 
 
 def _bake_usd_layer(job: _Job) -> bool:
@@ -364,7 +442,8 @@ def _bake_frames(job: _Job) -> str:
     """One mesh file per frame (all meshes in each), committed together."""
     scene, out, t, opts, s = job
     src = scene.path
-    numbers = _frame_numbers(scene, t)
+    from .times import frame_numbers, frame_rate
+    numbers = frame_numbers(t, scene.time_codes_per_second, frame_rate(scene, s.fps))
     paths = mesh_files.frame_paths(str(out), numbers)
     for p in paths:
         check_output(p, job.sources, s.force)
@@ -398,7 +477,3 @@ def _usd_uv_interpolation(path):
         return str(pv.GetInterpolation()) if pv else None
     return lookup
 
-
-def _frame_numbers(scene, times):
-    from .times import frame_numbers
-    return frame_numbers(times, seconds=format_of(scene.path) is gltf)

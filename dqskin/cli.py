@@ -172,17 +172,18 @@ def skin_options(args: argparse.Namespace) -> "SkinOptions":
     for the rest)."""
     from .options import CorOptions, SkinOptions
     given = {k: getattr(args, k) for k in ("method", "sign_reference", "interp", "normals",
-                                           "velocities", "device", "space") if hasattr(args, k)}
+                                           "velocities", "device", "space")
+             if getattr(args, k, None) is not None}
     if getattr(args, "cor_exact", False):
         given["cor"] = CorOptions(cluster=None)
     return SkinOptions.baking(**given)
 
 
 def cmd_skin(args: argparse.Namespace) -> int:
-    import tempfile
+    import dataclasses
 
     from .baking import BakeSettings, bake, check_clip_arguments, check_output, output_kind
-    from .times import select_times
+    from .times import frame_rate, select
     output_kind(args.out)
     inputs = _inputs(args)
     if "{" not in str(args.out):  # a per-frame pattern is checked frame by frame by bake
@@ -199,15 +200,15 @@ def cmd_skin(args: argparse.Namespace) -> int:
                             inputs=tuple(inputs))
     check_clip_arguments(args.out, settings, options)  # before loading INPUT
     _checkpoint()
-    with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
-        scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
-        if _own_process:  # what is loaded lives to the end: no full collection walks it again
-            from .forkserver import freeze_heap
-            freeze_heap()
-        _checkpoint()
-        times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
-                             args.substeps, max_frames=args.max_frames)
-        print(bake(scene, args.out, times, options=options, settings=settings))
+    scene = _load_input(args, cache_out=args.out)
+    if _own_process:  # what is loaded lives to the end: no full collection walks it again
+        from .forkserver import freeze_heap
+        freeze_heap()
+    _checkpoint()
+    sel = select(scene.times, scene.time_codes_per_second, args.frames, args.fps, args.substeps,
+                 max_frames=args.max_frames, rate=frame_rate(scene), hold=args.hold)
+    settings = dataclasses.replace(settings, fps=sel.rate)
+    print(bake(scene, args.out, sel.times, options=options, settings=settings))
     return 0
 
 
@@ -231,13 +232,11 @@ def _inputs(args: argparse.Namespace) -> list[str]:
                            if f is not None and f != "auto"]
 
 
-def _load_input(args: argparse.Namespace, cache_out: str | None = None,
-                rig_dir: str | None = None) -> "Scene":
+def _load_input(args: argparse.Namespace, cache_out: str | None = None) -> "Scene":
     """The scene of ``skin``/``compare``/``rig``: the character file, or with ``--skeleton`` a
     plain mesh bound to a BVH (:func:`dqskin.rigging.rig_mesh`); ``--weights`` replaces the
-    influences (:func:`dqskin.rigging.replace_weights`). ``cache_out``: the cache ``skin`` will
-    write; a USD cache copies a USD stage, so a bound mesh is then written as a UsdSkel rig in
-    the folder ``rig_dir`` (:func:`dqskin.writers.usd_rig.write_rig`) and that rig loaded."""
+    influences (:func:`dqskin.rigging.replace_weights`). ``cache_out``: the output ``skin``
+    will write (named when a BVH alone has no mesh to skin)."""
     from . import readers
     from .rigging import replace_weights, rig_mesh
     if args.max_influences < 1:
@@ -253,21 +252,8 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
             raise InputError(f"{src}: --skeleton binds a plain mesh (.obj/.ply/.stl/.off/.glb) "
                              "to a BVH; a character file has its own skeleton (use --weights "
                              "auto to replace its weights)")
-        usd_out = cache_out is not None and Path(cache_out).suffix.lower() in (".usd", ".usda",
-                                                                               ".usdc")
-        if usd_out and rig_dir is None:
-            raise InputError(f"--out {cache_out}: a USD point cache copies a USD input stage; "
-                             f"write the rig first (dqskin rig {src.name} --skeleton "
-                             f"{Path(args.skeleton).name} --out rig.usda)")
-        scene = rig_mesh(src, _regular_file(args.skeleton), weights=weights or "auto",
-                         scale=args.scale, max_influences=args.max_influences, device=args.device)
-        if usd_out:
-            from .writers.usd_rig import write_rig
-            assert rig_dir is not None, "a USD cache_out comes with a rig_dir"
-            rig = Path(rig_dir) / f"{src.stem or 'mesh'}.usdc"
-            write_rig(scene, rig)
-            scene = readers.load(rig)
-        return scene
+        return rig_mesh(src, _regular_file(args.skeleton), weights=weights or "auto",
+                        scale=args.scale, max_influences=args.max_influences, device=args.device)
     if args.scale is not None:
         raise InputError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")
     scene = readers.load(src, clip=_clip(args.clip))
@@ -313,14 +299,15 @@ def cmd_info(args: argparse.Namespace) -> int:
     import numpy as np
 
     from . import readers
+    from .times import describe_range, frame_rate
     from .validation import scene_problems
     scene = readers.load(_regular_file(args.input), clip=_clip(args.clip))
     print(f"{scene.path}")
     t = np.asarray(scene.times)
     tcps = scene.time_codes_per_second
     unit = "s" if tcps == 1.0 else f"time codes @ {tcps:g}/s"
-    print(f"  time range: {t[0]:g} .. {t[-1]:g} ({len(t)} samples, {unit}); "
-          f"up axis {scene.up_axis}, "
+    print(f"  time range: {describe_range(t, tcps, frame_rate(scene))}; {len(t)} samples "
+          f"({t[0]:g} .. {t[-1]:g} {unit}); up axis {scene.up_axis}, "
           f"{scene.meters_per_unit:g} m/unit")
     if Path(scene.path).suffix.lower() == ".bvh":
         from .readers import bvh
@@ -510,14 +497,18 @@ def build_parser() -> argparse.ArgumentParser:
                    "their weights on a 1/256 grid (slower; see the documentation's Concepts: "
                    "Methods page)")
     _add_sign_reference(s)
-    s.add_argument("--space", choices=list(SPACES), default=SkinOptions.space,
-                   help=".npz and per-frame files: each mesh's own space (default), the scene's "
-                   "world space (stage units) or its skeleton's bind space; a USD cache holds "
-                   "local points")
-    s.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
-                   "asset's time unit (USD time codes, glTF seconds)")
-    s.add_argument("--fps", type=float, help="resample the clip at this many frames per second "
-                   "(also the default STEP of --frames)")
+    s.add_argument("--space", choices=list(SPACES), default=None,
+                   help=".npz and per-frame files: the scene's world space (default: the points "
+                   "a USD cache of the same bake shows, in stage units), each mesh's own local "
+                   "space, or its skeleton's bind space; a USD cache holds local points under "
+                   "the source's prims")
+    s.add_argument("--frames", help="START:END[:STEP] (END inclusive) or F1,F2,... in frames "
+                   "at the output frame rate (USD: its time codes; glTF: seconds × 24; BVH: "
+                   "its frames; see --fps); default: every frame of the animation")
+    s.add_argument("--fps", type=float, help="output frame rate: resample the animation at "
+                   "this many frames per second (default: the file's own rate, 24 for glTF)")
+    s.add_argument("--hold", action="store_true", help="allow --frames outside the "
+                   "animation's range, holding its first and last poses (default: refused)")
     s.add_argument("--substeps", type=int, default=1,
                    help="samples per frame interval (motion-blur sub-frames)")
     s.add_argument("--interp", choices=INTERPOLATIONS, default=SkinOptions.interp,

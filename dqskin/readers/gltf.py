@@ -50,6 +50,7 @@ from ..animation import Animation, Deformer, check_times
 from ..errors import InputError
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
+from ..times import DEFAULT_FPS
 from . import LOADER_SUFFIXES
 
 __all__ = ["SUFFIXES", "GltfAnimation", "GltfMorph", "load", "load_gltf"]
@@ -1250,7 +1251,8 @@ def load_gltf(path: str | os.PathLike, *, clip: str | int | None = None) -> Scen
         Weights: JOINTS_n/WEIGHTS_n sets concatenated (K = 4·sets), normalized integers
         dequantized, each row divided by its sum; an all-zero row gets weight 1 on its first
         influence (as three.js). ``times`` are the clip's key times in seconds (``[0.]``
-        without animation), ``time_codes_per_second`` 1, ``up_axis`` "Y", ``meters_per_unit`` 1.
+        without animation), ``time_codes_per_second`` 1, ``up_axis`` "Y", ``meters_per_unit`` 1,
+        ``frame_rate`` 24 (:data:`dqskin.times.DEFAULT_FPS`).
 
     Raises
     ------
@@ -1327,4 +1329,5 @@ def _load(path: str | os.PathLike, clip: str | int | None) -> Scene:
     times = np.zeros(1) if channels is None else channels[1]
     return Scene(path=os.fspath(path), meshes=meshes, skeletons=skeletons, times=times,
                  time_codes_per_second=1.0, up_axis="Y", meters_per_unit=1.0, clips=names,
+                 frame_rate=DEFAULT_FPS,
                  clip=None if clip_index is None else names[clip_index])
