@@ -22,7 +22,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from .errors import InputError, OutputExistsError, Param, output_exists
+from .errors import InputError, LimitError, OutputExistsError, Param, output_exists
 from .files.atomic import atomic_path, check_interrupted, check_parent
 from .options import SkinOptions, is_numpy_bool, split_changes
 from .readers import format_of, gltf, usd
@@ -125,6 +125,10 @@ class BakeSettings:
         frame numbers of per-frame files are ``times`` in frames at this rate, and a USD cache
         of a scene that is not a USD stage has these frame numbers as time codes and this rate
         as ``timeCodesPerSecond`` and ``framesPerSecond``.
+    prims : str or None
+        Which meshes are skinned and written (:func:`dqskin.selection.select_meshes`:
+        comma-separated globs, ``!`` excluding); None: all. A USD cache deactivates the skinned
+        prims left out; value clips hold them all (refused).
     """
 
     chunk: int | None = None
@@ -136,6 +140,7 @@ class BakeSettings:
     resume: bool = False
     inputs: tuple = ()
     fps: float | None = None
+    prims: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("chunk", "workers"):
@@ -259,7 +264,9 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         from .readers import load
         scene = load(scene)
     t = scene.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
-    job = _Job(scene, out, t, opts, settings)
+    from .selection import select_meshes
+    scene, dropped = select_meshes(scene, settings.prims)
+    job = _Job(scene, out, t, opts, settings, tuple(dropped))
     return {"usd": _bake_usd, "npz": _bake_npz, "frames": _bake_frames}[kind](job)
 
 
@@ -271,6 +278,7 @@ class _Job(NamedTuple):
     times: np.ndarray
     options: SkinOptions
     settings: BakeSettings
+    dropped: tuple[str, ...] = ()  # meshes left out by settings.prims
 
     @property
     def sources(self) -> list[str | Path]:
@@ -305,7 +313,7 @@ def _bake_usd(job: _Job) -> str:
     rig of it (:func:`_bake_usd_scene`)."""
     opts = job.options.replace(space="local")  # (the prims above place the points)
     job = job._replace(options=opts)
-    scene, out, t, _, s = job
+    scene, out, t, _, s, dropped = job
     method = opts.method or "asset method"
     if format_of(scene.path) is not usd:
         frames = _bake_usd_scene(job)
@@ -317,6 +325,10 @@ def _bake_usd(job: _Job) -> str:
     if clips is None:
         clips = s.distributed or sample_bytes(scene, len(t), opts.normals,
                                               opts.velocities) > CLIPS_AUTO_BYTES
+    if clips and dropped:
+        raise InputError(Param("prims", s.prims), ": value clips hold every skinned prim of "
+                         "the source; bake one layer (", Param("clips", False), ") to leave "
+                         "prims out")
     if clips:
         from .distributed import bake_clips
         done = bake_clips(scene, out, t, opts, s)
@@ -340,7 +352,7 @@ def _bake_usd_scene(job: _Job) -> int:
 
     from .times import frame_rate
     from .writers.usd_rig import rig_stage
-    scene, out, t, opts, s = job
+    scene, out, t, opts, s, _ = job
     if s.clips or s.distributed:
         raise InputError(Param("out", out), ": value clips (", Param("clips", True), ", ",
                          Param("workers"), ", ", Param("scheduler"), ", ", Param("resume", True),
@@ -391,7 +403,7 @@ def _bake_usd_scene(job: _Job) -> int:
 def _bake_usd_layer(job: _Job) -> bool:
     """A single-layer USD cache (replacing a clip bake of ``out`` with ``force``); whether it
     holds velocities."""
-    scene, out, t, opts, s = job
+    scene, out, t, opts, s, dropped = job
     src = scene.path
     check_output(out, job.sources, s.force)
     from .writers import usd_clips
@@ -407,7 +419,8 @@ def _bake_usd_layer(job: _Job) -> bool:
     size = s.chunk or usd_cache.chunk_frames(scene, opts)
     with usd_clips.bake_lock(out) if clips else contextlib.nullcontext():
         replaces = clips and usd_clips.holds_clip_bake(out)
-        with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force) as writer:
+        with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force,
+                                      dropped=dropped) as writer:
             if replaces and not s.force:  # (an unfinished one: out itself does not exist)
                 raise OutputExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
                                         f"of {Path(out).name}; complete it with ",
@@ -422,11 +435,28 @@ def _bake_usd_layer(job: _Job) -> bool:
     return wrote_velocities
 
 
+def _memory_bytes() -> int:
+    """Physical memory of this machine in bytes (1 TiB when it cannot be told)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):
+        return 1 << 40
+
+
 def _bake_npz(job: _Job) -> str:
-    """One ``.npz`` of every mesh's points."""
-    scene, out, t, opts, s = job
+    """One ``.npz`` of every mesh's points (held in memory: refused beyond half of it), with
+    the frame numbers, rate, space, up axis and unit (:func:`dqskin.writers.npz.save_npz`)."""
+    scene, out, t, opts, s, _ = job
     check_output(out, job.sources, s.force)
     names = [m.name for m in scene.meshes]
+    need = 12 * len(t) * sum(len(m.points) for m in scene.meshes)
+    if need > _memory_bytes() // 2:
+        raise LimitError(Param("out", out), f": {len(t):,} frames of "
+                         f"{sum(len(m.points) for m in scene.meshes):,} points need "
+                         f"{need / 2**30:.1f} GiB in memory, more than half of this machine's; "
+                         "write a USD cache or per-frame files, or select fewer frames")
+    from .times import frame_rate
+    rate = frame_rate(scene, s.fps)
     with atomic_path(out, overwrite=s.force) as tmp:  # claimed for the whole run
         pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32) for m in scene.meshes}
         for sl, res in job.chunks(s.chunk or usd_cache.CHUNK_FRAMES,
@@ -434,33 +464,59 @@ def _bake_npz(job: _Job) -> str:
             check_skinned(scene.path, res)
             for name in names:
                 pts[name][sl] = res.points[name]
-        npz.save_npz(tmp, t, names, [pts[n] for n in names], [m.faces for m in scene.meshes])
+        npz.save_npz(tmp, t, names, [pts[n] for n in names], [m.faces for m in scene.meshes],
+                     info=dict(frames=t * rate / float(scene.time_codes_per_second), fps=rate,
+                               space=opts.space, up_axis=scene.up_axis,
+                               meters_per_unit=float(scene.meters_per_unit)))
     return f"wrote {out}: {job.counts()}"
+
+
+def _to_gltf(scene: Scene) -> np.ndarray | None:
+    """(4, 4) scene units and up axis → glTF's metres and +Y up (None: the identity)."""
+    m = np.eye(4) * float(scene.meters_per_unit)
+    m[3, 3] = 1.0
+    if scene.up_axis == "Z":  # (x, y, z) → (x, z, -y)
+        m = m @ np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], float)
+    return None if np.array_equal(m, np.eye(4)) else m
 
 
 def _bake_frames(job: _Job) -> str:
     """One mesh file per frame (all meshes in each), committed together."""
-    scene, out, t, opts, s = job
+    scene, out, t, opts, s, _ = job
     src = scene.path
+    from .readers.materials import base_colors
     from .times import frame_numbers, frame_rate
     numbers = frame_numbers(t, scene.time_codes_per_second, frame_rate(scene, s.fps))
     paths = mesh_files.frame_paths(str(out), numbers)
     for p in paths:
         check_output(p, job.sources, s.force)
     gltf_input = format_of(src) is gltf
+    suffix = Path(str(out)).suffix.lower()
     layout = mesh_files.MeshLayout(
-        scene.meshes, Path(str(out)).suffix.lower(), normals=opts.normals,
+        scene.meshes, suffix, normals=opts.normals,
         uv_top_left=gltf_input, uv_interpolation=None if gltf_input else _usd_uv_interpolation(src))
-    with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=s.force) as writer:
+    if len(layout.meshes) < len(scene.meshes):  # skin only what the files hold
+        job = job._replace(scene=dataclasses.replace(scene, meshes=layout.meshes))
+    colors = base_colors(scene) if suffix in (".obj", ".glb") and layout.uvs is not None else {}
+    groups = [(v, f, colors.get(m.name)) for m, (v, f) in zip(layout.meshes, layout.ranges)]
+    comment = (f"dqskin: {opts.space} space, +{scene.up_axis} up, "
+               f"{float(scene.meters_per_unit):g} m per unit")
+    with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=s.force,
+                                groups=groups, to_gltf=_to_gltf(scene),
+                                comment=comment) as writer:
         for sl, res in job.chunks(s.chunk or usd_cache.CHUNK_FRAMES,
                                   opts.replace(normals=layout.normals, velocities=False)):
             check_skinned(src, res)
             points, nrm = layout.frames(res.points, res.normals)
             writer.write(numbers[sl], points, nrm)
-    extras = [w for w, on in (("normals", layout.normals), ("UVs", layout.uvs is not None)) if on]
+    extras = [w for w, on in (("normals", layout.normals), ("UVs", layout.uvs is not None),
+                              ("materials", any(colors.values()))) if on]
+    mtl = writer.material_path()
     span = f"{paths[0]}" if len(paths) == 1 else f"{paths[0]} … {paths[-1]}"
-    return (f"wrote {_plural(len(paths), 'file')} {span}: {job.counts()}"
-            + (f" ({', '.join(extras)})" if extras else ""))
+    return "\n".join(layout.skipped + [
+        f"wrote {_plural(len(paths), 'file')} {span}: {job.counts()}"
+        + (f" ({', '.join(extras)})" if extras else "")
+        + (f"; materials in {mtl}" if mtl is not None else "")])
 
 
 def _usd_uv_interpolation(path):

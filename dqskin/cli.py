@@ -197,7 +197,7 @@ def cmd_skin(args: argparse.Namespace) -> int:
     options = skin_options(args)
     settings = BakeSettings(chunk=args.chunk, force=args.force, progress=True, clips=args.clips,
                             workers=args.workers, scheduler=args.scheduler, resume=args.resume,
-                            inputs=tuple(inputs))
+                            inputs=tuple(inputs), prims=args.prims)
     check_clip_arguments(args.out, settings, options)  # before loading INPUT
     _checkpoint()
     scene = _load_input(args, cache_out=args.out)
@@ -507,6 +507,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "its frames; see --fps); default: every frame of the animation")
     s.add_argument("--fps", type=float, help="output frame rate: resample the animation at "
                    "this many frames per second (default: the file's own rate, 24 for glTF)")
+    s.add_argument("--prims", help="which meshes to skin and write: comma-separated globs on "
+                   "prim paths or glTF node names, ! or - to exclude (e.g. '/Root/Body*', "
+                   "--prims='!/Root/Curves'); default: all. Meshes a per-frame format cannot "
+                   "hold (no faces) are skipped with a line saying so")
     s.add_argument("--hold", action="store_true", help="allow --frames outside the "
                    "animation's range, holding its first and last poses (default: refused)")
     s.add_argument("--substeps", type=int, default=1,

@@ -53,13 +53,20 @@ def nominal_rate(rate: float) -> float:
     return float(whole) if whole > 0 and abs(r - whole) <= 1e-4 * whole else r
 
 
+def _whole(value: object) -> bool:
+    """Whether ``value`` is an integer (NumPy's too), not a bool."""
+    return not isinstance(value, bool) and isinstance(value, (int, np.integer))
+
+
 def check_fps(fps: float | None) -> float | None:
-    if fps is None:
+    """``fps`` as a float (None stays None); InputError unless a positive number up to 1e6."""
+    value: object = fps
+    if value is None:
         return None
-    if isinstance(fps, bool) or not isinstance(fps, (int, float, np.floating, np.integer)) or \
-            not (np.isfinite(fps) and 0 < fps <= 1e6):
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+            or not (np.isfinite(value) and 0 < value <= 1e6):
         raise InputError(Param("fps", fps), ": must be a positive number (at most 1e6)")
-    return float(fps)
+    return float(value)
 
 
 def frame_rate(scene: "Scene", fps: float | None = None) -> float:
@@ -89,8 +96,7 @@ def _check_count(count: int | Decimal, what: tuple[str | Param, ...], max_frames
 
 
 def _check_max_frames(max_frames: int) -> int:
-    if isinstance(max_frames, bool) or not isinstance(max_frames, (int, np.integer)) or \
-            max_frames < 1:
+    if not _whole(max_frames) or max_frames < 1:
         raise InputError(Param("max_frames", max_frames), ": expected a whole number >= 1")
     if max_frames > FRAMES_CEILING:
         raise LimitError(Param("max_frames", max_frames), f": at most {FRAMES_CEILING:,} (every "
@@ -278,7 +284,7 @@ def select(times: npt.ArrayLike, time_codes_per_second: float, frames: str | Non
             ("the animation's time range",)
         _check_count(hi - lo + 1, what, max_frames)
         f = np.arange(lo, hi + 1, dtype=np.float64)
-    if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
+    if not _whole(substeps) or substeps < 1:
         raise InputError(Param("substeps", substeps), ": must be at least 1")
     whats: tuple[str | Param, ...] = (Param("substeps", substeps),) if substeps > 1 else \
         ("the animation's time range",)
@@ -350,6 +356,6 @@ def frame_numbers(times: npt.ArrayLike, time_codes_per_second: float, rate: floa
     numbers = np.round(f)
     if np.any(np.abs(f - numbers) > _ON_FRAME) or len(set(numbers.tolist())) != len(numbers):
         raise InputError(Param("out"), f": {len(numbers)} frames are not whole, distinct frames "
-                         f"at {rate:g} fps (sub-frame times) and cannot be numbered; write .npz "
-                         "or .usd/.usdc instead")
+                         f"at {rate:g} fps (sub-frame times) and cannot become file names; "
+                         "write .npz or .usd/.usdc instead")
     return numbers.astype(np.int64)
