@@ -12,7 +12,16 @@ Ranges are evaluated in decimal arithmetic, so ``0:48:0.1`` gives ``0.3`` and ``
 ``0.30000000000000004``.
 """
 
-from decimal import Decimal, InvalidOperation, localcontext
+from decimal import (
+    MAX_EMAX,
+    MIN_EMIN,
+    ROUND_FLOOR,
+    Decimal,
+    InvalidOperation,
+    Overflow,
+    Underflow,
+    localcontext,
+)
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -89,7 +98,7 @@ def _check_count(count: int | Decimal, what: tuple[str | Param, ...], max_frames
     """LimitError when ``count`` frames exceed ``max_frames``; ``what`` (message parts) names the
     selection. ``count`` is only formatted when at most :data:`FRAMES_CEILING` × 10."""
     if count > max_frames:
-        shown = f"{int(count):,}" if count <= FRAMES_CEILING * 10 else "more than " \
+        shown = f"{int(count):,}" if count <= FRAMES_CEILING * 10 else "over " \
             f"{FRAMES_CEILING * 10:,}"
         raise LimitError(*what, f" selects {shown} frames, more than the limit of "
                          f"{max_frames:,}; raise ", Param("max_frames"), " to allow more")
@@ -132,11 +141,12 @@ def _range(start: Decimal, end: Decimal, step: Decimal,
            max_frames: int = MAX_FRAMES) -> np.ndarray:
     """Decimal ``start, start + step, …`` up to ``end`` (inclusive within 1e-6 step), as floats;
     counted before anything is allocated."""
-    with localcontext() as ctx:  # (no overflow however small the step)
-        ctx.prec, ctx.Emax, ctx.Emin = 40, 10 ** 9, -10 ** 9
-        exact = (end - start) / step + Decimal("1e-6")
-        _check_count(exact + 1, what, max_frames)
-        count = int(exact) + 1
+    with localcontext() as ctx:  # (no overflow however small the step: infinitely many)
+        ctx.prec, ctx.Emax, ctx.Emin = 40, MAX_EMAX, MIN_EMIN
+        ctx.traps[Overflow] = ctx.traps[Underflow] = False
+        steps = ((end - start) / step + Decimal("1e-6")).to_integral_value(ROUND_FLOOR)
+        _check_count(steps + 1, what, max_frames)
+        count = int(steps) + 1
     return _values(start, step, count)
 
 
@@ -163,7 +173,7 @@ def parse_frames(text: str, default_step: float = 1.0, max_frames: int = MAX_FRA
         Naming ``frames`` and the expected grammar; LimitError beyond ``max_frames``.
     """
     max_frames = _check_max_frames(max_frames)
-    what = (Param("frames", text),)
+    what = (Param("frames", _shown(text)),)
     message = (*what, ": expected START:END[:STEP] or a comma-separated list of frames, each a "
                f"finite number of at most {MAX_FRAME_NUMBER:.0e} in magnitude")
     if not isinstance(text, str):
@@ -185,6 +195,11 @@ def parse_frames(text: str, default_step: float = 1.0, max_frames: int = MAX_FRA
     if not step > 0 or not end >= start:
         raise InputError(*what, ": need END >= START and STEP > 0")
     return _range(start, end, step, what, max_frames)
+
+
+def _shown(text: object) -> object:
+    """``text`` for a message: at most 60 characters."""
+    return text if not isinstance(text, str) or len(text) <= 60 else text[:57] + "..."
 
 
 class Selection(NamedTuple):
@@ -272,7 +287,7 @@ def select(times: npt.ArrayLike, time_codes_per_second: float, frames: str | Non
     if frames is not None:
         f = parse_frames(frames, 1.0, max_frames)
         if not hold and (f.min() < first - _ON_FRAME or f.max() > last + _ON_FRAME):
-            raise InputError(Param("frames", frames), ": outside the animation's range, "
+            raise InputError(Param("frames", _shown(frames)), ": outside the animation's range, "
                              f"{describe_range(t, tcps, out_rate)}; select frames inside it, "
                              "or hold the first and last poses with ", Param("hold", True))
     elif out_rate == tcps:

@@ -183,9 +183,9 @@ class MeshLayout:
                         for m in meshes if suffix in FACES_REQUIRED and len(m.faces) == 0]
         self.meshes = [m for m in meshes if suffix not in FACES_REQUIRED or len(m.faces)]
         if meshes and not self.meshes:
-            raise InputError(f"no mesh with faces to write: {suffix} files hold triangle meshes "
-                             f"({', '.join(m.name for m in meshes)} have none); write .ply, "
-                             ".npz or a USD cache")
+            raise InputError(f"no mesh to write: {suffix} files hold triangle meshes and "
+                             f"{', '.join(m.name for m in meshes)}: no faces; write .ply, .npz "
+                             "or a USD cache")
         self.ranges: list[tuple[slice, slice]] = []
         faces: list[np.ndarray] = []
         uv_rows: list[np.ndarray] = []
