@@ -498,7 +498,8 @@ def _bake_frames(job: _Job) -> str:
     if len(layout.meshes) < len(scene.meshes):  # skin only what the files hold
         job = job._replace(scene=dataclasses.replace(scene, meshes=layout.meshes))
     colors = base_colors(scene) if suffix in (".obj", ".glb") and layout.uvs is not None else {}
-    groups = [(v, f, colors.get(m.name)) for m, (v, f) in zip(layout.meshes, layout.ranges)]
+    groups = [(v, f, colors.get(m.name), m.name)
+              for m, (v, f) in zip(layout.meshes, layout.ranges)]
     comment = (f"dqskin: {opts.space} space, +{scene.up_axis} up, "
                f"{float(scene.meters_per_unit):g} m per unit")
     with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=s.force,

@@ -68,13 +68,13 @@ def _whole(value: object) -> bool:
 
 
 def check_fps(fps: float | None) -> float | None:
-    """``fps`` as a float (None stays None); InputError unless a positive number up to 1e6."""
+    """``fps`` as a float (None stays None); InputError unless a positive number."""
     value: object = fps
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-            or not (np.isfinite(value) and 0 < value <= 1e6):
-        raise InputError(Param("fps", fps), ": must be a positive number (at most 1e6)")
+            or not (np.isfinite(value) and value > 0):
+        raise InputError(Param("fps", fps), ": must be a positive number")
     return float(value)
 
 
@@ -293,10 +293,13 @@ def select(times: npt.ArrayLike, time_codes_per_second: float, frames: str | Non
     elif out_rate == tcps:
         f = t.copy()
     else:
-        lo = int(np.ceil(first - _ON_FRAME))
-        hi = max(lo, int(np.floor(last + _ON_FRAME)))
         what: tuple[str | Param, ...] = (Param("fps", fps),) if fps is not None else \
             ("the animation's time range",)
+        span = last - first + 1
+        _check_count(Decimal(repr(span)) if np.isfinite(span) else Decimal("Infinity"), what,
+                     max_frames)
+        lo = int(np.ceil(first - _ON_FRAME))
+        hi = max(lo, int(np.floor(last + _ON_FRAME)))
         _check_count(hi - lo + 1, what, max_frames)
         f = np.arange(lo, hi + 1, dtype=np.float64)
     if not _whole(substeps) or substeps < 1:

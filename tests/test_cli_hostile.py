@@ -389,16 +389,20 @@ def test_ply_and_glb_frames_keep_normals_and_face_varying_uvs(tmp_path):
     assert rc == 0, err
     pos, nrm, uv = _humanoid_reference(5)
     ply = trimesh.load(tmp_path / "f_05.ply", process=False)
-    glb = trimesh.load(tmp_path / "f_05.glb", process=False, force="mesh")
-    for m in (ply, glb):
+    # a .glb frame holds one glTF mesh per source mesh, named after it, on a node taking it to
+    # glTF's metres (the humanoid: 0.01 m per unit)
+    frame = trimesh.load(tmp_path / "f_05.glb", process=False)
+    import dqskin
+    glb = trimesh.util.concatenate([frame.geometry[m.name].copy().apply_transform(
+        frame.graph[m.name][0]) for m in dqskin.load(HUMANOID).meshes])
+    for m, scale in ((ply, 1.0), (glb, 0.01)):
         f = np.asarray(m.faces)
         assert f.shape[0] == pos.shape[0]
-        np.testing.assert_allclose(np.asarray(m.vertices)[f], pos, atol=1e-5)
+        np.testing.assert_allclose(np.asarray(m.vertices)[f], scale * pos, atol=1e-5 * scale)
         np.testing.assert_allclose(np.asarray(m.visual.uv)[f], uv, atol=1e-6)
     np.testing.assert_allclose(np.asarray(ply.vertex_normals)[np.asarray(ply.faces)], nrm,
                                atol=1e-5)
     # the UV seam splits vertices: more file vertices than points, far fewer than corners
-    import dqskin
     points = sum(len(m.points) for m in dqskin.load(HUMANOID).meshes)
     assert points < len(ply.vertices) < 3 * pos.shape[0] // 2
 

@@ -324,10 +324,11 @@ class FrameWriter(CommitOnSuccess):
     overwrite : bool
         Replace existing files; False claims each name exclusively (FileExistsError when it
         exists at commit, e.g. written by another run meanwhile).
-    groups : sequence of (slice, slice, BaseColor or None), optional
-        Per source mesh: its rows of the vertices and of ``faces``, and its material
-        (``.glb``: one glTF mesh each, with its material; ``.obj``: one ``usemtl`` group each,
-        materials in :meth:`material_path`). Default: one group, no material.
+    groups : sequence of (slice, slice, BaseColor or None, str), optional
+        Per source mesh: its rows of the vertices and of ``faces``, its material and its name
+        (``.glb``: one glTF node and mesh each, so named, with its material; ``.obj``: one
+        ``usemtl`` group each, materials in :meth:`material_path`). Default: one group, no
+        material.
     to_gltf : (4, 4) float, optional
         ``.glb``: the matrix of the node holding the meshes (the points' space → glTF's
         metres, +Y up); identity when None.
@@ -340,7 +341,7 @@ class FrameWriter(CommitOnSuccess):
 
     def __init__(self, pattern: str | os.PathLike, faces: npt.ArrayLike,
                  uvs: npt.ArrayLike | None = None, *, overwrite: bool = True,
-                 groups: Sequence[tuple[slice, slice, BaseColor | None]] | None = None,
+                 groups: Sequence[tuple[slice, slice, BaseColor | None, str]] | None = None,
                  to_gltf: npt.ArrayLike | None = None, comment: str | None = None) -> None:
         self.pattern = str(pattern)
         self.suffix = Path(self.pattern).suffix.lower()
@@ -350,15 +351,15 @@ class FrameWriter(CommitOnSuccess):
         if uvs is not None and self.suffix not in WITH_ATTRIBUTES:
             raise InputError(f"{self.pattern}: {self.suffix} files cannot hold UVs")
         self.uvs = None if uvs is None else np.asarray(uvs, np.float64)
-        self.groups = list(groups) if groups else [(slice(None), slice(None), None)]
+        self.groups = list(groups) if groups else [(slice(None), slice(None), None, "mesh")]
         if self.suffix not in (".obj", ".glb") or self.uvs is None:
-            self.groups = [(v, f, None) for v, f, _ in self.groups]
+            self.groups = [(v, f, None, n) for v, f, _, n in self.groups]
         self.to_gltf = None if to_gltf is None else np.asarray(to_gltf, np.float64)
         self.comment = " ".join(str(comment).split()) if comment else None
         self.group = atomic_group(overwrite=overwrite)
         self.paths: list[Path] = []
         self._materials: dict[BaseColor, str] = {}  # material → its name in the files
-        for _, _, c in self.groups:
+        for _, _, c, _ in self.groups:
             if c is not None and c not in self._materials:
                 name, k = c.name, 1
                 while name in self._materials.values():
@@ -434,7 +435,8 @@ class FrameWriter(CommitOnSuccess):
             out.append(_rows("vn", nrm))
         corner = "{0}/{0}/{0}" if self.uvs is not None and nrm is not None else \
             "{0}/{0}" if self.uvs is not None else "{0}//{0}" if nrm is not None else "{0}"
-        for _, fs, c in self.groups:
+        for _, fs, c, name in self.groups:
+            out.append(f"g {re.sub(r'[^A-Za-z0-9_./-]', '_', name)}")
             if c is not None:
                 out.append(f"usemtl {self._materials[c]}")
             tri = self.faces[fs] + 1
@@ -450,7 +452,7 @@ class FrameWriter(CommitOnSuccess):
         from trimesh.visual.material import PBRMaterial
         scene = trimesh.Scene()
         root = np.eye(4) if self.to_gltf is None else self.to_gltf
-        for g, (vs, fs, c) in enumerate(self.groups):
+        for vs, fs, c, name in self.groups:
             v = np.arange(len(pts))[vs]
             lo = int(v[0]) if len(v) else 0
             visual = None
@@ -459,8 +461,7 @@ class FrameWriter(CommitOnSuccess):
             mesh = trimesh.Trimesh(pts[vs], self.faces[fs] - lo, process=False,
                                    vertex_normals=None if nrm is None else nrm[vs],
                                    visual=visual)
-            scene.add_geometry(mesh, node_name=f"mesh{g}", geom_name=f"mesh{g}",
-                               transform=root)
+            scene.add_geometry(mesh, node_name=name, geom_name=name, transform=root)
         return scene
 
     def _pbr(self, c: BaseColor | None, kind: type) -> object:
