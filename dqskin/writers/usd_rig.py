@@ -158,11 +158,12 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False,
     str
         A one-line summary.
     """
-    from ..times import frame_rate, select
+    from ..times import FRAMES_CEILING, frame_rate, select
     out = Path(out)
     if out.suffix.lower() not in RIG_SUFFIXES:
         raise InputError(Param("out", out), f": a rig is written as {'/'.join(RIG_SUFFIXES)}")
-    sel = select(scene.times, scene.time_codes_per_second, fps=fps, rate=frame_rate(scene))
+    sel = select(scene.times, scene.time_codes_per_second, fps=fps, rate=frame_rate(scene),
+                 max_frames=FRAMES_CEILING)
     stage, _ = rig_stage(scene, sel.times, sel.frames, sel.rate)
     stage.GetRootLayer().documentation = f"dqskin rig of {scene.path}"
     claim = atomic_path(out, overwrite=force)
@@ -259,12 +260,14 @@ def rig_stage(scene: Scene, times: np.ndarray, codes: np.ndarray,
         if len(pts):
             mesh.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, pts.min(0))),
                                                  Gf.Vec3f(*map(float, pts.max(0)))]))
-        if m.uvs is not None and len(m.uvs) == len(pts):
+        st_interp = None if m.uvs is None else UsdGeom.Tokens.vertex if len(m.uvs) == len(pts) \
+            else UsdGeom.Tokens.faceVarying if len(m.uvs) == len(indices) else None
+        if st_interp is not None:  # (per vertex, or per face corner)
             st = np.array(m.uvs, np.float32).reshape(-1, 2)
             if top_left:
                 st[:, 1] = 1.0 - st[:, 1]
             UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
-                "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex).Set(
+                "st", Sdf.ValueTypeNames.TexCoord2fArray, st_interp).Set(
                 Vt.Vec2fArray.FromNumpy(st))
         _author_normals(mesh, m, len(indices))
         bind = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
