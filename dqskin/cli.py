@@ -384,19 +384,26 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """``dqskin compare``: :func:`dqskin.report.compare.run_compare`, then a summary."""
+    from . import readers
     from .report.compare import RenderSettings, run_compare, summary_lines
-    from .times import parse_frames
+    from .times import frame_rate, select
     out = Path(args.out).resolve()
     for src in _inputs(args):  # what the report writes: the folder, these files, frames/*
         p = Path(src).resolve()
         if p in (out, out / "report.html", out / "metrics.json") or p.parent == out / "frames":
             raise InputError(f"--out {args.out}: refusing to write the report over the input "
                              f"{src}")
-    source = _load_input(args) if _rigging(args) else _regular_file(args.input)
+    source: "Scene | Path" = _load_input(args) if _rigging(args) else _regular_file(args.input)
+    times = None
+    if args.frames is not None:  # frames at the asset's frame rate, as for skin
+        scene = source if not isinstance(source, Path) else readers.load(source,
+                                                                        clip=_clip(args.clip))
+        times = select(scene.times, scene.time_codes_per_second, args.frames,
+                       max_frames=args.max_frames, rate=frame_rate(scene)).times
+        source = scene
     result = run_compare(
         source, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],
-        frames=None if args.frames is None else parse_frames(args.frames,
-                                                             max_frames=args.max_frames),
+        frames=times,
         options=skin_options(args), render=RenderSettings(
             views=tuple(v.strip() for v in args.views.split(",") if v.strip()),
             width=args.width, supersample=args.supersample, adaptive=not args.full_supersample,
@@ -430,8 +437,9 @@ def _add_compare_arguments(parser: argparse.ArgumentParser) -> None:
                         "frames/*.png")
     parser.add_argument("--methods", default="lbs,dqs",
                         help=f"comma-separated from {', '.join(METHOD_NAMES)} (default: lbs,dqs)")
-    parser.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
-                        "asset's time unit; default: up to 10 evenly spaced samples")
+    parser.add_argument("--frames", help="START:END[:STEP] (END inclusive) or F1,F2,... in "
+                        "frames at the asset's frame rate (USD: its time codes; glTF: seconds × "
+                        "24; BVH: its frames); default: up to 10 evenly spaced samples")
     parser.add_argument("--views", default=",".join(VIEWS),
                         help=f"comma-separated from {', '.join(VIEWS)} (default: all)")
     parser.add_argument("--width", type=int, default=512, help="image size: about WIDTH² "

@@ -300,3 +300,18 @@ def test_prims_select_and_unholdable_prims_are_skipped(tmp_path, capsys):
     for code in (2.0, 3.0):
         np.testing.assert_array_equal(world_points(one, "/Root/Mesh", code),
                                       world_points(full, "/Root/Mesh", code))
+
+
+def test_compare_frames_are_frames_too(tmp_path, capsys):
+    """``compare --frames`` counts frames at the asset's rate as ``skin`` does: frame 24 of a
+    glTF clip is its time 1 s; past the clip is refused naming the range."""
+    import json
+    src = cesium_glb()
+    args = ["compare", str(src), "--out", str(tmp_path / "r"), "--methods", "lbs,dqs",
+            "--views", "front", "--width", "24", "--supersample", "1", "--viewer-frames", "0",
+            "--no-sweeps", "--quiet"]
+    assert main([*args, "--frames", "24"]) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    assert json.loads((tmp_path / "r" / "metrics.json").read_text())["frames"] == [1.0]
+    line = refused(capsys, *args, "--frames", "100", "--force")
+    assert "frames 1 .. 48 at 24 fps" in line
