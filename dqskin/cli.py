@@ -195,17 +195,18 @@ def skin_options(args: argparse.Namespace) -> "SkinOptions":
     for the rest)."""
     from .options import CorOptions, SkinOptions
     given = {k: getattr(args, k) for k in ("method", "sign_reference", "interp", "normals",
-                                           "velocities", "device", "space") if hasattr(args, k)}
+                                           "velocities", "device", "space")
+             if getattr(args, k, None) is not None}
     if getattr(args, "cor_exact", False):
         given["cor"] = CorOptions(cluster=None)
     return SkinOptions.baking(**given)
 
 
 def cmd_skin(args: argparse.Namespace) -> int:
-    import tempfile
+    import dataclasses
 
     from .baking import BakeSettings, bake, check_clip_arguments, check_output, output_kind
-    from .times import select_times
+    from .times import frame_rate, select
     output_kind(args.out)
     inputs = _inputs(args)
     if "{" not in str(args.out):  # a per-frame pattern is checked frame by frame by bake
@@ -219,18 +220,18 @@ def cmd_skin(args: argparse.Namespace) -> int:
     options = skin_options(args)
     settings = BakeSettings(chunk=args.chunk, force=args.force, progress=True, clips=args.clips,
                             workers=args.workers, scheduler=args.scheduler, resume=args.resume,
-                            inputs=tuple(inputs))
+                            inputs=tuple(inputs), prims=args.prims)
     check_clip_arguments(args.out, settings, options)  # before loading INPUT
     _checkpoint()
-    with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
-        scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
-        if _own_process:  # what is loaded lives to the end: no full collection walks it again
-            from .forkserver import freeze_heap
-            freeze_heap()
-        _checkpoint()
-        times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
-                             args.substeps, max_frames=args.max_frames)
-        print(bake(scene, args.out, times, options=options, settings=settings))
+    scene = _load_input(args, cache_out=args.out)
+    if _own_process:  # what is loaded lives to the end: no full collection walks it again
+        from .forkserver import freeze_heap
+        freeze_heap()
+    _checkpoint()
+    sel = select(scene.times, scene.time_codes_per_second, args.frames, args.fps, args.substeps,
+                 max_frames=args.max_frames, rate=frame_rate(scene), hold=args.hold)
+    settings = dataclasses.replace(settings, fps=sel.rate)
+    print(bake(scene, args.out, sel.times, options=options, settings=settings))
     return 0
 
 
@@ -256,13 +257,11 @@ def _inputs(args: argparse.Namespace) -> list[str]:
                            if f is not None and f != "auto"]
 
 
-def _load_input(args: argparse.Namespace, cache_out: str | None = None,
-                rig_dir: str | None = None) -> "Scene":
+def _load_input(args: argparse.Namespace, cache_out: str | None = None) -> "Scene":
     """The scene of ``skin``/``compare``/``rig``: the character file, or with ``--skeleton`` a
     plain mesh bound to a BVH (:func:`dqskin.rigging.rig_mesh`); ``--weights`` replaces the
-    influences (:func:`dqskin.rigging.replace_weights`). ``cache_out``: the cache ``skin`` will
-    write; a USD cache copies a USD stage, so a bound mesh is then written as a UsdSkel rig in
-    the folder ``rig_dir`` (:func:`dqskin.writers.usd_rig.write_rig`) and that rig loaded."""
+    influences (:func:`dqskin.rigging.replace_weights`). ``cache_out``: the output ``skin``
+    will write (named when a BVH alone has no mesh to skin)."""
     import warnings
 
     from . import readers
@@ -280,12 +279,6 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
             raise InputError(f"{src}: --skeleton binds a plain mesh (.obj/.ply/.stl/.off/.glb) "
                              "to a BVH; a character file has its own skeleton (use --weights "
                              "auto to replace its weights)")
-        usd_out = cache_out is not None and Path(cache_out).suffix.lower() in (".usd", ".usda",
-                                                                               ".usdc")
-        if usd_out and rig_dir is None:
-            raise InputError(f"--out {cache_out}: a USD point cache copies a USD input stage; "
-                             f"write the rig first (dqskin rig {src.name} --skeleton "
-                             f"{Path(args.skeleton).name} --out rig.usda)")
         joints = getattr(args, "joints", None)
         as_is = getattr(args, "as_is", False)
         if joints is not None and as_is:
@@ -300,12 +293,6 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
         for w in said:
             if issubclass(w.category, FitWarning):
                 print(f"warning: {w.message}", file=sys.stderr)
-        if usd_out:
-            from .writers.usd_rig import write_rig
-            assert rig_dir is not None, "a USD cache_out comes with a rig_dir"
-            rig = Path(rig_dir) / f"{src.stem or 'mesh'}.usdc"
-            write_rig(scene, rig)
-            scene = readers.load(rig)
         return scene
     if args.scale is not None:
         raise InputError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")
@@ -322,26 +309,7 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
                                 device=args.device)
         _print_weight_difference(asset, scene, "automatic" if weights == "auto" else weights.name,
                                  args.device)
-    if (rig_dir is not None and cache_out is not None and src.suffix.lower() == ".fbx"
-            and Path(cache_out).suffix.lower() in (".usd", ".usda", ".usdc")):
-        scene = _on_rig(scene, Path(rig_dir))
     return scene
-
-
-def _on_rig(scene: "Scene", rig_dir: Path) -> "Scene":
-    """An FBX scene to bake as a USD point cache, which copies a USD stage: its UsdSkel rig,
-    written in ``rig_dir``, is the stage (topology, units, up axis, frame rate); the points are
-    still skinned from the FBX scene (its joints' exact transforms, which a rig's TRS joints
-    cannot always hold), its meshes renamed as the rig's prims."""
-    import dataclasses
-
-    from . import readers
-    from .writers.usd_rig import write_rig
-    rig = rig_dir / f"{Path(scene.path).stem or 'character'}.usdc"
-    write_rig(scene, rig)
-    prims = readers.load(rig).meshes
-    meshes = [dataclasses.replace(m, name=r.name) for m, r in zip(scene.meshes, prims)]
-    return dataclasses.replace(scene, path=str(rig), meshes=meshes, _skinners={})
 
 
 def _print_weight_difference(asset: "Scene", scene: "Scene", label: str, device: str | None,
@@ -373,6 +341,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     import numpy as np
 
     from . import readers
+    from .times import describe_range, frame_rate
     from .validation import scene_problems
     src = _regular_file(args.input)
     if src.suffix.lower() in readers.LOADER_SUFFIXES["usd"]:
@@ -386,8 +355,8 @@ def cmd_info(args: argparse.Namespace) -> int:
     t = np.asarray(scene.times)
     tcps = scene.time_codes_per_second
     unit = "s" if tcps == 1.0 else f"time codes @ {tcps:g}/s"
-    print(f"  time range: {t[0]:g} .. {t[-1]:g} ({len(t)} samples, {unit}); "
-          f"up axis {scene.up_axis}, "
+    print(f"  time range: {describe_range(t, tcps, frame_rate(scene))}; {len(t)} samples "
+          f"({t[0]:g} .. {t[-1]:g} {unit}); up axis {scene.up_axis}, "
           f"{scene.meters_per_unit:g} m/unit")
     if Path(scene.path).suffix.lower() == ".bvh":
         from .readers import bvh
@@ -466,19 +435,26 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """``dqskin compare``: :func:`dqskin.report.compare.run_compare`, then a summary."""
+    from . import readers
     from .report.compare import RenderSettings, run_compare, summary_lines
-    from .times import parse_frames
+    from .times import frame_rate, select
     out = Path(args.out).resolve()
     for src in _inputs(args):  # the report replaces its folder whole
         p = Path(src).resolve()
         if p == out or out in p.parents:
             raise InputError(f"--out {args.out}: refusing to write the report over the input "
                              f"{src}")
-    source = _load_input(args) if _rigging(args) else _regular_file(args.input)
+    source: "Scene | Path" = _load_input(args) if _rigging(args) else _regular_file(args.input)
+    times = None
+    if args.frames is not None:  # frames at the asset's frame rate, as for skin
+        scene = source if not isinstance(source, Path) else readers.load(source,
+                                                                        clip=_clip(args.clip))
+        times = select(scene.times, scene.time_codes_per_second, args.frames,
+                       max_frames=args.max_frames, rate=frame_rate(scene)).times
+        source = scene
     result = run_compare(
         source, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],
-        frames=None if args.frames is None else parse_frames(args.frames,
-                                                             max_frames=args.max_frames),
+        frames=times,
         options=skin_options(args), render=RenderSettings(
             views=tuple(v.strip() for v in args.views.split(",") if v.strip()),
             width=args.width, supersample=args.supersample, adaptive=not args.full_supersample,
@@ -510,8 +486,9 @@ def _add_compare_arguments(parser: argparse.ArgumentParser) -> None:
                         "frames/*.png")
     parser.add_argument("--methods", default="lbs,dqs",
                         help=f"comma-separated from {', '.join(METHOD_NAMES)} (default: lbs,dqs)")
-    parser.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
-                        "asset's time unit; default: up to 10 evenly spaced samples")
+    parser.add_argument("--frames", help="START:END[:STEP] (END inclusive) or F1,F2,... in "
+                        "frames at the asset's frame rate (USD: its time codes; glTF: seconds × "
+                        "24; BVH: its frames); default: up to 10 evenly spaced samples")
     parser.add_argument("--views", default=",".join(VIEWS),
                         help=f"comma-separated from {', '.join(VIEWS)} (default: all)")
     parser.add_argument("--width", type=int, default=512, help="image size: about WIDTH² "
@@ -586,14 +563,22 @@ def build_parser() -> argparse.ArgumentParser:
                    "their weights on a 1/256 grid (slower; see the documentation's Concepts: "
                    "Methods page)")
     _add_sign_reference(s)
-    s.add_argument("--space", choices=list(SPACES), default=SkinOptions.space,
-                   help=".npz and per-frame files: each mesh's own space (default), the scene's "
-                   "world space (stage units) or its skeleton's bind space; a USD cache holds "
-                   "local points")
-    s.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
-                   "asset's time unit (USD time codes, glTF seconds)")
-    s.add_argument("--fps", type=float, help="resample the clip at this many frames per second "
-                   "(also the default STEP of --frames)")
+    s.add_argument("--space", choices=list(SPACES), default=None,
+                   help=".npz and per-frame files: the scene's world space (default: the points "
+                   "a USD cache of the same bake shows, in stage units), each mesh's own local "
+                   "space, or its skeleton's bind space; a USD cache holds local points under "
+                   "the source's prims")
+    s.add_argument("--frames", help="START:END[:STEP] (END inclusive) or F1,F2,... in frames "
+                   "at the output frame rate (USD: its time codes; glTF: seconds × 24; BVH: "
+                   "its frames; see --fps); default: every frame of the animation")
+    s.add_argument("--fps", type=float, help="output frame rate: resample the animation at "
+                   "this many frames per second (default: the file's own rate, 24 for glTF)")
+    s.add_argument("--prims", help="which meshes to skin and write: comma-separated globs on "
+                   "prim paths or glTF node names, ! or - to exclude (e.g. '/Root/Body*', "
+                   "--prims='!/Root/Curves'); default: all. Meshes a per-frame format cannot "
+                   "hold (no faces) are skipped with a line saying so")
+    s.add_argument("--hold", action="store_true", help="allow --frames outside the "
+                   "animation's range, holding its first and last poses (default: refused)")
     s.add_argument("--substeps", type=int, default=1,
                    help="samples per frame interval (motion-blur sub-frames)")
     s.add_argument("--interp", choices=INTERPOLATIONS, default=SkinOptions.interp,

@@ -237,9 +237,10 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
     Returns
     -------
     dqskin.Scene
-        Path of the BVH file, its frames as times (``time_codes_per_second = 1 / Frame Time``),
-        one mesh (named after the mesh file) on skeleton 0, method "lbs"; the skeleton's space
-        is the world (``output_transforms`` and ``world_transforms`` None).
+        Path of the BVH file, its frames as times (``time_codes_per_second``:
+        :attr:`~dqskin.readers.bvh.BvhMotion.frame_rate`), one mesh (named after the mesh file)
+        on skeleton 0, method "lbs"; the skeleton's space is the world (``output_transforms``
+        and ``world_transforms`` None).
 
     Warns
     -----
@@ -291,7 +292,7 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
     m = Mesh(name=name, points=points, faces=faces, joint_indices=idx, joint_weights=w,
              skinning_method="lbs")
     scene = Scene(motion.path, [m], [skel], np.arange(motion.frame_count, dtype=np.float64),
-                  time_codes_per_second=1.0 / motion.frame_time, up_axis="Y")
+                  time_codes_per_second=motion.frame_rate, up_axis="Y")
     return _on_the_floor(scene, device) if fit == "embed" else scene
 
 

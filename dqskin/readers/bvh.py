@@ -17,9 +17,9 @@ How dqskin reads it (the conventions of the format as Biovision, CMU and Blender
   ``Zrotation Yrotation Xrotation`` and ``Zrotation Xrotation Yrotation``.
 * The rest pose (bind pose) is every channel at zero: joints at their offsets, unrotated. Position
   channels add to the offset (a root with offset 0, as CMU's, gets exactly its positions).
-* Times are frame numbers 0 … F−1; ``time_codes_per_second`` is ``1 / Frame Time``. Between
-  frames the animation interpolates like USD and glTF players (rotation slerp, translation lerp:
-  :class:`dqskin.KeyedAnimation`).
+* Times are frame numbers 0 … F−1; ``time_codes_per_second`` is ``1 / Frame Time`` (a whole
+  number when within 1e-4 of one). Between frames the animation interpolates like USD and glTF
+  players (rotation slerp, translation lerp: :class:`dqskin.KeyedAnimation`).
 
 Malformed files raise InputError (a ValueError) naming the file, the line and what was expected.
 """
@@ -98,6 +98,13 @@ class BvhMotion:
     def frame_count(self) -> int:
         return int(self.values.shape[0])
 
+    @property
+    def frame_rate(self) -> float:
+        """Frames per second: ``1 / frame_time``, a whole number when within 1e-4 of one
+        (``Frame Time: 0.0083333`` is 120 fps, :func:`dqskin.times.nominal_rate`)."""
+        from ..times import nominal_rate
+        return nominal_rate(1.0 / self.frame_time)
+
     def rest_world(self) -> np.ndarray:
         """(J, 4, 4) float64 world rest pose: translations by the summed offsets."""
         J = len(self.joint_names)
@@ -135,7 +142,7 @@ class BvhMotion:
         """A :class:`dqskin.Scene` with the skeleton and no meshes; times are frame numbers."""
         return Scene(self.path, [], [self.skeleton()],
                      np.arange(self.frame_count, dtype=np.float64),
-                     time_codes_per_second=1.0 / self.frame_time, up_axis="Y")
+                     time_codes_per_second=self.frame_rate, up_axis="Y")
 
 
 def summary_lines(motion: BvhMotion, spell: Spelling = str) -> list[str]:

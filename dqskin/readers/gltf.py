@@ -50,6 +50,7 @@ from ..animation import Animation, Deformer, check_times
 from ..errors import InputError
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
+from ..times import DEFAULT_FPS
 from . import LOADER_SUFFIXES
 
 __all__ = ["SUFFIXES", "GltfAnimation", "GltfMorph", "load", "load_gltf"]
@@ -1250,7 +1251,8 @@ def load_gltf(path: str | os.PathLike, *, clip: str | int | None = None) -> Scen
         Weights: JOINTS_n/WEIGHTS_n sets concatenated (K = 4·sets), normalized integers
         dequantized, each row divided by its sum; an all-zero row gets weight 1 on its first
         influence (as three.js). ``times`` are the clip's key times in seconds (``[0.]``
-        without animation), ``time_codes_per_second`` 1, ``up_axis`` "Y", ``meters_per_unit`` 1.
+        without animation), ``time_codes_per_second`` 1, ``up_axis`` "Y", ``meters_per_unit`` 1,
+        ``frame_rate`` 24 (:data:`dqskin.times.DEFAULT_FPS`).
 
     Raises
     ------
@@ -1269,13 +1271,40 @@ def load_gltf(path: str | os.PathLike, *, clip: str | int | None = None) -> Scen
         return _load(path, clip)
 
 
-def _load(path: str | os.PathLike, clip: str | int | None) -> Scene:
-    """:func:`load_gltf` without its floating-point error state."""
-    r = _Reader(path)
+def _loaded_nodes(r: "_Reader") -> tuple[list[int], list[str], list[int]]:
+    """The nodes :func:`load_gltf` loads (a mesh with a skin or morph targets), their names
+    (``Mesh.name`` before a ``/primitive{k}`` suffix) and each glTF mesh's morph target count."""
     doc = r.doc
     targets = [r.target_count(m) for m in range(len(doc.meshes))]
     loaded = [i for i, n in enumerate(doc.nodes)
               if n.mesh is not None and (n.skin is not None or targets[n.mesh])]
+    base_names = [r.node_name(i) for i in loaded]
+    repeated = Counter(base_names)
+    names = [b if repeated[b] == 1 else f"{b}#{i}" for i, b in zip(loaded, base_names)]
+    return loaded, names, targets
+
+
+def _primitive_name(name: str, k: int, count: int) -> str:
+    return name if count == 1 else f"{name}/primitive{k}"
+
+
+def mesh_primitives(r: "_Reader") -> list[tuple[str, int, int]]:
+    """``(Mesh.name, glTF mesh index, primitive index)`` of every mesh :func:`load_gltf`
+    loads from the document of ``r``."""
+    loaded, names, _ = _loaded_nodes(r)
+    out = []
+    for node_index, name in zip(loaded, names):
+        mesh = r.doc.nodes[node_index].mesh
+        count = len(r.doc.meshes[mesh].primitives)
+        out += [(_primitive_name(name, k, count), mesh, k) for k in range(count)]
+    return out
+
+
+def _load(path: str | os.PathLike, clip: str | int | None) -> Scene:
+    """:func:`load_gltf` without its floating-point error state."""
+    r = _Reader(path)
+    doc = r.doc
+    loaded, names, targets = _loaded_nodes(r)
     if not loaded:
         raise r.error("no skinned mesh (no node has both mesh and skin) and no mesh with morph "
                       "targets")
@@ -1291,11 +1320,8 @@ def _load(path: str | os.PathLike, clip: str | int | None) -> Scene:
         slot_maps.append(slots)
 
     meshes = []
-    base_names = [r.node_name(i) for i in loaded]
-    repeated = Counter(base_names)
-    for node_index, base in zip(loaded, base_names):
+    for node_index, name in zip(loaded, names):
         node = doc.nodes[node_index]
-        name = base if repeated[base] == 1 else f"{base}#{node_index}"
         skeleton = node.skin
         if skeleton is None:  # unskinned morphing mesh: rigid on its node, a skeleton of its own
             skel, _, slots = r.node_skeleton([node_index], np.eye(4)[None],
@@ -1317,14 +1343,15 @@ def _load(path: str | os.PathLike, clip: str | int | None) -> Scene:
                                      r.morph_offsets(node.mesh, k, len(fields["points"])),
                                      default, channel)
             try:
-                meshes.append(Mesh(name=name if len(prims) == 1 else f"{name}/primitive{k}",
+                meshes.append(Mesh(name=_primitive_name(name, k, len(prims)),
                                    skeleton=skeleton, skinning_method="lbs", deformer=deformer,
                                    **fields))
             except ValueError as e:
                 raise r.error(f"mesh {node.mesh} primitive {k}: {e}") from None
 
-    names = r.clip_names()
+    clips = r.clip_names()
     times = np.zeros(1) if channels is None else channels[1]
     return Scene(path=os.fspath(path), meshes=meshes, skeletons=skeletons, times=times,
-                 time_codes_per_second=1.0, up_axis="Y", meters_per_unit=1.0, clips=names,
-                 clip=None if clip_index is None else names[clip_index])
+                 time_codes_per_second=1.0, up_axis="Y", meters_per_unit=1.0, clips=clips,
+                 frame_rate=DEFAULT_FPS,
+                 clip=None if clip_index is None else clips[clip_index])

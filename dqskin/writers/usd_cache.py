@@ -22,7 +22,7 @@ import contextlib
 import ctypes
 import itertools
 import os
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
@@ -376,10 +376,14 @@ class CacheLayer:
         layer it reads (nothing is written here).
     source_path : str or os.PathLike, optional
         The stage to copy; ``scene.path`` by default.
+    dropped : sequence of str
+        Skinned prims of the source left out of the bake (:func:`dqskin.selection.
+        select_meshes`): deactivated in the copy, which would show them in their rest pose.
     """
 
     def __init__(self, scene: "Scene", out_path: str | os.PathLike, *,
-                 source_path: str | os.PathLike | None = None) -> None:
+                 source_path: str | os.PathLike | None = None,
+                 dropped: "Sequence[str]" = ()) -> None:
         out = os.fspath(out_path)
         check_parent(out)
         src = os.fspath(scene.path if source_path is None else source_path)
@@ -401,6 +405,10 @@ class CacheLayer:
         self.rigid = _rigid_prims(stage, scene)
         self.layer = stage.Flatten()
         _remove_skel_binding(self.layer)
+        for name in dropped:
+            spec = self.layer.GetPrimAtPath(name)
+            if spec is not None:
+                spec.active = False
         self.targets: dict[tuple[str, str], Target] = {}
         self._target_prims: set[str] = set()  # prims with a target (ancestors' extentsHint dropped)
 
@@ -677,6 +685,8 @@ class UsdCacheWriter(CommitOnSuccess):
         ``overwrite``). Must not be the source file or any layer it reads.
     source_path : str or os.PathLike, optional
         The stage to copy; ``scene.path`` by default.
+    dropped : sequence of str
+        Skinned prims left out of the bake, deactivated (:class:`CacheLayer`).
     options : dqskin.SkinOptions, optional
         The options that produced the points: the skinned prims without points (``Sphere``,
         ``Cube``, ...) are skinned with them (``method``: None uses each prim's own; ``interp``,
@@ -697,8 +707,8 @@ class UsdCacheWriter(CommitOnSuccess):
     def __init__(self, scene: "Scene", out_path: str | os.PathLike,
                  options: SkinOptions | None = None, *,
                  source_path: str | os.PathLike | None = None, overwrite: bool = True,
-                 final: bool = False) -> None:
-        self.cache = CacheLayer(scene, out_path, source_path=source_path)
+                 final: bool = False, dropped: "Sequence[str]" = ()) -> None:
+        self.cache = CacheLayer(scene, out_path, source_path=source_path, dropped=dropped)
         self.scene, self.out, self.src = scene, self.cache.out, self.cache.src
         self.layer = self.cache.layer
         self.samples = SampleWriter(scene, self.cache.target, self.cache.rigid,
