@@ -38,6 +38,7 @@ from types import FrameType
 from typing import TYPE_CHECKING, Any, NoReturn
 
 from .errors import DqskinError, InputError, Interrupted, Param
+from .files.inputs import regular_file
 
 if TYPE_CHECKING:
     from .options import SkinOptions
@@ -145,16 +146,6 @@ def _init_warp(verbose: bool) -> None:
             os.close(saved)
 
 
-def _regular_file(path: str | Path) -> Path:
-    """InputError unless ``path`` is a regular file (a folder, ``/dev/null`` or a FIFO is not)."""
-    p = Path(path)
-    if not p.exists():
-        raise InputError(f"{p}: no such file")
-    if not p.is_file():
-        raise InputError(f"{p}: not a regular file")
-    return p
-
-
 def default_asset() -> Path:
     """The bundled humanoid rig (package data ``dqskin.assets``, made by tools/make_assets.py)."""
     from importlib.resources import files
@@ -213,7 +204,7 @@ def cmd_skin(args: argparse.Namespace) -> int:
 
 def cmd_flatten(args: argparse.Namespace) -> int:
     from .writers.usd_clips import flatten
-    src = _regular_file(args.input)
+    src = regular_file(args.input)
     print(f"wrote {flatten(src, args.out, overwrite=args.force)}")
     return 0
 
@@ -246,8 +237,8 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
         raise InputError(f"--scale {args.scale:g}: must be a positive number")
     weights = args.weights
     if weights is not None and weights != "auto":
-        weights = _regular_file(weights)
-    src = _regular_file(args.input)
+        weights = regular_file(weights)
+    src = regular_file(args.input)
     if args.skeleton is not None:
         if readers.format_of(src) is not None and src.suffix.lower() != ".glb":
             raise InputError(f"{src}: --skeleton binds a plain mesh (.obj/.ply/.stl/.off/.glb) "
@@ -259,7 +250,7 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
             raise InputError(f"--out {cache_out}: a USD point cache copies a USD input stage; "
                              f"write the rig first (dqskin rig {src.name} --skeleton "
                              f"{Path(args.skeleton).name} --out rig.usda)")
-        scene = rig_mesh(src, _regular_file(args.skeleton), weights=weights or "auto",
+        scene = rig_mesh(src, regular_file(args.skeleton), weights=weights or "auto",
                          scale=args.scale, max_influences=args.max_influences, device=args.device)
         if usd_out:
             from .writers.usd_rig import write_rig
@@ -314,7 +305,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     from . import readers
     from .validation import scene_problems
-    scene = readers.load(_regular_file(args.input), clip=_clip(args.clip))
+    scene = readers.load(regular_file(args.input), clip=_clip(args.clip))
     print(f"{scene.path}")
     t = np.asarray(scene.times)
     tcps = scene.time_codes_per_second
@@ -368,7 +359,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from . import readers
     from .baking import bake
     from .report.compare import run_compare
-    asset = _regular_file(args.asset) if args.asset else default_asset()
+    asset = regular_file(args.asset) if args.asset else default_asset()
     if not Path(asset).is_file():
         raise InputError(f"{asset}: demo asset not found")
     out_dir = Path(args.out)
@@ -405,7 +396,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if p in (out, out / "report.html", out / "metrics.json") or p.parent == out / "frames":
             raise InputError(f"--out {args.out}: refusing to write the report over the input "
                              f"{src}")
-    source = _load_input(args) if _rigging(args) else _regular_file(args.input)
+    source = _load_input(args) if _rigging(args) else regular_file(args.input)
     result = run_compare(
         source, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],
         frames=None if args.frames is None else parse_frames(args.frames,

@@ -12,8 +12,6 @@ says how to fix it (``scale``: multiply the skeleton's lengths).
 """
 
 import os
-import zipfile
-import zlib
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -24,11 +22,14 @@ import numpy.typing as npt
 from ._warp import Device
 from .autoweights import automatic_weights
 from .errors import InputError, Param
+from .files.inputs import read_npz
 from .influences import check_influences
+from .limits import MAX_INPUT_GIB
 from .options import Method
 from .readers import bvh
 from .readers.mesh import load_mesh
 from .scene import Mesh, Scene
+from .validation import check_points
 
 __all__ = ["WEIGHT_FIELDS", "check_fit", "read_weights", "replace_weights", "rig_mesh",
            "skinned_difference"]
@@ -40,30 +41,21 @@ _SIZE_RATIO = 2.0  # mesh and skeleton heights may differ by up to this factor
 _INSIDE = 0.75  # share of joints that must lie in the mesh's (padded) bounding box
 
 
-def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_count: int
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_count: int, *,
+                 max_input_gib: float = MAX_INPUT_GIB) -> tuple[np.ndarray, np.ndarray]:
     """Influences from an ``.npz`` with :data:`WEIGHT_FIELDS`, re-indexed by joint name into
     ``joint_names`` order: ``(indices (V, K) int32, weights (V, K) float32)``.
 
-    Raises InputError (a ValueError) naming the file and field: an unreadable file (missing, empty,
-    truncated, not an ``.npz``), missing arrays, wrong shapes, joints the skeleton does not have,
-    bad indices or weights.
+    Raises InputError (a ValueError) naming the file and field: an unreadable file (missing, not a
+    regular file, empty, truncated, not an ``.npz``), missing arrays, wrong shapes, joints the
+    skeleton does not have, bad indices or weights; LimitError for an array beyond
+    ``max_input_gib`` (:func:`dqskin.files.inputs.read_npz`, checked before it is read).
     """
     p = Path(path)
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            missing = [f for f in WEIGHT_FIELDS if f not in z.files]
-            if missing:
-                raise InputError(f"{p}: missing {', '.join(missing)} (a weights file holds "
-                                 f"{', '.join(WEIGHT_FIELDS)})")
-            idx, wts, names = (z[f] for f in WEIGHT_FIELDS)
-    except ValueError as exc:
-        if str(exc).startswith(str(p)):
-            raise
-        raise InputError(f"{p}: cannot read weights: {exc}") from None
-    except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
-        # missing, empty, truncated or damaged archive
-        raise InputError(f"{p}: cannot read weights: {str(exc) or type(exc).__name__}") from None
+    z = read_npz(p, WEIGHT_FIELDS, what="weights", max_input_gib=max_input_gib)
+    idx, wts, names = (z[f] for f in WEIGHT_FIELDS)
+    if names.dtype.kind not in "US":
+        raise InputError(f"{p}: joint_names: {names.dtype} values, expected strings")
     names = [str(n) for n in np.ravel(names)]
     try:
         idx, wts = check_influences(idx, wts, vertex_count, len(names))
@@ -149,6 +141,7 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
     if isinstance(mesh, tuple):
         points, faces = (np.asarray(a) for a in mesh)
         name, where = "mesh", "mesh"
+        check_points(where, np.asarray(points, np.float64))  # (load_mesh checks its own)
     else:
         points, faces = load_mesh(mesh)
         name, where = Path(mesh).stem or "mesh", str(mesh)

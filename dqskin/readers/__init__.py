@@ -17,6 +17,7 @@ from types import ModuleType
 from typing import TYPE_CHECKING
 
 from ..errors import InputError
+from ..files.inputs import regular_file
 
 if TYPE_CHECKING:
     from ..scene import Scene
@@ -58,9 +59,7 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     -------
     dqskin.scene.Scene
     """
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: no such file")
+    p = regular_file(path)
     loader = _LOADERS.get(p.suffix.lower())
     if loader is None:
         raise InputError(f"{p}: unsupported file type {p.suffix.lower()!r}; expected one of "

@@ -47,8 +47,8 @@ if TYPE_CHECKING:
 
 __all__ = ["CACHE_EXTENSIONS", "CHUNK_BYTES", "CHUNK_FRAMES", "CHUNK_MIN_FRAMES",
            "CLIPS_FOLDER_SUFFIX",
-           "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter", "clips_folder",
-           "chunk_frames", "export_layer", "frame_bytes", "write_usd_cache"]
+           "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter", "check_not_input",
+           "clips_folder", "chunk_frames", "export_layer", "frame_bytes", "write_usd_cache"]
 
 CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
 """Extensions :func:`write_usd_cache` writes (``.usd`` is binary crate)."""
@@ -131,6 +131,14 @@ def _source_files(stage, source_path):
         if real:
             files.add(real.split("[", 1)[0])
     return files
+
+
+def check_not_input(out: str | os.PathLike, stage: Usd.Stage, src: str | os.PathLike) -> None:
+    """InputError (a ValueError) when ``out`` is a file the source ``stage`` (read from ``src``)
+    reads: its root layer, a sublayer, a reference, its usdz package."""
+    if os.path.exists(out) and any(_same_file(out, f) for f in _source_files(stage, src)
+                                   if os.path.exists(f)):
+        raise InputError(f"{out}: refusing to overwrite an input of {src}")
 
 
 def _remove_skel_binding(layer):
@@ -365,9 +373,7 @@ class CacheLayer:
             stage = None
         if stage is None:
             raise InputError(f"{src}: cannot open the source stage")
-        if os.path.exists(out) and any(_same_file(out, f) for f in _source_files(stage, src)
-                                       if os.path.exists(f)):
-            raise InputError(f"{out}: refusing to overwrite an input of {src}")
+        check_not_input(out, stage, src)
         self.scene, self.out, self.src, self.ext = scene, out, src, ext
         self.stage = stage
         self.rigid = _rigid_prims(stage, scene)

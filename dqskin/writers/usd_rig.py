@@ -32,7 +32,7 @@ from ..files.atomic import atomic_path
 from ..readers import gltf
 from ..readers.usd_xform import LocalToWorld, XformChain
 from ..scene import Scene
-from .usd_cache import export_layer
+from .usd_cache import check_not_input, export_layer
 
 if TYPE_CHECKING:
     from pxr import Usd, Vt
@@ -129,7 +129,8 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
         :data:`SECONDS_RATE` per second), and meshes with their influences.
     out : path
     force : bool
-        Replace an existing file (otherwise the name is claimed exclusively).
+        Replace an existing file (otherwise the name is claimed exclusively); never a file the
+        scene was read from (a USD scene's layers: InputError).
 
     Returns
     -------
@@ -158,6 +159,8 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
     taken = {"Skeleton"}
     skel_paths, groups = [], []  # per skeleton: its path, the prim holding it and its meshes
     source = _source_stage(scene)
+    if source is not None:
+        check_not_input(out, source, scene.path)
     for s, skel in enumerate(scene.skeletons):
         suffix = f"_{s}" if s else ""
         group = Sdf.Path("/Root")
