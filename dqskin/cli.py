@@ -191,15 +191,28 @@ def cmd_skin(args: argparse.Namespace) -> int:
     check_clip_arguments(args.out, settings, options)  # before loading INPUT
     _checkpoint()
     with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
-        scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
-        if _own_process:  # what is loaded lives to the end: no full collection walks it again
-            from .forkserver import freeze_heap
-            freeze_heap()
-        _checkpoint()
-        times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
-                             args.substeps, max_frames=args.max_frames)
-        print(bake(scene, args.out, times, options=options, settings=settings))
+        try:
+            scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
+            if _own_process:  # what is loaded lives to the end: no full collection walks it
+                from .forkserver import freeze_heap  # again
+                freeze_heap()
+            _checkpoint()
+            times = select_times(scene.times, scene.time_codes_per_second, args.frames,
+                                 args.fps, args.substeps, max_frames=args.max_frames)
+            print(bake(scene, args.out, times, options=options, settings=settings))
+        except DqskinError as exc:  # about the rig bound in rig_dir: name what the user gave
+            if args.skeleton is None:
+                raise
+            where = f"{args.skeleton} bound to {args.input}"
+            raise type(exc)(*(p.replace(str(_rig_file(rig_dir, args.input)), where)
+                              if isinstance(p, str) else p for p in exc.parts)) from None
     return 0
+
+
+def _rig_file(rig_dir: str, mesh: str) -> Path:
+    """The rig of ``mesh`` bound to a ``--skeleton`` that ``skin`` writes in ``rig_dir`` for a
+    USD cache (and loads)."""
+    return Path(rig_dir) / f"{Path(mesh).stem or 'mesh'}.usdc"
 
 
 def cmd_flatten(args: argparse.Namespace) -> int:
@@ -251,17 +264,19 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
                              f"write the rig first (dqskin rig {src.name} --skeleton "
                              f"{Path(args.skeleton).name} --out rig.usda)")
         scene = rig_mesh(src, regular_file(args.skeleton), weights=weights or "auto",
-                         scale=args.scale, max_influences=args.max_influences, device=args.device)
+                         scale=args.scale, max_influences=args.max_influences,
+                         max_vertices=args.max_vertices, max_input_gib=args.max_input_gib,
+                         device=args.device)
         if usd_out:
             from .writers.usd_rig import write_rig
             assert rig_dir is not None, "a USD cache_out comes with a rig_dir"
-            rig = Path(rig_dir) / f"{src.stem or 'mesh'}.usdc"
+            rig = _rig_file(rig_dir, args.input)
             write_rig(scene, rig)
             scene = readers.load(rig)
         return scene
     if args.scale is not None:
         raise InputError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")
-    scene = readers.load(src, clip=_clip(args.clip))
+    scene = readers.load(src, clip=_clip(args.clip), max_input_gib=args.max_input_gib)
     if cache_out is not None and not scene.meshes and src.suffix.lower() == ".bvh":
         raise InputError(f"{src}: no mesh to skin (a BVH holds a skeleton and its motion); bind "
                          f"a mesh in its rest pose: dqskin skin MESH --skeleton {src.name} "
@@ -269,7 +284,8 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
     if weights is not None:
         asset = scene
         scene = replace_weights(scene, weights, max_influences=args.max_influences,
-                                device=args.device)
+                                max_vertices=args.max_vertices,
+                                max_input_gib=args.max_input_gib, device=args.device)
         _print_weight_difference(asset, scene, "automatic" if weights == "auto" else weights.name,
                                  args.device)
     return scene
@@ -304,54 +320,59 @@ def cmd_info(args: argparse.Namespace) -> int:
     import numpy as np
 
     from . import readers
+    from .terminal import printable
     from .validation import scene_problems
-    scene = readers.load(regular_file(args.input), clip=_clip(args.clip))
-    print(f"{scene.path}")
+
+    def say(line: str) -> None:  # every line holds names from the input: printed safely
+        print(printable(line))
+
+    scene = readers.load(regular_file(args.input), clip=_clip(args.clip),
+                         max_input_gib=args.max_input_gib)
+    say(f"{scene.path}")
     t = np.asarray(scene.times)
     tcps = scene.time_codes_per_second
     unit = "s" if tcps == 1.0 else f"time codes @ {tcps:g}/s"
-    print(f"  time range: {t[0]:g} .. {t[-1]:g} ({len(t)} samples, {unit}); "
-          f"up axis {scene.up_axis}, "
-          f"{scene.meters_per_unit:g} m/unit")
+    say(f"  time range: {t[0]:g} .. {t[-1]:g} ({len(t)} samples, {unit}); "
+        f"up axis {scene.up_axis}, "
+        f"{scene.meters_per_unit:g} m/unit")
     if Path(scene.path).suffix.lower() == ".bvh":
         from .readers import bvh
-        for line in bvh.summary_lines(bvh.read_bvh(scene.path), flag):
-            print(f"  {line}")
+        motion = bvh.read_bvh(scene.path, max_input_gib=args.max_input_gib)
+        for line in bvh.summary_lines(motion, flag):
+            say(f"  {line}")
     if scene.clips:
-        print(f"  clips: {', '.join(scene.clips)} (loaded: {scene.clip})")
+        say(f"  clips: {', '.join(scene.clips)} (loaded: {scene.clip})")
     problems = []
     for si, skel in enumerate(scene.skeletons):
         anim = scene.animations[si]
-        print(f"  skeleton {si} {skel.name!r}: {skel.joint_count} joints, "
-              f"{'animated' if anim is not None else 'rest pose only'}")
+        say(f"  skeleton {si} {skel.name!r}: {skel.joint_count} joints, "
+            f"{'animated' if anim is not None else 'rest pose only'}")
         children: dict[int, list[int]] = {j: [] for j in range(-1, skel.joint_count)}
         for j, p in enumerate(skel.parents):
             children[int(p)].append(j)
-
-        def tree(j, depth):
-            print("    " + "  " * depth + skel.joint_names[j].split("/")[-1])
-            for c in children[j]:
-                tree(c, depth + 1)
-        for root in children[-1]:
-            tree(root, 0)
+        stack = [(root, 0) for root in reversed(children[-1])]  # depth first, no recursion
+        while stack:
+            j, depth = stack.pop()
+            say("    " + "  " * depth + skel.joint_names[j].split("/")[-1])
+            stack.extend((c, depth + 1) for c in reversed(children[j]))
     for m in scene.meshes:
         w = np.asarray(m.joint_weights, np.float64)
         sums = w.sum(1)
         nnz = (w > 0).sum(1)
-        print(f"  mesh {m.name!r}: {len(m.points)} points, {len(m.faces)} triangles, skeleton "
-              f"{m.skeleton}, method {m.skinning_method}, "
-              f"{m.joint_indices.shape[1]} influence slots")
-        print(f"    influences per point: min {nnz.min()}, mean {nnz.mean():.2f}, max {nnz.max()}; "
-              f"weight sums: min {sums.min():.4f}, max {sums.max():.4f}")
+        say(f"  mesh {m.name!r}: {len(m.points)} points, {len(m.faces)} triangles, skeleton "
+            f"{m.skeleton}, method {m.skinning_method}, "
+            f"{m.joint_indices.shape[1]} influence slots")
+        say(f"    influences per point: min {nnz.min()}, mean {nnz.mean():.2f}, max {nnz.max()}; "
+            f"weight sums: min {sums.min():.4f}, max {sums.max():.4f}")
         if np.any(np.abs(sums - 1) > 1e-3):
             problems.append(f"{m.name}: {(np.abs(sums - 1) > 1e-3).sum()} points with weights not "
                             "summing to 1")
         if np.any(nnz == 0):
             problems.append(f"{m.name}: {(nnz == 0).sum()} points without influences")
     problems += scene_problems(scene, device=args.device)  # what skin would refuse
-    print("  problems: " + ("none" if not problems else ""))
+    say("  problems: " + ("none" if not problems else ""))
     for p in problems:
-        print(f"    - {p}")
+        say(f"    - {p}")
     return 0
 
 
@@ -463,6 +484,7 @@ def _add_compare_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_rigging_arguments(parser: argparse.ArgumentParser) -> None:
+    from .limits import MAX_RIG_VERTICES
     parser.add_argument("--skeleton", help="a .bvh: INPUT is then a plain "
                         "mesh (.obj/.ply/.stl/.off/.glb) in the BVH's rest pose (every channel "
                         "zero), bound to its skeleton and animated by its motion")
@@ -474,6 +496,17 @@ def _add_rigging_arguments(parser: argparse.ArgumentParser) -> None:
                         "the mesh's unit (e.g. 0.0254: inches to metres)")
     parser.add_argument("--max-influences", type=int, default=8, help="influences per point of "
                         "automatic weights (default: 8)")
+    parser.add_argument("--max-vertices", type=int, default=MAX_RIG_VERTICES, help="refuse "
+                        "automatic weights on a mesh of more vertices (default: "
+                        f"{MAX_RIG_VERTICES:,})")
+    _add_input_limit(parser)
+
+
+def _add_input_limit(parser: argparse.ArgumentParser) -> None:
+    from .limits import MAX_INPUT_GIB
+    parser.add_argument("--max-input-gib", type=float, default=MAX_INPUT_GIB, help="refuse an "
+                        "input file asking for an array larger than this many GiB before its "
+                        f"data is read (default: {MAX_INPUT_GIB:g})")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -547,6 +580,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--clip")
     i.add_argument("--device", help="cpu or cuda for the skinning check (default: cuda when "
                    "present)")
+    _add_input_limit(i)
     i.set_defaults(run=cmd_info)
     c = sub.add_parser("compare", help="offscreen LBS-vs-DQS report: report.html, metrics.json, "
                        "frames/*.png", parents=[common])
@@ -592,6 +626,37 @@ def main(argv: Sequence[str] | None = None) -> int:
     return code
 
 
+class _GuardedStdout:
+    """``sys.stdout`` while :func:`main` runs as the process's entry point: a write that fails
+    (a full disk, unbuffered or beyond the buffer) is recorded in ``error`` and the command goes
+    on, so that it ends as a finished command whose output could not be written (:func:`_exit`:
+    120), not as an error of the command; a reader that went away (``BrokenPipeError``) is
+    raised as before. Everything else is the wrapped stream's."""
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+        self.error: OSError | None = None
+
+    def _guard(self, call: Callable[[], Any], default: Any) -> Any:
+        try:
+            return call()
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            if self.error is None:
+                self.error = exc
+            return default
+
+    def write(self, text: str) -> int:
+        return self._guard(lambda: self.stream.write(text), len(text))
+
+    def flush(self) -> None:
+        self._guard(self.stream.flush, None)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.stream, name)
+
+
 def _exit(code: int) -> NoReturn:
     """End the process with ``code`` once Python's exit handlers have run and the standard
     streams are flushed, without the interpreter's finalization (unloading USD's, Warp's and
@@ -622,6 +687,10 @@ def _exit(code: int) -> NoReturn:
             message = f"dqskin: error: writing {getattr(stream, 'name', 'output')}: {exc}\n"
         except (AttributeError, ValueError):  # no stream, or a closed one
             pass
+    guarded = getattr(sys.stdout, "error", None)  # a write that failed during the command
+    if isinstance(guarded, OSError) and not failed:
+        failed = True
+        message = f"dqskin: error: writing {getattr(sys.stdout, 'name', 'output')}: {guarded}\n"
     if failed and code == 0:
         if message is not None:
             with contextlib.suppress(OSError):
@@ -642,6 +711,8 @@ def _main(argv: Sequence[str] | None) -> int:
             atomic.reset_interrupt()
         if argv is None and "--verbose" not in sys.argv[1:]:
             release = _hold_native_stderr()
+        if argv is None and sys.stdout is not None:
+            sys.stdout = _GuardedStdout(sys.stdout)  # type: ignore[assignment]
         import logging
         import warnings
         with warnings.catch_warnings():
@@ -838,7 +909,8 @@ def _run_command(argv: Sequence[str] | None) -> int:
             msg = str(exc)
         else:  # an OSError that did not come from the system: a bug
             raise
-        print(f"dqskin: error: {msg}", file=sys.stderr)
+        from .terminal import printable
+        print(f"dqskin: error: {printable(msg)}", file=sys.stderr)
         code = EXIT_INPUT
     except Exception:
         _checkpoint()  # e.g. NumPy's ImportError when Ctrl-C lands inside its C-level import

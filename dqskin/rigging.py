@@ -24,7 +24,7 @@ from .autoweights import automatic_weights
 from .errors import InputError, Param
 from .files.inputs import read_npz
 from .influences import check_influences
-from .limits import MAX_INPUT_GIB
+from .limits import MAX_INPUT_GIB, MAX_RIG_VERTICES, check_vertices
 from .options import Method
 from .readers import bvh
 from .readers.mesh import load_mesh
@@ -103,7 +103,8 @@ def check_fit(points: np.ndarray, joint_positions: np.ndarray, where: str) -> No
 def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
              skeleton: str | os.PathLike | bvh.BvhMotion, *,
              weights: str | os.PathLike | None = "auto", scale: float | None = None,
-             max_influences: int = 8, cache: bool = True, device: Device = None) -> Scene:
+             max_influences: int = 8, cache: bool = True, max_vertices: int = MAX_RIG_VERTICES,
+             max_input_gib: float = MAX_INPUT_GIB, device: Device = None) -> Scene:
     """Bind a plain mesh in a BVH's rest pose to the BVH's skeleton and motion.
 
     Parameters
@@ -121,6 +122,10 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
         unit, e.g. 0.0254 for a skeleton in inches and a mesh in metres.
     max_influences : int
         Influences kept per vertex by automatic weights.
+    max_vertices : int
+        Largest mesh given automatic weights (:func:`dqskin.limits.check_vertices`).
+    max_input_gib : float
+        Largest array the BVH or the weights file may ask for (:mod:`dqskin.limits`).
 
     Returns
     -------
@@ -134,8 +139,11 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
     InputError
         (a ValueError) Unreadable inputs, a mesh far from the skeleton or in other units (naming the
         fix), a weights file that does not fit.
+    LimitError
+        Beyond ``max_vertices`` or ``max_input_gib``.
     """
-    motion = skeleton if isinstance(skeleton, bvh.BvhMotion) else bvh.read_bvh(skeleton)
+    motion = skeleton if isinstance(skeleton, bvh.BvhMotion) else bvh.read_bvh(
+        skeleton, max_input_gib=max_input_gib)
     if scale is not None and float(scale) != 1.0:
         motion = bvh.scaled(motion, scale)
     if isinstance(mesh, tuple):
@@ -151,10 +159,12 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
     check_fit(points.astype(np.float64), skel.bind_transforms[:, :3, 3],
               f"{where} on {motion.path}")
     if weights is None or str(weights) == "auto":
+        check_vertices(len(points), where, max_vertices)
         idx, w = automatic_weights(points, faces, skel, end_sites=motion.end_sites,
                                    max_influences=max_influences, cache=cache, device=device)
     else:
-        idx, w = read_weights(weights, skel.joint_names, len(points))
+        idx, w = read_weights(weights, skel.joint_names, len(points),
+                              max_input_gib=max_input_gib)
     m = Mesh(name=name, points=points, faces=faces, joint_indices=idx, joint_weights=w,
              skinning_method="lbs")
     return Scene(motion.path, [m], [skel], np.arange(motion.frame_count, dtype=np.float64),
@@ -162,7 +172,9 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
 
 
 def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,
-                    max_influences: int = 8, cache: bool = True, device: Device = None) -> Scene:
+                    max_influences: int = 8, cache: bool = True,
+                    max_vertices: int = MAX_RIG_VERTICES, max_input_gib: float = MAX_INPUT_GIB,
+                    device: Device = None) -> Scene:
     """``scene`` with every mesh's influences replaced: "auto" (bone heat from the mesh's bind
     pose and its skeleton's bind transforms) or an ``.npz`` (:func:`read_weights`; the scene
     must then have one mesh).
@@ -170,7 +182,7 @@ def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,
     Automatic weights use the joints the mesh's skin deforms with (those its influences refer
     to): a glTF skeleton also holds the skin's ancestors (an "Armature" node), which take no
     weight. The artist's weights themselves are not used. Returns a new Scene sharing the
-    skeletons.
+    skeletons. ``max_vertices`` and ``max_input_gib`` as in :func:`rig_mesh`.
     """
     meshes = []
     if str(weights) != "auto" and len(scene.meshes) != 1:
@@ -179,6 +191,7 @@ def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,
     for m in scene.meshes:
         skel = scene.skeletons[m.skeleton]
         if str(weights) == "auto":
+            check_vertices(len(m.points), f"{scene.path}: {m.name}", max_vertices)
             used = np.unique(np.asarray(m.joint_indices)[np.asarray(m.joint_weights) > 0])
             idx, w = automatic_weights(m.points, m.faces, skel,
                                        geom_bind_transform=m.geom_bind_transform,
@@ -186,7 +199,8 @@ def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,
                                        max_influences=max_influences, cache=cache,
                                        device=device)
         else:
-            idx, w = read_weights(weights, skel.joint_names, len(m.points))
+            idx, w = read_weights(weights, skel.joint_names, len(m.points),
+                                  max_input_gib=max_input_gib)
         meshes.append(replace(m, joint_indices=idx, joint_weights=w))
     return replace(scene, meshes=meshes, _skinners={})
 

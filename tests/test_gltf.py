@@ -931,7 +931,7 @@ def test_buffer_uri_outside_folder_refused(tmp_path, uri):
     ("http://example.com/data.bin", "is neither a relative file path nor a data: URI"),
     ("//server/share/data.bin", "is neither a relative file path nor a data: URI"),
     ("missing.bin", r"cannot be read \(No such file or directory\)"),
-    ("sub%20dir", "is not a regular file"),
+    ("sub%20dir", "is a folder, not a regular file"),
 ])
 def test_buffer_uri_unusable(tmp_path, uri, message):
     path = write_external(tmp_path, uri)

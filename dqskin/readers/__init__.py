@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 from ..errors import InputError
 from ..files.inputs import regular_file
+from ..limits import MAX_INPUT_GIB
 
 if TYPE_CHECKING:
     from ..scene import Scene
@@ -44,7 +45,8 @@ def format_of(path: str | os.PathLike) -> ModuleType | None:
     return _loader(name) if name in ("usd", "gltf") else None
 
 
-def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
+def load(path: str | os.PathLike, *, clip: str | int | None = None,
+         max_input_gib: float = MAX_INPUT_GIB) -> Scene:
     """Read a skinned character.
 
     Parameters
@@ -54,6 +56,9 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
         skeleton and its motion, no meshes; times are frame numbers).
     clip : str or int, optional
         glTF animation to load (name or index); the first by default.
+    max_input_gib : float
+        Largest array a glTF or BVH file may ask for before its data is read
+        (:mod:`dqskin.limits`); beyond it LimitError.
 
     Returns
     -------
@@ -64,4 +69,4 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     if loader is None:
         raise InputError(f"{p}: unsupported file type {p.suffix.lower()!r}; expected one of "
                          f"{', '.join(CHARACTER_SUFFIXES)}")
-    return _loader(loader).load(p, clip=clip)
+    return _loader(loader).load(p, clip=clip, max_input_gib=max_input_gib)

@@ -1297,9 +1297,11 @@ def load_usd(path: str | os.PathLike) -> Scene:
     return _Loader(path).load()
 
 
-def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
+def load(path: str | os.PathLike, *, clip: str | int | None = None,
+         max_input_gib: float | None = None) -> Scene:
     """:func:`load_usd` with the signature every format's loader has (USD has one animation per
-    skeleton, so ``clip`` must be None)."""
+    skeleton, so ``clip`` must be None; ``max_input_gib`` is accepted for that signature: USD
+    reads arrays of the sizes its layers hold)."""
     if clip is not None:
         raise InputError(f"{path}: ", Param("clip"), " applies to glTF files; USD has one "
                          "animation per skeleton")

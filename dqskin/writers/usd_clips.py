@@ -48,6 +48,7 @@ from pxr import Sdf, Tf, Usd, Vt
 from ..errors import InputError, OutputExistsError, Param, output_exists
 from ..files.atomic import atomic_path, check_interrupted
 from ..files.crate import BOOTSTRAP, CrateSamples, Hasher
+from ..files.inputs import regular_file
 from ..options import CorOptions, SkinOptions
 from ..readers.usd import _tf_message
 from ..scene import Scene
@@ -724,6 +725,8 @@ def _check_clips(stage: Usd.Stage, src: str | os.PathLike) -> None:
                                      "missing (for a dqskin clip bake, baking again with ",
                                      Param("resume", True), " redoes it)")
                 path = Path(where)  # (a layer inside a package or elsewhere: no record)
+                if "[" not in where:  # a file: never a FIFO or a device USD would block on
+                    regular_file(path, f"clip layer of {prim.GetPath()}")
                 record = _record_of(path) if path.is_file() else None
                 if record is None:
                     continue
