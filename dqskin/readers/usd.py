@@ -59,6 +59,7 @@ from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
 from . import LOADER_SUFFIXES
 from .usd_anim import JointTracks
+from .usd_layers import open_stage
 from .usd_xform import LocalToWorld, XformChain
 
 __all__ = ["SKINNING_METHODS", "SUFFIXES", "load", "RigidPrim", "UsdSkelAnimation",
@@ -506,7 +507,7 @@ class _Loader:
             raise InputError(f"{self.path}: not a USD file (extension {ext!r}, expected one of "
                              f"{', '.join(SUFFIXES)})")
         try:
-            stage = Usd.Stage.Open(self.path, Usd.Stage.LoadAll)
+            stage = open_stage(self.path, Usd.Stage.LoadAll)  # (no layer that is not a file)
         except Tf.ErrorException as exc:
             raise InputError(f"{self.path}: cannot open as USD: {_tf_message(exc)}") from None
         if stage is None:

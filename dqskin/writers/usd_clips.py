@@ -48,9 +48,10 @@ from pxr import Sdf, Tf, Usd, Vt
 from ..errors import InputError, OutputExistsError, Param, output_exists
 from ..files.atomic import atomic_path, check_interrupted
 from ..files.crate import BOOTSTRAP, CrateSamples, Hasher
-from ..files.inputs import regular_file
+from ..files.inputs import open_input
 from ..options import CorOptions, SkinOptions
 from ..readers.usd import _tf_message
+from ..readers.usd_layers import open_stage
 from ..scene import Scene
 from .usd_cache import (
     CLIPS_FOLDER_SUFFIX,
@@ -416,7 +417,8 @@ def _record_of(path: str | os.PathLike) -> dict[str, Any] | None:
     """The dqskin record of clip layer ``path`` (``chunk_00000.json`` beside it: a dict naming
     the layer, with a plan key and a checksum), or None (another tool's file, or none)."""
     try:
-        record = json.loads(Path(path).with_suffix(".json").read_text())
+        with open_input(Path(path).with_suffix(".json")) as fh:  # (never a FIFO: InputError)
+            record = json.loads(fh.read())
     except (OSError, ValueError):
         return None
     if (isinstance(record, dict) and record.get("layer") == Path(path).name
@@ -682,7 +684,7 @@ def flatten(src: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool =
     if out.exists() and not overwrite:  # (checked again when it is claimed)
         raise output_exists(out, "overwrite")
     try:
-        stage = Usd.Stage.Open(str(src))
+        stage = open_stage(src, Usd.Stage.LoadAll)  # (clip layers included: no FIFO)
     except Tf.ErrorException as exc:
         raise InputError(f"{src}: cannot open as USD: {_tf_message(exc)}") from None
     if stage is None:
@@ -725,8 +727,6 @@ def _check_clips(stage: Usd.Stage, src: str | os.PathLike) -> None:
                                      "missing (for a dqskin clip bake, baking again with ",
                                      Param("resume", True), " redoes it)")
                 path = Path(where)  # (a layer inside a package or elsewhere: no record)
-                if "[" not in where:  # a file: never a FIFO or a device USD would block on
-                    regular_file(path, f"clip layer of {prim.GetPath()}")
                 record = _record_of(path) if path.is_file() else None
                 if record is None:
                     continue
