@@ -280,7 +280,7 @@ def test_automatic_weights_refuse_a_mesh_beyond_the_vertex_limit(leg, capsys, tm
     with pytest.raises(LimitError, match=f"leg.obj: {n} vertices, more than the limit of 10 "
                        "for automatic weights; raise max_vertices"):
         rig_mesh(mesh, path, max_vertices=10)
-    with pytest.raises(LimitError, match=f"humanoid.usda: .*: [0-9,]+ vertices, more than the "
+    with pytest.raises(LimitError, match="humanoid.usda: .*: [0-9,]+ vertices, more than the "
                        "limit of 10"):
         replace_weights(readers.load(HUMANOID), max_vertices=10)
     assert main(["rig", str(mesh), "--skeleton", str(path), "--max-vertices", "10", "--out",
@@ -318,7 +318,8 @@ def _chain(depth, end_sites=False):
                   "CHANNELS 3 Zrotation Xrotation Yrotation"]
         if end_sites:
             lines += ["End Site", "{", "OFFSET 0 0.01 0", "}"]
-    lines += ["}"] * depth + ["MOTION", "Frames: 1", "Frame Time: 0.04", " ".join(["0"] * 3 * depth)]
+    lines += ["}"] * depth + ["MOTION", "Frames: 1", "Frame Time: 0.04",
+                              " ".join(["0"] * 3 * depth)]
     return "\n".join(lines) + "\n"
 
 
