@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 from .errors import DqskinError, InputError, Interrupted, Param
 from .files.inputs import regular_file
+from .terminal import printable
 
 if TYPE_CHECKING:
     from .options import SkinOptions
@@ -199,7 +200,7 @@ def cmd_skin(args: argparse.Namespace) -> int:
             _checkpoint()
             times = select_times(scene.times, scene.time_codes_per_second, args.frames,
                                  args.fps, args.substeps, max_frames=args.max_frames)
-            print(bake(scene, args.out, times, options=options, settings=settings))
+            print(printable(bake(scene, args.out, times, options=options, settings=settings)))
         except DqskinError as exc:  # about the rig bound in rig_dir: name what the user gave
             if args.skeleton is None:
                 raise
@@ -218,7 +219,7 @@ def _rig_file(rig_dir: str, mesh: str) -> Path:
 def cmd_flatten(args: argparse.Namespace) -> int:
     from .writers.usd_clips import flatten
     src = regular_file(args.input)
-    print(f"wrote {flatten(src, args.out, overwrite=args.force)}")
+    print(printable(f"wrote {flatten(src, args.out, overwrite=args.force)}"))
     return 0
 
 
@@ -301,8 +302,9 @@ def _print_weight_difference(asset: "Scene", scene: "Scene", label: str, device:
     t = np.unique(asset.times[np.linspace(0, len(asset.times) - 1,
                                           min(samples, len(asset.times))).round().astype(int)])
     for name, (mean, p95) in skinned_difference(asset, scene, t, device=device).items():
-        print(f"{label} weights vs the asset's on {name} (LBS, {len(t)} times): mean "
-              f"{mean:.3f}%, 95th percentile {p95:.3f}% of its height at the worst time")
+        print(printable(f"{label} weights vs the asset's on {name} (LBS, {len(t)} times): "
+                        f"mean {mean:.3f}%, 95th percentile {p95:.3f}% of its height at the "
+                        "worst time"))
 
 
 def cmd_rig(args: argparse.Namespace) -> int:
@@ -312,7 +314,7 @@ def cmd_rig(args: argparse.Namespace) -> int:
     check_output(args.out, _inputs(args), args.force)
     scene = _load_input(args)
     _checkpoint()
-    print(write_rig(scene, args.out, force=args.force))
+    print(printable(write_rig(scene, args.out, force=args.force)))
     return 0
 
 
@@ -320,7 +322,6 @@ def cmd_info(args: argparse.Namespace) -> int:
     import numpy as np
 
     from . import readers
-    from .terminal import printable
     from .validation import scene_problems
 
     def say(line: str) -> None:  # every line holds names from the input: printed safely
@@ -429,10 +430,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         progress=not args.quiet, force=args.force,
         sweeps_dir=None if args.no_sweeps else "default", clip=_clip(args.clip),
         viewer_frames=args.viewer_frames)
-    print(f"wrote {Path(args.out) / 'report.html'} ({len(result['frames'])} frames × "
-          f"{len(result['methods'])} methods × {len(result['views'])} views, "
-          f"{result['timing_s']['total']:.1f} s)")
-    print("\n".join(summary_lines(result)))
+    print(printable(f"wrote {Path(args.out) / 'report.html'} ({len(result['frames'])} frames "
+                    f"× {len(result['methods'])} methods × {len(result['views'])} views, "
+                    f"{result['timing_s']['total']:.1f} s)"))
+    print("\n".join(map(printable, summary_lines(result))))
     return 0
 
 
@@ -712,7 +713,7 @@ def _main(argv: Sequence[str] | None) -> int:
         if argv is None and "--verbose" not in sys.argv[1:]:
             release = _hold_native_stderr()
         if argv is None and sys.stdout is not None:
-            sys.stdout = _GuardedStdout(sys.stdout)  # type: ignore[assignment]
+            sys.stdout = _GuardedStdout(sys.stdout)
         import logging
         import warnings
         with warnings.catch_warnings():
@@ -909,7 +910,6 @@ def _run_command(argv: Sequence[str] | None) -> int:
             msg = str(exc)
         else:  # an OSError that did not come from the system: a bug
             raise
-        from .terminal import printable
         print(f"dqskin: error: {printable(msg)}", file=sys.stderr)
         code = EXIT_INPUT
     except Exception:

@@ -53,10 +53,8 @@ def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_cou
     """
     p = Path(path)
     z = read_npz(p, WEIGHT_FIELDS, what="weights", max_input_gib=max_input_gib)
-    idx, wts, names = (z[f] for f in WEIGHT_FIELDS)
-    if names.dtype.kind not in "US":
-        raise InputError(f"{p}: joint_names: {names.dtype} values, expected strings")
-    names = [str(n) for n in np.ravel(names)]
+    idx, wts, stored = (z[f] for f in WEIGHT_FIELDS)
+    names = [str(n) for n in np.ravel(stored)]
     try:
         idx, wts = check_influences(idx, wts, vertex_count, len(names))
     except ValueError as exc:
