@@ -396,12 +396,13 @@ def read_bvh(path: str | os.PathLike, *, max_input_gib: float = MAX_INPUT_GIB) -
         words = r.split()
         _check_count(p, ln, f, len(words), c)
         try:
-            if not r.isascii():
-                raise ValueError
             values[f] = [float(w) for w in words]
+            ok = r.isascii()  # (float() reads other scripts' digits too)
         except ValueError:
+            ok = False
+        if not ok:
             bad = next(w for w in words if not _NUMBER.fullmatch(w))
-            raise InputError(f"{p}: line {ln}: frame {f}: not a number: {bad!r}") from None
+            raise InputError(f"{p}: line {ln}: frame {f}: not a number: {bad!r}")
         if not np.all(np.abs(values[f]) <= FLOAT32_MAX):
             col = int(np.argmax(~(np.abs(values[f]) <= FLOAT32_MAX)))
             raise InputError(f"{p}: line {ln}: frame {f}: channel {col}: {words[col]} is not "
