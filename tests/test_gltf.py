@@ -730,7 +730,8 @@ LAYOUT = {
         r"from byteOffset 0 need 60 bytes; bufferViews\[\d+\] has 20"),
     "zeros too large to allocate": (
         lambda d: acc(d, "POSITION").update(bufferView=None, count=10**9),
-        r"accessors\[\d+\]\.count: 1000000000 elements without a bufferView \(zeros\) exceed"),
+        r"mesh 0 primitive 0 POSITION \(accessor \d+\): count 1000000000: needs 22.4 GiB, more "
+        r"than the limit of 2 GiB; raise max_input_gib"),
 }
 
 

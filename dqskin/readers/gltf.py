@@ -74,8 +74,6 @@ _FLOAT_OR_NORMALIZED = (5126, 5121, 5123)
 _COMPONENT_NAMES = {5120: "BYTE", 5121: "UNSIGNED_BYTE", 5122: "SHORT", 5123: "UNSIGNED_SHORT",
                     5125: "UNSIGNED_INT", 5126: "FLOAT"}
 _ACCESSOR_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
-_MAX_ZERO_COMPONENTS = 1 << 24
-"""Components an accessor without a bufferView (all zeros) may ask this loader to allocate."""
 _GLB_JSON, _GLB_BIN = 0x4E4F534A, 0x004E4942
 _READ_ATTRIBUTES = re.compile(r"POSITION|NORMAL|TANGENT|TEXCOORD_0|(JOINTS|WEIGHTS)_[0-9]+")
 _MORPH_ATTRIBUTES = ("POSITION", "NORMAL", "TANGENT")
@@ -588,9 +586,6 @@ def _check_accessor_ranges(doc):
         if "bufferView" in acc:
             _check_span(field, f"{field}.count", views, acc["bufferView"],
                         acc.get("byteOffset", 0), count, layout, strided=True)
-        elif count * _ACCESSOR_WIDTHS[acc["type"]] > _MAX_ZERO_COMPONENTS:
-            raise _Invalid(f"{field}.count: {count} elements without a bufferView (zeros) exceed "
-                           f"the {_MAX_ZERO_COMPONENTS} components this loader allocates")
         sparse = acc.get("sparse")
         if sparse is None:
             continue
@@ -836,7 +831,9 @@ class _Reader:
             raise self.error(f"{where}: {name} components must be normalized here (glTF allows "
                              "only FLOAT or normalized integers; set \"normalized\": true)")
         width, dtype = _TYPE_SIZES[acc.type], np.dtype(_COMPONENT_DTYPES[acc.componentType])
-        if acc.bufferView is None:
+        if acc.bufferView is None:  # zeros (and sparse values): as many as the count asks
+            check_bytes(acc.count * width * 8, f"{self.name}: {where}: count {acc.count}",
+                        self.max_input_gib)
             out = np.zeros((acc.count, width), dtype)
         else:
             out = self._elements(acc.bufferView, acc.byteOffset or 0, acc.count, width, dtype)
@@ -1260,7 +1257,8 @@ def load_gltf(path: str | os.PathLike, *, clip: str | int | None = None,
         called ``animation_{i}``.
     max_input_gib : float
         Largest array the file may ask for (:func:`dqskin.limits.check_bytes`): a primitive's
-        morph targets, held as (targets, V, 3) float64 offsets.
+        morph targets, held as (targets, V, 3) float64 offsets; an accessor without a
+        bufferView (its count of zeros, read as float64).
 
     Returns
     -------
@@ -1297,7 +1295,8 @@ def load_gltf(path: str | os.PathLike, *, clip: str | int | None = None,
         ``weights`` channel on a node without morph targets; non-triangle primitives; unknown clip
         (the message lists the clips).
     LimitError
-        Morph targets beyond ``max_input_gib``.
+        Morph targets, or an accessor without a bufferView (zeros, sparse), beyond
+        ``max_input_gib``.
     """
     with np.errstate(all="ignore"):  # overflow is checked where it matters, as ValueError
         return _load(path, clip, max_input_gib)
