@@ -173,6 +173,21 @@ def test_flatten_refuses_a_fifo_in_place_of_a_clip_layer(tmp_path):
     assert not (tmp_path / "flat.usda").exists()
 
 
+def test_flatten_does_not_block_on_a_fifo_plan_or_record(tmp_path):
+    """A clip bake whose plan.json, then a chunk's record, is a FIFO: flatten reads neither
+    (a record that is not a file is no record: the layer is then checked as another tool's)."""
+    from dqskin import bake
+    from dqskin.writers.usd_clips import clips_folder, flatten
+    out = tmp_path / "shot.usd"
+    bake(readers.load(HUMANOID), out, chunk=8, clips=True, normals=False, velocities=False)
+    folder = clips_folder(out)
+    for n, name in enumerate(["plan.json", "chunk_00001.json"]):
+        (folder / name).unlink()
+        _, unblock = fifo(folder / name)
+        returns_soon(lambda: flatten(out, tmp_path / f"flat{n}.usdc"), unblock)
+        assert (tmp_path / f"flat{n}.usdc").is_file()
+
+
 # -- sizes checked before allocating --------------------------------------------------------------
 
 def _npy_header(shape, dtype="<f4"):

@@ -202,7 +202,8 @@ def _recorded(out: str | os.PathLike, key: str) -> Any:
 
 def _recorded_in(folder: str | os.PathLike, key: str) -> Any:
     try:
-        return json.loads((Path(folder) / "plan.json").read_text()).get(key)
+        with open_input(Path(folder) / "plan.json") as fh:  # (never a FIFO: InputError)
+            return json.loads(fh.read()).get(key)
     except (OSError, ValueError, AttributeError):
         return None
 
@@ -517,7 +518,8 @@ class ClipBake:
     def _differs(self) -> str:
         """What the earlier bake's plan has that this one's does not, in words."""
         try:
-            return self._compare_plans(json.loads((self.folder / "plan.json").read_text()))
+            with open_input(self.folder / "plan.json") as fh:  # (never a FIFO: InputError)
+                return self._compare_plans(json.loads(fh.read()))
         except (OSError, ValueError):
             return "with an unreadable plan.json"
         except (TypeError, AttributeError, KeyError):  # a plan.json edited by hand
