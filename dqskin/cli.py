@@ -418,7 +418,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if p in (out, out / "report.html", out / "metrics.json") or p.parent == out / "frames":
             raise InputError(f"--out {args.out}: refusing to write the report over the input "
                              f"{src}")
-    source = _load_input(args) if _rigging(args) else regular_file(args.input)
+    source = _load_input(args)  # (the limits of the command line apply to every input)
     result = run_compare(
         source, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],
         frames=None if args.frames is None else parse_frames(args.frames,
