@@ -10,18 +10,21 @@
   before the array is allocated.
 """
 
+from __future__ import annotations
+
 import os
 import stat
-import zipfile
-import zlib
 from collections.abc import Sequence
 from pathlib import Path
-from typing import BinaryIO
-
-import numpy as np
+from typing import TYPE_CHECKING, BinaryIO
 
 from ..errors import InputError
 from ..limits import MAX_INPUT_GIB, check_bytes
+
+if TYPE_CHECKING:  # (imported where used: the command line imports this module at start-up)
+    import zipfile
+
+    import numpy as np
 
 __all__ = ["open_input", "read_npz", "regular_file"]
 
@@ -41,8 +44,9 @@ def regular_file(path: str | os.PathLike, what: str = "") -> Path:
     p = Path(path)
     try:
         mode = os.stat(p).st_mode
-    except OSError as exc:
-        reason = "no such file" if isinstance(exc, FileNotFoundError) else exc.strerror or exc
+    except (OSError, ValueError) as exc:  # (ValueError: a NUL in the name)
+        reason = ("no such file" if isinstance(exc, (FileNotFoundError, ValueError))
+                  else exc.strerror or exc)
         raise InputError(f"{p}: {what + ': ' if what else ''}{reason}") from None
     if not stat.S_ISREG(mode):
         raise InputError(f"{p}: {what + ': ' if what else ''}{_kind(mode)}, not a regular file")
@@ -99,6 +103,7 @@ def read_npz(path: str | os.PathLike, fields: Sequence[str], *, what: str = "arr
     LimitError
         An array larger than ``max_input_gib``.
     """
+    import zipfile
     with open_input(path) as fh:
         p = Path(path)
         try:
@@ -124,6 +129,10 @@ def _member(archive: zipfile.ZipFile, name: str, where: str, field: str, max_inp
             ) -> np.ndarray:
     """One ``.npy`` member, its header checked before the array is allocated; ``where`` begins
     the messages, ``field`` names it for a limit."""
+    import zipfile
+    import zlib
+
+    import numpy as np
     fmt = np.lib.format
     info = archive.getinfo(name)
     try:
