@@ -179,7 +179,8 @@ def test_flatten_does_not_block_on_a_fifo_plan_or_record(tmp_path):
     from dqskin import bake
     from dqskin.writers.usd_clips import clips_folder, flatten
     out = tmp_path / "shot.usd"
-    bake(readers.load(HUMANOID), out, chunk=8, clips=True, normals=False, velocities=False)
+    scene = readers.load(HUMANOID)
+    bake(scene, out, scene.times[:24], chunk=8, clips=True, normals=False, velocities=False)
     folder = clips_folder(out)
     for n, name in enumerate(["plan.json", "chunk_00001.json"]):
         (folder / name).unlink()
