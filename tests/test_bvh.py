@@ -213,7 +213,7 @@ MALFORMED = [
     ("HIERARCHY\nROOT a\n{\nOFFSET 0 0 0\nCHANNELS 1 Xrotation\n}\nMOTION\nFrames: 3\n"
      "Frame Time: 0.1\n1\n2\n", "Frames: 3 but only 2 frame lines"),
     ("HIERARCHY\nROOT a\n{\nOFFSET 0 0 0\nCHANNELS 1 Xrotation\n}\nMOTION\nFrames: 1\n"
-     "Frame Time: 0\n1\n", "Frame Time: 0: must be positive"),
+     "Frame Time: 0\n1\n", "Frame Time: '0': expected seconds per frame, at least 1e-06"),
     ("HIERARCHY\nROOT a\n{\nOFFSET 0 0 0\nCHANNELS 1 Xrotation\n}\nMOTION\nFrame Time: 0.1\n",
      "expected 'Frames: N'"),
     ("HIERARCHY\nROOT a\n{\nOFFSET 0 0 0\nCHANNELS 1 Xrotation\nJOINT a\n{\nOFFSET 0 0 0\n}\n}\n"

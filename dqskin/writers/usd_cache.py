@@ -47,9 +47,9 @@ if TYPE_CHECKING:
 
 __all__ = ["CACHE_EXTENSIONS", "CHUNK_BYTES", "CHUNK_FRAMES", "CHUNK_MIN_FRAMES",
            "CLIPS_FOLDER_SUFFIX",
-           "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter", "clips_folder",
-           "chunk_frames", "export_layer", "frame_bytes", "layer_file", "stage_files",
-           "write_usd_cache"]
+           "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter", "check_not_input",
+           "clips_folder", "chunk_frames", "export_layer", "frame_bytes", "layer_file",
+           "stage_files", "write_usd_cache"]
 
 CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
 """Extensions :func:`write_usd_cache` writes (``.usd`` is binary crate)."""
@@ -159,6 +159,14 @@ def stage_files(stage: Usd.Stage) -> list[str]:
 def _source_files(stage, source_path):
     """Every file the source stage reads (:func:`stage_files`) and ``source_path``."""
     return {os.fspath(source_path), *stage_files(stage)}
+
+
+def check_not_input(out: str | os.PathLike, stage: Usd.Stage, src: str | os.PathLike) -> None:
+    """InputError (a ValueError) when ``out`` is a file the source ``stage`` (read from ``src``)
+    reads: its root layer, a sublayer, a reference, its usdz package."""
+    if os.path.exists(out) and any(_same_file(out, f) for f in _source_files(stage, src)
+                                   if os.path.exists(f)):
+        raise InputError(f"{out}: refusing to overwrite an input of {src}")
 
 
 def _remove_skel_binding(layer):
@@ -397,9 +405,7 @@ class CacheLayer:
             stage = None
         if stage is None:
             raise InputError(f"{src}: cannot open the source stage")
-        if os.path.exists(out) and any(_same_file(out, f) for f in _source_files(stage, src)
-                                       if os.path.exists(f)):
-            raise InputError(f"{out}: refusing to overwrite an input of {src}")
+        check_not_input(out, stage, src)
         self.scene, self.out, self.src, self.ext = scene, out, src, ext
         self.stage = stage
         self.rigid = _rigid_prims(stage, scene)

@@ -36,7 +36,7 @@ from ..files.atomic import atomic_path
 from ..readers import gltf
 from ..readers.usd_xform import LocalToWorld, XformChain
 from ..scene import Scene
-from .usd_cache import export_layer
+from .usd_cache import check_not_input, export_layer
 
 if TYPE_CHECKING:
     from pxr import Usd, UsdGeom, Vt
@@ -151,7 +151,8 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False,
         influences.
     out : path
     force : bool
-        Replace an existing file (otherwise the name is claimed exclusively).
+        Replace an existing file (otherwise the name is claimed exclusively); never a file the
+        scene was read from (a USD scene's layers: InputError).
     fps : float, optional
         Output frame rate (default :func:`dqskin.times.frame_rate`).
 
@@ -166,6 +167,9 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False,
         raise InputError(Param("out", out), f": a rig is written as {'/'.join(RIG_SUFFIXES)}")
     sel = select(scene.times, scene.time_codes_per_second, fps=fps, rate=frame_rate(scene),
                  max_frames=FRAMES_CEILING)
+    source = _source_stage(scene)
+    if source is not None:
+        check_not_input(out, source, scene.path)
     stage, _ = rig_stage(scene, sel.times, sel.frames, sel.rate)
     stage.GetRootLayer().documentation = f"dqskin rig of {scene.path}"
     claim = atomic_path(out, overwrite=force)
