@@ -223,7 +223,8 @@ def cmd_skin(args: argparse.Namespace) -> int:
     sel = select(scene.times, scene.time_codes_per_second, args.frames, args.fps, args.substeps,
                  max_frames=args.max_frames, rate=frame_rate(scene), hold=args.hold)
     settings = dataclasses.replace(settings, fps=sel.rate)
-    print(printable(bake(scene, args.out, sel.times, options=options, settings=settings)))
+    said = bake(scene, args.out, sel.times, options=options, settings=settings)
+    print("\n".join(printable(line) for line in said.splitlines()))
     return 0
 
 
@@ -286,7 +287,7 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None) -> "Scen
                              device=args.device)
         for w in said:
             if issubclass(w.category, FitWarning):
-                print(f"warning: {w.message}", file=sys.stderr)
+                print(printable(f"warning: {w.message}"), file=sys.stderr)
         return scene
     if args.scale is not None:
         raise InputError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")

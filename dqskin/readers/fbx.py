@@ -49,7 +49,8 @@ import numpy as np
 import numpy.typing as npt
 
 from ..animation import Deformer, check_times, segment_rates
-from ..errors import InputError, LimitError, UnknownNameError
+from ..errors import InputError, LimitError, Param, UnknownNameError
+from ..limits import MAX_INPUT_GIB
 from . import LOADER_SUFFIXES
 
 if TYPE_CHECKING:
@@ -68,12 +69,14 @@ _BIND_TOLERANCE = 1e-6
 """Relative difference below which two bind transforms of one bone are the same."""
 
 
-def _extract(path: Path, clip: str | int | None) -> tuple[dict, dict[str, np.ndarray]]:
+def _extract(path: Path, clip: str | int | None,
+             max_input_gib: float) -> tuple[dict, dict[str, np.ndarray]]:
     """Run :mod:`.fbx_extract` on ``path``: ``(meta, arrays)``; InputError naming the file when
     ufbx fails or its process dies."""
     arg = "-" if clip is None else str(clip)
+    limit = str(max_input_gib * (1 << 30))
     try:
-        done = subprocess.run([sys.executable, "-I", str(_EXTRACT), str(path), arg],
+        done = subprocess.run([sys.executable, "-I", str(_EXTRACT), str(path), arg, limit],
                               capture_output=True, check=False)
     except OSError as exc:
         raise InputError(f"{path}: could not start the FBX reader ({exc})") from None
@@ -90,7 +93,8 @@ def _extract(path: Path, clip: str | int | None) -> tuple[dict, dict[str, np.nda
         if text.startswith("LookupError: "):
             raise UnknownNameError(f"{path}: {text.removeprefix('LookupError: ')}")
         if text.startswith("LimitExceeded: "):
-            raise LimitError(f"{path}: {text.removeprefix('LimitExceeded: ')}")
+            raise LimitError(f"{path}: {text.removeprefix('LimitExceeded: ')}; raise ",
+                             Param("max_input_gib"), " to allow more")
         raise InputError(f"{path}: not a readable FBX file ({text})")
     try:
         with np.load(io.BytesIO(done.stdout), allow_pickle=False) as z:
@@ -201,7 +205,8 @@ def _bind_groups(meshes: list[_Skin]) -> list[list[int]]:
     return [members for members, _ in groups]
 
 
-def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
+def load(path: str | os.PathLike, *, clip: str | int | None = None,
+         max_input_gib: float = MAX_INPUT_GIB) -> Scene:
     """Read an FBX character (see the module docstring).
 
     Parameters
@@ -210,6 +215,9 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
         A ``.fbx`` file, binary or ASCII.
     clip : str or int, optional
         Animation stack to load (name or index); the first by default.
+    max_input_gib : float
+        Largest array of joint transforms (frames × joints) the stack may ask for, checked
+        before it is evaluated (:mod:`dqskin.limits`).
 
     Returns
     -------
@@ -224,14 +232,14 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     dqskin.errors.UnknownNameError
         No stack ``clip``.
     dqskin.errors.LimitError
-        A stack of more than 1,000,000 frames.
+        A stack of more than 1,000,000 frames, or beyond ``max_input_gib``.
     """
     from ..animation import KeyedAnimation
     from ..scene import Mesh, Scene
     from ..skeleton import Skeleton
 
     p = Path(path)
-    meta, arrays = _extract(p, clip)
+    meta, arrays = _extract(p, clip, max_input_gib)
     names = _unique(meta["names"], "node")
     node_parent = meta["parents"]
     rest_world = arrays["rest_world"]

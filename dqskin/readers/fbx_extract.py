@@ -85,7 +85,7 @@ def _frames(name, begin, end, fps):
     return np.arange(f0, f1 + 1, dtype=np.float64)
 
 
-def extract(path, clip):
+def extract(path, clip, max_bytes=float("inf")):
     start = time.perf_counter()
     import ufbx  # type: ignore[import-untyped]
 
@@ -184,6 +184,10 @@ def extract(path, clip):
         stack = _k(stacks[which])
         anim = _k(stack.anim)
         frames = _frames(stack.name, stack.time_begin, stack.time_end, fps)
+        if len(frames) * len(joints) * 128 > max_bytes:  # (before allocating it)
+            raise LimitExceeded(f"animation stack {stack.name!r}: {len(frames)} frames of "
+                                f"{len(joints)} joints need {len(frames) * len(joints) * 128:,} "
+                                "bytes of joint transforms, more than the input limit")
         world = np.empty((len(frames), len(joints), 4, 4))
         weights: list[list] = [[] for _ in meshes_meta]
         for f, frame in enumerate(frames):
@@ -230,11 +234,11 @@ def _shape_weights(ev_meshes, count, weights):
 
 
 def main(argv):
-    if len(argv) != 3:
-        sys.stderr.write("usage: fbx_extract.py FILE CLIP\n")
+    if len(argv) not in (3, 4):
+        sys.stderr.write("usage: fbx_extract.py FILE CLIP [MAX_BYTES]\n")
         return _BAD
     try:
-        arrays = extract(argv[1], argv[2])
+        arrays = extract(argv[1], argv[2], float(argv[3]) if len(argv) == 4 else float("inf"))
     except MemoryError:
         sys.stderr.write("out of memory\n")
         return _BAD
