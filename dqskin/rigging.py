@@ -224,10 +224,12 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
         unit, e.g. 0.0254 for a skeleton in inches and a mesh in metres (``fit="as-is"``).
     fit : "embed" or "as-is"
         "embed": the skeleton is placed in the mesh, whatever its rest pose, size and position
-        (:func:`dqskin.embedding.embed_skeleton`), and the motion retargeted to it
-        (:func:`dqskin.retarget.retarget`). "as-is": the mesh is modelled in the BVH's rest
-        pose (every channel zero), space and unit (after ``scale``); :func:`check_fit` refuses
-        one that is far from the skeleton or in other units and says how to fix it.
+        (:func:`dqskin.embedding.embed_skeleton`), the motion retargeted to it
+        (:func:`dqskin.retarget.retarget`) and the skinned feet put on the mesh's floor at every
+        frame (:func:`dqskin.retarget.feet_on_the_floor`). "as-is": the mesh is modelled in
+        the BVH's rest pose (every channel zero), space and unit (after ``scale``);
+        :func:`check_fit` refuses one that is far from the skeleton or in other units and says
+        how to fix it.
     joints : path, or mapping of str to (3,) float, optional
         ``fit="embed"``: joint positions (mesh space) that override the embedding, by name
         (a ``.json`` file read by :func:`read_joints`).
@@ -288,34 +290,14 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
                                    max_influences=max_influences, cache=cache, device=device)
     else:
         idx, w = read_weights(weights, skel.joint_names, len(points))
+    if fit == "embed":  # the skinned feet on the floor whenever the capture's are
+        from .retarget import feet_on_the_floor
+        skel = feet_on_the_floor(skel, motion, points, idx, w)
     m = Mesh(name=name, points=points, faces=faces, joint_indices=idx, joint_weights=w,
              skinning_method="lbs")
     scene = Scene(motion.path, [m], [skel], np.arange(motion.frame_count, dtype=np.float64),
                   time_codes_per_second=1.0 / motion.frame_time, up_axis="Y")
-    return _on_the_floor(scene, device) if fit == "embed" else scene
-
-
-_FLOOR_SAMPLES = 64  # frames skinned to put a retargeted body's feet on the floor
-
-
-def _on_the_floor(scene: Scene, device: Device) -> Scene:
-    """The scene with its root raised or lowered so that the skinned mesh's lowest point is on
-    the rest mesh's floor at the median frame (of up to 64 spread over the motion): a
-    retargeted walk's feet touch the ground when the capture's do."""
-    from .animation import KeyedAnimation
-    (m,) = scene.meshes
-    skel = scene.skeletons[0]
-    anim = skel.animation
-    assert isinstance(anim, KeyedAnimation), "a retargeted skeleton has keyed local transforms"
-    times = anim.key_times
-    pick = times[np.unique(np.linspace(0, len(times) - 1, min(_FLOOR_SAMPLES, len(times))
-                                       ).round().astype(int))]
-    low = scene.skin(pick, method="lbs", space="skeleton", device=device).points[m.name][..., 1]
-    shift = float(np.asarray(m.points, np.float64)[:, 1].min() - np.median(low.min(1)))
-    local = anim.local_transforms(times).copy()
-    local[:, skel.parents < 0, 1, 3] += shift
-    moved = skel.with_animation(KeyedAnimation(times, local, name=anim.name))
-    return replace(scene, skeletons=[moved], _skinners={})
+    return scene
 
 
 def _embedded_end_sites(source: Skeleton, embedded: Skeleton, end_sites: list) -> list:

@@ -186,6 +186,54 @@ def test_retargeted_walk_stands_on_the_floor(walk):
     assert travel_c > 0.05 and travel_e > 0.5 * travel_c * height / 1.37
 
 
+def test_feet_on_the_floor_over_the_whole_capture(shared_assets):
+    """Every frame of the full capture (1,248) on MakeHuman's body: whenever the capture's
+    lowest foot joint is at its floor level (within 1% of its height; its FK from the BVH text),
+    the skinned body's lowest point (linear blend of the feet's rest points, float64, from the
+    rig's weights) is within 1% of the body's height of the rest mesh's floor, and at every frame
+    it is as far above the floor as the capture's feet are above theirs; the toes slide no more
+    than the capture's."""
+    import warnings
+
+    from dqskin.rigging import FitWarning, rig_mesh
+    capture = shared_assets / "cmu-mocap" / "scaled_131_02.bvh"
+    body = shared_assets / "bodies" / "makehuman" / "base_body.obj"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FitWarning)
+        scene = rig_mesh(body, capture, fit="embed")
+    (m,), skel = scene.meshes, scene.skeletons[0]
+    rest = np.asarray(m.points, np.float64)
+    floor, height = rest[:, 1].min(), np.ptp(rest[:, 1])
+    feet = np.nonzero(rest[:, 1] < floor + 0.15 * height)[0]
+    world = world_transforms(skel.parents, skel.animation.local_transforms(scene.times))
+    skin = world[:, :, :3] @ np.linalg.inv(skel.bind_transforms)  # (F, J, 3, 4)
+    idx, w = np.asarray(m.joint_indices)[feet], np.asarray(m.joint_weights, np.float64)[feet]
+    p = np.append(rest[feet], np.ones((len(feet), 1)), axis=1)
+    y = sum(w[:, k] * np.einsum("fvl,vl->fv", skin[:, idx[:, k], 1], p)
+            for k in range(idx.shape[1]))
+    low = (y.min(1) - floor) / height * 100
+    dev, contact, names, pos = _capture_feet(capture)
+    assert len(low) == len(dev) == 1248
+    down = np.abs(dev) <= 1.0
+    assert down.mean() > 0.8
+    assert np.abs(low[down]).max() <= 1.0, np.abs(low[down]).max()
+    assert np.abs(low - dev).max() <= 0.1, np.abs(low - dev).max()
+    short = [n.split("/")[-1] for n in skel.joint_names]
+    for side in ("Left", "Right"):
+        both = contact[side][1:] & contact[side][:-1]
+        legs = [side + n for n in ("Hip", "Knee", "Ankle")]
+        leg_c = sum(np.linalg.norm(pos[0, names.index(a)] - pos[0, names.index(b)])
+                    for a, b in zip(legs, legs[1:]))
+        leg_e = sum(np.linalg.norm(world[0, short.index(a), :3, 3]
+                                   - world[0, short.index(b), :3, 3])
+                    for a, b in zip(legs, legs[1:]))
+        toe_c = pos[:, names.index(side + "Toe")][:, [0, 2]]
+        toe_e = world[:, short.index(side + "Toe"), [0, 2], 3]
+        slide_c = np.linalg.norm(np.diff(toe_c, axis=0), axis=1)[both].sum() / leg_c
+        slide_e = np.linalg.norm(np.diff(toe_e, axis=0), axis=1)[both].sum() / leg_e
+        assert slide_e <= 1.1 * slide_c, (side, slide_e, slide_c)
+
+
 def test_refusal_offset_works_as_printed(tmp_path, capsys, shared_assets):
     """--as-is: a mesh far from the skeleton is refused with the offset to add to its points;
     adding it as printed makes the rig."""
