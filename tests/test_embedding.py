@@ -200,7 +200,7 @@ def test_feet_on_the_floor_over_the_whole_capture(shared_assets):
     body = shared_assets / "bodies" / "makehuman" / "base_body.obj"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FitWarning)
-        scene = rig_mesh(body, capture, fit="embed")
+        scene = rig_mesh(body, capture)
     (m,), skel = scene.meshes, scene.skeletons[0]
     rest = np.asarray(m.points, np.float64)
     floor, height = rest[:, 1].min(), np.ptp(rest[:, 1])
@@ -293,6 +293,25 @@ def test_joints_file_is_checked_and_named(tmp_path, capsys, shared_assets):
         assert main(argv) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "r.usda").exists()
+
+
+def test_api_and_info_embed_by_default(shared_assets):
+    """rig_mesh embeds by default, as ``dqskin rig`` does (the whole-capture test above relies on
+    it: MakeHuman's body is 12× the capture's size); ``as_is=True`` is ``--as-is``, refused with
+    ``joints``; ``dqskin info X.bvh`` says so with the command line's flags."""
+    import inspect
+
+    from dqskin.cli import flag
+    from dqskin.errors import InputError
+    from dqskin.rigging import rig_mesh
+    assert inspect.signature(rig_mesh).parameters["as_is"].default is False
+    capture = shared_assets / "cmu-mocap" / "scaled_131_02.bvh"
+    with pytest.raises(InputError, match=r"joints places .* as_is=True binds"):
+        rig_mesh(shared_assets / "bodies" / "makehuman" / "base_body.obj", capture,
+                 as_is=True, joints={"LeftElbow": [0, 0, 0]})
+    line = bvh.summary_lines(bvh.read_bvh(capture), flag)[-1]
+    assert "any size and pose is fitted by embedding" in line and "with --as-is a mesh must be" \
+        in line and line.endswith("--scale"), line
 
 
 def test_retargeted_rig_bakes_the_same_in_usdskel(walk):
