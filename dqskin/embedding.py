@@ -11,7 +11,10 @@ the rest:
    extremities are picked by farthest-point sampling (the head, the hands, the feet of a biped),
    as many as the skeleton has groups of leaf tips (tips closer than a fifth of its height along
    the bones are one group: a hand's fingers). Each group is matched to an extremity by
-   direction from the root (Hungarian assignment).
+   direction from the root and by side (Hungarian assignment): two limbs that branch from one
+   joint (the legs from the pelvis, the arms from the chest) have their sides from the
+   horizontal offset between their first joints, which a bent or crossed limb in the guess
+   does not change, and go to extremities on those sides of the root.
 2. **Scale.** The skeleton is scaled so that its hip joints (the first joints, away from the
    root, of the two limbs with the lowest extremities) are level with the mesh's crotch (the
    highest point of the shortest surface path between the feet), else to the mesh's height; it
@@ -30,7 +33,8 @@ the rest:
 
 The guess's pose matters for the matching and for the joints kept at their scaled offsets: a
 standing figure in a T, A or I pose, or any pose within about 10° per joint of the mesh's,
-is embedded; a limb far from its place in the guess may be matched to the wrong extremity.
+is embedded; with 10–20° per joint most guesses are, some land a spine or a leg several % of
+the height off (a bent spine's head direction, a bent leg's scale).
 
 The bind rotations carry the rest-pose difference per joint: joint ``j`` of the result has the
 input's bind rotation turned by the rotation ``A_j`` that takes the input's bone directions (to
@@ -57,6 +61,7 @@ _TIP_GROUP = 0.2  # tips closer than this share of the skeleton's height (along 
 _RING = 0.01  # level-set width of the centre lines, share of the mesh's height
 _LIMB_START = 0.15  # rings merge (fingers, toes) nearer the tip than this share of the height
 _NEAR_LINE = 0.05  # a joint walks along a limb's centre line from a parent this near it
+_SIDE = 0.05  # an extremity this share of the height off the root's vertical is on one side
 
 
 def skeleton_tips(skeleton: Skeleton, end_sites: list | None = None, *,
@@ -371,7 +376,12 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
         from scipy.optimize import linear_sum_assignment
         gdir = np.array([_unit(T[g].mean(0) - X[root]) for g in groups])
         edir = np.array([_unit(P[v] - X[root]) for v in ext])
-        rows, cols = linear_sum_assignment(-gdir @ edir.T)
+        # and by side: a limb's (a leg's, an arm's, whatever their pose) against an
+        # extremity's horizontal offset from the root (none for a head)
+        side = _limb_sides(skeleton, X, [owners[g] for g in groups], root, children)
+        eside = np.array([_flat(P[v] - X[root], 0.0) / (_SIDE * H) for v in ext])
+        eside /= np.maximum(np.linalg.norm(eside, axis=1), 1.0)[:, None]
+        rows, cols = linear_sum_assignment(-gdir @ edir.T - side @ eside.T)
         order = sorted(zip(rows, cols), key=lambda rc: -T[groups[rc[0]]][:, 1].max())
         for gi, ei in order:  # the highest (a head: the spine) first
             line = _centre_line(surface, ext[ei], _RING * H, 0.75 * H)[::-1]  # base → tip
@@ -453,6 +463,31 @@ def _walk_in(skeleton, X, X_in, Xr, placed, line, tips, owners, group, root, s):
     M = (np.linalg.norm(v) / nu if nu > 0 else 1.0) * best_rotation(u[None], v[None])
     for j in between:
         Xr[j], placed[j] = Xr[a] + M @ (X[j] - X[a]), True
+
+
+def _flat(v, least=0.3):
+    """The horizontal part of ``v``; zero unless longer than ``least · |v|``."""
+    h = np.array([v[0], 0.0, v[2]])
+    return h if np.linalg.norm(h) > least * np.linalg.norm(v) else np.zeros(3)
+
+
+def _limb_sides(skeleton, X, leaves, root, children):
+    """(G, 3) unit horizontal directions of the limbs' sides: for two limbs that branch from the
+    same joint (the legs from the pelvis, the arms from the chest), the horizontal offset
+    between their joints (their first, else their means), when mostly horizontal, whatever
+    their pose; zero for the others (a neck)."""
+    chains = [_limb_joints(skeleton, lv, root, children) for lv in leaves]
+    branch = [skeleton.parents[c[0]] if c else -2 for c in chains]
+    out = np.zeros((len(chains), 3))
+    for g, b in enumerate(branch):
+        pair = [h for h, c in enumerate(branch) if c == b and h != g]
+        if b == -2 or len(pair) != 1:
+            continue
+        h = pair[0]
+        first = _flat(X[chains[g][0]] - X[chains[h][0]])
+        out[g] = _unit(first if first.any()
+                       else _flat(X[chains[g]].mean(0) - X[chains[h]].mean(0)))
+    return out
 
 
 def _unit(v):
