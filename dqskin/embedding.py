@@ -6,7 +6,8 @@ bones' relative lengths; its size, pose and placement are only a starting guess.
 the rest:
 
 1. **Extremities.** Geodesic distances over the mesh's edge graph (its parts joined where
-   they touch and at their nearest points) from its centre (the middle of its longest shortest
+   they touch, and each to its nearest other part at their nearest points: a body of separate
+   pieces, one per bone, joins as the bones do) from its centre (the middle of its longest shortest
    path); the mesh's
    extremities are picked by farthest-point sampling (the head, the hands, the feet of a biped),
    as many as the skeleton has groups of leaf tips (tips closer than a fifth of its height along
@@ -14,7 +15,8 @@ the rest:
    direction from the root and by side (Hungarian assignment): two limbs that branch from one
    joint (the legs from the pelvis, the arms from the chest) have their sides from the
    horizontal offset between their first joints, which a bent or crossed limb in the guess
-   does not change, and go to extremities on those sides of the root.
+   does not change, and go to extremities on those sides of the root (by their offsets along
+   that side, up to a twentieth of the height: a foot's toes pointing forward count fully).
 2. **Scale.** The skeleton is scaled so that its hip joints (the first joints, away from the
    root, of the two limbs with the lowest extremities) are level with the mesh's crotch (the
    highest point of the shortest surface path between the feet), else to the mesh's height; it
@@ -146,20 +148,9 @@ class _Surface:
             cols += near[:, 1].tolist()
             vals += np.maximum(np.linalg.norm(P[near[:, 0]] - P[near[:, 1]], axis=1),
                                1e-12).tolist()
-            big = np.bincount(label).argmax()
-            main = np.nonzero(label == big)[0]
-            tree = cKDTree(P[main])
-            for c in range(n):
-                if c == big:
-                    continue
-                idx = np.nonzero(label == c)[0]
-                d, k = tree.query(P[idx])
-                i = int(d.argmin())
-                rows.append(idx[i])
-                cols.append(main[k[i]])
-                vals.append(max(float(d[i]), 1e-12))
             extra = sp.coo_matrix((vals, (rows, cols)), shape=(N, N)).tocsr()
             g = g.maximum(extra).maximum(extra.T).tocsr()
+            g = _join_nearest(g, P)
         self.graph = g
         self.long_edge = float(np.percentile(w, 90)) if len(w) else 0.0
         area = np.zeros(N)
@@ -197,6 +188,31 @@ class _Surface:
         order = breadth_first_order(sub, start, directed=False, return_predecessors=False)
         part = idx[order]
         return np.average(self.points[part], axis=0, weights=self.area[part])
+
+
+def _join_nearest(g, P):
+    """The graph ``g`` with its parts joined, each to its nearest other part (at their nearest
+    points), until one part is left (Borůvka's rounds): bones' separate capsules join their
+    neighbours, not whatever part is largest."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+    N = len(P)
+    while True:
+        n, label = connected_components(g, directed=False)
+        if n <= 1:
+            return g
+        rows, cols, vals = [], [], []
+        for c in range(n):
+            inside = label == c
+            idx, rest = np.nonzero(inside)[0], np.nonzero(~inside)[0]
+            d, k = cKDTree(P[rest]).query(P[idx])
+            i = int(d.argmin())
+            rows.append(idx[i])
+            cols.append(rest[k[i]])
+            vals.append(max(float(d[i]), 1e-12))
+        extra = sp.coo_matrix((vals, (rows, cols)), shape=(N, N)).tocsr()
+        g = g.maximum(extra).maximum(extra.T).tocsr()
 
 
 def _fps(geo_from, seed_dist, count):
@@ -379,9 +395,9 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
         # and by side: a limb's (a leg's, an arm's, whatever their pose) against an
         # extremity's horizontal offset from the root (none for a head)
         side = _limb_sides(skeleton, X, [owners[g] for g in groups], root, children)
-        eside = np.array([_flat(P[v] - X[root], 0.0) / (_SIDE * H) for v in ext])
-        eside /= np.maximum(np.linalg.norm(eside, axis=1), 1.0)[:, None]
-        rows, cols = linear_sum_assignment(-gdir @ edir.T - side @ eside.T)
+        off = np.array([_flat(P[v] - X[root], 0.0) for v in ext])
+        rows, cols = linear_sum_assignment(
+            -gdir @ edir.T - np.clip(side @ off.T / (_SIDE * H), -1.0, 1.0))
         order = sorted(zip(rows, cols), key=lambda rc: -T[groups[rc[0]]][:, 1].max())
         for gi, ei in order:  # the highest (a head: the spine) first
             line = _centre_line(surface, ext[ei], _RING * H, 0.75 * H)[::-1]  # base → tip

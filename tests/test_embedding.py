@@ -73,6 +73,21 @@ def test_embedding_tells_left_from_right_whatever_the_guess_pose(shared_assets):
         assert mean <= 2.5 and worst <= 5.0, (seed, mean, worst)
 
 
+def test_embedding_a_capsule_body_with_arms_touching_the_thighs(shared_assets):
+    """The CMU skeleton, displaced, embedded back into a body of capsules around its own bones
+    (I-pose: the forearms' capsules touch the thighs'; separate parts, joined each to its
+    nearest): the hands and feet go to their own extremities, every joint against the
+    skeleton's own."""
+    from test_autoweights import capsule_body
+    motion = bvh.read_bvh(shared_assets / "cmu-mocap" / "scaled_131_02.bvh")
+    skel = motion.skeleton()
+    pts, faces = capsule_body(skel, motion.end_sites, radius=0.25)
+    got = embed_skeleton((pts, faces), displaced(skel), end_sites=motion.end_sites)
+    mean, worst, per = embedding_errors(got.bind_transforms[:, :3, 3],
+                                        skel.bind_transforms[:, :3, 3], np.ptp(pts[:, 1]))
+    assert mean <= 4.0 and worst <= 10.0, (mean, worst, per)
+
+
 def test_embedding_a_capture_skeleton_in_makehuman(shared_assets):
     """The CMU skeleton (I-pose, metres) in MakeHuman's A-pose body (decimetres), against the
     body's own joint markers; a joints file overrides any joint."""

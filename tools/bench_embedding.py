@@ -9,6 +9,9 @@ placement is kept) and optionally re-posed (every joint turned by a random 5–1
 :func:`dqskin.embedding.embed_skeleton`, and the deforming joints are compared with the artist's:
 distance in % of the mesh's vertical height, mean and worst, and every joint.
 
+A body of capsules around the CMU skeleton's bones (the tests' ``capsule_body``; I-pose, the arms
+touching the thighs): the skeleton, displaced, embedded back, against its own joints.
+
 MakeHuman's base body (../shared/assets/bodies/makehuman/base_body.obj, A-pose, decimetres) with
 the CMU capture's skeleton (scaled_131_02.bvh, I-pose, metres): the embedded joints against
 MakeHuman's own joint markers (base_joints.json), matched by :data:`MAKEHUMAN_MARKERS`.
@@ -104,6 +107,25 @@ def run_character(name, path, up, pose=False, degrees=10.0, seed=0):
     return mean, worst, {skel.joint_names[j].split("/")[-1]: d for j, d in zip(used, per)}, dt
 
 
+def run_capsules(radius):
+    """The CMU skeleton embedded in a body of capsules around its own bones (I-pose: the arms
+    hang against the thighs, touching them), against the skeleton's joints."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_autoweights import capsule_body
+
+    from dqskin.embedding import embed_skeleton, embedding_errors
+    from dqskin.readers import bvh
+    motion = bvh.read_bvh(SHARED / "cmu-mocap" / "scaled_131_02.bvh")
+    skel = motion.skeleton()
+    pts, faces = capsule_body(skel, motion.end_sites, radius=radius)
+    t0 = time.perf_counter()
+    got = embed_skeleton((pts, faces), displaced(skel), end_sites=motion.end_sites)
+    dt = time.perf_counter() - t0
+    mean, worst, per = embedding_errors(got.bind_transforms[:, :3, 3],
+                                        skel.bind_transforms[:, :3, 3], float(np.ptp(pts[:, 1])))
+    return mean, worst, dict(zip(skel.joint_names, per)), dt
+
+
 def run_makehuman():
     from dqskin.embedding import embed_skeleton, embedding_errors
     from dqskin.readers import bvh
@@ -134,6 +156,8 @@ def main(argv=None):
     rows += [(f"{n} ({Path(p).suffix[1:]}), guess re-posed", *run_character(n, p, up, True))
              for n, p, up in CHARACTERS if p.endswith(".glb")]
     rows.append(("MakeHuman + CMU skeleton vs markers", *run_makehuman()))
+    rows += [(f"capsule body around the CMU skeleton, radius {r:g} of each bone, arms touching "
+              "the thighs", *run_capsules(r)) for r in (0.18, 0.25)]
     for label, mean, worst, per, dt in rows:
         print(f"{label}: mean {mean:.2f}%, worst {worst:.2f}% of height ({len(per)} joints, "
               f"{dt:.2f} s)")
