@@ -28,8 +28,9 @@ the rest:
    ends in one BVH End Site is walked in from the extremity, each joint at its scaled bone
    length along the centre line, down to (not including) the limb's base (a hip, a clavicle),
    the joints between stretched to join; the others are walked out from their parents along the
-   centre line; a limb's base, and joints far from any centre line, keep their scaled offsets
-   from their parents.
+   centre line (where it ends first, a joint takes its bone's share of what is left of it, with
+   the bones below it to the tip); a limb's base, and joints far from any centre line, keep
+   their scaled offsets from their parents.
 5. **Overrides.** ``joints`` (name → position) replace any joint's position, after the others
    are placed.
 
@@ -413,7 +414,11 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
                     Xr[j] = Xr[p] + (X[j] - X[p])  # a limb's base, or off the limb: as scaled
                 else:
                     x = _walk(line, Xr[p], length)
-                    Xr[j] = line[-1] if x is None else x
+                    if x is None:  # the line ends first: the chain below shares what is left
+                        rest = s * _reach_to_tip(skeleton.parents, X_in, j, tips,
+                                                 owners[groups[gi]], groups[gi])
+                        x = _walk_share(line, Xr[p], length / (length + rest))
+                    Xr[j] = x
                 placed[j] = True
     # the rest: their scaled offsets from their (placed) parents
     for j in range(J):
@@ -504,6 +509,36 @@ def _limb_sides(skeleton, X, leaves, root, children):
         out[g] = _unit(first if first.any()
                        else _flat(X[chains[g]].mean(0) - X[chains[h]].mean(0)))
     return out
+
+
+def _reach_to_tip(parents, X, j, tips, owners, group):
+    """The shortest length along the bones from joint ``j`` down to a tip of ``group`` (0 when
+    none lies below it)."""
+    best = np.inf
+    for t, o in zip(group, owners):
+        length, k = float(np.linalg.norm(tips[t] - X[o])), int(o)
+        while k != j and k >= 0:
+            length += float(np.linalg.norm(X[k] - X[parents[k]])) if parents[k] >= 0 else 0.0
+            k = int(parents[k])
+        if k == j:
+            best = min(best, length)
+    return 0.0 if not np.isfinite(best) else best
+
+
+def _walk_share(line, start, share):
+    """The point ``share`` (0–1) of the way along the polyline ``line`` (base → tip) from its
+    point nearest ``start`` to its tip."""
+    i0 = int(np.argmin(np.linalg.norm(line - start, axis=1)))
+    pts = np.concatenate([start[None], line[i0 + 1:]]) if i0 + 1 < len(line) else line[-1:]
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    if not len(seg) or seg.sum() <= 0:
+        return line[-1].copy()
+    at = share * seg.sum()
+    k = int(np.searchsorted(np.cumsum(seg), at))
+    k = min(k, len(seg) - 1)
+    before = float(np.cumsum(seg)[k - 1]) if k > 0 else 0.0
+    u = (at - before) / seg[k] if seg[k] > 0 else 0.0
+    return pts[k] + np.clip(u, 0.0, 1.0) * (pts[k + 1] - pts[k])
 
 
 def _unit(v):
