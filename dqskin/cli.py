@@ -273,14 +273,10 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None) -> "Scen
                              "to a BVH; a character file has its own skeleton (use --weights "
                              "auto to replace its weights)")
         joints = getattr(args, "joints", None)
-        as_is = getattr(args, "as_is", False)
-        if joints is not None and as_is:
-            raise InputError("--joints places joints of an embedded skeleton; --as-is binds the "
-                             "BVH's own")
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always", FitWarning)
             scene = rig_mesh(src, regular_file(args.skeleton), weights=weights or "auto",
-                             scale=args.scale, fit="as-is" if as_is else "embed",
+                             scale=args.scale, as_is=getattr(args, "as_is", False),
                              joints=None if joints is None else regular_file(joints),
                              max_influences=args.max_influences,
                              max_vertices=args.max_vertices, max_input_gib=args.max_input_gib,
