@@ -66,7 +66,7 @@ def test_every_stack_matches_ufbx(name):
         scene = dqskin.load(path, clip=clip) if index else first
         assert scene.clip == clip
         t = scene.times[np.unique(np.linspace(0, len(scene.times) - 1, 5).round().astype(int))]
-        ref = ufbx_skinned(path, index, t / scene.time_codes_per_second)
+        ref = ufbx_skinned(path, index, t)
         res = scene.skin(t, space="world")
         for k, m in enumerate(skinned_meshes(scene)):
             want = ref[f"m{k}"]
@@ -125,6 +125,8 @@ def test_authoring_tools_obj_exports(name):
         if frame is None:  # the stored pose: no stack
             scene.skeletons = [s.with_animation(None) for s in scene.skeletons]
             frame = float(scene.times[0])
+        else:
+            frame /= scene.frame_rate  # seconds
         got = np.concatenate(list(scene.skin([frame], space="world").points.values()), 1)[0]
         err = nearest(got.astype(np.float64), want) / size(want)
         assert err < tol, (obj, err)
@@ -132,8 +134,9 @@ def test_authoring_tools_obj_exports(name):
 
 def test_scene_metadata_and_methods():
     max_ = dqskin.load(data("max_transformed_skin_7500_binary.fbx"))
-    assert (max_.up_axis, max_.meters_per_unit, max_.time_codes_per_second) == ("Z", 0.01, 30.0)
-    assert max_.times[0] == 0 and max_.times[-1] == 100  # 0 .. 3.333 s at 30 fps
+    assert (max_.up_axis, max_.meters_per_unit, max_.time_codes_per_second,
+            max_.frame_rate) == ("Z", 0.01, 1.0, 30.0)
+    np.testing.assert_array_equal(max_.times, np.arange(101) / 30)  # seconds: 0 .. 3.333 s
     box = max_.meshes[0]
     assert box.skinning_method == "blend" and box.blend_weights is not None
     assert np.all(box.blend_weights == 0)  # the file's per-vertex DQ weights
@@ -213,7 +216,8 @@ def test_cli_info_skin(tmp_path):
     src = data("maya_game_sausage_7500_binary_combined.fbx")
     rc, out, err = run("info", src, "--clip", "spin")
     assert rc == 0, err
-    assert "clips: wiggle, spin, deform (loaded: spin)" in out and "24/s" in out
+    assert "clips: wiggle, spin, deform (loaded: spin)" in out
+    assert "frames 20 .. 40 at 24 fps (0.8333 .. 1.667 s)" in out
     rc, out, err = run("skin", src, "--clip", "spin", "--frames", "27:35:8", "--out",
                        tmp_path / "o.npz")
     assert rc == 0, err
@@ -261,7 +265,8 @@ def test_cli_rig_keeps_skeleton_and_weights(tmp_path):
 def test_extract_writes_no_pickles():
     """The reader's process answers in plain arrays and one JSON record."""
     done = subprocess.run([sys.executable, "-I", str(fbx._EXTRACT),
-                           str(data("maya_dual_quaternion_scale_7500_ascii.fbx")), "-"],
+                           str(data("maya_dual_quaternion_scale_7500_ascii.fbx")), "-",
+                           str(1 << 30)],
                           capture_output=True, check=True)
     with np.load(io.BytesIO(done.stdout), allow_pickle=False) as z:
         meta = json.loads(str(z["meta"]))
@@ -284,24 +289,25 @@ def test_per_vertex_blend_everywhere(tmp_path):
     b = np.random.default_rng(7).random(len(m.points)).astype(np.float32)
     scene.meshes = [dataclasses.replace(m, skinning_method="blend", blend_weights=b)]
     scene.invalidate()
-    t = np.array([6.0, 11.5])
+    t = np.array([6.0, 11.5]) / 24  # seconds
     got = scene.skin(t, velocities=True, space="world")
     lbs, dqs = (scene.skin(t, meth, space="world").points[m.name] for meth in ("lbs", "dqs"))
     scale = size(lbs)
     assert np.abs(dqs - lbs).max() > 1e-3 * scale  # the two methods differ here
     want = (1 - b[:, None]) * lbs + b[:, None] * dqs
     assert np.abs(got.points[m.name] - want).max() < 1e-5 * scale
-    h = 1e-2  # frames: central differences of the points, per second
+    h = 1e-2 / 24  # central differences of the points, per second, inside the frame
     ahead, behind = (scene.skin(t + d, space="world").points[m.name].astype(np.float64)
                      for d in (h, -h))
-    rate = (ahead - behind) / (2 * h) * scene.time_codes_per_second
+    rate = (ahead - behind) / (2 * h)
     assert np.abs(got.velocities[m.name] - rate).max() < 1e-3 * np.abs(rate).max()
     rig = tmp_path / "rig.usda"
     write_rig(scene, rig)
     back = dqskin.load(rig)
     assert back.meshes[0].skinning_method == "blend"
     np.testing.assert_array_equal(back.meshes[0].blend_weights, b)
-    again = back.skin(t, space="world").points[back.meshes[0].name]
+    again = back.skin(t * back.time_codes_per_second,  # (the rig's time codes: frames)
+                      space="world").points[back.meshes[0].name]
     assert np.abs(again - want).max() < 1e-5 * scale
     stage = Usd.Stage.Open(str(rig))
     prim = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
