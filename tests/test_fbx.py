@@ -351,7 +351,7 @@ def test_blend_shape_deformer_closed_form():
 
 def test_endless_stack_is_refused(tmp_path):
     """A stack whose end lies 160 years out (an edited ASCII file) is a LimitError, not a
-    million evaluations."""
+    million evaluations; transforms beyond max_input_gib are refused before they are evaluated."""
     from dqskin.errors import LimitError
 
     text = data("maya_dual_quaternion_scale_7500_ascii.fbx").read_text()
@@ -360,6 +360,9 @@ def test_endless_stack_is_refused(tmp_path):
     (tmp_path / "long.fbx").write_text(text.replace(stop + "\n", stop + "000000\n"))
     with pytest.raises(LimitError, match="spans 120000000 frames at 24 fps"):
         dqskin.load(tmp_path / "long.fbx")
+    with pytest.raises(LimitError, match=r"'Take 001': 120 times of 2 nodes' transforms: needs "
+                       r"2.86e-05 GiB, more than the limit of 1e-05 GiB; raise max_input_gib"):
+        dqskin.load(data("maya_dual_quaternion_scale_7500_ascii.fbx"), max_input_gib=1e-5)
 
 
 @pytest.mark.parametrize("name", ["maya_game_sausage_7500_binary_combined.fbx",

@@ -13,22 +13,27 @@ evaluates comes back as plain arrays, and a file that makes ufbx fail, or crash,
   rigid) "lbs", dual quaternion "dqs", blended "blend" with the file's per-vertex DQ weights as
   ``blend_weights`` (Maya's "Weight Blended", 3ds Max's Skin modifier).
 * Joints: the nodes the clusters bind (and each rigid mesh's node) with their ancestors, the
-  scene root left out. Their world transforms are ufbx's at every whole frame of the animation
-  stack (rotation orders, pre/post rotations, pivots, geometric transforms and scale
-  inheritance as the file says); the local transforms are recovered from them, so forward
-  kinematics gives ufbx's world transforms back. Between frames joints are interpolated as
-  :class:`~dqskin.animation.KeyedAnimation` does (rotation slerp, translation and scale lerp).
+  scene root left out. Their world transforms are ufbx's (rotation orders, pre/post rotations,
+  pivots, geometric transforms and scale inheritance as the file says) at every whole frame of
+  the animation stack, read with the file, and at any other time a scene is skinned at (the
+  file's curves: the reader's process runs again on those times, at most once per time); the
+  local transforms are recovered from them, so forward kinematics gives ufbx's world
+  transforms back. Times outside the stack hold its first and last frames. Velocities are
+  those of the keyed motion through the whole frames and the times skinned between them
+  (rotation slerp, translation and scale lerp, as
+  :class:`~dqskin.animation.KeyedAnimation`); interpolations other than "trs" interpolate the
+  whole frames.
 * Bind transforms: cluster ``c`` of a mesh skins a point ``p`` as ufbx does,
   ``bone_to_world(t) · geometry_to_bone_c · p``; the skeleton's bind transform of its bone is
   ``G · geometry_to_bone_c⁻¹`` with ``G`` the mesh's geometry-to-world at the stored pose (its
   ``geom_bind_transform``). Meshes whose bind transforms of a shared bone differ get skeletons
   of their own.
 * Blend shapes (with in-betweens and animated weights): ufbx's effective weight of every
-  in-between at every frame, linear between frames, applied before skinning.
+  in-between at every time skinned, applied before skinning.
 * Every animation stack is a clip (``clip``: name or index; the first by default). Times are
-  frame numbers at the file's frame rate (``time_codes_per_second``; seconds are
-  ``times / time_codes_per_second``), the stack's whole frames from its start to its end. A file
-  without a stack is its stored pose at time 0.
+  seconds (``time_codes_per_second`` 1), the stack's whole frames at the file's frame rate
+  (``frame_rate``) from its start to its end: frame ``f`` is ``f / frame_rate`` seconds. A
+  file without a stack is its stored pose at time 0.
 * World space is the file's own: ``up_axis`` and ``meters_per_unit`` as its settings say (no
   conversion). Points are skinned in world space, which is also each mesh's local space.
 """
@@ -316,11 +321,13 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None,
         A ``.fbx`` file, binary or ASCII.
     clip : str or int, optional
         Animation stack to load (name or index); the first by default.
+    max_input_gib : float
+        Most GiB the joints' transforms at the frames (or times) evaluated may take.
 
     Returns
     -------
     dqskin.scene.Scene
-        Times are frame numbers at ``time_codes_per_second``, the file's frame rate.
+        Times are seconds (the stack's whole frames); ``frame_rate`` is the file's.
 
     Raises
     ------
@@ -330,7 +337,8 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None,
     dqskin.errors.UnknownNameError
         No stack ``clip``.
     dqskin.errors.LimitError
-        A stack of more than 1,000,000 frames.
+        A stack of more than 1,000,000 frames, or whose joints' transforms at its frames would
+        take more than ``max_input_gib``.
     """
     from ..animation import KeyedAnimation
     from ..scene import Mesh, Scene
@@ -410,7 +418,8 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None,
         anim = None
         if evaluator is not None:
             slots = [slot[n] for n in order]
-            anim = KeyedAnimation(frames, _locals(world[:, slots], parents, label),
+            anim = KeyedAnimation(evaluator.seconds,
+                                  _locals(evaluator.world[:, slots], parents, label),
                                   name=meta["clip"] or "")
             anim._keys = _ExactKeys(anim._keys, evaluator, slots,  # type: ignore[assignment]
                                     parents, label)
@@ -424,7 +433,7 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None,
         b = built[k]
         meshes.append(_mesh(Mesh, arrays, k, mesh_names[k], b, mesh_skeleton[k], mesh_slots[k],
                             evaluator, f"{p}: mesh {mesh_names[k]!r}"))
-    times = frames if evaluator is not None else np.zeros(1)
+    times = evaluator.seconds if evaluator is not None else np.zeros(1)
     return Scene(str(p), meshes, skeletons, times, time_codes_per_second=1.0, frame_rate=fps,
                  up_axis=_UP.get(int(meta["up"]), "Y"), meters_per_unit=float(meta["unit"]),
                  clips=list(meta["clips"]), clip=meta["clip"])
