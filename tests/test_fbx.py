@@ -405,3 +405,143 @@ def test_bake_api_and_value_clips(tmp_path):
     for flag in (["--clips"], ["--workers", "2"]):
         rc, _, err = run("skin", src, "--out", tmp_path / "c.usd", *flag)
         assert_clean_error(rc, err, "value clips")
+
+
+SHAPE_FBX = """\
+; FBX 7.4.0 project file
+FBXHeaderExtension:  {
+    FBXHeaderVersion: 1003
+    FBXVersion: 7400
+    Creator: "dqskin test"
+}
+GlobalSettings:  {
+    Version: 1000
+    Properties70:  {
+        P: "UpAxis", "int", "Integer", "",1
+        P: "UpAxisSign", "int", "Integer", "",1
+        P: "FrontAxis", "int", "Integer", "",2
+        P: "FrontAxisSign", "int", "Integer", "",1
+        P: "CoordAxis", "int", "Integer", "",0
+        P: "CoordAxisSign", "int", "Integer", "",1
+        P: "UnitScaleFactor", "double", "Number", "",1
+        P: "TimeMode", "enum", "", "",11
+    }
+}
+Objects:  {
+    Geometry: 1000, "Geometry::Tri", "Mesh" {
+        Vertices: *9 {
+            a: 0,0,0,1,0,0,0,1,0
+        }
+        PolygonVertexIndex: *3 {
+            a: 0,1,-3
+        }
+        GeometryVersion: 124
+    }
+    Model: 2000, "Model::Tri", "Mesh" {
+        Version: 232
+        Properties70:  {
+            P: "Lcl Translation", "Lcl Translation", "", "A",5,0,0
+            P: "Lcl Rotation", "Lcl Rotation", "", "A",0,0,90
+        }
+    }
+    Deformer: 3000, "Deformer::Morpher", "BlendShape" {
+        Version: 100
+    }
+    Deformer: 3100, "SubDeformer::Channel", "BlendShapeChannel" {
+        Version: 100
+        DeformPercent: 0
+        FullWeights: *2 {
+            a: 50,100
+        }
+    }
+    Geometry: 4000, "Geometry::Half", "Shape" {
+        Version: 100
+        Indexes: *1 {
+            a: 1
+        }
+        Vertices: *3 {
+            a: 0,1,0
+        }
+    }
+    Geometry: 4100, "Geometry::Full", "Shape" {
+        Version: 100
+        Indexes: *1 {
+            a: 1
+        }
+        Vertices: *3 {
+            a: 0,0,2
+        }
+    }
+    AnimationStack: 5000, "AnimStack::Take 001", "" {
+        Properties70:  {
+            P: "LocalStart", "KTime", "Time", "",0
+            P: "LocalStop", "KTime", "Time", "",46186158000
+        }
+    }
+    AnimationLayer: 5100, "AnimLayer::BaseLayer", "" {
+    }
+    AnimationCurveNode: 5200, "AnimCurveNode::DeformPercent", "" {
+        Properties70:  {
+            P: "d|DeformPercent", "Number", "", "A",0
+        }
+    }
+    AnimationCurve: 5300, "AnimCurve::", "" {
+        Default: 0
+        KeyVer: 4009
+        KeyTime: *2 {
+            a: 0,46186158000
+        }
+        KeyValueFloat: *2 {
+            a: 0,100
+        }
+        KeyAttrFlags: *1 {
+            a: 4
+        }
+        KeyAttrDataFloat: *4 {
+            a: 0,0,0,0
+        }
+        KeyAttrRefCount: *1 {
+            a: 2
+        }
+    }
+}
+Connections:  {
+    C: "OO",2000,0
+    C: "OO",1000,2000
+    C: "OO",3000,1000
+    C: "OO",3100,3000
+    C: "OO",4000,3100
+    C: "OO",4100,3100
+    C: "OO",5100,5000
+    C: "OO",5200,5100
+    C: "OP",5200,3100, "DeformPercent"
+    C: "OP",5300,5200, "d|DeformPercent"
+}
+"""
+"""A triangle on a node (moved by 5 along x, turned 90° about z) with one blend-shape channel
+whose DeformPercent goes linearly from 0 to 100 over one second at 24 fps: an in-between shape
+at 50 (vertex 1 up by 1 along y) and the full shape at 100 (vertex 1 by 2 along z). FBX 7.4
+ASCII written by hand: no shared FBX file has blend shapes."""
+
+
+def test_blend_shape_with_in_between(tmp_path):
+    """ufbx's blended points at whole frames and between them, and the closed form: at
+    DeformPercent w the in-between weighs w/50 below 50 and (100 - w)/50 above, the full shape
+    (w - 50)/50; velocities are their rates (w grows by 100 a second)."""
+    path = tmp_path / "shape.fbx"
+    path.write_text(SHAPE_FBX)
+    scene = dqskin.load(path)
+    assert scene.frame_rate == 24 and len(scene.times) == 25 and scene.meshes[0].deformer
+    t = np.array([0.0, 7 / 24, 0.3, 0.5, 13.5 / 24, 0.8, 1.0])
+    ref = ufbx_skinned(path, 0, t)["b0"]
+    res = scene.skin(t, velocities=True, space="world")
+    got = res.points["Tri"]
+    assert np.abs(got - ref).max() < 1e-6 * size(ref)
+    w = 100 * t
+    half = np.where(w <= 50, w / 50, (100 - w) / 50)
+    full = np.clip((w - 50) / 50, 0, None)
+    turn = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])  # 90° about z
+    want = (np.array([1.0, 0, 0]) + half[:, None] * [0, 1, 0] + full[:, None] * [0, 0, 2]) @ turn.T
+    np.testing.assert_allclose(got[:, 1], want + [5, 0, 0], atol=1e-6)
+    rate = np.array([[0.0, 2, 0], [0, -2, 4]]) @ turn.T  # per second, below and above 50
+    np.testing.assert_allclose(res.velocities["Tri"][[2, 5], 1], rate, atol=1e-5)

@@ -83,7 +83,7 @@ def _extract(path: Path, clip: str | int | None, max_input_gib: float = MAX_INPU
     fails or its process dies, LimitError when its transforms would exceed ``max_input_gib``."""
     arg = "-" if clip is None else str(clip)
     command = [sys.executable, "-I", str(_EXTRACT), str(path), arg,
-               str(int(max_input_gib * (1 << 30)))] + ([] if at is None else ["--at"])
+               str(int(max_input_gib * (1 << 30)))] + ([] if at is None else ["at"])
     try:
         done = subprocess.run(command, capture_output=True, check=False,
                               input=b"" if at is None else np.asarray(at, "<f8").tobytes())
@@ -265,7 +265,8 @@ class _Shapes(Deformer):
             return self.frames, self.weights
         ev = self.evaluator
         return ev.keys(t, lambda near: self.weights[near],
-                       lambda off: ev.between(off)[1][self.mesh].reshape(len(off), -1))
+                       lambda off: ev.between(off)[1][self.mesh].reshape(len(off), -1)
+                       if len(off) else np.zeros((0, self.weights.shape[1])))
 
     def points_at(self, times: npt.ArrayLike) -> np.ndarray:
         t = check_times(times)

@@ -1,14 +1,15 @@
 """The one place that calls ufbx: run as a script in a process of its own by :mod:`.fbx`.
 
-``python fbx_extract.py FILE CLIP`` loads ``FILE`` with ufbx and writes to stdout an ``.npz``
-(no pickles) of plain arrays and one JSON record (``meta``): the nodes that drive meshes, their
-world transforms at the file's stored pose and at every whole frame of the chosen animation
-stack (``CLIP``: a name, an index, or ``-`` for the first; ``seconds``: the frames' times),
-every mesh's geometry, skin clusters and blend-shape weights, and the seconds each step took
-(``timing_s``). ``python fbx_extract.py FILE INDEX --at`` evaluates stack number ``INDEX`` at
-the times (seconds, raw float64) read from stdin instead of its frames, and writes only the
-animated values (``seconds``, ``world``, blend-shape weights). Errors: one line on stderr and
-exit status 2.
+``python fbx_extract.py FILE CLIP MAX_BYTES`` loads ``FILE`` with ufbx and writes to stdout
+an ``.npz`` (no pickles) of plain arrays and one JSON record (``meta``): the nodes that drive
+meshes, their world transforms at the file's stored pose and at every whole frame of the chosen
+animation stack (``CLIP``: a name, an index, or ``-`` for the first; ``seconds``: the frames'
+times), every mesh's geometry, skin clusters and blend-shape weights, and the seconds each step
+took (``timing_s``). ``python fbx_extract.py FILE INDEX MAX_BYTES at`` evaluates stack number
+``INDEX`` at the times (seconds, raw float64) read from stdin instead of its frames, and writes
+only the animated values (``seconds``, ``world``, blend-shape weights). Transforms of more than
+``MAX_BYTES`` are refused before they are evaluated. Errors: one line on stderr and exit
+status 2.
 
 The ufbx bindings are young: a Python wrapper of a ufbx object that is fetched a second time
 (a node's ``parent`` after the node itself, say) crashes the process when one of the two
@@ -171,8 +172,8 @@ def extract(path, clip, at=None, max_bytes=None):
                 for ki in range(len(keyframes)):
                     shape = _k(_k(keyframes[ki]).shape)
                     offsets = np.zeros_like(arrays[key + "points"])
-                    at = _array(shape.offset_vertices, np.int64)
-                    offsets[at] = _array(shape.position_offsets, np.float64, 3)
+                    index = _array(_k(shape.offset_vertices), np.int64)
+                    offsets[index] = _array(_k(shape.position_offsets), np.float64, 3)
                     shapes.append(offsets)
         if shapes:
             arrays[key + "shape_offsets"] = np.stack(shapes)
@@ -247,9 +248,9 @@ def _shape_weights(ev_meshes, count, weights):
 
 
 def main(argv):
-    at = argv[4:] == ["--at"]
+    at = argv[4:] == ["at"]
     if len(argv) != (5 if at else 4):
-        sys.stderr.write("usage: fbx_extract.py FILE CLIP MAX_BYTES [--at]\n")
+        sys.stderr.write("usage: fbx_extract.py FILE CLIP MAX_BYTES [at]\n")
         return _BAD
     try:
         seconds = np.frombuffer(sys.stdin.buffer.read(), np.float64) if at else None
