@@ -216,7 +216,7 @@ class _Evaluator:
         """Key times and values to interpolate ``times`` between: the whole frames next to
         each time (and one more on either side) and every time between frames, exact.
         ``values(frames)``: the values at frame indices; ``between(off)``: at other times."""
-        frame, off = self.split(times)
+        _, off = self.split(times)
         t = np.clip(times, self.seconds[0], self.seconds[-1])
         below = np.floor((t - self.seconds[0]) * self.fps + _ON_KEY).astype(np.int64)
         near = np.unique(np.clip(np.concatenate([below - 1, below, below + 1, below + 2]), 0,
@@ -357,7 +357,7 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None,
     if frames is not None and world is not None and len(frames):
         shapes = {k: arrays[f"m{k}/shape_weights"].reshape(len(frames), -1)
                   for k in range(len(meta["meshes"])) if f"m{k}/shape_weights" in arrays}
-        evaluator = _Evaluator(p, meta["clips"].index(meta["clip"]), fps, max_input_gib,
+        evaluator = _Evaluator(Path(os.path.abspath(p)), int(meta["stack"]), fps, max_input_gib,
                                frames, world, shapes)
     joint_nodes = list(meta["joints"])
     slot = {n: j for j, n in enumerate(joint_nodes)}

@@ -221,7 +221,7 @@ def extract(path, clip, at=None, max_bytes=None):
     timing = {"import": imported - start, "load": loaded - imported, "meshes": read - loaded,
               "frames": done - read}
     meta = {"fps": fps, "up": int(axes.up), "unit": float(settings.unit_meters),
-            "timing_s": timing,
+            "timing_s": timing, "stack": which,
             "clips": clips, "clip": clips[which] if which >= 0 else None, "joints": joints,
             "names": names, "parents": parents, "meshes": meshes_meta}
     arrays["meta"] = np.array(json.dumps(meta))
