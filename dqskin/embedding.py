@@ -55,7 +55,8 @@ import numpy as np
 import numpy.typing as npt
 
 from .errors import InputError
-from .geometry import best_rotation
+from .geometry import best_rotation, winding_numbers
+from .protrusion_fit import protrusion_fit
 from .skeleton import Skeleton
 
 __all__ = ["embed_skeleton", "embedding_errors", "skeleton_tips"]
@@ -425,6 +426,13 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
         if not placed[j]:
             p = skeleton.parents[j]
             Xr[j] = X[j] if p < 0 else Xr[p] + (X[j] - X[p])
+    if groups:  # a blob (most joints outside): the guess fitted whole at its limbs' bases
+        outside = _outside(Xr[deform], surface)
+        if outside > len(deform) / 3:
+            chains = [_limb_joints(skeleton, owners[g], root, children) for g in groups]
+            fit = protrusion_fit(P, surface.faces, X_in, tips, groups, chains, H)
+            if fit is not None and _outside(fit[deform], surface) < outside:
+                Xr = fit
     out = Xr @ R  # back to the mesh's axes
     for j, x in overrides.items():
         out[j] = x
@@ -484,6 +492,11 @@ def _walk_in(skeleton, X, X_in, Xr, placed, line, tips, owners, group, root, s):
     M = (np.linalg.norm(v) / nu if nu > 0 else 1.0) * best_rotation(u[None], v[None])
     for j in between:
         Xr[j], placed[j] = Xr[a] + M @ (X[j] - X[a]), True
+
+
+def _outside(X, surface):
+    """How many of the points ``X`` (N, 3) lie outside the mesh (winding number below ½)."""
+    return int((winding_numbers(X, surface.points, surface.faces) < 0.5).sum())
 
 
 def _flat(v, least=0.3):
