@@ -31,7 +31,13 @@ the rest:
    centre line (where it ends first, a joint takes its bone's share of what is left of it, with
    the bones below it to the tip); a limb's base, and joints far from any centre line, keep
    their scaled offsets from their parents.
-5. **Overrides.** ``joints`` (name → position) replace any joint's position, after the others
+5. **Blobs.** When more than a third of the deforming joints end up outside the mesh (winding
+   number below ½: a cartoon whose limbs are short stubs on a round body, its leaf joints at
+   the stubs' bases), the guess is instead moved and scaled whole (its pose kept): the first
+   joints of its two limbs whose tips lie farthest apart horizontally go to the bases of the
+   mesh's two protrusions farthest out on those sides, found by sections normal to that side
+   (:mod:`dqskin.protrusion_fit`); that fit is kept when fewer of its joints are outside.
+6. **Overrides.** ``joints`` (name → position) replace any joint's position, after the others
    are placed.
 
 The guess's pose matters for the matching and for the joints kept at their scaled offsets: a

@@ -8,19 +8,44 @@ a third of the deforming joints outside the mesh, and kept when fewer are outsid
 
 import numpy as np
 
+__all__ = ["protrusion_fit"]
+
 _STEP = 0.01  # section planes every this share of the mesh's height
 _JUMP = 1.5  # a section this many times wider (up or across) than the one before: the limb ends
 _BOTH = 1.2  # and the joint is where the section is this much wider than the limb's both ways
 _MIN_REACH = 0.05  # no base nearer the extremity than this share of the height (its tip)
 
 
-def protrusion_fit(P, faces, X, tips, groups, chains, height):
-    """(J, 3) float64 ``X`` (every joint, Y up) moved and scaled whole, or None when no pair of
-    limbs or no protrusion base is found.
+def protrusion_fit(P: np.ndarray, faces: np.ndarray, X: np.ndarray, tips: np.ndarray,
+                   groups: list[list[int]], chains: list[list[int]], height: float
+                   ) -> np.ndarray | None:
+    """The guess's joints moved and scaled whole onto the mesh's widest pair of protrusions.
 
-    ``P`` (V, 3) and ``faces`` (T, 3) the mesh (Y up, ``height`` its height); ``tips`` (N, 3)
-    the guess's leaf tips in ``X``'s frame, ``groups`` lists of tip indices per limb, ``chains``
-    each group's limb joints (parents first, its first joint the limb's base)."""
+    Parameters
+    ----------
+    P : (V, 3) float64
+        The mesh's points, Y up.
+    faces : (T, 3) int
+        Its triangles.
+    X : (J, 3) float64
+        Every joint of the guess, in the mesh's axes (any size and place).
+    tips : (N, 3) float64
+        The guess's leaf tips, in ``X``'s frame.
+    groups : list of list of int
+        Tip indices per limb.
+    chains : list of list of int
+        Each group's limb joints, parents first (the first one the limb's base: a shoulder,
+        a hip, a cartoon's hand).
+    height : float
+        The mesh's height (along Y).
+
+    Returns
+    -------
+    (J, 3) float64 or None
+        ``s · X + t`` (``s > 0``), the first joints of the two limbs whose tips lie farthest
+        apart horizontally at the bases of the mesh's two protrusions on their sides; None when
+        there is no such pair or a base is not found.
+    """
     best, pair = 0.0, None
     for g in range(len(groups)):
         for h in range(g + 1, len(groups)):
@@ -55,7 +80,7 @@ def protrusion_fit(P, faces, X, tips, groups, chains, height):
     return s * X + t
 
 
-def _section(P, edges, axis, d):
+def _section(P: np.ndarray, edges: np.ndarray, axis: np.ndarray, d: float) -> np.ndarray:
     """The points where the mesh's edges cross the plane ``x·axis = d``."""
     u = P[edges[:, 0]] @ axis - d
     v = P[edges[:, 1]] @ axis - d
@@ -64,7 +89,8 @@ def _section(P, edges, axis, d):
     return P[edges[m, 0]] + w[:, None] * (P[edges[m, 1]] - P[edges[m, 0]])
 
 
-def _base(P, edges, axis, height):
+def _base(P: np.ndarray, edges: np.ndarray, axis: np.ndarray, height: float
+          ) -> np.ndarray | None:
     """(3,) the base of the mesh's protrusion farthest along ``axis`` (unit), by sections normal
     to ``axis`` from the extremity inwards: the limb ends at the first section wider (up or
     across) by ``_JUMP`` times than the one before; the base is the limb's last section's centre

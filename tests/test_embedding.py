@@ -1,8 +1,8 @@
 """Skeleton embedding, retargeting and fits that explain themselves (issue 31).
 
-Oracles: the artists' joint positions (CesiumMan, RiggedFigure, greenman), MakeHuman's own joint markers
-(base_joints.json), the capture's FK written from the BVH text (tests/test_bvh.py), and the
-rest mesh's own floor.
+Oracles: the artists' joint positions (CesiumMan, RiggedFigure, greenman), MakeHuman's own joint
+markers (base_joints.json), the capture's FK written from the BVH text (tests/test_bvh.py), and
+the rest mesh's own floor.
 """
 
 import json
