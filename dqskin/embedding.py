@@ -31,7 +31,13 @@ the rest:
    centre line (where it ends first, a joint takes its bone's share of what is left of it, with
    the bones below it to the tip); a limb's base, and joints far from any centre line, keep
    their scaled offsets from their parents.
-5. **Overrides.** ``joints`` (name → position) replace any joint's position, after the others
+5. **Blobs.** When more than a third of the deforming joints end up outside the mesh (winding
+   number below ½: a cartoon whose limbs are short stubs on a round body, its leaf joints at
+   the stubs' bases), the guess is instead moved and scaled whole (its pose kept): the first
+   joints of its two limbs whose tips lie farthest apart horizontally go to the bases of the
+   mesh's two protrusions farthest out on those sides, found by sections normal to that side
+   (:mod:`dqskin.protrusion_fit`); that fit is kept when fewer of its joints are outside.
+6. **Overrides.** ``joints`` (name → position) replace any joint's position, after the others
    are placed.
 
 The guess's pose matters for the matching and for the joints kept at their scaled offsets: a
@@ -55,7 +61,8 @@ import numpy as np
 import numpy.typing as npt
 
 from .errors import InputError
-from .geometry import best_rotation
+from .geometry import best_rotation, winding_numbers
+from .protrusion_fit import protrusion_fit
 from .skeleton import Skeleton
 
 __all__ = ["embed_skeleton", "embedding_errors", "skeleton_tips"]
@@ -425,6 +432,13 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
         if not placed[j]:
             p = skeleton.parents[j]
             Xr[j] = X[j] if p < 0 else Xr[p] + (X[j] - X[p])
+    if groups:  # a blob (most joints outside): the guess fitted whole at its limbs' bases
+        outside = _outside(Xr[deform], surface)
+        if outside > len(deform) / 3:
+            chains = [_limb_joints(skeleton, owners[g], root, children) for g in groups]
+            fit = protrusion_fit(P, surface.faces, X_in, tips, groups, chains, H)
+            if fit is not None and _outside(fit[deform], surface) < outside:
+                Xr = fit
     out = Xr @ R  # back to the mesh's axes
     for j, x in overrides.items():
         out[j] = x
@@ -484,6 +498,11 @@ def _walk_in(skeleton, X, X_in, Xr, placed, line, tips, owners, group, root, s):
     M = (np.linalg.norm(v) / nu if nu > 0 else 1.0) * best_rotation(u[None], v[None])
     for j in between:
         Xr[j], placed[j] = Xr[a] + M @ (X[j] - X[a]), True
+
+
+def _outside(X, surface):
+    """How many of the points ``X`` (N, 3) lie outside the mesh (winding number below ½)."""
+    return int((winding_numbers(X, surface.points, surface.faces) < 0.5).sum())
 
 
 def _flat(v, least=0.3):

@@ -1,8 +1,8 @@
 """Skeleton embedding, retargeting and fits that explain themselves (issue 31).
 
-Oracles: the artists' joint positions (CesiumMan, RiggedFigure), MakeHuman's own joint markers
-(base_joints.json), the capture's FK written from the BVH text (tests/test_bvh.py), and the
-rest mesh's own floor.
+Oracles: the artists' joint positions (CesiumMan, RiggedFigure, greenman), MakeHuman's own joint
+markers (base_joints.json), the capture's FK written from the BVH text (tests/test_bvh.py), and
+the rest mesh's own floor.
 """
 
 import json
@@ -43,6 +43,7 @@ def _short_capture(src, folder, frames=FRAMES, step=6):
     ("khronos-gltf/CesiumMan/CesiumMan.glb", 2, False, 2.0, 3.5),
     ("khronos-gltf/CesiumMan/CesiumMan.glb", 2, True, 2.5, 4.5),
     ("usd-wg/RiggedFigure/RiggedFigure.usdz", 2, False, 3.0, 4.5),
+    ("raylib-gltf/greenman.glb", 1, False, 3.0, 3.5),  # a blob: arm stubs, foot bumps
 ])
 def test_embedding_finds_the_artists_joints(shared_assets, path, up, pose, mean_max, worst_max):
     """The character's own skeleton, shrunk and moved off the mesh (and re-posed: every joint
