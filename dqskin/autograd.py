@@ -40,7 +40,10 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 try:
     import torch
@@ -56,7 +59,10 @@ from .kernels import grad as KG
 from .kernels.dqmath import vec8
 from .options import METHOD_NAMES, SIGN_REFERENCES, Method, SignReference
 
-__all__ = ["fk", "local_transforms", "skin", "skin_pose"]
+if TYPE_CHECKING:
+    from .scene import Scene
+
+__all__ = ["Rig", "fk", "local_transforms", "skin", "skin_pose"]
 
 _METHOD_CODES = {"lbs": KG.LBS, "dqs": KG.DQS, "blend": KG.BLEND, "cor": KG.COR}
 
@@ -642,3 +648,102 @@ def skin_pose(points: torch.Tensor, indices: torch.Tensor, weights: torch.Tensor
     xf = fk(local, parents, inverse_bind=inverse_bind)
     return skin(points, indices, weights, xf, method, sign_reference=sign_reference,
                 blend_weights=blend_weights, centers=centers, normals=normals)
+
+
+_SHEAR_TOLERANCE = 1e-5
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A skinned mesh and its skeleton as tensors: what :func:`skin_pose` takes besides the pose.
+
+    Attributes
+    ----------
+    points : (V, 3) float32 tensor
+        Rest points in bind (skeleton) space.
+    indices : (V, K) int32 tensor
+    weights : (V, K) float32 tensor
+    parents : (J,) int32 tensor
+        ``-1`` for roots, parents first.
+    translations, rotations, scales : (J, 3), (J, 4), (J, 3) float32 tensors
+        The rest pose, parent-relative: translation, unit quaternion ``(w, x, y, z)`` and scale.
+    inverse_bind : (J, 4, 4) float32 tensor
+    """
+
+    points: torch.Tensor
+    indices: torch.Tensor
+    weights: torch.Tensor
+    parents: torch.Tensor
+    translations: torch.Tensor
+    rotations: torch.Tensor
+    scales: torch.Tensor
+    inverse_bind: torch.Tensor
+
+    @classmethod
+    def from_scene(cls, scene: Scene, mesh: int | str = 0, *,
+                   device: str | torch.device = "cpu") -> Rig:
+        """The rig of one mesh of a loaded scene (:func:`dqskin.load`), on ``device``.
+
+        Raises
+        ------
+        dqskin.InputError
+            No such mesh; a rest transform with shear (no translation, rotation and scale).
+        """
+        from . import quat
+
+        m = scene.mesh(mesh) if isinstance(mesh, str) else scene.meshes[mesh]
+        skel = scene.skeletons[m.skeleton]
+        g = np.asarray(m.geom_bind_transform, np.float64)
+        points = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
+        rest = np.asarray(skel.rest_transforms, np.float64)
+        u, _, vt = np.linalg.svd(rest[:, :3, :3])
+        r = u @ vt
+        r[np.linalg.det(r) < 0] *= -1.0
+        s = np.swapaxes(r, 1, 2) @ rest[:, :3, :3]
+        off = np.abs(s - s * np.eye(3)).max(axis=(1, 2))
+        sheared = np.flatnonzero(off > _SHEAR_TOLERANCE * np.abs(s).max(axis=(1, 2)))
+        if sheared.size:
+            names = ", ".join(repr(skel.joint_names[j]) for j in sheared[:5])
+            raise InputError(f"{scene.path}: rest transforms of joints {names} have shear: "
+                             "give dqskin.autograd.fk the local matrices instead")
+
+        def tensor(a: Any, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+            return torch.as_tensor(np.ascontiguousarray(a)).to(device=device, dtype=dtype)
+
+        return cls(points=tensor(points), indices=tensor(m.joint_indices, torch.int32),
+                   weights=tensor(m.joint_weights), parents=tensor(skel.parents, torch.int32),
+                   translations=tensor(rest[:, :3, 3]), rotations=tensor(quat.from_matrix(r)),
+                   scales=tensor(np.diagonal(s, axis1=1, axis2=2)),
+                   inverse_bind=tensor(skel.inverse_bind_transforms))
+
+    def pose(self, rotations: torch.Tensor | None = None,
+             root_translation: torch.Tensor | None = None, *,
+             weights: torch.Tensor | None = None, method: Method = "dqs",
+             sign_reference: SignReference = "largest_weight") -> torch.Tensor:
+        """Skinned points of a pose (:func:`skin_pose` with this rig's rest pose and binds).
+
+        Parameters
+        ----------
+        rotations : (J, 4), (J, 3), (B, J, 4) or (B, J, 3) float32 tensor, optional
+            Local joint rotations (quaternions or rotation vectors); the rest pose's when
+            omitted.
+        root_translation : (3,) or (B, 3) float32 tensor, optional
+            Added to the root joints' rest translations.
+        weights : (V, K) float32 tensor, optional
+            Influence weights replacing the rig's (for fitting them).
+        method, sign_reference
+            As :func:`skin`.
+
+        Returns
+        -------
+        (V, 3) or (B, V, 3) float32 tensor
+        """
+        out = skin_pose(self.points, self.indices,
+                        self.weights if weights is None else weights,
+                        self.rotations if rotations is None else rotations,
+                        parents=self.parents, translations=self.translations,
+                        inverse_bind=self.inverse_bind, scales=self.scales,
+                        root_translation=root_translation, method=method,
+                        sign_reference=sign_reference)
+        assert isinstance(out, torch.Tensor)
+        return out
