@@ -41,7 +41,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -92,12 +92,17 @@ def _wp(t: torch.Tensor | None, dtype: Any, device: wp.Device) -> wp.array:
         return wp.empty(0, dtype=dtype, device=device)
     shape = getattr(dtype, "_shape_", ())
     flat = t.contiguous().reshape(-1, *shape)
-    return wp.from_torch(flat, dtype=dtype, requires_grad=False)
+    return cast(wp.array, wp.from_torch(flat, dtype=dtype, requires_grad=False))
 
 
 def _wp2(t: torch.Tensor, dtype: Any) -> wp.array:
     """A 2-D Warp array over contiguous (V, K) tensor ``t``."""
-    return wp.from_torch(t.contiguous(), dtype=dtype, requires_grad=False)
+    return cast(wp.array, wp.from_torch(t.contiguous(), dtype=dtype, requires_grad=False))
+
+
+def _is_tensor(t: object) -> bool:
+    """Whether ``t`` is a tensor (arguments are checked whatever their annotation says)."""
+    return isinstance(t, torch.Tensor)
 
 
 def _float(name: str, t: Any, tail: tuple[int, ...], lead_max: int | None = None
@@ -447,7 +452,7 @@ def local_transforms(rotations: torch.Tensor, translations: torch.Tensor, *,
     dqskin.InputError
         Wrong types, shapes or dtypes; ``root_translation`` without ``parents``.
     """
-    if not isinstance(rotations, torch.Tensor) or rotations.dim() < 2 or \
+    if not _is_tensor(rotations) or rotations.dim() < 2 or \
             rotations.shape[-1] not in (3, 4):
         raise InputError(Param("rotations"), ": expected a tensor of shape "
                          "(..., J, 4) (quaternions) or (..., J, 3) (rotation vectors)")
@@ -541,21 +546,21 @@ def skin(points: torch.Tensor, indices: torch.Tensor, weights: torch.Tensor,
         raise InputError(Param("sign_reference", sign_reference),
                          f": expected one of {', '.join(SIGN_REFERENCES)}")
     transforms = _float("transforms", transforms, tuple(transforms.shape[-3:])
-                        if isinstance(transforms, torch.Tensor) and transforms.dim() >= 3
+                        if _is_tensor(transforms) and transforms.dim() >= 3
                         else (0, 4, 4), 1)
     if transforms.shape[-2:] != (4, 4):
         raise InputError(Param("transforms"), f": expected shape (B, J, 4, 4) or "
                          f"(J, 4, 4), got {tuple(transforms.shape)}")
     batched = transforms.dim() == 4
     joints = transforms.shape[-3]
-    weights = _float("weights", weights, tuple(weights.shape) if isinstance(
-        weights, torch.Tensor) and weights.dim() == 2 else (0, 0), 0)
+    weights = _float("weights", weights, tuple(weights.shape) if _is_tensor(
+        weights) and weights.dim() == 2 else (0, 0), 0)
     verts, k = weights.shape
     if k < 1:
         raise InputError(Param("weights"), ": expected at least one influence")
     points = _float("points", points, (verts, 3), 1)
     dev = transforms.device
-    if not isinstance(indices, torch.Tensor) or indices.shape != weights.shape or \
+    if not _is_tensor(indices) or indices.shape != weights.shape or \
             indices.dtype.is_floating_point or indices.dtype.is_complex:
         raise InputError(Param("indices"), f": expected an int tensor of the weights' "
                          f"shape {tuple(weights.shape)}")
@@ -708,7 +713,7 @@ class Rig:
                              "give dqskin.autograd.fk the local matrices instead")
 
         def tensor(a: Any, dtype: torch.dtype = torch.float32) -> torch.Tensor:
-            return torch.as_tensor(np.ascontiguousarray(a)).to(device=device, dtype=dtype)
+            return torch.tensor(np.array(a)).to(device=device, dtype=dtype)
 
         return cls(points=tensor(points), indices=tensor(m.joint_indices, torch.int32),
                    weights=tensor(m.joint_weights), parents=tensor(skel.parents, torch.int32),

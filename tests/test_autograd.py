@@ -389,3 +389,36 @@ def test_bad_input(call, match):
                   for k in ("points", "indices", "weights", "transforms"))
     with pytest.raises(dqskin.InputError, match=match):
         call(p, i, w, x)
+
+
+# ---------------------------------------------------------------------------------------------
+# the examples (tools/fit_pose.py, tools/fit_weights.py), shortened
+
+
+def test_fit_pose_example():
+    """Adam through skin_pose recovers most of a random CesiumMan pose whose target dqskin's
+    own forward path skinned (the full script's figures are on the autograd guide)."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import fit_pose
+
+    assert CESIUM.is_file(), f"{CESIUM}: missing (../shared/assets is required)"
+    scene = dqskin.load(CESIUM)
+    rig = ag.Rig.from_scene(scene)
+    height = float(np.ptp(rig.points.numpy(), axis=0).max())
+    rotations, root = fit_pose.random_pose(rig, 0.5, 0)
+    for method in ("lbs", "dqs"):
+        target = torch.as_tensor(fit_pose.target_points(scene, rig, rotations, root, method))
+        _, _, history = fit_pose.fit_pose(rig, target, method, 100)
+        assert history[0] > 0.2 * height and history[-1] < 0.04 * height, history[::10]
+
+
+def test_fit_weights_example():
+    """Weights fitted to baked frames: valid (non-negative, sum 1, 4 influences) and close to
+    the asset's on held-out frames."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import fit_weights
+
+    assert CESIUM.is_file(), f"{CESIUM}: missing (../shared/assets is required)"
+    r = fit_weights.report(dqskin.load(CESIUM), "lbs", 150, 4, 12)
+    assert r["influences"] == 4 and r["negative"] == 0 and r["weight_sum_error"] < 1e-5, r
+    assert r["heldout_rms"] < 3e-3 and r["weights_l1"] < 0.3, r
