@@ -39,6 +39,7 @@ Importing this module imports PyTorch; ``import dqskin`` does not.
 from __future__ import annotations
 
 import contextlib
+import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
@@ -372,7 +373,8 @@ class _SkinArrays:
 # public API
 
 
-def _lead(name: str, t: torch.Tensor, tail: int) -> tuple[int, ...]:
+def _lead(t: torch.Tensor, tail: int) -> tuple[int, ...]:
+    """The leading (batch) dimensions of ``t`` before its last ``tail``."""
     return tuple(t.shape[:t.dim() - tail])
 
 
@@ -408,7 +410,7 @@ def fk(local: torch.Tensor, parents: Sequence[int] | torch.Tensor, *,
     if local.dim() < 3:
         raise InputError(Param("local"), f": expected shape (..., J, 4, 4), got "
                          f"{tuple(local.shape)}")
-    lead, joints = _lead("local", local, 3), local.shape[-3]
+    lead, joints = _lead(local, 3), local.shape[-3]
     p = _parents(parents, joints, local.device)
     if inverse_bind is not None:
         inverse_bind = _float("inverse_bind", inverse_bind, (joints, 4, 4), 0)
@@ -457,8 +459,8 @@ def local_transforms(rotations: torch.Tensor, translations: torch.Tensor, *,
         raise InputError(Param("rotations"), ": expected a tensor of shape "
                          "(..., J, 4) (quaternions) or (..., J, 3) (rotation vectors)")
     rotations = _float("rotations", rotations, tuple(rotations.shape[-2:]))
-    lead, joints = _lead("rotations", rotations, 2), rotations.shape[-2]
-    frames = int(torch.tensor(lead).prod()) if lead else 1
+    lead, joints = _lead(rotations, 2), rotations.shape[-2]
+    frames = math.prod(lead)
     dev = rotations.device
 
     def per_pose(name: str, t: torch.Tensor | None) -> torch.Tensor | None:
@@ -468,7 +470,7 @@ def local_transforms(rotations: torch.Tensor, translations: torch.Tensor, *,
         _same_device({name: t}, dev)
         if t.dim() == 2:
             return t.reshape(1, joints, 3).contiguous()
-        if _lead(name, t, 2) != lead:
+        if _lead(t, 2) != lead:
             raise InputError(Param(name), f": leading shape {tuple(t.shape[:-2])}, the "
                              f"rotations' {lead}")
         return t.reshape(frames, joints, 3).contiguous()
@@ -479,7 +481,7 @@ def local_transforms(rotations: torch.Tensor, translations: torch.Tensor, *,
     root = None
     if root_translation is not None:
         root = _float("root_translation", root_translation, (3,))
-        if _lead("root_translation", root, 1) != lead:
+        if _lead(root, 1) != lead:
             raise InputError(Param("root_translation"), f": expected shape "
                              f"{(*lead, 3)}, got {tuple(root.shape)}")
         _same_device({"root_translation": root}, dev)

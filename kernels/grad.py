@@ -238,6 +238,27 @@ def _pivot_slot(influences: int):
     return pivot_slot
 
 
+@wp.func
+def frame_vertex(t: int, first: int, rows: int, joint_count: int):
+    """``(frame, vertex, frame's first joint)`` of thread ``t`` of a chunk: frame ``t div rows``,
+    vertex ``first + t mod rows``."""
+    f = t // rows
+    return f, first + t - f * rows, f * joint_count
+
+
+def _vertex_kernel(kernel: Callable[..., None], kind: str, method: int, influences: int,
+                   running_sum: bool) -> wp.Kernel:
+    """A point or normal kernel in a Warp module of its own (compiled on first use, alone)."""
+    label = ["lbs", "dqs", "blend", "cor"][method]
+    name = f"grad_{kind}_{label}_k{influences}{'_running_sum' if running_sum else ''}"
+    kernel.__doc__ = (f"Skin {kind} with {label.upper()}, {influences} influences, per (frame, "
+                      "vertex) of a chunk (:func:`frame_vertex`); ``out`` (F·V).")
+    module = f"{__name__}.{name}"
+    wp.set_module_options({"enable_backward": True, "max_unroll": max(32, influences)},
+                          module=module)
+    return wp.kernel(kernel, name=name, module=module)
+
+
 @functools.cache
 def points_kernel(method: int, influences: int, running_sum: bool) -> wp.Kernel:
     """The point kernel of ``method`` for ``influences`` (K) per vertex and a sign rule
@@ -264,11 +285,8 @@ def points_kernel(method: int, influences: int, running_sum: bool) -> wp.Kernel:
         # outputs
         out: wp.array(dtype=wp.vec3),
     ):
-        t = wp.tid()
-        f = t // rows
-        v = first + t - f * rows
+        f, v, o = frame_vertex(wp.tid(), first, rows, joint_count)
         vertex_count = weights.shape[0]
-        o = f * joint_count
         p = points[f * point_stride + v]
         lbs = wp.mat44()
         b = vec8()
@@ -301,16 +319,7 @@ def points_kernel(method: int, influences: int, running_sum: bool) -> wp.Kernel:
                     d = dqs_apply(rotation_only(b), x * (p - c)) + wp.vec3(y[0], y[1], y[2])
             out[f * vertex_count + v] = d
 
-    label = ["lbs", "dqs", "blend", "cor"][method]
-    rule = "_running_sum" if running_sum and dqs_part else ""
-    name = f"grad_points_{label}_k{influences}{rule}"
-    kernel.__doc__ = (f"Skin point (frame, vertex) with {label.upper()}, {influences} influences: "
-                      "thread ``t`` of a chunk, frame ``t div rows``, vertex ``first + t mod "
-                      "rows``; ``out`` (F·V).")
-    module = f"{__name__}.{name}"
-    wp.set_module_options({"enable_backward": True, "max_unroll": max(32, influences)},
-                          module=module)
-    return wp.kernel(kernel, name=name, module=module)
+    return _vertex_kernel(kernel, "points", method, influences, running_sum and dqs_part)
 
 
 @functools.cache
@@ -337,11 +346,8 @@ def normals_kernel(method: int, influences: int, running_sum: bool) -> wp.Kernel
         # outputs
         out: wp.array(dtype=wp.vec3),
     ):
-        t = wp.tid()
-        f = t // rows
-        v = first + t - f * rows
+        f, v, o = frame_vertex(wp.tid(), first, rows, joint_count)
         vertex_count = weights.shape[0]
-        o = f * joint_count
         n = normals[f * normal_stride + v]
         lin = wp.mat33()
         r = wp.quat(0.0, 0.0, 0.0, 0.0)
@@ -374,14 +380,7 @@ def normals_kernel(method: int, influences: int, running_sum: bool) -> wp.Kernel
                 y = d
         out[f * vertex_count + v] = y
 
-    label = ["lbs", "dqs", "blend", "cor"][method]
-    rule = "_running_sum" if running_sum and dqs_part else ""
-    name = f"grad_normals_{label}_k{influences}{rule}"
-    kernel.__doc__ = "Skin normal (frame, vertex), as the point kernel of the same name."
-    module = f"{__name__}.{name}"
-    wp.set_module_options({"enable_backward": True, "max_unroll": max(32, influences)},
-                          module=module)
-    return wp.kernel(kernel, name=name, module=module)
+    return _vertex_kernel(kernel, "normals", method, influences, running_sum and dqs_part)
 
 
 # ---------------------------------------------------------------------------------------------

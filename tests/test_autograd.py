@@ -422,3 +422,19 @@ def test_fit_weights_example():
     r = fit_weights.report(dqskin.load(CESIUM), "lbs", 150, 4, 12)
     assert r["influences"] == 4 and r["negative"] == 0 and r["weight_sum_error"] < 1e-5, r
     assert r["heldout_rms"] < 3e-3 and r["weights_l1"] < 0.3, r
+
+
+@pytest.mark.parametrize("make, method, rule", [
+    ("points_kernel", 3, False), ("points_kernel", 1, True), ("normals_kernel", 2, False)])
+def test_vertex_kernels_compile_for_cuda(make, method, rule, tmp_path):
+    """The kernels made on first use (not seen by tests/test_cuda_codegen.py), forward and
+    adjoint, compile to PTX: COR (all the point code), DQS with the running sum, blended
+    normals."""
+    import warp as wp
+
+    from dqskin.kernels import grad
+
+    kernel = getattr(grad, make)(method, 4, rule)
+    paths = wp.compile_aot_module(kernel.module.name, arch=[90], use_ptx=True,
+                                  module_dir=tmp_path)
+    assert any(p.suffix == ".ptx" and p.stat().st_size > 1000 for p in paths), paths

@@ -11,10 +11,12 @@ in float32, the usual PyTorch formulation: LBS gathers each vertex's (B, V, K, 3
 contracts them with ``einsum``; DQS converts the joints' rotation matrices to quaternions
 (Shepperd), gathers the (B, V, K, 8) dual quaternions, flips their signs against the
 largest-weight joint's, blends with ``einsum`` and applies the normalized blend. dqskin's DQS
-also does what the baseline leaves out: the polar decomposition of every transform and the
-blend of the scale/shear residuals. The two run interleaved (A, B, A, B, ...), the best of
-``--repeat`` steps each after a warm-up, in the same process and thread count (PyTorch's intra-op
-threads and dqskin's CPU threads both the core count unless set). Prints a table of milliseconds
+also does what that baseline leaves out: the polar decomposition of every transform and the
+blend of the scale/shear residuals; row ``dqs+S`` times the reference doing the same (dqskin's
+semantics: Newton's polar iteration, the residuals gathered and blended). The two run
+interleaved (A, B, A, B, ...), the best of ``--repeat`` steps each after three warm-up steps,
+in the same process and thread count (PyTorch's intra-op threads and dqskin's CPU threads both
+the core count unless set). Prints a table of milliseconds
 per step and the speed-up; ``--json`` writes it.
 """
 
@@ -74,13 +76,16 @@ def main():
                 lambda p, i, w, x: ref.lbs(p, i, w, x)),
         "dqs": (lambda p, i, w, x: autograd.skin(p, i, w, x, "dqs"),
                 lambda p, i, w, x: ref.dqs(p, i, w, x, rigid=True)),
+        "dqs+S": (lambda p, i, w, x: autograd.skin(p, i, w, x, "dqs"),
+                  lambda p, i, w, x: ref.dqs(p, i, w, x)),
     }
     rows = []
     for batch in args.batches:
         data = rig(args.points, args.joints, args.influences, batch, args.device)
         for name, (ours, theirs) in methods.items():
-            step(ours, *data)  # warm-up: kernels compiled and loaded
-            step(theirs, *data)
+            for _ in range(3):  # warm-up: kernels compiled and loaded, buffers allocated
+                step(ours, *data)
+                step(theirs, *data)
             a, b = [], []
             for _ in range(args.repeat):
                 a.append(step(ours, *data))
@@ -88,7 +93,7 @@ def main():
             rows.append({"method": name, "batch": batch, "dqskin_ms": 1e3 * min(a),
                          "torch_ms": 1e3 * min(b), "speedup": min(b) / min(a)})
             r = rows[-1]
-            print(f"{name:4s} B={batch:<3d} dqskin {r['dqskin_ms']:8.1f} ms   torch "
+            print(f"{name:5s} B={batch:<3d} dqskin {r['dqskin_ms']:8.1f} ms   torch "
                   f"{r['torch_ms']:8.1f} ms   {r['speedup']:5.2f}x", flush=True)
     info = {"points": args.points, "joints": args.joints, "influences": args.influences,
             "device": args.device, "torch": torch.__version__,
