@@ -288,9 +288,15 @@ def points_kernel(method: int, influences: int, running_sum: bool) -> wp.Kernel:
         f, v, o = frame_vertex(wp.tid(), first, rows, joint_count)
         vertex_count = weights.shape[0]
         p = points[f * point_stride + v]
+        y = p  # what the residuals scale: the point, or (COR) its offset from the center
+        c = wp.vec3()
+        if wp.static(method == COR):
+            if has_center[v] != 0:
+                c = centers[v]
+                y = p - c
         lbs = wp.mat44()
         b = vec8()
-        x = wp.mat33()  # Σ wᵢ·Sᵢ
+        ys = wp.vec3()  # Σ wᵢ·Sᵢ·y
         if wp.static(dqs_part):
             pv = dqs[o + indices[v, pivot_slot(weights, v)]]
         for k in range(wp.static(influences)):
@@ -303,20 +309,23 @@ def points_kernel(method: int, influences: int, running_sum: bool) -> wp.Kernel:
                     b = dq_blend_add(b, dqs[j], w, b)
                 else:
                     b = dq_blend_add(b, dqs[j], w, pv)
-                x = x + residuals[j] * w
+                ys = ys + (residuals[j] * y) * w
         if wp.static(method == LBS):
-            y = lbs * wp.vec4(p[0], p[1], p[2], 1.0)
-            out[f * vertex_count + v] = wp.vec3(y[0], y[1], y[2])
+            h = lbs * wp.vec4(p[0], p[1], p[2], 1.0)
+            out[f * vertex_count + v] = wp.vec3(h[0], h[1], h[2])
         else:
-            d = dqs_apply(b, x * p)
-            if wp.static(method == BLEND):
-                y = lbs * wp.vec4(p[0], p[1], p[2], 1.0)
-                d = wp.vec3(y[0], y[1], y[2]) * (1.0 - blend[v]) + d * blend[v]
+            d = wp.vec3()
             if wp.static(method == COR):
                 if has_center[v] != 0:
-                    c = centers[v]
-                    y = lbs * wp.vec4(c[0], c[1], c[2], 1.0)
-                    d = dqs_apply(rotation_only(b), x * (p - c)) + wp.vec3(y[0], y[1], y[2])
+                    h = lbs * wp.vec4(c[0], c[1], c[2], 1.0)
+                    d = dqs_apply(rotation_only(b), ys) + wp.vec3(h[0], h[1], h[2])
+                else:
+                    d = dqs_apply(b, ys)
+            else:
+                d = dqs_apply(b, ys)
+            if wp.static(method == BLEND):
+                h = lbs * wp.vec4(p[0], p[1], p[2], 1.0)
+                d = wp.vec3(h[0], h[1], h[2]) * (1.0 - blend[v]) + d * blend[v]
             out[f * vertex_count + v] = d
 
     return _vertex_kernel(kernel, "points", method, influences, running_sum and dqs_part)
@@ -351,7 +360,7 @@ def normals_kernel(method: int, influences: int, running_sum: bool) -> wp.Kernel
         n = normals[f * normal_stride + v]
         lin = wp.mat33()
         r = wp.quat(0.0, 0.0, 0.0, 0.0)
-        x = wp.mat33()
+        x = wp.vec3()  # Σ wᵢ·Sᵢ·n
         if wp.static(dqs_part):
             ref = rotations[o + indices[v, pivot_slot(weights, v)]]
         for k in range(wp.static(influences)):
@@ -365,12 +374,12 @@ def normals_kernel(method: int, influences: int, running_sum: bool) -> wp.Kernel
                     r = r + q * (w * wp.sign(wp.dot(q, r)))
                 else:
                     r = r + q * (w * wp.sign(wp.dot(q, ref)))
-                x = x + residuals[j] * w
+                x = x + (residuals[j] * n) * w
         y = wp.vec3()
         if wp.static(lbs_part):
             y = wp.normalize(lin * n)
         if wp.static(dqs_part):
-            s = x * n
+            s = x
             d = wp.normalize(s)
             if wp.length(r) >= 1.0e-10:
                 d = wp.normalize(wp.quat_rotate(wp.normalize(r), s))
