@@ -248,6 +248,20 @@ def polar_rotation(a: wp.mat33):
 
 
 @wp.func
+def orthonormalize_step(tx: wp.vec3, ty: wp.vec3, tz: wp.vec3):
+    """One iteration of ``GfVec3d::OrthogonalizeBasis`` (see :func:`orthonormalize_columns`):
+    each unit column less its projections on the other two, averaged with itself, normalized."""
+    bx = tx - ty * wp.dot(ty, tx)
+    bx = bx - tz * wp.dot(tz, bx)
+    by = ty - tx * wp.dot(tx, ty)
+    by = by - tz * wp.dot(tz, by)
+    bz = tz - tx * wp.dot(tx, tz)
+    bz = bz - ty * wp.dot(ty, bz)
+    return (wp.normalize((tx + bx) * 0.5), wp.normalize((ty + by) * 0.5),
+            wp.normalize((tz + bz) * 0.5))
+
+
+@wp.func
 def orthonormalize_columns(m: wp.mat33):
     """Orthonormalize the columns of ``m`` exactly as ``GfMatrix3d::Orthonormalize`` does its rows.
 
@@ -258,15 +272,7 @@ def orthonormalize_columns(m: wp.mat33):
     ty = wp.normalize(wp.vec3(m[0, 1], m[1, 1], m[2, 1]))
     tz = wp.normalize(wp.vec3(m[0, 2], m[1, 2], m[2, 2]))
     for _it in range(20):
-        bx = tx - ty * wp.dot(ty, tx)
-        bx = bx - tz * wp.dot(tz, bx)
-        by = ty - tx * wp.dot(tx, ty)
-        by = by - tz * wp.dot(tz, by)
-        bz = tz - tx * wp.dot(tx, tz)
-        bz = bz - ty * wp.dot(ty, bz)
-        cx = wp.normalize((tx + bx) * 0.5)
-        cy = wp.normalize((ty + by) * 0.5)
-        cz = wp.normalize((tz + bz) * 0.5)
+        cx, cy, cz = orthonormalize_step(tx, ty, tz)
         err = wp.length_sq(tx - cx) + wp.length_sq(ty - cy) + wp.length_sq(tz - cz)
         if err < 1.0e-12:
             break

@@ -28,7 +28,8 @@ import warp._src.context as _context
 
 from .._warp import Device
 
-__all__ = ["FRAME_BLOCK", "MIN_WORK", "beside", "cpu_threads", "is_cpu", "launch", "launch_rows"]
+__all__ = ["FRAME_BLOCK", "MIN_WORK", "beside", "cpu_threads", "is_cpu", "launch", "launch_rows",
+           "run_tasks"]
 
 FRAME_BLOCK = 16
 """Frames one thread handles on a (frame block, row) grid: the joints of 16 frames stay in L1
@@ -203,6 +204,16 @@ def _pool_map(tasks):
     pool = _get_pool()
     for fut in [pool.submit(*t) for t in tasks]:
         fut.result()
+
+
+def run_tasks(tasks: Sequence[Callable[[], None]]) -> None:
+    """Run ``tasks`` at once on the CPU thread pool and wait for them all (one task, or from a
+    pool thread: in turn on this thread)."""
+    if len(tasks) <= 1 or threading.current_thread().name.startswith("dqskin"):
+        for t in tasks:
+            t()
+        return
+    _pool_map([(t,) for t in tasks])
 
 
 def beside(fn: Callable[[], _A], main: Callable[[], _B]) -> tuple[_A, _B]:
