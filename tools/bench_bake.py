@@ -52,7 +52,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "assets"
 DEFAULT_ASSET = SHARED / "usd-wg" / "CesiumMan" / "CesiumMan.usdz"
 IMPLS = ("usdskel", "single", "clips0", "clips1", "clips2", "clips0t1", "clips1t1", "clips2t1",
-         "single+nv", "clips2+nv")
+         "single+n", "single+nv", "clips2+nv")
 
 
 def find_brainstem():
@@ -115,6 +115,80 @@ def make_crowd(long_clip, copies, out, offset=1.1):
     stage.Save()
 
 
+def make_many_meshes(asset, frames, out, meshes=59, points=34_000, step=0.37, seed=0):
+    """A BrainStem-shaped stand-in (one skeleton, ``meshes`` meshes of varied sizes, about
+    ``points`` points in all, ``frames`` samples of its own) cut from ``asset``'s one skinned
+    mesh (CesiumMan). Frame ``f`` poses the skeleton as the asset's animation at
+    ``step * f`` past its start (wrapped: a slow walk, every pose its own, with no repeating
+    cycle, so that no two frames' normals are equal: a crate file stores each distinct array
+    once). Mesh ``i`` is a run of the asset's triangles (sizes spread geometrically, 1:40, in a
+    shuffled order) with its points, normals (the ``normals`` attribute: UsdSkel's bake skins
+    it, not ``primvars:normals``), UVs and joint influences, its rest points moved ``i``
+    millimetres along the up axis so that no two meshes hold the same arrays."""
+    from pxr import Usd, UsdGeom, UsdSkel, Vt
+    stage = Usd.Stage.Open(Usd.Stage.Open(str(asset)).Flatten())
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdSkel.Animation):
+            continue
+        anim = UsdSkel.Animation(prim)
+        for attr in (anim.GetTranslationsAttr(), anim.GetRotationsAttr(), anim.GetScalesAttr()):
+            keys = attr.GetTimeSamples()
+            if len(keys) < 2:
+                continue
+            span = keys[-1] - keys[0]
+            values = [attr.Get(keys[0] + (step * f) % span) for f in range(frames)]
+            attr.Clear()
+            for f, value in enumerate(values):
+                attr.Set(value, keys[0] + f)
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(frames)
+    src = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
+    mesh, parent = UsdGeom.Mesh(src), src.GetParent().GetPath()
+    rest = np.asarray(mesh.GetPointsAttr().Get(), np.float32)
+    tris = np.asarray(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)
+    pv = {p.GetPrimvarName(): p for p in UsdGeom.PrimvarsAPI(src).GetPrimvars()}
+    per_vertex = {n: (p, np.asarray(p.Get()), p.GetElementSize()) for n, p in pv.items()
+                  if p.GetInterpolation() == "vertex"}
+    rng = np.random.default_rng(seed)
+    sizes = np.geomspace(1.0, 40.0, meshes)
+    rng.shuffle(sizes)
+    # triangles per mesh for about ``points`` points (a run of CesiumMan's triangles holds
+    # about 1.75 points a triangle: its points are shared by fewer triangles than in the whole)
+    sizes = np.maximum(8, sizes / sizes.sum() * points / 1.75).astype(int)
+    skel_rel = UsdSkel.BindingAPI(src).GetSkeletonRel().GetTargets()
+    binding = UsdSkel.BindingAPI(src)
+    geom_bind = binding.GetGeomBindTransformAttr().Get()
+    method = pv.get("skel:skinningMethod")
+    start = 0
+    for i, n in enumerate(sizes):
+        faces = tris[np.arange(start, start + n) % len(tris)]
+        start += n
+        used, local = np.unique(faces, return_inverse=True)
+        m = UsdGeom.Mesh.Define(stage, parent.AppendChild(f"Part_{i:02d}"))
+        pts = rest[used] + np.float32(0.001 * i) * np.array([0, 0, 1], np.float32)
+        m.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
+        m.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(faces)))
+        m.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(local.reshape(-1).astype(np.int32)))
+        m.CreateSubdivisionSchemeAttr("none")
+        b = UsdSkel.BindingAPI.Apply(m.GetPrim())
+        b.CreateSkeletonRel().SetTargets(skel_rel)
+        b.CreateGeomBindTransformAttr(geom_bind)
+        api = UsdGeom.PrimvarsAPI(m.GetPrim())
+        for name, (p, values, size) in per_vertex.items():
+            sub = type(p.Get()).FromNumpy(np.ascontiguousarray(
+                values.reshape(len(rest), -1)[used].reshape((-1,) + values.shape[1:])))
+            if name == "normals":  # as the ``normals`` attribute, which UsdSkel also skins
+                m.CreateNormalsAttr(sub)
+                m.SetNormalsInterpolation("vertex")
+            else:
+                api.CreatePrimvar(name, p.GetTypeName(), "vertex", size).Set(sub)
+        if method is not None:
+            api.CreatePrimvar("skel:skinningMethod", method.GetTypeName(),
+                              "constant").Set(method.Get())
+    stage.RemovePrim(src.GetPath())
+    stage.GetRootLayer().Export(str(out))
+
+
 def import_usdskel():
     import importlib
     for name in ("pxr.Usd", "pxr.UsdSkel"):
@@ -149,12 +223,13 @@ def run_dqskin(src, dst, which):
     from dqskin.distributed import bake_clips
     from dqskin.readers import load
     nv = which.endswith("+nv")
-    kind = which.removesuffix("+nv")
+    kind, _, extra = which.partition("+")
+    normals = nv or extra == "n"
     workers, _, threads = kind[5:].partition("t")
     scene = load(src)
     gc.freeze()  # as `dqskin skin` does once its input is loaded
     if kind == "single":
-        bake(scene, dst, method="lbs", normals=nv, velocities=nv, clips=False, force=True)
+        bake(scene, dst, method="lbs", normals=normals, velocities=nv, clips=False, force=True)
         return {}
     if threads and not int(workers):  # in this process: the budget a one-thread worker gets
         from pxr import Work
