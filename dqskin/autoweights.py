@@ -53,7 +53,7 @@ import warp as wp
 from . import cache as _cache
 from ._warp import Device, resolve_device
 from .errors import InputError, Param
-from .influences import weight_order
+from .influences import check_influences, weight_order
 from .kernels import bone_heat as BH
 from .skeleton import Skeleton
 
@@ -428,14 +428,20 @@ def automatic_weights(points: npt.ArrayLike, faces: npt.ArrayLike, skeleton: Ske
 
 
 def _cached(path, vertex_count, joint_count, max_influences):
-    """The cached ``(indices, weights)`` at ``path`` if they fit (shapes, dtypes, indices in
-    range, finite weights), else None."""
+    """The cached ``(indices, weights)`` at ``path`` if they are what :func:`automatic_weights`
+    returns (shapes, dtypes, indices in range, weights finite, non-negative and summing to 1:
+    :func:`dqskin.influences.check_influences`), else None (a damaged or foreign entry is a
+    miss, computed again)."""
     K = min(int(max_influences), joint_count)
     z = _cache.load(path, {"joint_indices": ((vertex_count, K), np.int32),
                            "joint_weights": ((vertex_count, K), np.float32)})
     if z is None:
         return None
     idx, w = z["joint_indices"], z["joint_weights"]
-    if idx.size and (idx.min() < 0 or idx.max() >= joint_count or not np.isfinite(w).all()):
+    try:
+        check_influences(idx, w, vertex_count, joint_count)
+    except InputError:
+        return None
+    if idx.size and not np.allclose(w.sum(axis=1, dtype=np.float64), 1.0, rtol=0, atol=1e-4):
         return None
     return idx, w

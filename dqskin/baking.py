@@ -126,6 +126,15 @@ class BakeSettings:
     inputs : tuple of paths
         Other files the scene was read from (a mesh, a BVH, a weights file): like
         ``scene.path``, no output may replace them.
+    fps : float or None
+        Output frame rate (:func:`dqskin.times.frame_rate`; default the scene's own): the
+        frame numbers of per-frame files are ``times`` in frames at this rate, and a USD cache
+        of a scene that is not a USD stage has these frame numbers as time codes and this rate
+        as ``timeCodesPerSecond`` and ``framesPerSecond``.
+    prims : str or None
+        Which meshes are skinned and written (:func:`dqskin.selection.select_meshes`:
+        comma-separated globs, ``!`` excluding); None: all. A USD cache deactivates the skinned
+        prims left out; value clips hold them all (refused).
     """
 
     chunk: int | None = None
@@ -136,6 +145,8 @@ class BakeSettings:
     scheduler: str | None = None
     resume: bool = False
     inputs: tuple = ()
+    fps: float | None = None
+    prims: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("chunk", "workers"):
@@ -169,6 +180,9 @@ class BakeSettings:
         if not paths and given or not all(isinstance(p, (str, os.PathLike)) for p in paths):
             raise InputError(Param("inputs", given), ": expected a sequence of paths")
         object.__setattr__(self, "inputs", paths)
+        if self.fps is not None:
+            from .times import check_fps
+            object.__setattr__(self, "fps", check_fps(self.fps))
 
     @property
     def distributed(self) -> bool:
@@ -185,15 +199,15 @@ def check_clip_arguments(out: str | Path, settings: BakeSettings,
     anything is loaded (each field alone is checked by :class:`BakeSettings` and
     :class:`~dqskin.options.SkinOptions`): clips or their options (``workers``, ``scheduler``,
     ``resume``) with a non-USD ``out``, those options with ``clips=False``, ``workers`` with
-    ``scheduler``, ``resume`` with ``force``, a USD cache in a space other than "local"
-    (its points sit under the source's prims, whose transforms still apply), and clips of an
-    ``out`` whose path USD cannot name in clip metadata
+    ``scheduler``, ``resume`` with ``force``, a USD cache in skeleton space (its points sit
+    under the source's prims, whose transforms take them to the world: "local" and "world" make
+    the same cache), and clips of an ``out`` whose path USD cannot name in clip metadata
     (:func:`~dqskin.writers.usd_clips.check_clip_name`: a backslash, a newline)."""
     workers, scheduler, resume = settings.workers, settings.scheduler, settings.resume
-    if options is not None and options.space != "local" and output_kind(out) == "usd":
+    if options is not None and options.space == "skeleton" and output_kind(out) == "usd":
         raise InputError(Param("space", options.space), ": a USD point cache holds each prim's "
-                         "local points (space='local'); write .npz or per-frame files for "
-                         "other spaces")
+                         "local points, placed in the world by its prims; write .npz or "
+                         "per-frame files for skeleton space")
     asked = settings.distributed
     if output_kind(out) != "usd" and (settings.clips or asked):
         raise InputError(Param("out", out), ": value clips, ", Param("workers"), ", ",
@@ -233,17 +247,21 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
     scene : dqskin.Scene, str or Path
         A loaded scene, or a file to load (:func:`dqskin.load`).
     out : str or Path
-        ``.usd/.usda/.usdc`` (USD input only: a point cache of the source stage with points,
-        extent, and normals and velocities as asked), ``.npz`` (points and faces), or a per-frame
-        pattern ``dir/f_{:04d}.obj`` (``.obj .ply .stl .off .glb``; all meshes in one file; a
-        name without ``{}`` only for one frame; ``.obj/.ply/.glb`` also get skinned normals and
-        UVs, see :mod:`dqskin.writers.mesh_files`). Per-frame files are committed together.
+        ``.usd/.usda/.usdc`` (a point cache with points, extent, and normals and velocities as
+        asked: of the source stage for a USD input, else of a UsdSkel rig of the scene with
+        frame numbers as time codes), ``.npz`` (points and faces), or a per-frame pattern
+        ``dir/f_{:04d}.obj`` (``.obj .ply .stl .off .glb``; all meshes in one file; a name
+        without ``{}`` only for one frame; ``.obj/.ply/.glb`` also get skinned normals, UVs and
+        the base-colour material, see :mod:`dqskin.writers.mesh_files`). Per-frame files are
+        committed together. Points are in ``options.space``: world by default (the points a
+        USD cache of the same bake shows through its prims' local-to-world).
     times : (F,) float, optional
-        Default ``scene.times``.
+        Asset times (``scene.times`` unit); default ``scene.times``. Per-frame files are
+        numbered, and a USD cache of a non-USD scene timed, in frames at ``settings.fps``.
     options : dqskin.SkinOptions, optional
-        What is skinned (default :meth:`SkinOptions.baking`: normals and velocities on; they
-        are written into USD caches, normals into ``.obj/.ply/.glb`` files). The method and
-        sign rule also skin the rigidly bound prims of a USD cache.
+        What is skinned (default :meth:`SkinOptions.baking`: normals and velocities on, world
+        space; they are written into USD caches, normals into ``.obj/.ply/.glb`` files). The
+        method and sign rule also skin the rigidly bound prims of a USD cache.
     settings : BakeSettings, optional
         How it is written (chunks, clips, workers, ``force``, ...).
     **changes
@@ -278,7 +296,9 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         from .readers import load
         scene = load(scene)
     t = scene.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
-    job = _Job(scene, out, t, opts, settings)
+    from .selection import select_meshes
+    scene, dropped = select_meshes(scene, settings.prims)
+    job = _Job(scene, out, t, opts, settings, tuple(dropped))
     return {"usd": _bake_usd, "npz": _bake_npz, "frames": _bake_frames}[kind](job)
 
 
@@ -290,6 +310,7 @@ class _Job(NamedTuple):
     times: np.ndarray
     options: SkinOptions
     settings: BakeSettings
+    dropped: tuple[str, ...] = ()  # meshes left out by settings.prims
 
     @property
     def sources(self) -> list[str | Path]:
@@ -316,12 +337,16 @@ class _Job(NamedTuple):
 
 
 def _bake_usd(job: _Job) -> str:
-    """A USD point cache: value clips or one layer."""
-    scene, out, t, opts, s = job
+    """A USD point cache: value clips or one layer; a scene that is not a USD stage through a
+    rig of it (:func:`_bake_usd_scene`)."""
+    opts = job.options.replace(space="local")  # (the prims above place the points)
+    job = job._replace(options=opts)
+    scene, out, t, _, s, dropped = job
+    method = opts.method or "asset method"
     if format_of(scene.path) is not usd:
-        raise InputError(Param("out", out), ": a USD point cache copies the input stage, so "
-                         "it needs a USD input; for glTF write .npz or per-frame "
-                         ".obj/.ply/.glb files")
+        frames = _bake_usd_scene(job)
+        return (f"wrote {out}: {job.counts(frames)} ({method}"
+                f"{', velocities' if opts.velocities else ''})")
     # a USD cache holds each time once (np.unique would import numpy.ma)
     counts = job.counts(int(np.count_nonzero(np.diff(np.sort(t)))) + 1)
     method = opts.method or "asset method"
@@ -333,6 +358,10 @@ def _bake_usd(job: _Job) -> str:
                              f"than the {USDA_MAX_BYTES >> 20} MiB a .usda layer takes (a text "
                              "layer is held in memory whole); write .usdc or .usd (one layer of "
                              "any size), or value clips with ", Param("clips", True))
+    if clips and dropped:
+        raise InputError(Param("prims", s.prims), ": value clips hold every skinned prim of "
+                         "the source; bake one layer (", Param("clips", False), ") to leave "
+                         "prims out")
     if clips:
         from .distributed import bake_clips
         done = bake_clips(scene, out, t, opts, s)
@@ -343,10 +372,71 @@ def _bake_usd(job: _Job) -> str:
     return f"wrote {out}: {counts} ({method}{', velocities' if wrote_velocities else ''})"
 
 
+def _bake_usd_scene(job: _Job) -> int:
+    """A single-layer USD point cache of a scene read from any other format (glTF, a mesh bound
+    to a BVH, ...): the cache is a UsdSkel rig of the scene (:func:`~.writers.usd_rig.rig_stage`,
+    its meshes, topology, UVs and normals), unbound, with the skinned samples of the scene
+    itself in world space (the rig's placement groups cleared); time codes are the frame
+    numbers at the output rate (:attr:`BakeSettings.fps`). Returns the number of frames
+    written."""
+    import tempfile
+
+    from pxr import Sdf, UsdGeom
+
+    from .times import frame_rate
+    from .writers.usd_rig import rig_stage
+    scene, out, t, opts, s, _ = job
+    if s.clips or s.distributed:
+        raise InputError(Param("out", out), ": value clips (", Param("clips", True), ", ",
+                         Param("workers"), ", ", Param("scheduler"), ", ", Param("resume", True),
+                         f") are baked from a USD stage and {scene.path} is not one; bake one "
+                         "layer, or write it as a UsdSkel rig first "
+                         "(dqskin.writers.usd_rig.write_rig) and bake that")
+    check_output(out, job.sources, s.force)
+    rate = frame_rate(scene, s.fps)
+    codes = t * rate / float(scene.time_codes_per_second)
+    whole = np.round(codes)
+    codes = np.where(np.abs(codes - whole) <= 1e-6, whole, codes)
+    if len(np.unique(codes)) != len(codes) or np.any(np.diff(codes) <= 0):
+        raise InputError(Param("times"), ": a USD cache needs increasing times")
+    stage, paths = rig_stage(scene, t, codes, rate)
+    opts = opts.replace(space="world")
+    for path in paths.values():  # the points are in the world: nothing above them moves
+        for above in Sdf.Path(path).GetParentPath().GetPrefixes():
+            prim = stage.GetPrimAtPath(above)
+            if prim.IsA(UsdGeom.Xformable):
+                UsdGeom.Xformable(prim).ClearXformOpOrder()
+    with_normals = {p for p in paths.values()
+                    if stage.GetPrimAtPath(p).GetAttribute("normals").HasAuthoredValue()}
+    named = dataclasses.replace(
+        scene, times=codes, time_codes_per_second=rate, frame_rate=None, _skinners={},
+        meshes=[dataclasses.replace(m, name=paths[m.name], normals=m.normals
+                                    if paths[m.name] in with_normals else None)
+                for m in scene.meshes])
+
+    def renamed(res: SkinnedFrames, sl: slice) -> SkinnedFrames:
+        check_skinned(scene.path, res)
+        return SkinnedFrames(
+            codes[sl], {paths[k]: v for k, v in res.points.items()},
+            {paths[k]: v for k, v in res.normals.items() if paths[k] in with_normals},
+            {paths[k]: v for k, v in res.velocities.items()})
+
+    with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as folder:
+        rig = Path(folder) / "rig.usdc"
+        stage.GetRootLayer().Export(str(rig))
+        with usd_cache.UsdCacheWriter(named, out, opts, source_path=rig,
+                                      overwrite=s.force) as writer:
+            writer.cache.src = os.fspath(scene.path)  # (what the cache says it was made of)
+            writer.write_chunks((renamed(res, sl) for sl, res in
+                                 job.chunks(s.chunk or usd_cache.chunk_frames(scene, opts),
+                                            opts)), checked=True)
+    return len(t)
+
+
 def _bake_usd_layer(job: _Job) -> bool:
     """A single-layer USD cache (replacing a clip bake of ``out`` with ``force``); whether it
     holds velocities."""
-    scene, out, t, opts, s = job
+    scene, out, t, opts, s, dropped = job
     src = scene.path
     check_output(out, job.sources, s.force)
     from .writers import clip_lock, usd_clips
@@ -364,7 +454,8 @@ def _bake_usd_layer(job: _Job) -> bool:
     size = s.chunk or usd_cache.chunk_frames(scene, opts)
     with clip_lock.bake_lock(out) if clips else contextlib.nullcontext():
         replaces = clips and usd_clips.holds_clip_bake(out)
-        with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force, final=True) as writer:
+        with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force, final=True,
+                                      dropped=dropped) as writer:
             if replaces and not s.force:  # (an unfinished one: out itself does not exist)
                 raise OutputExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
                                         f"of {Path(out).name}; complete it with ",
@@ -379,11 +470,28 @@ def _bake_usd_layer(job: _Job) -> bool:
     return wrote_velocities
 
 
+def _memory_bytes() -> int:
+    """Physical memory of this machine in bytes (1 TiB when it cannot be told)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):
+        return 1 << 40
+
+
 def _bake_npz(job: _Job) -> str:
-    """One ``.npz`` of every mesh's points."""
-    scene, out, t, opts, s = job
+    """One ``.npz`` of every mesh's points (held in memory: refused beyond half of it), with
+    the frame numbers, rate, space, up axis and unit (:func:`dqskin.writers.npz.save_npz`)."""
+    scene, out, t, opts, s, _ = job
     check_output(out, job.sources, s.force)
     names = [m.name for m in scene.meshes]
+    need = 12 * len(t) * sum(len(m.points) for m in scene.meshes)
+    if need > _memory_bytes() // 2:
+        raise LimitError(Param("out", out), f": {len(t):,} frames of "
+                         f"{sum(len(m.points) for m in scene.meshes):,} points need "
+                         f"{need / 2**30:.1f} GiB in memory, more than half of this machine's; "
+                         "write a USD cache or per-frame files, or select fewer frames")
+    from .times import frame_rate
+    rate = frame_rate(scene, s.fps)
     with atomic_path(out, overwrite=s.force, final=True) as tmp:  # claimed for the whole run
         pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32) for m in scene.meshes}
         for sl, res in job.chunks(s.chunk or usd_cache.CHUNK_FRAMES,
@@ -391,32 +499,60 @@ def _bake_npz(job: _Job) -> str:
             check_skinned(scene.path, res)
             for name in names:
                 pts[name][sl] = res.points[name]
-        npz.save_npz(tmp, t, names, [pts[n] for n in names], [m.faces for m in scene.meshes])
+        npz.save_npz(tmp, t, names, [pts[n] for n in names], [m.faces for m in scene.meshes],
+                     info=dict(frames=t * rate / float(scene.time_codes_per_second), fps=rate,
+                               space=opts.space, up_axis=scene.up_axis,
+                               meters_per_unit=float(scene.meters_per_unit)))
     return f"wrote {out}: {job.counts()}"
+
+
+def _to_gltf(scene: Scene) -> np.ndarray | None:
+    """(4, 4) scene units and up axis → glTF's metres and +Y up (None: the identity)."""
+    m = np.eye(4) * float(scene.meters_per_unit)
+    m[3, 3] = 1.0
+    if scene.up_axis == "Z":  # (x, y, z) → (x, z, -y)
+        m = m @ np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], float)
+    return None if np.array_equal(m, np.eye(4)) else m
 
 
 def _bake_frames(job: _Job) -> str:
     """One mesh file per frame (all meshes in each), committed together."""
-    scene, out, t, opts, s = job
+    scene, out, t, opts, s, _ = job
     src = scene.path
-    numbers = _frame_numbers(scene, t)
+    from .readers.materials import base_colors
+    from .times import frame_numbers, frame_rate
+    numbers = frame_numbers(t, scene.time_codes_per_second, frame_rate(scene, s.fps))
     paths = mesh_files.frame_paths(str(out), numbers)
     for p in paths:
         check_output(p, job.sources, s.force)
     gltf_input = format_of(src) is gltf
+    suffix = Path(str(out)).suffix.lower()
     layout = mesh_files.MeshLayout(
-        scene.meshes, Path(str(out)).suffix.lower(), normals=opts.normals,
+        scene.meshes, suffix, normals=opts.normals,
         uv_top_left=gltf_input, uv_interpolation=_uv_interpolation(src))
-    with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=s.force) as writer:
+    if len(layout.meshes) < len(scene.meshes):  # skin only what the files hold
+        job = job._replace(scene=dataclasses.replace(scene, meshes=layout.meshes))
+    colors = base_colors(scene) if suffix in (".obj", ".glb") and layout.uvs is not None else {}
+    groups = [(v, f, colors.get(m.name), m.name)
+              for m, (v, f) in zip(layout.meshes, layout.ranges)]
+    comment = (f"dqskin: {opts.space} space, +{scene.up_axis} up, "
+               f"{float(scene.meters_per_unit):g} m per unit")
+    with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=s.force,
+                                groups=groups, to_gltf=_to_gltf(scene),
+                                comment=comment) as writer:
         for sl, res in job.chunks(s.chunk or usd_cache.CHUNK_FRAMES,
                                   opts.replace(normals=layout.normals, velocities=False)):
             check_skinned(src, res)
             points, nrm = layout.frames(res.points, res.normals)
             writer.write(numbers[sl], points, nrm)
-    extras = [w for w, on in (("normals", layout.normals), ("UVs", layout.uvs is not None)) if on]
+    extras = [w for w, on in (("normals", layout.normals), ("UVs", layout.uvs is not None),
+                              ("materials", any(colors.values()))) if on]
+    mtl = writer.material_path()
     span = f"{paths[0]}" if len(paths) == 1 else f"{paths[0]} … {paths[-1]}"
-    return (f"wrote {_plural(len(paths), 'file')} {span}: {job.counts()}"
-            + (f" ({', '.join(extras)})" if extras else ""))
+    return "\n".join(layout.skipped + [
+        f"wrote {_plural(len(paths), 'file')} {span}: {job.counts()}"
+        + (f" ({', '.join(extras)})" if extras else "")
+        + (f"; materials in {mtl}" if mtl is not None else "")])
 
 
 def _uv_interpolation(path):
@@ -442,7 +578,3 @@ def _usd_uv_interpolation(path):
         return str(pv.GetInterpolation()) if pv else None
     return lookup
 
-
-def _frame_numbers(scene, times):
-    from .times import frame_numbers
-    return frame_numbers(times, seconds=format_of(scene.path) is gltf)

@@ -13,7 +13,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from .errors import InputError
 from .files.atomic import atomic_path
+from .files.inputs import read_npz
 
 __all__ = ["cache_dir", "load", "store"]
 
@@ -34,13 +36,13 @@ def load(path: str | os.PathLike,
     """The arrays of the entry at ``path``, or None when it cannot be used.
 
     ``expected`` maps each array name to ``(shape, dtype)``; ``None`` in a shape matches any
-    length (e.g. ``((V, None), np.int32)``). Any failure to read, a missing array, another shape
+    length (e.g. ``((V, None), np.int32)``). Any failure to read (a FIFO or other non-regular
+    file is not opened: :func:`dqskin.files.inputs.read_npz`), a missing array, another shape
     or dtype is a miss (None), never an exception.
     """
     try:
-        with np.load(path, allow_pickle=False) as z:
-            out = {name: z[name] for name in expected}
-    except Exception:  # noqa: BLE001 — missing, empty, truncated, not a zip, not an array: a miss
+        out = read_npz(path, list(expected), what="cache")
+    except InputError:  # missing, not a regular file, empty, truncated, not a zip, too large
         return None
     for name, (shape, dtype) in expected.items():
         a = out[name]

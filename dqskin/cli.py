@@ -45,6 +45,8 @@ from types import FrameType
 from typing import TYPE_CHECKING, Any, NoReturn
 
 from .errors import DqskinError, InputError, Interrupted, Param
+from .files.inputs import regular_file
+from .terminal import printable
 
 if TYPE_CHECKING:
     from .options import SkinOptions
@@ -168,16 +170,6 @@ def _init_warp(verbose: bool) -> None:
             os.close(saved)
 
 
-def _regular_file(path: str | Path) -> Path:
-    """InputError unless ``path`` is a regular file (a folder, ``/dev/null`` or a FIFO is not)."""
-    p = Path(path)
-    if not p.exists():
-        raise InputError(f"{p}: no such file")
-    if not p.is_file():
-        raise InputError(f"{p}: not a regular file")
-    return p
-
-
 def default_asset() -> Path:
     """The bundled humanoid rig (package data ``dqskin.assets``, made by tools/make_assets.py)."""
     from importlib.resources import files
@@ -195,17 +187,18 @@ def skin_options(args: argparse.Namespace) -> "SkinOptions":
     for the rest)."""
     from .options import CorOptions, SkinOptions
     given = {k: getattr(args, k) for k in ("method", "sign_reference", "interp", "normals",
-                                           "velocities", "device", "space") if hasattr(args, k)}
+                                           "velocities", "device", "space")
+             if getattr(args, k, None) is not None}
     if getattr(args, "cor_exact", False):
         given["cor"] = CorOptions(cluster=None)
     return SkinOptions.baking(**given)
 
 
 def cmd_skin(args: argparse.Namespace) -> int:
-    import tempfile
+    import dataclasses
 
     from .baking import BakeSettings, bake, check_clip_arguments, check_output, output_kind
-    from .times import select_times
+    from .times import frame_rate, select
     output_kind(args.out)
     inputs = _inputs(args)
     if "{" not in str(args.out):  # a per-frame pattern is checked frame by frame by bake
@@ -219,25 +212,25 @@ def cmd_skin(args: argparse.Namespace) -> int:
     options = skin_options(args)
     settings = BakeSettings(chunk=args.chunk, force=args.force, progress=True, clips=args.clips,
                             workers=args.workers, scheduler=args.scheduler, resume=args.resume,
-                            inputs=tuple(inputs))
+                            inputs=tuple(inputs), prims=args.prims)
     check_clip_arguments(args.out, settings, options)  # before loading INPUT
     _checkpoint()
-    with tempfile.TemporaryDirectory(prefix="dqskin-rig-") as rig_dir:  # a USD cache's rig
-        scene = _load_input(args, cache_out=args.out, rig_dir=rig_dir)
-        if _own_process:  # what is loaded lives to the end: no full collection walks it again
-            from .forkserver import freeze_heap
-            freeze_heap()
-        _checkpoint()
-        times = select_times(scene.times, scene.time_codes_per_second, args.frames, args.fps,
-                             args.substeps, max_frames=args.max_frames)
-        print(bake(scene, args.out, times, options=options, settings=settings))
+    scene = _load_input(args, cache_out=args.out)
+    if _own_process:  # what is loaded lives to the end: no full collection walks it again
+        from .forkserver import freeze_heap
+        freeze_heap()
+    _checkpoint()
+    sel = select(scene.times, scene.time_codes_per_second, args.frames, args.fps, args.substeps,
+                 max_frames=args.max_frames, rate=frame_rate(scene), hold=args.hold)
+    settings = dataclasses.replace(settings, fps=sel.rate)
+    print(printable(bake(scene, args.out, sel.times, options=options, settings=settings)))
     return 0
 
 
 def cmd_flatten(args: argparse.Namespace) -> int:
     from .writers.usd_clips import flatten
-    src = _regular_file(args.input)
-    print(f"wrote {flatten(src, args.out, overwrite=args.force)}")
+    src = regular_file(args.input)
+    print(printable(f"wrote {flatten(src, args.out, overwrite=args.force)}"))
     return 0
 
 
@@ -256,13 +249,11 @@ def _inputs(args: argparse.Namespace) -> list[str]:
                            if f is not None and f != "auto"]
 
 
-def _load_input(args: argparse.Namespace, cache_out: str | None = None,
-                rig_dir: str | None = None) -> "Scene":
+def _load_input(args: argparse.Namespace, cache_out: str | None = None) -> "Scene":
     """The scene of ``skin``/``compare``/``rig``: the character file, or with ``--skeleton`` a
     plain mesh bound to a BVH (:func:`dqskin.rigging.rig_mesh`); ``--weights`` replaces the
-    influences (:func:`dqskin.rigging.replace_weights`). ``cache_out``: the cache ``skin`` will
-    write; a USD cache copies a USD stage, so a bound mesh is then written as a UsdSkel rig in
-    the folder ``rig_dir`` (:func:`dqskin.writers.usd_rig.write_rig`) and that rig loaded."""
+    influences (:func:`dqskin.rigging.replace_weights`). ``cache_out``: the output ``skin``
+    will write (named when a BVH alone has no mesh to skin)."""
     import warnings
 
     from . import readers
@@ -273,19 +264,13 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
         raise InputError(f"--scale {args.scale:g}: must be a positive number")
     weights = args.weights
     if weights is not None and weights != "auto":
-        weights = _regular_file(weights)
-    src = _regular_file(args.input)
+        weights = regular_file(weights)
+    src = regular_file(args.input)
     if args.skeleton is not None:
         if readers.format_of(src) is not None and src.suffix.lower() != ".glb":
             raise InputError(f"{src}: --skeleton binds a plain mesh (.obj/.ply/.stl/.off/.glb) "
                              "to a BVH; a character file has its own skeleton (use --weights "
                              "auto to replace its weights)")
-        usd_out = cache_out is not None and Path(cache_out).suffix.lower() in (".usd", ".usda",
-                                                                               ".usdc")
-        if usd_out and rig_dir is None:
-            raise InputError(f"--out {cache_out}: a USD point cache copies a USD input stage; "
-                             f"write the rig first (dqskin rig {src.name} --skeleton "
-                             f"{Path(args.skeleton).name} --out rig.usda)")
         joints = getattr(args, "joints", None)
         as_is = getattr(args, "as_is", False)
         if joints is not None and as_is:
@@ -293,25 +278,21 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
                              "BVH's own")
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always", FitWarning)
-            scene = rig_mesh(src, _regular_file(args.skeleton), weights=weights or "auto",
+            scene = rig_mesh(src, regular_file(args.skeleton), weights=weights or "auto",
                              scale=args.scale, fit="as-is" if as_is else "embed",
-                             joints=None if joints is None else _regular_file(joints),
-                             max_influences=args.max_influences, device=args.device)
+                             joints=None if joints is None else regular_file(joints),
+                             max_influences=args.max_influences,
+                             max_vertices=args.max_vertices, max_input_gib=args.max_input_gib,
+                             device=args.device)
         for w in said:
             if issubclass(w.category, FitWarning):
                 print(f"warning: {w.message}", file=sys.stderr)
-        if usd_out:
-            from .writers.usd_rig import write_rig
-            assert rig_dir is not None, "a USD cache_out comes with a rig_dir"
-            rig = Path(rig_dir) / f"{src.stem or 'mesh'}.usdc"
-            write_rig(scene, rig)
-            scene = readers.load(rig)
         return scene
     if args.scale is not None:
         raise InputError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")
     if getattr(args, "joints", None) is not None:
         raise InputError("--joints places the joints of a --skeleton BVH; it needs --skeleton")
-    scene = readers.load(src, clip=_clip(args.clip))
+    scene = readers.load(src, clip=_clip(args.clip), max_input_gib=args.max_input_gib)
     if cache_out is not None and not scene.meshes and src.suffix.lower() == ".bvh":
         raise InputError(f"{src}: no mesh to skin (a BVH holds a skeleton and its motion); bind "
                          f"a mesh in its rest pose: dqskin skin MESH --skeleton {src.name} "
@@ -319,29 +300,11 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None,
     if weights is not None:
         asset = scene
         scene = replace_weights(scene, weights, max_influences=args.max_influences,
-                                device=args.device)
+                                max_vertices=args.max_vertices,
+                                max_input_gib=args.max_input_gib, device=args.device)
         _print_weight_difference(asset, scene, "automatic" if weights == "auto" else weights.name,
                                  args.device)
-    if (rig_dir is not None and cache_out is not None and src.suffix.lower() == ".fbx"
-            and Path(cache_out).suffix.lower() in (".usd", ".usda", ".usdc")):
-        scene = _on_rig(scene, Path(rig_dir))
     return scene
-
-
-def _on_rig(scene: "Scene", rig_dir: Path) -> "Scene":
-    """An FBX scene to bake as a USD point cache, which copies a USD stage: its UsdSkel rig,
-    written in ``rig_dir``, is the stage (topology, units, up axis, frame rate); the points are
-    still skinned from the FBX scene (its joints' exact transforms, which a rig's TRS joints
-    cannot always hold), its meshes renamed as the rig's prims."""
-    import dataclasses
-
-    from . import readers
-    from .writers.usd_rig import write_rig
-    rig = rig_dir / f"{Path(scene.path).stem or 'character'}.usdc"
-    write_rig(scene, rig)
-    prims = readers.load(rig).meshes
-    meshes = [dataclasses.replace(m, name=r.name) for m, r in zip(scene.meshes, prims)]
-    return dataclasses.replace(scene, path=str(rig), meshes=meshes, _skinners={})
 
 
 def _print_weight_difference(asset: "Scene", scene: "Scene", label: str, device: str | None,
@@ -354,8 +317,9 @@ def _print_weight_difference(asset: "Scene", scene: "Scene", label: str, device:
     t = np.unique(asset.times[np.linspace(0, len(asset.times) - 1,
                                           min(samples, len(asset.times))).round().astype(int)])
     for name, (mean, p95) in skinned_difference(asset, scene, t, device=device).items():
-        print(f"{label} weights vs the asset's on {name} (LBS, {len(t)} times): mean "
-              f"{mean:.3f}%, 95th percentile {p95:.3f}% of its height at the worst time")
+        print(printable(f"{label} weights vs the asset's on {name} (LBS, {len(t)} times): "
+                        f"mean {mean:.3f}%, 95th percentile {p95:.3f}% of its height at the "
+                        "worst time"))
 
 
 def cmd_rig(args: argparse.Namespace) -> int:
@@ -365,7 +329,7 @@ def cmd_rig(args: argparse.Namespace) -> int:
     check_output(args.out, _inputs(args), args.force)
     scene = _load_input(args)
     _checkpoint()
-    print(write_rig(scene, args.out, force=args.force))
+    print(printable(write_rig(scene, args.out, force=args.force)))
     return 0
 
 
@@ -373,52 +337,57 @@ def cmd_info(args: argparse.Namespace) -> int:
     import numpy as np
 
     from . import readers
+    from .times import describe_range, frame_rate
     from .validation import scene_problems
-    src = _regular_file(args.input)
+    src = regular_file(args.input)
     if src.suffix.lower() in readers.LOADER_SUFFIXES["usd"]:
         from . import point_cache
         stage = point_cache.open_stage(src)  # (held: the loader below reuses its layers)
         if point_cache.is_point_cache(stage):
-            print("\n".join(point_cache.info_lines(point_cache.cache_info(stage))))
+            print("\n".join(printable(line) for line in
+                            point_cache.info_lines(point_cache.cache_info(stage))))
             return 0
-    scene = readers.load(src, clip=_clip(args.clip))
-    print(f"{scene.path}")
+    scene = readers.load(src, clip=_clip(args.clip), max_input_gib=args.max_input_gib)
+
+    def say(line: str) -> None:  # every line holds names from the input: printed safely
+        print(printable(line))
+
+    say(f"{scene.path}")
     t = np.asarray(scene.times)
     tcps = scene.time_codes_per_second
     unit = "s" if tcps == 1.0 else f"time codes @ {tcps:g}/s"
-    print(f"  time range: {t[0]:g} .. {t[-1]:g} ({len(t)} samples, {unit}); "
-          f"up axis {scene.up_axis}, "
-          f"{scene.meters_per_unit:g} m/unit")
+    say(f"  time range: {describe_range(t, tcps, frame_rate(scene))}; {len(t)} samples "
+        f"({t[0]:g} .. {t[-1]:g} {unit}); up axis {scene.up_axis}, "
+        f"{scene.meters_per_unit:g} m/unit")
     if Path(scene.path).suffix.lower() == ".bvh":
         from .readers import bvh
-        for line in bvh.summary_lines(bvh.read_bvh(scene.path), flag):
-            print(f"  {line}")
+        motion = bvh.read_bvh(scene.path, max_input_gib=args.max_input_gib)
+        for line in bvh.summary_lines(motion, flag):
+            say(f"  {line}")
     if scene.clips:
-        print(f"  clips: {', '.join(scene.clips)} (loaded: {scene.clip})")
+        say(f"  clips: {', '.join(scene.clips)} (loaded: {scene.clip})")
     problems = []
     for si, skel in enumerate(scene.skeletons):
         anim = scene.animations[si]
-        print(f"  skeleton {si} {skel.name!r}: {skel.joint_count} joints, "
-              f"{'animated' if anim is not None else 'rest pose only'}")
+        say(f"  skeleton {si} {skel.name!r}: {skel.joint_count} joints, "
+            f"{'animated' if anim is not None else 'rest pose only'}")
         children: dict[int, list[int]] = {j: [] for j in range(-1, skel.joint_count)}
         for j, p in enumerate(skel.parents):
             children[int(p)].append(j)
-
-        def tree(j, depth):
-            print("    " + "  " * depth + skel.joint_names[j].split("/")[-1])
-            for c in children[j]:
-                tree(c, depth + 1)
-        for root in children[-1]:
-            tree(root, 0)
+        stack = [(root, 0) for root in reversed(children[-1])]  # depth first, no recursion
+        while stack:
+            j, depth = stack.pop()
+            say("    " + "  " * depth + skel.joint_names[j].split("/")[-1])
+            stack.extend((c, depth + 1) for c in reversed(children[j]))
     for m in scene.meshes:
         w = np.asarray(m.joint_weights, np.float64)
         sums = w.sum(1)
         nnz = (w > 0).sum(1)
-        print(f"  mesh {m.name!r}: {len(m.points)} points, {len(m.faces)} triangles, skeleton "
-              f"{m.skeleton}, method {m.skinning_method}, "
-              f"{m.joint_indices.shape[1]} influence slots")
-        print(f"    influences per point: min {nnz.min()}, mean {nnz.mean():.2f}, max {nnz.max()}; "
-              f"weight sums: min {sums.min():.4f}, max {sums.max():.4f}")
+        say(f"  mesh {m.name!r}: {len(m.points)} points, {len(m.faces)} triangles, skeleton "
+            f"{m.skeleton}, method {m.skinning_method}, "
+            f"{m.joint_indices.shape[1]} influence slots")
+        say(f"    influences per point: min {nnz.min()}, mean {nnz.mean():.2f}, max {nnz.max()}; "
+            f"weight sums: min {sums.min():.4f}, max {sums.max():.4f}")
         if np.any(np.abs(sums - 1) > 1e-3):
             problems.append(f"{m.name}: {(np.abs(sums - 1) > 1e-3).sum()} points with weights not "
                             "summing to 1")
@@ -427,9 +396,9 @@ def cmd_info(args: argparse.Namespace) -> int:
     # what skin would refuse; Warp only if the points must be skinned to know
     problems += scene_problems(scene, device=args.device,
                                before_skinning=lambda: _quiet_warp(args.verbose))
-    print("  problems: " + ("none" if not problems else ""))
+    say("  problems: " + ("none" if not problems else ""))
     for p in problems:
-        print(f"    - {p}")
+        say(f"    - {p}")
     return 0
 
 
@@ -437,7 +406,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from . import readers
     from .baking import bake
     from .report.compare import run_compare
-    asset = _regular_file(args.asset) if args.asset else default_asset()
+    asset = regular_file(args.asset) if args.asset else default_asset()
     if not Path(asset).is_file():
         raise InputError(f"{asset}: demo asset not found")
     out_dir = Path(args.out)
@@ -467,18 +436,22 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     """``dqskin compare``: :func:`dqskin.report.compare.run_compare`, then a summary."""
     from .report.compare import RenderSettings, run_compare, summary_lines
-    from .times import parse_frames
+    from .times import frame_rate, select
     out = Path(args.out).resolve()
     for src in _inputs(args):  # the report replaces its folder whole
         p = Path(src).resolve()
         if p == out or out in p.parents:
             raise InputError(f"--out {args.out}: refusing to write the report over the input "
                              f"{src}")
-    source = _load_input(args) if _rigging(args) else _regular_file(args.input)
+    scene = _load_input(args)  # (the limits of the command line apply to every input)
+    source: "Scene | Path" = scene
+    times = None
+    if args.frames is not None:  # frames at the asset's frame rate, as for skin
+        times = select(scene.times, scene.time_codes_per_second, args.frames,
+                       max_frames=args.max_frames, rate=frame_rate(scene)).times
     result = run_compare(
         source, args.out, methods=[m.strip() for m in args.methods.split(",") if m.strip()],
-        frames=None if args.frames is None else parse_frames(args.frames,
-                                                             max_frames=args.max_frames),
+        frames=times,
         options=skin_options(args), render=RenderSettings(
             views=tuple(v.strip() for v in args.views.split(",") if v.strip()),
             width=args.width, supersample=args.supersample, adaptive=not args.full_supersample,
@@ -486,10 +459,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         progress=not args.quiet, force=args.force,
         sweeps_dir=None if args.no_sweeps else "default", clip=_clip(args.clip),
         viewer_frames=args.viewer_frames)
-    print(f"wrote {Path(args.out) / 'report.html'} ({len(result['frames'])} frames × "
-          f"{len(result['methods'])} methods × {len(result['views'])} views, "
-          f"{result['timing_s']['total']:.1f} s)")
-    print("\n".join(summary_lines(result)))
+    print(printable(f"wrote {Path(args.out) / 'report.html'} ({len(result['frames'])} frames "
+                    f"× {len(result['methods'])} methods × {len(result['views'])} views, "
+                    f"{result['timing_s']['total']:.1f} s)"))
+    print("\n".join(map(printable, summary_lines(result))))
     return 0
 
 
@@ -510,8 +483,9 @@ def _add_compare_arguments(parser: argparse.ArgumentParser) -> None:
                         "frames/*.png")
     parser.add_argument("--methods", default="lbs,dqs",
                         help=f"comma-separated from {', '.join(METHOD_NAMES)} (default: lbs,dqs)")
-    parser.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
-                        "asset's time unit; default: up to 10 evenly spaced samples")
+    parser.add_argument("--frames", help="START:END[:STEP] (END inclusive) or F1,F2,... in "
+                        "frames at the asset's frame rate (USD: its time codes; glTF: seconds × "
+                        "24; BVH: its frames); default: up to 10 evenly spaced samples")
     parser.add_argument("--views", default=",".join(VIEWS),
                         help=f"comma-separated from {', '.join(VIEWS)} (default: all)")
     parser.add_argument("--width", type=int, default=512, help="image size: about WIDTH² "
@@ -539,6 +513,7 @@ def _add_compare_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_rigging_arguments(parser: argparse.ArgumentParser) -> None:
+    from .limits import MAX_RIG_VERTICES
     parser.add_argument("--skeleton", help="a .bvh: INPUT is then a plain mesh "
                         "(.obj/.ply/.stl/.off/.glb, +Y up) in any rest pose, size and place: the "
                         "BVH's skeleton is embedded in it and its motion retargeted (see --as-is)")
@@ -556,6 +531,17 @@ def _add_rigging_arguments(parser: argparse.ArgumentParser) -> None:
                         "the mesh's unit (e.g. 0.0254: inches to metres)")
     parser.add_argument("--max-influences", type=int, default=8, help="influences per point of "
                         "automatic weights (default: 8)")
+    parser.add_argument("--max-vertices", type=int, default=MAX_RIG_VERTICES, help="refuse "
+                        "automatic weights on a mesh of more vertices (default: "
+                        f"{MAX_RIG_VERTICES:,})")
+    _add_input_limit(parser)
+
+
+def _add_input_limit(parser: argparse.ArgumentParser) -> None:
+    from .limits import MAX_INPUT_GIB
+    parser.add_argument("--max-input-gib", type=float, default=MAX_INPUT_GIB, help="refuse an "
+                        "input file asking for an array larger than this many GiB before its "
+                        f"data is read (default: {MAX_INPUT_GIB:g})")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -586,14 +572,22 @@ def build_parser() -> argparse.ArgumentParser:
                    "their weights on a 1/256 grid (slower; see the documentation's Concepts: "
                    "Methods page)")
     _add_sign_reference(s)
-    s.add_argument("--space", choices=list(SPACES), default=SkinOptions.space,
-                   help=".npz and per-frame files: each mesh's own space (default), the scene's "
-                   "world space (stage units) or its skeleton's bind space; a USD cache holds "
-                   "local points")
-    s.add_argument("--frames", help="START:END[:STEP] (END inclusive) or T1,T2,... in the "
-                   "asset's time unit (USD time codes, glTF seconds)")
-    s.add_argument("--fps", type=float, help="resample the clip at this many frames per second "
-                   "(also the default STEP of --frames)")
+    s.add_argument("--space", choices=list(SPACES), default=None,
+                   help=".npz and per-frame files: the scene's world space (default: the points "
+                   "a USD cache of the same bake shows, in stage units), each mesh's own local "
+                   "space, or its skeleton's bind space; a USD cache holds local points under "
+                   "the source's prims")
+    s.add_argument("--frames", help="START:END[:STEP] (END inclusive) or F1,F2,... in frames "
+                   "at the output frame rate (USD: its time codes; glTF: seconds × 24; BVH: "
+                   "its frames; see --fps); default: every frame of the animation")
+    s.add_argument("--fps", type=float, help="output frame rate: resample the animation at "
+                   "this many frames per second (default: the file's own rate, 24 for glTF)")
+    s.add_argument("--prims", help="which meshes to skin and write: comma-separated globs on "
+                   "prim paths or glTF node names, ! or - to exclude (e.g. '/Root/Body*', "
+                   "--prims='!/Root/Curves'); default: all. Meshes a per-frame format cannot "
+                   "hold (no faces) are skipped with a line saying so")
+    s.add_argument("--hold", action="store_true", help="allow --frames outside the "
+                   "animation's range, holding its first and last poses (default: refused)")
     s.add_argument("--substeps", type=int, default=1,
                    help="samples per frame interval (motion-blur sub-frames)")
     s.add_argument("--interp", choices=INTERPOLATIONS, default=SkinOptions.interp,
@@ -632,6 +626,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--clip")
     i.add_argument("--device", help="cpu or cuda for the skinning check (default: cuda when "
                    "present)")
+    _add_input_limit(i)
     i.set_defaults(run=cmd_info, warp=False)  # (Warp only for the skinning check: cmd_info)
     c = sub.add_parser("compare", help="offscreen LBS-vs-DQS report: report.html, metrics.json, "
                        "frames/*.png", parents=[common])
@@ -677,6 +672,37 @@ def main(argv: Sequence[str] | None = None) -> int:
     return code
 
 
+class _GuardedStdout:
+    """``sys.stdout`` while :func:`main` runs as the process's entry point: a write that fails
+    (a full disk, unbuffered or beyond the buffer) is recorded in ``error`` and the command goes
+    on, so that it ends as a finished command whose output could not be written (:func:`_exit`:
+    120), not as an error of the command; a reader that went away (``BrokenPipeError``) is
+    raised as before. Everything else is the wrapped stream's."""
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+        self.error: OSError | None = None
+
+    def _guard(self, call: Callable[[], Any], default: Any) -> Any:
+        try:
+            return call()
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            if self.error is None:
+                self.error = exc
+            return default
+
+    def write(self, text: str) -> int:
+        return self._guard(lambda: self.stream.write(text), len(text))
+
+    def flush(self) -> None:
+        self._guard(self.stream.flush, None)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.stream, name)
+
+
 def _exit(code: int) -> NoReturn:
     """End the process with ``code`` once Python's exit handlers have run and the standard
     streams are flushed, without the interpreter's finalization (unloading USD's, Warp's and
@@ -707,6 +733,10 @@ def _exit(code: int) -> NoReturn:
             message = f"dqskin: error: writing {getattr(stream, 'name', 'output')}: {exc}\n"
         except (AttributeError, ValueError):  # no stream, or a closed one
             pass
+    guarded = getattr(sys.stdout, "error", None)  # a write that failed during the command
+    if isinstance(guarded, OSError) and not failed:
+        failed = True
+        message = f"dqskin: error: writing {getattr(sys.stdout, 'name', 'output')}: {guarded}\n"
     if failed and code == 0:
         if message is not None:
             with contextlib.suppress(OSError):
@@ -727,6 +757,8 @@ def _main(argv: Sequence[str] | None) -> int:
             atomic.reset_interrupt()
         if argv is None and "--verbose" not in sys.argv[1:]:
             release = _hold_native_stderr()
+        if argv is None and sys.stdout is not None:
+            sys.stdout = _GuardedStdout(sys.stdout)
         import logging
         import warnings
         with warnings.catch_warnings():
@@ -943,7 +975,7 @@ def _run_command(argv: Sequence[str] | None) -> int:
             msg = str(exc)
         else:  # an OSError that did not come from the system: a bug
             raise
-        print(f"dqskin: error: {msg}", file=sys.stderr)
+        print(f"dqskin: error: {printable(msg)}", file=sys.stderr)
         code = EXIT_INPUT
     except Exception:
         _checkpoint()  # e.g. NumPy's ImportError when Ctrl-C lands inside its C-level import

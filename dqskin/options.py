@@ -172,8 +172,9 @@ class SkinOptions:
     @classmethod
     def baking(cls, **changes: Any) -> "SkinOptions":
         """The options of a bake (:func:`dqskin.bake`, ``dqskin skin``): normals and velocities
-        on, then ``changes``."""
-        return cls.build(cls(normals=True, velocities=True), **changes)
+        on, world space (a USD cache holds local points whose prims place them there), then
+        ``changes``."""
+        return cls.build(cls(normals=True, velocities=True, space="world"), **changes)
 
     def replace(self, **changes: Any) -> "SkinOptions":
         """A copy with ``changes`` (:meth:`build` on this one)."""

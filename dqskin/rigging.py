@@ -12,8 +12,6 @@ says how to fix it (``scale``: multiply the skeleton's lengths).
 """
 
 import os
-import zipfile
-import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -25,13 +23,16 @@ import numpy.typing as npt
 from ._warp import Device
 from .autoweights import automatic_weights
 from .errors import InputError, Param
+from .files.inputs import read_npz
 from .influences import check_influences
+from .limits import MAX_INPUT_GIB, MAX_RIG_VERTICES, check_vertices
 from .metrics import character_height
 from .options import Method
 from .readers import bvh
 from .readers.mesh import load_mesh
 from .scene import Mesh, Scene
 from .skeleton import Skeleton
+from .validation import check_points
 
 __all__ = ["WEIGHT_FIELDS", "FitWarning", "check_fit", "fit_problems", "read_joints",
            "read_weights",
@@ -54,31 +55,20 @@ class FitWarning(UserWarning):
     figure."""
 
 
-def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_count: int
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def read_weights(path: str | os.PathLike, joint_names: Sequence[str], vertex_count: int, *,
+                 max_input_gib: float = MAX_INPUT_GIB) -> tuple[np.ndarray, np.ndarray]:
     """Influences from an ``.npz`` with :data:`WEIGHT_FIELDS`, re-indexed by joint name into
     ``joint_names`` order: ``(indices (V, K) int32, weights (V, K) float32)``.
 
-    Raises InputError (a ValueError) naming the file and field: an unreadable file (missing, empty,
-    truncated, not an ``.npz``), missing arrays, wrong shapes, joints the skeleton does not have,
-    bad indices or weights.
+    Raises InputError (a ValueError) naming the file and field: an unreadable file (missing, not a
+    regular file, empty, truncated, not an ``.npz``), missing arrays, wrong shapes, joints the
+    skeleton does not have, bad indices or weights; LimitError for an array beyond
+    ``max_input_gib`` (:func:`dqskin.files.inputs.read_npz`, checked before it is read).
     """
     p = Path(path)
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            missing = [f for f in WEIGHT_FIELDS if f not in z.files]
-            if missing:
-                raise InputError(f"{p}: missing {', '.join(missing)} (a weights file holds "
-                                 f"{', '.join(WEIGHT_FIELDS)})")
-            idx, wts, names = (z[f] for f in WEIGHT_FIELDS)
-    except ValueError as exc:
-        if str(exc).startswith(str(p)):
-            raise
-        raise InputError(f"{p}: cannot read weights: {exc}") from None
-    except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
-        # missing, empty, truncated or damaged archive
-        raise InputError(f"{p}: cannot read weights: {str(exc) or type(exc).__name__}") from None
-    names = [str(n) for n in np.ravel(names)]
+    z = read_npz(p, WEIGHT_FIELDS, what="weights", max_input_gib=max_input_gib)
+    idx, wts, stored = (z[f] for f in WEIGHT_FIELDS)
+    names = [str(n) for n in np.ravel(stored)]
     try:
         idx, wts = check_influences(idx, wts, vertex_count, len(names))
     except ValueError as exc:
@@ -207,7 +197,8 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
              weights: str | os.PathLike | None = "auto", scale: float | None = None,
              fit: Literal["embed", "as-is"] = "as-is",
              joints: str | os.PathLike | Mapping[str, npt.ArrayLike] | None = None,
-             max_influences: int = 8, cache: bool = True, device: Device = None) -> Scene:
+             max_influences: int = 8, cache: bool = True, max_vertices: int = MAX_RIG_VERTICES,
+             max_input_gib: float = MAX_INPUT_GIB, device: Device = None) -> Scene:
     """Bind a plain mesh to a BVH's skeleton and motion.
 
     Parameters
@@ -233,13 +224,18 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
         (a ``.json`` file read by :func:`read_joints`).
     max_influences : int
         Influences kept per vertex by automatic weights.
+    max_vertices : int
+        Largest mesh given automatic weights (:func:`dqskin.limits.check_vertices`).
+    max_input_gib : float
+        Largest array the BVH or the weights file may ask for (:mod:`dqskin.limits`).
 
     Returns
     -------
     dqskin.Scene
-        Path of the BVH file, its frames as times (``time_codes_per_second = 1 / Frame Time``),
-        one mesh (named after the mesh file) on skeleton 0, method "lbs"; the skeleton's space
-        is the world (``output_transforms`` and ``world_transforms`` None).
+        Path of the BVH file, its frames as times (``time_codes_per_second``:
+        :attr:`~dqskin.readers.bvh.BvhMotion.frame_rate`), one mesh (named after the mesh file)
+        on skeleton 0, method "lbs"; the skeleton's space is the world (``output_transforms``
+        and ``world_transforms`` None).
 
     Warns
     -----
@@ -251,9 +247,12 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
     InputError
         (a ValueError) Unreadable inputs, a mesh far from the skeleton or in other units (naming the
         fix), a weights or joints file that does not fit.
+    LimitError
+        Beyond ``max_vertices`` or ``max_input_gib``.
     """
     import warnings
-    motion = skeleton if isinstance(skeleton, bvh.BvhMotion) else bvh.read_bvh(skeleton)
+    motion = skeleton if isinstance(skeleton, bvh.BvhMotion) else bvh.read_bvh(
+        skeleton, max_input_gib=max_input_gib)
     if fit not in ("embed", "as-is"):
         raise InputError(Param("fit", fit), ": expected 'embed' or 'as-is'")
     if scale is not None and float(scale) != 1.0:
@@ -261,6 +260,7 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
     if isinstance(mesh, tuple):
         points, faces = (np.asarray(a) for a in mesh)
         name, where = "mesh", "mesh"
+        check_points(where, np.asarray(points, np.float64))  # (load_mesh checks its own)
     else:
         points, faces = load_mesh(mesh)
         name, where = Path(mesh).stem or "mesh", str(mesh)
@@ -284,14 +284,16 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
     for line in fit_problems(points, faces, skel, end_sites=end_sites):
         warnings.warn(FitWarning(f"{where} on {motion.path}: {line}"), stacklevel=2)
     if weights is None or str(weights) == "auto":
+        check_vertices(len(points), where, max_vertices)
         idx, w = automatic_weights(points, faces, skel, end_sites=end_sites,
                                    max_influences=max_influences, cache=cache, device=device)
     else:
-        idx, w = read_weights(weights, skel.joint_names, len(points))
+        idx, w = read_weights(weights, skel.joint_names, len(points),
+                              max_input_gib=max_input_gib)
     m = Mesh(name=name, points=points, faces=faces, joint_indices=idx, joint_weights=w,
              skinning_method="lbs")
     scene = Scene(motion.path, [m], [skel], np.arange(motion.frame_count, dtype=np.float64),
-                  time_codes_per_second=1.0 / motion.frame_time, up_axis="Y")
+                  time_codes_per_second=motion.frame_rate, up_axis="Y")
     return _on_the_floor(scene, device) if fit == "embed" else scene
 
 
@@ -332,7 +334,9 @@ def _embedded_end_sites(source: Skeleton, embedded: Skeleton, end_sites: list) -
 
 
 def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,
-                    max_influences: int = 8, cache: bool = True, device: Device = None) -> Scene:
+                    max_influences: int = 8, cache: bool = True,
+                    max_vertices: int = MAX_RIG_VERTICES, max_input_gib: float = MAX_INPUT_GIB,
+                    device: Device = None) -> Scene:
     """``scene`` with every mesh's influences replaced: "auto" (bone heat from the mesh's bind
     pose and its skeleton's bind transforms) or an ``.npz`` (:func:`read_weights`; the scene
     must then have one mesh).
@@ -340,7 +344,7 @@ def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,
     Automatic weights use the joints the mesh's skin deforms with (those its influences refer
     to): a glTF skeleton also holds the skin's ancestors (an "Armature" node), which take no
     weight. The artist's weights themselves are not used. Returns a new Scene sharing the
-    skeletons.
+    skeletons. ``max_vertices`` and ``max_input_gib`` as in :func:`rig_mesh`.
     """
     meshes = []
     if str(weights) != "auto" and len(scene.meshes) != 1:
@@ -349,6 +353,7 @@ def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,
     for m in scene.meshes:
         skel = scene.skeletons[m.skeleton]
         if str(weights) == "auto":
+            check_vertices(len(m.points), f"{scene.path}: {m.name}", max_vertices)
             used = np.unique(np.asarray(m.joint_indices)[np.asarray(m.joint_weights) > 0])
             idx, w = automatic_weights(m.points, m.faces, skel,
                                        geom_bind_transform=m.geom_bind_transform,
@@ -356,7 +361,8 @@ def replace_weights(scene: Scene, weights: str | os.PathLike = "auto", *,
                                        max_influences=max_influences, cache=cache,
                                        device=device)
         else:
-            idx, w = read_weights(weights, skel.joint_names, len(m.points))
+            idx, w = read_weights(weights, skel.joint_names, len(m.points),
+                                  max_input_gib=max_input_gib)
         meshes.append(replace(m, joint_indices=idx, joint_weights=w))
     return replace(scene, meshes=meshes, _skinners={})
 

@@ -148,6 +148,10 @@ class Scene:
         never rescaled by it.
     clips : list of str
         Animation clip names available (glTF); the loaded one is ``clip``.
+    frame_rate : float or None
+        The output frame rate the file asks for (:func:`dqskin.times.frame_rate`): 24 for glTF,
+        whose times are seconds; None: ``time_codes_per_second`` (the times are frames: USD
+        time codes, BVH frames). A reader of another format sets its file's own rate here.
 
     Each mesh's ``skeleton`` indexes ``skeletons`` (checked on construction); each skeleton carries
     the animation that drives it (``Skeleton.animation``; :attr:`animations` lists them). Skinners
@@ -164,6 +168,7 @@ class Scene:
     meters_per_unit: float = 1.0
     clips: list = field(default_factory=list)
     clip: str | None = None
+    frame_rate: float | None = None
     _skinners: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:

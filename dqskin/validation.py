@@ -26,8 +26,8 @@ if TYPE_CHECKING:
     from .pipeline import SkinnedFrames
     from .scene import Scene
 
-__all__ = ["FLOAT32_MAX", "check_finite", "check_skinned", "check_transforms", "location",
-           "nonnegative_max", "points_stay_finite", "scene_problems", "within_float32"]
+__all__ = ["FLOAT32_MAX", "check_finite", "check_points", "check_skinned", "check_transforms",
+           "location", "nonnegative_max", "points_stay_finite", "scene_problems", "within_float32"]
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 """Largest magnitude a value may have to survive the device's float32."""
@@ -125,6 +125,21 @@ def check_finite(name: str, a: np.ndarray, lead: int, joint_names: Sequence[str]
         raise InputError(f"{name}: {float(a[tuple(index)]):.6g} at "
                          f"{location(index, lead, joint_names, times)} overflows float32 "
                          f"(|x| > {FLOAT32_MAX:.4g})")
+
+
+def check_points(where: str, points: np.ndarray) -> None:
+    """Raise InputError (a ValueError) unless a mesh's (V, 3) rest ``points`` are finite, within
+    float32 range and not all at one point (a mesh without extent); the message names ``where``
+    (the file), the field and the first offending vertex."""
+    if len(points) == 0:
+        return
+    bad = within_float32(points)
+    if bad is not None:
+        v = int(np.argmax(~(np.abs(points) <= FLOAT32_MAX).all(axis=-1)))
+        raise InputError(f"{where}: vertices: {bad} at vertex {v} ({points[v].tolist()})")
+    if np.all(points.max(0) == points.min(0)):
+        raise InputError(f"{where}: vertices: all {len(points)} are at one point "
+                         f"{points[0].tolist()} (a mesh without extent)")
 
 
 def check_transforms(name: str, transforms: npt.ArrayLike, joint_names: Sequence[str] | None = None,

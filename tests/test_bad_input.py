@@ -132,7 +132,8 @@ def test_frame_selections_are_exact_decimals_and_bounded():
                    dict(fps=np.inf)):
         with pytest.raises(ValueError, match="^f(rames|ps)="):
             select_times(np.arange(49.0), 24.0, **kwargs)
-    assert select_times(np.arange(49.0), 24.0, frames="0:1e5", max_frames=200_000).size == 100_001
+    assert select_times(np.arange(49.0), 24.0, frames="0:1e5", max_frames=200_000,
+                        hold=True).size == 100_001
     # the limit on the animation's own times names them, not a --substeps 1 nobody passed
     with pytest.raises(ValueError, match="^the animation's time range selects 49 frames, "
                                          "more than the limit of 10"):

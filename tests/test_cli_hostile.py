@@ -113,7 +113,7 @@ def test_signal_mid_write_leaves_nothing(tmp_path, sig, code, out, asset, extra)
     ~0.3 s from there on a quiet machine: the signal is sent within milliseconds)."""
     folder = tmp_path / "out"
     folder.mkdir()
-    proc = start("skin", asset, "--out", folder / out, "--frames", "0:4000", *extra)
+    proc = start("skin", asset, "--out", folder / out, "--frames", "0:4000", "--hold", *extra)
     if out.endswith(".npz"):
         wait_until(proc, "skinning into a claimed .npz", lambda: temp_bytes(folder) == 0)
     else:
@@ -158,7 +158,7 @@ def test_ctrl_c_while_the_package_imports(tmp_path):
     """dqskin/__init__.py imports lazily, so the handlers are installed before Warp and USD load
     (they take ~2 s): a Ctrl-C then is a clean 130, not a traceback or a run that goes on."""
     proc = start("skin", HUMANOID, "--out", tmp_path / "x.usdc", "--frames", "0:4000",
-                 "--no-velocities")
+                 "--hold", "--no-velocities")
     time.sleep(0.3)
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=120)
@@ -273,7 +273,7 @@ def test_concurrent_runs_to_one_output(tmp_path, out, last):
     """Without --force exactly one of two simultaneous runs wins, whichever finishes first; the
     other fails with one line and its temporary files are gone. (Long enough clips that the two
     runs overlap.)"""
-    args = ["skin", HUMANOID, "--out", tmp_path / out, "--frames", f"0:{last}",
+    args = ["skin", HUMANOID, "--out", tmp_path / out, "--frames", f"0:{last}", "--hold",
             "--no-velocities"]
     procs = [start(*args) for _ in range(2)]
     results = [(p.wait(timeout=300), *p.communicate()) for p in procs]
@@ -290,7 +290,8 @@ def test_concurrent_runs_to_one_output(tmp_path, out, last):
 
 def test_concurrent_runs_with_force_last_writer_wins(tmp_path):
     out = tmp_path / "same.usdc"
-    args = ["skin", HUMANOID, "--out", out, "--frames", "0:60", "--no-velocities", "--force"]
+    args = ["skin", HUMANOID, "--out", out, "--frames", "0:60", "--hold", "--no-velocities",
+            "--force"]
     procs = [start(*args) for _ in range(2)]
     for p in procs:
         assert p.wait(timeout=300) == 0, p.communicate()[1]
@@ -333,7 +334,7 @@ def points_rig(tmp_path):
 
 
 @pytest.mark.parametrize("suffix", [".obj", ".stl", ".off", ".glb"])
-def test_mesh_without_faces_is_an_error_where_faces_are_needed(tmp_path, suffix):
+def test_only_meshes_without_faces_is_an_error_where_faces_are_needed(tmp_path, suffix):
     rc, _, err = run("skin", points_rig(tmp_path), "--out", tmp_path / f"f_{{:03d}}{suffix}")
     assert_clean_error(rc, err, "/Root/Mesh", "no faces")
     assert not list(tmp_path.glob("f_*"))
@@ -388,16 +389,20 @@ def test_ply_and_glb_frames_keep_normals_and_face_varying_uvs(tmp_path):
     assert rc == 0, err
     pos, nrm, uv = _humanoid_reference(5)
     ply = trimesh.load(tmp_path / "f_05.ply", process=False)
-    glb = trimesh.load(tmp_path / "f_05.glb", process=False, force="mesh")
-    for m in (ply, glb):
+    # a .glb frame holds one glTF mesh per source mesh, named after it, on a node taking it to
+    # glTF's metres (the humanoid: 0.01 m per unit)
+    frame = trimesh.load(tmp_path / "f_05.glb", process=False)
+    import dqskin
+    glb = trimesh.util.concatenate([frame.geometry[m.name].copy().apply_transform(
+        frame.graph[m.name][0]) for m in dqskin.load(HUMANOID).meshes])
+    for m, scale in ((ply, 1.0), (glb, 0.01)):
         f = np.asarray(m.faces)
         assert f.shape[0] == pos.shape[0]
-        np.testing.assert_allclose(np.asarray(m.vertices)[f], pos, atol=1e-5)
+        np.testing.assert_allclose(np.asarray(m.vertices)[f], scale * pos, atol=1e-5 * scale)
         np.testing.assert_allclose(np.asarray(m.visual.uv)[f], uv, atol=1e-6)
     np.testing.assert_allclose(np.asarray(ply.vertex_normals)[np.asarray(ply.faces)], nrm,
                                atol=1e-5)
     # the UV seam splits vertices: more file vertices than points, far fewer than corners
-    import dqskin
     points = sum(len(m.points) for m in dqskin.load(HUMANOID).meshes)
     assert points < len(ply.vertices) < 3 * pos.shape[0] // 2
 
@@ -456,9 +461,9 @@ def test_gltf_uvs_keep_their_origin(shared_assets, tmp_path):
 
     import dqskin
     src = shared_assets / "khronos-gltf" / "CesiumMan" / "CesiumMan.glb"
-    rc, _, err = run("skin", src, "--out", tmp_path / "f_{:03d}.glb", "--frames", "0")
+    rc, _, err = run("skin", src, "--out", tmp_path / "f_{:03d}.glb", "--frames", "1")
     assert rc == 0, err
-    g = pygltflib.GLTF2().load(str(tmp_path / "f_000.glb"))
+    g = pygltflib.GLTF2().load(str(tmp_path / "f_001.glb"))
     prim = g.meshes[0].primitives[0]
     acc = g.accessors[prim.attributes.TEXCOORD_0]
     view = g.bufferViews[acc.bufferView]

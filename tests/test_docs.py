@@ -119,7 +119,10 @@ def test_readme_commands_run(workdir, request):
                               capture_output=True, text=True, timeout=900)
         assert proc.returncode == 0, f"dqskin {shlex.join(args)}:\n{proc.stderr[-4000:]}"
     assert (workdir / "out" / "report" / "report.html").is_file()
-    assert len(list((workdir / "out" / "cesium").glob("f_*.obj"))) == 3  # 0, 0.5 and 1 s
+    # frames 12, 24 and 36 at 24 fps: 0.5, 1 and 1.5 s, with their material beside them
+    assert len(list((workdir / "out" / "cesium").glob("f_*.obj"))) == 3
+    assert (workdir / "out" / "cesium" / "f.mtl").is_file()
+    assert (workdir / "out" / "cesium.usdc").is_file()
 
 
 @pytest.mark.parametrize("page", [p for p in PAGES if p.name != "README.md"

@@ -730,7 +730,8 @@ LAYOUT = {
         r"from byteOffset 0 need 60 bytes; bufferViews\[\d+\] has 20"),
     "zeros too large to allocate": (
         lambda d: acc(d, "POSITION").update(bufferView=None, count=10**9),
-        r"accessors\[\d+\]\.count: 1000000000 elements without a bufferView \(zeros\) exceed"),
+        r"mesh 0 primitive 0 POSITION \(accessor \d+\): count 1000000000: needs 22.4 GiB, more "
+        r"than the limit of 2 GiB; raise max_input_gib"),
 }
 
 
@@ -931,7 +932,7 @@ def test_buffer_uri_outside_folder_refused(tmp_path, uri):
     ("http://example.com/data.bin", "is neither a relative file path nor a data: URI"),
     ("//server/share/data.bin", "is neither a relative file path nor a data: URI"),
     ("missing.bin", r"cannot be read \(No such file or directory\)"),
-    ("sub%20dir", "is not a regular file"),
+    ("sub%20dir", "is a folder, not a regular file"),
 ])
 def test_buffer_uri_unusable(tmp_path, uri, message):
     path = write_external(tmp_path, uri)

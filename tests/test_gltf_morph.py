@@ -405,7 +405,8 @@ def test_public_simple_morph(tmp_path):
 
 
 def test_cli_writes_morphs(morph_file, tmp_path, capsys):
-    """`dqskin skin` end to end: the .npz holds the oracle's points at the clip's keys."""
+    """`dqskin skin` end to end: the .npz holds the oracle's points at every frame of the clip
+    (24 fps), the frame files are numbered in frames."""
     out = tmp_path / "morph.npz"
     assert main(["skin", str(morph_file), "--out", str(out)]) == 0
     data = np.load(out)
@@ -414,7 +415,8 @@ def test_cli_writes_morphs(morph_file, tmp_path, capsys):
         want = [oracle.morph(t)[str(name)][0] for t in data["times"]]
         np.testing.assert_allclose(data[f"points_{i}"], want, atol=2e-5)
     frames = tmp_path / "f_{:02d}.obj"
-    assert main(["skin", str(morph_file), "--out", str(frames), "--frames", "0.75"]) == 0
+    assert main(["skin", str(morph_file), "--out", str(frames), "--frames", "18"]) == 0
+    assert [p.name for p in tmp_path.glob("f_*.obj")] == ["f_18.obj"]  # 0.75 s
 
 
 def corrupt(path, tmp_path, mutate):

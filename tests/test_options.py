@@ -33,9 +33,9 @@ def test_defaults_are_the_documented_ones():
     assert o.cor == CorOptions() and (o.cor.sigma, o.cor.subdivide, o.cor.cluster) == (
         dqskin.options.SIGMA, None, "auto")
     b = SkinOptions.baking()
-    assert b == o.replace(normals=True, velocities=True)
-    assert SkinOptions.baking(method="dqs", velocities=False) == SkinOptions(method="dqs",
-                                                                              normals=True)
+    assert b == o.replace(normals=True, velocities=True, space="world")
+    assert SkinOptions.baking(method="dqs", velocities=False) == SkinOptions(
+        method="dqs", normals=True, space="world")
 
 
 def test_frozen_hashable_picklable():
@@ -218,16 +218,19 @@ def test_crowd_refuses_what_it_cannot_skin():
             crowd.skin(scene.times[:2], **bad)
 
 
-@pytest.mark.parametrize("space", ["world", "skeleton"])
-def test_a_usd_cache_holds_local_points_only(tmp_path, space):
-    """A USD cache's points sit under the source's prims, whose transforms still apply: any
-    other space would be moved twice, so it is refused before anything is written."""
-    with pytest.raises(InputError, match=f"space='{space}'"):
-        dqskin.bake(ARM, tmp_path / "a.usda", space=space)
+def test_a_usd_cache_holds_local_points_placed_by_its_prims(tmp_path):
+    """A USD cache's points sit under the source's prims, whose transforms take them to the
+    world: "world" (a bake's default) and "local" make the same cache, and skeleton space is
+    refused before anything is written."""
+    with pytest.raises(InputError, match="space='skeleton'"):
+        dqskin.bake(ARM, tmp_path / "a.usda", space="skeleton")
     assert list(tmp_path.iterdir()) == []
     npz = tmp_path / "a.npz"
-    dqskin.bake(ARM, npz, space=space)  # other outputs take any space
+    dqskin.bake(ARM, npz, space="skeleton")  # other outputs take any space
     assert npz.is_file()
+    dqskin.bake(ARM, tmp_path / "w.usda", space="world")
+    dqskin.bake(ARM, tmp_path / "l.usda", space="local")
+    assert (tmp_path / "w.usda").read_bytes() == (tmp_path / "l.usda").read_bytes()
 
 
 @pytest.mark.parametrize("changes, named", [
@@ -293,8 +296,9 @@ def test_one_skinner_per_mesh_whatever_the_cor_settings_of_other_methods():
 
 
 def test_command_line_space(tmp_path):
-    """dqskin skin --space world writes world points (an .npz), the same as the API's; a USD
-    cache refuses it, naming the flag."""
+    """dqskin skin writes world points (an .npz) by default, the same as the API's with
+    ``space="world"``; ``--space local`` the prims' own; a USD cache refuses skeleton space,
+    naming the flag."""
     from dqskin.cli import main
     src = tmp_path / "placed.usda"
     src.write_text(f'''#usda 1.0
@@ -315,4 +319,17 @@ def "Placed" (prepend references = @{HUMANOID}@)
             np.testing.assert_array_equal(z[f"points_{k}"], want.points[m.name])
             ref = unplaced[m.name.replace("/Placed", "/Humanoid", 1)] + np.float32([100, 0, -5])
             np.testing.assert_allclose(z[f"points_{k}"], ref, atol=1e-4 * np.abs(ref).max())
-    assert main(["skin", str(src), "--out", str(tmp_path / "w.usda"), "--space", "world"]) == 2
+    default = tmp_path / "d.npz"
+    assert main(["skin", str(src), "--out", str(default), "--frames", "0:2"]) == 0
+    local = tmp_path / "l.npz"
+    assert main(["skin", str(src), "--out", str(local), "--frames", "0:2", "--space",
+                 "local"]) == 0
+    mine = scene.skin([0.0, 1.0, 2.0], space="local").points
+    with np.load(out) as z, np.load(default) as d, np.load(local) as lo:
+        assert str(d["space"]) == "world" and str(lo["space"]) == "local"
+        for k, m in enumerate(scene.meshes):
+            np.testing.assert_array_equal(d[f"points_{k}"], z[f"points_{k}"])
+            np.testing.assert_array_equal(lo[f"points_{k}"], mine[m.name])
+    assert main(["skin", str(src), "--out", str(tmp_path / "w.usda"), "--space", "world"]) == 0
+    assert main(["skin", str(src), "--out", str(tmp_path / "s.usda"), "--space",
+                 "skeleton"]) == 2

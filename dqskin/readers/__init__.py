@@ -18,6 +18,8 @@ from types import ModuleType
 from typing import TYPE_CHECKING
 
 from ..errors import InputError
+from ..files.inputs import regular_file
+from ..limits import MAX_INPUT_GIB
 
 if TYPE_CHECKING:
     from ..scene import Scene
@@ -45,7 +47,8 @@ def format_of(path: str | os.PathLike) -> ModuleType | None:
     return _loader(name) if name in ("usd", "gltf", "fbx") else None
 
 
-def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
+def load(path: str | os.PathLike, *, clip: str | int | None = None,
+         max_input_gib: float = MAX_INPUT_GIB) -> Scene:
     """Read a skinned character.
 
     Parameters
@@ -56,16 +59,17 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
         meshes; times are frame numbers).
     clip : str or int, optional
         glTF animation or FBX animation stack to load (name or index); the first by default.
+    max_input_gib : float
+        Largest array a glTF or BVH file may ask for before its data is read
+        (:mod:`dqskin.limits`); beyond it LimitError.
 
     Returns
     -------
     dqskin.scene.Scene
     """
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: no such file")
+    p = regular_file(path)
     loader = _LOADERS.get(p.suffix.lower())
     if loader is None:
         raise InputError(f"{p}: unsupported file type {p.suffix.lower()!r}; expected one of "
                          f"{', '.join(CHARACTER_SUFFIXES)}")
-    return _loader(loader).load(p, clip=clip)
+    return _loader(loader).load(p, clip=clip, max_input_gib=max_input_gib)

@@ -17,9 +17,9 @@ How dqskin reads it (the conventions of the format as Biovision, CMU and Blender
   ``Zrotation Yrotation Xrotation`` and ``Zrotation Xrotation Yrotation``.
 * The rest pose (bind pose) is every channel at zero: joints at their offsets, unrotated. Position
   channels add to the offset (a root with offset 0, as CMU's, gets exactly its positions).
-* Times are frame numbers 0 … F−1; ``time_codes_per_second`` is ``1 / Frame Time``. Between
-  frames the animation interpolates like USD and glTF players (rotation slerp, translation lerp:
-  :class:`dqskin.KeyedAnimation`).
+* Times are frame numbers 0 … F−1; ``time_codes_per_second`` is ``1 / Frame Time`` (a whole
+  number when within 1e-4 of one). Between frames the animation interpolates like USD and glTF
+  players (rotation slerp, translation lerp: :class:`dqskin.KeyedAnimation`).
 
 Malformed files raise InputError (a ValueError) naming the file, the line and what was expected.
 """
@@ -33,8 +33,11 @@ import numpy as np
 
 from ..animation import KeyedAnimation
 from ..errors import InputError, Param, Spelling
+from ..files.inputs import open_input
+from ..limits import MAX_INPUT_GIB, check_bytes
 from ..scene import Scene
 from ..skeleton import Skeleton
+from ..validation import FLOAT32_MAX
 from . import LOADER_SUFFIXES
 
 __all__ = ["CHANNELS", "SUFFIXES", "BvhMotion", "load", "read_bvh", "scaled", "summary_lines"]
@@ -98,6 +101,13 @@ class BvhMotion:
     def frame_count(self) -> int:
         return int(self.values.shape[0])
 
+    @property
+    def frame_rate(self) -> float:
+        """Frames per second: ``1 / frame_time``, a whole number when within 1e-4 of one
+        (``Frame Time: 0.0083333`` is 120 fps, :func:`dqskin.times.nominal_rate`)."""
+        from ..times import nominal_rate
+        return nominal_rate(1.0 / self.frame_time)
+
     def rest_world(self) -> np.ndarray:
         """(J, 4, 4) float64 world rest pose: translations by the summed offsets."""
         J = len(self.joint_names)
@@ -135,7 +145,7 @@ class BvhMotion:
         """A :class:`dqskin.Scene` with the skeleton and no meshes; times are frame numbers."""
         return Scene(self.path, [], [self.skeleton()],
                      np.arange(self.frame_count, dtype=np.float64),
-                     time_codes_per_second=1.0 / self.frame_time, up_axis="Y")
+                     time_codes_per_second=self.frame_rate, up_axis="Y")
 
 
 def summary_lines(motion: BvhMotion, spell: Spelling = str) -> list[str]:
@@ -147,9 +157,8 @@ def summary_lines(motion: BvhMotion, spell: Spelling = str) -> list[str]:
     orders = Counter("".join(c[0] for c in ch if c.endswith("rotation")) or "none"
                      for ch in motion.channels)
     positions = sum(any(c.endswith("position") for c in ch) for ch in motion.channels)
-    pts = np.concatenate([motion.rest_world()[:, :3, 3]]
-                         + [(motion.rest_world()[j] @ np.append(o, 1.0))[None, :3]
-                            for j, o in motion.end_sites])
+    rest = motion.rest_world()[:, :3, 3]  # (translations only: End Sites are offsets from it)
+    pts = np.concatenate([rest] + [rest[j] + o[None] for j, o in motion.end_sites])
     size = np.ptp(pts, axis=0)
     return [f"BVH: {sum(map(len, motion.channels))} channels, {len(motion.end_sites)} End Sites, "
             f"{motion.frame_count} frames of {motion.frame_time:g} s; position channels on "
@@ -220,12 +229,11 @@ class _Tokens:
 
     def number(self, what):
         w, n = self.next(what)
-        try:
-            x = float(w)
-        except ValueError:
-            raise self.error(f"expected a number for {what}, got {w!r}", n) from None
-        if not np.isfinite(x):
-            raise self.error(f"{what}: {w} is not finite", n)
+        if not _NUMBER.fullmatch(w):
+            raise self.error(f"expected a number for {what}, got {w!r}", n)
+        x = float(w)
+        if not abs(x) <= FLOAT32_MAX:
+            raise self.error(f"{what}: {w} is not finite or beyond float32 range", n)
         return x
 
     def peek(self):
@@ -237,48 +245,24 @@ def _parse_hierarchy(tok, motion):
     w, n = tok.next("ROOT")
     if w.upper() != "ROOT":
         raise tok.error(f"expected ROOT, got {w!r}", n)
-    _parse_joint(tok, motion, -1, n)
+    _parse_joints(tok, motion)
     while tok.peek() is not None and tok.peek().upper() == "ROOT":  # more than one root
-        _, n = tok.next("ROOT")
-        _parse_joint(tok, motion, -1, n)
+        tok.next("ROOT")
+        _parse_joints(tok, motion)
 
 
-def _parse_joint(tok, motion, parent, line):
-    name, n = tok.next("a joint name")
-    if name == "{":
-        raise tok.error("joint without a name", n)
-    j = len(motion.joint_names)
-    if name in motion.joint_names:
-        raise tok.error(f"duplicate joint name {name!r}", n)
-    motion.joint_names.append(name)
-    motion._parents.append(parent)
-    tok.expect("{")
-    tok.expect("OFFSET")
-    offset = [tok.number(f"OFFSET of {name!r}") for _ in range(3)]
-    motion._offsets.append(offset)
-    chans = []
-    if tok.peek() is not None and tok.peek().upper() == "CHANNELS":
-        tok.next("CHANNELS")
-        count, cn = tok.next("the channel count")
-        if not count.isdigit() or int(count) > 6:
-            raise tok.error(f"joint {name!r}: CHANNELS count must be 0 to 6, got {count!r}", cn)
-        for _ in range(int(count)):
-            c, cn = tok.next(f"a channel name of {name!r}")
-            canon = next((k for k in CHANNELS if k.lower() == c.lower()), None)
-            if canon is None:
-                raise tok.error(f"joint {name!r}: unknown channel {c!r}; expected one of "
-                                f"{', '.join(CHANNELS)}", cn)
-            if canon in chans:
-                raise tok.error(f"joint {name!r}: channel {canon} listed twice", cn)
-            chans.append(canon)
-    motion.channels.append(tuple(chans))
-    while True:
+def _parse_joints(tok, motion):
+    """One ROOT and the joints below it, depth first without recursion (a chain of any depth)."""
+    open_joints = [_parse_joint_head(tok, motion, -1)]  # the joints whose '}' is still to come
+    while open_joints:
+        j = open_joints[-1]
+        name = motion.joint_names[j]
         w, n = tok.next(f"JOINT, End Site or '}}' closing {name!r}")
         key = w.upper()
         if key == "}":
-            return
-        if key == "JOINT":
-            _parse_joint(tok, motion, j, n)
+            open_joints.pop()
+        elif key == "JOINT":
+            open_joints.append(_parse_joint_head(tok, motion, j))
         elif key == "END":
             tok.expect("Site")
             tok.expect("{")
@@ -290,30 +274,82 @@ def _parse_joint(tok, motion, parent, line):
             raise tok.error(f"expected JOINT, End Site or '}}' in joint {name!r}, got {w!r}", n)
 
 
+def _parse_joint_head(tok, motion, parent):
+    """A joint's name, OFFSET and CHANNELS (up to its children); returns its index."""
+    name, n = tok.next("a joint name")
+    if name == "{":
+        raise tok.error("joint without a name", n)
+    j = len(motion.joint_names)
+    if name in motion.names:
+        raise tok.error(f"duplicate joint name {name!r}", n)
+    motion.names.add(name)
+    motion.joint_names.append(name)
+    motion._parents.append(parent)
+    tok.expect("{")
+    tok.expect("OFFSET")
+    offset = [tok.number(f"OFFSET of {name!r}") for _ in range(3)]
+    motion._offsets.append(offset)
+    chans = []
+    if tok.peek() is not None and tok.peek().upper() == "CHANNELS":
+        tok.next("CHANNELS")
+        count, cn = tok.next("the channel count")
+        if not _COUNT.fullmatch(count) or int(count) > 6:
+            raise tok.error(f"joint {name!r}: CHANNELS count must be 0 to 6, got {count!r}", cn)
+        for _ in range(int(count)):
+            c, cn = tok.next(f"a channel name of {name!r}")
+            canon = next((k for k in CHANNELS if k.lower() == c.lower()), None)
+            if canon is None:
+                raise tok.error(f"joint {name!r}: unknown channel {c!r}; expected one of "
+                                f"{', '.join(CHANNELS)}", cn)
+            if canon in chans:
+                raise tok.error(f"joint {name!r}: channel {canon} listed twice", cn)
+            chans.append(canon)
+    motion.channels.append(tuple(chans))
+    return j
+
+
 class _Building:
     """Mutable state while parsing."""
 
     def __init__(self):
         self.joint_names, self._parents, self._offsets = [], [], []
         self.channels, self.end_sites = [], []
+        self.names = set()  # (a duplicate name is found in O(1))
 
 
 _HEADER = re.compile(r"^\s*(frames|frame\s+time)\s*:\s*(\S+)\s*$", re.IGNORECASE)
+_COUNT = re.compile(r"[0-9]+")
+_NUMBER = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
+
+MIN_FRAME_TIME = 1e-6
+"""Shortest ``Frame Time:`` (seconds) read: a million frames a second."""
 
 
-def read_bvh(path: str | os.PathLike) -> BvhMotion:
-    """Parse a ``.bvh`` file.
+def read_bvh(path: str | os.PathLike, *, max_input_gib: float = MAX_INPUT_GIB) -> BvhMotion:
+    """Parse a ``.bvh`` file (UTF-8, with or without a byte-order mark).
+
+    Parameters
+    ----------
+    path : str or Path
+    max_input_gib : float
+        Largest array the file may ask for (:func:`dqskin.limits.check_bytes`): the frames ×
+        channels values and the frames × joints transforms of its animation.
 
     Raises
     ------
     InputError
-        (a ValueError) Unreadable file; missing or misplaced keywords, unknown channels,
-        non-numbers, duplicate joint names; a missing or non-positive ``Frames:``/``Frame Time:``; a
-        frame line with the wrong number of values. The message names the file and line.
+        (a ValueError) Unreadable file (not a regular file); missing or misplaced keywords,
+        unknown channels, non-numbers (ASCII decimal numbers only), duplicate joint names; a
+        missing ``Frames:`` (a whole number from 1 to :data:`MAX_FRAMES`) or ``Frame Time:``
+        (at least :data:`MIN_FRAME_TIME`); fewer frame lines or values than the header says;
+        values beyond float32 range. The message names the file and line.
+    LimitError
+        Frames × channels or frames × joints beyond ``max_input_gib``.
     """
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8", errors="replace")
+        with open_input(p) as fh:
+            text = fh.read().decode("utf-8-sig", errors="replace")
     except OSError as exc:
         raise InputError(f"{p}: cannot read ({exc.strerror or exc})") from None
     lines = text.splitlines()
@@ -335,52 +371,62 @@ def read_bvh(path: str | os.PathLike) -> BvhMotion:
         if m is None or re.sub(r"\s+", " ", m.group(1).lower()) != key:
             want = "Frames: N" if key == "frames" else "Frame Time: SECONDS"
             raise InputError(f"{p}: line {n + 1}: expected {want!r}")
-        try:
-            header[key] = float(m.group(2))
-        except ValueError:
-            raise InputError(f"{p}: line {n + 1}: {m.group(1)}: not a number: "
-                             f"{m.group(2)!r}") from None
+        header[key] = (m.group(1), m.group(2), n + 1)
         n += 1
-    frames, frame_time = header["frames"], header["frame time"]
-    if not (frames == int(frames) and 1 <= frames <= MAX_FRAMES):
-        raise InputError(f"{p}: line {motion_line + 2}: Frames: {frames:g}: expected a whole "
-                         f"number from 1 to {MAX_FRAMES}")
-    if not (np.isfinite(frame_time) and frame_time > 0):
-        raise InputError(f"{p}: line {motion_line + 3}: Frame Time: {frame_time:g}: must be "
-                         "positive")
-    frames = int(frames)
+    label, value, line = header["frames"]
+    if not _COUNT.fullmatch(value) or not 1 <= int(value) <= MAX_FRAMES:
+        raise InputError(f"{p}: line {line}: {label}: {value!r}: expected a whole number from 1 "
+                         f"to {MAX_FRAMES}")
+    frames = int(value)
+    label, value, line = header["frame time"]
+    frame_time = float(value) if _NUMBER.fullmatch(value) else None
+    if frame_time is None or not (MIN_FRAME_TIME <= frame_time < np.inf):
+        raise InputError(f"{p}: line {line}: {label}: {value!r}: expected seconds per frame, at "
+                         f"least {MIN_FRAME_TIME:g}")
     c = sum(map(len, b.channels))
     data_lines = [(n + k + 1, r) for k, r in enumerate(lines[n:]) if r.strip()]
     if len(data_lines) < frames:
         raise InputError(f"{p}: Frames: {frames} but only {len(data_lines)} frame lines")
+    # before anything is allocated: every value takes two characters at least ("0 ")
+    data = sum(len(r) + 1 for _, r in data_lines[:frames])
+    if frames * c * 2 > data:  # then some line has fewer values than channels: name it
+        for f, (ln, r) in enumerate(data_lines[:frames]):
+            _check_count(p, ln, f, len(r.split()), c)
+        raise InputError(f"{p}: Frames: {frames} of {c} channels need {frames * c * 2:,} "
+                         f"characters at least; its {frames} frame lines have {data:,}")
+    check_bytes(frames * c * 8, f"{p}: Frames × channels ({frames:,} × {c:,})", max_input_gib)
+    check_bytes(frames * len(b.joint_names) * 128,
+                f"{p}: Frames × joints ({frames:,} × {len(b.joint_names):,} transforms)",
+                max_input_gib)
     values = np.empty((frames, c), np.float64)
     for f, (ln, r) in enumerate(data_lines[:frames]):
         words = r.split()
-        if len(words) != c:
-            raise InputError(f"{p}: line {ln}: frame {f} has {len(words)} values, expected {c} "
-                             "(one per channel)")
+        _check_count(p, ln, f, len(words), c)
         try:
             values[f] = [float(w) for w in words]
+            ok = r.isascii()  # (float() reads other scripts' digits too)
         except ValueError:
-            bad = next(w for w in words if not _is_float(w))
-            raise InputError(f"{p}: line {ln}: frame {f}: not a number: {bad!r}") from None
-    if not np.all(np.isfinite(values)):
-        f, col = np.argwhere(~np.isfinite(values))[0]
-        raise InputError(f"{p}: frame {f}: channel {col}: value is not finite")
+            ok = False
+        if not ok:
+            bad = next(w for w in words if not _NUMBER.fullmatch(w))
+            raise InputError(f"{p}: line {ln}: frame {f}: not a number: {bad!r}")
+        if not np.all(np.abs(values[f]) <= FLOAT32_MAX):
+            col = int(np.argmax(~(np.abs(values[f]) <= FLOAT32_MAX)))
+            raise InputError(f"{p}: line {ln}: frame {f}: channel {col}: {words[col]} is not "
+                             f"finite or beyond float32 range")
     return BvhMotion(str(p), b.joint_names, np.asarray(b._parents, np.int32),
                      np.asarray(b._offsets, np.float64).reshape(-1, 3), b.channels, b.end_sites,
                      float(frame_time), values)
 
 
-def _is_float(w):
-    try:
-        float(w)
-        return True
-    except ValueError:
-        return False
+def _check_count(path, line, frame, count, channels):
+    if count != channels:
+        raise InputError(f"{path}: line {line}: frame {frame} has {count} values, expected "
+                         f"{channels} (one per channel)")
 
 
-def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
+def load(path: str | os.PathLike, *, clip: str | int | None = None,
+         max_input_gib: float = MAX_INPUT_GIB) -> Scene:
     """Read a ``.bvh`` file as a :class:`dqskin.Scene` with one animated skeleton and no meshes
     (``clip`` is accepted for a uniform loader signature; a BVH file has one take)."""
-    return read_bvh(path).scene()
+    return read_bvh(path, max_input_gib=max_input_gib).scene()

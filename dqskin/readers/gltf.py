@@ -35,7 +35,6 @@ import json
 import math
 import os
 import re
-import stat
 import struct
 import warnings
 from collections import Counter
@@ -48,8 +47,12 @@ import numpy.typing as npt
 from .. import quat
 from ..animation import Animation, Deformer, check_times
 from ..errors import InputError
+from ..files.inputs import open_input
+from ..limits import MAX_INPUT_GIB, check_bytes
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
+from ..times import DEFAULT_FPS
+from ..validation import FLOAT32_MAX, within_float32
 from . import LOADER_SUFFIXES
 
 __all__ = ["SUFFIXES", "GltfAnimation", "GltfMorph", "load", "load_gltf"]
@@ -72,8 +75,6 @@ _FLOAT_OR_NORMALIZED = (5126, 5121, 5123)
 _COMPONENT_NAMES = {5120: "BYTE", 5121: "UNSIGNED_BYTE", 5122: "SHORT", 5123: "UNSIGNED_SHORT",
                     5125: "UNSIGNED_INT", 5126: "FLOAT"}
 _ACCESSOR_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
-_MAX_ZERO_COMPONENTS = 1 << 24
-"""Components an accessor without a bufferView (all zeros) may ask this loader to allocate."""
 _GLB_JSON, _GLB_BIN = 0x4E4F534A, 0x004E4942
 _READ_ATTRIBUTES = re.compile(r"POSITION|NORMAL|TANGENT|TEXCOORD_0|(JOINTS|WEIGHTS)_[0-9]+")
 _MORPH_ATTRIBUTES = ("POSITION", "NORMAL", "TANGENT")
@@ -246,6 +247,9 @@ class GltfMorph(Deformer):
     default_weights : (T,) float64
     channel : (keys (K,), values (K or 3K, T), interpolation) or None
         The ``weights`` sampler; CUBICSPLINE values are (in-tangent, value, out-tangent) per key.
+    name : str
+        Names the file and mesh in errors: morphed values beyond float32 range raise
+        InputError (a ValueError) naming it, the attribute and the time.
 
     Attributes
     ----------
@@ -255,7 +259,9 @@ class GltfMorph(Deformer):
     def __init__(self, points: npt.ArrayLike, normals: np.ndarray | None,
                  tangents: np.ndarray | None, offsets: dict[str, np.ndarray],
                  default_weights: npt.ArrayLike,
-                 channel: tuple[np.ndarray, np.ndarray, str] | None = None) -> None:
+                 channel: tuple[np.ndarray, np.ndarray, str] | None = None,
+                 name: str = "morph targets") -> None:
+        self.name = name
         self.points = np.asarray(points, dtype=np.float32)
         self.normals = normals
         self.tangents = tangents
@@ -291,15 +297,26 @@ class GltfMorph(Deformer):
         flat = offsets[used].reshape(used.size, -1)
         return (weights[:, used] @ flat).reshape((weights.shape[0],) + offsets.shape[1:])
 
-    def _morph(self, base: np.ndarray, attribute: str, weights: np.ndarray) -> np.ndarray:
-        """(F, V, 3) float32 ``base + Σ wᵢ·offsetᵢ`` of one attribute."""
+    def _morph(self, base: np.ndarray, attribute: str, times: npt.ArrayLike) -> np.ndarray:
+        """(F, V, 3) float32 ``base + Σ wᵢ·offsetᵢ`` of one attribute at ``times``; InputError
+        when a value is beyond float32 range."""
+        weights = self.weights(times)
         out = np.broadcast_to(np.asarray(base, np.float64), (weights.shape[0],) + base.shape)
         delta = self._combine(weights, attribute)
-        return (out if delta is None else out + delta).astype(np.float32)
+        if delta is None:
+            return out.astype(np.float32)
+        out = out + delta
+        bad = within_float32(out)
+        if bad is not None:
+            f = int(np.argmax(~(np.abs(out) <= FLOAT32_MAX).all(axis=(1, 2))))
+            raise InputError(f"{self.name}: {attribute} morphed by weights "
+                             f"{np.round(weights[f], 6).tolist()} at time "
+                             f"{float(check_times(times)[f]):g} is {bad}")
+        return out.astype(np.float32)
 
     def points_at(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, V, 3) float32 morphed points, mesh space."""
-        return self._morph(self.points, "POSITION", self.weights(times))
+        return self._morph(self.points, "POSITION", times)
 
     def point_velocities_at(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, V, 3) float64 ``d points / dt`` per second."""
@@ -311,14 +328,14 @@ class GltfMorph(Deformer):
         """(F, V, 3) float32 morphed normals (not normalized), or None without NORMAL targets."""
         if self.normals is None or "NORMAL" not in self.offsets:
             return None
-        return self._morph(self.normals, "NORMAL", self.weights(times))
+        return self._morph(self.normals, "NORMAL", times)
 
     def tangents_at(self, times: npt.ArrayLike) -> np.ndarray | None:
         """(F, V, 3) float32 morphed tangent directions (not normalized), or None without TANGENT
         targets."""
         if self.tangents is None or "TANGENT" not in self.offsets:
             return None
-        return self._morph(self.tangents[:, :3], "TANGENT", self.weights(times))
+        return self._morph(self.tangents[:, :3], "TANGENT", times)
 
 
 # -- validation of untrusted files ---------------------------------------------------------------
@@ -570,9 +587,6 @@ def _check_accessor_ranges(doc):
         if "bufferView" in acc:
             _check_span(field, f"{field}.count", views, acc["bufferView"],
                         acc.get("byteOffset", 0), count, layout, strided=True)
-        elif count * _ACCESSOR_WIDTHS[acc["type"]] > _MAX_ZERO_COMPONENTS:
-            raise _Invalid(f"{field}.count: {count} elements without a bufferView (zeros) exceed "
-                           f"the {_MAX_ZERO_COMPONENTS} components this loader allocates")
         sparse = acc.get("sparse")
         if sparse is None:
             continue
@@ -668,11 +682,12 @@ def _parse_json(text):
 class _Reader:
     """Checked access to one glTF document: accessors, nodes, skins, meshes, clips."""
 
-    def __init__(self, path):
+    def __init__(self, path, max_input_gib=MAX_INPUT_GIB):
         self.path = os.fspath(path)
         self.name = os.path.basename(self.path)
+        self.max_input_gib = max_input_gib
         try:
-            with open(self.path, "rb") as f:
+            with open_input(self.path) as f:
                 data = f.read()
         except (OSError, ValueError) as e:  # ValueError: a NUL in the path
             raise self.error(f"cannot read file ({getattr(e, 'strerror', None) or e})") from None
@@ -778,14 +793,15 @@ class _Reader:
     def _read_external(self, field, uri):
         file = self._external_path(field, uri)
         try:
-            regular = stat.S_ISREG(os.stat(file).st_mode)
-            if regular:
-                with open(file, "rb") as f:
-                    return f.read()
+            os.stat(file)
+            with open_input(file) as f:
+                return f.read()
+        except InputError as e:  # not a regular file
+            reason = str(e).removeprefix(f"{file}: ")
+            raise self.error(f"{field}: {uri!r} is {reason}") from None
         except (OSError, ValueError) as e:  # ValueError: a NUL in the name
             raise self.error(f"{field}: {uri!r} cannot be read "
                              f"({getattr(e, 'strerror', None) or e})") from None
-        raise self.error(f"{field}: {uri!r} is not a regular file")
 
     def _elements(self, view_index, offset, count, width, dtype, strided=True):
         """(count, width) elements of ``dtype`` at ``offset`` in a bufferView, copied.
@@ -816,7 +832,9 @@ class _Reader:
             raise self.error(f"{where}: {name} components must be normalized here (glTF allows "
                              "only FLOAT or normalized integers; set \"normalized\": true)")
         width, dtype = _TYPE_SIZES[acc.type], np.dtype(_COMPONENT_DTYPES[acc.componentType])
-        if acc.bufferView is None:
+        if acc.bufferView is None:  # zeros (and sparse values): as many as the count asks
+            check_bytes(acc.count * width * 8, f"{self.name}: {where}: count {acc.count}",
+                        self.max_input_gib)
             out = np.zeros((acc.count, width), dtype)
         else:
             out = self._elements(acc.bufferView, acc.byteOffset or 0, acc.count, width, dtype)
@@ -1069,6 +1087,9 @@ class _Reader:
             if w is not None:
                 if len(w) != count:
                     raise self.error(f"{field}: {len(w)} weights for {count} morph targets")
+                big = [k for k, x in enumerate(w) if not abs(x) <= FLOAT32_MAX]
+                if big:
+                    raise self.error(f"{field}[{big[0]}]: {w[big[0]]:g} is beyond float32 range")
                 return np.asarray(w, dtype=np.float64)
         return np.zeros(count)
 
@@ -1081,6 +1102,10 @@ class _Reader:
         for name in _MORPH_ATTRIBUTES:
             if not any(name in t for t in targets):
                 continue
+            check_bytes(len(targets) * vertex_count * 3 * 8,
+                        f"{self.name}: meshes[{mesh_index}].primitives[{prim_index}].targets: "
+                        f"{len(targets)} {name} targets × {vertex_count} vertices",
+                        self.max_input_gib)
             offsets = np.zeros((len(targets), vertex_count, 3))
             for k, target in enumerate(targets):
                 if name not in target:
@@ -1214,12 +1239,14 @@ class _Reader:
         return keys, values, interpolation
 
 
-def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
+def load(path: str | os.PathLike, *, clip: str | int | None = None,
+         max_input_gib: float = MAX_INPUT_GIB) -> Scene:
     """The format's loader: :func:`load_gltf`."""
-    return load_gltf(path, clip=clip)
+    return load_gltf(path, clip=clip, max_input_gib=max_input_gib)
 
 
-def load_gltf(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
+def load_gltf(path: str | os.PathLike, *, clip: str | int | None = None,
+              max_input_gib: float = MAX_INPUT_GIB) -> Scene:
     """Load the skinned meshes, skins and one animation clip of a glTF 2.0 file.
 
     Parameters
@@ -1229,6 +1256,10 @@ def load_gltf(path: str | os.PathLike, *, clip: str | int | None = None) -> Scen
     clip : str or int, optional
         Animation to load, by name or index; the first one by default. Unnamed animations are
         called ``animation_{i}``.
+    max_input_gib : float
+        Largest array the file may ask for (:func:`dqskin.limits.check_bytes`): a primitive's
+        morph targets, held as (targets, V, 3) float64 offsets; an accessor without a
+        bufferView (its count of zeros, read as float64).
 
     Returns
     -------
@@ -1250,7 +1281,8 @@ def load_gltf(path: str | os.PathLike, *, clip: str | int | None = None) -> Scen
         Weights: JOINTS_n/WEIGHTS_n sets concatenated (K = 4·sets), normalized integers
         dequantized, each row divided by its sum; an all-zero row gets weight 1 on its first
         influence (as three.js). ``times`` are the clip's key times in seconds (``[0.]``
-        without animation), ``time_codes_per_second`` 1, ``up_axis`` "Y", ``meters_per_unit`` 1.
+        without animation), ``time_codes_per_second`` 1, ``up_axis`` "Y", ``meters_per_unit`` 1,
+        ``frame_rate`` 24 (:data:`dqskin.times.DEFAULT_FPS`).
 
     Raises
     ------
@@ -1264,18 +1296,48 @@ def load_gltf(path: str | os.PathLike, *, clip: str | int | None = None) -> Scen
         different numbers of morph targets; default or animated morph weights not one per target; a
         ``weights`` channel on a node without morph targets; non-triangle primitives; unknown clip
         (the message lists the clips).
+    LimitError
+        Morph targets, or an accessor without a bufferView (zeros, sparse), beyond
+        ``max_input_gib``.
     """
     with np.errstate(all="ignore"):  # overflow is checked where it matters, as ValueError
-        return _load(path, clip)
+        return _load(path, clip, max_input_gib)
 
 
-def _load(path: str | os.PathLike, clip: str | int | None) -> Scene:
-    """:func:`load_gltf` without its floating-point error state."""
-    r = _Reader(path)
+def _loaded_nodes(r: "_Reader") -> tuple[list[int], list[str], list[int]]:
+    """The nodes :func:`load_gltf` loads (a mesh with a skin or morph targets), their names
+    (``Mesh.name`` before a ``/primitive{k}`` suffix) and each glTF mesh's morph target count."""
     doc = r.doc
     targets = [r.target_count(m) for m in range(len(doc.meshes))]
     loaded = [i for i, n in enumerate(doc.nodes)
               if n.mesh is not None and (n.skin is not None or targets[n.mesh])]
+    base_names = [r.node_name(i) for i in loaded]
+    repeated = Counter(base_names)
+    names = [b if repeated[b] == 1 else f"{b}#{i}" for i, b in zip(loaded, base_names)]
+    return loaded, names, targets
+
+
+def _primitive_name(name: str, k: int, count: int) -> str:
+    return name if count == 1 else f"{name}/primitive{k}"
+
+
+def mesh_primitives(r: "_Reader") -> list[tuple[str, int, int]]:
+    """``(Mesh.name, glTF mesh index, primitive index)`` of every mesh :func:`load_gltf`
+    loads from the document of ``r``."""
+    loaded, names, _ = _loaded_nodes(r)
+    out = []
+    for node_index, name in zip(loaded, names):
+        mesh = r.doc.nodes[node_index].mesh
+        count = len(r.doc.meshes[mesh].primitives)
+        out += [(_primitive_name(name, k, count), mesh, k) for k in range(count)]
+    return out
+
+
+def _load(path: str | os.PathLike, clip: str | int | None, max_input_gib: float) -> Scene:
+    """:func:`load_gltf` without its floating-point error state."""
+    r = _Reader(path, max_input_gib)
+    doc = r.doc
+    loaded, names, targets = _loaded_nodes(r)
     if not loaded:
         raise r.error("no skinned mesh (no node has both mesh and skin) and no mesh with morph "
                       "targets")
@@ -1291,11 +1353,8 @@ def _load(path: str | os.PathLike, clip: str | int | None) -> Scene:
         slot_maps.append(slots)
 
     meshes = []
-    base_names = [r.node_name(i) for i in loaded]
-    repeated = Counter(base_names)
-    for node_index, base in zip(loaded, base_names):
+    for node_index, name in zip(loaded, names):
         node = doc.nodes[node_index]
-        name = base if repeated[base] == 1 else f"{base}#{node_index}"
         skeleton = node.skin
         if skeleton is None:  # unskinned morphing mesh: rigid on its node, a skeleton of its own
             skel, _, slots = r.node_skeleton([node_index], np.eye(4)[None],
@@ -1315,16 +1374,18 @@ def _load(path: str | os.PathLike, clip: str | int | None) -> Scene:
             if count:
                 deformer = GltfMorph(fields["points"], fields["normals"], fields["tangents"],
                                      r.morph_offsets(node.mesh, k, len(fields["points"])),
-                                     default, channel)
+                                     default, channel,
+                                     name=f"{r.name}: meshes[{node.mesh}].primitives[{k}]")
             try:
-                meshes.append(Mesh(name=name if len(prims) == 1 else f"{name}/primitive{k}",
+                meshes.append(Mesh(name=_primitive_name(name, k, len(prims)),
                                    skeleton=skeleton, skinning_method="lbs", deformer=deformer,
                                    **fields))
             except ValueError as e:
                 raise r.error(f"mesh {node.mesh} primitive {k}: {e}") from None
 
-    names = r.clip_names()
+    clips = r.clip_names()
     times = np.zeros(1) if channels is None else channels[1]
     return Scene(path=os.fspath(path), meshes=meshes, skeletons=skeletons, times=times,
-                 time_codes_per_second=1.0, up_axis="Y", meters_per_unit=1.0, clips=names,
-                 clip=None if clip_index is None else names[clip_index])
+                 time_codes_per_second=1.0, up_axis="Y", meters_per_unit=1.0, clips=clips,
+                 frame_rate=DEFAULT_FPS,
+                 clip=None if clip_index is None else clips[clip_index])

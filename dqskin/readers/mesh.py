@@ -2,23 +2,24 @@
 trimesh reads): geometry only, no skeleton (:func:`load_mesh`)."""
 
 import os
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from ..files.inputs import regular_file
+from ..validation import check_points
 
 __all__ = ["load_mesh"]
 
 
 def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Geometry of a plain mesh file: ``(points (V, 3) float32, faces (T, 3) int32)``."""
+    """Geometry of a plain mesh file: ``(points (V, 3) float32, faces (T, 3) int32)``.
+
+    Raises InputError (a ValueError) naming the file: not a regular file, unreadable, no
+    vertices, vertices NaN, infinite, beyond float32 range or all at one point
+    (:func:`dqskin.validation.check_points`)."""
     import trimesh
-    p = Path(path)
-    if not p.exists():
-        raise InputError(f"{p}: no such file")
-    if not p.is_file():
-        raise InputError(f"{p}: not a regular file")
+    p = regular_file(path)
     try:
         mesh = trimesh.load(p, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files
@@ -27,4 +28,6 @@ def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(f"{p}: cannot read mesh (no triangles)")
     if len(mesh.vertices) == 0:
         raise InputError(f"{p}: mesh has no vertices")
-    return np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.int32)
+    vertices = np.asarray(mesh.vertices, np.float64)
+    check_points(str(p), vertices)
+    return vertices.astype(np.float32), np.asarray(mesh.faces, np.int32)

@@ -59,6 +59,7 @@ from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
 from . import LOADER_SUFFIXES
 from .usd_anim import JointTracks
+from .usd_layers import open_stage as _open_checked
 from .usd_xform import LocalToWorld, XformChain
 
 __all__ = ["BLEND_WEIGHTS", "SKINNING_METHODS", "SUFFIXES", "load", "RigidPrim",
@@ -511,7 +512,7 @@ class _Loader:
             raise InputError(f"{self.path}: not a USD file (extension {ext!r}, expected one of "
                              f"{', '.join(SUFFIXES)})")
         try:
-            stage = Usd.Stage.Open(self.path, Usd.Stage.LoadAll)
+            stage = _open_checked(self.path, Usd.Stage.LoadAll)  # (no layer that is not a file)
         except Tf.ErrorException as exc:
             raise InputError(f"{self.path}: cannot open as USD: {_tf_message(exc)}") from None
         if stage is None:
@@ -1321,9 +1322,11 @@ def load_usd(path: str | os.PathLike) -> Scene:
     return _Loader(path).load()
 
 
-def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
+def load(path: str | os.PathLike, *, clip: str | int | None = None,
+         max_input_gib: float | None = None) -> Scene:
     """:func:`load_usd` with the signature every format's loader has (USD has one animation per
-    skeleton, so ``clip`` must be None)."""
+    skeleton, so ``clip`` must be None; ``max_input_gib`` is accepted for that signature: USD
+    reads arrays of the sizes its layers hold)."""
     if clip is not None:
         raise InputError(f"{path}: ", Param("clip"), " applies to glTF files; USD has one "
                          "animation per skeleton")

@@ -10,13 +10,23 @@ What each per-frame format holds (all meshes of the scene go into one file per f
   mesh of the file has normals, and UV (0, 0) when another mesh has UVs.
 * ``.stl``, ``.off``: positions and triangles only (the formats have no per-vertex normals or
   UVs), so dqskin neither skins normals for them nor reads the UVs.
-* Every format but ``.ply`` needs triangles: a mesh without faces (curves, points) is an error
-  naming it; ``.ply`` keeps its points as vertices.
+* Materials: ``.glb`` frames embed each mesh's base-colour material and texture
+  (:mod:`dqskin.readers.materials`), one glTF mesh per source mesh; ``.obj`` frames name one
+  ``.mtl`` file (``Kd``, ``d``, ``map_Kd``) written beside them with the texture images, once
+  for all frames.
+* Space: the points as skinned (world space by default, in the scene's length unit). ``.glb``
+  files put them under one node whose matrix takes them to glTF's space (metres, +Y up): the
+  accessors hold the points themselves. ``.obj`` and ``.ply`` files state the space, up axis and
+  unit in a comment.
+* Every format but ``.ply`` needs triangles: a mesh without faces (curves, points) is left out
+  of them (:attr:`MeshLayout.skipped` says which), an error only when no mesh is left; ``.ply``
+  keeps its points as vertices.
 """
 
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -30,6 +40,7 @@ from ..files.atomic import CommitOnSuccess, atomic_group, named_error
 if TYPE_CHECKING:
     import trimesh
 
+    from ..readers.materials import BaseColor
     from ..scene import Mesh
 
 __all__ = ["FACES_REQUIRED", "SUFFIXES", "WITH_ATTRIBUTES", "FrameWriter", "MeshLayout",
@@ -144,6 +155,17 @@ class MeshLayout:
         Triangles into the file's vertices.
     uvs : (K, 2) float64 or None
     normals : bool
+    meshes : list of dqskin.Mesh
+        The meshes the files hold, in order.
+    ranges : list of (slice, slice)
+        Per mesh of :attr:`meshes`, its rows of the vertices and of :attr:`faces`.
+    skipped : list of str
+        One line per mesh the format cannot hold (no faces), left out.
+
+    Raises
+    ------
+    InputError
+        No mesh the format can hold; UVs that cannot be matched to the mesh.
     """
 
     def __init__(self, meshes: Sequence[Mesh], suffix: str, *, normals: bool = True,
@@ -157,18 +179,26 @@ class MeshLayout:
         want_uvs = bool(uvs) and rich and any(m.uvs is not None for m in meshes)
         # (mesh, vertex (K,), normal index (K,) or None)
         self.parts: list[tuple[Mesh, np.ndarray, np.ndarray | None]] = []
+        self.skipped = [f"skipped {m.name} (no faces; {suffix} files hold triangle meshes)"
+                        for m in meshes if suffix in FACES_REQUIRED and len(m.faces) == 0]
+        self.meshes = [m for m in meshes if suffix not in FACES_REQUIRED or len(m.faces)]
+        if meshes and not self.meshes:
+            raise InputError(f"no mesh to write: {suffix} files hold triangle meshes and "
+                             f"{', '.join(m.name for m in meshes)}: no faces; write .ply, .npz "
+                             "or a USD cache")
+        self.ranges: list[tuple[slice, slice]] = []
         faces: list[np.ndarray] = []
         uv_rows: list[np.ndarray] = []
-        offset = 0
-        for m in meshes:
-            if suffix in FACES_REQUIRED and len(m.faces) == 0:
-                raise InputError(f"{m.name}: no faces; {suffix} files hold triangle meshes "
-                                 "(write .ply, .npz or a USD cache)")
+        offset = face_offset = 0
+        for m in self.meshes:
             vert, tris, nidx, uv = self._split(m, want_uvs, uv_top_left, uv_interpolation)
             self.parts.append((m, vert, nidx))
             faces.append(tris + offset)
             uv_rows.append(uv if uv is not None else np.zeros((len(vert), 2)))
+            self.ranges.append((slice(offset, offset + len(vert)),
+                                slice(face_offset, face_offset + len(tris))))
             offset += len(vert)
+            face_offset += len(tris)
         self.faces = np.concatenate(faces) if faces else np.zeros((0, 3), np.int64)
         self.uvs = np.concatenate(uv_rows) if want_uvs else None
         self.vertex_count = offset
@@ -294,13 +324,25 @@ class FrameWriter(CommitOnSuccess):
     overwrite : bool
         Replace existing files; False claims each name exclusively (FileExistsError when it
         exists at commit, e.g. written by another run meanwhile).
+    groups : sequence of (slice, slice, BaseColor or None, str), optional
+        Per source mesh: its rows of the vertices and of ``faces``, its material and its name
+        (``.glb``: one glTF node and mesh each, so named, with its material; ``.obj``: one
+        ``usemtl`` group each, materials in :meth:`material_path`). Default: one group, no
+        material.
+    to_gltf : (4, 4) float, optional
+        ``.glb``: the matrix of the node holding the meshes (the points' space → glTF's
+        metres, +Y up); identity when None.
+    comment : str, optional
+        One line for ``.obj`` and ``.ply`` headers (the space, up axis and unit).
 
     Use as a context manager (commits on success, removes every temporary file on an exception),
     or call :meth:`commit` / :meth:`discard`.
     """
 
     def __init__(self, pattern: str | os.PathLike, faces: npt.ArrayLike,
-                 uvs: npt.ArrayLike | None = None, *, overwrite: bool = True) -> None:
+                 uvs: npt.ArrayLike | None = None, *, overwrite: bool = True,
+                 groups: Sequence[tuple[slice, slice, BaseColor | None, str]] | None = None,
+                 to_gltf: npt.ArrayLike | None = None, comment: str | None = None) -> None:
         self.pattern = str(pattern)
         self.suffix = Path(self.pattern).suffix.lower()
         if self.suffix not in SUFFIXES:
@@ -309,28 +351,51 @@ class FrameWriter(CommitOnSuccess):
         if uvs is not None and self.suffix not in WITH_ATTRIBUTES:
             raise InputError(f"{self.pattern}: {self.suffix} files cannot hold UVs")
         self.uvs = None if uvs is None else np.asarray(uvs, np.float64)
+        self.groups = list(groups) if groups else [(slice(None), slice(None), None, "mesh")]
+        if self.suffix not in (".obj", ".glb") or self.uvs is None:
+            self.groups = [(v, f, None, n) for v, f, _, n in self.groups]
+        self.to_gltf = None if to_gltf is None else np.asarray(to_gltf, np.float64)
+        self.comment = " ".join(str(comment).split()) if comment else None
         self.group = atomic_group(overwrite=overwrite)
         self.paths: list[Path] = []
+        self._materials: dict[BaseColor, str] = {}  # material → its name in the files
+        for _, _, c, _ in self.groups:
+            if c is not None and c not in self._materials:
+                name, k = c.name, 1
+                while name in self._materials.values():
+                    name, k = f"{c.name}_{k}", k + 1
+                self._materials[c] = name
+        self._shared_written = False
+
+    def material_path(self) -> Path | None:
+        """The ``.mtl`` file ``.obj`` frames name (None: no material, or not ``.obj``):
+        ``out/frame_{:04d}.obj`` → ``out/frame.mtl``."""
+        if self.suffix != ".obj" or not self._materials:
+            return None
+        p = Path(self.pattern)
+        stem = re.sub(r"\{[^{}]*\}", "", p.stem).strip("_-. ") or "materials"
+        return p.with_name(stem + ".mtl")
 
     def write(self, frame_numbers: Iterable[int], points: Sequence[npt.ArrayLike] | np.ndarray,
               normals: Sequence[npt.ArrayLike] | np.ndarray | None = None) -> list[Path]:
         """Write frames ``frame_numbers`` (F,) with positions ``points`` (F, K, 3) and
         optionally unit ``normals`` (F, K, 3) to temporary files."""
-        import trimesh
         if normals is not None and self.suffix not in WITH_ATTRIBUTES:
             raise InputError(f"{self.pattern}: {self.suffix} files cannot hold vertex normals")
         paths = frame_paths(self.pattern, frame_numbers)
-        from trimesh.visual import TextureVisuals
-        from trimesh.visual.material import PBRMaterial
+        if not self._shared_written:
+            self._write_materials()
         for k, (path, pts) in enumerate(zip(paths, points)):
-            visual = (None if self.uvs is None else
-                      TextureVisuals(uv=self.uvs, material=PBRMaterial()))  # no texture image
-            mesh = trimesh.Trimesh(np.asarray(pts, np.float64), self.faces, process=False,
-                                   vertex_normals=None if normals is None else normals[k],
-                                   visual=visual)
             tmp = self.group.add(path)
+            nrm = None if normals is None else np.asarray(normals[k], np.float64)
             try:
-                self._export(mesh, tmp, normals is not None)
+                if self.suffix == ".obj":
+                    Path(tmp).write_text(self._obj(np.asarray(pts, np.float64), nrm))
+                elif self.suffix == ".glb":
+                    self._glb(np.asarray(pts, np.float64), nrm).export(
+                        tmp, file_type="glb", include_normals=nrm is not None)
+                else:
+                    self._plain(np.asarray(pts, np.float64), nrm, tmp)
             except OSError as exc:  # (a full disk: naming the frame's file)
                 raise named_error(path, exc) from None
             except Exception as exc:  # trimesh raises many types
@@ -338,17 +403,99 @@ class FrameWriter(CommitOnSuccess):
             self.paths.append(path)
         return paths
 
-    def _export(self, mesh: trimesh.Trimesh, tmp: Path, with_normals: bool) -> None:
-        if self.suffix == ".obj":
-            from trimesh.exchange.obj import export_obj
-            text = export_obj(mesh, include_normals=with_normals,
-                              include_texture=self.uvs is not None, write_texture=False)
-            # UVs without a material: no mtllib / usemtl (nothing to point at)
-            text = "\n".join(ln for ln in text.split("\n")
-                             if not ln.startswith(("mtllib ", "usemtl ")))
-            Path(tmp).write_text(text)
-        else:
-            mesh.export(tmp, file_type=self.suffix.lstrip("."))
+    def _write_materials(self) -> None:
+        """The ``.mtl`` file and texture images of ``.obj`` frames (once)."""
+        self._shared_written = True
+        mtl = self.material_path()
+        if mtl is None:
+            return
+        lines = ["# dqskin: materials of " + Path(self.pattern).name]
+        for c, name in self._materials.items():
+            r, g, b, a = c.factor
+            lines += ["", f"newmtl {name}", f"Kd {r:.6g} {g:.6g} {b:.6g}", f"d {a:.6g}",
+                      "Ka 0 0 0", "Ks 0 0 0", "illum 1"]
+            if c.image is not None:
+                image = mtl.with_name(f"{mtl.stem}_{name}{c.image_suffix}")
+                Path(self.group.add(image)).write_bytes(c.image)
+                self.paths.append(image)
+                lines.append(f"map_Kd {image.name}")
+        Path(self.group.add(mtl)).write_text("\n".join(lines) + "\n")
+        self.paths.append(mtl)
+
+    def _obj(self, pts: np.ndarray, nrm: np.ndarray | None) -> str:
+        """The text of one ``.obj`` frame (vertex, UV and normal indices all equal)."""
+        out = [f"# {self.comment}"] if self.comment else []
+        mtl = self.material_path()
+        if mtl is not None:
+            out.append(f"mtllib {mtl.name}")
+        out.append(_rows("v", pts))
+        if self.uvs is not None:
+            out.append(_rows("vt", self.uvs))
+        if nrm is not None:
+            out.append(_rows("vn", nrm))
+        corner = "{0}/{0}/{0}" if self.uvs is not None and nrm is not None else \
+            "{0}/{0}" if self.uvs is not None else "{0}//{0}" if nrm is not None else "{0}"
+        for _, fs, c, name in self.groups:
+            out.append(f"g {re.sub(r'[^A-Za-z0-9_./-]', '_', name)}")
+            if c is not None:
+                out.append(f"usemtl {self._materials[c]}")
+            tri = self.faces[fs] + 1
+            if len(tri):
+                fmt = "f " + " ".join(corner.replace("0", str(i)) for i in range(3))
+                out.append("\n".join(fmt.format(*row) for row in tri.tolist()))
+        return "\n".join(out) + "\n"
+
+    def _glb(self, pts: np.ndarray, nrm: np.ndarray | None) -> trimesh.Scene:
+        """One ``.glb`` frame: a glTF mesh per group under the :attr:`to_gltf` node."""
+        import trimesh
+        from trimesh.visual import TextureVisuals
+        from trimesh.visual.material import PBRMaterial
+        scene = trimesh.Scene()
+        root = np.eye(4) if self.to_gltf is None else self.to_gltf
+        for vs, fs, c, name in self.groups:
+            v = np.arange(len(pts))[vs]
+            lo = int(v[0]) if len(v) else 0
+            visual = None
+            if self.uvs is not None:
+                visual = TextureVisuals(uv=self.uvs[vs], material=self._pbr(c, PBRMaterial))
+            mesh = trimesh.Trimesh(pts[vs], self.faces[fs] - lo, process=False,
+                                   vertex_normals=None if nrm is None else nrm[vs],
+                                   visual=visual)
+            scene.add_geometry(mesh, node_name=name, geom_name=name, transform=root)
+        return scene
+
+    def _pbr(self, c: BaseColor | None, kind: type) -> object:
+        """trimesh's PBRMaterial of ``c`` (its texture decoded once)."""
+        if c is None:
+            return kind()
+        cached = getattr(self, "_pbr_cache", {})
+        self._pbr_cache = cached
+        if c not in cached:
+            image = None
+            if c.image is not None:
+                import io
+
+                from PIL import Image
+                image = Image.open(io.BytesIO(c.image))
+                image.load()
+            cached[c] = kind(name=self._materials[c], baseColorFactor=list(c.factor),
+                             baseColorTexture=image, metallicFactor=0.0, roughnessFactor=1.0)
+        return cached[c]
+
+    def _plain(self, pts: np.ndarray, nrm: np.ndarray | None, tmp: Path) -> None:
+        """``.ply``, ``.stl``, ``.off`` through trimesh (one mesh)."""
+        import trimesh
+        from trimesh.visual import TextureVisuals
+        from trimesh.visual.material import PBRMaterial
+        visual = (None if self.uvs is None else
+                  TextureVisuals(uv=self.uvs, material=PBRMaterial()))  # no texture image
+        mesh = trimesh.Trimesh(pts, self.faces, process=False, vertex_normals=nrm, visual=visual)
+        exported = mesh.export(file_type=self.suffix.lstrip("."))
+        data = exported if isinstance(exported, bytes) else str(exported).encode()
+        if self.suffix == ".ply" and self.comment:  # a comment line after the format line
+            head, sep, rest = data.partition(b"\n")
+            data = head + sep + f"comment {self.comment}\n".encode() + rest
+        Path(tmp).write_bytes(data)
 
     def commit(self) -> list[Path]:
         """Put every written file in place; returns their paths."""
@@ -356,6 +503,13 @@ class FrameWriter(CommitOnSuccess):
 
     def discard(self) -> None:
         self.group.discard()
+
+
+def _rows(tag: str, values: np.ndarray) -> str:
+    """``tag x y z`` lines, 9 significant digits (float32 round-trips)."""
+    cols = values.shape[1]
+    fmt = tag + (" %.9g" * cols)
+    return "\n".join(fmt % tuple(r) for r in values.tolist())
 
 
 def write_frames(pattern: str | os.PathLike, frame_numbers: Iterable[int],

@@ -22,7 +22,7 @@ import contextlib
 import ctypes
 import itertools
 import os
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,9 +47,9 @@ if TYPE_CHECKING:
 
 __all__ = ["CACHE_EXTENSIONS", "CHUNK_BYTES", "CHUNK_FRAMES", "CHUNK_MIN_FRAMES",
            "CLIPS_FOLDER_SUFFIX",
-           "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter", "clips_folder",
-           "chunk_frames", "export_layer", "frame_bytes", "layer_file", "stage_files",
-           "write_usd_cache"]
+           "CacheLayer", "SampleWriter", "Target", "UsdCacheWriter", "check_not_input",
+           "clips_folder", "chunk_frames", "export_layer", "frame_bytes", "layer_file",
+           "stage_files", "write_usd_cache"]
 
 CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
 """Extensions :func:`write_usd_cache` writes (``.usd`` is binary crate)."""
@@ -159,6 +159,14 @@ def stage_files(stage: Usd.Stage) -> list[str]:
 def _source_files(stage, source_path):
     """Every file the source stage reads (:func:`stage_files`) and ``source_path``."""
     return {os.fspath(source_path), *stage_files(stage)}
+
+
+def check_not_input(out: str | os.PathLike, stage: Usd.Stage, src: str | os.PathLike) -> None:
+    """InputError (a ValueError) when ``out`` is a file the source ``stage`` (read from ``src``)
+    reads: its root layer, a sublayer, a reference, its usdz package."""
+    if os.path.exists(out) and any(_same_file(out, f) for f in _source_files(stage, src)
+                                   if os.path.exists(f)):
+        raise InputError(f"{out}: refusing to overwrite an input of {src}")
 
 
 def _remove_skel_binding(layer):
@@ -376,10 +384,14 @@ class CacheLayer:
         layer it reads (nothing is written here).
     source_path : str or os.PathLike, optional
         The stage to copy; ``scene.path`` by default.
+    dropped : sequence of str
+        Skinned prims of the source left out of the bake (:func:`dqskin.selection.
+        select_meshes`): deactivated in the copy, which would show them in their rest pose.
     """
 
     def __init__(self, scene: "Scene", out_path: str | os.PathLike, *,
-                 source_path: str | os.PathLike | None = None) -> None:
+                 source_path: str | os.PathLike | None = None,
+                 dropped: "Sequence[str]" = ()) -> None:
         out = os.fspath(out_path)
         check_parent(out)
         src = os.fspath(scene.path if source_path is None else source_path)
@@ -393,14 +405,16 @@ class CacheLayer:
             stage = None
         if stage is None:
             raise InputError(f"{src}: cannot open the source stage")
-        if os.path.exists(out) and any(_same_file(out, f) for f in _source_files(stage, src)
-                                       if os.path.exists(f)):
-            raise InputError(f"{out}: refusing to overwrite an input of {src}")
+        check_not_input(out, stage, src)
         self.scene, self.out, self.src, self.ext = scene, out, src, ext
         self.stage = stage
         self.rigid = _rigid_prims(stage, scene)
         self.layer = stage.Flatten()
         _remove_skel_binding(self.layer)
+        for name in dropped:
+            spec = self.layer.GetPrimAtPath(name)
+            if spec is not None:
+                spec.active = False
         self.targets: dict[tuple[str, str], Target] = {}
         self._target_prims: set[str] = set()  # prims with a target (ancestors' extentsHint dropped)
 
@@ -677,6 +691,8 @@ class UsdCacheWriter(CommitOnSuccess):
         ``overwrite``). Must not be the source file or any layer it reads.
     source_path : str or os.PathLike, optional
         The stage to copy; ``scene.path`` by default.
+    dropped : sequence of str
+        Skinned prims left out of the bake, deactivated (:class:`CacheLayer`).
     options : dqskin.SkinOptions, optional
         The options that produced the points: the skinned prims without points (``Sphere``,
         ``Cube``, ...) are skinned with them (``method``: None uses each prim's own; ``interp``,
@@ -697,8 +713,8 @@ class UsdCacheWriter(CommitOnSuccess):
     def __init__(self, scene: "Scene", out_path: str | os.PathLike,
                  options: SkinOptions | None = None, *,
                  source_path: str | os.PathLike | None = None, overwrite: bool = True,
-                 final: bool = False) -> None:
-        self.cache = CacheLayer(scene, out_path, source_path=source_path)
+                 final: bool = False, dropped: "Sequence[str]" = ()) -> None:
+        self.cache = CacheLayer(scene, out_path, source_path=source_path, dropped=dropped)
         self.scene, self.out, self.src = scene, self.cache.out, self.cache.src
         self.layer = self.cache.layer
         self.samples = SampleWriter(scene, self.cache.target, self.cache.rigid,

@@ -51,8 +51,10 @@ from pxr import Sdf, Tf, Usd, Vt
 from ..errors import InputError, OutputExistsError, Param, output_exists
 from ..files.atomic import atomic_path, check_interrupted, named_error
 from ..files.crate import BOOTSTRAP, CrateSamples, Hasher
+from ..files.inputs import open_input
 from ..options import CorOptions, SkinOptions
 from ..readers.usd import _tf_message
+from ..readers.usd_layers import open_stage
 from ..scene import Scene
 from .clip_lock import reading_lock
 from .usd_cache import (
@@ -125,9 +127,9 @@ MAX_JSON_BYTES = 16 << 20
 
 def read_json(path: str | os.PathLike) -> Any:
     """The JSON document in ``path``; InputError (a ValueError) naming it when it is not JSON,
-    nested too deeply to read, or over :data:`MAX_JSON_BYTES`; OSError when it cannot be
-    read."""
-    with open(path, "rb") as fh:
+    nested too deeply to read, over :data:`MAX_JSON_BYTES`, or not a regular file (never a
+    FIFO: :func:`~dqskin.files.inputs.open_input`); OSError when it cannot be read."""
+    with open_input(path) as fh:
         data = fh.read(MAX_JSON_BYTES + 1)
     if len(data) > MAX_JSON_BYTES:
         raise InputError(f"{path}: over {MAX_JSON_BYTES >> 20} MB; not a dqskin file")
@@ -829,7 +831,7 @@ def flatten(src: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool =
 def _flatten(src: str | os.PathLike, out: Path, overwrite: bool) -> Path:
     """:func:`flatten` once ``src``'s clip folder is held."""
     try:
-        stage = Usd.Stage.Open(str(src))
+        stage = open_stage(src, Usd.Stage.LoadAll)  # (clip layers included: no FIFO)
     except Tf.ErrorException as exc:
         raise InputError(f"{src}: cannot open as USD: {_tf_message(exc)}") from None
     if stage is None:

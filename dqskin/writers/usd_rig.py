@@ -2,15 +2,17 @@
 
 :func:`write_rig` writes one ``SkelRoot`` (``/Root``) holding, per skeleton, a ``Skeleton`` with
 its joints (hierarchy paths), ``bindTransforms`` and ``restTransforms``, a ``SkelAnimation`` child
-with the animation sampled at the scene's times (``translations``, ``rotations``, ``scales`` from
-``UsdSkelAnimation::SetTransforms``) bound through ``skel:animationSource``; and every mesh as a
-``Mesh`` with ``SkelBindingAPI``: ``skel:skeleton``, ``primvars:skel:jointIndices`` and
-``jointWeights`` (vertex interpolation, ``elementSize`` K), ``primvars:skel:geomBindTransform``
-and ``primvars:skel:skinningMethod`` (``classicLinear`` for "lbs", ``dualQuaternion`` for
-"dqs"; a "blend" mesh: the one nearer its mean blend weight, and its per-vertex weights as
-``primvars:dqskin:blendWeights``, which dqskin reads back as the "blend" method). A skeleton
-placed in the world (in a USD scene its prim's local-to-world, time-sampled
-when animated: a converter's ``Z_UP`` group, say) is written with its meshes under an ``Xform``
+with the animation (``translations``, ``rotations``, ``scales`` from
+``UsdSkelAnimation::SetTransforms``) sampled at every frame of the output frame rate
+(:mod:`dqskin.times`), whole frame numbers as time codes, bound through
+``skel:animationSource``; and every mesh as a ``Mesh`` (with its rest normals) with
+``SkelBindingAPI``: ``skel:skeleton``, ``primvars:skel:jointIndices`` and ``jointWeights``
+(vertex interpolation, ``elementSize`` K), ``primvars:skel:geomBindTransform`` and
+``primvars:skel:skinningMethod`` (``classicLinear`` for "lbs", ``dualQuaternion`` for "dqs";
+a "blend" mesh: the one nearer its mean blend weight, and its per-vertex weights as
+``primvars:dqskin:blendWeights``, which dqskin reads back as the "blend" method).
+A skeleton placed in the world (in a USD scene its prim's local-to-world, time-sampled when
+animated: a converter's ``Z_UP`` group, say) is written with its meshes under an ``Xform``
 (``/Root/Placement``) whose ``xformOp:transform`` is that placement: UsdSkel takes skinned
 points to the world by the skeleton's transform, and Blender's importer, which ignores a skinned
 mesh's own transform, sees the mesh in its skeleton's space. Matrices are transposed here, at
@@ -34,19 +36,17 @@ from ..files.atomic import atomic_path
 from ..readers import gltf
 from ..readers.usd_xform import LocalToWorld, XformChain
 from ..scene import Scene
-from .usd_cache import export_layer
+from .usd_cache import check_not_input, export_layer
 
 if TYPE_CHECKING:
-    from pxr import Usd, Vt
+    from pxr import Usd, UsdGeom, Vt
 
+    from ..scene import Mesh
     from ..skeleton import Skeleton
 
-__all__ = ["RIG_SUFFIXES", "SECONDS_RATE", "joint_paths", "write_rig"]
+__all__ = ["RIG_SUFFIXES", "joint_paths", "rig_stage", "write_rig"]
 
 RIG_SUFFIXES = (".usd", ".usda", ".usdc")
-
-SECONDS_RATE = 24.0
-"""Time codes per second of a rig written from a glTF scene (whose times are seconds)."""
 
 _METHODS = {"lbs": "classicLinear", "dqs": "dualQuaternion"}
 
@@ -120,41 +120,101 @@ def _author_placement(xformable: Usd.Prim, world: np.ndarray, codes: np.ndarray)
         op.Set(Gf.Matrix4d(m.T.tolist()), Usd.TimeCode(float(t)))
 
 
-def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> str:
+def _author_normals(mesh: UsdGeom.Mesh, m: Mesh, corners: int) -> None:
+    """The rest normals of ``m`` on ``mesh``: per vertex, or per face corner (``faceVarying``)
+    when each of ``corners`` face-vertex indices has its own; none otherwise."""
+    from pxr import UsdGeom, Vt
+    if m.normals is None:
+        return
+    n = np.asarray(m.normals, np.float32).reshape(-1, 3)
+    if m.normal_vertex is None and len(n) == len(m.points):
+        interp = UsdGeom.Tokens.vertex
+    elif m.normal_vertex is not None and len(n) == corners and m.face_vertex_indices is not None \
+            and np.array_equal(np.asarray(m.normal_vertex), np.asarray(m.face_vertex_indices)):
+        interp = UsdGeom.Tokens.faceVarying
+    else:
+        return
+    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(n))
+    mesh.SetNormalsInterpolation(interp)
+
+
+def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False,
+              fps: float | None = None) -> str:
     """Write ``scene`` as a UsdSkel rig at ``out`` (``.usd/.usda/.usdc``).
 
     Parameters
     ----------
     scene : dqskin.Scene
-        Skeletons with their animations, sampled at ``scene.times`` (time codes at
-        ``scene.time_codes_per_second``; glTF seconds become time codes at
-        :data:`SECONDS_RATE` per second), and meshes with their influences.
+        Skeletons with their animations, sampled at every frame of the output frame rate
+        (:func:`dqskin.times.frame_rate`: a USD scene's own time codes, a BVH's frames, glTF
+        seconds × 24), whole frame numbers being the rig's time codes; and meshes with their
+        influences.
     out : path
     force : bool
-        Replace an existing file (otherwise the name is claimed exclusively).
+        Replace an existing file (otherwise the name is claimed exclusively); never a file the
+        scene was read from (a USD scene's layers: InputError).
+    fps : float, optional
+        Output frame rate (default :func:`dqskin.times.frame_rate`).
 
     Returns
     -------
     str
         A one-line summary.
     """
-    from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
-
-    from ..readers.usd import BLEND_WEIGHTS
-
+    from ..times import FRAMES_CEILING, frame_rate, select
     out = Path(out)
     if out.suffix.lower() not in RIG_SUFFIXES:
         raise InputError(Param("out", out), f": a rig is written as {'/'.join(RIG_SUFFIXES)}")
-    times = np.asarray(scene.times, np.float64)
-    rate = float(scene.time_codes_per_second)
-    codes = times
-    if Path(scene.path).suffix.lower() in gltf.SUFFIXES:  # seconds: 24 time codes a second
-        codes, rate = times * SECONDS_RATE, SECONDS_RATE
+    sel = select(scene.times, scene.time_codes_per_second, fps=fps, rate=frame_rate(scene),
+                 max_frames=FRAMES_CEILING)
+    source = _source_stage(scene)
+    if source is not None:
+        check_not_input(out, source, scene.path)
+    stage, _ = rig_stage(scene, sel.times, sel.frames, sel.rate)
+    stage.GetRootLayer().documentation = f"dqskin rig of {scene.path}"
+    claim = atomic_path(out, overwrite=force)
+    try:
+        export_layer(stage.GetRootLayer(), claim, out)
+        claim.commit()
+    except BaseException:
+        claim.discard()
+        raise
+    n = len(scene.meshes)
+    joints = sum(s.joint_count for s in scene.skeletons)
+    return (f"wrote {out}: UsdSkel rig, {n} mesh{'es' if n != 1 else ''}, {joints} joints, "
+            f"{len(sel.times)} animation samples at {sel.rate:g} fps")
+
+
+def rig_stage(scene: Scene, times: np.ndarray, codes: np.ndarray,
+              rate: float) -> tuple[Usd.Stage, dict[str, str]]:
+    """``scene`` as a UsdSkel rig in a new in-memory stage (see the module docstring).
+
+    Parameters
+    ----------
+    scene : dqskin.Scene
+    times : (F,) float64
+        Asset times (``scene.times`` unit) the animations are sampled at.
+    codes : (F,) float64
+        The rig's time code of each of ``times``.
+    rate : float
+        The rig's ``timeCodesPerSecond`` and ``framesPerSecond``.
+
+    Returns
+    -------
+    (Usd.Stage, dict)
+        The stage, and each mesh's prim path by ``Mesh.name``.
+    """
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+
+    from ..readers import format_of
+    from ..readers.usd import BLEND_WEIGHTS
+    times = np.asarray(times, np.float64)
+    codes = np.asarray(codes, np.float64)
     stage = Usd.Stage.CreateInMemory()
     stage.SetStartTimeCode(float(codes[0]))
     stage.SetEndTimeCode(float(codes[-1]))
-    stage.SetTimeCodesPerSecond(rate)
-    stage.SetFramesPerSecond(rate)
+    stage.SetTimeCodesPerSecond(float(rate))
+    stage.SetFramesPerSecond(float(rate))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z if scene.up_axis == "Z" else UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, float(scene.meters_per_unit))
     root = UsdSkel.Root.Define(stage, "/Root")
@@ -188,9 +248,12 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
             anim.SetTransforms(_matrices(local[f]), Usd.TimeCode(float(t)))
         UsdSkel.BindingAPI.Apply(us.GetPrim()).CreateAnimationSourceRel().SetTargets(
             [anim.GetPath()])
+    paths: dict[str, str] = {}
+    top_left = format_of(scene.path) is gltf  # glTF UVs: origin top-left; USD's bottom-left
     for m in scene.meshes:
         mesh = UsdGeom.Mesh.Define(stage, groups[m.skeleton].AppendChild(_prim_name(m.name,
                                                                                     taken)))
+        paths[m.name] = str(mesh.GetPath())
         pts = np.asarray(m.points, np.float32)
         mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
         if m.face_vertex_counts is not None and m.face_vertex_indices is not None:
@@ -204,10 +267,16 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
         if len(pts):
             mesh.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, pts.min(0))),
                                                  Gf.Vec3f(*map(float, pts.max(0)))]))
-        if m.uvs is not None and len(m.uvs) == len(pts):
+        st_interp = None if m.uvs is None else UsdGeom.Tokens.vertex if len(m.uvs) == len(pts) \
+            else UsdGeom.Tokens.faceVarying if len(m.uvs) == len(indices) else None
+        if st_interp is not None:  # (per vertex, or per face corner)
+            st = np.array(m.uvs, np.float32).reshape(-1, 2)
+            if top_left:
+                st[:, 1] = 1.0 - st[:, 1]
             UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
-                "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex).Set(
-                Vt.Vec2fArray.FromNumpy(np.asarray(m.uvs, np.float32)))
+                "st", Sdf.ValueTypeNames.TexCoord2fArray, st_interp).Set(
+                Vt.Vec2fArray.FromNumpy(st))
+        _author_normals(mesh, m, len(indices))
         bind = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
         bind.CreateSkeletonRel().SetTargets([skel_paths[m.skeleton]])
         idx = np.asarray(m.joint_indices, np.int32)
@@ -225,15 +294,4 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False) -> s
             UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
                 BLEND_WEIGHTS, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
                 Vt.FloatArray.FromNumpy(b))
-    stage.GetRootLayer().documentation = f"dqskin rig of {scene.path}"
-    claim = atomic_path(out, overwrite=force)
-    try:
-        export_layer(stage.GetRootLayer(), claim, out)
-        claim.commit()
-    except BaseException:
-        claim.discard()
-        raise
-    n = len(scene.meshes)
-    joints = sum(s.joint_count for s in scene.skeletons)
-    return (f"wrote {out}: UsdSkel rig, {n} mesh{'es' if n != 1 else ''}, {joints} joints, "
-            f"{len(times)} animation samples")
+    return stage, paths
