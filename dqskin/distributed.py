@@ -14,7 +14,10 @@ the same paths (one machine, or a shared file system).
 * ``workers=N``: a :class:`distributed.LocalCluster` of ``N`` worker processes (one task at a
   time each; USD's and dqskin's CPU threads limited to cores / ``N`` per process, or to
   ``threads``) on 127.0.0.1, started and closed by the bake, forked from a forkserver that has
-  imported dqskin once (:mod:`dqskin.forkserver`).
+  imported dqskin once (:mod:`dqskin.forkserver`), when they pay: the first clip is baked here
+  and timed, and the cluster starts only if the rest would take this process longer than
+  :func:`workers_pay_seconds` (what starting workers, loading the asset in each and their first
+  tasks cost); else the rest is baked here too (:func:`workers_choice` says which, in one line).
 * ``scheduler="tcp://HOST:PORT"``: an existing cluster (``dask scheduler`` and ``dask worker``).
   Each worker process's thread budget is its ``--nthreads`` (:func:`worker_threads`), unless
   ``DQSKIN_THREADS`` / ``PXR_WORK_THREAD_LIMIT`` are set in its environment.
@@ -50,7 +53,39 @@ if TYPE_CHECKING:
 
     from .baking import BakeSettings
 
-__all__ = ["ClipJob", "bake_clips", "run_clip", "run_here", "worker_threads"]
+__all__ = ["WORKERS_PAY_SECONDS", "ClipJob", "bake_clips", "run_clip", "run_here",
+           "worker_threads", "workers_choice", "workers_pay_seconds"]
+
+WORKERS_PAY_SECONDS = 3.0
+"""Seconds of work left (estimated in this process) from which a ``workers=N`` bake starts its
+LocalCluster: starting it, each worker's load of the asset and first task cost about a second
+of wall time and more of CPU time on a small machine, and N workers on the same cores finish
+the rest at best N times sooner (on two cores, 1.3 to 1.6 times)."""
+
+
+def workers_pay_seconds() -> float:
+    """:data:`WORKERS_PAY_SECONDS`, or the seconds in the environment variable
+    ``DQSKIN_WORKERS_PAY_SECONDS`` (0: always start the workers)."""
+    given = os.environ.get("DQSKIN_WORKERS_PAY_SECONDS", "").strip()
+    try:
+        value = float(given)
+    except ValueError:
+        return WORKERS_PAY_SECONDS
+    return value if value >= 0 and value == value else WORKERS_PAY_SECONDS
+
+
+def workers_choice(workers: int, seconds_per_frame: float, frames_left: int) -> tuple[bool, str]:
+    """Whether ``workers`` worker processes pay for the ``frames_left`` frames of a bake whose
+    first clip took ``seconds_per_frame`` a frame here, and a line saying what was chosen."""
+    left = seconds_per_frame * frames_left
+    limit = workers_pay_seconds()
+    pays = frames_left > 0 and left >= limit
+    n = f"{workers} worker process{'es' if workers != 1 else ''}"
+    estimate = (f"{frames_left} frames left at the first clip's {1e3 * seconds_per_frame:.2g} "
+                f"ms a frame: {left:.1f} s here")
+    return pays, (f"baked on {n} ({estimate}, at least the {limit:g} s from which workers pay)"
+                  if pays else f"baked in this process, not on {n} ({estimate}, under the "
+                  f"{limit:g} s from which workers pay)")
 
 
 # this worker process's loaded asset: {(path, mtime, size): (Scene, states of the files it read)}
@@ -293,7 +328,9 @@ def bake_clips(scene: Scene, out: str | Path, times: np.ndarray, options: SkinOp
     -------
     dict
         ``clips`` (in total), ``baked`` (this run), ``kept`` (verified from an earlier run),
-        ``folder``, and ``tasks``: what each task returned (pid, seconds, peak RSS).
+        ``folder``, ``tasks``: what each task returned (pid, seconds, peak RSS), and ``chose``:
+        with ``workers`` (unless ``DQSKIN_WORKERS_PAY_SECONDS`` is 0), the line
+        :func:`workers_choice` wrote (whether the workers were started), else None.
 
     Raises
     ------
@@ -313,6 +350,8 @@ def _bake_clips(scene, out, times, options, settings, threads):
     source = str(Path(scene.path).resolve())
     tasks = []
     bake = None
+    if s.workers is not None and not s.scheduler and workers_pay_seconds() > 0:
+        return _bake_clips_measured(scene, out, times, options, settings, threads, source)
     try:
         with _dask(s.workers, s.scheduler, threads) as client:
             # the workers load the asset while this process flattens it (kept until the end: a
@@ -355,7 +394,62 @@ def _bake_clips(scene, out, times, options, settings, threads):
                 exc.resumable = (kept, len(bake.bounds), str(bake.folder))  # type: ignore[attr-defined]
         raise
     return dict(clips=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
-                folder=str(bake.folder), tasks=tasks)
+                folder=str(bake.folder), tasks=tasks, chose=None)
+
+
+def _bake_clips_measured(scene, out, times, options, settings, threads, source):
+    """:func:`_bake_clips` with ``workers=N`` (a LocalCluster of its own): the first pending
+    clip is baked here and timed; the LocalCluster starts for the rest only when they would take
+    longer here than :func:`workers_pay_seconds` (:func:`workers_choice`), else they are baked
+    here too. The result's ``chose`` says which."""
+    s = settings
+    tasks: list[dict[str, Any]] = []
+    bake = None
+    try:
+        chunk = s.chunk
+        if chunk is None:  # as for the cluster's task slots (one per worker)
+            chunk = (s.resume and not s.force and usd_clips.recorded_chunk(out)) or \
+                usd_clips.clip_frames(scene, len(np.unique(times)), options.normals,
+                                      options.velocities, max(1, int(s.workers)))
+        bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=s.force,
+                                  resume=s.resume, inputs=s.inputs)
+        todo = bake.pending()
+        jobs = [ClipJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()),
+                        bake.key, bake.targets, bake.cache.rigid, options,
+                        float(scene.time_codes_per_second)) for k in todo]
+        bar = _bar(len(bake.bounds), len(bake.bounds) - len(todo), s.progress)
+
+        def done(result):
+            tasks.append(result)
+            bar.update(1)
+        try:
+            chose = "nothing left to bake"
+            if jobs:
+                t0 = time.perf_counter()
+                run_here(jobs[:1], scene, done)
+                per_frame = (time.perf_counter() - t0) / max(1, len(jobs[0].times))
+                pays, chose = workers_choice(int(s.workers), per_frame,
+                                             sum(len(j.times) for j in jobs[1:]))
+                if not pays:
+                    forkserver.stop_workers()  # (started early by the CLI: not needed)
+                    run_here(jobs[1:], scene, done)
+                else:
+                    with _dask(s.workers, None, threads) as client:
+                        _run_on_dask(client, jobs[1:], done)
+        finally:
+            bar.close()
+        bake.finish()
+    except BaseException as exc:
+        if bake is not None:
+            bake.abandon()
+            kept = bake.kept()
+            if isinstance(exc, KeyboardInterrupt) and kept:
+                exc.resumable = (kept, len(bake.bounds), str(bake.folder))  # type: ignore[attr-defined]
+        raise
+    finally:
+        forkserver.stop_workers()
+    return dict(clips=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
+                folder=str(bake.folder), tasks=tasks, chose=chose)
 
 
 def _bar(total, done, progress):

@@ -63,6 +63,31 @@ def test_two_worker_local_cluster_equals_the_single_process_cache(reference, tmp
     assert getattr(multiprocessing.forkserver._forkserver, "_forkserver_pid", None) is None
 
 
+def test_short_shot_stays_in_this_process(reference, tmp_path, capsys, monkeypatch):
+    """``--workers 2`` on the humanoid's short shot: its first clip, timed here, says the rest
+    takes far less than starting workers costs, so no worker is started (no forkserver left, no
+    Dask imported by the bake), one line says so, and the cache equals the single-process
+    one."""
+    import multiprocessing.forkserver
+
+    from dqskin.cli import main
+    from dqskin.distributed import WORKERS_PAY_SECONDS, workers_choice
+    monkeypatch.delenv("DQSKIN_WORKERS_PAY_SECONDS")
+    assert workers_choice(2, 1e-3, 10_000)[0] and not workers_choice(2, 1e-3, 100)[0]
+    assert not workers_choice(2, 1.0, 0)[0]  # nothing left
+    shot = tmp_path / "shot.usd"
+    assert main(["skin", str(HUMANOID), "--out", str(shot), "--chunk", str(CHUNK),
+                 "--workers", "2"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 1 and "as 7 clips" in out[0]
+    assert "; baked in this process, not on 2 worker processes (" in out[0]
+    assert out[0].endswith(f"under the {WORKERS_PAY_SECONDS:g} s from which workers pay)")
+    check(reference, shot)
+    assert getattr(multiprocessing.forkserver._forkserver, "_forkserver_pid", None) is None
+    monkeypatch.setenv("DQSKIN_WORKERS_PAY_SECONDS", "1e-9")  # anything left pays
+    assert workers_choice(2, 1e-6, 1)[0]
+
+
 def _start(args, log):
     env = {k: v for k, v in os.environ.items()  # the workers' budget from --nthreads alone
            if k not in ("DQSKIN_THREADS", "PXR_WORK_THREAD_LIMIT")}

@@ -40,6 +40,7 @@ from ..options import SkinOptions
 from ..pipeline import rigid_transforms
 from ..readers.usd import _tf_message, load_rigid_prims
 from ..shapes import frames_of
+from . import CACHE_EXTENSIONS  # (defined where it is known without importing USD)
 
 if TYPE_CHECKING:
     from ..readers.usd import RigidPrim
@@ -51,8 +52,6 @@ __all__ = ["CACHE_EXTENSIONS", "CHUNK_BYTES", "CHUNK_FRAMES", "CHUNK_MIN_FRAMES"
            "clips_folder", "chunk_frames", "export_layer", "frame_bytes", "layer_file",
            "stage_files", "write_usd_cache"]
 
-CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
-"""Extensions :func:`write_usd_cache` writes (``.usd`` is binary crate)."""
 
 _SKEL_API = "SkelBindingAPI"
 
