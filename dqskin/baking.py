@@ -447,11 +447,14 @@ def _bake_usd_layer(job: _Job) -> bool:
     scene, out, t, opts, s, dropped = job
     src = scene.path
     check_output(out, job.sources, s.force)
-    from .writers import clip_lock, usd_cache, usd_clips
+    from .writers import usd_cache
     # SHOT.clips/ of a dqskin clip bake beside SHOT.usd: locked, and replaced with force (no
     # folder is made otherwise: the bake writes one file)
     folder = usd_cache.clips_folder(out)
-    clips = folder.is_dir() and usd_clips.our_plan(folder) is not None
+    clips = False
+    if folder.is_dir():
+        from .writers import clip_lock, usd_clips
+        clips = usd_clips.our_plan(folder) is not None
     wrote_velocities = False
 
     def check(res: "SkinnedFrames") -> None:
@@ -463,7 +466,8 @@ def _bake_usd_layer(job: _Job) -> bool:
     with clip_lock.bake_lock(out) if clips else contextlib.nullcontext():
         replaces = clips and usd_clips.holds_clip_bake(out)
         with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force, final=True,
-                                      dropped=dropped) as writer:
+                                      dropped=dropped, expected_bytes=sample_bytes(
+                                          scene, len(t), opts.normals, opts.velocities)) as writer:
             if replaces and not s.force:  # (an unfinished one: out itself does not exist)
                 raise OutputExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
                                         f"of {Path(out).name}; complete it with ",

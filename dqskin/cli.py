@@ -220,6 +220,14 @@ def cmd_skin(args: argparse.Namespace) -> int:
                             inputs=tuple(inputs), prims=args.prims)
     check_clip_arguments(args.out, settings, options)  # before loading INPUT
     _checkpoint()
+    if settings.workers is not None and not settings.scheduler:
+        # the workers' forkserver imports while INPUT loads (stopped at once if the first clip
+        # says workers do not pay; by _run in any case)
+        from .forkserver import prestart_workers
+        try:
+            prestart_workers()
+        except Exception:  # only a head start: the cluster starts it or says why it cannot
+            pass
     scene = _load_input(args, cache_out=args.out)
     if _own_process:  # what is loaded lives to the end: no full collection walks it again
         from .forkserver import freeze_heap
@@ -884,51 +892,13 @@ def _hold_native_stderr() -> Callable[[], str] | None:
     return release
 
 
-def _wants_workers(argv: Sequence[str]) -> bool:
-    """Whether ``argv`` asks ``skin`` to bake on a LocalCluster: ``--workers N`` without
-    ``--scheduler`` or an option the bake refuses with it. Read before the full parser (whose
-    choices import dqskin's modules) by a parser of just these options: a hint only, the bake's
-    own checks decide."""
-    class Quiet(argparse.ArgumentParser):
-        # raised, not printed: the full parser reports errors
-        def error(self, message: str) -> NoReturn:
-            raise argparse.ArgumentError(None, message)
-
-    argv = list(argv)
-    while argv and argv[0] == "--verbose":
-        argv = argv[1:]
-    if not argv or argv[0] != "skin":
-        return False
-    p = Quiet(add_help=False, exit_on_error=False)
-    for flag in ("--workers", "--chunk"):
-        p.add_argument(flag, type=int)
-    for flag in ("--scheduler", "--skeleton", "--weights"):
-        p.add_argument(flag)
-    p.add_argument("--clips", action=argparse.BooleanOptionalAction)
-    try:
-        a = p.parse_known_args(argv[1:])[0]
-    except (argparse.ArgumentError, SystemExit):
-        return False
-    from .forkserver import max_workers
-    return (a.workers is not None and 1 <= a.workers <= max_workers() and not a.scheduler
-            and a.clips is not False
-            and (a.chunk is None or a.chunk >= 1) and a.skeleton is None and a.weights is None)
-
-
 def _run(argv: Sequence[str] | None) -> int:
-    workers = _wants_workers(sys.argv[1:] if argv is None else argv)
     try:
-        if workers:  # first: the workers' forkserver imports beside dqskin's (seconds of start-up)
-            from .forkserver import prestart_workers
-            try:
-                prestart_workers()
-            except Exception:  # only a head start: the cluster starts it or says why it cannot
-                pass
         return _run_command(argv)
     finally:
-        if workers:  # not reached by a bake (refused, INPUT failed to load, ...): no process
-            from .forkserver import stop_workers  # outlives the run
-            stop_workers()
+        if "dqskin.forkserver" in sys.modules:  # one cmd_skin started for workers (refused
+            from .forkserver import stop_workers  # later, INPUT failed to load, ...): no
+            stop_workers()  # process outlives the run
 
 
 def _stdout_reader_gone() -> bool:

@@ -253,10 +253,11 @@ def test_forkserver_stopped_when_the_input_fails_to_load(tmp_path, monkeypatch, 
     assert _forkserver_pid() is None
 
 
-def test_forkserver_started_first_is_stopped_when_the_output_is_refused(tmp_path, monkeypatch,
+def test_forkserver_starts_after_the_refusals_and_stops_when_the_load_fails(tmp_path, monkeypatch,
                                                                       capsys):
-    """``dqskin skin --workers`` starts the forkserver before importing dqskin's modules, so an
-    output refused only after that (a clip bake to .npz) must stop it again."""
+    """``dqskin skin --workers`` starts the forkserver once its refusals are answered, before
+    loading INPUT: an input that fails to load must stop it again; an output it refuses (a clip
+    bake to .npz) never starts it."""
     import dqskin.forkserver as forkserver
     from dqskin.cli import main
     started = []
@@ -266,6 +267,10 @@ def test_forkserver_started_first_is_stopped_when_the_output_is_refused(tmp_path
     out = tmp_path / "shot.npz"
     assert main(["skin", str(HUMANOID), "--out", str(out), "--workers", "2"]) != 0
     assert "--out" in capsys.readouterr().err and not out.exists()
+    assert started == [] and _forkserver_pid() is None
+    bad = tmp_path / "bad.usda"
+    bad.write_text("#usda 1.0\n(\n")
+    assert main(["skin", str(bad), "--out", str(tmp_path / "shot.usd"), "--workers", "2"]) != 0
     assert started == [1] and _forkserver_pid() is None
 
 

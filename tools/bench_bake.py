@@ -8,7 +8,8 @@ clips in this process and on a Dask LocalCluster of 1 and 2 worker processes.
 
 Assets: the looped CesiumMan (its 48-key walk looped over each ``--frames`` count, with root
 motion) and BrainStem.usdz's own clip when the file exists (``--brainstem``; default: searched
-under ../shared/assets), else a stand-in of its size (10 CesiumMen side by side, 1,292 frames,
+under ../shared/assets), else a stand-in of its shape (59 meshes of varied sizes cut from
+CesiumMan under one skeleton, 1,309 poses of their own: :func:`make_many_meshes`;
 ``--no-standin`` to skip). Each bake runs in a fresh process so its peak memory (VmHWM) is its
 own; the clip bakes also report the peak of every worker process. Implementations (``--impls``):
 
@@ -20,7 +21,12 @@ own; the clip bakes also report the peak of every worker process. Implementation
 * ``clips0t1``/``clips1t1``/``clips2t1``: in this process / 1 / 2 worker processes with a
   thread budget of one each (dqskin's launch pool and USD's; what ``dask worker --nthreads 1``
   per core gives on a farm): process scaling without the threads a lone worker also uses;
-* ``single+nv``, ``clips2+nv``: with skinned normals and velocities (dqskin's default).
+* ``single+nv``, ``clips2+nv``: with skinned normals and velocities (dqskin's default);
+  ``single+n``: with skinned normals (what UsdSkel writes for a mesh with ``normals``);
+* ``cli``, ``cli+n``, ``cli+nv``: the whole ``dqskin skin SRC --out DST --method lbs`` process
+  (its imports and start-up included; points only, with normals, with normals and
+  velocities); ``cliclips+n``: the same with ``--clips`` (value clips in one process),
+  ``cliw2+n``: with ``--workers 2`` (the bake decides whether the workers pay).
 
 ``--repeat N`` runs N rounds of every impl, interleaved, and reports each impl's median run
 (with the range) and the median of the per-round ratios: on a VM a run's speed swings by up to
@@ -52,7 +58,18 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "assets"
 DEFAULT_ASSET = SHARED / "usd-wg" / "CesiumMan" / "CesiumMan.usdz"
 IMPLS = ("usdskel", "single", "clips0", "clips1", "clips2", "clips0t1", "clips1t1", "clips2t1",
-         "single+n", "single+nv", "clips2+nv")
+         "single+n", "single+nv", "clips2+nv", "cli", "cli+n", "cli+nv", "cliclips+n",
+         "cliw2+n")
+
+
+def cli_command(which, src, dst):
+    """The ``dqskin skin`` command line of a ``cli*`` impl."""
+    kind, _, extra = which.partition("+")
+    cmd = [sys.executable, "-m", "dqskin.cli", "skin", str(src), "--out", str(dst),
+           "--method", "lbs"]
+    cmd += {"": ["--no-normals", "--no-velocities"], "n": ["--no-velocities"], "nv": []}[extra]
+    cmd += {"cli": [], "cliclips": ["--clips"], "cliw2": ["--workers", "2"]}[kind]
+    return cmd
 
 
 def find_brainstem():
@@ -87,32 +104,6 @@ def make_long_clip(asset, frames, out, stride=0.5):
     long_stage.SetStartTimeCode(1)
     long_stage.SetEndTimeCode(frames)
     long_stage.GetRootLayer().Export(str(out))
-
-
-def make_crowd(long_clip, copies, out, offset=1.1):
-    """A stage of ``copies`` references to ``long_clip``'s default prim side by side: a
-    BrainStem-sized stand-in (BrainStem.usdz: 59 meshes, 34k points, 1,292 frames). Copy ``i``
-    plays the clip ``i * offset`` frames later (a layer offset on its reference; 1.1: each copy
-    samples between the clip's frames at its own tenth), so no copy holds an array another
-    one holds at any time: BrainStem's meshes all differ, and a crate file stores each distinct
-    array once (identical copies let usd-core's export write a tenth of the data)."""
-    from pxr import Sdf, Usd, UsdGeom
-    clip = Usd.Stage.Open(str(long_clip))
-    stage = Usd.Stage.CreateNew(str(out))
-    for key in ("upAxis", "metersPerUnit"):
-        stage.SetMetadata(key, clip.GetMetadata(key))
-    stage.SetTimeCodesPerSecond(clip.GetTimeCodesPerSecond())
-    stage.SetStartTimeCode(clip.GetStartTimeCode())
-    stage.SetEndTimeCode(clip.GetEndTimeCode())
-    root = UsdGeom.Xform.Define(stage, "/Crowd")
-    stage.SetDefaultPrim(root.GetPrim())
-    src = clip.GetDefaultPrim().GetPath()
-    for i in range(copies):
-        x = UsdGeom.Xform.Define(stage, f"/Crowd/C{i:02d}")
-        x.GetPrim().GetReferences().AddReference(
-            Sdf.Reference(str(long_clip), src, Sdf.LayerOffset(offset * i)))
-        x.AddTranslateOp().Set((0.0, 2.0 * i, 0.0))
-    stage.Save()
 
 
 def make_many_meshes(asset, frames, out, meshes=59, points=34_000, step=0.37, seed=0):
@@ -457,19 +448,28 @@ def bench_one(rows, label, src, impls, tmp, repeat=1):
             # charge one implementation for the writeback of the one run before it
             os.sync()
             before = resource.getrusage(resource.RUSAGE_CHILDREN)
-            proc = subprocess.run([sys.executable, __file__, "--child", which, str(src),
+            whole = which.startswith("cli")
+            w0 = time.perf_counter()
+            proc = subprocess.run(cli_command(which, src, dst) if whole else
+                                  [sys.executable, __file__, "--child", which, str(src),
                                    str(dst)], capture_output=True, text=True)
+            process_seconds = time.perf_counter() - w0
             after = resource.getrusage(resource.RUSAGE_CHILDREN)  # the process tree, reaped
             cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
             if proc.returncode:
                 print(f"  {label} {which}: failed (exit {proc.returncode}):\n"
                       f"{proc.stderr[-1000:]}", file=sys.stderr)
                 continue
-            r = json.loads(proc.stdout.strip().splitlines()[-1])
+            if whole:  # the whole process: no split of its imports
+                r = dict(seconds=process_seconds, import_seconds=0.0, peak_mb=float("nan"),
+                         said=proc.stdout.strip())
+            else:
+                r = json.loads(proc.stdout.strip().splitlines()[-1])
             dsts[which] = dst
             runs[which].append(dict(
                 kind="bake", asset=label, frames=frames, points=points, impl=which,
                 seconds=r["seconds"], import_seconds=r["import_seconds"], cpu_seconds=cpu,
+                process_seconds=process_seconds, said=r.get("said"),
                 peak_mb=r["peak_mb"], worker_peak_mb=r.get("worker_peak_mb", []),
                 task_seconds=r.get("task_seconds"), task_cpu_seconds=r.get("task_cpu_seconds"),
                 task_span=r.get("task_span"),
@@ -481,9 +481,12 @@ def bench_one(rows, label, src, impls, tmp, repeat=1):
         if not rs:
             continue
         secs = [r["seconds"] for r in rs]
+        procs = [r["process_seconds"] for r in rs]
+        cpus = [r["cpu_seconds"] for r in rs]
         new.append(dict(sorted(rs, key=lambda r: r["seconds"])[(len(rs) - 1) // 2],
                         seconds_range=(min(secs), max(secs)), runs=len(rs), all_seconds=secs,
-                        all_task_spans=[r.get("task_span") for r in rs]))
+                        all_task_spans=[r.get("task_span") for r in rs],
+                        all_process_seconds=procs, all_cpu_seconds=cpus))
     rows.extend(new)
     if "usdskel" in dsts:
         probes = [t0, t0 + (t1 - t0) // 2, t1, t0 + 0.5]
@@ -502,11 +505,11 @@ def bench_bake(rows, frames=(1000, 10000), asset=DEFAULT_ASSET, brainstem=None, 
         if brainstem and Path(brainstem).is_file():
             bench_one(rows, "BrainStem", Path(brainstem), impls, tmp, repeat)
         elif Path(asset).is_file() and standin:
-            print("bake: BrainStem.usdz not found under ../shared/assets; a stand-in of the "
-                  "same size instead: 10 CesiumMen × 1,292 frames (32,730 points)")
-            make_long_clip(asset, 1292, tmp / "long_1292.usdc")
-            make_crowd(tmp / "long_1292.usdc", 10, tmp / "crowd.usda")
-            bench_one(rows, "10×CesiumMan", tmp / "crowd.usda", impls, tmp, repeat)
+            print("bake: BrainStem.usdz not found under ../shared/assets; a stand-in of its "
+                  "shape instead: 59 meshes of 75 to 2,900 points (35,114 in all) cut from "
+                  "CesiumMan, one skeleton, 1,309 poses of its own")
+            make_many_meshes(asset, 1309, tmp / "many_1309.usdc")
+            bench_one(rows, "59-mesh stand-in", tmp / "many_1309.usdc", impls, tmp, repeat)
         if not Path(asset).is_file():
             print(f"bake: skipped, {asset} not found")
         else:
@@ -583,6 +586,37 @@ def print_bake(rows):
                     line.append(f"{impl} / UsdSkel throughput = "
                                 f"{_ratio(sel['usdskel'], sel[impl])}")
         print(f"  {key[0]}: " + "; ".join(line))
+        print_whole(sel)
+
+
+def _median(values):
+    v = sorted(values)
+    return v[(len(v) - 1) // 2]
+
+
+def print_whole(sel):
+    """Whole processes (interpreter start, imports, load, bake, write, exit): each impl's median
+    wall and CPU seconds with their ranges, and UsdSkel's over each ``cli*`` impl's, round by
+    round (the median of the per-round ratios and their range)."""
+    if not any(i.startswith("cli") for i in sel):
+        return
+    print("  whole processes, median (range) of the rounds:")
+    for impl, r in sel.items():
+        if impl != "usdskel" and not impl.startswith("cli"):
+            continue
+        w, c = r["all_process_seconds"], r["all_cpu_seconds"]
+        line = (f"    {impl}: wall {_median(w):.2f} s ({min(w):.2f}–{max(w):.2f}), CPU "
+                f"{_median(c):.2f} s ({min(c):.2f}–{max(c):.2f})")
+        base = sel.get("usdskel")
+        if base is not None and impl != "usdskel" and len(base["all_process_seconds"]) == len(w):
+            for what, a, b in (("wall", base["all_process_seconds"], w),
+                               ("CPU", base["all_cpu_seconds"], c)):
+                ratios = sorted(x / y for x, y in zip(a, b))
+                line += (f"; UsdSkel / this, {what}: {_median(ratios):.2f}× "
+                         f"({ratios[0]:.2f}–{ratios[-1]:.2f}×)")
+        if r.get("said") and ";" in r["said"]:
+            line += f" [{r['said'].split(';', 1)[1].strip()}]"
+        print(line)
 
 
 if __name__ == "__main__":
