@@ -14,10 +14,11 @@ the same paths (one machine, or a shared file system).
 * ``workers=N``: a :class:`distributed.LocalCluster` of ``N`` worker processes (one task at a
   time each; USD's and dqskin's CPU threads limited to cores / ``N`` per process, or to
   ``threads``) on 127.0.0.1, started and closed by the bake, forked from a forkserver that has
-  imported dqskin once (:mod:`dqskin.forkserver`), when they pay: the first clip is baked here
-  and timed, and the cluster starts only if the rest would take this process longer than
-  :func:`workers_pay_seconds` (what starting workers, loading the asset in each and their first
-  tasks cost); else the rest is baked here too (:func:`workers_choice` says which, in one line).
+  imported dqskin once (:mod:`dqskin.forkserver`), when they pay: the first two clips are baked
+  here, the second one timed, and the cluster starts only if the rest would take this process
+  longer than :func:`workers_pay_seconds` (what starting workers, loading the asset in each
+  and their first tasks cost); else the rest is baked here too (:func:`workers_choice` says
+  which, in one line).
 * ``scheduler="tcp://HOST:PORT"``: an existing cluster (``dask scheduler`` and ``dask worker``).
   Each worker process's thread budget is its ``--nthreads`` (:func:`worker_threads`), unless
   ``DQSKIN_THREADS`` / ``PXR_WORK_THREAD_LIMIT`` are set in its environment.
@@ -76,13 +77,13 @@ def workers_pay_seconds() -> float:
 
 def workers_choice(workers: int, seconds_per_frame: float, frames_left: int) -> tuple[bool, str]:
     """Whether ``workers`` worker processes pay for the ``frames_left`` frames of a bake whose
-    first clip took ``seconds_per_frame`` a frame here, and a line saying what was chosen."""
+    clips take ``seconds_per_frame`` a frame here, and a line saying what was chosen."""
     left = seconds_per_frame * frames_left
     limit = workers_pay_seconds()
     pays = frames_left > 0 and left >= limit
     n = f"{workers} worker process{'es' if workers != 1 else ''}"
-    estimate = (f"{frames_left} frames left at the first clip's {1e3 * seconds_per_frame:.2g} "
-                f"ms a frame: {left:.1f} s here")
+    estimate = (f"{frames_left} frames left at {1e3 * seconds_per_frame:.2g} ms a frame: "
+                f"{left:.1f} s here")
     return pays, (f"baked on {n} ({estimate}, at least the {limit:g} s from which workers pay)"
                   if pays else f"baked in this process, not on {n} ({estimate}, under the "
                   f"{limit:g} s from which workers pay)")
@@ -398,10 +399,11 @@ def _bake_clips(scene, out, times, options, settings, threads):
 
 
 def _bake_clips_measured(scene, out, times, options, settings, threads, source):
-    """:func:`_bake_clips` with ``workers=N`` (a LocalCluster of its own): the first pending
-    clip is baked here and timed; the LocalCluster starts for the rest only when they would take
-    longer here than :func:`workers_pay_seconds` (:func:`workers_choice`), else they are baked
-    here too. The result's ``chose`` says which."""
+    """:func:`_bake_clips` with ``workers=N`` (a LocalCluster of its own): the first two
+    pending clips are baked here, the second one timed; the LocalCluster starts for the rest
+    only when they would take longer here than :func:`workers_pay_seconds`
+    (:func:`workers_choice`), else they are baked here too. The result's ``chose`` says which
+    (None when nothing was left to bake)."""
     s = settings
     tasks: list[dict[str, Any]] = []
     bake = None
@@ -423,19 +425,27 @@ def _bake_clips_measured(scene, out, times, options, settings, threads, source):
             tasks.append(result)
             bar.update(1)
         try:
-            chose = "nothing left to bake"
-            if jobs:
+            chose = None
+            # the first clip warms up (kernels loaded, threads started, pages first touched):
+            # the second one's cost is the rest's, a frame
+            run_here(jobs[:1], scene, done)
+            if len(jobs) > 2:
                 t0 = time.perf_counter()
-                run_here(jobs[:1], scene, done)
-                per_frame = (time.perf_counter() - t0) / max(1, len(jobs[0].times))
+                run_here(jobs[1:2], scene, done)
+                per_frame = (time.perf_counter() - t0) / max(1, len(jobs[1].times))
                 pays, chose = workers_choice(int(s.workers), per_frame,
-                                             sum(len(j.times) for j in jobs[1:]))
+                                             sum(len(j.times) for j in jobs[2:]))
                 if not pays:
                     forkserver.stop_workers()  # (started early by the CLI: not needed)
-                    run_here(jobs[1:], scene, done)
+                    run_here(jobs[2:], scene, done)
                 else:
                     with _dask(s.workers, None, threads) as client:
-                        _run_on_dask(client, jobs[1:], done)
+                        _run_on_dask(client, jobs[2:], done)
+            elif jobs:
+                run_here(jobs[1:], scene, done)
+                chose = (f"baked in this process, not on {s.workers} worker process"
+                         f"{'es' if s.workers != 1 else ''} ({len(jobs)} clip"
+                         f"{'s' if len(jobs) != 1 else ''} to bake)")
         finally:
             bar.close()
         bake.finish()

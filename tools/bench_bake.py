@@ -63,10 +63,15 @@ IMPLS = ("usdskel", "single", "clips0", "clips1", "clips2", "clips0t1", "clips1t
 
 
 def cli_command(which, src, dst):
-    """The ``dqskin skin`` command line of a ``cli*`` impl."""
-    kind, _, extra = which.partition("+")
-    cmd = [sys.executable, "-m", "dqskin.cli", "skin", str(src), "--out", str(dst),
-           "--method", "lbs"]
+    """The ``dqskin skin`` command line of a ``cli*`` impl (``@before``: see ``--before``)."""
+    kind, _, extra = which.removesuffix("@before").partition("+")
+    start = ["-m", "dqskin.cli"]
+    if which.endswith("@before"):  # that tree, not the editable install's
+        start = ["-c", "import sys; sys.meta_path[:] = [f for f in sys.meta_path if not "
+                 "type(f).__module__.startswith('__editable__')]; sys.path.insert(0, "
+                 f"{os.environ['BENCH_BEFORE']!r}); sys.argv[0] = 'dqskin'; "
+                 "from dqskin.cli import main; sys.exit(main())"]
+    cmd = [sys.executable, *start, "skin", str(src), "--out", str(dst), "--method", "lbs"]
     cmd += {"": ["--no-normals", "--no-velocities"], "n": ["--no-velocities"], "nv": []}[extra]
     cmd += {"cli": [], "cliclips": ["--clips"], "cliw2": ["--workers", "2"]}[kind]
     return cmd
@@ -602,7 +607,7 @@ def print_whole(sel):
         return
     print("  whole processes, median (range) of the rounds:")
     for impl, r in sel.items():
-        if impl != "usdskel" and not impl.startswith("cli"):
+        if impl != "usdskel" and not impl.startswith("cli"):  # (cli*@before too)
             continue
         w, c = r["all_process_seconds"], r["all_cpu_seconds"]
         line = (f"    {impl}: wall {_median(w):.2f} s ({min(w):.2f}–{max(w):.2f}), CPU "
@@ -639,9 +644,14 @@ if __name__ == "__main__":
     ap.add_argument("--work-dir", help="folder for the sources and outputs (default: the "
                     "system's temporary folder), e.g. /dev/shm to leave the disk's file system "
                     "out")
+    ap.add_argument("--before", metavar="TREE", help="a copy of another dqskin tree (e.g. "
+                    "`git archive main`, with dqskin/kernels linked to its kernels/): the "
+                    "``cli*@before`` impls run it, for before/after figures in one run")
     ap.add_argument("--breakdown", type=int, metavar="FRAMES",
                     help="only the step-by-step CPU-seconds breakdown of a FRAMES-frame bake")
     a = ap.parse_args()
+    if a.before:
+        os.environ["BENCH_BEFORE"] = str(Path(a.before).resolve())
     if a.breakdown:
         breakdown(a.breakdown, a.asset)
         sys.exit(0)
@@ -649,7 +659,7 @@ if __name__ == "__main__":
     print(f"dqskin from {Path(dqskin.__file__).parent}, its kernels from "
           f"{Path(dqskin.kernels.__file__).parent}")
     out_rows = []
-    bench_bake(out_rows, [int(x) for x in a.frames.split(",")], a.asset, a.brainstem,
+    bench_bake(out_rows, [int(x) for x in a.frames.split(",") if x], a.asset, a.brainstem,
                [x for x in a.impls.split(",") if x], not a.no_standin, a.repeat, a.work_dir)
     if a.json:
         Path(a.json).write_text(json.dumps(out_rows, indent=1))

@@ -214,9 +214,9 @@ class AppendFile:
 
     def append_records(self, head: bytes, rows: np.ndarray, pad: int = 0,
                        select: npt.ArrayLike | None = None) -> int:
-        """Append one record per row of ``rows`` ((K, M) uint8, C-contiguous; with ``select``,
-        only those row indices, in that order): ``head``, the row's M bytes, ``pad`` zero
-        bytes. Direct: the records are copied straight into the stage, many rows a copy (no
+        """Append one record per row of ``rows`` ((K, M) uint8, each row contiguous; with
+        ``select``, only those row indices, in that order): ``head``, the row's M bytes, ``pad``
+        zero bytes. Direct: the records are copied straight into the stage, many rows a copy (no
         block of them made first); buffered: ``writev`` of the rows in place. Returns the bytes
         appended."""
         rows = np.asarray(rows)
