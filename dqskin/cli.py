@@ -220,14 +220,6 @@ def cmd_skin(args: argparse.Namespace) -> int:
                             inputs=tuple(inputs), prims=args.prims)
     check_clip_arguments(args.out, settings, options)  # before loading INPUT
     _checkpoint()
-    if settings.workers is not None and not settings.scheduler:
-        # the workers' forkserver imports while INPUT loads (stopped at once if the first clip
-        # says workers do not pay; by _run in any case)
-        from .forkserver import prestart_workers
-        try:
-            prestart_workers()
-        except Exception:  # only a head start: the cluster starts it or says why it cannot
-            pass
     scene = _load_input(args, cache_out=args.out)
     if _own_process:  # what is loaded lives to the end: no full collection walks it again
         from .forkserver import freeze_heap
@@ -896,9 +888,9 @@ def _run(argv: Sequence[str] | None) -> int:
     try:
         return _run_command(argv)
     finally:
-        if "dqskin.forkserver" in sys.modules:  # one cmd_skin started for workers (refused
-            from .forkserver import stop_workers  # later, INPUT failed to load, ...): no
-            stop_workers()  # process outlives the run
+        if "dqskin.forkserver" in sys.modules:  # one a --workers bake started: no process
+            from .forkserver import stop_workers  # outlives the run
+            stop_workers()
 
 
 def _stdout_reader_gone() -> bool:

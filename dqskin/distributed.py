@@ -15,10 +15,11 @@ the same paths (one machine, or a shared file system).
   time each; USD's and dqskin's CPU threads limited to cores / ``N`` per process, or to
   ``threads``) on 127.0.0.1, started and closed by the bake, forked from a forkserver that has
   imported dqskin once (:mod:`dqskin.forkserver`), when they pay: the first two clips are baked
-  here, the second one timed, and the cluster starts only if the rest would take this process
-  longer than :func:`workers_pay_seconds` (what starting workers, loading the asset in each
-  and their first tasks cost); else the rest is baked here too (:func:`workers_choice` says
-  which, in one line).
+  here, the second one timed, and the cluster starts only if it would save at least
+  :func:`workers_pay_seconds` (what starting workers, loading the asset in each and their
+  first tasks cost) on the rest; else the rest is baked here too (:func:`workers_choice` says
+  which, in one line). The workers' forkserver starts importing during the second clip when
+  the first one's cost says they may pay.
 * ``scheduler="tcp://HOST:PORT"``: an existing cluster (``dask scheduler`` and ``dask worker``).
   Each worker process's thread budget is its ``--nthreads`` (:func:`worker_threads`), unless
   ``DQSKIN_THREADS`` / ``PXR_WORK_THREAD_LIMIT`` are set in its environment.
@@ -57,11 +58,10 @@ if TYPE_CHECKING:
 __all__ = ["WORKERS_PAY_SECONDS", "ClipJob", "bake_clips", "run_clip", "run_here",
            "worker_threads", "workers_choice", "workers_pay_seconds"]
 
-WORKERS_PAY_SECONDS = 3.0
-"""Seconds of work left (estimated in this process) from which a ``workers=N`` bake starts its
-LocalCluster: starting it, each worker's load of the asset and first task cost about a second
-of wall time and more of CPU time on a small machine, and N workers on the same cores finish
-the rest at best N times sooner (on two cores, 1.3 to 1.6 times)."""
+WORKERS_PAY_SECONDS = 2.0
+"""Seconds a ``workers=N`` bake must save for its LocalCluster to start: about what starting
+it, each worker's load of the asset and first task cost on a small, busy machine (measured on
+2 cores: a second quiet, two under load)."""
 
 
 def workers_pay_seconds() -> float:
@@ -75,18 +75,27 @@ def workers_pay_seconds() -> float:
     return value if value >= 0 and value == value else WORKERS_PAY_SECONDS
 
 
-def workers_choice(workers: int, seconds_per_frame: float, frames_left: int) -> tuple[bool, str]:
+def workers_choice(workers: int, seconds_per_frame: float, frames_left: int,
+                   cores_used: float = 1.0) -> tuple[bool, str]:
     """Whether ``workers`` worker processes pay for the ``frames_left`` frames of a bake whose
-    clips take ``seconds_per_frame`` a frame here, and a line saying what was chosen."""
+    clips take ``seconds_per_frame`` a frame here using ``cores_used`` cores (its CPU seconds
+    over its wall seconds), and a line saying what was chosen: they pay when they would save at
+    least :func:`workers_pay_seconds`, the work taking ``cores_used / min(workers, cores)`` of
+    its time here on them (none saved with fewer cores than this process uses)."""
     left = seconds_per_frame * frames_left
     limit = workers_pay_seconds()
-    pays = frames_left > 0 and left >= limit
+    cores = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                else os.cpu_count() or 1)
+    used = min(max(1.0, cores_used), cores)
+    saved = max(0.0, left * (1 - used / min(workers, cores)))
+    pays = frames_left > 0 and saved >= limit
     n = f"{workers} worker process{'es' if workers != 1 else ''}"
-    estimate = (f"{frames_left} frames left at {1e3 * seconds_per_frame:.2g} ms a frame: "
-                f"{left:.1f} s here")
-    return pays, (f"baked on {n} ({estimate}, at least the {limit:g} s from which workers pay)"
+    estimate = (f"{frames_left} frames left at {1e3 * seconds_per_frame:.2g} ms a frame on "
+                f"{used:.1f} of {cores} cores: {left:.1f} s here, about {saved:.1f} s less on "
+                "the workers")
+    return pays, (f"baked on {n} ({estimate}, at least the {limit:g} s they cost to start)"
                   if pays else f"baked in this process, not on {n} ({estimate}, under the "
-                  f"{limit:g} s from which workers pay)")
+                  f"{limit:g} s they cost to start)")
 
 
 # this worker process's loaded asset: {(path, mtime, size): (Scene, states of the files it read)}
@@ -400,8 +409,8 @@ def _bake_clips(scene, out, times, options, settings, threads):
 
 def _bake_clips_measured(scene, out, times, options, settings, threads, source):
     """:func:`_bake_clips` with ``workers=N`` (a LocalCluster of its own): the first two
-    pending clips are baked here, the second one timed; the LocalCluster starts for the rest
-    only when they would take longer here than :func:`workers_pay_seconds`
+    pending clips are baked here, the second one timed (wall and CPU); the LocalCluster starts
+    for the rest only when it would save at least :func:`workers_pay_seconds`
     (:func:`workers_choice`), else they are baked here too. The result's ``chose`` says which
     (None when nothing was left to bake)."""
     s = settings
@@ -426,17 +435,27 @@ def _bake_clips_measured(scene, out, times, options, settings, threads, source):
             bar.update(1)
         try:
             chose = None
-            # the first clip warms up (kernels loaded, threads started, pages first touched):
-            # the second one's cost is the rest's, a frame
+            # the first clip warms up (kernels loaded, threads started, pages first touched);
+            # if even its cost says workers may pay, their forkserver starts importing while
+            # the second clip, whose cost is the rest's, is baked and timed
+            t0 = time.perf_counter()
             run_here(jobs[:1], scene, done)
             if len(jobs) > 2:
-                t0 = time.perf_counter()
+                left = sum(len(j.times) for j in jobs[2:])
+                first = (time.perf_counter() - t0) / max(1, len(jobs[0].times))
+                if workers_choice(int(s.workers), first, left, 1.0)[0]:
+                    try:
+                        forkserver.prestart_workers()
+                    except Exception:  # only a head start: the cluster says why it cannot
+                        pass
+                t0, c0 = time.perf_counter(), time.process_time()
                 run_here(jobs[1:2], scene, done)
-                per_frame = (time.perf_counter() - t0) / max(1, len(jobs[1].times))
-                pays, chose = workers_choice(int(s.workers), per_frame,
-                                             sum(len(j.times) for j in jobs[2:]))
+                wall = time.perf_counter() - t0
+                used = (time.process_time() - c0) / max(wall, 1e-9)
+                pays, chose = workers_choice(int(s.workers), wall / max(1, len(jobs[1].times)),
+                                             left, used)
                 if not pays:
-                    forkserver.stop_workers()  # (started early by the CLI: not needed)
+                    forkserver.stop_workers()  # (if started above: not needed)
                     run_here(jobs[2:], scene, done)
                 else:
                     with _dask(s.workers, None, threads) as client:

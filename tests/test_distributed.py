@@ -50,8 +50,9 @@ def check(reference, shot):
 
 
 def test_two_worker_local_cluster_equals_the_single_process_cache(reference, tmp_path, capsys):
-    """Through the CLI's ``--workers 2`` (which starts the workers' forkserver before loading
-    the input); no process of the cluster outlives the bake."""
+    """Through the CLI's ``--workers 2`` (the workers started whatever the shot's length:
+    ``DQSKIN_WORKERS_PAY_SECONDS=0``, tests/conftest.py); no process of the cluster outlives the
+    bake."""
     import multiprocessing.forkserver
 
     from dqskin.cli import main
@@ -75,13 +76,14 @@ def test_short_shot_stays_in_this_process(reference, tmp_path, capsys, monkeypat
     monkeypatch.delenv("DQSKIN_WORKERS_PAY_SECONDS")
     assert workers_choice(2, 1e-3, 10_000)[0] and not workers_choice(2, 1e-3, 100)[0]
     assert not workers_choice(2, 1.0, 0)[0]  # nothing left
+    assert not workers_choice(2, 1e-3, 10_000, cores_used=2.0)[0]  # this process uses both
     shot = tmp_path / "shot.usd"
     assert main(["skin", str(HUMANOID), "--out", str(shot), "--chunk", str(CHUNK),
                  "--workers", "2"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert len(out) == 1 and "as 7 clips" in out[0]
     assert "; baked in this process, not on 2 worker processes (" in out[0]
-    assert out[0].endswith(f"under the {WORKERS_PAY_SECONDS:g} s from which workers pay)")
+    assert out[0].endswith(f"under the {WORKERS_PAY_SECONDS:g} s they cost to start)")
     check(reference, shot)
     assert getattr(multiprocessing.forkserver._forkserver, "_forkserver_pid", None) is None
     monkeypatch.setenv("DQSKIN_WORKERS_PAY_SECONDS", "1e-9")  # anything left pays
@@ -240,24 +242,10 @@ def test_refused_worker_arguments_start_no_forkserver(tmp_path, monkeypatch, cap
     assert started == [] and _forkserver_pid() is None
 
 
-def test_forkserver_stopped_when_the_input_fails_to_load(tmp_path, monkeypatch, capsys):
-    """The CLI's prestarted forkserver (preloading only NumPy here) is stopped when the bake is
-    never reached."""
-    import dqskin.forkserver as forkserver
-    from dqskin.cli import main
-    monkeypatch.setattr(forkserver, "PRELOAD", ["numpy"])
-    bad = tmp_path / "bad.usda"
-    bad.write_text("#usda 1.0\n(\n")
-    assert main(["skin", str(bad), "--out", str(tmp_path / "shot.usd"), "--workers", "2"]) != 0
-    assert "bad.usda" in capsys.readouterr().err
-    assert _forkserver_pid() is None
-
-
-def test_forkserver_starts_after_the_refusals_and_stops_when_the_load_fails(tmp_path, monkeypatch,
-                                                                      capsys):
-    """``dqskin skin --workers`` starts the forkserver once its refusals are answered, before
-    loading INPUT: an input that fails to load must stop it again; an output it refuses (a clip
-    bake to .npz) never starts it."""
+def test_no_forkserver_before_the_bake_decides(tmp_path, monkeypatch, capsys):
+    """``dqskin skin --workers`` starts the forkserver only in the bake, once it has measured
+    that the workers may pay: an output it refuses (a clip bake to .npz) or an input that fails
+    to load never starts it."""
     import dqskin.forkserver as forkserver
     from dqskin.cli import main
     started = []
@@ -271,7 +259,7 @@ def test_forkserver_starts_after_the_refusals_and_stops_when_the_load_fails(tmp_
     bad = tmp_path / "bad.usda"
     bad.write_text("#usda 1.0\n(\n")
     assert main(["skin", str(bad), "--out", str(tmp_path / "shot.usd"), "--workers", "2"]) != 0
-    assert started == [1] and _forkserver_pid() is None
+    assert started == [] and _forkserver_pid() is None
 
 
 def test_a_forkserver_running_before_dqskin_is_left_running():
