@@ -80,19 +80,25 @@ def workers_choice(workers: int, seconds_per_frame: float, frames_left: int,
     """Whether ``workers`` worker processes pay for the ``frames_left`` frames of a bake whose
     clips take ``seconds_per_frame`` a frame here using ``cores_used`` cores (its CPU seconds
     over its wall seconds), and a line saying what was chosen: they pay when they would save at
-    least :func:`workers_pay_seconds`, the work taking ``cores_used / min(workers, cores)`` of
-    its time here on them (none saved with fewer cores than this process uses)."""
+    least :func:`workers_pay_seconds`, the work taking ``cores_used / min(workers, free)`` of
+    its time here on them, ``free`` the cores not busy with other work (this process's cores
+    less the system's load average beyond what this process uses)."""
     left = seconds_per_frame * frames_left
     limit = workers_pay_seconds()
     cores = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
                 else os.cpu_count() or 1)
     used = min(max(1.0, cores_used), cores)
-    saved = max(0.0, left * (1 - used / min(workers, cores)))
+    try:
+        others = max(0.0, os.getloadavg()[0] - used)
+    except OSError:  # (no load average on this system)
+        others = 0.0
+    free = max(used, cores - others)
+    saved = max(0.0, left * (1 - used / min(workers, free)))
     pays = frames_left > 0 and saved >= limit
     n = f"{workers} worker process{'es' if workers != 1 else ''}"
     estimate = (f"{frames_left} frames left at {1e3 * seconds_per_frame:.2g} ms a frame on "
-                f"{used:.1f} of {cores} cores: {left:.1f} s here, about {saved:.1f} s less on "
-                "the workers")
+                f"{used:.1f} of {free:.1f} free cores: {left:.1f} s here, about {saved:.1f} s "
+                "less on the workers")
     return pays, (f"baked on {n} ({estimate}, at least the {limit:g} s they cost to start)"
                   if pays else f"baked in this process, not on {n} ({estimate}, under the "
                   f"{limit:g} s they cost to start)")

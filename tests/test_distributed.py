@@ -74,9 +74,17 @@ def test_short_shot_stays_in_this_process(reference, tmp_path, capsys, monkeypat
     from dqskin.cli import main
     from dqskin.distributed import WORKERS_PAY_SECONDS, workers_choice
     monkeypatch.delenv("DQSKIN_WORKERS_PAY_SECONDS")
-    assert workers_choice(2, 1e-3, 10_000)[0] and not workers_choice(2, 1e-3, 100)[0]
-    assert not workers_choice(2, 1.0, 0)[0]  # nothing left
-    assert not workers_choice(2, 1e-3, 10_000, cores_used=2.0)[0]  # this process uses both
+    with monkeypatch.context() as m:
+        m.setattr(os, "getloadavg", lambda: (1.0, 1.0, 1.0))  # this process alone
+        m.setattr(os, "sched_getaffinity", lambda pid: {0, 1})  # on two cores
+        assert workers_choice(2, 1e-3, 10_000)[0] and not workers_choice(2, 1e-3, 100)[0]
+        assert not workers_choice(2, 1.0, 0)[0]  # nothing left
+        assert not workers_choice(2, 1e-3, 10_000, cores_used=2.0)[0]  # it uses both cores
+        m.setattr(os, "getloadavg", lambda: (5.0, 5.0, 5.0))  # busy with other work
+        assert not workers_choice(2, 1e-3, 10_000)[0]
+        m.setattr(os, "getloadavg", lambda: (1.0, 1.0, 1.0))
+        m.setenv("DQSKIN_WORKERS_PAY_SECONDS", "1e-9")  # anything saved pays
+        assert workers_choice(2, 1e-6, 1)[0]
     shot = tmp_path / "shot.usd"
     assert main(["skin", str(HUMANOID), "--out", str(shot), "--chunk", str(CHUNK),
                  "--workers", "2"]) == 0
@@ -86,8 +94,6 @@ def test_short_shot_stays_in_this_process(reference, tmp_path, capsys, monkeypat
     assert out[0].endswith(f"under the {WORKERS_PAY_SECONDS:g} s they cost to start)")
     check(reference, shot)
     assert getattr(multiprocessing.forkserver._forkserver, "_forkserver_pid", None) is None
-    monkeypatch.setenv("DQSKIN_WORKERS_PAY_SECONDS", "1e-9")  # anything left pays
-    assert workers_choice(2, 1e-6, 1)[0]
 
 
 def _start(args, log):
