@@ -228,7 +228,8 @@ def cmd_skin(args: argparse.Namespace) -> int:
     sel = select(scene.times, scene.time_codes_per_second, args.frames, args.fps, args.substeps,
                  max_frames=args.max_frames, rate=frame_rate(scene), hold=args.hold)
     settings = dataclasses.replace(settings, fps=sel.rate)
-    print(printable(bake(scene, args.out, sel.times, options=options, settings=settings)))
+    said = bake(scene, args.out, sel.times, options=options, settings=settings)
+    print("\n".join(printable(line) for line in said.splitlines()))
     return 0
 
 
@@ -276,23 +277,19 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None) -> "Scen
                              "to a BVH; a character file has its own skeleton (use --weights "
                              "auto to replace its weights)")
         joints = getattr(args, "joints", None)
-        as_is = getattr(args, "as_is", False)
-        if joints is not None and as_is:
-            raise InputError("--joints places joints of an embedded skeleton; --as-is binds the "
-                             "BVH's own")
         _quiet_warp(args.verbose)  # (every refusal above answered without it)
         from .rigging import FitWarning, rig_mesh
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always", FitWarning)
             scene = rig_mesh(src, regular_file(args.skeleton), weights=weights or "auto",
-                             scale=args.scale, fit="as-is" if as_is else "embed",
+                             scale=args.scale, as_is=getattr(args, "as_is", False),
                              joints=None if joints is None else regular_file(joints),
                              max_influences=args.max_influences,
                              max_vertices=args.max_vertices, max_input_gib=args.max_input_gib,
                              device=args.device)
         for w in said:
             if issubclass(w.category, FitWarning):
-                print(f"warning: {w.message}", file=sys.stderr)
+                print(printable(f"warning: {w.message}"), file=sys.stderr)
         return scene
     if args.scale is not None:
         raise InputError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")

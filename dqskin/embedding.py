@@ -6,12 +6,17 @@ bones' relative lengths; its size, pose and placement are only a starting guess.
 the rest:
 
 1. **Extremities.** Geodesic distances over the mesh's edge graph (its parts joined where
-   they touch and at their nearest points) from its centre (the middle of its longest shortest
+   they touch, and each to its nearest other part at their nearest points: a body of separate
+   pieces, one per bone, joins as the bones do) from its centre (the middle of its longest shortest
    path); the mesh's
    extremities are picked by farthest-point sampling (the head, the hands, the feet of a biped),
    as many as the skeleton has groups of leaf tips (tips closer than a fifth of its height along
    the bones are one group: a hand's fingers). Each group is matched to an extremity by
-   direction from the root (Hungarian assignment).
+   direction from the root and by side (Hungarian assignment): two limbs that branch from one
+   joint (the legs from the pelvis, the arms from the chest) have their sides from the
+   horizontal offset between their first joints, which a bent or crossed limb in the guess
+   does not change, and go to extremities on those sides of the root (by their offsets along
+   that side, up to a twentieth of the height: a foot's toes pointing forward count fully).
 2. **Scale.** The skeleton is scaled so that its hip joints (the first joints, away from the
    root, of the two limbs with the lowest extremities) are level with the mesh's crotch (the
    highest point of the shortest surface path between the feet), else to the mesh's height; it
@@ -23,14 +28,16 @@ the rest:
    ends in one BVH End Site is walked in from the extremity, each joint at its scaled bone
    length along the centre line, down to (not including) the limb's base (a hip, a clavicle),
    the joints between stretched to join; the others are walked out from their parents along the
-   centre line; a limb's base, and joints far from any centre line, keep their scaled offsets
-   from their parents.
+   centre line (where it ends first, a joint takes its bone's share of what is left of it, with
+   the bones below it to the tip); a limb's base, and joints far from any centre line, keep
+   their scaled offsets from their parents.
 5. **Overrides.** ``joints`` (name → position) replace any joint's position, after the others
    are placed.
 
 The guess's pose matters for the matching and for the joints kept at their scaled offsets: a
 standing figure in a T, A or I pose, or any pose within about 10° per joint of the mesh's,
-is embedded; a limb far from its place in the guess may be matched to the wrong extremity.
+is embedded; with 10–20° per joint most guesses are, some land a spine or a leg several % of
+the height off (a bent spine's head direction, a bent leg's scale).
 
 The bind rotations carry the rest-pose difference per joint: joint ``j`` of the result has the
 input's bind rotation turned by the rotation ``A_j`` that takes the input's bone directions (to
@@ -57,6 +64,7 @@ _TIP_GROUP = 0.2  # tips closer than this share of the skeleton's height (along 
 _RING = 0.01  # level-set width of the centre lines, share of the mesh's height
 _LIMB_START = 0.15  # rings merge (fingers, toes) nearer the tip than this share of the height
 _NEAR_LINE = 0.05  # a joint walks along a limb's centre line from a parent this near it
+_SIDE = 0.05  # an extremity this share of the height off the root's vertical is on one side
 
 
 def skeleton_tips(skeleton: Skeleton, end_sites: list | None = None, *,
@@ -141,20 +149,9 @@ class _Surface:
             cols += near[:, 1].tolist()
             vals += np.maximum(np.linalg.norm(P[near[:, 0]] - P[near[:, 1]], axis=1),
                                1e-12).tolist()
-            big = np.bincount(label).argmax()
-            main = np.nonzero(label == big)[0]
-            tree = cKDTree(P[main])
-            for c in range(n):
-                if c == big:
-                    continue
-                idx = np.nonzero(label == c)[0]
-                d, k = tree.query(P[idx])
-                i = int(d.argmin())
-                rows.append(idx[i])
-                cols.append(main[k[i]])
-                vals.append(max(float(d[i]), 1e-12))
             extra = sp.coo_matrix((vals, (rows, cols)), shape=(N, N)).tocsr()
             g = g.maximum(extra).maximum(extra.T).tocsr()
+            g = _join_nearest(g, P)
         self.graph = g
         self.long_edge = float(np.percentile(w, 90)) if len(w) else 0.0
         area = np.zeros(N)
@@ -192,6 +189,31 @@ class _Surface:
         order = breadth_first_order(sub, start, directed=False, return_predecessors=False)
         part = idx[order]
         return np.average(self.points[part], axis=0, weights=self.area[part])
+
+
+def _join_nearest(g, P):
+    """The graph ``g`` with its parts joined, each to its nearest other part (at their nearest
+    points), until one part is left (Borůvka's rounds): bones' separate capsules join their
+    neighbours, not whatever part is largest."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+    N = len(P)
+    while True:
+        n, label = connected_components(g, directed=False)
+        if n <= 1:
+            return g
+        rows, cols, vals = [], [], []
+        for c in range(n):
+            inside = label == c
+            idx, rest = np.nonzero(inside)[0], np.nonzero(~inside)[0]
+            d, k = cKDTree(P[rest]).query(P[idx])
+            i = int(d.argmin())
+            rows.append(idx[i])
+            cols.append(rest[k[i]])
+            vals.append(max(float(d[i]), 1e-12))
+        extra = sp.coo_matrix((vals, (rows, cols)), shape=(N, N)).tocsr()
+        g = g.maximum(extra).maximum(extra.T).tocsr()
 
 
 def _fps(geo_from, seed_dist, count):
@@ -371,7 +393,12 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
         from scipy.optimize import linear_sum_assignment
         gdir = np.array([_unit(T[g].mean(0) - X[root]) for g in groups])
         edir = np.array([_unit(P[v] - X[root]) for v in ext])
-        rows, cols = linear_sum_assignment(-gdir @ edir.T)
+        # and by side: a limb's (a leg's, an arm's, whatever their pose) against an
+        # extremity's horizontal offset from the root (none for a head)
+        side = _limb_sides(skeleton, X, [owners[g] for g in groups], root, children)
+        off = np.array([_flat(P[v] - X[root], 0.0) for v in ext])
+        rows, cols = linear_sum_assignment(
+            -gdir @ edir.T - np.clip(side @ off.T / (_SIDE * H), -1.0, 1.0))
         order = sorted(zip(rows, cols), key=lambda rc: -T[groups[rc[0]]][:, 1].max())
         for gi, ei in order:  # the highest (a head: the spine) first
             line = _centre_line(surface, ext[ei], _RING * H, 0.75 * H)[::-1]  # base → tip
@@ -387,7 +414,11 @@ def embed_skeleton(mesh: tuple[npt.ArrayLike, npt.ArrayLike], skeleton: Skeleton
                     Xr[j] = Xr[p] + (X[j] - X[p])  # a limb's base, or off the limb: as scaled
                 else:
                     x = _walk(line, Xr[p], length)
-                    Xr[j] = line[-1] if x is None else x
+                    if x is None:  # the line ends first: the chain below shares what is left
+                        rest = s * _reach_to_tip(skeleton.parents, X_in, j, tips,
+                                                 owners[groups[gi]], groups[gi])
+                        x = _walk_share(line, Xr[p], length / (length + rest))
+                    Xr[j] = x
                 placed[j] = True
     # the rest: their scaled offsets from their (placed) parents
     for j in range(J):
@@ -453,6 +484,61 @@ def _walk_in(skeleton, X, X_in, Xr, placed, line, tips, owners, group, root, s):
     M = (np.linalg.norm(v) / nu if nu > 0 else 1.0) * best_rotation(u[None], v[None])
     for j in between:
         Xr[j], placed[j] = Xr[a] + M @ (X[j] - X[a]), True
+
+
+def _flat(v, least=0.3):
+    """The horizontal part of ``v``; zero unless longer than ``least · |v|``."""
+    h = np.array([v[0], 0.0, v[2]])
+    return h if np.linalg.norm(h) > least * np.linalg.norm(v) else np.zeros(3)
+
+
+def _limb_sides(skeleton, X, leaves, root, children):
+    """(G, 3) unit horizontal directions of the limbs' sides: for two limbs that branch from the
+    same joint (the legs from the pelvis, the arms from the chest), the horizontal offset
+    between their joints (their first, else their means), when mostly horizontal, whatever
+    their pose; zero for the others (a neck)."""
+    chains = [_limb_joints(skeleton, lv, root, children) for lv in leaves]
+    branch = [skeleton.parents[c[0]] if c else -2 for c in chains]
+    out = np.zeros((len(chains), 3))
+    for g, b in enumerate(branch):
+        pair = [h for h, c in enumerate(branch) if c == b and h != g]
+        if b == -2 or len(pair) != 1:
+            continue
+        h = pair[0]
+        first = _flat(X[chains[g][0]] - X[chains[h][0]])
+        out[g] = _unit(first if first.any()
+                       else _flat(X[chains[g]].mean(0) - X[chains[h]].mean(0)))
+    return out
+
+
+def _reach_to_tip(parents, X, j, tips, owners, group):
+    """The shortest length along the bones from joint ``j`` down to a tip of ``group`` (0 when
+    none lies below it)."""
+    best = np.inf
+    for t, o in zip(group, owners):
+        length, k = float(np.linalg.norm(tips[t] - X[o])), int(o)
+        while k != j and k >= 0:
+            length += float(np.linalg.norm(X[k] - X[parents[k]])) if parents[k] >= 0 else 0.0
+            k = int(parents[k])
+        if k == j:
+            best = min(best, length)
+    return 0.0 if not np.isfinite(best) else best
+
+
+def _walk_share(line, start, share):
+    """The point ``share`` (0–1) of the way along the polyline ``line`` (base → tip) from its
+    point nearest ``start`` to its tip."""
+    i0 = int(np.argmin(np.linalg.norm(line - start, axis=1)))
+    pts = np.concatenate([start[None], line[i0 + 1:]]) if i0 + 1 < len(line) else line[-1:]
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    if not len(seg) or seg.sum() <= 0:
+        return line[-1].copy()
+    at = share * seg.sum()
+    k = int(np.searchsorted(np.cumsum(seg), at))
+    k = min(k, len(seg) - 1)
+    before = float(np.cumsum(seg)[k - 1]) if k > 0 else 0.0
+    u = (at - before) / seg[k] if seg[k] > 0 else 0.0
+    return pts[k] + np.clip(u, 0.0, 1.0) * (pts[k + 1] - pts[k])
 
 
 def _unit(v):

@@ -10,17 +10,26 @@ The root's translation from its rest position is scaled by the ratio of the legs
 bones from the root to the lowest joint), so that strides fit the new legs; its height is scaled
 likewise and then set so that the body's lowest joint is, on a quarter of the frames, no higher
 than in its bind pose (standing): the feet reach the floor when the capture's do.
+
+With the body's skin known (its points and influences), :func:`feet_on_the_floor` sets the root's
+height at every frame instead: the skinned body's lowest point is as high above the rest mesh's
+floor as the capture's lowest joint is above the capture's floor level, in % of each one's
+height. The feet stand on the floor exactly when the capture's do, and lift (a heel, a swing) as
+much; horizontal motion is unchanged, so they slide no more than the capture's.
 """
 
 import numpy as np
+import numpy.typing as npt
 
 from .animation import KeyedAnimation
+from .errors import InputError, Param
 from .readers.bvh import BvhMotion
 from .skeleton import Skeleton
 
-__all__ = ["leg_length", "retarget", "world_transforms"]
+__all__ = ["feet_on_the_floor", "leg_length", "retarget", "world_transforms"]
 
 _CONTACT_PERCENTILE = 25  # of the lowest joint's height over the frames: a foot on the floor
+_FLOOR_PERCENTILE = 50  # of the capture's lowest joint over the frames: its floor level
 
 
 def world_transforms(parents: np.ndarray, local: np.ndarray) -> np.ndarray:
@@ -94,3 +103,76 @@ def retarget(motion: BvhMotion, embedded: Skeleton, *, up: int = 1) -> Skeleton:
     anim = KeyedAnimation(np.arange(motion.frame_count, dtype=np.float64), local,
                           name=motion.path)
     return embedded.with_animation(anim)
+
+
+def _capture_floor(motion: BvhMotion, up: int = 1) -> tuple[np.ndarray, float, float]:
+    """The capture's lowest joint per frame and its floor level.
+
+    Returns
+    -------
+    low : (F,) float64
+        The lowest joint's height at every frame (BVH units).
+    level : float
+        The floor level: the lowest joint's median height over the frames (a foot is down on
+        most frames of a capture).
+    height : float
+        The capture's height in its rest pose (joints and End Sites).
+    """
+    source = motion.skeleton()
+    low = world_transforms(source.parents, motion.local_transforms())[:, :, up, 3].min(1)
+    rest = source.bind_transforms
+    ends = [(rest[j] @ np.append(np.asarray(o, np.float64), 1.0))[up] for j, o in motion.end_sites]
+    height = float(np.ptp(np.concatenate([rest[:, up, 3], ends])))
+    return low, float(np.percentile(low, _FLOOR_PERCENTILE)), height
+
+
+def feet_on_the_floor(skeleton: Skeleton, motion: BvhMotion, points: npt.ArrayLike,
+                      joint_indices: npt.ArrayLike, joint_weights: npt.ArrayLike, *,
+                      up: int = 1, band: float = 0.1) -> Skeleton:
+    """The retargeted skeleton with its root's height set at every frame so that the skinned
+    (linear blend) body's lowest point follows the capture's lowest joint (module docstring).
+
+    Parameters
+    ----------
+    skeleton : dqskin.Skeleton
+        :func:`retarget`'s result: keyed local transforms, one key per capture frame, the world
+        as its space.
+    motion : BvhMotion
+        The capture it was retargeted from.
+    points : (V, 3) float
+        The body's rest points (bind pose, the skeleton's space).
+    joint_indices, joint_weights : (V, K) int, (V, K) float
+        The body's influences.
+    up : int
+        The up axis (Y by default).
+    band : float
+        Only the points within this share of the body's height above its floor are skinned
+        (the feet).
+
+    Returns
+    -------
+    dqskin.Skeleton
+        The same joints and bind pose; the roots' local translations moved along ``up``.
+    """
+    anim = skeleton.animation
+    assert isinstance(anim, KeyedAnimation), "a retargeted skeleton has keyed local transforms"
+    P = np.asarray(points, np.float64)
+    floor, height = float(P[:, up].min()), float(np.ptp(P[:, up]))
+    feet = np.nonzero(P[:, up] <= floor + band * height)[0]
+    idx = np.asarray(joint_indices)[feet]
+    w = np.asarray(joint_weights, np.float64)[feet]
+    ph = np.append(P[feet], np.ones((len(feet), 1)), axis=1)
+    local = anim.local_transforms(anim.key_times).copy()
+    # the up row of every joint's skinning matrix, (F, J, 4)
+    row = np.einsum("fjk,jkl->fjl", world_transforms(skeleton.parents, local)[:, :, up, :],
+                    np.linalg.inv(skeleton.bind_transforms))
+    y = np.zeros((len(local), len(feet)))
+    for k in range(idx.shape[1]):
+        y += w[:, k] * np.einsum("fvl,vl->fv", row[:, idx[:, k]], ph)
+    low_c, level_c, height_c = _capture_floor(motion, up)
+    if len(low_c) != len(local):
+        raise InputError(Param("skeleton"), f": {len(local)} keys for the capture's "
+                         f"{len(low_c)} frames (not retargeted from this motion)")
+    target = floor + (low_c - level_c) * height / max(height_c, 1e-300)
+    local[:, skeleton.parents < 0, up, 3] += (target - y.min(1))[:, None]
+    return skeleton.with_animation(KeyedAnimation(anim.key_times, local, name=anim.name))

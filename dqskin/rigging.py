@@ -15,7 +15,6 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -195,7 +194,7 @@ def read_joints(path: str | os.PathLike) -> dict[str, list[float]]:
 def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
              skeleton: str | os.PathLike | bvh.BvhMotion, *,
              weights: str | os.PathLike | None = "auto", scale: float | None = None,
-             fit: Literal["embed", "as-is"] = "as-is",
+             as_is: bool = False,
              joints: str | os.PathLike | Mapping[str, npt.ArrayLike] | None = None,
              max_influences: int = 8, cache: bool = True, max_vertices: int = MAX_RIG_VERTICES,
              max_input_gib: float = MAX_INPUT_GIB, device: Device = None) -> Scene:
@@ -212,15 +211,17 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
         a path: an ``.npz`` read by :func:`read_weights`.
     scale : float, optional
         Multiplies the skeleton's lengths (offsets, End Sites, root positions) into the mesh's
-        unit, e.g. 0.0254 for a skeleton in inches and a mesh in metres (``fit="as-is"``).
-    fit : "embed" or "as-is"
-        "embed": the skeleton is placed in the mesh, whatever its rest pose, size and position
-        (:func:`dqskin.embedding.embed_skeleton`), and the motion retargeted to it
-        (:func:`dqskin.retarget.retarget`). "as-is": the mesh is modelled in the BVH's rest
-        pose (every channel zero), space and unit (after ``scale``); :func:`check_fit` refuses
-        one that is far from the skeleton or in other units and says how to fix it.
+        unit, e.g. 0.0254 for a skeleton in inches and a mesh in metres (``as_is=True``).
+    as_is : bool
+        False (the default): the skeleton is placed in the mesh, whatever its rest pose, size and
+        position (:func:`dqskin.embedding.embed_skeleton`), the motion retargeted to it
+        (:func:`dqskin.retarget.retarget`) and the skinned feet put on the mesh's floor at every
+        frame (:func:`dqskin.retarget.feet_on_the_floor`). True: the mesh is modelled in
+        the BVH's rest pose (every channel zero), space and unit (after ``scale``);
+        :func:`check_fit` refuses one that is far from the skeleton or in other units and says
+        how to fix it.
     joints : path, or mapping of str to (3,) float, optional
-        ``fit="embed"``: joint positions (mesh space) that override the embedding, by name
+        Without ``as_is``: joint positions (mesh space) that override the embedding, by name
         (a ``.json`` file read by :func:`read_joints`).
     max_influences : int
         Influences kept per vertex by automatic weights.
@@ -253,8 +254,9 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
     import warnings
     motion = skeleton if isinstance(skeleton, bvh.BvhMotion) else bvh.read_bvh(
         skeleton, max_input_gib=max_input_gib)
-    if fit not in ("embed", "as-is"):
-        raise InputError(Param("fit", fit), ": expected 'embed' or 'as-is'")
+    if joints is not None and as_is:
+        raise InputError(Param("joints"), " places joints of an embedded skeleton; ",
+                         Param("as_is", True), " binds the BVH's own")
     if scale is not None and float(scale) != 1.0:
         motion = bvh.scaled(motion, scale)
     if isinstance(mesh, tuple):
@@ -268,7 +270,7 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
     faces = np.asarray(faces, np.int32).reshape(-1, 3)
     skel = motion.skeleton()
     end_sites = motion.end_sites
-    if fit == "embed":
+    if not as_is:
         from .embedding import embed_skeleton
         from .retarget import retarget
         given = read_joints(joints) if isinstance(joints, (str, os.PathLike)) else joints
@@ -290,34 +292,14 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
     else:
         idx, w = read_weights(weights, skel.joint_names, len(points),
                               max_input_gib=max_input_gib)
+    if not as_is:  # the skinned feet on the floor whenever the capture's are
+        from .retarget import feet_on_the_floor
+        skel = feet_on_the_floor(skel, motion, points, idx, w)
     m = Mesh(name=name, points=points, faces=faces, joint_indices=idx, joint_weights=w,
              skinning_method="lbs")
     scene = Scene(motion.path, [m], [skel], np.arange(motion.frame_count, dtype=np.float64),
                   time_codes_per_second=motion.frame_rate, up_axis="Y")
-    return _on_the_floor(scene, device) if fit == "embed" else scene
-
-
-_FLOOR_SAMPLES = 64  # frames skinned to put a retargeted body's feet on the floor
-
-
-def _on_the_floor(scene: Scene, device: Device) -> Scene:
-    """The scene with its root raised or lowered so that the skinned mesh's lowest point is on
-    the rest mesh's floor at the median frame (of up to 64 spread over the motion): a
-    retargeted walk's feet touch the ground when the capture's do."""
-    from .animation import KeyedAnimation
-    (m,) = scene.meshes
-    skel = scene.skeletons[0]
-    anim = skel.animation
-    assert isinstance(anim, KeyedAnimation), "a retargeted skeleton has keyed local transforms"
-    times = anim.key_times
-    pick = times[np.unique(np.linspace(0, len(times) - 1, min(_FLOOR_SAMPLES, len(times))
-                                       ).round().astype(int))]
-    low = scene.skin(pick, method="lbs", space="skeleton", device=device).points[m.name][..., 1]
-    shift = float(np.asarray(m.points, np.float64)[:, 1].min() - np.median(low.min(1)))
-    local = anim.local_transforms(times).copy()
-    local[:, skel.parents < 0, 1, 3] += shift
-    moved = skel.with_animation(KeyedAnimation(times, local, name=anim.name))
-    return replace(scene, skeletons=[moved], _skinners={})
+    return scene
 
 
 def _embedded_end_sites(source: Skeleton, embedded: Skeleton, end_sites: list) -> list:

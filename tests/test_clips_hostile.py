@@ -67,8 +67,10 @@ def test_flatten_refuses_a_manifest_that_is_not_the_bakes(shot, tmp_path, damage
         manifest.write_text("#usda 1.0\n")
     elif damage == "folder":
         manifest.mkdir()
-    with pytest.raises(InputError, match=r"shot.clips/manifest.usda: missing, damaged or not the "
-                                         "manifest shot.usd was written with"):
+    # (a folder is refused before USD opens anything: every layer must be a regular file)
+    why = ("layer named by .*shot.usd: a folder, not a regular file" if damage == "folder" else
+           "missing, damaged or not the manifest shot.usd was written with")
+    with pytest.raises(InputError, match=r"shot.clips/manifest.usda: " + why):
         flatten(out, tmp_path / "flat.usdc")
     assert not (tmp_path / "flat.usdc").exists()
 

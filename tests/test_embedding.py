@@ -60,6 +60,34 @@ def test_embedding_finds_the_artists_joints(shared_assets, path, up, pose, mean_
     assert mean <= mean_max and worst <= worst_max, (mean, worst)
 
 
+def test_embedding_tells_left_from_right_whatever_the_guess_pose(shared_assets):
+    """CesiumMan's own skeleton re-posed by 10–20° per joint (the legs crossing over in the
+    guess: seeds 1–3): each limb still goes to its own side's extremity (the sides of two
+    limbs branching from one joint), every joint against the artist's."""
+    pts, faces, skel, used = character(shared_assets / "khronos-gltf/CesiumMan/CesiumMan.glb")
+    for seed in (1, 2, 3):
+        guess = displaced(reposed(skel, 20.0, seed), up=2)
+        got = embed_skeleton((pts, faces), guess, deforming=used, up=2)
+        mean, worst, _ = embedding_errors(got.bind_transforms[used, :3, 3],
+                                          skel.bind_transforms[used, :3, 3], np.ptp(pts[:, 2]))
+        assert mean <= 2.5 and worst <= 5.0, (seed, mean, worst)
+
+
+def test_embedding_a_capsule_body_with_arms_touching_the_thighs(shared_assets):
+    """The CMU skeleton, displaced, embedded back into a body of capsules around its own bones
+    (I-pose: the forearms' capsules touch the thighs'; separate parts, joined each to its
+    nearest): the hands and feet go to their own extremities, every joint against the
+    skeleton's own."""
+    from test_autoweights import capsule_body
+    motion = bvh.read_bvh(shared_assets / "cmu-mocap" / "scaled_131_02.bvh")
+    skel = motion.skeleton()
+    pts, faces = capsule_body(skel, motion.end_sites, radius=0.25)
+    got = embed_skeleton((pts, faces), displaced(skel), end_sites=motion.end_sites)
+    mean, worst, per = embedding_errors(got.bind_transforms[:, :3, 3],
+                                        skel.bind_transforms[:, :3, 3], np.ptp(pts[:, 1]))
+    assert mean <= 4.0 and worst <= 10.0, (mean, worst, per)
+
+
 def test_embedding_a_capture_skeleton_in_makehuman(shared_assets):
     """The CMU skeleton (I-pose, metres) in MakeHuman's A-pose body (decimetres), against the
     body's own joint markers; a joints file overrides any joint."""
@@ -186,6 +214,54 @@ def test_retargeted_walk_stands_on_the_floor(walk):
     assert travel_c > 0.05 and travel_e > 0.5 * travel_c * height / 1.37
 
 
+def test_feet_on_the_floor_over_the_whole_capture(shared_assets):
+    """Every frame of the full capture (1,248) on MakeHuman's body: whenever the capture's
+    lowest foot joint is at its floor level (within 1% of its height; its FK from the BVH text),
+    the skinned body's lowest point (linear blend of the feet's rest points, float64, from the
+    rig's weights) is within 1% of the body's height of the rest mesh's floor, and at every frame
+    it is as far above the floor as the capture's feet are above theirs; the toes slide no more
+    than the capture's."""
+    import warnings
+
+    from dqskin.rigging import FitWarning, rig_mesh
+    capture = shared_assets / "cmu-mocap" / "scaled_131_02.bvh"
+    body = shared_assets / "bodies" / "makehuman" / "base_body.obj"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FitWarning)
+        scene = rig_mesh(body, capture)
+    (m,), skel = scene.meshes, scene.skeletons[0]
+    rest = np.asarray(m.points, np.float64)
+    floor, height = rest[:, 1].min(), np.ptp(rest[:, 1])
+    feet = np.nonzero(rest[:, 1] < floor + 0.15 * height)[0]
+    world = world_transforms(skel.parents, skel.animation.local_transforms(scene.times))
+    skin = world[:, :, :3] @ np.linalg.inv(skel.bind_transforms)  # (F, J, 3, 4)
+    idx, w = np.asarray(m.joint_indices)[feet], np.asarray(m.joint_weights, np.float64)[feet]
+    p = np.append(rest[feet], np.ones((len(feet), 1)), axis=1)
+    y = sum(w[:, k] * np.einsum("fvl,vl->fv", skin[:, idx[:, k], 1], p)
+            for k in range(idx.shape[1]))
+    low = (y.min(1) - floor) / height * 100
+    dev, contact, names, pos = _capture_feet(capture)
+    assert len(low) == len(dev) == 1248
+    down = np.abs(dev) <= 1.0
+    assert down.mean() > 0.8
+    assert np.abs(low[down]).max() <= 1.0, np.abs(low[down]).max()
+    assert np.abs(low - dev).max() <= 0.1, np.abs(low - dev).max()
+    short = [n.split("/")[-1] for n in skel.joint_names]
+    for side in ("Left", "Right"):
+        both = contact[side][1:] & contact[side][:-1]
+        legs = [side + n for n in ("Hip", "Knee", "Ankle")]
+        leg_c = sum(np.linalg.norm(pos[0, names.index(a)] - pos[0, names.index(b)])
+                    for a, b in zip(legs, legs[1:]))
+        leg_e = sum(np.linalg.norm(world[0, short.index(a), :3, 3]
+                                   - world[0, short.index(b), :3, 3])
+                    for a, b in zip(legs, legs[1:]))
+        toe_c = pos[:, names.index(side + "Toe")][:, [0, 2]]
+        toe_e = world[:, short.index(side + "Toe"), [0, 2], 3]
+        slide_c = np.linalg.norm(np.diff(toe_c, axis=0), axis=1)[both].sum() / leg_c
+        slide_e = np.linalg.norm(np.diff(toe_e, axis=0), axis=1)[both].sum() / leg_e
+        assert slide_e <= 1.1 * slide_c, (side, slide_e, slide_c)
+
+
 def test_refusal_offset_works_as_printed(tmp_path, capsys, shared_assets):
     """--as-is: a mesh far from the skeleton is refused with the offset to add to its points;
     adding it as printed makes the rig."""
@@ -245,6 +321,25 @@ def test_joints_file_is_checked_and_named(tmp_path, capsys, shared_assets):
         assert main(argv) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "r.usda").exists()
+
+
+def test_api_and_info_embed_by_default(shared_assets):
+    """rig_mesh embeds by default, as ``dqskin rig`` does (the whole-capture test above relies on
+    it: MakeHuman's body is 12× the capture's size); ``as_is=True`` is ``--as-is``, refused with
+    ``joints``; ``dqskin info X.bvh`` says so with the command line's flags."""
+    import inspect
+
+    from dqskin.cli import flag
+    from dqskin.errors import InputError
+    from dqskin.rigging import rig_mesh
+    assert inspect.signature(rig_mesh).parameters["as_is"].default is False
+    capture = shared_assets / "cmu-mocap" / "scaled_131_02.bvh"
+    with pytest.raises(InputError, match=r"joints places .* as_is=True binds"):
+        rig_mesh(shared_assets / "bodies" / "makehuman" / "base_body.obj", capture,
+                 as_is=True, joints={"LeftElbow": [0, 0, 0]})
+    line = bvh.summary_lines(bvh.read_bvh(capture), flag)[-1]
+    assert "any size and pose is fitted by embedding" in line and "with --as-is a mesh must be" \
+        in line and line.endswith("--scale"), line
 
 
 def test_retargeted_rig_bakes_the_same_in_usdskel(walk):

@@ -66,7 +66,7 @@ def test_every_stack_matches_ufbx(name):
         scene = dqskin.load(path, clip=clip) if index else first
         assert scene.clip == clip
         t = scene.times[np.unique(np.linspace(0, len(scene.times) - 1, 5).round().astype(int))]
-        ref = ufbx_skinned(path, index, t / scene.time_codes_per_second)
+        ref = ufbx_skinned(path, index, t)
         res = scene.skin(t, space="world")
         for k, m in enumerate(skinned_meshes(scene)):
             want = ref[f"m{k}"]
@@ -125,6 +125,8 @@ def test_authoring_tools_obj_exports(name):
         if frame is None:  # the stored pose: no stack
             scene.skeletons = [s.with_animation(None) for s in scene.skeletons]
             frame = float(scene.times[0])
+        else:
+            frame /= scene.frame_rate  # seconds
         got = np.concatenate(list(scene.skin([frame], space="world").points.values()), 1)[0]
         err = nearest(got.astype(np.float64), want) / size(want)
         assert err < tol, (obj, err)
@@ -132,8 +134,9 @@ def test_authoring_tools_obj_exports(name):
 
 def test_scene_metadata_and_methods():
     max_ = dqskin.load(data("max_transformed_skin_7500_binary.fbx"))
-    assert (max_.up_axis, max_.meters_per_unit, max_.time_codes_per_second) == ("Z", 0.01, 30.0)
-    assert max_.times[0] == 0 and max_.times[-1] == 100  # 0 .. 3.333 s at 30 fps
+    assert (max_.up_axis, max_.meters_per_unit, max_.time_codes_per_second,
+            max_.frame_rate) == ("Z", 0.01, 1.0, 30.0)
+    np.testing.assert_array_equal(max_.times, np.arange(101) / 30)  # seconds: 0 .. 3.333 s
     box = max_.meshes[0]
     assert box.skinning_method == "blend" and box.blend_weights is not None
     assert np.all(box.blend_weights == 0)  # the file's per-vertex DQ weights
@@ -213,7 +216,8 @@ def test_cli_info_skin(tmp_path):
     src = data("maya_game_sausage_7500_binary_combined.fbx")
     rc, out, err = run("info", src, "--clip", "spin")
     assert rc == 0, err
-    assert "clips: wiggle, spin, deform (loaded: spin)" in out and "24/s" in out
+    assert "clips: wiggle, spin, deform (loaded: spin)" in out
+    assert "frames 20 .. 40 at 24 fps (0.8333 .. 1.667 s)" in out
     rc, out, err = run("skin", src, "--clip", "spin", "--frames", "27:35:8", "--out",
                        tmp_path / "o.npz")
     assert rc == 0, err
@@ -261,7 +265,8 @@ def test_cli_rig_keeps_skeleton_and_weights(tmp_path):
 def test_extract_writes_no_pickles():
     """The reader's process answers in plain arrays and one JSON record."""
     done = subprocess.run([sys.executable, "-I", str(fbx._EXTRACT),
-                           str(data("maya_dual_quaternion_scale_7500_ascii.fbx")), "-"],
+                           str(data("maya_dual_quaternion_scale_7500_ascii.fbx")), "-",
+                           str(1 << 30)],
                           capture_output=True, check=True)
     with np.load(io.BytesIO(done.stdout), allow_pickle=False) as z:
         meta = json.loads(str(z["meta"]))
@@ -284,24 +289,25 @@ def test_per_vertex_blend_everywhere(tmp_path):
     b = np.random.default_rng(7).random(len(m.points)).astype(np.float32)
     scene.meshes = [dataclasses.replace(m, skinning_method="blend", blend_weights=b)]
     scene.invalidate()
-    t = np.array([6.0, 11.5])
+    t = np.array([6.0, 11.5]) / 24  # seconds
     got = scene.skin(t, velocities=True, space="world")
     lbs, dqs = (scene.skin(t, meth, space="world").points[m.name] for meth in ("lbs", "dqs"))
     scale = size(lbs)
     assert np.abs(dqs - lbs).max() > 1e-3 * scale  # the two methods differ here
     want = (1 - b[:, None]) * lbs + b[:, None] * dqs
     assert np.abs(got.points[m.name] - want).max() < 1e-5 * scale
-    h = 1e-2  # frames: central differences of the points, per second
+    h = 1e-2 / 24  # central differences of the points, per second, inside the frame
     ahead, behind = (scene.skin(t + d, space="world").points[m.name].astype(np.float64)
                      for d in (h, -h))
-    rate = (ahead - behind) / (2 * h) * scene.time_codes_per_second
+    rate = (ahead - behind) / (2 * h)
     assert np.abs(got.velocities[m.name] - rate).max() < 1e-3 * np.abs(rate).max()
     rig = tmp_path / "rig.usda"
     write_rig(scene, rig)
     back = dqskin.load(rig)
     assert back.meshes[0].skinning_method == "blend"
     np.testing.assert_array_equal(back.meshes[0].blend_weights, b)
-    again = back.skin(t, space="world").points[back.meshes[0].name]
+    again = back.skin(t * back.time_codes_per_second,  # (the rig's time codes: frames)
+                      space="world").points[back.meshes[0].name]
     assert np.abs(again - want).max() < 1e-5 * scale
     stage = Usd.Stage.Open(str(rig))
     prim = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
@@ -345,7 +351,7 @@ def test_blend_shape_deformer_closed_form():
 
 def test_endless_stack_is_refused(tmp_path):
     """A stack whose end lies 160 years out (an edited ASCII file) is a LimitError, not a
-    million evaluations."""
+    million evaluations; transforms beyond max_input_gib are refused before they are evaluated."""
     from dqskin.errors import LimitError
 
     text = data("maya_dual_quaternion_scale_7500_ascii.fbx").read_text()
@@ -354,3 +360,188 @@ def test_endless_stack_is_refused(tmp_path):
     (tmp_path / "long.fbx").write_text(text.replace(stop + "\n", stop + "000000\n"))
     with pytest.raises(LimitError, match="spans 120000000 frames at 24 fps"):
         dqskin.load(tmp_path / "long.fbx")
+    with pytest.raises(LimitError, match=r"'Take 001': 120 times of 2 nodes' transforms: needs "
+                       r"2.86e-05 GiB, more than the limit of 1e-05 GiB; raise max_input_gib"):
+        dqskin.load(data("maya_dual_quaternion_scale_7500_ascii.fbx"), max_input_gib=1e-5)
+
+
+@pytest.mark.parametrize("name", ["maya_game_sausage_7500_binary_combined.fbx",
+                                  "maya_slime_7500_ascii.fbx"])
+def test_between_frames_follow_the_files_curves(name):
+    """Quarter, half and odd fractions of frames are ufbx's evaluation of the file's curves at
+    those times (interpolating the whole frames is off by up to 5e-2 of the size on the sausage
+    and 4e-4 on the slime), with velocities (the keyed motion's) on the same call."""
+    path = data(name)
+    scene = dqskin.load(path)
+    frames = np.round(scene.times * scene.frame_rate)[:6]
+    t = np.concatenate([frames[:-1] + d for d in (0.25, 0.5, 0.37, 0.75)]) / scene.frame_rate
+    ref = ufbx_skinned(path, 0, t)
+    res = scene.skin(np.concatenate([scene.times[:6], t]), velocities=True, space="world")
+    for k, m in enumerate(skinned_meshes(scene)):
+        want = ref[f"m{k}"]
+        err = np.abs(res.points[m.name][6:] - want).max() / size(want)
+        assert err < TOLERANCE, (m.name, err)
+        assert np.all(np.isfinite(res.velocities[m.name]))
+
+
+def test_bake_api_and_value_clips(tmp_path):
+    """``dqskin.bake`` of an FBX scene writes a USD cache through the generic path (time codes
+    the file's frames at its rate, sub-frames as ufbx evaluates them); value clips of an FBX
+    input are one line and exit 2."""
+    from pxr import Usd, UsdGeom
+
+    src = data("maya_game_sausage_7500_binary_combined.fbx")
+    scene = dqskin.load(src, clip="spin")
+    seconds = np.array([27.0, 27.5, 35.0]) / 24
+    dqskin.bake(scene, tmp_path / "x.usdc", seconds)
+    stage = Usd.Stage.Open(str(tmp_path / "x.usdc"))
+    assert (stage.GetTimeCodesPerSecond(), stage.GetFramesPerSecond(), stage.GetStartTimeCode(),
+            stage.GetEndTimeCode()) == (24.0, 24.0, 27.0, 35.0)
+    mesh = next(UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
+    ref = ufbx_skinned(src, 1, seconds)["m0"]
+    for i, code in enumerate([27.0, 27.5, 35.0]):
+        got = np.array(mesh.GetPointsAttr().Get(code))
+        assert np.abs(got - ref[i]).max() / size(ref) < TOLERANCE, code
+    for flag in (["--clips"], ["--workers", "2"]):
+        rc, _, err = run("skin", src, "--out", tmp_path / "c.usd", *flag)
+        assert_clean_error(rc, err, "value clips")
+
+
+SHAPE_FBX = """\
+; FBX 7.4.0 project file
+FBXHeaderExtension:  {
+    FBXHeaderVersion: 1003
+    FBXVersion: 7400
+    Creator: "dqskin test"
+}
+GlobalSettings:  {
+    Version: 1000
+    Properties70:  {
+        P: "UpAxis", "int", "Integer", "",1
+        P: "UpAxisSign", "int", "Integer", "",1
+        P: "FrontAxis", "int", "Integer", "",2
+        P: "FrontAxisSign", "int", "Integer", "",1
+        P: "CoordAxis", "int", "Integer", "",0
+        P: "CoordAxisSign", "int", "Integer", "",1
+        P: "UnitScaleFactor", "double", "Number", "",1
+        P: "TimeMode", "enum", "", "",11
+    }
+}
+Objects:  {
+    Geometry: 1000, "Geometry::Tri", "Mesh" {
+        Vertices: *9 {
+            a: 0,0,0,1,0,0,0,1,0
+        }
+        PolygonVertexIndex: *3 {
+            a: 0,1,-3
+        }
+        GeometryVersion: 124
+    }
+    Model: 2000, "Model::Tri", "Mesh" {
+        Version: 232
+        Properties70:  {
+            P: "Lcl Translation", "Lcl Translation", "", "A",5,0,0
+            P: "Lcl Rotation", "Lcl Rotation", "", "A",0,0,90
+        }
+    }
+    Deformer: 3000, "Deformer::Morpher", "BlendShape" {
+        Version: 100
+    }
+    Deformer: 3100, "SubDeformer::Channel", "BlendShapeChannel" {
+        Version: 100
+        DeformPercent: 0
+        FullWeights: *2 {
+            a: 50,100
+        }
+    }
+    Geometry: 4000, "Geometry::Half", "Shape" {
+        Version: 100
+        Indexes: *1 {
+            a: 1
+        }
+        Vertices: *3 {
+            a: 0,1,0
+        }
+    }
+    Geometry: 4100, "Geometry::Full", "Shape" {
+        Version: 100
+        Indexes: *1 {
+            a: 1
+        }
+        Vertices: *3 {
+            a: 0,0,2
+        }
+    }
+    AnimationStack: 5000, "AnimStack::Take 001", "" {
+        Properties70:  {
+            P: "LocalStart", "KTime", "Time", "",0
+            P: "LocalStop", "KTime", "Time", "",46186158000
+        }
+    }
+    AnimationLayer: 5100, "AnimLayer::BaseLayer", "" {
+    }
+    AnimationCurveNode: 5200, "AnimCurveNode::DeformPercent", "" {
+        Properties70:  {
+            P: "d|DeformPercent", "Number", "", "A",0
+        }
+    }
+    AnimationCurve: 5300, "AnimCurve::", "" {
+        Default: 0
+        KeyVer: 4009
+        KeyTime: *2 {
+            a: 0,46186158000
+        }
+        KeyValueFloat: *2 {
+            a: 0,100
+        }
+        KeyAttrFlags: *1 {
+            a: 4
+        }
+        KeyAttrDataFloat: *4 {
+            a: 0,0,0,0
+        }
+        KeyAttrRefCount: *1 {
+            a: 2
+        }
+    }
+}
+Connections:  {
+    C: "OO",2000,0
+    C: "OO",1000,2000
+    C: "OO",3000,1000
+    C: "OO",3100,3000
+    C: "OO",4000,3100
+    C: "OO",4100,3100
+    C: "OO",5100,5000
+    C: "OO",5200,5100
+    C: "OP",5200,3100, "DeformPercent"
+    C: "OP",5300,5200, "d|DeformPercent"
+}
+"""
+"""A triangle on a node (moved by 5 along x, turned 90° about z) with one blend-shape channel
+whose DeformPercent goes linearly from 0 to 100 over one second at 24 fps: an in-between shape
+at 50 (vertex 1 up by 1 along y) and the full shape at 100 (vertex 1 by 2 along z). FBX 7.4
+ASCII written by hand: no shared FBX file has blend shapes."""
+
+
+def test_blend_shape_with_in_between(tmp_path):
+    """ufbx's blended points at whole frames and between them, and the closed form: at
+    DeformPercent w the in-between weighs w/50 below 50 and (100 - w)/50 above, the full shape
+    (w - 50)/50; velocities are their rates (w grows by 100 a second)."""
+    path = tmp_path / "shape.fbx"
+    path.write_text(SHAPE_FBX)
+    scene = dqskin.load(path)
+    assert scene.frame_rate == 24 and len(scene.times) == 25 and scene.meshes[0].deformer
+    t = np.array([0.0, 7 / 24, 0.3, 0.5, 13.5 / 24, 0.8, 1.0])
+    ref = ufbx_skinned(path, 0, t)["b0"]
+    res = scene.skin(t, velocities=True, space="world")
+    got = res.points["Tri"]
+    assert np.abs(got - ref).max() < 1e-6 * size(ref)
+    w = 100 * t
+    half = np.where(w <= 50, w / 50, (100 - w) / 50)
+    full = np.clip((w - 50) / 50, 0, None)
+    turn = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])  # 90° about z
+    want = (np.array([1.0, 0, 0]) + half[:, None] * [0, 1, 0] + full[:, None] * [0, 0, 2]) @ turn.T
+    np.testing.assert_allclose(got[:, 1], want + [5, 0, 0], atol=1e-6)
+    rate = np.array([[0.0, 2, 0], [0, -2, 4]]) @ turn.T  # per second, below and above 50
+    np.testing.assert_allclose(res.velocities["Tri"][[2, 5], 1], rate, atol=1e-5)

@@ -73,7 +73,7 @@ def test_cli_skin_with_skeleton_and_weights_file(capture, tmp_path, monkeypatch,
     got = _skin_cli(mesh, path, tmp_path / "auto.npz")
     assert "1 mesh × 12 frames" in capsys.readouterr().out
     pts, _ = load_mesh(mesh)
-    scene = rig_mesh(mesh, path)
+    scene = rig_mesh(mesh, path, as_is=True)
     (m,) = scene.meshes
     ref = lbs_oracle(path, pts.astype(np.float64), m.joint_indices, m.joint_weights)
     np.testing.assert_allclose(got, ref, atol=1e-4 * np.abs(ref).max())
@@ -95,7 +95,7 @@ def test_rig_round_trip_through_usdskel(capture, tmp_path, monkeypatch, capsys):
     rig = tmp_path / "rig.usda"
     assert main(["rig", str(mesh), "--skeleton", str(path), "--as-is", "--out", str(rig)]) == 0
     assert "UsdSkel rig" in capsys.readouterr().out
-    scene = rig_mesh(mesh, path)
+    scene = rig_mesh(mesh, path, as_is=True)
     (m,) = scene.meshes
     for method in ("lbs", "dqs"):
         stage = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(rig)))  # a fresh copy each time
@@ -200,7 +200,7 @@ def test_bad_weight_files_are_named(capture, tmp_path):
 
 def test_write_rig_refuses_other_suffixes(capture, tmp_path):
     path, mesh, motion = capture
-    scene = rig_mesh(mesh, path, cache=False)
+    scene = rig_mesh(mesh, path, as_is=True, cache=False)
     with pytest.raises(ValueError, match="a rig is written as"):
         write_rig(scene, tmp_path / "x.npz")
 
@@ -258,7 +258,7 @@ def test_outputs_never_replace_an_input(capture, tmp_path, capsys):
     body.write_bytes(mesh.read_bytes())
     walk = tmp_path / "walk.bvh"
     walk.write_bytes(path.read_bytes())
-    scene = rig_mesh(mesh, path)
+    scene = rig_mesh(mesh, path, as_is=True)
     (m,) = scene.meshes
     arrays = dict(joint_indices=m.joint_indices, joint_weights=m.joint_weights,
                   joint_names=np.array(motion.joint_names))
@@ -377,7 +377,7 @@ def test_cli_skin_with_skeleton_to_a_usd_cache(capture, tmp_path, capsys):
     assert main(["skin", str(mesh), "--skeleton", str(path), "--as-is", "--out", str(out)]) == 0
     assert "1 mesh × 12 frames" in capsys.readouterr().out
     pts, _ = load_mesh(mesh)
-    (m,) = rig_mesh(mesh, path).meshes
+    (m,) = rig_mesh(mesh, path, as_is=True).meshes
     ref = lbs_oracle(path, pts.astype(np.float64), m.joint_indices, m.joint_weights)
     stage = Usd.Stage.Open(str(out))
     assert stage.GetTimeCodesPerSecond() == round(1 / motion.frame_time)

@@ -284,7 +284,7 @@ def test_rigged_mesh_world_is_local(shared_assets, tmp_path):
     np.savez(weights, joint_indices=np.repeat(np.arange(len(joints)), 3)[:, None],
              joint_weights=np.ones((len(points), 1), np.float32),
              joint_names=np.array(skel.joint_names))
-    scene = dqskin.rig_mesh((points, faces), motion, weights=weights)
+    scene = dqskin.rig_mesh((points, faces), motion, weights=weights, as_is=True)
     t = scene.times[:4]
     world = scene.skin(t, space="world").points
     assert scene.meshes[0].world_transforms is None

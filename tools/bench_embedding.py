@@ -4,9 +4,13 @@
 
 Artists' characters (CesiumMan, RiggedFigure, greenman; glTF and USD): the character's own
 skeleton, shrunk to 60% and moved off the mesh by twice its height (so that nothing of its
-placement is kept), is embedded into the character's bind-pose mesh by
+placement is kept) and optionally re-posed (every joint turned by a random 5–10°, or 10–20° over
+10 seeds), is embedded into the character's bind-pose mesh by
 :func:`dqskin.embedding.embed_skeleton`, and the deforming joints are compared with the artist's:
 distance in % of the mesh's vertical height, mean and worst, and every joint.
+
+A body of capsules around the CMU skeleton's bones (the tests' ``capsule_body``; I-pose, the arms
+touching the thighs): the skeleton, displaced, embedded back, against its own joints.
 
 MakeHuman's base body (../shared/assets/bodies/makehuman/base_body.obj, A-pose, decimetres) with
 the CMU capture's skeleton (scaled_131_02.bvh, I-pose, metres): the embedded joints against
@@ -30,6 +34,9 @@ CHARACTERS = [("CesiumMan", "khronos-gltf/CesiumMan/CesiumMan.glb", 2),
               ("RiggedFigure", "usd-wg/RiggedFigure/RiggedFigure.usdz", 2),
               ("greenman", "raylib-gltf/greenman.glb", 1)]
 """(name, file under ../shared/assets, up axis of its skeleton space)."""
+
+SEEDS = 10
+"""Random poses of the guess per character for the 10–20° rows."""
 
 MAKEHUMAN_MARKERS = {
     "Hips": "pelvis", "LeftHip": "l-upper-leg", "LeftKnee": "l-knee", "LeftAnkle": "l-ankle",
@@ -87,10 +94,10 @@ def reposed(skel, degrees=10.0, seed=0):
     return Skeleton(skel.joint_names, skel.parents, world, name=skel.name)
 
 
-def run_character(name, path, up, pose=False):
+def run_character(name, path, up, pose=False, degrees=10.0, seed=0):
     from dqskin.embedding import embed_skeleton, embedding_errors
     pts, faces, skel, used = character(path)
-    guess = displaced(reposed(skel) if pose else skel, up=up)
+    guess = displaced(reposed(skel, degrees, seed) if pose else skel, up=up)
     t0 = time.perf_counter()
     got = embed_skeleton((pts, faces), guess, deforming=used, up=up)
     dt = time.perf_counter() - t0
@@ -98,6 +105,25 @@ def run_character(name, path, up, pose=False):
     mean, worst, per = embedding_errors(got.bind_transforms[used, :3, 3],
                                         skel.bind_transforms[used, :3, 3], height)
     return mean, worst, {skel.joint_names[j].split("/")[-1]: d for j, d in zip(used, per)}, dt
+
+
+def run_capsules(radius):
+    """The CMU skeleton embedded in a body of capsules around its own bones (I-pose: the arms
+    hang against the thighs, touching them), against the skeleton's joints."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_autoweights import capsule_body
+
+    from dqskin.embedding import embed_skeleton, embedding_errors
+    from dqskin.readers import bvh
+    motion = bvh.read_bvh(SHARED / "cmu-mocap" / "scaled_131_02.bvh")
+    skel = motion.skeleton()
+    pts, faces = capsule_body(skel, motion.end_sites, radius=radius)
+    t0 = time.perf_counter()
+    got = embed_skeleton((pts, faces), displaced(skel), end_sites=motion.end_sites)
+    dt = time.perf_counter() - t0
+    mean, worst, per = embedding_errors(got.bind_transforms[:, :3, 3],
+                                        skel.bind_transforms[:, :3, 3], float(np.ptp(pts[:, 1])))
+    return mean, worst, dict(zip(skel.joint_names, per)), dt
 
 
 def run_makehuman():
@@ -130,11 +156,22 @@ def main(argv=None):
     rows += [(f"{n} ({Path(p).suffix[1:]}), guess re-posed", *run_character(n, p, up, True))
              for n, p, up in CHARACTERS if p.endswith(".glb")]
     rows.append(("MakeHuman + CMU skeleton vs markers", *run_makehuman()))
+    rows += [(f"capsule body around the CMU skeleton, radius {r:g} of each bone, arms touching "
+              "the thighs", *run_capsules(r)) for r in (0.18, 0.25)]
     for label, mean, worst, per, dt in rows:
         print(f"{label}: mean {mean:.2f}%, worst {worst:.2f}% of height ({len(per)} joints, "
               f"{dt:.2f} s)")
         if not args.quiet:
             print("   " + ", ".join(f"{k} {v:.1f}" for k, v in per.items()))
+    for n, p, up in CHARACTERS:
+        if p.endswith(".glb") and n != "greenman":
+            runs = [run_character(n, p, up, True, 20.0, seed) for seed in range(SEEDS)]
+            means = [r[0] for r in runs]
+            print(f"{n} ({Path(p).suffix[1:]}), guess re-posed by 10-20° per joint, {SEEDS} "
+                  f"seeds: mean {np.mean(means):.2f}%, median {np.median(means):.2f}%, "
+                  f"worst seed {max(means):.2f}% (worst joint {max(r[1] for r in runs):.2f}%)")
+            if not args.quiet:
+                print("   seed means: " + ", ".join(f"{m:.2f}" for m in means))
     sys.stdout.flush()
 
 

@@ -200,9 +200,9 @@ def blender(python):
             np.savez(tmp / "norm.npz", joint_indices=z["joint_indices"], joint_weights=w,
                      joint_names=z["joint_names"])
         t1 = time.perf_counter()
-        ours = rig_mesh(tmp / "body.obj", src, cache=False)
+        ours = rig_mesh(tmp / "body.obj", src, as_is=True, cache=False)
         dt_ours = time.perf_counter() - t1
-        theirs = rig_mesh(tmp / "body.obj", src, weights=tmp / "norm.npz")
+        theirs = rig_mesh(tmp / "body.obj", src, weights=tmp / "norm.npz", as_is=True)
         a = ours.skin(method="lbs").points["body"].astype(np.float64)
         b = theirs.skin(method="lbs").points["body"].astype(np.float64)
     err = np.linalg.norm(a - b, axis=-1) / np.ptp(pts, axis=0).max() * 100

@@ -55,12 +55,12 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None,
     ----------
     path : str or Path
         ``.usd/.usda/.usdc/.usdz`` (UsdSkel), ``.gltf/.glb`` (glTF 2.0 skins), ``.fbx`` (FBX
-        skins, through ufbx; times are frame numbers) or ``.bvh`` (a skeleton and its motion, no
+        skins, through ufbx; times are seconds) or ``.bvh`` (a skeleton and its motion, no
         meshes; times are frame numbers).
     clip : str or int, optional
         glTF animation or FBX animation stack to load (name or index); the first by default.
     max_input_gib : float
-        Largest array a glTF or BVH file may ask for before its data is read
+        Largest array a glTF, BVH or FBX file may ask for before its data is read
         (:mod:`dqskin.limits`); beyond it LimitError.
 
     Returns

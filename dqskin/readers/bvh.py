@@ -150,8 +150,9 @@ class BvhMotion:
 
 def summary_lines(motion: BvhMotion, spell: Spelling = str) -> list[str]:
     """What ``dqskin info`` adds for a BVH file: channels, End Sites, frame time, rotation
-    orders and the rest skeleton's size (the unit a mesh to bind must be in, or the ``scale``
-    of :func:`dqskin.rigging.rig_mesh` that matches a mesh to it), with parameters written by
+    orders and the rest skeleton's size (a mesh of any size and pose is fitted by embedding the
+    skeleton; one bound as it is, ``as_is`` of :func:`dqskin.rigging.rig_mesh`, must be in this
+    unit and pose, or be matched with ``scale``), with parameters written by
     ``spell`` (as :meth:`dqskin.errors.DqskinError.message`; the CLI: its flags)."""
     from collections import Counter
     orders = Counter("".join(c[0] for c in ch if c.endswith("rotation")) or "none"
@@ -166,8 +167,9 @@ def summary_lines(motion: BvhMotion, spell: Spelling = str) -> list[str]:
             "rotation orders (as written, intrinsic): "
             + ", ".join(f"{o} ×{n}" for o, n in orders.most_common()),
             f"rest skeleton: {size[0]:.4g} × {size[1]:.4g} × {size[2]:.4g} units (x × y × z); a "
-            "mesh to bind must be in this unit and pose, or be matched with "
-            + spell(Param("scale"))]
+            "mesh of any size and pose is fitted by embedding this skeleton in it and "
+            "retargeting the motion; with " + spell(Param("as_is", True)) + " a mesh must be in "
+            "this unit and pose, or be matched with " + spell(Param("scale"))]
 
 
 def scaled(motion: BvhMotion, scale: float) -> BvhMotion:

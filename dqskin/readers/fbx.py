@@ -13,22 +13,27 @@ evaluates comes back as plain arrays, and a file that makes ufbx fail, or crash,
   rigid) "lbs", dual quaternion "dqs", blended "blend" with the file's per-vertex DQ weights as
   ``blend_weights`` (Maya's "Weight Blended", 3ds Max's Skin modifier).
 * Joints: the nodes the clusters bind (and each rigid mesh's node) with their ancestors, the
-  scene root left out. Their world transforms are ufbx's at every whole frame of the animation
-  stack (rotation orders, pre/post rotations, pivots, geometric transforms and scale
-  inheritance as the file says); the local transforms are recovered from them, so forward
-  kinematics gives ufbx's world transforms back. Between frames joints are interpolated as
-  :class:`~dqskin.animation.KeyedAnimation` does (rotation slerp, translation and scale lerp).
+  scene root left out. Their world transforms are ufbx's (rotation orders, pre/post rotations,
+  pivots, geometric transforms and scale inheritance as the file says) at every whole frame of
+  the animation stack, read with the file, and at any other time a scene is skinned at (the
+  file's curves: the reader's process runs again on those times, at most once per time); the
+  local transforms are recovered from them, so forward kinematics gives ufbx's world
+  transforms back. Times outside the stack hold its first and last frames. Velocities are
+  those of the keyed motion through the whole frames and the times skinned between them
+  (rotation slerp, translation and scale lerp, as
+  :class:`~dqskin.animation.KeyedAnimation`); interpolations other than "trs" interpolate the
+  whole frames.
 * Bind transforms: cluster ``c`` of a mesh skins a point ``p`` as ufbx does,
   ``bone_to_world(t) · geometry_to_bone_c · p``; the skeleton's bind transform of its bone is
   ``G · geometry_to_bone_c⁻¹`` with ``G`` the mesh's geometry-to-world at the stored pose (its
   ``geom_bind_transform``). Meshes whose bind transforms of a shared bone differ get skeletons
   of their own.
 * Blend shapes (with in-betweens and animated weights): ufbx's effective weight of every
-  in-between at every frame, linear between frames, applied before skinning.
+  in-between at every time skinned, applied before skinning.
 * Every animation stack is a clip (``clip``: name or index; the first by default). Times are
-  frame numbers at the file's frame rate (``time_codes_per_second``; seconds are
-  ``times / time_codes_per_second``), the stack's whole frames from its start to its end. A file
-  without a stack is its stored pose at time 0.
+  seconds (``time_codes_per_second`` 1), the stack's whole frames at the file's frame rate
+  (``frame_rate``) from its start to its end: frame ``f`` is ``f / frame_rate`` seconds. A
+  file without a stack is its stored pose at time 0.
 * World space is the file's own: ``up_axis`` and ``meters_per_unit`` as its settings say (no
   conversion). Points are skinned in world space, which is also each mesh's local space.
 """
@@ -41,15 +46,18 @@ import os
 import signal
 import subprocess
 import sys
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
 from ..animation import Deformer, check_times, segment_rates
 from ..errors import InputError, LimitError, UnknownNameError
+from ..limits import MAX_INPUT_GIB, check_bytes
 from . import LOADER_SUFFIXES
 
 if TYPE_CHECKING:
@@ -68,13 +76,17 @@ _BIND_TOLERANCE = 1e-6
 """Relative difference below which two bind transforms of one bone are the same."""
 
 
-def _extract(path: Path, clip: str | int | None) -> tuple[dict, dict[str, np.ndarray]]:
-    """Run :mod:`.fbx_extract` on ``path``: ``(meta, arrays)``; InputError naming the file when
-    ufbx fails or its process dies."""
+def _extract(path: Path, clip: str | int | None, max_input_gib: float = MAX_INPUT_GIB,
+             at: np.ndarray | None = None) -> tuple[dict, dict[str, np.ndarray]]:
+    """Run :mod:`.fbx_extract` on ``path``: ``(meta, arrays)``, at the stack's frames or, with
+    ``at``, at these seconds of stack number ``clip``; InputError naming the file when ufbx
+    fails or its process dies, LimitError when its transforms would exceed ``max_input_gib``."""
     arg = "-" if clip is None else str(clip)
+    command = [sys.executable, "-I", str(_EXTRACT), str(path), arg,
+               str(int(max_input_gib * (1 << 30)))] + ([] if at is None else ["at"])
     try:
-        done = subprocess.run([sys.executable, "-I", str(_EXTRACT), str(path), arg],
-                              capture_output=True, check=False)
+        done = subprocess.run(command, capture_output=True, check=False,
+                              input=b"" if at is None else np.asarray(at, "<f8").tobytes())
     except OSError as exc:
         raise InputError(f"{path}: could not start the FBX reader ({exc})") from None
     why = done.stderr.decode("utf-8", "replace").strip().splitlines()
@@ -89,6 +101,9 @@ def _extract(path: Path, clip: str | int | None) -> tuple[dict, dict[str, np.nda
         text = why[-1] if why else f"exit status {done.returncode}"
         if text.startswith("LookupError: "):
             raise UnknownNameError(f"{path}: {text.removeprefix('LookupError: ')}")
+        if text.startswith("LimitBytes: "):
+            need, what = text.removeprefix("LimitBytes: ").split(" ", 1)
+            check_bytes(int(need), f"{path}: {what}", max_input_gib)
         if text.startswith("LimitExceeded: "):
             raise LimitError(f"{path}: {text.removeprefix('LimitExceeded: ')}")
         raise InputError(f"{path}: not a readable FBX file ({text})")
@@ -151,22 +166,118 @@ def _polygons(arrays: dict, key: str,
     return tris.astype(np.int32).reshape(-1, 3), counts.astype(np.int32), idx[corner], corner
 
 
+_ON_KEY = 1e-6
+"""Frames within which a time is on a whole frame of the stack (no evaluation of its own)."""
+_CACHE_TIMES = 4096
+"""Times between frames whose evaluation is kept for later calls."""
+
+
+class _Evaluator:
+    """ufbx's evaluation of one animation stack: the joints' world transforms and the blend-shape
+    weights at the stack's whole frames (``seconds``), and at any other time on demand (the
+    reader's process run again on those times, kept for later calls)."""
+
+    def __init__(self, path: Path, index: int, fps: float, max_input_gib: float,
+                 seconds: np.ndarray, world: np.ndarray, weights: dict[int, np.ndarray]) -> None:
+        self.path, self.index, self.fps, self.max_input_gib = path, index, fps, max_input_gib
+        self.seconds, self.world, self.weights = seconds, world, weights
+        self._more: dict[float, tuple[np.ndarray, dict[int, np.ndarray]]] = {}
+        self._lock = threading.Lock()
+
+    def split(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(frame, off)``: each time (clamped to the stack) as the index of its whole frame,
+        -1 for the times between frames, and those times (sorted, unique)."""
+        t = np.clip(times, self.seconds[0], self.seconds[-1])
+        f = np.clip(np.round((t - self.seconds[0]) * self.fps), 0,
+                    len(self.seconds) - 1).astype(np.int64)
+        on = np.abs((t - self.seconds[f]) * self.fps) <= _ON_KEY
+        return np.where(on, f, -1), np.unique(t[~on])
+
+    def between(self, off: np.ndarray) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+        """World transforms (T, N, 4, 4) and blend-shape weights of the times ``off`` (between
+        frames), evaluated by ufbx."""
+        with self._lock:
+            missing = [x for x in off.tolist() if x not in self._more]
+            if missing:
+                meta, arrays = _extract(self.path, self.index, self.max_input_gib,
+                                        np.asarray(missing, np.float64))
+                for i, x in enumerate(missing):
+                    self._more[x] = (arrays["world"][i],
+                                     {k: arrays[f"m{k}/shape_weights"][i] for k in self.weights})
+            rows = [self._more[x] for x in off.tolist()]
+            for x in list(self._more)[:max(0, len(self._more) - max(_CACHE_TIMES, len(off)))]:
+                del self._more[x]
+        world = np.stack([r[0] for r in rows]) if rows else np.zeros((0,) + self.world.shape[1:])
+        return world, {k: np.stack([r[1][k] for r in rows]) if rows
+                       else np.zeros((0,) + w.shape[1:]) for k, w in self.weights.items()}
+
+    def keys(self, times: np.ndarray, values: Callable[[np.ndarray], np.ndarray],
+             between: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """Key times and values to interpolate ``times`` between: the whole frames next to
+        each time (and one more on either side) and every time between frames, exact.
+        ``values(frames)``: the values at frame indices; ``between(off)``: at other times."""
+        _, off = self.split(times)
+        t = np.clip(times, self.seconds[0], self.seconds[-1])
+        below = np.floor((t - self.seconds[0]) * self.fps + _ON_KEY).astype(np.int64)
+        near = np.unique(np.clip(np.concatenate([below - 1, below, below + 1, below + 2]), 0,
+                                 len(self.seconds) - 1))
+        key_times = np.concatenate([self.seconds[near], off])
+        order = np.argsort(key_times, kind="stable")
+        return key_times[order], np.concatenate([values(near), between(off)])[order]
+
+
+class _ExactKeys:
+    """The keys of one skeleton of an FBX scene: its "trs" poses (the file's curves) are ufbx's
+    at every time asked for, between keys at the stack's whole frames and at the times between
+    frames asked for (velocities: the keyed interpolation's); the other interpolations
+    interpolate the whole frames."""
+
+    def __init__(self, frames: Any, evaluator: _Evaluator, slots: list[int],
+                 parents: list[int], label: str) -> None:
+        self.frames, self.evaluator, self.slots = frames, evaluator, slots
+        self.parents, self.label = parents, label
+        self.times, self.joint_count = frames.times, frames.joint_count
+
+    def local(self, t: np.ndarray, interp: str, derivative: bool = True) -> tuple:
+        from ..animation import _Keys
+        ev = self.evaluator
+        if interp != "trs" or not np.any(ev.split(t)[0] < 0):
+            return self.frames.local(t, interp, derivative)
+        times, local = ev.keys(
+            t, lambda near: _locals(ev.world[near][:, self.slots], self.parents, self.label),
+            lambda off: _locals(ev.between(off)[0][:, self.slots], self.parents, self.label))
+        return _Keys(times, local, self.label).local(t, interp, derivative)
+
+
 class _Shapes(Deformer):
     """Blend shapes of one mesh: ``points(t) = rest + Σ wₖ(t)·offsetₖ`` with ufbx's effective
-    in-between weights ``wₖ`` at whole frames, linear between them."""
+    in-between weights ``wₖ`` at every time asked for (``evaluator``; velocities: linear
+    between the stack's whole frames and the times between them asked for), or given at
+    ``frames`` and linear between them."""
 
     def __init__(self, rest: np.ndarray, offsets: np.ndarray, frames: np.ndarray,
-                 weights: np.ndarray) -> None:
+                 weights: np.ndarray, evaluator: _Evaluator | None = None, mesh: int = 0) -> None:
         self.rest, self.offsets, self.frames, self.weights = rest, offsets, frames, weights
+        self.evaluator, self.mesh = evaluator, mesh
+
+    def _keys(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if self.evaluator is None:
+            return self.frames, self.weights
+        ev = self.evaluator
+        return ev.keys(t, lambda near: self.weights[near],
+                       lambda off: ev.between(off)[1][self.mesh].reshape(len(off), -1)
+                       if len(off) else np.zeros((0, self.weights.shape[1])))
 
     def points_at(self, times: npt.ArrayLike) -> np.ndarray:
         t = check_times(times)
-        w = np.stack([np.interp(t, self.frames, self.weights[:, k])
-                      for k in range(self.weights.shape[1])], 1)
+        frames, weights = self._keys(t)
+        w = np.stack([np.interp(t, frames, weights[:, k]) for k in range(weights.shape[1])], 1)
         return (self.rest[None] + np.einsum("fk,kvc->fvc", w, self.offsets)).astype(np.float32)
 
     def point_velocities_at(self, times: npt.ArrayLike) -> np.ndarray:
-        rates = segment_rates(self.frames, lambda k: self.weights[k], times)
+        t = check_times(times)
+        frames, weights = self._keys(t)
+        rates = segment_rates(frames, lambda k: weights[k], t)
         return np.einsum("fk,kvc->fvc", np.asarray(rates, np.float64), self.offsets)
 
 
@@ -201,7 +312,8 @@ def _bind_groups(meshes: list[_Skin]) -> list[list[int]]:
     return [members for members, _ in groups]
 
 
-def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
+def load(path: str | os.PathLike, *, clip: str | int | None = None,
+         max_input_gib: float = MAX_INPUT_GIB) -> Scene:
     """Read an FBX character (see the module docstring).
 
     Parameters
@@ -210,11 +322,13 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
         A ``.fbx`` file, binary or ASCII.
     clip : str or int, optional
         Animation stack to load (name or index); the first by default.
+    max_input_gib : float
+        Most GiB the joints' transforms at the frames (or times) evaluated may take.
 
     Returns
     -------
     dqskin.scene.Scene
-        Times are frame numbers at ``time_codes_per_second``, the file's frame rate.
+        Times are seconds (the stack's whole frames); ``frame_rate`` is the file's.
 
     Raises
     ------
@@ -224,19 +338,27 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     dqskin.errors.UnknownNameError
         No stack ``clip``.
     dqskin.errors.LimitError
-        A stack of more than 1,000,000 frames.
+        A stack of more than 1,000,000 frames, or whose joints' transforms at its frames would
+        take more than ``max_input_gib``.
     """
     from ..animation import KeyedAnimation
     from ..scene import Mesh, Scene
     from ..skeleton import Skeleton
 
     p = Path(path)
-    meta, arrays = _extract(p, clip)
+    meta, arrays = _extract(p, clip, max_input_gib)
     names = _unique(meta["names"], "node")
     node_parent = meta["parents"]
     rest_world = arrays["rest_world"]
-    frames = arrays.get("frames")
+    frames = arrays.get("seconds")  # the stack's whole frames, in seconds
     world = arrays.get("world")
+    fps = float(meta["fps"])
+    evaluator = None
+    if frames is not None and world is not None and len(frames):
+        shapes = {k: arrays[f"m{k}/shape_weights"].reshape(len(frames), -1)
+                  for k in range(len(meta["meshes"])) if f"m{k}/shape_weights" in arrays}
+        evaluator = _Evaluator(Path(os.path.abspath(p)), int(meta["stack"]), fps, max_input_gib,
+                               frames, world, shapes)
     joint_nodes = list(meta["joints"])
     slot = {n: j for j, n in enumerate(joint_nodes)}
     mesh_names = _unique([m["name"] for m in meta["meshes"]], "mesh")
@@ -295,9 +417,13 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
         bind = np.stack([binds.get(n, rest_world[n]) for n in order])
         rest = _locals(rest_world[order][None], parents, label)[0]
         anim = None
-        if frames is not None and world is not None and len(frames):
-            local = _locals(world[:, [slot[n] for n in order]], parents, label)
-            anim = KeyedAnimation(frames, local, name=meta["clip"] or "")
+        if evaluator is not None:
+            slots = [slot[n] for n in order]
+            anim = KeyedAnimation(evaluator.seconds,
+                                  _locals(evaluator.world[:, slots], parents, label),
+                                  name=meta["clip"] or "")
+            anim._keys = _ExactKeys(anim._keys, evaluator, slots,  # type: ignore[assignment]
+                                    parents, label)
         skel = Skeleton([names[n] for n in order], np.asarray(parents, np.int32), bind, rest,
                         name=label.split(": ", 1)[1], animation=anim)
         for k in members:
@@ -307,10 +433,9 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None) -> Scene:
     for k, m in enumerate(meta["meshes"]):
         b = built[k]
         meshes.append(_mesh(Mesh, arrays, k, mesh_names[k], b, mesh_skeleton[k], mesh_slots[k],
-                            frames, f"{p}: mesh {mesh_names[k]!r}"))
-    animated = frames is not None and len(frames) > 0
-    times = np.asarray(frames, np.float64) if animated else np.zeros(1)
-    return Scene(str(p), meshes, skeletons, times, time_codes_per_second=float(meta["fps"]),
+                            evaluator, f"{p}: mesh {mesh_names[k]!r}"))
+    times = evaluator.seconds if evaluator is not None else np.zeros(1)
+    return Scene(str(p), meshes, skeletons, times, time_codes_per_second=1.0, frame_rate=fps,
                  up_axis=_UP.get(int(meta["up"]), "Y"), meters_per_unit=float(meta["unit"]),
                  clips=list(meta["clips"]), clip=meta["clip"])
 
@@ -365,7 +490,7 @@ def _corners(arrays: dict, key: str, what: str, corner: np.ndarray,
     return values[index[corner]].astype(np.float32)
 
 
-def _mesh(Mesh, arrays, k, name, b, skeleton, index, frames, where):
+def _mesh(Mesh, arrays, k, name, b, skeleton, index, evaluator, where):
     """The :class:`~dqskin.scene.Mesh` of mesh ``k``; ``index``: node → joint of its
     skeleton."""
     key = f"m{k}/"
@@ -376,10 +501,9 @@ def _mesh(Mesh, arrays, k, name, b, skeleton, index, frames, where):
     joints = np.where(b.nodes >= 0, lut[np.maximum(b.nodes, 0)], 0)
     normals = _corners(arrays, key, "normals", corner, where)
     deformer = None
-    if key + "shape_offsets" in arrays and frames is not None and key + "shape_weights" in arrays:
+    if key + "shape_offsets" in arrays and evaluator is not None and k in evaluator.weights:
         deformer = _Shapes(rest.astype(np.float64), arrays[key + "shape_offsets"],
-                           np.asarray(frames, np.float64),
-                           arrays[key + "shape_weights"].reshape(len(frames), -1))
+                           evaluator.seconds, evaluator.weights[k], evaluator, k)
     return Mesh(name=name, points=rest.astype(np.float32), faces=tris,
                 joint_indices=joints.astype(np.int32), joint_weights=b.weights,
                 skeleton=skeleton, geom_bind_transform=b.geom, skinning_method=b.method,

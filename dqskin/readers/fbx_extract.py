@@ -1,11 +1,15 @@
 """The one place that calls ufbx: run as a script in a process of its own by :mod:`.fbx`.
 
-``python fbx_extract.py FILE CLIP`` loads ``FILE`` with ufbx and writes to stdout an ``.npz``
-(no pickles) of plain arrays and one JSON record (``meta``): the nodes that drive meshes, their
-world transforms at the file's stored pose and at every frame of the chosen animation stack
-(``CLIP``: a name, an index, or ``-`` for the first), every mesh's geometry, skin clusters and
-blend-shape weights, and the seconds each step took (``timing_s``). Errors: one line on stderr
-and exit status 2.
+``python fbx_extract.py FILE CLIP MAX_BYTES`` loads ``FILE`` with ufbx and writes to stdout
+an ``.npz`` (no pickles) of plain arrays and one JSON record (``meta``): the nodes that drive
+meshes, their world transforms at the file's stored pose and at every whole frame of the chosen
+animation stack (``CLIP``: a name, an index, or ``-`` for the first; ``seconds``: the frames'
+times), every mesh's geometry, skin clusters and blend-shape weights, and the seconds each step
+took (``timing_s``). ``python fbx_extract.py FILE INDEX MAX_BYTES at`` evaluates stack number
+``INDEX`` at the times (seconds, raw float64) read from stdin instead of its frames, and writes
+only the animated values (``seconds``, ``world``, blend-shape weights). Transforms of more than
+``MAX_BYTES`` are refused before they are evaluated. Errors: one line on stderr and exit
+status 2.
 
 The ufbx bindings are young: a Python wrapper of a ufbx object that is fetched a second time
 (a node's ``parent`` after the node itself, say) crashes the process when one of the two
@@ -75,6 +79,11 @@ class LimitExceeded(Exception):
     """The file asks for more than this reader takes (:data:`MAX_FRAMES`)."""
 
 
+class LimitBytes(Exception):
+    """The evaluated transforms would take more bytes than the reader was allowed: the message
+    is the count and what asks for them."""
+
+
 def _frames(name, begin, end, fps):
     """Whole frames at ``fps`` from ``begin`` to ``end`` seconds (at least one)."""
     f0 = math.ceil(begin * fps - 1e-6)
@@ -85,7 +94,7 @@ def _frames(name, begin, end, fps):
     return np.arange(f0, f1 + 1, dtype=np.float64)
 
 
-def extract(path, clip):
+def extract(path, clip, at=None, max_bytes=None):
     start = time.perf_counter()
     import ufbx  # type: ignore[import-untyped]
 
@@ -163,8 +172,8 @@ def extract(path, clip):
                 for ki in range(len(keyframes)):
                     shape = _k(_k(keyframes[ki]).shape)
                     offsets = np.zeros_like(arrays[key + "points"])
-                    at = _array(shape.offset_vertices, np.int64)
-                    offsets[at] = _array(shape.position_offsets, np.float64, 3)
+                    index = _array(_k(shape.offset_vertices), np.int64)
+                    offsets[index] = _array(_k(shape.position_offsets), np.float64, 3)
                     shapes.append(offsets)
         if shapes:
             arrays[key + "shape_offsets"] = np.stack(shapes)
@@ -178,23 +187,32 @@ def extract(path, clip):
             p = parents[p]
     joints = sorted(needed, key=lambda j: (depth[j], j))
     stacks = _k(scene.anim_stacks)
-    which, clips = _pick_stack(stacks, clip)
+    if at is None:
+        which, clips = _pick_stack(stacks, clip)
+    else:  # (an index the reader resolved)
+        which, clips = int(clip), [_k(stacks[i]).name for i in range(len(stacks))]
+        arrays = {}
     read = time.perf_counter()
     if which >= 0:
         stack = _k(stacks[which])
         anim = _k(stack.anim)
-        frames = _frames(stack.name, stack.time_begin, stack.time_end, fps)
-        world = np.empty((len(frames), len(joints), 4, 4))
+        seconds = (_frames(stack.name, stack.time_begin, stack.time_end, fps) / fps
+                   if at is None else at)
+        need = 128 * len(seconds) * len(joints)
+        if max_bytes is not None and need > max_bytes:
+            raise LimitBytes(f"{need} animation stack {stack.name!r}: {len(seconds)} times of "
+                             f"{len(joints)} nodes' transforms")
+        world = np.empty((len(seconds), len(joints), 4, 4))
         weights: list[list] = [[] for _ in meshes_meta]
-        for f, frame in enumerate(frames):
-            ev = _k(ufbx.evaluate_scene(scene, anim, float(frame / fps)))
+        for f, second in enumerate(seconds):
+            ev = _k(ufbx.evaluate_scene(scene, anim, float(second)))
             ev_nodes = _k(ev.nodes)
             for j, node in enumerate(joints):
                 world[f, j] = _matrix(_k(ev_nodes[node]).node_to_world)
             if any(m["shapes"] for m in meshes_meta):
                 ev_meshes = _k(ev.meshes)
                 _shape_weights(ev_meshes, len(meshes), weights)
-        arrays["frames"] = frames
+        arrays["seconds"] = seconds
         arrays["world"] = world
         for k, w in enumerate(weights):
             if meshes_meta[k]["shapes"]:
@@ -203,7 +221,7 @@ def extract(path, clip):
     timing = {"import": imported - start, "load": loaded - imported, "meshes": read - loaded,
               "frames": done - read}
     meta = {"fps": fps, "up": int(axes.up), "unit": float(settings.unit_meters),
-            "timing_s": timing,
+            "timing_s": timing, "stack": which,
             "clips": clips, "clip": clips[which] if which >= 0 else None, "joints": joints,
             "names": names, "parents": parents, "meshes": meshes_meta}
     arrays["meta"] = np.array(json.dumps(meta))
@@ -230,11 +248,13 @@ def _shape_weights(ev_meshes, count, weights):
 
 
 def main(argv):
-    if len(argv) != 3:
-        sys.stderr.write("usage: fbx_extract.py FILE CLIP\n")
+    at = argv[4:] == ["at"]
+    if len(argv) != (5 if at else 4):
+        sys.stderr.write("usage: fbx_extract.py FILE CLIP MAX_BYTES [at]\n")
         return _BAD
     try:
-        arrays = extract(argv[1], argv[2])
+        seconds = np.frombuffer(sys.stdin.buffer.read(), np.float64) if at else None
+        arrays = extract(argv[1], argv[2], seconds, int(argv[3]))
     except MemoryError:
         sys.stderr.write("out of memory\n")
         return _BAD
