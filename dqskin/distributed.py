@@ -376,19 +376,9 @@ def _bake_clips(scene, out, times, options, settings, threads):
             slots = {} if client is None else client.nthreads()
             preload = [client.submit(_preload, source, pure=False, workers=[w],
                                      allow_other_workers=False) for w in slots]
-            chunk = s.chunk
-            if chunk is None:  # the earlier bake's when resuming, else by size and task slots
-                chunk = (s.resume and not s.force and usd_clips.recorded_chunk(out)) or \
-                    usd_clips.clip_frames(scene, len(np.unique(times)), options.normals,
-                                          options.velocities,
-                                          None if client is None else max(1, sum(slots.values())))
-            bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=s.force,
-                                      resume=s.resume, inputs=s.inputs)
-            todo = bake.pending()
-            jobs = [ClipJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()),
-                            bake.key, bake.targets, bake.cache.rigid, options,
-                            float(scene.time_codes_per_second)) for k in todo]
-            bar = _bar(len(bake.bounds), len(bake.bounds) - len(todo), s.progress)
+            bake, jobs = _plan(scene, out, times, options, s, source,
+                               None if client is None else max(1, sum(slots.values())))
+            bar = _bar(len(bake.bounds), len(bake.bounds) - len(jobs), s.progress)
 
             def done(result):
                 tasks.append(result)
@@ -413,6 +403,24 @@ def _bake_clips(scene, out, times, options, settings, threads):
                 folder=str(bake.folder), tasks=tasks, chose=None)
 
 
+def _plan(scene, out, times, options, settings, source, slots):
+    """The :class:`~.writers.usd_clips.ClipBake` of ``out`` and a :class:`ClipJob` per clip
+    left to bake: clips of ``settings.chunk`` frames, else the earlier bake's when resuming,
+    else by size and ``slots`` task slots (None: this process alone)."""
+    s = settings
+    chunk = s.chunk
+    if chunk is None:
+        chunk = (s.resume and not s.force and usd_clips.recorded_chunk(out)) or \
+            usd_clips.clip_frames(scene, len(np.unique(times)), options.normals,
+                                  options.velocities, slots)
+    bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=s.force, resume=s.resume,
+                              inputs=s.inputs)
+    jobs = [ClipJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()), bake.key,
+                    bake.targets, bake.cache.rigid, options, float(scene.time_codes_per_second))
+            for k in bake.pending()]
+    return bake, jobs
+
+
 def _bake_clips_measured(scene, out, times, options, settings, threads, source):
     """:func:`_bake_clips` with ``workers=N`` (a LocalCluster of its own): the first two
     pending clips are baked here, the second one timed (wall and CPU); the LocalCluster starts
@@ -423,18 +431,9 @@ def _bake_clips_measured(scene, out, times, options, settings, threads, source):
     tasks: list[dict[str, Any]] = []
     bake = None
     try:
-        chunk = s.chunk
-        if chunk is None:  # as for the cluster's task slots (one per worker)
-            chunk = (s.resume and not s.force and usd_clips.recorded_chunk(out)) or \
-                usd_clips.clip_frames(scene, len(np.unique(times)), options.normals,
-                                      options.velocities, max(1, int(s.workers)))
-        bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=s.force,
-                                  resume=s.resume, inputs=s.inputs)
-        todo = bake.pending()
-        jobs = [ClipJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()),
-                        bake.key, bake.targets, bake.cache.rigid, options,
-                        float(scene.time_codes_per_second)) for k in todo]
-        bar = _bar(len(bake.bounds), len(bake.bounds) - len(todo), s.progress)
+        # clips as for the cluster's task slots (one per worker)
+        bake, jobs = _plan(scene, out, times, options, s, source, max(1, int(s.workers)))
+        bar = _bar(len(bake.bounds), len(bake.bounds) - len(jobs), s.progress)
 
         def done(result):
             tasks.append(result)

@@ -82,15 +82,13 @@ def find_brainstem():
     return hits[0] if hits else None
 
 
-def make_long_clip(asset, frames, out, stride=0.5):
-    """Flatten ``asset`` and loop every SkelAnimation's samples over ``frames`` time codes; the
-    root joint moves ``stride`` along x per loop (root motion), so no two frames are equal (a
-    crate layer stores each distinct array once: a plain loop would flatter every writer)."""
-    from pxr import Gf, Usd, UsdSkel
-    stage = Usd.Stage.Open(str(asset))
-    layer = stage.Flatten()
-    long_stage = Usd.Stage.Open(layer)
-    for prim in long_stage.Traverse():
+def _resampled(asset, frames, value_at):
+    """``asset`` flattened, each SkelAnimation's animated attribute ``attr`` (its sample times
+    ``keys``) resampled as ``value_at(attr, keys, f)`` at time codes ``keys[0] + f``, ``f`` in
+    ``range(frames)``; the stage's range 1 to ``frames``."""
+    from pxr import Usd, UsdSkel
+    stage = Usd.Stage.Open(Usd.Stage.Open(str(asset)).Flatten())
+    for prim in stage.Traverse():
         if not prim.IsA(UsdSkel.Animation):
             continue
         anim = UsdSkel.Animation(prim)
@@ -98,16 +96,30 @@ def make_long_clip(asset, frames, out, stride=0.5):
             keys = attr.GetTimeSamples()
             if len(keys) < 2:
                 continue
-            values = [attr.Get(k) for k in keys]
+            values = [value_at(attr, keys, f) for f in range(frames)]
             attr.Clear()
-            for f in range(frames):
-                value = values[f % len(values)]
-                if attr.GetName() == "translations" and stride:
-                    value = type(value)(value)
-                    value[0] = value[0] + Gf.Vec3f(stride * (f // len(values)), 0, 0)
+            for f, value in enumerate(values):
                 attr.Set(value, keys[0] + f)
-    long_stage.SetStartTimeCode(1)
-    long_stage.SetEndTimeCode(frames)
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(frames)
+    return stage
+
+
+def make_long_clip(asset, frames, out, stride=0.5):
+    """Flatten ``asset`` and loop every SkelAnimation's samples over ``frames`` time codes; the
+    root joint moves ``stride`` along x per loop (root motion), so no two frames are equal (a
+    crate layer stores each distinct array once: a plain loop would flatter every writer)."""
+    from pxr import Gf
+
+    def looped(attr, keys, f):
+        values = looped.cache.setdefault(attr.GetPath(), [attr.Get(k) for k in keys])
+        value = values[f % len(values)]
+        if attr.GetName() == "translations" and stride:
+            value = type(value)(value)
+            value[0] = value[0] + Gf.Vec3f(stride * (f // len(values)), 0, 0)
+        return value
+    looped.cache = {}
+    long_stage = _resampled(asset, frames, looped)
     long_stage.GetRootLayer().Export(str(out))
 
 
@@ -121,23 +133,9 @@ def make_many_meshes(asset, frames, out, meshes=59, points=34_000, step=0.37, se
     shuffled order) with its points, normals (the ``normals`` attribute: UsdSkel's bake skins
     it, not ``primvars:normals``), UVs and joint influences, its rest points moved ``i``
     millimetres along the up axis so that no two meshes hold the same arrays."""
-    from pxr import Usd, UsdGeom, UsdSkel, Vt
-    stage = Usd.Stage.Open(Usd.Stage.Open(str(asset)).Flatten())
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdSkel.Animation):
-            continue
-        anim = UsdSkel.Animation(prim)
-        for attr in (anim.GetTranslationsAttr(), anim.GetRotationsAttr(), anim.GetScalesAttr()):
-            keys = attr.GetTimeSamples()
-            if len(keys) < 2:
-                continue
-            span = keys[-1] - keys[0]
-            values = [attr.Get(keys[0] + (step * f) % span) for f in range(frames)]
-            attr.Clear()
-            for f, value in enumerate(values):
-                attr.Set(value, keys[0] + f)
-    stage.SetStartTimeCode(1)
-    stage.SetEndTimeCode(frames)
+    from pxr import UsdGeom, UsdSkel, Vt
+    stage = _resampled(asset, frames, lambda attr, keys, f: attr.Get(
+        keys[0] + (step * f) % (keys[-1] - keys[0])))
     src = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
     mesh, parent = UsdGeom.Mesh(src), src.GetParent().GetPath()
     rest = np.asarray(mesh.GetPointsAttr().Get(), np.float32)
