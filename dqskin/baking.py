@@ -17,7 +17,7 @@ import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -27,15 +27,18 @@ from .files.atomic import atomic_path, check_interrupted, check_parent
 from .forkserver import MAX_WORKERS_PER_CORE, max_workers
 from .options import SkinOptions, is_numpy_bool, split_changes
 from .progress import progress_bar
-from .readers import fbx, format_of, gltf, usd
-from .scene import Scene, SkinnedFrames
+from .readers import format_of
+from .scene import Scene
 from .validation import check_skinned
-from .writers import mesh_files, npz, usd_cache
+from .writers import CACHE_EXTENSIONS, mesh_files, npz
+
+if TYPE_CHECKING:  # (the skinning engine: imported when a bake runs, not before its checks)
+    from .pipeline import SkinnedFrames
 
 __all__ = ["OUTPUT_SUFFIXES", "USDA_MAX_BYTES", "BakeSettings", "bake", "check_clip_arguments",
            "check_output", "output_kind", "sample_bytes"]
 
-OUTPUT_SUFFIXES = usd_cache.CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXES
+OUTPUT_SUFFIXES = CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXES
 """Suffixes :func:`bake` writes (mesh files take a per-frame pattern like ``f_{:04d}.obj``)."""
 
 
@@ -47,6 +50,7 @@ size; value clips (``clips=True``) split them into layers."""
 
 def sample_bytes(scene: Scene, frames: int, normals: bool = True, velocities: bool = True) -> int:
     """Bytes of point, normal and velocity samples a USD cache of ``frames`` frames holds."""
+    from .writers import usd_cache
     return usd_cache.frame_bytes(scene, normals, velocities) * int(frames)
 
 
@@ -54,14 +58,14 @@ def output_kind(out: str | Path) -> str:
     """"usd", "npz" or "frames" for an output path; InputError (a ValueError) for anything
     else."""
     suffix = Path(str(out)).suffix.lower()
-    if suffix in usd_cache.CACHE_EXTENSIONS:
+    if suffix in CACHE_EXTENSIONS:
         return "usd"
     if suffix in npz.SUFFIXES:
         return "npz"
     if suffix in mesh_files.SUFFIXES:
         return "frames"
     raise InputError(Param("out", out), ": unsupported output type; use "
-                     f"{'/'.join(usd_cache.CACHE_EXTENSIONS)}, {'/'.join(npz.SUFFIXES)}, or a "
+                     f"{'/'.join(CACHE_EXTENSIONS)}, {'/'.join(npz.SUFFIXES)}, or a "
                      "per-frame pattern like out/frame_{:04d}.obj "
                      f"({' '.join(mesh_files.SUFFIXES)})")
 
@@ -343,7 +347,7 @@ def _bake_usd(job: _Job) -> str:
     job = job._replace(options=opts)
     scene, out, t, _, s, dropped = job
     method = opts.method or "asset method"
-    if format_of(scene.path) is not usd:
+    if _format(scene.path) != "usd":
         frames = _bake_usd_scene(job)
         return (f"wrote {out}: {job.counts(frames)} ({method}"
                 f"{', velocities' if opts.velocities else ''})")
@@ -366,6 +370,7 @@ def _bake_usd(job: _Job) -> str:
         from .distributed import bake_clips
         done = bake_clips(scene, out, t, opts, s)
         kept = f", {done['kept']} kept from the earlier run" if done["kept"] else ""
+        kept += f"; {done['chose']}" if done.get("chose") else ""  # (one line)
         return (f"wrote {out}: {counts} ({method}{', velocities' if opts.velocities else ''}) "
                 f"as {_plural(done['clips'], 'clip')} in {done['folder']}{kept}")
     wrote_velocities = _bake_usd_layer(job)
@@ -384,6 +389,7 @@ def _bake_usd_scene(job: _Job) -> int:
     from pxr import Sdf, UsdGeom
 
     from .times import frame_rate
+    from .writers import usd_cache
     from .writers.usd_rig import rig_stage
     scene, out, t, opts, s, _ = job
     if s.clips or s.distributed:
@@ -414,6 +420,8 @@ def _bake_usd_scene(job: _Job) -> int:
                                     if paths[m.name] in with_normals else None)
                 for m in scene.meshes])
 
+    from .pipeline import SkinnedFrames
+
     def renamed(res: SkinnedFrames, sl: slice) -> SkinnedFrames:
         check_skinned(scene.path, res)
         return SkinnedFrames(
@@ -439,14 +447,17 @@ def _bake_usd_layer(job: _Job) -> bool:
     scene, out, t, opts, s, dropped = job
     src = scene.path
     check_output(out, job.sources, s.force)
-    from .writers import clip_lock, usd_clips
+    from .writers import usd_cache
     # SHOT.clips/ of a dqskin clip bake beside SHOT.usd: locked, and replaced with force (no
     # folder is made otherwise: the bake writes one file)
     folder = usd_cache.clips_folder(out)
-    clips = folder.is_dir() and usd_clips.our_plan(folder) is not None
+    clips = False
+    if folder.is_dir():
+        from .writers import clip_lock, usd_clips
+        clips = usd_clips.our_plan(folder) is not None
     wrote_velocities = False
 
-    def check(res: SkinnedFrames) -> None:
+    def check(res: "SkinnedFrames") -> None:
         nonlocal wrote_velocities
         check_skinned(src, res)
         wrote_velocities |= bool(res.velocities)
@@ -455,7 +466,8 @@ def _bake_usd_layer(job: _Job) -> bool:
     with clip_lock.bake_lock(out) if clips else contextlib.nullcontext():
         replaces = clips and usd_clips.holds_clip_bake(out)
         with usd_cache.UsdCacheWriter(scene, out, opts, overwrite=s.force, final=True,
-                                      dropped=dropped) as writer:
+                                      dropped=dropped, expected_bytes=sample_bytes(
+                                          scene, len(t), opts.normals, opts.velocities)) as writer:
             if replaces and not s.force:  # (an unfinished one: out itself does not exist)
                 raise OutputExistsError(f"{usd_cache.clips_folder(out)}: holds a clip bake "
                                         f"of {Path(out).name}; complete it with ",
@@ -483,6 +495,7 @@ def _bake_npz(job: _Job) -> str:
     the frame numbers, rate, space, up axis and unit (:func:`dqskin.writers.npz.save_npz`)."""
     scene, out, t, opts, s, _ = job
     check_output(out, job.sources, s.force)
+    from .writers.usd_cache import CHUNK_FRAMES
     names = [m.name for m in scene.meshes]
     need = 12 * len(t) * sum(len(m.points) for m in scene.meshes)
     if need > _memory_bytes() // 2:
@@ -494,7 +507,7 @@ def _bake_npz(job: _Job) -> str:
     rate = frame_rate(scene, s.fps)
     with atomic_path(out, overwrite=s.force, final=True) as tmp:  # claimed for the whole run
         pts = {m.name: np.empty((len(t), len(m.points), 3), np.float32) for m in scene.meshes}
-        for sl, res in job.chunks(s.chunk or usd_cache.CHUNK_FRAMES,
+        for sl, res in job.chunks(s.chunk or CHUNK_FRAMES,
                                   opts.replace(normals=False, velocities=False)):
             check_skinned(scene.path, res)
             for name in names:
@@ -521,11 +534,12 @@ def _bake_frames(job: _Job) -> str:
     src = scene.path
     from .readers.materials import base_colors
     from .times import frame_numbers, frame_rate
+    from .writers.usd_cache import CHUNK_FRAMES
     numbers = frame_numbers(t, scene.time_codes_per_second, frame_rate(scene, s.fps))
     paths = mesh_files.frame_paths(str(out), numbers)
     for p in paths:
         check_output(p, job.sources, s.force)
-    gltf_input = format_of(src) is gltf
+    gltf_input = _format(src) == "gltf"
     suffix = Path(str(out)).suffix.lower()
     layout = mesh_files.MeshLayout(
         scene.meshes, suffix, normals=opts.normals,
@@ -540,7 +554,7 @@ def _bake_frames(job: _Job) -> str:
     with mesh_files.FrameWriter(str(out), layout.faces, layout.uvs, overwrite=s.force,
                                 groups=groups, to_gltf=_to_gltf(scene),
                                 comment=comment) as writer:
-        for sl, res in job.chunks(s.chunk or usd_cache.CHUNK_FRAMES,
+        for sl, res in job.chunks(s.chunk or CHUNK_FRAMES,
                                   opts.replace(normals=layout.normals, velocities=False)):
             check_skinned(src, res)
             points, nrm = layout.frames(res.points, res.normals)
@@ -558,10 +572,17 @@ def _bake_frames(job: _Job) -> str:
 def _uv_interpolation(path):
     """How the UVs of the input's meshes map to them, where their counts leave it ambiguous: a
     USD stage's ``primvars:st`` interpolation; FBX UVs are per face corner."""
-    fmt = format_of(path)
-    if fmt is fbx:
+    fmt = _format(path)
+    if fmt == "fbx":
         return lambda name: "faceVarying"
-    return _usd_uv_interpolation(path) if fmt is usd else None
+    return _usd_uv_interpolation(path) if fmt == "usd" else None
+
+
+def _format(path: str | Path) -> str | None:
+    """The name of the reader module of ``path`` ("usd", "gltf", "fbx") or None: only that
+    reader is imported."""
+    fmt = format_of(path)
+    return None if fmt is None else fmt.__name__.rpartition(".")[2]
 
 
 def _usd_uv_interpolation(path):

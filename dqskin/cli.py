@@ -31,8 +31,11 @@ All argument parsing lives here; each command calls the library (:func:`dqskin.b
   ``options``, ``spaces``, ``times``, ``report.defaults``: no Warp, USD or Dask), so ``--help``
   and usage errors answer without them; each command imports what it needs inside its function.
   Warp is started quietly by :func:`_quiet_warp`: before the command (the default), or, for a
-  command whose parser sets ``warp=False`` (``info``, ``flatten``), by the command itself right
-  before Warp's first use (``info``: only when its skinning check must skin).
+  command whose parser sets ``warp=False``, by the command itself: ``skin``, ``compare`` and
+  ``rig`` once their refusals are answered (an existing output without ``--force``, bad option
+  values, an output over the input: :func:`_load_input` starts it right before reading the
+  input; their libraries' modules are imported after it too), ``info`` right before Warp's
+  first use (only when its skinning check must skin), ``flatten`` never.
 """
 
 import argparse
@@ -202,7 +205,9 @@ def cmd_skin(args: argparse.Namespace) -> int:
     output_kind(args.out)
     inputs = _inputs(args)
     if "{" not in str(args.out):  # a per-frame pattern is checked frame by frame by bake
-        check_output(args.out, inputs, force=True)
+        # (an existing output refused here, before Warp and USD load; with --resume the bake
+        # decides what an earlier one left)
+        check_output(args.out, inputs, force=args.force or args.resume)
     if (args.skeleton is not None or args.weights is not None) and (
             args.workers is not None or args.scheduler or args.resume):
         raise InputError("--skeleton and --weights cannot be combined with --workers, "
@@ -258,7 +263,6 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None) -> "Scen
     import warnings
 
     from . import readers
-    from .rigging import FitWarning, replace_weights, rig_mesh
     if args.max_influences < 1:
         raise InputError(f"--max-influences {args.max_influences}: must be at least 1")
     if args.scale is not None and not (math.isfinite(args.scale) and args.scale > 0):
@@ -273,6 +277,8 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None) -> "Scen
                              "to a BVH; a character file has its own skeleton (use --weights "
                              "auto to replace its weights)")
         joints = getattr(args, "joints", None)
+        _quiet_warp(args.verbose)  # (every refusal above answered without it)
+        from .rigging import FitWarning, rig_mesh
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always", FitWarning)
             scene = rig_mesh(src, regular_file(args.skeleton), weights=weights or "auto",
@@ -289,12 +295,14 @@ def _load_input(args: argparse.Namespace, cache_out: str | None = None) -> "Scen
         raise InputError("--scale scales a --skeleton BVH to the mesh; it needs --skeleton")
     if getattr(args, "joints", None) is not None:
         raise InputError("--joints places the joints of a --skeleton BVH; it needs --skeleton")
+    _quiet_warp(args.verbose)  # (every refusal above answered without it)
     scene = readers.load(src, clip=_clip(args.clip), max_input_gib=args.max_input_gib)
     if cache_out is not None and not scene.meshes and src.suffix.lower() == ".bvh":
         raise InputError(f"{src}: no mesh to skin (a BVH holds a skeleton and its motion); bind "
                          f"a mesh in its rest pose: dqskin skin MESH --skeleton {src.name} "
                          f"--out {cache_out}")
     if weights is not None:
+        from .rigging import replace_weights
         asset = scene
         scene = replace_weights(scene, weights, max_influences=args.max_influences,
                                 max_vertices=args.max_vertices,
@@ -322,8 +330,8 @@ def _print_weight_difference(asset: "Scene", scene: "Scene", label: str, device:
 def cmd_rig(args: argparse.Namespace) -> int:
     """``dqskin rig``: bind (or re-weight) and write a UsdSkel rig."""
     from .baking import check_output
-    from .writers.usd_rig import write_rig
     check_output(args.out, _inputs(args), args.force)
+    from .writers.usd_rig import write_rig
     scene = _load_input(args)
     _checkpoint()
     print(printable(write_rig(scene, args.out, force=args.force)))
@@ -432,14 +440,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """``dqskin compare``: :func:`dqskin.report.compare.run_compare`, then a summary."""
-    from .report.compare import RenderSettings, run_compare, summary_lines
-    from .times import frame_rate, select
     out = Path(args.out).resolve()
     for src in _inputs(args):  # the report replaces its folder whole
         p = Path(src).resolve()
         if p == out or out in p.parents:
             raise InputError(f"--out {args.out}: refusing to write the report over the input "
                              f"{src}")
+    from .report.compare import RenderSettings, run_compare, summary_lines
+    from .times import frame_rate, select
     scene = _load_input(args)  # (the limits of the command line apply to every input)
     source: "Scene | Path" = scene
     times = None
@@ -615,7 +623,7 @@ def build_parser() -> argparse.ArgumentParser:
                    f"or --substeps selecting more frames (default: {MAX_FRAMES})")
     s.add_argument("--force", action="store_true", help="overwrite existing outputs")
     _add_rigging_arguments(s)
-    s.set_defaults(run=cmd_skin)
+    s.set_defaults(run=cmd_skin, warp=False)  # (Warp once its refusals are answered)
     i = sub.add_parser("info", help="skeleton tree, meshes, influences, time range, problems; "
                        "for a USD point cache its prims, frames, attributes and bounds",
                        parents=[common])
@@ -629,7 +637,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "frames/*.png", parents=[common])
     _add_compare_arguments(c)
     _add_rigging_arguments(c)
-    c.set_defaults(run=cmd_compare)
+    c.set_defaults(run=cmd_compare, warp=False)  # (Warp once its refusals are answered)
     r = sub.add_parser("rig", help="bind a mesh to a BVH skeleton (or re-weight a character) "
                        "and write a UsdSkel rig", parents=[common])
     r.add_argument("input", help="mesh in the BVH's rest pose (with --skeleton), or a character")
@@ -638,7 +646,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--clip", help="glTF animation or FBX animation stack: name or index")
     r.add_argument("--device", help="cpu or cuda (default: cuda when present)")
     r.add_argument("--force", action="store_true", help="overwrite an existing output")
-    r.set_defaults(run=cmd_rig)
+    r.set_defaults(run=cmd_rig, warp=False)  # (Warp once its refusal is answered)
     f = sub.add_parser("flatten", help="write a value-clip cache (or any stage) as one layer",
                        parents=[common])
     f.add_argument("input")
@@ -873,49 +881,11 @@ def _hold_native_stderr() -> Callable[[], str] | None:
     return release
 
 
-def _wants_workers(argv: Sequence[str]) -> bool:
-    """Whether ``argv`` asks ``skin`` to bake on a LocalCluster: ``--workers N`` without
-    ``--scheduler`` or an option the bake refuses with it. Read before the full parser (whose
-    choices import dqskin's modules) by a parser of just these options: a hint only, the bake's
-    own checks decide."""
-    class Quiet(argparse.ArgumentParser):
-        # raised, not printed: the full parser reports errors
-        def error(self, message: str) -> NoReturn:
-            raise argparse.ArgumentError(None, message)
-
-    argv = list(argv)
-    while argv and argv[0] == "--verbose":
-        argv = argv[1:]
-    if not argv or argv[0] != "skin":
-        return False
-    p = Quiet(add_help=False, exit_on_error=False)
-    for flag in ("--workers", "--chunk"):
-        p.add_argument(flag, type=int)
-    for flag in ("--scheduler", "--skeleton", "--weights"):
-        p.add_argument(flag)
-    p.add_argument("--clips", action=argparse.BooleanOptionalAction)
-    try:
-        a = p.parse_known_args(argv[1:])[0]
-    except (argparse.ArgumentError, SystemExit):
-        return False
-    from .forkserver import max_workers
-    return (a.workers is not None and 1 <= a.workers <= max_workers() and not a.scheduler
-            and a.clips is not False
-            and (a.chunk is None or a.chunk >= 1) and a.skeleton is None and a.weights is None)
-
-
 def _run(argv: Sequence[str] | None) -> int:
-    workers = _wants_workers(sys.argv[1:] if argv is None else argv)
     try:
-        if workers:  # first: the workers' forkserver imports beside dqskin's (seconds of start-up)
-            from .forkserver import prestart_workers
-            try:
-                prestart_workers()
-            except Exception:  # only a head start: the cluster starts it or says why it cannot
-                pass
         return _run_command(argv)
     finally:
-        if workers:  # not reached by a bake (refused, INPUT failed to load, ...): no process
+        if "dqskin.forkserver" in sys.modules:  # one a --workers bake started: no process
             from .forkserver import stop_workers  # outlives the run
             stop_workers()
 

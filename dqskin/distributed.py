@@ -14,7 +14,12 @@ the same paths (one machine, or a shared file system).
 * ``workers=N``: a :class:`distributed.LocalCluster` of ``N`` worker processes (one task at a
   time each; USD's and dqskin's CPU threads limited to cores / ``N`` per process, or to
   ``threads``) on 127.0.0.1, started and closed by the bake, forked from a forkserver that has
-  imported dqskin once (:mod:`dqskin.forkserver`).
+  imported dqskin once (:mod:`dqskin.forkserver`), when they pay: the first two clips are baked
+  here, the second one timed, and the cluster starts only if it would save at least
+  :func:`workers_pay_seconds` (what starting workers, loading the asset in each and their
+  first tasks cost) on the rest; else the rest is baked here too (:func:`workers_choice` says
+  which, in one line). The workers' forkserver starts importing during the second clip when
+  the first one's cost says they may pay.
 * ``scheduler="tcp://HOST:PORT"``: an existing cluster (``dask scheduler`` and ``dask worker``).
   Each worker process's thread budget is its ``--nthreads`` (:func:`worker_threads`), unless
   ``DQSKIN_THREADS`` / ``PXR_WORK_THREAD_LIMIT`` are set in its environment.
@@ -50,7 +55,53 @@ if TYPE_CHECKING:
 
     from .baking import BakeSettings
 
-__all__ = ["ClipJob", "bake_clips", "run_clip", "run_here", "worker_threads"]
+__all__ = ["WORKERS_PAY_SECONDS", "ClipJob", "bake_clips", "run_clip", "run_here",
+           "worker_threads", "workers_choice", "workers_pay_seconds"]
+
+WORKERS_PAY_SECONDS = 2.0
+"""Seconds a ``workers=N`` bake must save for its LocalCluster to start: about what starting
+it, each worker's load of the asset and first task cost on a small, busy machine (measured on
+2 cores: a second quiet, two under load)."""
+
+
+def workers_pay_seconds() -> float:
+    """:data:`WORKERS_PAY_SECONDS`, or the seconds in the environment variable
+    ``DQSKIN_WORKERS_PAY_SECONDS`` (0: always start the workers)."""
+    given = os.environ.get("DQSKIN_WORKERS_PAY_SECONDS", "").strip()
+    try:
+        value = float(given)
+    except ValueError:
+        return WORKERS_PAY_SECONDS
+    return value if value >= 0 and value == value else WORKERS_PAY_SECONDS
+
+
+def workers_choice(workers: int, seconds_per_frame: float, frames_left: int,
+                   cores_used: float = 1.0) -> tuple[bool, str]:
+    """Whether ``workers`` worker processes pay for the ``frames_left`` frames of a bake whose
+    clips take ``seconds_per_frame`` a frame here using ``cores_used`` cores (its CPU seconds
+    over its wall seconds), and a line saying what was chosen: they pay when they would save at
+    least :func:`workers_pay_seconds`, the work taking ``cores_used / min(workers, free)`` of
+    its time here on them, ``free`` the cores not busy with other work (this process's cores
+    less the system's load average beyond what this process uses)."""
+    left = seconds_per_frame * frames_left
+    limit = workers_pay_seconds()
+    cores = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                else os.cpu_count() or 1)
+    used = min(max(1.0, cores_used), cores)
+    try:
+        others = max(0.0, os.getloadavg()[0] - used)
+    except OSError:  # (no load average on this system)
+        others = 0.0
+    free = max(used, cores - others)
+    saved = max(0.0, left * (1 - used / min(workers, free)))
+    pays = frames_left > 0 and saved >= limit
+    n = f"{workers} worker process{'es' if workers != 1 else ''}"
+    estimate = (f"{frames_left} frames left at {1e3 * seconds_per_frame:.2g} ms a frame on "
+                f"{used:.1f} of {free:.1f} free cores: {left:.1f} s here, about {saved:.1f} s "
+                "less on the workers")
+    return pays, (f"baked on {n} ({estimate}, at least the {limit:g} s they cost to start)"
+                  if pays else f"baked in this process, not on {n} ({estimate}, under the "
+                  f"{limit:g} s they cost to start)")
 
 
 # this worker process's loaded asset: {(path, mtime, size): (Scene, states of the files it read)}
@@ -293,7 +344,9 @@ def bake_clips(scene: Scene, out: str | Path, times: np.ndarray, options: SkinOp
     -------
     dict
         ``clips`` (in total), ``baked`` (this run), ``kept`` (verified from an earlier run),
-        ``folder``, and ``tasks``: what each task returned (pid, seconds, peak RSS).
+        ``folder``, ``tasks``: what each task returned (pid, seconds, peak RSS), and ``chose``:
+        with ``workers`` (unless ``DQSKIN_WORKERS_PAY_SECONDS`` is 0), the line
+        :func:`workers_choice` wrote (whether the workers were started), else None.
 
     Raises
     ------
@@ -313,6 +366,8 @@ def _bake_clips(scene, out, times, options, settings, threads):
     source = str(Path(scene.path).resolve())
     tasks = []
     bake = None
+    if s.workers is not None and not s.scheduler and workers_pay_seconds() > 0:
+        return _bake_clips_measured(scene, out, times, options, settings, threads, source)
     try:
         with _dask(s.workers, s.scheduler, threads) as client:
             # the workers load the asset while this process flattens it (kept until the end: a
@@ -321,19 +376,9 @@ def _bake_clips(scene, out, times, options, settings, threads):
             slots = {} if client is None else client.nthreads()
             preload = [client.submit(_preload, source, pure=False, workers=[w],
                                      allow_other_workers=False) for w in slots]
-            chunk = s.chunk
-            if chunk is None:  # the earlier bake's when resuming, else by size and task slots
-                chunk = (s.resume and not s.force and usd_clips.recorded_chunk(out)) or \
-                    usd_clips.clip_frames(scene, len(np.unique(times)), options.normals,
-                                          options.velocities,
-                                          None if client is None else max(1, sum(slots.values())))
-            bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=s.force,
-                                      resume=s.resume, inputs=s.inputs)
-            todo = bake.pending()
-            jobs = [ClipJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()),
-                            bake.key, bake.targets, bake.cache.rigid, options,
-                            float(scene.time_codes_per_second)) for k in todo]
-            bar = _bar(len(bake.bounds), len(bake.bounds) - len(todo), s.progress)
+            bake, jobs = _plan(scene, out, times, options, s, source,
+                               None if client is None else max(1, sum(slots.values())))
+            bar = _bar(len(bake.bounds), len(bake.bounds) - len(jobs), s.progress)
 
             def done(result):
                 tasks.append(result)
@@ -355,7 +400,90 @@ def _bake_clips(scene, out, times, options, settings, threads):
                 exc.resumable = (kept, len(bake.bounds), str(bake.folder))  # type: ignore[attr-defined]
         raise
     return dict(clips=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
-                folder=str(bake.folder), tasks=tasks)
+                folder=str(bake.folder), tasks=tasks, chose=None)
+
+
+def _plan(scene, out, times, options, settings, source, slots):
+    """The :class:`~.writers.usd_clips.ClipBake` of ``out`` and a :class:`ClipJob` per clip
+    left to bake: clips of ``settings.chunk`` frames, else the earlier bake's when resuming,
+    else by size and ``slots`` task slots (None: this process alone)."""
+    s = settings
+    chunk = s.chunk
+    if chunk is None:
+        chunk = (s.resume and not s.force and usd_clips.recorded_chunk(out)) or \
+            usd_clips.clip_frames(scene, len(np.unique(times)), options.normals,
+                                  options.velocities, slots)
+    bake = usd_clips.ClipBake(scene, out, times, chunk, options, force=s.force, resume=s.resume,
+                              inputs=s.inputs)
+    jobs = [ClipJob(k, source, bake.chunk_times(k), str(bake.clip_path(k).resolve()), bake.key,
+                    bake.targets, bake.cache.rigid, options, float(scene.time_codes_per_second))
+            for k in bake.pending()]
+    return bake, jobs
+
+
+def _bake_clips_measured(scene, out, times, options, settings, threads, source):
+    """:func:`_bake_clips` with ``workers=N`` (a LocalCluster of its own): the first two
+    pending clips are baked here, the second one timed (wall and CPU); the LocalCluster starts
+    for the rest only when it would save at least :func:`workers_pay_seconds`
+    (:func:`workers_choice`), else they are baked here too. The result's ``chose`` says which
+    (None when nothing was left to bake)."""
+    s = settings
+    tasks: list[dict[str, Any]] = []
+    bake = None
+    try:
+        # clips as for the cluster's task slots (one per worker)
+        bake, jobs = _plan(scene, out, times, options, s, source, max(1, int(s.workers)))
+        bar = _bar(len(bake.bounds), len(bake.bounds) - len(jobs), s.progress)
+
+        def done(result):
+            tasks.append(result)
+            bar.update(1)
+        try:
+            chose = None
+            # the first clip warms up (kernels loaded, threads started, pages first touched);
+            # if even its cost says workers may pay, their forkserver starts importing while
+            # the second clip, whose cost is the rest's, is baked and timed
+            t0 = time.perf_counter()
+            run_here(jobs[:1], scene, done)
+            if len(jobs) > 2:
+                left = sum(len(j.times) for j in jobs[2:])
+                first = (time.perf_counter() - t0) / max(1, len(jobs[0].times))
+                if workers_choice(int(s.workers), first, left, 1.0)[0]:
+                    try:
+                        forkserver.prestart_workers()
+                    except Exception:  # only a head start: the cluster says why it cannot
+                        pass
+                t0, c0 = time.perf_counter(), time.process_time()
+                run_here(jobs[1:2], scene, done)
+                wall = time.perf_counter() - t0
+                used = (time.process_time() - c0) / max(wall, 1e-9)
+                pays, chose = workers_choice(int(s.workers), wall / max(1, len(jobs[1].times)),
+                                             left, used)
+                if not pays:
+                    forkserver.stop_workers()  # (if started above: not needed)
+                    run_here(jobs[2:], scene, done)
+                else:
+                    with _dask(s.workers, None, threads) as client:
+                        _run_on_dask(client, jobs[2:], done)
+            elif jobs:
+                run_here(jobs[1:], scene, done)
+                chose = (f"baked in this process, not on {s.workers} worker process"
+                         f"{'es' if s.workers != 1 else ''} ({len(jobs)} clip"
+                         f"{'s' if len(jobs) != 1 else ''} to bake)")
+        finally:
+            bar.close()
+        bake.finish()
+    except BaseException as exc:
+        if bake is not None:
+            bake.abandon()
+            kept = bake.kept()
+            if isinstance(exc, KeyboardInterrupt) and kept:
+                exc.resumable = (kept, len(bake.bounds), str(bake.folder))  # type: ignore[attr-defined]
+        raise
+    finally:
+        forkserver.stop_workers()
+    return dict(clips=len(bake.bounds), baked=len(jobs), kept=len(bake.bounds) - len(jobs),
+                folder=str(bake.folder), tasks=tasks, chose=chose)
 
 
 def _bar(total, done, progress):

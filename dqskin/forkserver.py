@@ -3,8 +3,9 @@
 Dask spawns each worker process afresh by default, and each then imports Dask, NumPy, USD, Warp
 and dqskin itself. A bake instead starts them from multiprocessing's forkserver that has imported
 those once (:data:`PRELOAD`); :func:`prestart_workers` starts it early so that its imports
-overlap the caller's own start-up: ``dqskin skin --workers`` calls it before importing dqskin's
-heavy modules. :func:`stop_workers` stops it when the bake ends.
+overlap the caller's own work: a ``workers=N`` bake calls it while it bakes the clip that
+decides whether the workers pay (:mod:`dqskin.distributed`). :func:`stop_workers` stops it
+when the bake ends.
 
 Importing this module imports nothing heavy; :func:`prestart_workers` imports Dask, not
 ``distributed`` (slower to import): Dask's settings for worker processes come from Dask's config
@@ -145,8 +146,8 @@ def dask_config() -> dict[str, object]:
 
 def prestart_workers() -> None:
     """Start the forkserver now, in the background, so that its imports (:data:`PRELOAD`)
-    overlap the caller's own work (``dqskin skin --workers`` calls it before
-    importing dqskin's modules and loading the asset). The bake stops it (:func:`stop_workers`);
+    overlap the caller's own work (a ``workers=N`` bake calls it while it bakes the clip that
+    decides whether the workers pay). The bake stops it (:func:`stop_workers`);
     else it ends with this process. One already running is used as it is (one started before
     dqskin touched it is then left running, never stopped).
 

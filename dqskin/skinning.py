@@ -21,7 +21,6 @@ from .influences import Influences
 from .kernels import buffers as KB
 from .kernels import grid as KG
 from .kernels import skin as K
-from .kernels import velocity as KV
 from .kernels.dqmath import mat34, vec8
 from .options import (
     DEFAULT_SIGN_REFERENCE,
@@ -330,6 +329,7 @@ class Skinner:
                 self._cache[("has_residual", frames, joints)] = (
                     flags.numpy() if self.device.is_cpu else flags)
             elif kind == "rates":
+                from .kernels import velocity as KV  # (defined on a velocity bake's first use)
                 buf = KV.joint_rates(**buf)
             self._cache[key] = buf
         return buf
@@ -377,6 +377,7 @@ class Skinner:
                                  f"skinning_transform_derivatives {xd.shape} must have the same "
                                  "shape")
             prep["rates"] = self._buffers("rates", frames, joints)
+            from .kernels import velocity as KV
             KV.prepare(xforms=x, xform_derivatives=xd, device=self.device,
                        affines_only=affines_only, **prep)
             return prep, frames, batched
@@ -600,6 +601,7 @@ class Skinner:
             vel = (None if point_velocities is None else
                    self._rest("point_velocities", point_velocities, frames, linear=True))
             out = KB.empty((frames, self.vertex_count), wp.vec3, self.device)
+            from .kernels import velocity as KV
             KV.velocities(method=code, points=src, point_velocities=vel, influences=inf,
                           out=out, device=self.device, **prep)
             return self._result(out, batched, as_warp)

@@ -45,6 +45,7 @@ packet kernels instead: a thread skins eight vertices in the lanes of clang vect
 Dual quaternions are packed :data:`vec8` in the public order ``(rw, rx, ry, rz, dw, dx, dy, dz)``.
 """
 
+import threading
 import weakref
 from collections.abc import Sequence
 from typing import Any
@@ -496,19 +497,32 @@ def _skin_points_kernel(method, residual, single, sign=None, packet=False):
     return wp.kernel(kernel, name=name, module=module)
 
 
-def _point_kernels(specs):
-    """:data:`SKIN_POINTS_KERNELS` of ``(method, residual, sign, packet)`` specs, one frame and
-    frame blocks; a packet kernel serves both (one kernel object under both keys)."""
-    table = {}
-    for m, r, sign, packet in specs:
-        for one in (True, False):
-            key = (m, r, one, sign, packet)
-            table[key] = (table[(m, r, True, sign, True)] if packet and not one
-                          else _skin_points_kernel(m, r, one and not packet, sign, packet))
-    return table
+class _PointKernels(dict):
+    """:data:`SKIN_POINTS_KERNELS`: ``(method, residual, sign, packet)`` specs, one frame and
+    frame blocks; a packet kernel serves both (one kernel object under both keys). A method's
+    kernels are all defined on the first look-up of any of them (its Warp module then holds the
+    same kernels whatever was asked first), so a process defines only the methods it uses."""
+
+    def __init__(self, specs):
+        super().__init__()
+        self._specs = specs
+        self._lock = threading.Lock()
+
+    def __missing__(self, key):
+        with self._lock:
+            if key not in self:
+                for m, r, sign, packet in self._specs:
+                    if m != key[0]:
+                        continue
+                    for one in (True, False):
+                        k = (m, r, one, sign, packet)
+                        self[k] = (self[(m, r, True, sign, True)] if packet and not one
+                                   else _skin_points_kernel(m, r, one and not packet, sign,
+                                                            packet))
+            return dict.__getitem__(self, key)  # KeyError for a key of no spec
 
 
-SKIN_POINTS_KERNELS = _point_kernels((
+SKIN_POINTS_KERNELS = _PointKernels((
     (LBS, False, None, False), (LBS, False, None, True),
     (DQS, True, "sorted", False), (DQS, False, "sorted", False), (DQS, True, "sorted", True),
     (DQS, True, "searched", False), (DQS, False, "searched", False),

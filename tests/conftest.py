@@ -49,3 +49,10 @@ DEVICES = _devices()
 def device(request):
     """Every available Warp device: ``cpu``, and ``cuda:0`` when present."""
     return request.param
+
+
+@pytest.fixture(autouse=True)
+def _workers_always(monkeypatch):
+    """``workers=N`` bakes start their workers whatever the shot's length (tests of the
+    workers' behaviour use short shots); tests of the choice itself delete the variable."""
+    monkeypatch.setenv("DQSKIN_WORKERS_PAY_SECONDS", "0")

@@ -109,6 +109,28 @@ def test_large_arrays_exact(tmp_path):
                 np.asarray(layer.QueryTimeSample(f"/M{n}.points", float(f))), v[f])
 
 
+@pytest.mark.parametrize("direct", ["1", "0"])
+def test_columns_of_a_larger_array_written_in_place(tmp_path, monkeypatch, direct):
+    """A mesh's columns of a batch's frames (each frame's values contiguous, the frames apart),
+    a reversed view and a transposed one (neither contiguous within a frame) read back as the
+    values given, through the page cache and past it."""
+    monkeypatch.setenv("DQSKIN_DIRECT_IO", direct)
+    batch = _samples(5, 9000)  # (5, 9000, 3)
+    views = {"/Cols.points": batch[:, 1000:6001], "/Rev.points": batch[:, ::-1][:, :700],
+             "/T.points": np.ascontiguousarray(batch[:, :300].transpose(0, 2, 1)).transpose(
+                 0, 2, 1)}
+    path = tmp_path / "views.usdc"
+    crate = CrateSamples(path, 24.0)
+    for attr, v in views.items():
+        crate.add(attr, "point3f[]", np.arange(5.0), v)
+    crate.close(0, 4)
+    layer = Sdf.Layer.FindOrOpen(str(path))
+    for attr, v in views.items():
+        for f in range(5):
+            np.testing.assert_array_equal(np.asarray(layer.QueryTimeSample(attr, float(f))),
+                                          v[f])
+
+
 @pytest.mark.parametrize("args, match", [
     (("/A.points", "int[]", [0.0], np.zeros((1, 2, 3))), "cannot write type"),
     (("/A", "point3f[]", [0.0], np.zeros((1, 2, 3))), "not an attribute path"),

@@ -50,8 +50,9 @@ def check(reference, shot):
 
 
 def test_two_worker_local_cluster_equals_the_single_process_cache(reference, tmp_path, capsys):
-    """Through the CLI's ``--workers 2`` (which starts the workers' forkserver before loading
-    the input); no process of the cluster outlives the bake."""
+    """Through the CLI's ``--workers 2`` (the workers started whatever the shot's length:
+    ``DQSKIN_WORKERS_PAY_SECONDS=0``, tests/conftest.py); no process of the cluster outlives the
+    bake."""
     import multiprocessing.forkserver
 
     from dqskin.cli import main
@@ -59,6 +60,38 @@ def test_two_worker_local_cluster_equals_the_single_process_cache(reference, tmp
     assert main(["skin", str(HUMANOID), "--out", str(shot), "--chunk", str(CHUNK),
                  "--workers", "2"]) == 0
     assert "as 7 clips" in capsys.readouterr().out
+    check(reference, shot)
+    assert getattr(multiprocessing.forkserver._forkserver, "_forkserver_pid", None) is None
+
+
+def test_short_shot_stays_in_this_process(reference, tmp_path, capsys, monkeypatch):
+    """``--workers 2`` on the humanoid's short shot: its first clip, timed here, says the rest
+    takes far less than starting workers costs, so no worker is started (no forkserver left, no
+    Dask imported by the bake), one line says so, and the cache equals the single-process
+    one."""
+    import multiprocessing.forkserver
+
+    from dqskin.cli import main
+    from dqskin.distributed import WORKERS_PAY_SECONDS, workers_choice
+    monkeypatch.delenv("DQSKIN_WORKERS_PAY_SECONDS")
+    with monkeypatch.context() as m:
+        m.setattr(os, "getloadavg", lambda: (1.0, 1.0, 1.0))  # this process alone
+        m.setattr(os, "sched_getaffinity", lambda pid: {0, 1})  # on two cores
+        assert workers_choice(2, 1e-3, 10_000)[0] and not workers_choice(2, 1e-3, 100)[0]
+        assert not workers_choice(2, 1.0, 0)[0]  # nothing left
+        assert not workers_choice(2, 1e-3, 10_000, cores_used=2.0)[0]  # it uses both cores
+        m.setattr(os, "getloadavg", lambda: (5.0, 5.0, 5.0))  # busy with other work
+        assert not workers_choice(2, 1e-3, 10_000)[0]
+        m.setattr(os, "getloadavg", lambda: (1.0, 1.0, 1.0))
+        m.setenv("DQSKIN_WORKERS_PAY_SECONDS", "1e-9")  # anything saved pays
+        assert workers_choice(2, 1e-6, 1)[0]
+    shot = tmp_path / "shot.usd"
+    assert main(["skin", str(HUMANOID), "--out", str(shot), "--chunk", str(CHUNK),
+                 "--workers", "2"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 1 and "as 7 clips" in out[0]
+    assert "; baked in this process, not on 2 worker processes (" in out[0]
+    assert out[0].endswith(f"under the {WORKERS_PAY_SECONDS:g} s they cost to start)")
     check(reference, shot)
     assert getattr(multiprocessing.forkserver._forkserver, "_forkserver_pid", None) is None
 
@@ -215,23 +248,10 @@ def test_refused_worker_arguments_start_no_forkserver(tmp_path, monkeypatch, cap
     assert started == [] and _forkserver_pid() is None
 
 
-def test_forkserver_stopped_when_the_input_fails_to_load(tmp_path, monkeypatch, capsys):
-    """The CLI's prestarted forkserver (preloading only NumPy here) is stopped when the bake is
-    never reached."""
-    import dqskin.forkserver as forkserver
-    from dqskin.cli import main
-    monkeypatch.setattr(forkserver, "PRELOAD", ["numpy"])
-    bad = tmp_path / "bad.usda"
-    bad.write_text("#usda 1.0\n(\n")
-    assert main(["skin", str(bad), "--out", str(tmp_path / "shot.usd"), "--workers", "2"]) != 0
-    assert "bad.usda" in capsys.readouterr().err
-    assert _forkserver_pid() is None
-
-
-def test_forkserver_started_first_is_stopped_when_the_output_is_refused(tmp_path, monkeypatch,
-                                                                      capsys):
-    """``dqskin skin --workers`` starts the forkserver before importing dqskin's modules, so an
-    output refused only after that (a clip bake to .npz) must stop it again."""
+def test_no_forkserver_before_the_bake_decides(tmp_path, monkeypatch, capsys):
+    """``dqskin skin --workers`` starts the forkserver only in the bake, once it has measured
+    that the workers may pay: an output it refuses (a clip bake to .npz) or an input that fails
+    to load never starts it."""
     import dqskin.forkserver as forkserver
     from dqskin.cli import main
     started = []
@@ -241,7 +261,11 @@ def test_forkserver_started_first_is_stopped_when_the_output_is_refused(tmp_path
     out = tmp_path / "shot.npz"
     assert main(["skin", str(HUMANOID), "--out", str(out), "--workers", "2"]) != 0
     assert "--out" in capsys.readouterr().err and not out.exists()
-    assert started == [1] and _forkserver_pid() is None
+    assert started == [] and _forkserver_pid() is None
+    bad = tmp_path / "bad.usda"
+    bad.write_text("#usda 1.0\n(\n")
+    assert main(["skin", str(bad), "--out", str(tmp_path / "shot.usd"), "--workers", "2"]) != 0
+    assert started == [] and _forkserver_pid() is None
 
 
 def test_a_forkserver_running_before_dqskin_is_left_running():

@@ -51,6 +51,25 @@ def test_help_and_usage_errors_load_nothing_heavy(argv):
     assert heavy == [], f"dqskin {' '.join(argv)} loads {heavy}"
 
 
+def test_refusals_answer_before_warp_usd_or_dask(tmp_path):
+    """``skin``, ``rig`` and ``compare`` refuse an existing output without --force, bad option
+    values and a report over its input before importing Warp, USD or Dask (and leave the
+    existing output as it was)."""
+    src = usda(tmp_path)
+    taken = tmp_path / "taken.usdc"
+    taken.write_bytes(b"not replaced")
+    for argv in [("skin", src, "--out", taken), ("skin", src, "--out", taken, "--workers", "1"),
+                 ("skin", src, "--out", tmp_path / "o.usdc", "--chunk", "0"),
+                 ("skin", src, "--out", tmp_path / "o.usdc", "--workers", "100000"),
+                 ("skin", src, "--out", tmp_path / "o.obj", "--workers", "2"),
+                 ("rig", src, "--out", taken),
+                 ("compare", src, "--out", tmp_path)]:
+        status, heavy, _ = loaded(*argv)
+        assert status == 2, argv
+        assert heavy == [], f"dqskin {' '.join(map(str, argv))} loads {heavy}"
+    assert taken.read_bytes() == b"not replaced"
+
+
 def overflow_free_rig(tmp_path, y):
     """test_cli's rig with joint 'a/b' translated to ``y`` (float32 all along), in a folder of
     its own."""

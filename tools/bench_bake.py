@@ -8,7 +8,8 @@ clips in this process and on a Dask LocalCluster of 1 and 2 worker processes.
 
 Assets: the looped CesiumMan (its 48-key walk looped over each ``--frames`` count, with root
 motion) and BrainStem.usdz's own clip when the file exists (``--brainstem``; default: searched
-under ../shared/assets), else a stand-in of its size (10 CesiumMen side by side, 1,292 frames,
+under ../shared/assets), else a stand-in of its shape (59 meshes of varied sizes cut from
+CesiumMan under one skeleton, 1,309 poses of their own: :func:`make_many_meshes`;
 ``--no-standin`` to skip). Each bake runs in a fresh process so its peak memory (VmHWM) is its
 own; the clip bakes also report the peak of every worker process. Implementations (``--impls``):
 
@@ -20,7 +21,12 @@ own; the clip bakes also report the peak of every worker process. Implementation
 * ``clips0t1``/``clips1t1``/``clips2t1``: in this process / 1 / 2 worker processes with a
   thread budget of one each (dqskin's launch pool and USD's; what ``dask worker --nthreads 1``
   per core gives on a farm): process scaling without the threads a lone worker also uses;
-* ``single+nv``, ``clips2+nv``: with skinned normals and velocities (dqskin's default).
+* ``single+nv``, ``clips2+nv``: with skinned normals and velocities (dqskin's default);
+  ``single+n``: with skinned normals (what UsdSkel writes for a mesh with ``normals``);
+* ``cli``, ``cli+n``, ``cli+nv``: the whole ``dqskin skin SRC --out DST --method lbs`` process
+  (its imports and start-up included; points only, with normals, with normals and
+  velocities); ``cliclips+n``: the same with ``--clips`` (value clips in one process),
+  ``cliw2+n``: with ``--workers 2`` (the bake decides whether the workers pay).
 
 ``--repeat N`` runs N rounds of every impl, interleaved, and reports each impl's median run
 (with the range) and the median of the per-round ratios: on a VM a run's speed swings by up to
@@ -52,7 +58,23 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "assets"
 DEFAULT_ASSET = SHARED / "usd-wg" / "CesiumMan" / "CesiumMan.usdz"
 IMPLS = ("usdskel", "single", "clips0", "clips1", "clips2", "clips0t1", "clips1t1", "clips2t1",
-         "single+nv", "clips2+nv")
+         "single+n", "single+nv", "clips2+nv", "cli", "cli+n", "cli+nv", "cliclips+n",
+         "cliw2+n")
+
+
+def cli_command(which, src, dst):
+    """The ``dqskin skin`` command line of a ``cli*`` impl (``@before``: see ``--before``)."""
+    kind, _, extra = which.removesuffix("@before").partition("+")
+    start = ["-m", "dqskin.cli"]
+    if which.endswith("@before"):  # that tree, not the editable install's
+        start = ["-c", "import sys; sys.meta_path[:] = [f for f in sys.meta_path if not "
+                 "type(f).__module__.startswith('__editable__')]; sys.path.insert(0, "
+                 f"{os.environ['BENCH_BEFORE']!r}); sys.argv[0] = 'dqskin'; "
+                 "from dqskin.cli import main; sys.exit(main())"]
+    cmd = [sys.executable, *start, "skin", str(src), "--out", str(dst), "--method", "lbs"]
+    cmd += {"": ["--no-normals", "--no-velocities"], "n": ["--no-velocities"], "nv": []}[extra]
+    cmd += {"cli": [], "cliclips": ["--clips"], "cliw2": ["--workers", "2"]}[kind]
+    return cmd
 
 
 def find_brainstem():
@@ -60,15 +82,13 @@ def find_brainstem():
     return hits[0] if hits else None
 
 
-def make_long_clip(asset, frames, out, stride=0.5):
-    """Flatten ``asset`` and loop every SkelAnimation's samples over ``frames`` time codes; the
-    root joint moves ``stride`` along x per loop (root motion), so no two frames are equal (a
-    crate layer stores each distinct array once: a plain loop would flatter every writer)."""
-    from pxr import Gf, Usd, UsdSkel
-    stage = Usd.Stage.Open(str(asset))
-    layer = stage.Flatten()
-    long_stage = Usd.Stage.Open(layer)
-    for prim in long_stage.Traverse():
+def _resampled(asset, frames, value_at):
+    """``asset`` flattened, each SkelAnimation's animated attribute ``attr`` (its sample times
+    ``keys``) resampled as ``value_at(attr, keys, f)`` at time codes ``keys[0] + f``, ``f`` in
+    ``range(frames)``; the stage's range 1 to ``frames``."""
+    from pxr import Usd, UsdSkel
+    stage = Usd.Stage.Open(Usd.Stage.Open(str(asset)).Flatten())
+    for prim in stage.Traverse():
         if not prim.IsA(UsdSkel.Animation):
             continue
         anim = UsdSkel.Animation(prim)
@@ -76,43 +96,91 @@ def make_long_clip(asset, frames, out, stride=0.5):
             keys = attr.GetTimeSamples()
             if len(keys) < 2:
                 continue
-            values = [attr.Get(k) for k in keys]
+            values = [value_at(attr, keys, f) for f in range(frames)]
             attr.Clear()
-            for f in range(frames):
-                value = values[f % len(values)]
-                if attr.GetName() == "translations" and stride:
-                    value = type(value)(value)
-                    value[0] = value[0] + Gf.Vec3f(stride * (f // len(values)), 0, 0)
+            for f, value in enumerate(values):
                 attr.Set(value, keys[0] + f)
-    long_stage.SetStartTimeCode(1)
-    long_stage.SetEndTimeCode(frames)
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(frames)
+    return stage
+
+
+def make_long_clip(asset, frames, out, stride=0.5):
+    """Flatten ``asset`` and loop every SkelAnimation's samples over ``frames`` time codes; the
+    root joint moves ``stride`` along x per loop (root motion), so no two frames are equal (a
+    crate layer stores each distinct array once: a plain loop would flatter every writer)."""
+    from pxr import Gf
+
+    def looped(attr, keys, f):
+        values = looped.cache.setdefault(attr.GetPath(), [attr.Get(k) for k in keys])
+        value = values[f % len(values)]
+        if attr.GetName() == "translations" and stride:
+            value = type(value)(value)
+            value[0] = value[0] + Gf.Vec3f(stride * (f // len(values)), 0, 0)
+        return value
+    looped.cache = {}
+    long_stage = _resampled(asset, frames, looped)
     long_stage.GetRootLayer().Export(str(out))
 
 
-def make_crowd(long_clip, copies, out, offset=1.1):
-    """A stage of ``copies`` references to ``long_clip``'s default prim side by side: a
-    BrainStem-sized stand-in (BrainStem.usdz: 59 meshes, 34k points, 1,292 frames). Copy ``i``
-    plays the clip ``i * offset`` frames later (a layer offset on its reference; 1.1: each copy
-    samples between the clip's frames at its own tenth), so no copy holds an array another
-    one holds at any time: BrainStem's meshes all differ, and a crate file stores each distinct
-    array once (identical copies let usd-core's export write a tenth of the data)."""
-    from pxr import Sdf, Usd, UsdGeom
-    clip = Usd.Stage.Open(str(long_clip))
-    stage = Usd.Stage.CreateNew(str(out))
-    for key in ("upAxis", "metersPerUnit"):
-        stage.SetMetadata(key, clip.GetMetadata(key))
-    stage.SetTimeCodesPerSecond(clip.GetTimeCodesPerSecond())
-    stage.SetStartTimeCode(clip.GetStartTimeCode())
-    stage.SetEndTimeCode(clip.GetEndTimeCode())
-    root = UsdGeom.Xform.Define(stage, "/Crowd")
-    stage.SetDefaultPrim(root.GetPrim())
-    src = clip.GetDefaultPrim().GetPath()
-    for i in range(copies):
-        x = UsdGeom.Xform.Define(stage, f"/Crowd/C{i:02d}")
-        x.GetPrim().GetReferences().AddReference(
-            Sdf.Reference(str(long_clip), src, Sdf.LayerOffset(offset * i)))
-        x.AddTranslateOp().Set((0.0, 2.0 * i, 0.0))
-    stage.Save()
+def make_many_meshes(asset, frames, out, meshes=59, points=34_000, step=0.37, seed=0):
+    """A BrainStem-shaped stand-in (one skeleton, ``meshes`` meshes of varied sizes, about
+    ``points`` points in all, ``frames`` samples of its own) cut from ``asset``'s one skinned
+    mesh (CesiumMan). Frame ``f`` poses the skeleton as the asset's animation at
+    ``step * f`` past its start (wrapped: a slow walk, every pose its own, with no repeating
+    cycle, so that no two frames' normals are equal: a crate file stores each distinct array
+    once). Mesh ``i`` is a run of the asset's triangles (sizes spread geometrically, 1:40, in a
+    shuffled order) with its points, normals (the ``normals`` attribute: UsdSkel's bake skins
+    it, not ``primvars:normals``), UVs and joint influences, its rest points moved ``i``
+    millimetres along the up axis so that no two meshes hold the same arrays."""
+    from pxr import UsdGeom, UsdSkel, Vt
+    stage = _resampled(asset, frames, lambda attr, keys, f: attr.Get(
+        keys[0] + (step * f) % (keys[-1] - keys[0])))
+    src = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
+    mesh, parent = UsdGeom.Mesh(src), src.GetParent().GetPath()
+    rest = np.asarray(mesh.GetPointsAttr().Get(), np.float32)
+    tris = np.asarray(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)
+    pv = {p.GetPrimvarName(): p for p in UsdGeom.PrimvarsAPI(src).GetPrimvars()}
+    per_vertex = {n: (p, np.asarray(p.Get()), p.GetElementSize()) for n, p in pv.items()
+                  if p.GetInterpolation() == "vertex"}
+    rng = np.random.default_rng(seed)
+    sizes = np.geomspace(1.0, 40.0, meshes)
+    rng.shuffle(sizes)
+    # triangles per mesh for about ``points`` points (a run of CesiumMan's triangles holds
+    # about 1.75 points a triangle: its points are shared by fewer triangles than in the whole)
+    sizes = np.maximum(8, sizes / sizes.sum() * points / 1.75).astype(int)
+    skel_rel = UsdSkel.BindingAPI(src).GetSkeletonRel().GetTargets()
+    binding = UsdSkel.BindingAPI(src)
+    geom_bind = binding.GetGeomBindTransformAttr().Get()
+    method = pv.get("skel:skinningMethod")
+    start = 0
+    for i, n in enumerate(sizes):
+        faces = tris[np.arange(start, start + n) % len(tris)]
+        start += n
+        used, local = np.unique(faces, return_inverse=True)
+        m = UsdGeom.Mesh.Define(stage, parent.AppendChild(f"Part_{i:02d}"))
+        pts = rest[used] + np.float32(0.001 * i) * np.array([0, 0, 1], np.float32)
+        m.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
+        m.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(faces)))
+        m.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(local.reshape(-1).astype(np.int32)))
+        m.CreateSubdivisionSchemeAttr("none")
+        b = UsdSkel.BindingAPI.Apply(m.GetPrim())
+        b.CreateSkeletonRel().SetTargets(skel_rel)
+        b.CreateGeomBindTransformAttr(geom_bind)
+        api = UsdGeom.PrimvarsAPI(m.GetPrim())
+        for name, (p, values, size) in per_vertex.items():
+            sub = type(p.Get()).FromNumpy(np.ascontiguousarray(
+                values.reshape(len(rest), -1)[used].reshape((-1,) + values.shape[1:])))
+            if name == "normals":  # as the ``normals`` attribute, which UsdSkel also skins
+                m.CreateNormalsAttr(sub)
+                m.SetNormalsInterpolation("vertex")
+            else:
+                api.CreatePrimvar(name, p.GetTypeName(), "vertex", size).Set(sub)
+        if method is not None:
+            api.CreatePrimvar("skel:skinningMethod", method.GetTypeName(),
+                              "constant").Set(method.Get())
+    stage.RemovePrim(src.GetPath())
+    stage.GetRootLayer().Export(str(out))
 
 
 def import_usdskel():
@@ -149,12 +217,13 @@ def run_dqskin(src, dst, which):
     from dqskin.distributed import bake_clips
     from dqskin.readers import load
     nv = which.endswith("+nv")
-    kind = which.removesuffix("+nv")
+    kind, _, extra = which.partition("+")
+    normals = nv or extra == "n"
     workers, _, threads = kind[5:].partition("t")
     scene = load(src)
     gc.freeze()  # as `dqskin skin` does once its input is loaded
     if kind == "single":
-        bake(scene, dst, method="lbs", normals=nv, velocities=nv, clips=False, force=True)
+        bake(scene, dst, method="lbs", normals=normals, velocities=nv, clips=False, force=True)
         return {}
     if threads and not int(workers):  # in this process: the budget a one-thread worker gets
         from pxr import Work
@@ -382,19 +451,28 @@ def bench_one(rows, label, src, impls, tmp, repeat=1):
             # charge one implementation for the writeback of the one run before it
             os.sync()
             before = resource.getrusage(resource.RUSAGE_CHILDREN)
-            proc = subprocess.run([sys.executable, __file__, "--child", which, str(src),
+            whole = which.startswith("cli")
+            w0 = time.perf_counter()
+            proc = subprocess.run(cli_command(which, src, dst) if whole else
+                                  [sys.executable, __file__, "--child", which, str(src),
                                    str(dst)], capture_output=True, text=True)
+            process_seconds = time.perf_counter() - w0
             after = resource.getrusage(resource.RUSAGE_CHILDREN)  # the process tree, reaped
             cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
             if proc.returncode:
                 print(f"  {label} {which}: failed (exit {proc.returncode}):\n"
                       f"{proc.stderr[-1000:]}", file=sys.stderr)
                 continue
-            r = json.loads(proc.stdout.strip().splitlines()[-1])
+            if whole:  # the whole process: no split of its imports
+                r = dict(seconds=process_seconds, import_seconds=0.0, peak_mb=float("nan"),
+                         said=proc.stdout.strip())
+            else:
+                r = json.loads(proc.stdout.strip().splitlines()[-1])
             dsts[which] = dst
             runs[which].append(dict(
                 kind="bake", asset=label, frames=frames, points=points, impl=which,
                 seconds=r["seconds"], import_seconds=r["import_seconds"], cpu_seconds=cpu,
+                process_seconds=process_seconds, said=r.get("said"),
                 peak_mb=r["peak_mb"], worker_peak_mb=r.get("worker_peak_mb", []),
                 task_seconds=r.get("task_seconds"), task_cpu_seconds=r.get("task_cpu_seconds"),
                 task_span=r.get("task_span"),
@@ -406,9 +484,12 @@ def bench_one(rows, label, src, impls, tmp, repeat=1):
         if not rs:
             continue
         secs = [r["seconds"] for r in rs]
+        procs = [r["process_seconds"] for r in rs]
+        cpus = [r["cpu_seconds"] for r in rs]
         new.append(dict(sorted(rs, key=lambda r: r["seconds"])[(len(rs) - 1) // 2],
                         seconds_range=(min(secs), max(secs)), runs=len(rs), all_seconds=secs,
-                        all_task_spans=[r.get("task_span") for r in rs]))
+                        all_task_spans=[r.get("task_span") for r in rs],
+                        all_process_seconds=procs, all_cpu_seconds=cpus))
     rows.extend(new)
     if "usdskel" in dsts:
         probes = [t0, t0 + (t1 - t0) // 2, t1, t0 + 0.5]
@@ -427,11 +508,11 @@ def bench_bake(rows, frames=(1000, 10000), asset=DEFAULT_ASSET, brainstem=None, 
         if brainstem and Path(brainstem).is_file():
             bench_one(rows, "BrainStem", Path(brainstem), impls, tmp, repeat)
         elif Path(asset).is_file() and standin:
-            print("bake: BrainStem.usdz not found under ../shared/assets; a stand-in of the "
-                  "same size instead: 10 CesiumMen × 1,292 frames (32,730 points)")
-            make_long_clip(asset, 1292, tmp / "long_1292.usdc")
-            make_crowd(tmp / "long_1292.usdc", 10, tmp / "crowd.usda")
-            bench_one(rows, "10×CesiumMan", tmp / "crowd.usda", impls, tmp, repeat)
+            print("bake: BrainStem.usdz not found under ../shared/assets; a stand-in of its "
+                  "shape instead: 59 meshes of 75 to 2,900 points (35,114 in all) cut from "
+                  "CesiumMan, one skeleton, 1,309 poses of its own")
+            make_many_meshes(asset, 1309, tmp / "many_1309.usdc")
+            bench_one(rows, "59-mesh stand-in", tmp / "many_1309.usdc", impls, tmp, repeat)
         if not Path(asset).is_file():
             print(f"bake: skipped, {asset} not found")
         else:
@@ -508,6 +589,37 @@ def print_bake(rows):
                     line.append(f"{impl} / UsdSkel throughput = "
                                 f"{_ratio(sel['usdskel'], sel[impl])}")
         print(f"  {key[0]}: " + "; ".join(line))
+        print_whole(sel)
+
+
+def _median(values):
+    v = sorted(values)
+    return v[(len(v) - 1) // 2]
+
+
+def print_whole(sel):
+    """Whole processes (interpreter start, imports, load, bake, write, exit): each impl's median
+    wall and CPU seconds with their ranges, and UsdSkel's over each ``cli*`` impl's, round by
+    round (the median of the per-round ratios and their range)."""
+    if not any(i.startswith("cli") for i in sel):
+        return
+    print("  whole processes, median (range) of the rounds:")
+    for impl, r in sel.items():
+        if impl != "usdskel" and not impl.startswith("cli"):  # (cli*@before too)
+            continue
+        w, c = r["all_process_seconds"], r["all_cpu_seconds"]
+        line = (f"    {impl}: wall {_median(w):.2f} s ({min(w):.2f}–{max(w):.2f}), CPU "
+                f"{_median(c):.2f} s ({min(c):.2f}–{max(c):.2f})")
+        base = sel.get("usdskel")
+        if base is not None and impl != "usdskel" and len(base["all_process_seconds"]) == len(w):
+            for what, a, b in (("wall", base["all_process_seconds"], w),
+                               ("CPU", base["all_cpu_seconds"], c)):
+                ratios = sorted(x / y for x, y in zip(a, b))
+                line += (f"; UsdSkel / this, {what}: {_median(ratios):.2f}× "
+                         f"({ratios[0]:.2f}–{ratios[-1]:.2f}×)")
+        if r.get("said") and ";" in r["said"]:
+            line += f" [{r['said'].split(';', 1)[1].strip()}]"
+        print(line)
 
 
 if __name__ == "__main__":
@@ -530,9 +642,14 @@ if __name__ == "__main__":
     ap.add_argument("--work-dir", help="folder for the sources and outputs (default: the "
                     "system's temporary folder), e.g. /dev/shm to leave the disk's file system "
                     "out")
+    ap.add_argument("--before", metavar="TREE", help="a copy of another dqskin tree (e.g. "
+                    "`git archive main`, with dqskin/kernels linked to its kernels/): the "
+                    "``cli*@before`` impls run it, for before/after figures in one run")
     ap.add_argument("--breakdown", type=int, metavar="FRAMES",
                     help="only the step-by-step CPU-seconds breakdown of a FRAMES-frame bake")
     a = ap.parse_args()
+    if a.before:
+        os.environ["BENCH_BEFORE"] = str(Path(a.before).resolve())
     if a.breakdown:
         breakdown(a.breakdown, a.asset)
         sys.exit(0)
@@ -540,7 +657,7 @@ if __name__ == "__main__":
     print(f"dqskin from {Path(dqskin.__file__).parent}, its kernels from "
           f"{Path(dqskin.kernels.__file__).parent}")
     out_rows = []
-    bench_bake(out_rows, [int(x) for x in a.frames.split(",")], a.asset, a.brainstem,
+    bench_bake(out_rows, [int(x) for x in a.frames.split(",") if x], a.asset, a.brainstem,
                [x for x in a.impls.split(",") if x], not a.no_standin, a.repeat, a.work_dir)
     if a.json:
         Path(a.json).write_text(json.dumps(out_rows, indent=1))

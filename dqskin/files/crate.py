@@ -496,8 +496,10 @@ class CrateSamples:
                              f"{', '.join(VALUE_TYPES)}")
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         if kind == "vec3f[]":
-            v = np.ascontiguousarray(values, dtype=np.float32)
+            v = np.asarray(values, dtype=np.float32)
             ok = v.ndim == 3 and v.shape[2] == 3
+            if ok and v.size and v.strides[1:] != (12, 4):  # each frame's values in one run
+                v = np.ascontiguousarray(v)  # (a mesh's columns of a batch's frames are)
         else:
             v = np.asarray(values, dtype=np.float64)
             ok = v.ndim == 3 and v.shape[1:] == (4, 4)

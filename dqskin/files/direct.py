@@ -27,7 +27,7 @@ import numpy.typing as npt
 
 from ..errors import InputError
 
-__all__ = ["BLOCK", "STAGE", "AppendFile", "BytesLike", "enabled", "nbytes"]
+__all__ = ["BLOCK", "STAGE", "AppendFile", "BytesLike", "enabled", "nbytes", "pays"]
 
 BytesLike = bytes | bytearray | memoryview | np.ndarray
 """What the writers take: bytes, or a C-contiguous array written as its raw bytes."""
@@ -47,6 +47,36 @@ _REFUSED = (errno.EINVAL, errno.EOPNOTSUPP, errno.ENOTSUP)
 def enabled() -> bool:
     """Whether direct I/O is tried at all (``O_DIRECT`` exists, ``DQSKIN_DIRECT_IO`` is not 0)."""
     return bool(_O_DIRECT) and os.environ.get("DQSKIN_DIRECT_IO", "1") != "0"
+
+
+def pays(nbytes: int | None) -> bool:
+    """Whether a new file of about ``nbytes`` should be written past the page cache: True
+    unless it fits in what the kernel lets dirty pages take before it slows their writer (half
+    way between ``vm.dirty_background_ratio`` and ``vm.dirty_ratio`` of the available memory, or
+    their ``_bytes`` forms, less the dirty and writeback pages already there). A file that fits
+    is written sooner through the page cache: the writer returns once its bytes are in memory and
+    the kernel writes them out after; a larger one would be throttled to the device's speed
+    anyway, and past the cache it costs less system time. True for None (unknown) and where
+    ``/proc`` does not say (not Linux)."""
+    if nbytes is None:
+        return True
+    try:
+        with open("/proc/meminfo") as fh:
+            info = {k: int(v.split()[0]) * 1024 for k, _, v in
+                    (line.partition(":") for line in fh) if v.strip()}
+
+        def limit(name: str) -> float:
+            with open(f"/proc/sys/vm/{name}_bytes") as fh:
+                given = int(fh.read())
+            if given:
+                return float(given)
+            with open(f"/proc/sys/vm/{name}_ratio") as fh:
+                return int(fh.read()) / 100 * info["MemAvailable"]
+        room = (limit("dirty_background") + limit("dirty")) / 2 \
+            - info.get("Dirty", 0) - info.get("Writeback", 0)
+    except (OSError, ValueError, KeyError):
+        return True
+    return int(nbytes) > room
 
 
 def _set_direct(fd: int, on: bool) -> bool:
@@ -184,9 +214,9 @@ class AppendFile:
 
     def append_records(self, head: bytes, rows: np.ndarray, pad: int = 0,
                        select: npt.ArrayLike | None = None) -> int:
-        """Append one record per row of ``rows`` ((K, M) uint8, C-contiguous; with ``select``,
-        only those row indices, in that order): ``head``, the row's M bytes, ``pad`` zero
-        bytes. Direct: the records are copied straight into the stage, many rows a copy (no
+        """Append one record per row of ``rows`` ((K, M) uint8, each row contiguous; with
+        ``select``, only those row indices, in that order): ``head``, the row's M bytes, ``pad``
+        zero bytes. Direct: the records are copied straight into the stage, many rows a copy (no
         block of them made first); buffered: ``writev`` of the rows in place. Returns the bytes
         appended."""
         rows = np.asarray(rows)

@@ -36,10 +36,12 @@ from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, Vt
 from ..errors import InputError
 from ..files.atomic import CommitOnSuccess, atomic_path, check_parent
 from ..files.crate import CrateSamples, UnsupportedCrate
+from ..files.direct import pays as direct_pays
 from ..options import SkinOptions
 from ..pipeline import rigid_transforms
 from ..readers.usd import _tf_message, load_rigid_prims
 from ..shapes import frames_of
+from . import CACHE_EXTENSIONS  # (defined where it is known without importing USD)
 
 if TYPE_CHECKING:
     from ..readers.usd import RigidPrim
@@ -51,8 +53,6 @@ __all__ = ["CACHE_EXTENSIONS", "CHUNK_BYTES", "CHUNK_FRAMES", "CHUNK_MIN_FRAMES"
            "clips_folder", "chunk_frames", "export_layer", "frame_bytes", "layer_file",
            "stage_files", "write_usd_cache"]
 
-CACHE_EXTENSIONS = (".usda", ".usdc", ".usd")
-"""Extensions :func:`write_usd_cache` writes (``.usd`` is binary crate)."""
 
 _SKEL_API = "SkelBindingAPI"
 
@@ -704,6 +704,10 @@ class UsdCacheWriter(CommitOnSuccess):
     final : bool
         The run's last output (:class:`~.atomic.atomic_path`): an interrupt once it is in place
         is ignored.
+    expected_bytes : int, optional
+        About how many bytes of samples the cache will hold: a ``.usdc``/``.usd`` cache that
+        fits what the system buffers without slowing its writer is written through the page
+        cache, a larger one (or of unknown size) past it (:func:`dqskin.files.direct.pays`).
 
     As a context manager the writer claims its temporary folder on entry
     (``.STEM.XXXXXXXX/`` beside ``out_path``, :mod:`.atomic`) and removes it on an exception or
@@ -713,7 +717,9 @@ class UsdCacheWriter(CommitOnSuccess):
     def __init__(self, scene: "Scene", out_path: str | os.PathLike,
                  options: SkinOptions | None = None, *,
                  source_path: str | os.PathLike | None = None, overwrite: bool = True,
-                 final: bool = False, dropped: "Sequence[str]" = ()) -> None:
+                 final: bool = False, dropped: "Sequence[str]" = (),
+                 expected_bytes: int | None = None) -> None:
+        self.expected_bytes = expected_bytes
         self.cache = CacheLayer(scene, out_path, source_path=source_path, dropped=dropped)
         self.scene, self.out, self.src = scene, self.cache.out, self.cache.src
         self.layer = self.cache.layer
@@ -770,7 +776,8 @@ class UsdCacheWriter(CommitOnSuccess):
         base = tmp.with_name(tmp.name + ".base.usdc")  # never the output's own name
         export_layer(self.layer, self._claim, tmp=base)
         try:
-            self._sink = CrateSamples(tmp, self.scene.time_codes_per_second, base=base)
+            self._sink = CrateSamples(tmp, self.scene.time_codes_per_second, base=base,
+                                      direct=direct_pays(self.expected_bytes))
         except UnsupportedCrate:  # a usd-core writing another crate version: through Sdf
             pass
         finally:
