@@ -83,12 +83,9 @@ def base_colors(scene: "Scene") -> dict[str, BaseColor]:
 def _gltf_colors(path: str, names: list[str]) -> dict[str, BaseColor]:
     import base64
 
-    from .gltf import _glb_chunks, _parse_json, _Reader, mesh_primitives
+    from .gltf import _Reader, mesh_primitives
     r = _Reader(path)
-    with open(path, "rb") as fh:
-        data = fh.read()
-    text = _glb_chunks(data)[0] if data[:4] == b"glTF" else data
-    raw = _parse_json(text)
+    raw = r.raw
     materials, textures = raw.get("materials") or [], raw.get("textures") or []
     images, views = raw.get("images") or [], raw.get("bufferViews") or []
 
