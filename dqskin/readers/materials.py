@@ -10,7 +10,6 @@ without a material: materials travel with the frames when they can, and never st
 A reader of another format adds its own function to :func:`base_colors`.
 """
 
-import os
 import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -129,8 +128,12 @@ def _gltf_colors(path: str, names: list[str]) -> dict[str, BaseColor]:
 
 
 def _usd_colors(path: str, names: list[str]) -> dict[str, BaseColor]:
-    from pxr import Ar, Usd, UsdShade
-    stage = Usd.Stage.Open(os.fspath(path))
+    from pxr import Ar, UsdShade
+
+    from .usd_layers import open_stage
+    stage = open_stage(path)  # (every file it reads checked: no FIFO among its layers)
+    if stage is None:
+        return {}
     out: dict[str, BaseColor] = {}
     for name in names:
         prim = stage.GetPrimAtPath(name)
