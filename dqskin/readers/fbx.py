@@ -58,6 +58,7 @@ import numpy.typing as npt
 from ..animation import Deformer, check_times, segment_rates
 from ..errors import InputError, LimitError, UnknownNameError
 from ..limits import MAX_INPUT_GIB, check_bytes
+from ..topology import fan_corners
 from . import LOADER_SUFFIXES
 
 if TYPE_CHECKING:
@@ -156,9 +157,7 @@ def _polygons(arrays: dict, key: str,
     corner = np.zeros(idx.size, bool)
     starts = begin[keep]
     counts = count[keep]
-    fan = np.repeat(starts, counts - 2)
-    within = np.arange(fan.size) - np.repeat(np.cumsum(counts - 2) - (counts - 2), counts - 2)
-    tris = np.stack([idx[fan], idx[fan + within + 1], idx[fan + within + 2]], 1)
+    tris = idx[fan_corners(count, keep, begin)]
     if counts.size:
         marks = np.repeat(starts, counts) + (np.arange(int(counts.sum()))
                                              - np.repeat(np.cumsum(counts) - counts, counts))

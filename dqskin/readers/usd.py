@@ -57,6 +57,7 @@ from ..animation import Animation, Deformer, TransformTrack, segment_rates
 from ..errors import InputError, LimitError, Param
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
+from ..topology import fan_corners
 from . import LOADER_SUFFIXES
 from .usd_anim import JointTracks
 from .usd_layers import open_stage as _open_checked
@@ -825,12 +826,7 @@ class _Loader:
         if holes is not None and len(holes):
             h = np.asarray(holes, np.int64)
             keep[h[(h >= 0) & (h < counts.size)]] = False
-        ntri = np.where(keep, counts - 2, 0)
-        start = np.cumsum(counts) - counts
-        face = np.repeat(np.arange(counts.size), ntri)
-        k = np.arange(face.size) - np.repeat(np.cumsum(ntri) - ntri, ntri)
-        first = start[face]
-        tris = np.stack([indices[first], indices[first + k + 1], indices[first + k + 2]], axis=1)
+        tris = indices[fan_corners(counts, keep)]
         if mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
             tris = tris[:, ::-1]
         return (np.ascontiguousarray(tris, dtype=np.int32), counts.astype(np.int32),
