@@ -57,6 +57,7 @@ import numpy.typing as npt
 
 from ..animation import Deformer, check_times, segment_rates
 from ..errors import InputError, LimitError, UnknownNameError
+from ..files.inputs import regular_file
 from ..limits import MAX_INPUT_GIB, check_bytes
 from ..topology import fan_corners
 from . import LOADER_SUFFIXES
@@ -332,8 +333,9 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None,
     Raises
     ------
     dqskin.errors.InputError
-        The file cannot be read (damaged, truncated, not FBX, or ufbx failed on it), or its
-        data is invalid (singular transforms, NaN, bad weights): the message names the file.
+        Not a regular file, the file cannot be read (damaged, truncated, not FBX, or ufbx
+        failed on it), or its data is invalid (singular transforms, NaN, bad weights): the
+        message names the file.
     dqskin.errors.UnknownNameError
         No stack ``clip``.
     dqskin.errors.LimitError
@@ -344,7 +346,7 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None,
     from ..scene import Mesh, Scene
     from ..skeleton import Skeleton
 
-    p = Path(path)
+    p = regular_file(path)  # (ufbx, in its own process, would block on a FIFO)
     meta, arrays = _extract(p, clip, max_input_gib)
     names = _unique(meta["names"], "node")
     node_parent = meta["parents"]

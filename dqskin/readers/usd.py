@@ -55,6 +55,7 @@ from pxr import Sdf, Tf, Usd, UsdGeom, UsdSkel, Vt
 
 from ..animation import Animation, Deformer, TransformTrack, segment_rates
 from ..errors import InputError, LimitError, Param
+from ..files.inputs import regular_file
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
 from ..topology import fan_corners
@@ -506,8 +507,7 @@ class _Loader:
             raise InputError(f"{self.path}: {where}: USD error: {_tf_message(exc)}") from None
 
     def _open(self) -> Usd.Stage:
-        if not os.path.isfile(self.path):
-            raise InputError(f"{self.path}: no such file")
+        regular_file(self.path)
         ext = os.path.splitext(self.path)[1].lower()
         if ext not in SUFFIXES:
             raise InputError(f"{self.path}: not a USD file (extension {ext!r}, expected one of "
