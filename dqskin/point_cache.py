@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .errors import InputError
+from .terminal import printable
 
 if TYPE_CHECKING:
     from pxr import Usd
@@ -217,11 +218,6 @@ def _check_sample(info: PrimInfo, points: np.ndarray, time: float | None) -> Non
         info.problems.append(f"non-finite points at {where}")
 
 
-def _printable(text: str) -> str:
-    """``text`` with every non-printable character (escape sequences, newlines) escaped."""
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
-
-
 def _vec(v: np.ndarray) -> str:
     return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
 
@@ -230,7 +226,7 @@ def info_lines(info: CacheInfo) -> list[str]:
     """``dqskin info``'s lines for a point cache (names shown with ``repr``, so a name cannot
     write control characters to a terminal)."""
     t, tcps = info.times, info.time_codes_per_second
-    lines = [_printable(info.path)]
+    lines = [printable(info.path)]
     points = sum(i.points for i in info.prims)
     prims = f"{len(info.prims)} prim" + ("s" if len(info.prims) != 1 else "")
     lines.append(f"  point cache: {prims}, {points} points; up axis "

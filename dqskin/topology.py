@@ -5,7 +5,7 @@ import numpy.typing as npt
 
 from .errors import InputError
 
-__all__ = ["check_faces", "incidence"]
+__all__ = ["check_faces", "fan_corners", "incidence"]
 
 
 def check_faces(faces: npt.ArrayLike, vertex_count: int) -> np.ndarray:
@@ -34,3 +34,19 @@ def incidence(items_of: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]
     offsets = np.zeros(count + 1, dtype=np.int64)
     np.cumsum(np.bincount(flat, minlength=count), out=offsets[1:])
     return offsets.astype(np.int32), (order // items_of.shape[1]).astype(np.int32)
+
+
+def fan_corners(counts: npt.ArrayLike, keep: npt.ArrayLike,
+                starts: npt.ArrayLike | None = None) -> np.ndarray:
+    """(T, 3) int64 positions, in a face-vertex index array, of the corners of the fan triangles
+    (first corner, ``k + 1``, ``k + 2``) of the polygons where ``keep`` (bool, one per polygon)
+    is set, polygon after polygon. Polygon ``p`` has ``counts[p]`` corners from ``starts[p]``
+    (default: the polygons one after the other, ``cumsum(counts) - counts``); a kept polygon
+    needs three corners at least."""
+    counts = np.asarray(counts, np.int64)
+    ntri = np.where(keep, counts - 2, 0)
+    start = np.cumsum(counts) - counts if starts is None else np.asarray(starts, np.int64)
+    face = np.repeat(np.arange(counts.size), ntri)
+    k = np.arange(face.size) - np.repeat(np.cumsum(ntri) - ntri, ntri)
+    first = start[face]
+    return np.stack([first, first + k + 1, first + k + 2], axis=1)

@@ -133,6 +133,21 @@ def test_special_files_are_refused_by_name(tmp_path):
         sock.close()
 
 
+def test_each_loader_refuses_a_fifo_itself(tmp_path):
+    """Every format's own loader (and ``flatten``) makes the check, not only
+    :func:`dqskin.readers.load` or the CLI: called directly, none hands a FIFO to its parser
+    (ufbx would block on it) or calls it a missing file."""
+    from dqskin.readers import fbx, gltf, usd
+    for module, name in ((fbx, "pipe.fbx"), (gltf, "pipe.glb"), (usd, "pipe.usda"),
+                         (bvh, "pipe.bvh")):
+        pipe, unblock = fifo(tmp_path / name)
+        with pytest.raises(InputError, match="a FIFO, not a regular file"):
+            returns_soon(lambda: module.load(pipe), unblock)
+    from dqskin.writers.usd_clips import flatten
+    with pytest.raises(InputError, match="pipe.usda: a FIFO, not a regular file"):
+        returns_soon(lambda: flatten(tmp_path / "pipe.usda", tmp_path / "flat.usda"), unblock)
+
+
 def test_a_fifo_in_the_weights_cache_is_a_miss_and_rig_does_not_hang(leg, tmp_path, monkeypatch):
     """The cache entry of a rig replaced by a FIFO: the entry is a miss, computed again."""
     monkeypatch.setenv("DQSKIN_CACHE_DIR", str(tmp_path / "cache"))

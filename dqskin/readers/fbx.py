@@ -57,7 +57,9 @@ import numpy.typing as npt
 
 from ..animation import Deformer, check_times, segment_rates
 from ..errors import InputError, LimitError, UnknownNameError
+from ..files.inputs import regular_file
 from ..limits import MAX_INPUT_GIB, check_bytes
+from ..topology import fan_corners
 from . import LOADER_SUFFIXES
 
 if TYPE_CHECKING:
@@ -156,9 +158,7 @@ def _polygons(arrays: dict, key: str,
     corner = np.zeros(idx.size, bool)
     starts = begin[keep]
     counts = count[keep]
-    fan = np.repeat(starts, counts - 2)
-    within = np.arange(fan.size) - np.repeat(np.cumsum(counts - 2) - (counts - 2), counts - 2)
-    tris = np.stack([idx[fan], idx[fan + within + 1], idx[fan + within + 2]], 1)
+    tris = idx[fan_corners(count, keep, begin)]
     if counts.size:
         marks = np.repeat(starts, counts) + (np.arange(int(counts.sum()))
                                              - np.repeat(np.cumsum(counts) - counts, counts))
@@ -333,8 +333,9 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None,
     Raises
     ------
     dqskin.errors.InputError
-        The file cannot be read (damaged, truncated, not FBX, or ufbx failed on it), or its
-        data is invalid (singular transforms, NaN, bad weights): the message names the file.
+        Not a regular file, the file cannot be read (damaged, truncated, not FBX, or ufbx
+        failed on it), or its data is invalid (singular transforms, NaN, bad weights): the
+        message names the file.
     dqskin.errors.UnknownNameError
         No stack ``clip``.
     dqskin.errors.LimitError
@@ -345,7 +346,7 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None,
     from ..scene import Mesh, Scene
     from ..skeleton import Skeleton
 
-    p = Path(path)
+    p = regular_file(path)  # (ufbx, in its own process, would block on a FIFO)
     meta, arrays = _extract(p, clip, max_input_gib)
     names = _unique(meta["names"], "node")
     node_parent = meta["parents"]

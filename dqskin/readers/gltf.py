@@ -693,7 +693,8 @@ class _Reader:
             raise self.error(f"cannot read file ({getattr(e, 'strerror', None) or e})") from None
         try:
             text, blob = _glb_chunks(data) if data[:4] == b"glTF" else (data, None)
-            checked = _checked_document(_parse_json(text))
+            self.raw = _parse_json(text)  # the whole document (materials: readers.materials)
+            checked = _checked_document(self.raw)
         except _Invalid as e:
             raise self.error(str(e)) from None
         self.doc = self._document(checked, blob)

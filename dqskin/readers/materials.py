@@ -10,7 +10,6 @@ without a material: materials travel with the frames when they can, and never st
 A reader of another format adds its own function to :func:`base_colors`.
 """
 
-import os
 import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -83,12 +82,9 @@ def base_colors(scene: "Scene") -> dict[str, BaseColor]:
 def _gltf_colors(path: str, names: list[str]) -> dict[str, BaseColor]:
     import base64
 
-    from .gltf import _glb_chunks, _parse_json, _Reader, mesh_primitives
+    from .gltf import _Reader, mesh_primitives
     r = _Reader(path)
-    with open(path, "rb") as fh:
-        data = fh.read()
-    text = _glb_chunks(data)[0] if data[:4] == b"glTF" else data
-    raw = _parse_json(text)
+    raw = r.raw
     materials, textures = raw.get("materials") or [], raw.get("textures") or []
     images, views = raw.get("images") or [], raw.get("bufferViews") or []
 
@@ -132,8 +128,12 @@ def _gltf_colors(path: str, names: list[str]) -> dict[str, BaseColor]:
 
 
 def _usd_colors(path: str, names: list[str]) -> dict[str, BaseColor]:
-    from pxr import Ar, Usd, UsdShade
-    stage = Usd.Stage.Open(os.fspath(path))
+    from pxr import Ar, UsdShade
+
+    from .usd_layers import open_stage
+    stage = open_stage(path)  # (every file it reads checked: no FIFO among its layers)
+    if stage is None:
+        return {}
     out: dict[str, BaseColor] = {}
     for name in names:
         prim = stage.GetPrimAtPath(name)

@@ -55,8 +55,10 @@ from pxr import Sdf, Tf, Usd, UsdGeom, UsdSkel, Vt
 
 from ..animation import Animation, Deformer, TransformTrack, segment_rates
 from ..errors import InputError, LimitError, Param
+from ..files.inputs import regular_file
 from ..scene import Mesh, Scene
 from ..skeleton import Skeleton
+from ..topology import fan_corners
 from . import LOADER_SUFFIXES
 from .usd_anim import JointTracks
 from .usd_layers import open_stage as _open_checked
@@ -505,8 +507,7 @@ class _Loader:
             raise InputError(f"{self.path}: {where}: USD error: {_tf_message(exc)}") from None
 
     def _open(self) -> Usd.Stage:
-        if not os.path.isfile(self.path):
-            raise InputError(f"{self.path}: no such file")
+        regular_file(self.path)
         ext = os.path.splitext(self.path)[1].lower()
         if ext not in SUFFIXES:
             raise InputError(f"{self.path}: not a USD file (extension {ext!r}, expected one of "
@@ -825,12 +826,7 @@ class _Loader:
         if holes is not None and len(holes):
             h = np.asarray(holes, np.int64)
             keep[h[(h >= 0) & (h < counts.size)]] = False
-        ntri = np.where(keep, counts - 2, 0)
-        start = np.cumsum(counts) - counts
-        face = np.repeat(np.arange(counts.size), ntri)
-        k = np.arange(face.size) - np.repeat(np.cumsum(ntri) - ntri, ntri)
-        first = start[face]
-        tris = np.stack([indices[first], indices[first + k + 1], indices[first + k + 2]], axis=1)
+        tris = indices[fan_corners(counts, keep)]
         if mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
             tris = tris[:, ::-1]
         return (np.ascontiguousarray(tris, dtype=np.int32), counts.astype(np.int32),

@@ -36,6 +36,7 @@ import numpy.typing as npt
 
 from ..errors import InputError, Param, output_exists
 from ..files.atomic import CommitOnSuccess, atomic_group, named_error
+from ..topology import fan_corners
 
 if TYPE_CHECKING:
     import trimesh
@@ -82,11 +83,7 @@ def _triangle_corners(mesh: Mesh) -> np.ndarray | None:
     counts = np.asarray(counts, np.int64)
     fvi = np.asarray(fvi, np.int64)
     ntri = np.where(counts >= 3, counts - 2, 0)
-    start = np.cumsum(counts) - counts
-    face = np.repeat(np.arange(counts.size), ntri)
-    k = np.arange(face.size) - np.repeat(np.cumsum(ntri) - ntri, ntri)
-    first = start[face]
-    fan = np.stack([first, first + k + 1, first + k + 2], axis=1)
+    fan = fan_corners(counts, counts >= 3)
     for corners in (fan, fan[:, ::-1]):
         if corners.shape == faces.shape and np.array_equal(fvi[corners], faces):
             return corners

@@ -51,7 +51,7 @@ from pxr import Sdf, Tf, Usd, Vt
 from ..errors import InputError, OutputExistsError, Param, output_exists
 from ..files.atomic import atomic_path, check_interrupted, named_error
 from ..files.crate import BOOTSTRAP, CrateSamples, Hasher
-from ..files.inputs import open_input
+from ..files.inputs import open_input, regular_file
 from ..options import CorOptions, SkinOptions
 from ..readers.usd import _tf_message
 from ..readers.usd_layers import open_stage
@@ -819,8 +819,7 @@ def flatten(src: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool =
     out = Path(out)
     if out.suffix.lower() not in (".usd", ".usdc", ".usda"):
         raise InputError(f"{out}: cannot write extension {out.suffix!r}; use .usd/.usdc/.usda")
-    if not Path(src).is_file():
-        raise InputError(f"{src}: no such file")
+    regular_file(src)
     if out.exists() and not overwrite:  # (checked again when it is claimed)
         raise output_exists(out, "overwrite")
     folder = clips_folder(src)
