@@ -297,9 +297,8 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
         skel = feet_on_the_floor(skel, motion, points, idx, w)
     m = Mesh(name=name, points=points, faces=faces, joint_indices=idx, joint_weights=w,
              skinning_method="lbs")
-    scene = Scene(motion.path, [m], [skel], np.arange(motion.frame_count, dtype=np.float64),
-                  time_codes_per_second=motion.frame_rate, up_axis="Y")
-    return scene
+    return Scene(motion.path, [m], [skel], np.arange(motion.frame_count, dtype=np.float64),
+                 time_codes_per_second=motion.frame_rate, up_axis="Y")
 
 
 def _embedded_end_sites(source: Skeleton, embedded: Skeleton, end_sites: list) -> list:
