@@ -61,7 +61,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .errors import InputError
-from .geometry import best_rotation, winding_numbers
+from .geometry import best_rotation, end_site_points, outside_mesh
 from .protrusion_fit import protrusion_fit
 from .skeleton import Skeleton
 
@@ -105,8 +105,8 @@ def skeleton_tips(skeleton: Skeleton, end_sites: list | None = None, *,
         if p >= 0 and keep[j]:
             has_child[p] = True
     sites: dict[int, list] = {}
-    for j, off in end_sites or []:
-        sites.setdefault(int(j), []).append((bind[j] @ np.append(np.asarray(off, float), 1))[:3])
+    for (j, _), x in zip(end_sites or [], end_site_points(bind, end_sites)):
+        sites.setdefault(int(j), []).append(x)
     tips, owners = [], []
     for j in (int(k) for k in np.nonzero(keep & ~has_child)[0]):
         if sites.get(int(j)):
@@ -502,7 +502,7 @@ def _walk_in(skeleton, X, X_in, Xr, placed, line, tips, owners, group, root, s):
 
 def _outside(X, surface):
     """How many of the points ``X`` (N, 3) lie outside the mesh (winding number below ½)."""
-    return int((winding_numbers(X, surface.points, surface.faces) < 0.5).sum())
+    return int(outside_mesh(X, surface.points, surface.faces).sum())
 
 
 def _flat(v, least=0.3):
