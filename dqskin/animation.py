@@ -403,17 +403,36 @@ class KeyedAnimation(Animation):
         Parent-relative joint transforms at the keys, column-vector convention.
     name : str
         Used in messages.
+    refine : callable, optional
+        For curves that are not linear TRS between ``key_times`` (an FBX stack's, evaluated
+        exactly): ``refine(times)`` takes (F,) float64 times and returns the key times and
+        (K', J, 4, 4) poses that "trs" interpolation at ``times`` reads instead of
+        ``key_times`` / ``local`` (poses exact at ``times`` and at keys bracketing them), or None
+        where ``key_times`` / ``local`` serve. The other interpolations always interpolate
+        ``key_times`` / ``local``.
     """
 
     def __init__(self, key_times: npt.ArrayLike, local: npt.ArrayLike, *,
-                 name: str = "KeyedAnimation") -> None:
+                 name: str = "KeyedAnimation",
+                 refine: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray] | None] | None
+                 = None) -> None:
         self.name = name
         self._keys = _Keys(key_times, local, name)
+        self._refine = refine
         self.key_times = self._keys.times
+
+    def _keys_at(self, t: np.ndarray, interp: str) -> _Keys:
+        """The keys that ``interp`` interpolates at times ``t``."""
+        if interp == "trs" and self._refine is not None:
+            refined = self._refine(t)
+            if refined is not None:
+                return _Keys(refined[0], refined[1], self.name)
+        return self._keys
 
     def local_transforms(self, times: npt.ArrayLike) -> np.ndarray:
         """(F, J, 4, 4) float64 parent-relative transforms at ``times`` ("trs" interpolation)."""
-        return self._keys.local(check_times(times), "trs", derivative=False)[0]
+        t = check_times(times)
+        return self._keys_at(t, "trs").local(t, "trs", derivative=False)[0]
 
 
 def _name(animation: Animation) -> str:
@@ -423,10 +442,11 @@ def _name(animation: Animation) -> str:
 _KEYS_CACHE: "weakref.WeakKeyDictionary[Animation, _Keys]" = weakref.WeakKeyDictionary()
 
 
-def _keys_of(animation: Animation) -> _Keys:
-    """The decomposed key poses of ``animation``, computed once per animation object."""
+def _keys_of(animation: Animation, t: np.ndarray, interp: str) -> _Keys:
+    """The decomposed key poses that ``interp`` interpolates ``animation`` between at times
+    ``t``, computed once per animation object (a :class:`KeyedAnimation`'s own)."""
     if isinstance(animation, KeyedAnimation):
-        return animation._keys
+        return animation._keys_at(t, interp)
     keys = _KEYS_CACHE.get(animation)
     if keys is None:
         name = _name(animation)
@@ -444,7 +464,7 @@ def _motion(animation: Animation, times: npt.ArrayLike, interp: Interpolation,
     ``player``: ``animation.local_transforms(times)`` when the caller has it ("trs")."""
     _check_interp(interp)
     t = check_times(times)
-    local, local_dot, eta, eta_dot = _keys_of(animation).local(t, interp)
+    local, local_dot, eta, eta_dot = _keys_of(animation, t, interp).local(t, interp)
     if interp == "trs" and not getattr(animation, "linear_trs", True):
         raise InputError(f"{_name(animation)}: not linear TRS between its key_times (STEP or "
                          "CUBICSPLINE keys), so 'trs' velocities are unknown; use "
@@ -493,7 +513,7 @@ def sample(animation: Animation, times: npt.ArrayLike,
     t = check_times(times)
     if interp == "trs":
         return np.asarray(animation.local_transforms(t), dtype=np.float64)
-    return _keys_of(animation).local(t, interp, derivative=False)[0]
+    return _keys_of(animation, t, interp).local(t, interp, derivative=False)[0]
 
 
 def sample_with_derivative(animation: Animation, times: npt.ArrayLike,

@@ -53,6 +53,7 @@ import warp as wp
 from . import cache as _cache
 from ._warp import Device, resolve_device
 from .errors import InputError, Param
+from .geometry import end_site_points, segment_distances
 from .influences import check_influences, weight_order
 from .kernels import bone_heat as BH
 from .skeleton import Skeleton
@@ -108,8 +109,8 @@ def bone_segments(skeleton: Skeleton, *, end_sites: list | None = None,
     owner: list[int] = []
     guessed: list[int] = []  # leaf segments along their parent (no End Site)
     tips: dict[int, list[np.ndarray]] = {}
-    for j, off in end_sites or []:
-        tips.setdefault(int(j), []).append((bind[j] @ np.append(np.asarray(off, float), 1.0))[:3])
+    for (j, _), x in zip(end_sites or [], end_site_points(bind, end_sites)):
+        tips.setdefault(int(j), []).append(x)
     deforming = range(J) if joints is None else sorted({int(j) for j in np.ravel(joints)})
     if not len(deforming) or deforming[0] < 0 or deforming[-1] >= J:
         raise InputError(f"joints: expected indices of the {J} joints, got {list(deforming)}")
@@ -173,7 +174,6 @@ def shape_leaves(points: npt.ArrayLike, heads: npt.ArrayLike, tails: npt.ArrayLi
         ``tails`` with the leaves' replaced (unchanged where a region is empty or lies behind
         the head).
     """
-    from .geometry import segment_distances
     P = np.asarray(points, np.float64)
     h = np.asarray(heads, np.float64)
     t = np.array(tails, np.float64)

@@ -61,7 +61,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .errors import InputError
-from .geometry import best_rotation, winding_numbers
+from .geometry import best_rotation, end_site_points, outside_mesh
 from .protrusion_fit import protrusion_fit
 from .skeleton import Skeleton
 
@@ -105,8 +105,8 @@ def skeleton_tips(skeleton: Skeleton, end_sites: list | None = None, *,
         if p >= 0 and keep[j]:
             has_child[p] = True
     sites: dict[int, list] = {}
-    for j, off in end_sites or []:
-        sites.setdefault(int(j), []).append((bind[j] @ np.append(np.asarray(off, float), 1))[:3])
+    for (j, _), x in zip(end_sites or [], end_site_points(bind, end_sites)):
+        sites.setdefault(int(j), []).append(x)
     tips, owners = [], []
     for j in (int(k) for k in np.nonzero(keep & ~has_child)[0]):
         if sites.get(int(j)):
@@ -240,15 +240,8 @@ def _tip_groups(skeleton, tips, owners, height):
     pos = skeleton.bind_transforms[:, :3, 3]
     par = skeleton.parents
 
-    def path(j):
-        out = []
-        while j >= 0:
-            out.append(int(j))
-            j = par[j]
-        return out
-
     def along(a, b):
-        pa, pb = path(owners[a]), path(owners[b])
+        pa, pb = _chain(par, owners[a]), _chain(par, owners[b])
         common = next(j for j in pa if j in set(pb))
         length = 0.0
         for p, tip in ((pa, tips[a]), (pb, tips[b])):
@@ -453,11 +446,7 @@ def _walk_in(skeleton, X, X_in, Xr, placed, line, tips, owners, group, root, s):
     par = skeleton.parents
 
     def path(j):
-        out = []
-        while j >= 0 and j != root:
-            out.append(int(j))
-            j = par[j]
-        return out[::-1]
+        return _chain(par, j, root)[::-1]
 
     def reach(t):
         p = path(owners[t])
@@ -502,7 +491,7 @@ def _walk_in(skeleton, X, X_in, Xr, placed, line, tips, owners, group, root, s):
 
 def _outside(X, surface):
     """How many of the points ``X`` (N, 3) lie outside the mesh (winding number below ½)."""
-    return int((winding_numbers(X, surface.points, surface.faces) < 0.5).sum())
+    return int(outside_mesh(X, surface.points, surface.faces).sum())
 
 
 def _flat(v, least=0.3):
@@ -569,14 +558,8 @@ def _limb_joints(skeleton, leaf_joints, root, children, all_=False):
     """The joints on the paths from ``root`` (excluded) to ``leaf_joints``, parents first; unless
     ``all_``, only those below the last joint that also leads elsewhere (the limb's branch
     point: its first joint is the limb's base)."""
-    par = skeleton.parents
-    paths = []
-    for leaf in sorted(set(int(j) for j in leaf_joints)):
-        p, j = [], leaf
-        while j >= 0 and j != root:
-            p.append(j)
-            j = par[j]
-        paths.append(p[::-1])
+    paths = [_chain(skeleton.parents, leaf, root)[::-1]
+             for leaf in sorted(set(int(j) for j in leaf_joints))]
     chain: set[int] = set()
     for p in paths:
         start = 0
@@ -586,6 +569,17 @@ def _limb_joints(skeleton, leaf_joints, root, children, all_=False):
                     start = i + 1
         chain.update(p[start:])
     return sorted(chain)
+
+
+def _chain(parents, j, stop=-1):
+    """Joint ``j`` and its ancestors up to (not including) ``stop`` (-1: to the root), ``j``
+    first."""
+    out = []
+    j = int(j)
+    while j >= 0 and j != stop:
+        out.append(j)
+        j = int(parents[j])
+    return out
 
 
 def _legs(groups, tips, ext, P):

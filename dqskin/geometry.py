@@ -1,12 +1,21 @@
 """Small float64 NumPy geometry of meshes and bone segments, shared by rigging checks, skeleton
-embedding and retargeting: distances to segments, generalized winding numbers, rotations that
-align directions.
+embedding, automatic weights and retargeting: End Site positions, distances to segments,
+generalized winding numbers, rotations that align directions.
 """
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["align_rotation", "best_rotation", "segment_distances", "winding_numbers"]
+__all__ = ["align_rotation", "best_rotation", "end_site_points", "outside_mesh",
+           "segment_distances", "winding_numbers"]
+
+
+def end_site_points(bind_transforms: npt.ArrayLike, end_sites: list | None) -> np.ndarray:
+    """(N, 3) float64 positions of BVH End Sites ``(joint, (3,) offset)`` (joint-local), in the
+    space of the (J, 4, 4) ``bind_transforms``, in ``end_sites`` order."""
+    bind = np.asarray(bind_transforms, np.float64)
+    return np.asarray([(bind[j] @ np.append(np.asarray(off, np.float64), 1.0))[:3]
+                       for j, off in end_sites or []], np.float64).reshape(-1, 3)
 
 
 def segment_distances(points: npt.ArrayLike, heads: npt.ArrayLike, tails: npt.ArrayLike,
@@ -43,6 +52,13 @@ def winding_numbers(queries: npt.ArrayLike, points: npt.ArrayLike, faces: npt.Ar
                + np.einsum("qtk,qtk->qt", b, c) * la + np.einsum("qtk,qtk->qt", c, a) * lb)
         out[s:s + chunk] = 2.0 * np.arctan2(det, den).sum(1) / (4.0 * np.pi)
     return out
+
+
+def outside_mesh(queries: npt.ArrayLike, points: npt.ArrayLike, faces: npt.ArrayLike
+                 ) -> np.ndarray:
+    """(Q,) bool: which ``queries`` (Q, 3) lie outside the triangle mesh (generalized winding
+    number below ½, :func:`winding_numbers`)."""
+    return winding_numbers(queries, points, faces) < 0.5
 
 
 def align_rotation(a: npt.ArrayLike, b: npt.ArrayLike) -> np.ndarray:

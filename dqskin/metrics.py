@@ -131,7 +131,7 @@ def volume_ratio(points: npt.ArrayLike, rest_points: npt.ArrayLike, faces: npt.A
     if problem:
         return None, problem
     rest_volume = float(volume(rest[0], f, device=device))  # one frame: a float
-    scale = np.ptp(rest[0], axis=0).max() if rest.shape[1] else 0.0
+    scale = character_height(rest[0])
     if not abs(rest_volume) > 1e-9 * scale ** 3:
         return None, f"rest volume is zero ({rest_volume:g})"
     frames_of("points", points, count=rest.shape[1], finite=True)

@@ -8,6 +8,8 @@ a third of the deforming joints outside the mesh, and kept when fewer are outsid
 
 import numpy as np
 
+from .metrics import mesh_edges
+
 __all__ = ["protrusion_fit"]
 
 _STEP = 0.01  # section planes every this share of the mesh's height
@@ -64,9 +66,7 @@ def protrusion_fit(P: np.ndarray, faces: np.ndarray, X: np.ndarray, tips: np.nda
         side = tips[groups[pair[0]]].mean(0) - tips[groups[pair[1]]].mean(0)
         side[1] = 0.0
     side /= np.linalg.norm(side)
-    F = np.asarray(faces, np.int64).reshape(-1, 3)
-    edges = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), 1),
-                      axis=0)
+    edges = mesh_edges(np.asarray(faces, np.int64).reshape(-1, 3))
     bases = [_base(P, edges, side, height), _base(P, edges, -side, height)]
     if bases[0] is None or bases[1] is None:
         return None

@@ -23,6 +23,7 @@ import numpy.typing as npt
 
 from .animation import KeyedAnimation
 from .errors import InputError, Param
+from .geometry import end_site_points
 from .readers.bvh import BvhMotion
 from .skeleton import Skeleton
 
@@ -121,7 +122,7 @@ def _capture_floor(motion: BvhMotion, up: int = 1) -> tuple[np.ndarray, float, f
     source = motion.skeleton()
     low = world_transforms(source.parents, motion.local_transforms())[:, :, up, 3].min(1)
     rest = source.bind_transforms
-    ends = [(rest[j] @ np.append(np.asarray(o, np.float64), 1.0))[up] for j, o in motion.end_sites]
+    ends = end_site_points(rest, motion.end_sites)[:, up]
     height = float(np.ptp(np.concatenate([rest[:, up, 3], ends])))
     return low, float(np.percentile(low, _FLOOR_PERCENTILE)), height
 

@@ -141,7 +141,7 @@ def fit_problems(points: npt.ArrayLike, faces: npt.ArrayLike, skeleton: Skeleton
         Each line names the problem and its figure in % of the mesh's height.
     """
     from .autoweights import bone_segments
-    from .geometry import segment_distances, winding_numbers
+    from .geometry import outside_mesh, segment_distances
     P = np.asarray(points, np.float64)
     F = np.asarray(faces, np.int64).reshape(-1, 3)
     height = float(np.ptp(P[:, up])) if len(P) else 0.0
@@ -158,7 +158,7 @@ def fit_problems(points: npt.ArrayLike, faces: npt.ArrayLike, skeleton: Skeleton
     long = np.linalg.norm(tails - heads, axis=1) > 1e-6 * height
     if F.size and long.any():
         mid = 0.5 * (heads[long] + tails[long])
-        outside = winding_numbers(mid, P, F) < 0.5
+        outside = outside_mesh(mid, P, F)
         if outside.mean() > _OUTSIDE_SHARE:
             names = sorted({skeleton.joint_names[j] for j in owner[long][outside]})
             out.append(f"{outside.sum()} of {outside.size} bones lie outside the mesh "
@@ -278,11 +278,11 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
         end_sites = _embedded_end_sites(skel, embedded, end_sites)
         skel = retarget(motion, embedded)
     else:
+        from .geometry import end_site_points
         bind = skel.bind_transforms
-        ends = [(bind[j] @ np.append(np.asarray(o, np.float64), 1.0))[:3] for j, o in end_sites]
-        check_fit(points.astype(np.float64), np.concatenate([bind[:, :3, 3]] + [
-            np.reshape(ends, (-1, 3))]), f"{where} on {motion.path}",
-            scale=1.0 if scale is None else float(scale))
+        check_fit(points.astype(np.float64),
+                  np.concatenate([bind[:, :3, 3], end_site_points(bind, end_sites)]),
+                  f"{where} on {motion.path}", scale=1.0 if scale is None else float(scale))
     for line in fit_problems(points, faces, skel, end_sites=end_sites):
         warnings.warn(FitWarning(f"{where} on {motion.path}: {line}"), stacklevel=2)
     if weights is None or str(weights) == "auto":
@@ -297,9 +297,8 @@ def rig_mesh(mesh: str | os.PathLike | tuple[npt.ArrayLike, npt.ArrayLike],
         skel = feet_on_the_floor(skel, motion, points, idx, w)
     m = Mesh(name=name, points=points, faces=faces, joint_indices=idx, joint_weights=w,
              skinning_method="lbs")
-    scene = Scene(motion.path, [m], [skel], np.arange(motion.frame_count, dtype=np.float64),
-                  time_codes_per_second=motion.frame_rate, up_axis="Y")
-    return scene
+    return Scene(motion.path, [m], [skel], np.arange(motion.frame_count, dtype=np.float64),
+                 time_codes_per_second=motion.frame_rate, up_axis="Y")
 
 
 def _embedded_end_sites(source: Skeleton, embedded: Skeleton, end_sites: list) -> list:

@@ -20,12 +20,20 @@ from dqskin.cli import main
 from dqskin.embedding import embed_skeleton, embedding_errors
 from dqskin.readers import bvh
 from dqskin.readers.mesh import load_mesh
-from dqskin.retarget import world_transforms
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 from bench_embedding import MAKEHUMAN_MARKERS, character, displaced, reposed  # noqa: E402
 
 FRAMES = 40
+
+
+def world_transforms(parents, local):
+    """(F, J, 4, 4) world transforms of (F, J, 4, 4) local ones, float64: ``Wⱼ = Wₚ·Lⱼ``."""
+    world = np.array(local, np.float64)
+    for j, p in enumerate(parents):
+        if p >= 0:
+            world[:, j] = world[:, p] @ world[:, j]
+    return world
 
 
 def _short_capture(src, folder, frames=FRAMES, step=6):

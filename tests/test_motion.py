@@ -600,3 +600,39 @@ def test_velocities_beyond_float32_per_second_name_file_and_mesh(meshes):
     assert np.isfinite(scene.skin(np.array([0.5])).points["m0"]).all()
     with pytest.raises(ValueError, match=r"^rig\.usda: m0.*: velocities: .*overflows float32"):
         scene.skin(np.array([0.5]), velocities=True)
+
+
+def test_keyed_refine_gives_exact_trs_poses_between_keys():
+    """``KeyedAnimation(refine=...)``: "trs" reads the poses ``refine`` returns for the asked
+    times (here a closed-form turn about z by 90°·t², not linear between the keys 0 and 1), so
+    the player and its velocity are exact at those times; "sclerp" still interpolates the keys;
+    None from ``refine`` falls back to the keys."""
+    def pose(t):
+        m = np.tile(np.eye(4), (len(t), 1, 1, 1))
+        m[:, 0, :3, :3] = Rotation.from_euler("z", 90.0 * np.asarray(t)[:, None] ** 2,
+                                              degrees=True).as_matrix()
+        return m
+
+    def refine(t):
+        if np.all(np.isin(t, [0.0, 1.0])):
+            return None
+        kt = np.unique(np.concatenate([[0.0, 1.0], t - 1e-6, t, t + 1e-6]))
+        return kt, pose(kt)
+
+    keys = np.array([0.0, 1.0])
+    anim = animation.KeyedAnimation(keys, pose(keys), refine=refine)
+    t = np.array([0.25, 0.5, 0.75])
+    np.testing.assert_allclose(anim.local_transforms(t), pose(t), atol=1e-12)
+    np.testing.assert_allclose(animation.sample(anim, t, "trs"), pose(t), atol=1e-12)
+    _, dot = animation.sample_with_derivative(anim, t, "trs")
+    # d/dt of the z turn by θ(t) = (π/2)·t²: θ' = π·t
+    theta, rate = np.pi / 2 * t ** 2, np.pi * t
+    want = np.zeros((len(t), 3, 3))
+    want[:, 0, 0] = want[:, 1, 1] = -np.sin(theta) * rate
+    want[:, 0, 1], want[:, 1, 0] = -np.cos(theta) * rate, np.cos(theta) * rate
+    np.testing.assert_allclose(dot[:, 0, :3, :3], want, atol=1e-4)
+    plain = animation.KeyedAnimation(keys, pose(keys))
+    np.testing.assert_allclose(animation.sample(anim, t, "sclerp"),
+                               animation.sample(plain, t, "sclerp"), atol=0)
+    np.testing.assert_allclose(anim.local_transforms(keys), pose(keys), atol=1e-12)
+    assert not np.allclose(plain.local_transforms(t), pose(t), atol=1e-3)

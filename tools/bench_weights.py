@@ -124,6 +124,7 @@ def nearest_bone(scene):
 
 def accuracy():
     from dqskin import readers
+    from dqskin.metrics import character_height
     from dqskin.rigging import replace_weights, skinned_difference
     for name, path, up, clip in ACCURACY:
         scene = readers.load(SHARED / path, clip=clip)
@@ -136,7 +137,7 @@ def accuracy():
                 m = scene.mesh(mesh)
                 g = m.geom_bind_transform
                 rest = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
-                k = np.ptp(rest, axis=0).max() / np.ptp(rest[:, up])  # largest → vertical
+                k = character_height(rest) / np.ptp(rest[:, up])  # largest → vertical
                 extra = f" (weights {dt:.2f} s)" if label == "automatic" else ""
                 blender = ("; Blender's best " + "% / ".join(map(str, BLENDER[name])) + "%"
                            if name in BLENDER else "")

@@ -50,7 +50,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -226,27 +226,19 @@ class _Evaluator:
         return key_times[order], np.concatenate([values(near), between(off)])[order]
 
 
-class _ExactKeys:
-    """The keys of one skeleton of an FBX scene: its "trs" poses (the file's curves) are ufbx's
-    at every time asked for, between keys at the stack's whole frames and at the times between
-    frames asked for (velocities: the keyed interpolation's); the other interpolations
-    interpolate the whole frames."""
-
-    def __init__(self, frames: Any, evaluator: _Evaluator, slots: list[int],
-                 parents: list[int], label: str) -> None:
-        self.frames, self.evaluator, self.slots = frames, evaluator, slots
-        self.parents, self.label = parents, label
-        self.times, self.joint_count = frames.times, frames.joint_count
-
-    def local(self, t: np.ndarray, interp: str, derivative: bool = True) -> tuple:
-        from ..animation import _Keys
-        ev = self.evaluator
-        if interp != "trs" or not np.any(ev.split(t)[0] < 0):
-            return self.frames.local(t, interp, derivative)
-        times, local = ev.keys(
-            t, lambda near: _locals(ev.world[near][:, self.slots], self.parents, self.label),
-            lambda off: _locals(ev.between(off)[0][:, self.slots], self.parents, self.label))
-        return _Keys(times, local, self.label).local(t, interp, derivative)
+def _exact_poses(evaluator: _Evaluator, slots: list[int], parents: list[int], label: str
+                 ) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray] | None]:
+    """``KeyedAnimation``'s ``refine`` for one skeleton of an FBX scene: its "trs" poses (the
+    file's curves) are ufbx's at every time asked for, between keys at the stack's whole frames
+    and at the times between frames asked for (velocities: the keyed interpolation's); None
+    (the whole frames serve) when every time is on a frame."""
+    def refine(t: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        if not np.any(evaluator.split(t)[0] < 0):
+            return None
+        return evaluator.keys(
+            t, lambda near: _locals(evaluator.world[near][:, slots], parents, label),
+            lambda off: _locals(evaluator.between(off)[0][:, slots], parents, label))
+    return refine
 
 
 class _Shapes(Deformer):
@@ -422,9 +414,8 @@ def load(path: str | os.PathLike, *, clip: str | int | None = None,
             slots = [slot[n] for n in order]
             anim = KeyedAnimation(evaluator.seconds,
                                   _locals(evaluator.world[:, slots], parents, label),
-                                  name=meta["clip"] or "")
-            anim._keys = _ExactKeys(anim._keys, evaluator, slots,  # type: ignore[assignment]
-                                    parents, label)
+                                  name=meta["clip"] or "",
+                                  refine=_exact_poses(evaluator, slots, parents, label))
         skel = Skeleton([names[n] for n in order], np.asarray(parents, np.int32), bind, rest,
                         name=label.split(": ", 1)[1], animation=anim)
         for k in members:

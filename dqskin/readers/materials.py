@@ -104,7 +104,7 @@ def _gltf_colors(path: str, names: list[str]) -> dict[str, BaseColor]:
         return r._read_external(f"images[{index}].uri", uri)
 
     out: dict[str, BaseColor] = {}
-    cache: dict[int, BaseColor | None] = {}
+    cache: dict[int, BaseColor] = {}
     for name, mesh_index, k in mesh_primitives(r):
         if name not in names:
             continue
@@ -121,9 +121,7 @@ def _gltf_colors(path: str, names: list[str]) -> dict[str, BaseColor]:
             cache[index] = BaseColor(_identifier(mat.get("name"), f"material{index}"),
                                      (f[0], f[1], f[2], f[3]) if len(f) == 4 else
                                      (1.0, 1.0, 1.0, 1.0), picture)
-        found = cache[index]
-        if found is not None:
-            out[name] = found
+        out[name] = cache[index]
     return out
 
 

@@ -362,6 +362,7 @@ class FrameWriter(CommitOnSuccess):
                 while name in self._materials.values():
                     name, k = f"{c.name}_{k}", k + 1
                 self._materials[c] = name
+        self._pbr_cache: dict[BaseColor, object] = {}  # material → trimesh's PBRMaterial
         self._shared_written = False
 
     def material_path(self) -> Path | None:
@@ -465,8 +466,7 @@ class FrameWriter(CommitOnSuccess):
         """trimesh's PBRMaterial of ``c`` (its texture decoded once)."""
         if c is None:
             return kind()
-        cached = getattr(self, "_pbr_cache", {})
-        self._pbr_cache = cached
+        cached = self._pbr_cache
         if c not in cached:
             image = None
             if c.image is not None:

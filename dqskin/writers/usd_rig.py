@@ -170,7 +170,7 @@ def write_rig(scene: Scene, out: str | os.PathLike, *, force: bool = False,
     source = _source_stage(scene)
     if source is not None:
         check_not_input(out, source, scene.path)
-    stage, _ = rig_stage(scene, sel.times, sel.frames, sel.rate)
+    stage, _ = _rig_stage(scene, sel.times, sel.frames, sel.rate, source)
     stage.GetRootLayer().documentation = f"dqskin rig of {scene.path}"
     claim = atomic_path(out, overwrite=force)
     try:
@@ -204,6 +204,12 @@ def rig_stage(scene: Scene, times: np.ndarray, codes: np.ndarray,
     (Usd.Stage, dict)
         The stage, and each mesh's prim path by ``Mesh.name``.
     """
+    return _rig_stage(scene, times, codes, rate, _source_stage(scene))
+
+
+def _rig_stage(scene: Scene, times: np.ndarray, codes: np.ndarray, rate: float,
+               source: Usd.Stage | None) -> tuple[Usd.Stage, dict[str, str]]:
+    """:func:`rig_stage` with the stage ``scene`` was read from (:func:`_source_stage`)."""
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
 
     from ..readers import format_of
@@ -221,7 +227,6 @@ def rig_stage(scene: Scene, times: np.ndarray, codes: np.ndarray,
     stage.SetDefaultPrim(root.GetPrim())
     taken = {"Skeleton"}
     skel_paths, groups = [], []  # per skeleton: its path, the prim holding it and its meshes
-    source = _source_stage(scene)
     for s, skel in enumerate(scene.skeletons):
         suffix = f"_{s}" if s else ""
         group = Sdf.Path("/Root")
