@@ -8,7 +8,8 @@ mesh is posed at random -- every joint's rest rotation turned by a random rotati
 ``--angle`` radians, the root moved by up to 10% of the height -- and skinned by dqskin itself
 (:meth:`dqskin.Skeleton.skinning_transforms` and :func:`dqskin.skin_points`, not the
 differentiable path) into the target points. Starting from the rest pose, Adam fits a rotation
-vector per joint (turning its rest rotation) and the root translation to the target: a squared
+vector per joint (turning its rest rotation about world axes, so that a joint's turn does not
+swing the orientations of its children) and the root translation to the target: a squared
 distance per point, weighted by the inverse of the number of points that the point's main joint
 carries (so the few points of an arm count as much as the many of the head), the learning rate
 decayed to 0 on a cosine. The joints of the unweighted chain from the root keep their rest
@@ -64,11 +65,24 @@ def _qmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
                         aw * bz + ax * by - ay * bx + az * bw], -1)
 
 
-def _turned(rest: torch.Tensor, vectors: torch.Tensor) -> torch.Tensor:
-    """(J, 4) rest quaternions turned by (J, 3) rotation vectors (in the joints' frames)."""
+def _rest_world(rig: autograd.Rig) -> torch.Tensor:
+    """(J, 4) world rotations of the rest pose (parents first)."""
+    world: list[torch.Tensor] = []
+    for j, p in enumerate(rig.parents.tolist()):
+        world.append(rig.rotations[j] if p < 0 else _qmul(world[p], rig.rotations[j]))
+    return torch.stack(world)
+
+
+def _turned(rig: autograd.Rig, rest_world: torch.Tensor, vectors: torch.Tensor) -> torch.Tensor:
+    """(J, 4) local quaternions of the rest pose with each joint's world rotation turned by its
+    (J, 3) rotation vector (world axes): a joint's turn leaves its children's orientations."""
     angle = vectors.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     turn = torch.cat([torch.cos(angle / 2), vectors / angle * torch.sin(angle / 2)], -1)
-    return _qmul(rest, turn)
+    world = _qmul(turn, rest_world)
+    parents = rig.parents.long()
+    parent = torch.where((parents >= 0)[:, None], world[parents.clamp_min(0)],
+                         torch.tensor([1.0, 0.0, 0.0, 0.0]))
+    return _qmul(parent * torch.tensor([1.0, -1.0, -1.0, -1.0]), world)
 
 
 def fitted_joints(rig: autograd.Rig) -> np.ndarray:
@@ -93,19 +107,20 @@ def point_weights(rig: autograd.Rig) -> torch.Tensor:
 
 def fit_pose(rig: autograd.Rig, target: torch.Tensor, method: str, steps: int,
              lr: float = 0.1) -> tuple[torch.Tensor, torch.Tensor, list[tuple[float, float]]]:
-    """Adam on rotation vectors turning the fitted joints' rest rotations and on the (3,) root
-    translation, from the rest pose; returns the (J, 4) quaternions, the root translation and
+    """Adam on rotation vectors turning the fitted joints' rest world rotations and on the (3,)
+    root translation, from the rest pose; returns the (J, 4) quaternions, the root translation and
     the largest and mean point distances before each step."""
     joints = torch.as_tensor(fitted_joints(rig))
     vectors = torch.zeros(len(joints), 3, requires_grad=True)
     root = torch.zeros(3, requires_grad=True)
     weights = point_weights(rig)
+    rest_world = _rest_world(rig)
     opt = torch.optim.Adam([vectors, root], lr=lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
 
     def rotations() -> torch.Tensor:
         full = torch.zeros(rig.rotations.shape[0], 3).index_copy(0, joints, vectors)
-        return _turned(rig.rotations, full)
+        return _turned(rig, rest_world, full)
 
     history = []
     for _ in range(steps):
