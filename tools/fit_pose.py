@@ -1,7 +1,7 @@
 """Recover a pose from target points with ``dqskin.autograd``: gradient descent through skinning
 and forward kinematics.
 
-    python tools/fit_pose.py [ASSET] [--method dqs] [--steps 300] [--angle 0.5] [--seed 0]
+    python tools/fit_pose.py [ASSET] [--method dqs] [--steps 800] [--angle 0.5] [--seed 0]
 
 ASSET (default: CesiumMan from ../shared/assets) is loaded with :func:`dqskin.load`; its first
 mesh is posed at random -- every joint's rest rotation turned by a random rotation of up to
@@ -106,7 +106,7 @@ def point_weights(rig: autograd.Rig) -> torch.Tensor:
 
 
 def fit_pose(rig: autograd.Rig, target: torch.Tensor, method: str, steps: int,
-             lr: float = 0.1) -> tuple[torch.Tensor, torch.Tensor, list[tuple[float, float]]]:
+             lr: float = 0.2) -> tuple[torch.Tensor, torch.Tensor, list[tuple[float, float]]]:
     """Adam on rotation vectors turning the fitted joints' rest world rotations and on the (3,)
     root translation, from the rest pose; returns the (J, 4) quaternions, the root translation and
     the largest and mean point distances before each step."""
@@ -142,7 +142,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("asset", nargs="?", default=str(CESIUM))
     ap.add_argument("--method", default="dqs", choices=["lbs", "dqs"])
-    ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--steps", type=int, default=800)
     ap.add_argument("--angle", type=float, default=0.5)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
