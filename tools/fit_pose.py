@@ -1,7 +1,7 @@
 """Recover a pose from target points with ``dqskin.autograd``: gradient descent through skinning
 and forward kinematics.
 
-    python tools/fit_pose.py [ASSET] [--method dqs] [--steps 800] [--angle 0.5] [--seed 0]
+    python tools/fit_pose.py [ASSET] [--method dqs] [--steps 600] [--angle 0.5] [--seed 0]
 
 ASSET (default: CesiumMan from ../shared/assets) is loaded with :func:`dqskin.load`; its first
 mesh is posed at random -- every joint's rest rotation turned by a random rotation of up to
@@ -12,10 +12,10 @@ vector per joint (turning its rest rotation about world axes, so that a joint's 
 swing the orientations of its children) and the root translation to the target: a squared
 distance per point, weighted by the inverse of the number of points that the point's main joint
 carries (so the few points of an arm count as much as the many of the head), the learning rate
-decayed to 0 on a cosine. The joints of the unweighted chain from the root keep their rest
-rotations: the first weighted joint's rotation and the root translation place the body. Prints
-the largest and the mean distance between fitted and target points over the steps, relative to
-the mesh's height.
+decayed to 0 on a cosine (Adam's second-moment decay 0.99). The joints of the unweighted chain
+from the root keep their rest rotations: the first weighted joint's rotation and the root
+translation place the body. Prints the largest and the mean distance between fitted and target
+points over the steps, relative to the mesh's height.
 """
 
 import argparse
@@ -115,7 +115,7 @@ def fit_pose(rig: autograd.Rig, target: torch.Tensor, method: str, steps: int,
     root = torch.zeros(3, requires_grad=True)
     weights = point_weights(rig)
     rest_world = _rest_world(rig)
-    opt = torch.optim.Adam([vectors, root], lr=lr)
+    opt = torch.optim.Adam([vectors, root], lr=lr, betas=(0.9, 0.99))
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
 
     def rotations() -> torch.Tensor:
@@ -142,7 +142,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("asset", nargs="?", default=str(CESIUM))
     ap.add_argument("--method", default="dqs", choices=["lbs", "dqs"])
-    ap.add_argument("--steps", type=int, default=800)
+    ap.add_argument("--steps", type=int, default=600)
     ap.add_argument("--angle", type=float, default=0.5)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
