@@ -56,33 +56,39 @@ def target_points(scene: dqskin.Scene, rig: autograd.Rig, rotations: np.ndarray,
                               method)
 
 
-def _qmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack([aw * bw - ax * bx - ay * by - az * bz,
-                        aw * bx + ax * bw + ay * bz - az * by,
-                        aw * by - ax * bz + ay * bw + az * bx,
-                        aw * bz + ax * by - ay * bx + az * bw], -1)
-
-
 def _rest_world(rig: autograd.Rig) -> torch.Tensor:
-    """(J, 4) world rotations of the rest pose (parents first)."""
+    """(J, 3, 3) world rotations of the rest pose (parents first)."""
+    local = autograd.local_transforms(rig.rotations, torch.zeros_like(rig.translations))
     world: list[torch.Tensor] = []
     for j, p in enumerate(rig.parents.tolist()):
-        world.append(rig.rotations[j] if p < 0 else _qmul(world[p], rig.rotations[j]))
+        r = local[j, :3, :3]
+        world.append(r if p < 0 else world[p] @ r)
     return torch.stack(world)
 
 
-def _turned(rig: autograd.Rig, rest_world: torch.Tensor, vectors: torch.Tensor) -> torch.Tensor:
-    """(J, 4) local quaternions of the rest pose with each joint's world rotation turned by its
+def _local_rotations(rig: autograd.Rig, rest_world: torch.Tensor,
+                     vectors: torch.Tensor) -> torch.Tensor:
+    """(J, 3, 3) local rotations of the rest pose with each joint's world rotation turned by its
     (J, 3) rotation vector (world axes): a joint's turn leaves its children's orientations."""
-    angle = vectors.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    turn = torch.cat([torch.cos(angle / 2), vectors / angle * torch.sin(angle / 2)], -1)
-    world = _qmul(turn, rest_world)
+    turn = autograd.local_transforms(vectors, torch.zeros_like(vectors))[:, :3, :3]
+    world = turn @ rest_world
     parents = rig.parents.long()
-    parent = torch.where((parents >= 0)[:, None], world[parents.clamp_min(0)],
-                         torch.tensor([1.0, 0.0, 0.0, 0.0]))
-    return _qmul(parent * torch.tensor([1.0, -1.0, -1.0, -1.0]), world)
+    parent = torch.where((parents >= 0)[:, None, None], world[parents.clamp_min(0)],
+                         torch.eye(3))
+    return parent.transpose(1, 2) @ world
+
+
+def _points(rig: autograd.Rig, rotations: torch.Tensor, root: torch.Tensor,
+            method: str) -> torch.Tensor:
+    """(V, 3) points of the rig with (J, 3, 3) local rotations and the root translation."""
+    rest = autograd.local_transforms(rig.rotations, rig.translations, scales=rig.scales,
+                                     root_translation=root, parents=rig.parents)
+    top = torch.cat([rotations * rig.scales[:, None, :], rest[:, :3, 3:]], dim=2)
+    local = torch.cat([top, rest[:, 3:]], dim=1)
+    xf = autograd.fk(local, rig.parents, inverse_bind=rig.inverse_bind)
+    out = autograd.skin(rig.points, rig.indices, rig.weights, xf, method)  # type: ignore[arg-type]
+    assert isinstance(out, torch.Tensor)
+    return out
 
 
 def fitted_joints(rig: autograd.Rig) -> np.ndarray:
@@ -120,19 +126,19 @@ def fit_pose(rig: autograd.Rig, target: torch.Tensor, method: str, steps: int,
 
     def rotations() -> torch.Tensor:
         full = torch.zeros(rig.rotations.shape[0], 3).index_copy(0, joints, vectors)
-        return _turned(rig, rest_world, full)
+        return _local_rotations(rig, rest_world, full)
 
     history = []
     for _ in range(steps):
         opt.zero_grad()
-        d = rig.pose(rotations(), root, method=method) - target
+        d = _points(rig, rotations(), root, method) - target
         (weights * (d * d).sum(dim=1)).mean().backward()
         opt.step()
         sched.step()
         dist = d.detach().norm(dim=1)
         history.append((float(dist.max()), float(dist.mean())))
     with torch.no_grad():
-        q = rotations()
+        q = torch.tensor(quat.from_matrix(rotations().double().numpy()), dtype=torch.float32)
         dist = (rig.pose(q, root, method=method) - target).norm(dim=1)
     history.append((float(dist.max()), float(dist.mean())))
     return q, root.detach(), history
