@@ -396,8 +396,9 @@ def test_bad_input(call, match):
 
 
 def test_fit_pose_example():
-    """Adam through skin_pose recovers most of a random CesiumMan pose whose target dqskin's
-    own forward path skinned (the full script's figures are on the autograd guide)."""
+    """Adam through skin_pose recovers a random CesiumMan pose, whose target dqskin's own forward
+    path skinned: every point within 1e-4 of the height after 600 steps (the issue's target;
+    the script's figures for more seeds are on the autograd guide)."""
     sys.path.insert(0, str(ROOT / "tools"))
     import fit_pose
 
@@ -405,11 +406,17 @@ def test_fit_pose_example():
     scene = dqskin.load(CESIUM)
     rig = ag.Rig.from_scene(scene)
     height = float(np.ptp(rig.points.numpy(), axis=0).max())
+    assert fit_pose.fitted_joints(rig).tolist() == list(range(2, 21))  # 0, 1: unweighted chain
     rotations, root = fit_pose.random_pose(rig, 0.5, 0)
     for method in ("lbs", "dqs"):
         target = torch.as_tensor(fit_pose.target_points(scene, rig, rotations, root, method))
-        _, _, history = fit_pose.fit_pose(rig, target, method, 100)
-        assert history[0] > 0.2 * height and history[-1] < 0.04 * height, history[::10]
+        q, r, history = fit_pose.fit_pose(rig, target, method, 600)
+        (start, _), (big, mean) = history[0], history[-1]
+        assert start > 0.2 * height and big < 1e-4 * height and mean < 1e-5 * height, \
+            (method, start / height, big / height, mean / height)
+        # the returned pose is the one measured last
+        d = (rig.pose(q, r, method=method) - target).norm(dim=1)
+        assert abs(float(d.mean()) - mean) < 1e-6 * height
 
 
 def test_fit_weights_example():
