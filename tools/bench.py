@@ -357,7 +357,7 @@ def bench_sign_rules(rows, copies=183, frames=48, repeat=5):
         return fn
 
     res = best_times({"largest_weight": run("largest_weight"), "running_sum": run("running_sum"),
-                      "running_sum, one-vertex kernel (before)": run("running_sum", False)},
+                      "running_sum, one-vertex kernel": run("running_sum", False)},
                      repeat)
     for impl, sec in res.items():
         rows.append(dict(kind="sign", impl=impl, vertices=sk.vertex_count,
