@@ -54,7 +54,7 @@ import warp as wp
 
 from .._warp import Device
 from ..errors import InputError
-from . import packets
+from . import packet_normals, packets
 from .blend import affine_gather
 from .dqmath import (
     FACTOR_EPSILON,
@@ -760,8 +760,16 @@ def skin_vectors(*, method: int, vectors: wp.array, vector_vertex: wp.array,
                  device: Device) -> None:
     """Skin directions ``vectors`` (Fp, N) into ``out`` (F, N) with ``influences`` (an
     :class:`~.layout.InfluenceLayout`), normalized (see
-    :func:`skin_vectors_kernel` for which per-joint arrays normals and tangents take)."""
+    :func:`skin_vectors_kernel` for which per-joint arrays normals and tangents take). On the
+    CPU, LBS of one influence group runs eight rows a thread (:mod:`.packet_normals`)."""
     frames, rows = out.shape
+    if (method == LBS and influences.groups == 1 and linears.shape[1] > 0 and is_cpu(device)):
+        # eight rows a thread (:mod:`.packet_normals`), bit for bit the kernel below
+        launch_frames(packet_normals.skin_vectors_lbs_packet_kernel, -(-rows // 8), frames,
+                      [*frame_rows_array(vectors, rows), vector_vertex, influences,
+                       _flat(linears), linears.shape[1], frames], [out], device,
+                      row_size=packet_normals.ROWS)
+        return
     launch_frames(skin_vectors_kernel, rows, frames,
                   [*frame_rows_array(vectors, rows), vector_vertex, influences,
                    _flat(linears), _flat(rotations), _flat(residuals), has_residual,

@@ -1,0 +1,122 @@
+"""LBS of normals and tangents eight rows a thread (``dqskin.kernels.packet_normals``): bit for bit
+the one-vertex kernel (per-vertex and face-varying rows, tails of fewer than eight, one frame and
+frame blocks, zero weights), both branches (the CPU's vector one and the scalar one CUDA
+compiles, built here for the CPU) within float32 of float64 NumPy written from the equation
+``normalize((Σ wₖ·Mₖ)·n)``, ``Mₖ = Aₖ⁻ᵀ`` for normals and ``Aₖ`` for tangents."""
+
+import numpy as np
+import pytest
+import warp as wp
+from scipy.spatial.transform import Rotation
+
+from dqskin._warp import init_warp
+from dqskin.kernels import packet_normals as PN
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.func_native(PN.vector_packet_source(scalar_on_cpu=True))
+def scalar_vector_packet(vectors: wp.array(dtype=wp.vec3), vector_base: wp.int64,
+                         vector_vertex: wp.array(dtype=wp.int32),
+                         indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
+                         linears: wp.array(dtype=wp.mat33), o: int, n0: int, count: int,
+                         out: wp.array(dtype=wp.vec3), out_base: wp.int64) -> int:
+    ...
+
+
+@wp.kernel
+def both_branches(vectors: wp.array(dtype=wp.vec3), vector_vertex: wp.array(dtype=wp.int32),
+                  indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
+                  linears: wp.array(dtype=wp.mat33), joint_count: int, rows: int,
+                  out_vector: wp.array(dtype=wp.vec3), out_scalar: wp.array(dtype=wp.vec3)):
+    """Packet ``tid`` of frame 0 through both branches."""
+    n0 = wp.tid() * 8
+    PN.lbs_vector_packet(vectors, wp.int64(0), vector_vertex, indices, weights, linears, 0, n0,
+                         rows, out_vector, wp.int64(0))
+    scalar_vector_packet(vectors, wp.int64(0), vector_vertex, indices, weights, linears, 0, n0,
+                         rows, out_scalar, wp.int64(0))
+
+
+def rig(rng, V, J=7, F=3):
+    idx = rng.integers(0, J, size=(V, 4)).astype(np.int32)
+    w = rng.random((V, 4)) + 0.05
+    w[rng.random(w.shape) < 0.2] = 0.0
+    w = (w / np.maximum(w.sum(1, keepdims=True), 1e-9)).astype(np.float32)
+    M = np.tile(np.eye(4), (F, J, 1, 1))
+    M[..., :3, :3] = Rotation.random(F * J, random_state=rng).as_matrix().reshape(F, J, 3, 3)
+    M[..., :3, :3] *= rng.uniform(0.5, 1.6, size=(F, J, 1, 3))  # scale: A⁻ᵀ ≠ A
+    M[..., :3, 3] = rng.normal(size=(F, J, 3))
+    return idx, w, M
+
+
+def oracle(vectors, vertex, idx, w, M, kind):
+    """float64 ``normalize((Σ wₖ·Mₖ)·x)`` of (N, 3) directions, one frame's (J, 4, 4) ``M``."""
+    A = M[:, :3, :3]
+    mats = np.linalg.inv(A).transpose(0, 2, 1) if kind == "normal" else A
+    blend = np.einsum("nk,nkij->nij", w[vertex].astype(np.float64), mats[idx[vertex]])
+    y = np.einsum("nij,nj->ni", blend, vectors.astype(np.float64))
+    return y / np.linalg.norm(y, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("N", [1, 7, 8, 9, 203])
+def test_both_branches_match_float64(N):
+    init_warp()
+    rng = np.random.default_rng(N)
+    V = max(N // 2, 1)
+    idx, w, M = rig(rng, V)
+    w[0] = [1.0, 0.0, 0.0, 0.0]  # a row of one joint
+    vertex = rng.integers(0, V, size=N).astype(np.int32)  # face-varying: rows share vertices
+    vectors = rng.normal(size=(N, 3)).astype(np.float32)
+    mats = np.linalg.inv(M[0, :, :3, :3]).transpose(0, 2, 1).astype(np.float32)
+    outs = [wp.full(N + 8, wp.vec3(7.0, 7.0, 7.0), dtype=wp.vec3, device="cpu")
+            for _ in range(2)]
+    wp.launch(both_branches, dim=-(-N // 8), device="cpu",
+              inputs=[wp.array(vectors, dtype=wp.vec3, device="cpu"),
+                      wp.array(vertex, dtype=wp.int32, device="cpu"),
+                      wp.array(idx, dtype=wp.vec4i, device="cpu"),
+                      wp.array(w, dtype=wp.vec4, device="cpu"),
+                      wp.array(mats, dtype=wp.mat33, device="cpu"), mats.shape[0], N, *outs])
+    want = oracle(vectors, vertex, idx, w, M[0], "normal")
+    for out in outs:
+        got = out.numpy()
+        assert (got[N:] == 7.0).all(), "a lane past the last row was stored"
+        assert np.abs(got[:N] - want).max() <= 2e-6
+
+
+@pytest.mark.parametrize("kind", ["normal", "tangent"])
+@pytest.mark.parametrize("V", [9, 203, 4096 + 5])
+def test_packets_equal_one_vertex_kernel(monkeypatch, kind, V):
+    """Skinner.skin_vectors with LBS runs the packet kernel on the CPU and gives bit for bit
+    what the one-vertex kernel gives: frame blocks, one frame, face-varying rows."""
+    import dqskin
+    from dqskin.kernels import grid
+    from dqskin.kernels import skin as KS
+
+    rng = np.random.default_rng(V)
+    idx, w, M = rig(rng, V, F=20)
+    points = rng.normal(size=(V, 3)).astype(np.float32)
+    vectors = rng.normal(size=(V, 3)).astype(np.float32)
+    fv = rng.integers(0, V, size=V + 13)
+    names = []
+    real_launch, real_is_cpu = grid._launch, KS.is_cpu
+    monkeypatch.setattr(grid, "_launch", lambda kernel, *a: (names.append(kernel.key),
+                                                              real_launch(kernel, *a)))
+
+    def run(packet):
+        monkeypatch.setattr(KS, "is_cpu", real_is_cpu if packet else lambda device: False)
+        names.clear()
+        sk = dqskin.Skinner(points, idx, w, device="cpu")
+        got = (sk.skin_vectors(M, vectors, "lbs", kind=kind),
+               sk.skin_vectors(M[0], vectors, "lbs", kind=kind),
+               sk.skin_vectors(M, vectors[fv], "lbs", kind=kind, vector_vertex=fv))
+        assert ("skin_vectors_lbs_packet_kernel" in names) == packet, names
+        return got
+
+    packet, one_vertex = run(True), run(False)
+    for a, b in zip(packet, one_vertex):
+        np.testing.assert_array_equal(a, b)
+    live = w.sum(1) > 0  # an all-zero blend gives a zero vector (not the oracle's business)
+    assert (packet[0][:, ~live] == 0).all()
+    for f in (0, 19):
+        want = oracle(vectors[live], np.arange(live.sum()), idx[live], w[live], M[f], kind)
+        assert np.abs(packet[0][f, live] - want).max() <= 2e-6
