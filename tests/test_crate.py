@@ -52,10 +52,18 @@ ATTRS = [
 ]
 
 
-@pytest.fixture
-def written(tmp_path):
+@pytest.fixture(params=["add", "add_many"])
+def written(tmp_path, request):
+    """The layer of ATTRS, each attribute added alone, or (``add_many``) chunk by chunk: every
+    attribute's frames of a chunk in one call, as a bake adds them."""
     path = tmp_path / "samples.usdc"
     crate = CrateSamples(path, 30.0)
+    if request.param == "add_many":
+        for a, b in ((0, 3), (3, 4), (4, 7)):
+            crate.add_many([(attr, type_name, times[a:b], values[a:b], info)
+                            for attr, type_name, times, values, info in ATTRS])
+        assert crate.close(-2.0, 7.0) == path
+        return path
     for attr, type_name, times, values, info in ATTRS:
         if attr.endswith(".velocities"):  # in blocks, the way a bake adds them
             for a, b in ((0, 3), (3, 4), (4, 7)):
@@ -446,7 +454,7 @@ def test_held_frames_are_stored_once(tmp_path):
     reads its values, and the file holds each distinct frame once."""
     a, b = _samples(2, 1000)
     d = a.copy()
-    d[0, 1] += 1.0  # equal to ``a`` at every probed element (a sample of 64), not at one other
+    d[0, 1] += 1.0  # equal to ``a`` at every probed element (a sample of 16), not at one other
     frames = np.stack([a, a, d, b, b, b])
     m = RNG.normal(size=(2, 4, 4))
     mats = np.stack([m[0], m[0], m[0], m[1], m[1], m[1]])

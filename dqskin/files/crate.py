@@ -324,6 +324,13 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_writer)
 
 
+def _run_writes(writes: Sequence[tuple[Callable[..., object], tuple[Any, ...]]]) -> None:
+    """Run the file writes of one :meth:`CrateSamples.add_many`, in order (on the writer
+    thread)."""
+    for write, args in writes:
+        write(*args)
+
+
 def _close_after(file: AppendFile, queued: collections.deque[Future[Any]],
                  wait: bool = True) -> None:
     """Close ``file`` (an abandoned :class:`~.direct.AppendFile`: nothing staged is written)
@@ -368,19 +375,22 @@ class _Attribute:
 def _holds(rows: np.ndarray, last: np.ndarray | None) -> np.ndarray:
     """Which frames of ``rows`` (F, K) equal the frame before them (the first: ``last``, a
     (K,) array or None), as a crate file stores an array once: a few elements of every
-    frame are compared first, the whole frame only when they match (a hold, not a move)."""
+    frame (a strided view, no copy) are compared first, the whole frame only when they match
+    (a hold, not a move)."""
     F, K = rows.shape
     same = np.zeros(F, bool)
     if F == 0 or K == 0:
         return same
-    probe = np.arange(0, K, -(-K // 64))  # at most 64, evenly spaced
-    same[1:] = (rows[1:, probe] == rows[:-1, probe]).all(axis=1)
+    step = -(-K // 16)  # at most 16 evenly spaced elements
+    probe = rows[:, ::step]
+    np.equal(probe[1:], probe[:-1]).all(axis=1, out=same[1:])
     if last is not None and last.shape == (K,):
-        same[0] = bool((rows[0, probe] == last[probe]).all())
-    for f in np.flatnonzero(same):
-        before = rows[f - 1] if f else last
-        assert before is not None  # frame 0 is a hold only after a last frame
-        same[f] = np.array_equal(rows[f], before)
+        same[0] = bool(np.equal(probe[0], last[::step]).all())
+    if same.any():
+        for f in np.flatnonzero(same):
+            before = rows[f - 1] if f else last
+            assert before is not None  # frame 0 is a hold only after a last frame
+            same[f] = np.array_equal(rows[f], before)
     return same
 
 
@@ -488,8 +498,33 @@ class CrateSamples:
         info : tuple of (str, str)
             Token-valued metadata authored with the attribute (a primvar's ``interpolation``).
         """
+        self.add_many([(attr, type_name, times, values, info)])
+
+    def add_many(self, blocks: "Sequence[tuple[str, str, npt.ArrayLike, npt.ArrayLike, "
+                 "Sequence[tuple[str, str]]]]") -> None:
+        """:meth:`add` of each ``(attr, type_name, times, values, info)`` of ``blocks``, in
+        order, queued for the writer thread as one write (a chunk of frames of many attributes:
+        one hand-over to the writer instead of one per attribute). Every block is checked
+        before any is written."""
         if self._file is None:
             raise InputError(f"{self.path}: the layer is closed")
+        checked = [self._checked(*block) for block in blocks]
+        self._align()  # (every record's size is a multiple of 8: the blocks stay aligned)
+        writes: list[tuple[Callable[..., object], tuple[Any, ...]]] = []
+        size = 0
+        for key, rec, t, v, kind in checked:
+            if not t.size:
+                continue
+            self._attrs.setdefault(key, rec)
+            size += self._plan(rec, t, v, kind, self._pos + size, writes)
+        if writes:
+            self._write_later(_run_writes, writes, size=size)
+
+    def _checked(self, attr: str, type_name: str, times: npt.ArrayLike, values: npt.ArrayLike,
+                 info: Sequence[tuple[str, str]] = ()
+                 ) -> tuple[str, _Attribute, np.ndarray, np.ndarray, str]:
+        """``(key, record, times, values, kind)`` of one :meth:`add` (InputError naming
+        ``attr`` for what it refuses); the record is new, or the attribute's."""
         kind = VALUE_TYPES.get(type_name)
         if kind is None:
             raise InputError(f"{attr}: cannot write type {type_name!r} as crate samples; one of "
@@ -525,42 +560,44 @@ class CrateSamples:
             rec = _Attribute(type_name, tuple(info))
         elif rec.type_name != type_name:
             raise InputError(f"{attr}: added as {rec.type_name} before, now {type_name}")
-        if not t.size:
-            return
-        self._attrs.setdefault(key, rec)
+        return key, rec, t, v, kind
+
+    def _plan(self, rec: _Attribute, t: np.ndarray, v: np.ndarray, kind: str, pos: int,
+              writes: list[tuple[Callable[..., object], tuple[Any, ...]]]) -> int:
+        """Record the samples of one block at file offset ``pos`` (8-byte aligned) in ``rec``
+        and append the file writes that store them to ``writes``; returns their bytes."""
         F = len(t)
-        self._align()
         n = v.shape[1] if kind == "vec3f[]" else 1
         if n == 0:  # an empty array is inlined: payload 0, nothing in the file
             rec.times.append(t)
             rec.reps.append(np.full(F, _rep(_VEC3F, array=True), np.uint64))
-            return
+            return 0
+        file = self._open()
         rows = v.reshape(F, -1)
         last = rec.last
         held = _holds(rows, None if last is None else last[0])
-        written = np.flatnonzero(~held)
+        count = F - int(np.count_nonzero(held))
         if kind == "vec3f[]":
             pad = -(12 * n) % 8
             stride, head = 8 + 12 * n + pad, _rep(_VEC3F, array=True)
-            if written.size:  # one record (count, floats[, padding]) per frame written
-                self._write_later(self._file.append_records, struct.pack("<Q", n),
-                                  rows.view(np.uint8), pad, None if len(written) == F else written,
-                                  size=stride * len(written))
+            if count:  # one record (count, floats[, padding]) per frame written
+                writes.append((file.append_records, (
+                    struct.pack("<Q", n), rows.view(np.uint8), pad,
+                    None if count == F else np.flatnonzero(~held))))
         else:
             stride, head = 128, _rep(_MATRIX4D)
-            if written.size:
-                self._write_later(self._file.append,
-                                  [rows[f] for f in written] if held.any() else [rows],
-                                  size=stride * len(written))
-        offsets = self._pos - stride * len(written) + stride * np.arange(len(written),
-                                                                         dtype=np.uint64)
+            if count:
+                writes.append((file.append, (
+                    [rows[f] for f in np.flatnonzero(~held)] if count < F else [rows],)))
         # each frame's rep: that of the last frame written up to it (before this block: last's)
-        prior = np.array([0 if last is None else last[1]], np.uint64)
-        reps = np.concatenate([prior, np.uint64(head) | offsets])
-        frame_reps = reps[np.cumsum(~held)]
+        reps = np.empty(count + 1, np.uint64)
+        reps[0] = 0 if last is None else last[1]
+        reps[1:] = np.uint64(head | pos) + np.uint64(stride) * np.arange(count, dtype=np.uint64)
+        frame_reps = reps[np.cumsum(~held)] if count < F else reps[1:]
         rec.last = (rows[-1].copy(), int(frame_reps[-1]))
         rec.times.append(t)
         rec.reps.append(frame_reps)
+        return stride * count
 
     @staticmethod
     def _check_base_spec(base: _Base, path: Sdf.Path, type_name: str) -> None:

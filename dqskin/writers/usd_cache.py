@@ -600,10 +600,9 @@ class SampleWriter:
         """Set the samples :meth:`prepare` made in ``layer`` (raw for a
         :class:`~.crate.CrateSamples`); returns their times."""
         t, values = prepared
-        if isinstance(layer, CrateSamples):
-            for (name, what), vals in values:
-                target = self.target(name, what)
-                layer.add(target.attr, target.type_name, t, vals, target.info)
+        if isinstance(layer, CrateSamples):  # the chunk as one write
+            targets = [(self.target(name, what), vals) for (name, what), vals in values]
+            layer.add_many([(tg.attr, tg.type_name, t, vals, tg.info) for tg, vals in targets])
             return t
         times = t.tolist()
         with Sdf.ChangeBlock():
