@@ -14,7 +14,7 @@ import dataclasses
 import numbers
 import os
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -36,7 +36,7 @@ if TYPE_CHECKING:  # (the skinning engine: imported when a bake runs, not before
     from .pipeline import SkinnedFrames
 
 __all__ = ["OUTPUT_SUFFIXES", "USDA_MAX_BYTES", "BakeSettings", "bake", "check_clip_arguments",
-           "check_output", "output_kind", "sample_bytes"]
+           "check_output", "output_kind", "sample_bytes", "workers_early"]
 
 OUTPUT_SUFFIXES = CACHE_EXTENSIONS + npz.SUFFIXES + mesh_files.SUFFIXES
 """Suffixes :func:`bake` writes (mesh files take a per-frame pattern like ``f_{:04d}.obj``)."""
@@ -296,14 +296,46 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
                                    **bake_changes)
     kind = output_kind(out)
     check_clip_arguments(out, settings, opts)  # before loading
-    if not isinstance(scene, Scene):
-        from .readers import load
-        scene = load(scene)
-    t = scene.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
-    from .selection import select_meshes
-    scene, dropped = select_meshes(scene, settings.prims)
-    job = _Job(scene, out, t, opts, settings, tuple(dropped))
-    return {"usd": _bake_usd, "npz": _bake_npz, "frames": _bake_frames}[kind](job)
+    with workers_early(settings, loading=not isinstance(scene, Scene)):
+        if not isinstance(scene, Scene):
+            from .readers import load
+            scene = load(scene)
+        t = scene.times if times is None else np.atleast_1d(np.asarray(times, dtype=np.float64))
+        from .selection import select_meshes
+        scene, dropped = select_meshes(scene, settings.prims)
+        job = _Job(scene, out, t, opts, settings, tuple(dropped))
+        return {"usd": _bake_usd, "npz": _bake_npz, "frames": _bake_frames}[kind](job)
+
+
+@contextlib.contextmanager
+def workers_early(settings: BakeSettings, loading: bool = True) -> Iterator[None]:
+    """The block that loads a bake's source (``loading``) and bakes it: with
+    ``settings.workers`` (a LocalCluster of the bake's own, no ``scheduler``), the workers'
+    forkserver starts importing in the background first
+    (:func:`dqskin.forkserver.prestart_workers`), so that the worker start-up overlaps the load;
+    the clip bake then uses it or stops it once it has measured whether the workers pay
+    (:mod:`dqskin.distributed`). An exception in the block (a load or a check that failed)
+    stops it before it is raised. Nothing without ``workers`` or ``loading``, nor where the
+    workers cannot pay whatever the shot (:func:`dqskin.distributed.free_cores`: at most one
+    core free for them, where their imports would only slow the bake here)."""
+    if settings.workers is None or settings.scheduler or not loading:
+        yield
+        return
+    from . import forkserver
+    from .distributed import free_cores
+    if min(settings.workers, free_cores()[1]) <= 1:  # they cannot pay: no head start
+        yield
+        return
+    try:
+        forkserver.prestart_workers()
+    except Exception:  # only a head start: the cluster says why it cannot start
+        pass
+    try:
+        yield
+    except BaseException:
+        forkserver.stop_workers()
+        raise
+
 
 
 class _Job(NamedTuple):

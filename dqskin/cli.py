@@ -200,7 +200,14 @@ def skin_options(args: argparse.Namespace) -> "SkinOptions":
 def cmd_skin(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from .baking import BakeSettings, bake, check_clip_arguments, check_output, output_kind
+    from .baking import (
+        BakeSettings,
+        bake,
+        check_clip_arguments,
+        check_output,
+        output_kind,
+        workers_early,
+    )
     from .times import frame_rate, select
     output_kind(args.out)
     inputs = _inputs(args)
@@ -220,15 +227,17 @@ def cmd_skin(args: argparse.Namespace) -> int:
                             inputs=tuple(inputs), prims=args.prims)
     check_clip_arguments(args.out, settings, options)  # before loading INPUT
     _checkpoint()
-    scene = _load_input(args, cache_out=args.out)
-    if _own_process:  # what is loaded lives to the end: no full collection walks it again
-        from .forkserver import freeze_heap
-        freeze_heap()
-    _checkpoint()
-    sel = select(scene.times, scene.time_codes_per_second, args.frames, args.fps, args.substeps,
-                 max_frames=args.max_frames, rate=frame_rate(scene), hold=args.hold)
-    settings = dataclasses.replace(settings, fps=sel.rate)
-    said = bake(scene, args.out, sel.times, options=options, settings=settings)
+    with workers_early(settings):  # --workers: their start-up overlaps the load
+        scene = _load_input(args, cache_out=args.out)
+        if _own_process:  # what is loaded lives to the end: no full collection walks it again
+            from .forkserver import freeze_heap
+            freeze_heap()
+        _checkpoint()
+        sel = select(scene.times, scene.time_codes_per_second, args.frames, args.fps,
+                     args.substeps, max_frames=args.max_frames, rate=frame_rate(scene),
+                     hold=args.hold)
+        settings = dataclasses.replace(settings, fps=sel.rate)
+        said = bake(scene, args.out, sel.times, options=options, settings=settings)
     print("\n".join(printable(line) for line in said.splitlines()))
     return 0
 

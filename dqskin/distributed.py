@@ -42,20 +42,21 @@ import numpy as np
 from . import forkserver
 from .errors import DqskinError, InputError, Param
 from .files import atomic
+from .files.direct import pays as direct_pays
 from .kernels import buffers as KB
 from .options import SkinOptions
 from .progress import progress_bar
 from .scene import Scene
 from .validation import check_skinned
 from .writers import clip_lock, usd_clips
-from .writers.usd_cache import SampleWriter, chunk_frames
+from .writers.usd_cache import SampleWriter, chunk_frames, frame_bytes
 
 if TYPE_CHECKING:
     from distributed import WorkerPlugin
 
     from .baking import BakeSettings
 
-__all__ = ["WORKERS_PAY_SECONDS", "ClipJob", "bake_clips", "run_clip", "run_here",
+__all__ = ["WORKERS_PAY_SECONDS", "ClipJob", "bake_clips", "free_cores", "run_clip", "run_here",
            "worker_threads", "workers_choice", "workers_pay_seconds"]
 
 WORKERS_PAY_SECONDS = 2.0
@@ -75,6 +76,20 @@ def workers_pay_seconds() -> float:
     return value if value >= 0 and value == value else WORKERS_PAY_SECONDS
 
 
+def free_cores(cores_used: float = 1.0) -> tuple[float, float]:
+    """``(used, free)``: the cores a bake here uses (``cores_used``, at least one, at most this
+    process's cores) and those not busy with other work (this process's cores less the system's
+    load average beyond ``used``; at least ``used``)."""
+    cores = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                else os.cpu_count() or 1)
+    used = min(max(1.0, cores_used), cores)
+    try:
+        others = max(0.0, os.getloadavg()[0] - used)
+    except OSError:  # (no load average on this system)
+        others = 0.0
+    return used, max(used, cores - others)
+
+
 def workers_choice(workers: int, seconds_per_frame: float, frames_left: int,
                    cores_used: float = 1.0) -> tuple[bool, str]:
     """Whether ``workers`` worker processes pay for the ``frames_left`` frames of a bake whose
@@ -85,14 +100,7 @@ def workers_choice(workers: int, seconds_per_frame: float, frames_left: int,
     less the system's load average beyond what this process uses)."""
     left = seconds_per_frame * frames_left
     limit = workers_pay_seconds()
-    cores = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-                else os.cpu_count() or 1)
-    used = min(max(1.0, cores_used), cores)
-    try:
-        others = max(0.0, os.getloadavg()[0] - used)
-    except OSError:  # (no load average on this system)
-        others = 0.0
-    free = max(used, cores - others)
+    used, free = free_cores(cores_used)
     saved = max(0.0, left * (1 - used / min(workers, free)))
     pays = frames_left > 0 and saved >= limit
     n = f"{workers} worker process{'es' if workers != 1 else ''}"
@@ -269,8 +277,13 @@ def run_here(jobs: "list[ClipJob]", scene: Scene,
     left under a final name."""
     if not jobs:
         return
-    size = chunk_frames(scene, jobs[0].options)
+    opts = jobs[0].options
+    size = chunk_frames(scene, opts)
     chunks = [[min(size, len(j.times) - a) for a in range(0, len(j.times), size)] for j in jobs]
+    # through the page cache when all the layers fit in what the system buffers without
+    # slowing their writer, as a single-layer cache
+    direct = direct_pays(frame_bytes(scene, opts.normals, opts.velocities)
+                         * sum(len(j.times) for j in jobs))
     writer = _sample_writer(scene, jobs[0])
     stream = scene.skin_chunks(np.concatenate([j.times for j in jobs]),
                                [n for c in chunks for n in c], options=jobs[0].options)
@@ -280,7 +293,8 @@ def run_here(jobs: "list[ClipJob]", scene: Scene,
         try:
             start = time.perf_counter(), time.process_time()
             for job, c in zip(jobs, chunks):
-                with usd_clips.ClipLayer(job.path, job.time_codes_per_second) as layer:
+                with usd_clips.ClipLayer(job.path, job.time_codes_per_second,
+                                         direct=direct) as layer:
                     writer.write_chunks(layer.samples, (next(stream)[1] for _ in c),
                                         lambda r: check_skinned(scene.path, r), checked=True,
                                         executor=values)
@@ -449,10 +463,12 @@ def _bake_clips_measured(scene, out, times, options, settings, threads, source):
                 left = sum(len(j.times) for j in jobs[2:])
                 first = (time.perf_counter() - t0) / max(1, len(jobs[0].times))
                 if workers_choice(int(s.workers), first, left, 1.0)[0]:
-                    try:
+                    try:  # (unless started while the source loaded: dqskin.baking)
                         forkserver.prestart_workers()
                     except Exception:  # only a head start: the cluster says why it cannot
                         pass
+                else:  # not even at the warm-up's cost: its imports would slow this bake
+                    forkserver.stop_workers()
                 t0, c0 = time.perf_counter(), time.process_time()
                 run_here(jobs[1:2], scene, done)
                 wall = time.perf_counter() - t0
@@ -466,6 +482,7 @@ def _bake_clips_measured(scene, out, times, options, settings, threads, source):
                     with _dask(s.workers, None, threads) as client:
                         _run_on_dask(client, jobs[2:], done)
             elif jobs:
+                forkserver.stop_workers()  # (if started while the source loaded)
                 run_here(jobs[1:], scene, done)
                 chose = (f"baked in this process, not on {s.workers} worker process"
                          f"{'es' if s.workers != 1 else ''} ({len(jobs)} clip"

@@ -248,24 +248,38 @@ def test_refused_worker_arguments_start_no_forkserver(tmp_path, monkeypatch, cap
     assert started == [] and _forkserver_pid() is None
 
 
-def test_no_forkserver_before_the_bake_decides(tmp_path, monkeypatch, capsys):
-    """``dqskin skin --workers`` starts the forkserver only in the bake, once it has measured
-    that the workers may pay: an output it refuses (a clip bake to .npz) or an input that fails
-    to load never starts it."""
+def test_the_forkserver_starts_while_the_source_loads_and_a_failed_load_stops_it(
+        tmp_path, monkeypatch, capsys):
+    """``dqskin skin --workers 2`` starts the workers' forkserver before it loads the input
+    (its imports overlap the load) where two cores are free for them, and not where the
+    machine's load leaves one (they could not pay, whatever the shot); an output it refuses
+    (a clip bake to .npz) never starts it, and an input that fails to load stops it before
+    the error is reported."""
     import dqskin.forkserver as forkserver
+    import dqskin.readers as readers
     from dqskin.cli import main
-    started = []
+    events = []
     monkeypatch.setattr(forkserver, "PRELOAD", ["numpy"])
-    real = forkserver.prestart_workers
-    monkeypatch.setattr(forkserver, "prestart_workers", lambda: (started.append(1), real()))
+    real, real_load = forkserver.prestart_workers, readers.load
+    monkeypatch.setattr(forkserver, "prestart_workers", lambda: (events.append("forkserver"),
+                                                                 real()))
+    monkeypatch.setattr(readers, "load", lambda *a, **k: (events.append("load"),
+                                                          real_load(*a, **k))[1])
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})  # two cores
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))  # free
     out = tmp_path / "shot.npz"
     assert main(["skin", str(HUMANOID), "--out", str(out), "--workers", "2"]) != 0
     assert "--out" in capsys.readouterr().err and not out.exists()
-    assert started == [] and _forkserver_pid() is None
+    assert events == [] and _forkserver_pid() is None
     bad = tmp_path / "bad.usda"
     bad.write_text("#usda 1.0\n(\n")
     assert main(["skin", str(bad), "--out", str(tmp_path / "shot.usd"), "--workers", "2"]) != 0
-    assert started == [] and _forkserver_pid() is None
+    assert "bad.usda" in capsys.readouterr().err
+    assert events == ["forkserver", "load"] and _forkserver_pid() is None
+    events.clear()
+    monkeypatch.setattr(os, "getloadavg", lambda: (2.0, 2.0, 2.0))  # one core busy elsewhere
+    assert main(["skin", str(bad), "--out", str(tmp_path / "shot.usd"), "--workers", "2"]) != 0
+    assert events == ["load"] and _forkserver_pid() is None
 
 
 def test_a_forkserver_running_before_dqskin_is_left_running():

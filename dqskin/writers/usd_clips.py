@@ -390,7 +390,8 @@ def _write_json(path: str | os.PathLike, data: object, overwrite: bool = True) -
 class ClipLayer:
     """One chunk's clip layer while it is written: its :class:`~.crate.CrateSamples` (``samples``,
     for :meth:`~.usd_cache.SampleWriter.write_chunks`) in the temporary file of its claim
-    (``claim``, an :class:`~.atomic.atomic_path` beside ``path``).
+    (``claim``, an :class:`~.atomic.atomic_path` beside ``path``), written past the page cache
+    unless ``direct`` is False (:func:`dqskin.files.direct.pays` decides for a bake).
 
     :meth:`finish` completes the file, sets :attr:`digest` (its checksum) and returns the claim
     for :func:`commit_clip`;
@@ -398,13 +399,14 @@ class ClipLayer:
 
     digest: str | None = None
 
-    def __init__(self, path: str | os.PathLike, time_codes_per_second: float) -> None:
+    def __init__(self, path: str | os.PathLike, time_codes_per_second: float, *,
+                 direct: bool = True) -> None:
         self.claim = atomic_path(Path(path), overwrite=True)
         try:
-            # hashed as it is written (never read back), so past the page cache too
+            # hashed as it is written (never read back), so it may go past the page cache
             self._hasher = _HASHES[CHECKSUM]()
             self.samples = CrateSamples(self.claim.open(), time_codes_per_second,
-                                        hasher=self._hasher)
+                                        hasher=self._hasher, direct=direct)
         except BaseException:
             self.claim.discard()
             raise
