@@ -260,8 +260,8 @@ def run_clip(job: ClipJob, scene: Scene | None = None) -> dict[str, Any]:
     return _result(job, digest, t0, c0)
 
 
-def run_here(jobs: "list[ClipJob]", scene: Scene,
-             done: Callable[[dict[str, Any]], object]) -> None:
+def run_here(jobs: "list[ClipJob]", scene: Scene, done: Callable[[dict[str, Any]], object],
+             until: Callable[[int, float, float], bool] | None = None) -> int:
     """Every job, in order, in this process (``done(result)`` after each; results as
     :func:`run_clip`'s), pipelined across chunks instead of :func:`run_clip` one by one: one
     :meth:`dqskin.Scene.skin_chunks` stream of chunks
@@ -274,9 +274,13 @@ def run_here(jobs: "list[ClipJob]", scene: Scene,
 
     On an error or interrupt while clip ``k + 1`` is filled, clip ``k`` is still recorded and
     renamed (as the one-by-one bake would have had it), then the error raised; nothing else is
-    left under a final name."""
+    left under a final name.
+
+    ``until(k, wall, cpu)``, when given, is asked before clip ``k >= 1`` starts, with the wall
+    and CPU seconds (this process's) that filling clip ``k - 1`` took: True stops there (the
+    clips before ``k`` are still recorded). Returns the number of clips baked."""
     if not jobs:
-        return
+        return 0
     opts = jobs[0].options
     size = chunk_frames(scene, opts)
     chunks = [[min(size, len(j.times) - a) for a in range(0, len(j.times), size)] for j in jobs]
@@ -290,9 +294,15 @@ def run_here(jobs: "list[ClipJob]", scene: Scene,
     # (job, claim, checksum, start) of the finished, unrecorded layer
     pending: tuple[ClipJob, atomic.atomic_path, str | None, tuple[float, float]] | None = None
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-usd-values") as values:
+        baked = 0
         try:
             start = time.perf_counter(), time.process_time()
             for job, c in zip(jobs, chunks):
+                if baked and until is not None and pending is not None:
+                    began = pending[3]  # clip k - 1's, filled since
+                    if until(baked, time.perf_counter() - began[0],
+                             time.process_time() - began[1]):
+                        break
                 with usd_clips.ClipLayer(job.path, job.time_codes_per_second,
                                          direct=direct) as layer:
                     writer.write_chunks(layer.samples, (next(stream)[1] for _ in c),
@@ -304,9 +314,11 @@ def run_here(jobs: "list[ClipJob]", scene: Scene,
                     claim = layer.finish(job.times)
                 pending = (job, claim, layer.digest, start)
                 start = time.perf_counter(), time.process_time()
+                baked += 1
             if pending is not None:
                 finished, pending = pending, None
                 done(_commit(*finished))
+            return baked
         except BaseException:
             if pending is not None:
                 finished, pending = pending, None
@@ -436,11 +448,11 @@ def _plan(scene, out, times, options, settings, source, slots):
 
 
 def _bake_clips_measured(scene, out, times, options, settings, threads, source):
-    """:func:`_bake_clips` with ``workers=N`` (a LocalCluster of its own): the first two
-    pending clips are baked here, the second one timed (wall and CPU); the LocalCluster starts
-    for the rest only when it would save at least :func:`workers_pay_seconds`
-    (:func:`workers_choice`), else they are baked here too. The result's ``chose`` says which
-    (None when nothing was left to bake)."""
+    """:func:`_bake_clips` with ``workers=N`` (a LocalCluster of its own): the clips are baked
+    here (one :func:`run_here` stream) and the second one timed (wall and CPU); the
+    LocalCluster starts for the rest only when it would save at least
+    :func:`workers_pay_seconds` (:func:`workers_choice`), else they are baked here too. The
+    result's ``chose`` says which (None when nothing was left to bake)."""
     s = settings
     tasks: list[dict[str, Any]] = []
     bake = None
@@ -454,36 +466,42 @@ def _bake_clips_measured(scene, out, times, options, settings, threads, source):
             bar.update(1)
         try:
             chose = None
-            # the first clip warms up (kernels loaded, threads started, pages first touched);
-            # if even its cost says workers may pay, their forkserver starts importing while
-            # the second clip, whose cost is the rest's, is baked and timed
-            t0 = time.perf_counter()
-            run_here(jobs[:1], scene, done)
-            if len(jobs) > 2:
-                left = sum(len(j.times) for j in jobs[2:])
-                first = (time.perf_counter() - t0) / max(1, len(jobs[0].times))
-                if workers_choice(int(s.workers), first, left, 1.0)[0]:
-                    try:  # (unless started while the source loaded: dqskin.baking)
-                        forkserver.prestart_workers()
-                    except Exception:  # only a head start: the cluster says why it cannot
-                        pass
-                else:  # not even at the warm-up's cost: its imports would slow this bake
-                    forkserver.stop_workers()
-                t0, c0 = time.perf_counter(), time.process_time()
-                run_here(jobs[1:2], scene, done)
-                wall = time.perf_counter() - t0
-                used = (time.process_time() - c0) / max(wall, 1e-9)
-                pays, chose = workers_choice(int(s.workers), wall / max(1, len(jobs[1].times)),
-                                             left, used)
-                if not pays:
-                    forkserver.stop_workers()  # (if started above: not needed)
-                    run_here(jobs[2:], scene, done)
-                else:
-                    with _dask(s.workers, None, threads) as client:
-                        _run_on_dask(client, jobs[2:], done)
-            elif jobs:
-                forkserver.stop_workers()  # (if started while the source loaded)
-                run_here(jobs[1:], scene, done)
+            workers = int(s.workers)
+            left = sum(len(j.times) for j in jobs[2:])
+
+            def until(k: int, wall: float, cpu: float) -> bool:
+                """After the first clip (a warm-up: kernels loaded, threads started, pages
+                first touched): if even its cost says the workers may pay, their forkserver
+                starts importing while the second is baked (unless it started while the source
+                loaded), else it stops. After the second, whose cost is the rest's: whether
+                the rest goes to the workers."""
+                nonlocal chose
+                frames = len(jobs[k - 1].times)
+                if k == 1:
+                    if len(jobs) > 2 and workers_choice(workers, wall / max(1, frames), left,
+                                                        1.0)[0]:
+                        try:
+                            forkserver.prestart_workers()
+                        except Exception:  # only a head start: the cluster says why it cannot
+                            pass
+                    else:  # its imports would only slow this bake
+                        forkserver.stop_workers()
+                    return False
+                if k == 2:
+                    pays, chose = workers_choice(workers, wall / max(1, frames), left,
+                                                 cpu / max(wall, 1e-9))
+                    if not pays:
+                        forkserver.stop_workers()  # (if started: not needed)
+                    return pays
+                return False
+
+            if len(jobs) <= 2:  # nothing left for workers (if started while the source loaded)
+                forkserver.stop_workers()
+            baked = run_here(jobs, scene, done, until)
+            if baked < len(jobs):
+                with _dask(s.workers, None, threads) as client:
+                    _run_on_dask(client, jobs[baked:], done)
+            elif 0 < len(jobs) <= 2:
                 chose = (f"baked in this process, not on {s.workers} worker process"
                          f"{'es' if s.workers != 1 else ''} ({len(jobs)} clip"
                          f"{'s' if len(jobs) != 1 else ''} to bake)")

@@ -96,6 +96,46 @@ def test_short_shot_stays_in_this_process(reference, tmp_path, capsys, monkeypat
     assert getattr(multiprocessing.forkserver._forkserver, "_forkserver_pid", None) is None
 
 
+def test_the_measured_bake_hands_the_clips_after_the_second_to_the_workers(
+        reference, tmp_path, monkeypatch):
+    """``workers=2`` where they pay (every second saved pays): the first two clips are baked in
+    this process's one stream, timed, and the rest go to the cluster (here a stand-in that runs
+    each task with :func:`~dqskin.distributed.run_clip` in this process); the cache equals the
+    single-process one and every clip is baked once."""
+    import contextlib
+
+    import dqskin.distributed as dist
+    monkeypatch.setenv("DQSKIN_WORKERS_PAY_SECONDS", "1e-9")
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
+    monkeypatch.setattr(dist.forkserver, "prestart_workers", lambda: None)
+    asked, on_workers = [], []
+    real_run_here = dist.run_here
+
+    def run_here(jobs, scene, done, until=None):
+        def ask(k, wall, cpu):
+            asked.append((k, wall > 0, cpu >= 0))
+            return until(k, wall, cpu)
+        return real_run_here(jobs, scene, done, ask if until else None)
+
+    def run_on_dask(client, jobs, done):
+        assert client == "cluster"
+        for job in jobs:
+            on_workers.append(job.index)
+            done(dist.run_clip(job, reference["scene"]))
+
+    monkeypatch.setattr(dist, "run_here", run_here)
+    monkeypatch.setattr(dist, "_dask", lambda *a, **k: contextlib.nullcontext("cluster"))
+    monkeypatch.setattr(dist, "_run_on_dask", run_on_dask)
+    shot = tmp_path / "shot.usd"
+    said = bake(reference["scene"], shot, chunk=CHUNK, workers=2)
+    clips = len(list(clips_folder(shot).glob("*.usdc")))
+    assert clips > 3 and "baked on 2 worker processes (" in said
+    assert asked == [(1, True, True), (2, True, True)]
+    assert on_workers == list(range(2, clips))
+    check(reference, shot)
+
+
 def _start(args, log):
     env = {k: v for k, v in os.environ.items()  # the workers' budget from --nthreads alone
            if k not in ("DQSKIN_THREADS", "PXR_WORK_THREAD_LIMIT")}
