@@ -761,14 +761,23 @@ def skin_vectors(*, method: int, vectors: wp.array, vector_vertex: wp.array,
     """Skin directions ``vectors`` (Fp, N) into ``out`` (F, N) with ``influences`` (an
     :class:`~.layout.InfluenceLayout`), normalized (see
     :func:`skin_vectors_kernel` for which per-joint arrays normals and tangents take). On the
-    CPU, LBS of one influence group runs eight rows a thread (:mod:`.packet_normals`)."""
+    CPU, LBS, DQS and COR of one influence group run eight rows a thread
+    (:mod:`.packet_normals`)."""
     frames, rows = out.shape
-    if (method == LBS and influences.groups == 1 and linears.shape[1] > 0 and is_cpu(device)):
+    if (method in (LBS, DQS, COR) and influences.groups == 1 and linears.shape[1] > 0
+            and is_cpu(device)):
         # eight rows a thread (:mod:`.packet_normals`), bit for bit the kernel below
-        launch_frames(packet_normals.skin_vectors_lbs_packet_kernel, -(-rows // 8), frames,
-                      [*frame_rows_array(vectors, rows), vector_vertex, influences,
-                       _flat(linears), linears.shape[1], frames], [out], device,
-                      row_size=packet_normals.ROWS)
+        if method == LBS:
+            kernel, joint_data = (packet_normals.skin_vectors_lbs_packet_kernel,
+                                  [_flat(linears)])
+        else:
+            rule = 2 if influences.running_sum else 1 if influences.unsorted else 0
+            kernel, joint_data = (packet_normals.skin_vectors_dqs_packet_kernel,
+                                  [_flat(rotations), _flat(residuals), has_residual])
+        launch_frames(kernel, -(-rows // 8), frames,
+                      [*frame_rows_array(vectors, rows), vector_vertex, influences, *joint_data,
+                       linears.shape[1], frames, *([] if method == LBS else [rule])], [out],
+                      device, row_size=packet_normals.ROWS)
         return
     launch_frames(skin_vectors_kernel, rows, frames,
                   [*frame_rows_array(vectors, rows), vector_vertex, influences,

@@ -1,8 +1,10 @@
-"""LBS of normals and tangents eight rows a thread (``dqskin.kernels.packet_normals``): bit for bit
-the one-vertex kernel (per-vertex and face-varying rows, tails of fewer than eight, one frame and
-frame blocks, zero weights), both branches (the CPU's vector one and the scalar one CUDA
-compiles, built here for the CPU) within float32 of float64 NumPy written from the equation
-``normalize((Σ wₖ·Mₖ)·n)``, ``Mₖ = Aₖ⁻ᵀ`` for normals and ``Aₖ`` for tangents."""
+"""Normals and tangents eight rows a thread (``dqskin.kernels.packet_normals``), LBS and DQS of
+each sign rule: bit for bit the one-vertex kernel (per-vertex and face-varying rows, tails of
+fewer than eight, one frame and frame blocks, rigid and scaled frames, zero weights); LBS's
+both branches (the CPU's vector one and the scalar one CUDA compiles, built here for the CPU)
+within float32 of float64 NumPy written from the equation ``normalize((Σ wₖ·Mₖ)·n)``,
+``Mₖ = Aₖ⁻ᵀ`` for normals and ``Aₖ`` for tangents; DQS of rigid frames within float32 of the
+float64 rotation of the sign-aligned quaternion blend."""
 
 import numpy as np
 import pytest
@@ -120,3 +122,72 @@ def test_packets_equal_one_vertex_kernel(monkeypatch, kind, V):
     for f in (0, 19):
         want = oracle(vectors[live], np.arange(live.sum()), idx[live], w[live], M[f], kind)
         assert np.abs(packet[0][f, live] - want).max() <= 2e-6
+
+
+def quaternion_oracle(vectors, idx, w, M, rule):
+    """float64 DQS of (V, 3) directions at one rigid frame: the sign-aligned blend of the
+    joints' (w, x, y, z) rotations (against the first largest weight's, or the running sum in
+    input order), normalized, rotating each direction."""
+    q = Rotation.from_matrix(M[:, :3, :3]).as_quat()[:, [3, 0, 1, 2]]
+    out = np.empty((len(vectors), 3))
+    for v in range(len(vectors)):
+        qs, ws = q[idx[v]], w[v].astype(np.float64)
+        ref = qs[int(np.argmax(ws))]  # the first largest weight's (slot 0 once sorted)
+        b = np.zeros(4)
+        for k in range(4):
+            if rule == "running":
+                ref = b
+            b = b + qs[k] * (ws[k] * (-1.0 if qs[k] @ ref < 0 else 1.0))
+        out[v] = Rotation.from_quat(b[[1, 2, 3, 0]]).apply(vectors[v].astype(np.float64))
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("kind,rule", [("normal", "sorted"), ("tangent", "sorted"),
+                                       ("normal", "searched"), ("normal", "running"),
+                                       ("tangent", "running")])
+@pytest.mark.parametrize("V", [9, 4096 + 5])
+def test_dqs_packets_equal_one_vertex_kernel(monkeypatch, kind, rule, V):
+    """DQS directions: the packet kernel gives bit for bit what the one-vertex kernel gives with
+    each sign rule (a Skinner's sorted layout, a one-shot call's searched pivot, Blender's
+    running sum), on rigid and scaled frames, one frame, face-varying rows; rigid frames within
+    float32 of the float64 quaternion blend."""
+    import dqskin
+    from dqskin.kernels import grid
+    from dqskin.kernels import skin as KS
+
+    rng = np.random.default_rng(V + len(rule))
+    idx, w, M = rig(rng, V, F=20)
+    M[:10, :, :3, :3] /= np.linalg.norm(M[:10, :, :3, :3], axis=-2, keepdims=True)  # rigid
+    points = rng.normal(size=(V, 3)).astype(np.float32)
+    vectors = rng.normal(size=(V, 3)).astype(np.float32)
+    fv = rng.integers(0, V, size=V + 13)
+    sign = "running_sum" if rule == "running" else "largest_weight"
+    names = []
+    real_launch, real_is_cpu = grid._launch, KS.is_cpu
+    monkeypatch.setattr(grid, "_launch", lambda kernel, *a: (names.append(kernel.key),
+                                                              real_launch(kernel, *a)))
+
+    def run(packet):
+        monkeypatch.setattr(KS, "is_cpu", real_is_cpu if packet else lambda device: False)
+        names.clear()
+        if rule == "searched":  # a one-shot call (normals): input order, pivot searched
+            got = (dqskin.skin_normals(vectors, idx, w, M, "dqs", device="cpu"),
+                   dqskin.skin_normals(vectors, idx, w, M[0], "dqs", device="cpu"),
+                   dqskin.skin_normals(vectors[fv], idx, w, M, "dqs", normal_vertex=fv,
+                                       device="cpu"))
+        else:
+            sk = dqskin.Skinner(points, idx, w, device="cpu")
+            got = (sk.skin_vectors(M, vectors, "dqs", kind=kind, sign_reference=sign),
+                   sk.skin_vectors(M[0], vectors, "dqs", kind=kind, sign_reference=sign),
+                   sk.skin_vectors(M, vectors[fv], "dqs", kind=kind, vector_vertex=fv,
+                                   sign_reference=sign))
+        assert ("skin_vectors_dqs_packet_kernel" in names) == packet, names
+        return got
+
+    packet, one_vertex = run(True), run(False)
+    for a, b in zip(packet, one_vertex):
+        np.testing.assert_array_equal(a, b)
+    live = w.sum(1) > 0
+    for f in (0, 9):
+        want = quaternion_oracle(vectors[live], idx[live], w[live], M[f], rule)
+        assert np.abs(packet[0][f, live] - want).max() <= 5e-6
