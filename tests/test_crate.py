@@ -545,3 +545,22 @@ def test_a_base_of_another_crate_version_is_refused_as_unsupported(tmp_path, ver
     with pytest.raises(ValueError, match="not a USD crate file") as err:
         CrateSamples(tmp_path / "out2.usdc", 30.0, base=tmp_path / "text.usdc")
     assert not isinstance(err.value, UnsupportedCrate)
+
+
+def test_add_many_takes_an_attribute_twice_and_refuses_before_writing_any(tmp_path):
+    """One ``add_many`` holding two blocks of one attribute (the second's first frame a hold of
+    the first's last) reads as Sdf's layer of them; a call with a block it refuses (another
+    type for an attribute added in the same call) adds none of its blocks."""
+    path = tmp_path / "many.usdc"
+    crate = CrateSamples(path, 24.0)
+    a, b = _samples(3, 5), _samples(2, 5)
+    b[0] = a[-1]
+    crate.add_many([("/M.points", "point3f[]", [1.0, 2.0, 3.0], a, ()),
+                    ("/M.points", "point3f[]", [4.0, 5.0], b, ())])
+    with pytest.raises(ValueError, match="added as point3f"):
+        crate.add_many([("/N.points", "point3f[]", [1.0], a[:1], ()),
+                        ("/N.points", "normal3f[]", [2.0], a[1:2], ())])
+    crate.close(1.0, 5.0)
+    ref = _sdf_layer(24.0, 1.0, 5.0, [("/M.points", "point3f[]", [1.0, 2.0, 3.0, 4.0, 5.0],
+                                       np.concatenate([a, b]), ())])
+    assert Sdf.Layer.FindOrOpen(str(path)).ExportToString() == ref.ExportToString()

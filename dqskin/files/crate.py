@@ -508,7 +508,8 @@ class CrateSamples:
         before any is written."""
         if self._file is None:
             raise InputError(f"{self.path}: the layer is closed")
-        checked = [self._checked(*block) for block in blocks]
+        new: dict[str, _Attribute] = {}  # attributes first added by these blocks
+        checked = [self._checked(*block, new=new) for block in blocks]
         self._align()  # (every record's size is a multiple of 8: the blocks stay aligned)
         writes: list[tuple[Callable[..., object], tuple[Any, ...]]] = []
         size = 0
@@ -521,10 +522,11 @@ class CrateSamples:
             self._write_later(_run_writes, writes, size=size)
 
     def _checked(self, attr: str, type_name: str, times: npt.ArrayLike, values: npt.ArrayLike,
-                 info: Sequence[tuple[str, str]] = ()
+                 info: Sequence[tuple[str, str]] = (), *, new: dict[str, _Attribute]
                  ) -> tuple[str, _Attribute, np.ndarray, np.ndarray, str]:
         """``(key, record, times, values, kind)`` of one :meth:`add` (InputError naming
-        ``attr`` for what it refuses); the record is new, or the attribute's."""
+        ``attr`` for what it refuses); the record is the attribute's, or one of ``new`` (the
+        records of attributes first added in the same :meth:`add_many`, made here)."""
         kind = VALUE_TYPES.get(type_name)
         if kind is None:
             raise InputError(f"{attr}: cannot write type {type_name!r} as crate samples; one of "
@@ -548,7 +550,7 @@ class CrateSamples:
             raise InputError(f"{attr}: sample times must be finite")
         path = Sdf.Path(attr) if attr else Sdf.Path()
         key = str(path)  # one spelling per attribute (a variant selection's spaces)
-        rec = self._attrs.get(key)
+        rec = self._attrs.get(key) or new.get(key)
         if rec is None:
             if not (path.IsAbsolutePath() and path.IsPrimPropertyPath()):
                 raise InputError(f"{attr}: not an attribute path (/Prim.name)")
@@ -557,7 +559,7 @@ class CrateSamples:
             elif path.ContainsPrimVariantSelection():
                 raise InputError(f"{attr}: a variant's attribute needs a base layer that "
                                  "declares it")
-            rec = _Attribute(type_name, tuple(info))
+            rec = new[key] = _Attribute(type_name, tuple(info))
         elif rec.type_name != type_name:
             raise InputError(f"{attr}: added as {rec.type_name} before, now {type_name}")
         return key, rec, t, v, kind
