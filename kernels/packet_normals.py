@@ -54,23 +54,32 @@ _MATH = """
 
 _SCALAR = """
     typedef float V;
+    typedef bool bool_v;
     for (int i = 0; i < n; ++i) {
         const int v = ((const int*)vector_vertex.data)[n0 + i];
         const float* X = (const float*)vectors.data + 3 * (vector_base + n0 + i);
         const int* I = (const int*)indices.data + 4 * v;
         const float* W = (const float*)weights.data + 4 * v;
-        const float* J = (const float*)linears.data + 9 * (long long)o;
+        JOINT_DATA
         const V x = X[0], y = X[1], z = X[2];
         const V w0 = W[0], w1 = W[1], w2 = W[2], w3 = W[3];
 #define LOAD(K, OUT) for (int c = 0; c < 9; ++c) OUT[c] = J[9 * I[K] + c]
+#define LOADQ(K, OUT) for (int c = 0; c < 4; ++c) OUT[c] = R[4 * I[K] + c]
 #define SQRT(S) sqrtf(S)
         MATH
 #undef LOAD
+#undef LOADQ
 #undef SQRT
         float* O = (float*)out.data + 3 * (out_base + n0 + i);
         O[0] = ox; O[1] = oy; O[2] = oz;
     }
     return 0;"""
+"""The scalar branch (CUDA's; the tests' CPU twin): row by row, ``JOINT_DATA`` setting ``J``
+(3×3 matrices) and for DQS ``R`` (quaternions) to the frame's first joint."""
+
+_LBS_JOINTS = "const float* J = (const float*)linears.data + 9 * (long long)o;"
+_DQS_JOINTS = ("const float* R = (const float*)rotations.data + 4 * (long long)o;\n"
+               "        const float* J = (const float*)residuals.data + 9 * (long long)o;")
 
 _VECTOR = """
     typedef f8 V;
@@ -144,11 +153,21 @@ def vector_packet_source(scalar_on_cpu: bool = False) -> str:
     return f"""
     const int n = count - n0 < 8 ? count - n0 : 8;
 #if {cond}
-{_SCALAR.replace("MATH", _MATH)}
+{_SCALAR.replace("JOINT_DATA", _LBS_JOINTS).replace("MATH", _MATH)}
 #else
 {VECTOR_PRELUDE}{_VECTOR.replace("    MATH", _MATH)}{VECTOR_END}
 #endif
 """
+
+
+@wp.func
+def packet_rows(t: int, rows: int, frame_count: int):
+    """``(first row, first frame, end frame)`` of thread ``t``: packet ``t mod P`` (``P =
+    ceil(rows / 8)``) of frame block ``t div P`` (:data:`~.grid.FRAME_BLOCK` frames)."""
+    packets = (rows + 7) // 8
+    block = t // packets
+    first = block * _FRAME_BLOCK
+    return (t - block * packets) * 8, first, wp.min(first + _FRAME_BLOCK, frame_count)
 
 
 @wp.func_native(vector_packet_source())
@@ -179,15 +198,10 @@ def skin_vectors_lbs_packet_kernel(
     """:func:`.skin.skin_vectors_kernel` for LBS of one influence group, eight rows a thread:
     thread ``t`` skins packet ``t mod P`` (``P = ceil(N / 8)``) of the frames of block
     ``t div P`` (:data:`~.grid.FRAME_BLOCK` frames; the only frame when there is one)."""
-    t = wp.tid() + row_offset
     indices = contiguous_vec4i(inf.indices)
     weights = contiguous_vec4(inf.weights)
     rows = out.shape[0] // frame_count
-    packets = (rows + 7) // 8
-    block = t // packets
-    first = block * _FRAME_BLOCK
-    end = wp.min(first + _FRAME_BLOCK, frame_count)
-    n0 = (t - block * packets) * 8
+    n0, first, end = packet_rows(wp.tid() + row_offset, rows, frame_count)
     for f in range(first, end):
         lbs_vector_packet(vectors, wp.int64(f) * wp.int64(vector_stride), vector_vertex, indices,
                           weights, linears, f * joint_count, n0, rows, out,
@@ -245,30 +259,6 @@ _DQS_MATH = """
         V oy = small ? sy : ry;
         V oz = small ? sz : rz;""" + _NORMALIZE_TWICE
 
-_DQS_SCALAR = """
-    typedef float V;
-    typedef bool bool_v;
-    for (int i = 0; i < n; ++i) {
-        const int v = ((const int*)vector_vertex.data)[n0 + i];
-        const float* X = (const float*)vectors.data + 3 * (vector_base + n0 + i);
-        const int* I = (const int*)indices.data + 4 * v;
-        const float* W = (const float*)weights.data + 4 * v;
-        const float* R = (const float*)rotations.data + 4 * (long long)o;
-        const float* J = (const float*)residuals.data + 9 * (long long)o;
-        const V x = X[0], y = X[1], z = X[2];
-        const V w0 = W[0], w1 = W[1], w2 = W[2], w3 = W[3];
-#define LOAD(K, OUT) for (int c = 0; c < 9; ++c) OUT[c] = J[9 * I[K] + c]
-#define LOADQ(K, OUT) for (int c = 0; c < 4; ++c) OUT[c] = R[4 * I[K] + c]
-#define SQRT(S) sqrtf(S)
-        MATH
-#undef LOAD
-#undef LOADQ
-#undef SQRT
-        float* O = (float*)out.data + 3 * (out_base + n0 + i);
-        O[0] = ox; O[1] = oy; O[2] = oz;
-    }
-    return 0;"""
-
 _SCALAR_PIVOT = """typedef int i8;
             const i8 s1 = 1, s2 = 2, s3 = 3;
             i8 slot = 0;  // the first largest weight's slot
@@ -304,7 +294,8 @@ def dqs_vector_packet_source(scalar_on_cpu: bool = False) -> str:
     """C++ of :func:`dqs_vector_packet`; ``scalar_on_cpu`` compiles the scalar (CUDA) branch
     for the CPU too (the tests' twin)."""
     cond = "1" if scalar_on_cpu else "defined(__CUDA_ARCH__)"
-    scalar = _DQS_SCALAR.replace("MATH", _DQS_MATH.replace("PIVOT", _SCALAR_PIVOT))
+    scalar = (_SCALAR.replace("JOINT_DATA", _DQS_JOINTS)
+              .replace("MATH", _DQS_MATH.replace("PIVOT", _SCALAR_PIVOT)))
     vector = (_VECTOR.replace("linears.data + 36", "residuals.data + 36")
               .replace("    const char* J = (const char*)residuals.data + 36 * (long long)o;\n",
                        _DQS_VECTOR_LOADS)
@@ -354,15 +345,10 @@ def skin_vectors_dqs_packet_kernel(
 ):
     """:func:`.skin.skin_vectors_kernel` for DQS and COR of one influence group, eight rows a
     thread, as :data:`skin_vectors_lbs_packet_kernel`."""
-    t = wp.tid() + row_offset
     indices = contiguous_vec4i(inf.indices)
     weights = contiguous_vec4(inf.weights)
     rows = out.shape[0] // frame_count
-    packets = (rows + 7) // 8
-    block = t // packets
-    first = block * _FRAME_BLOCK
-    end = wp.min(first + _FRAME_BLOCK, frame_count)
-    n0 = (t - block * packets) * 8
+    n0, first, end = packet_rows(wp.tid() + row_offset, rows, frame_count)
     for f in range(first, end):
         dqs_vector_packet(vectors, wp.int64(f) * wp.int64(vector_stride), vector_vertex, indices,
                           weights, rotations, residuals, has_residual[f], rule, f * joint_count,

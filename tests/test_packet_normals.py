@@ -26,6 +26,30 @@ def scalar_vector_packet(vectors: wp.array(dtype=wp.vec3), vector_base: wp.int64
     ...
 
 
+@wp.func_native(PN.dqs_vector_packet_source(scalar_on_cpu=True))
+def scalar_dqs_packet(vectors: wp.array(dtype=wp.vec3), vector_base: wp.int64,
+                      vector_vertex: wp.array(dtype=wp.int32),
+                      indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
+                      rotations: wp.array(dtype=wp.quat), residuals: wp.array(dtype=wp.mat33),
+                      scaled: int, rule: int, o: int, n0: int, count: int,
+                      out: wp.array(dtype=wp.vec3), out_base: wp.int64) -> int:
+    ...
+
+
+@wp.kernel
+def both_dqs_branches(vectors: wp.array(dtype=wp.vec3), vector_vertex: wp.array(dtype=wp.int32),
+                      indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
+                      rotations: wp.array(dtype=wp.quat), residuals: wp.array(dtype=wp.mat33),
+                      rule: int, rows: int, out_vector: wp.array(dtype=wp.vec3),
+                      out_scalar: wp.array(dtype=wp.vec3)):
+    """Packet ``tid`` of one rigid frame through both DQS branches."""
+    n0 = wp.tid() * 8
+    PN.dqs_vector_packet(vectors, wp.int64(0), vector_vertex, indices, weights, rotations,
+                         residuals, 0, rule, 0, n0, rows, out_vector, wp.int64(0))
+    scalar_dqs_packet(vectors, wp.int64(0), vector_vertex, indices, weights, rotations,
+                      residuals, 0, rule, 0, n0, rows, out_scalar, wp.int64(0))
+
+
 @wp.kernel
 def both_branches(vectors: wp.array(dtype=wp.vec3), vector_vertex: wp.array(dtype=wp.int32),
                   indices: wp.array(dtype=wp.vec4i), weights: wp.array(dtype=wp.vec4),
@@ -85,28 +109,39 @@ def test_both_branches_match_float64(N):
         assert np.abs(got[:N] - want).max() <= 2e-6
 
 
+def launches(monkeypatch):
+    """``(names, packets)``: the keys of the kernels launched since ``packets(on)`` last
+    cleared them, ``on`` False making :func:`dqskin.kernels.skin.skin_vectors` take the
+    one-vertex kernel (it sees no CPU)."""
+    from dqskin.kernels import grid
+    from dqskin.kernels import skin as KS
+    names = []
+    real_launch, real_is_cpu = grid._launch, KS.is_cpu
+    monkeypatch.setattr(grid, "_launch", lambda kernel, *a: (names.append(kernel.key),
+                                                              real_launch(kernel, *a)))
+
+    def packets(on):
+        monkeypatch.setattr(KS, "is_cpu", real_is_cpu if on else lambda device: False)
+        names.clear()
+    return names, packets
+
+
 @pytest.mark.parametrize("kind", ["normal", "tangent"])
 @pytest.mark.parametrize("V", [9, 203, 4096 + 5])
 def test_packets_equal_one_vertex_kernel(monkeypatch, kind, V):
     """Skinner.skin_vectors with LBS runs the packet kernel on the CPU and gives bit for bit
     what the one-vertex kernel gives: frame blocks, one frame, face-varying rows."""
     import dqskin
-    from dqskin.kernels import grid
-    from dqskin.kernels import skin as KS
 
     rng = np.random.default_rng(V)
     idx, w, M = rig(rng, V, F=20)
     points = rng.normal(size=(V, 3)).astype(np.float32)
     vectors = rng.normal(size=(V, 3)).astype(np.float32)
     fv = rng.integers(0, V, size=V + 13)
-    names = []
-    real_launch, real_is_cpu = grid._launch, KS.is_cpu
-    monkeypatch.setattr(grid, "_launch", lambda kernel, *a: (names.append(kernel.key),
-                                                              real_launch(kernel, *a)))
+    names, packets = launches(monkeypatch)
 
     def run(packet):
-        monkeypatch.setattr(KS, "is_cpu", real_is_cpu if packet else lambda device: False)
-        names.clear()
+        packets(packet)
         sk = dqskin.Skinner(points, idx, w, device="cpu")
         got = (sk.skin_vectors(M, vectors, "lbs", kind=kind),
                sk.skin_vectors(M[0], vectors, "lbs", kind=kind),
@@ -152,8 +187,6 @@ def test_dqs_packets_equal_one_vertex_kernel(monkeypatch, kind, rule, V):
     running sum), on rigid and scaled frames, one frame, face-varying rows; rigid frames within
     float32 of the float64 quaternion blend."""
     import dqskin
-    from dqskin.kernels import grid
-    from dqskin.kernels import skin as KS
 
     rng = np.random.default_rng(V + len(rule))
     idx, w, M = rig(rng, V, F=20)
@@ -162,14 +195,10 @@ def test_dqs_packets_equal_one_vertex_kernel(monkeypatch, kind, rule, V):
     vectors = rng.normal(size=(V, 3)).astype(np.float32)
     fv = rng.integers(0, V, size=V + 13)
     sign = "running_sum" if rule == "running" else "largest_weight"
-    names = []
-    real_launch, real_is_cpu = grid._launch, KS.is_cpu
-    monkeypatch.setattr(grid, "_launch", lambda kernel, *a: (names.append(kernel.key),
-                                                              real_launch(kernel, *a)))
+    names, packets = launches(monkeypatch)
 
     def run(packet):
-        monkeypatch.setattr(KS, "is_cpu", real_is_cpu if packet else lambda device: False)
-        names.clear()
+        packets(packet)
         if rule == "searched":  # a one-shot call (normals): input order, pivot searched
             got = (dqskin.skin_normals(vectors, idx, w, M, "dqs", device="cpu"),
                    dqskin.skin_normals(vectors, idx, w, M[0], "dqs", device="cpu"),
@@ -191,3 +220,39 @@ def test_dqs_packets_equal_one_vertex_kernel(monkeypatch, kind, rule, V):
     for f in (0, 9):
         want = quaternion_oracle(vectors[live], idx[live], w[live], M[f], rule)
         assert np.abs(packet[0][f, live] - want).max() <= 5e-6
+
+
+@pytest.mark.parametrize("rule", ["sorted", "searched", "running"])
+@pytest.mark.parametrize("N", [1, 9, 203])
+def test_both_dqs_branches_match_float64(rule, N):
+    """The DQS snippet's vector and scalar branches against the float64 quaternion blend of
+    each sign rule (one rigid frame; input-order slots, the pivot searched or, for the sorted
+    rule, the weights sorted so that slot 0 is the largest)."""
+    init_warp()
+    rng = np.random.default_rng(N + len(rule))
+    V = max(N // 2, 1)
+    idx, w, M = rig(rng, V)
+    M[0, :, :3, :3] /= np.linalg.norm(M[0, :, :3, :3], axis=-2, keepdims=True)  # rigid
+    if rule == "sorted":
+        order = np.argsort(-w, axis=1, kind="stable")
+        idx, w = np.take_along_axis(idx, order, 1), np.take_along_axis(w, order, 1)
+    vertex = rng.integers(0, V, size=N).astype(np.int32)
+    vectors = rng.normal(size=(N, 3)).astype(np.float32)
+    quats = Rotation.from_matrix(M[0, :, :3, :3]).as_quat().astype(np.float32)  # (x, y, z, w)
+    outs = [wp.full(N + 8, wp.vec3(7.0, 7.0, 7.0), dtype=wp.vec3, device="cpu")
+            for _ in range(2)]
+    wp.launch(both_dqs_branches, dim=-(-N // 8), device="cpu",
+              inputs=[wp.array(vectors, dtype=wp.vec3, device="cpu"),
+                      wp.array(vertex, dtype=wp.int32, device="cpu"),
+                      wp.array(idx, dtype=wp.vec4i, device="cpu"),
+                      wp.array(w, dtype=wp.vec4, device="cpu"),
+                      wp.array(quats, dtype=wp.quat, device="cpu"),
+                      wp.array(np.tile(np.eye(3, dtype=np.float32), (len(quats), 1, 1)),
+                               dtype=wp.mat33, device="cpu"),
+                      ["sorted", "searched", "running"].index(rule), N, *outs])
+    live = w[vertex].sum(1) > 0
+    want = quaternion_oracle(vectors[live], idx[vertex][live], w[vertex][live], M[0], rule)
+    for out in outs:
+        got = out.numpy()
+        assert (got[N:] == 7.0).all(), "a lane past the last row was stored"
+        assert np.abs(got[:N][live] - want).max() <= 5e-6
