@@ -292,9 +292,11 @@ class _Base:
         return self.fieldsets[start:end]
 
 
-WRITES_AHEAD = 2
-"""Blocks of samples a :class:`CrateSamples` may have queued for the writer thread before
-:meth:`~CrateSamples.add` waits (each holds its frames in memory until written)."""
+WRITES_AHEAD = 1
+"""Writes a :class:`CrateSamples` may have queued for the writer thread before
+:meth:`~CrateSamples.add_many` waits: each holds its frames in memory until written (a bake's
+whole chunk); one is written while the caller skins and checks the next."""
+
 
 class _Writer:
     """The process's writer thread (:func:`_writer`) and the lock that creates it once."""
