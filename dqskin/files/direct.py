@@ -168,6 +168,7 @@ class AppendFile:
         self._stage: mmap.mmap | None = None
         self._view: np.ndarray | None = None  # the stage's bytes: set while direct I/O is on
         self._fill = 0  # bytes staged
+        self._block: np.ndarray | None = None  # records gathered for a buffered write
         self._direct = False
         self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | _CLOEXEC,
                                        mode)
@@ -217,7 +218,8 @@ class AppendFile:
         """Append one record per row of ``rows`` ((K, M) uint8, each row contiguous; with
         ``select``, only those row indices, in that order): ``head``, the row's M bytes, ``pad``
         zero bytes. Direct: the records are copied straight into the stage, many rows a copy (no
-        block of them made first); buffered: ``writev`` of the rows in place. Returns the bytes
+        block of them made first); buffered: copied into a block of up to :data:`STAGE` bytes,
+        one write each (a record larger than that: ``writev`` of its parts). Returns the bytes
         appended."""
         rows = np.asarray(rows)
         if rows.ndim != 2 or rows.dtype != np.uint8:
@@ -250,7 +252,22 @@ class AppendFile:
             if self._fill == STAGE:
                 self._write_stage()
         self.size += stride * a
-        if a < len(index):  # the rest record by record (buffered, or each across stages)
+        if a < len(index) and not self._direct and self._block is None:
+            self._block = np.empty(STAGE, np.uint8)
+        per = 0 if self._block is None else len(self._block) // stride  # records a write takes
+        while a < len(index) and not self._direct and per:
+            # buffered: the records copied into one block at a time, one write each (no Python
+            # object per record: the writer thread seldom needs the GIL)
+            k = min(per, len(index) - a)
+            dst = self._block[:k * stride].reshape(k, stride)
+            dst[:, :h] = hv
+            dst[:, h:h + m] = rows[a:a + k] if select is None else rows[index[a:a + k]]
+            dst[:, h + m:] = 0
+            if self.observe is not None:
+                self.observe(dst)
+            self.size += self._append_buffered([dst])
+            a += k
+        if a < len(index):  # the rest record by record (each across stages, or larger)
             zeros = bytes(pad)
             self.append([part for i in index[a:] for part in (head, rows[i], zeros)])
         return total
@@ -334,7 +351,7 @@ class AppendFile:
                 self.flush()
         finally:
             self._direct = False
-            self._view = self._stage = None
+            self._view = self._stage = self._block = None
             fd, self._fd = self._fd, None
             if fd is not None:
                 os.close(fd)
