@@ -77,6 +77,13 @@ def cli_command(which, src, dst):
     return cmd
 
 
+def is_whole(which):
+    """Whether impl ``which`` is a whole ``dqskin skin`` process (``cli``, ``cliclips``,
+    ``cliw2``, with ``+n``/``+nv`` and ``@before``), not a bake timed inside this script's child
+    (``clips0`` starts with "cli" too)."""
+    return which.removesuffix("@before").partition("+")[0] in ("cli", "cliclips", "cliw2")
+
+
 def find_brainstem():
     hits = sorted(SHARED.rglob("BrainStem*.usd*")) if SHARED.is_dir() else []
     return hits[0] if hits else None
@@ -451,7 +458,7 @@ def bench_one(rows, label, src, impls, tmp, repeat=1):
             # charge one implementation for the writeback of the one run before it
             os.sync()
             before = resource.getrusage(resource.RUSAGE_CHILDREN)
-            whole = which.startswith("cli")
+            whole = is_whole(which)
             w0 = time.perf_counter()
             proc = subprocess.run(cli_command(which, src, dst) if whole else
                                   [sys.executable, __file__, "--child", which, str(src),
@@ -601,11 +608,11 @@ def print_whole(sel):
     """Whole processes (interpreter start, imports, load, bake, write, exit): each impl's median
     wall and CPU seconds with their ranges, and UsdSkel's over each ``cli*`` impl's, round by
     round (the median of the per-round ratios and their range)."""
-    if not any(i.startswith("cli") for i in sel):
+    if not any(is_whole(i) for i in sel):
         return
     print("  whole processes, median (range) of the rounds:")
     for impl, r in sel.items():
-        if impl != "usdskel" and not impl.startswith("cli"):  # (cli*@before too)
+        if impl != "usdskel" and not is_whole(impl):
             continue
         w, c = r["all_process_seconds"], r["all_cpu_seconds"]
         line = (f"    {impl}: wall {_median(w):.2f} s ({min(w):.2f}–{max(w):.2f}), CPU "
