@@ -252,14 +252,15 @@ class AppendFile:
             if self._fill == STAGE:
                 self._write_stage()
         self.size += stride * a
-        if a < len(index) and not self._direct and self._block is None:
-            self._block = np.empty(STAGE, np.uint8)
-        per = 0 if self._block is None else len(self._block) // stride  # records a write takes
-        while a < len(index) and not self._direct and per:
+        block = self._block
+        if a < len(index) and not self._direct and block is None:
+            block = self._block = np.empty(STAGE, np.uint8)
+        per = 0 if block is None else len(block) // stride  # records a write takes
+        while block is not None and a < len(index) and not self._direct and per:
             # buffered: the records copied into one block at a time, one write each (no Python
             # object per record: the writer thread seldom needs the GIL)
             k = min(per, len(index) - a)
-            dst = self._block[:k * stride].reshape(k, stride)
+            dst = block[:k * stride].reshape(k, stride)
             dst[:, :h] = hv
             dst[:, h:h + m] = rows[a:a + k] if select is None else rows[index[a:a + k]]
             dst[:, h + m:] = 0
