@@ -95,6 +95,8 @@ def flag(param: Param) -> str:
 
 def _on_signal(signum: int, frame: FrameType | None) -> None:
     atomic = sys.modules.get("dqskin.files.atomic")
+    if atomic is not None and not (hasattr(atomic, "finished") and hasattr(atomic, "interrupt")):
+        atomic = None  # interrupted while it is being imported: nothing of it runs yet
     if _signalled or (atomic is not None and atomic.finished()):
         return  # the first signal interrupts; clean-up then runs to its end (or the output
         # is complete: the run succeeded)
