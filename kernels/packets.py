@@ -256,19 +256,23 @@ _VECTOR = """
         W = wbuf;
     }
     i8 bad = 0;  // lanes with a value the host checks refuse (with check)
-    if (check) {  // indices outside the joints read joint 0
+    if (check) {  // indices outside the joints read joint 0 (a copy only when there are some)
         typedef unsigned int u8 __attribute__((ext_vector_type(8)));
         const u8 joints_u = (unsigned)joint_count;
-        const i8 zero = 0;
+        i8 iv[4], outside[4];
         for (int q = 0; q < 4; ++q) {
-            i8 iv;
-            __builtin_memcpy(&iv, I + 8 * q, 32);
-            const i8 outside = __builtin_convertvector(iv, u8) >= joints_u;
-            bad |= outside;
-            iv = outside ? zero : iv;
-            __builtin_memcpy(ibuf + 8 * q, &iv, 32);
+            __builtin_memcpy(&iv[q], I + 8 * q, 32);
+            outside[q] = __builtin_convertvector(iv[q], u8) >= joints_u;
+            bad |= outside[q];
         }
-        I = ibuf;
+        if (__builtin_reduce_or(bad)) {
+            const i8 zero = 0;
+            for (int q = 0; q < 4; ++q) {
+                iv[q] = outside[q] ? zero : iv[q];
+                __builtin_memcpy(ibuf + 8 * q, &iv[q], 32);
+            }
+            I = ibuf;
+        }
     }
     f8 pa, pb, pc;
     __builtin_memcpy(&pa, P, 32);
@@ -288,9 +292,7 @@ _VECTOR = """
     if (check) {  // points finite, weights finite and non-negative (-0.0 too)
         bad |= ~(x - x == 0.0f) | ~(y - y == 0.0f) | ~(z - z == 0.0f);
         for (int k = 0; k < 4; ++k) bad |= ~((wc[k] >= 0.0f) & (wc[k] <= 3.40282347e38f));
-        int any = 0;
-        for (int l = 0; l < 8; ++l) any |= bad[l];
-        if (any) *(volatile int*)flags.data = 1;
+        if (__builtin_reduce_or(bad)) *(volatile int*)flags.data = 1;
     }
     PIVOT
     MATH
