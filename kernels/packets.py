@@ -290,8 +290,12 @@ _VECTOR = """
     transpose4(wq, wc);
     const V w0 = wc[0], w1 = wc[1], w2 = wc[2], w3 = wc[3];
     if (check) {  // points finite, weights finite and non-negative (-0.0 too)
-        bad |= ~(x - x == 0.0f) | ~(y - y == 0.0f) | ~(z - z == 0.0f);
-        for (int k = 0; k < 4; ++k) bad |= ~((wc[k] >= 0.0f) & (wc[k] <= 3.40282347e38f));
+        // v - v is 0 for a finite v, else NaN: the sum is 0 exactly when all seven are finite;
+        // the least weight (a NaN one is caught by the sum) is then negative or not
+        const V finite = ((x - x) + (y - y)) + ((z - z) + (w0 - w0))
+                         + (((w1 - w1) + (w2 - w2)) + (w3 - w3));
+        const V m01 = w0 < w1 ? w0 : w1, m23 = w2 < w3 ? w2 : w3;
+        bad |= (finite != 0.0f) | ((m01 < m23 ? m01 : m23) < 0.0f);
         if (__builtin_reduce_or(bad)) *(volatile int*)flags.data = 1;
     }
     PIVOT
