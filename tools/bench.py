@@ -12,7 +12,10 @@ of the mesh included, as ``UsdSkel.SkinPoints`` converts its inputs every call).
 FK: 1,000 skeletons × 64 joints. Crowds (:func:`bench_crowd`): 100 and 1,000 CesiumMen (glTF, from
 ../shared; the bundled humanoid without it) against one mesh of the same total points. Sign rules
 (:func:`bench_sign_rules`): DQS with Blender's running sum against UsdSkel's rule on a
-598,959-point CesiumMan tiling. Prints tables and writes JSON.
+598,959-point CesiumMan tiling. The one-shot and crowd ratios are also measured from calls
+alternated one by one (:func:`paired_ratios`), and every round records the minor page faults per
+call and the CPU other processes took meanwhile (:func:`machine_cpu`), in the JSON and the
+tables. Prints tables and writes JSON.
 """
 
 import argparse
@@ -317,7 +320,7 @@ def bench_fk(devices, rows, skeletons=1000):
 
 
 def crowd_character():
-    """CesiumMan (glTF, 3,273 points, 19 joints) from ../shared, else the bundled humanoid."""
+    """CesiumMan (glTF, 3,273 points, 21 joints) from ../shared, else the bundled humanoid."""
     root = Path(__file__).resolve().parents[1]
     glb = root.parent / "shared" / "assets" / "khronos-gltf" / "CesiumMan" / "CesiumMan.glb"
     return dqskin.load(glb if glb.exists() else root / "assets" / "humanoid.usda")
