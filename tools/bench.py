@@ -41,17 +41,31 @@ JOINTS, INFLUENCES = 64, 4
 
 def machine_cpu():
     """``(CPU seconds of the whole machine, of this process, minor page faults of this process)``
-    so far (Linux /proc/stat; the machine's figure is None elsewhere): their differences over a
-    round say how much of it other processes took and how much memory it touched first."""
-    import resource
-    use = resource.getrusage(resource.RUSAGE_SELF)
+    so far (the machine's from Linux's /proc/stat, the faults from ``resource``; None where
+    missing): their differences over a round say how much of it other processes took and how
+    much memory it touched first."""
+    try:
+        import resource
+        faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    except ImportError:
+        faults = None
     try:
         with open("/proc/stat") as f:
             ticks = [int(x) for x in f.readline().split()[1:8]]
         busy = (ticks[0] + ticks[1] + ticks[2] + ticks[5] + ticks[6]) / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError):
+    except (OSError, ValueError, IndexError, AttributeError):
         busy = None
-    return busy, use.ru_utime + use.ru_stime, use.ru_minflt
+    return busy, time.process_time(), faults
+
+
+def others_cores(busy0, busy1, own, wall):
+    """CPU cores other processes took over ``wall`` seconds, from two :func:`machine_cpu`
+    readings of the machine (``busy0``, ``busy1``) and this process's CPU seconds ``own``
+    meanwhile; None when unknown or when ``wall`` is under 0.2 s (the machine's count moves in
+    ticks of 10 ms)."""
+    if busy0 is None or wall < 0.2:
+        return None
+    return ((busy1 - busy0) - own) / wall
 
 
 def best_times(fns, repeat, burst_seconds=0.1, rounds=None):
@@ -83,9 +97,9 @@ def best_times(fns, repeat, burst_seconds=0.1, rounds=None):
             if rounds is not None:
                 rec = rounds.setdefault(name, {"seconds": [], "faults": [], "others": []})
                 rec["seconds"].append(per_call)
-                rec["faults"].append((faults1 - faults0) / bursts[name])
-                rec["others"].append(None if busy0 is None else
-                                     ((busy1 - busy0) - (own1 - own0)) / wall)
+                rec["faults"].append(None if faults0 is None else
+                                     (faults1 - faults0) / bursts[name])
+                rec["others"].append(others_cores(busy0, busy1, own1 - own0, wall))
     return best
 
 
@@ -113,7 +127,7 @@ def paired_ratios(base, other, repeat, round_seconds=1.0):
         wall = time.perf_counter() - w0
         busy1, own1, _ = machine_cpu()
         out["ratio"].append(spent[1] / spent[0])
-        out["others"].append(None if busy0 is None else ((busy1 - busy0) - (own1 - own0)) / wall)
+        out["others"].append(others_cores(busy0, busy1, own1 - own0, wall))
     return out
 
 
@@ -516,9 +530,10 @@ def print_crowd_table(crowd):
 
 def others_range(rows):
     """``"lo–hi"``: the least and most CPU cores other processes took over the rounds of
-    ``rows`` ("?" where the machine's use is not known)."""
-    vals = [o for r in rows for k in ("round_others", "paired_others") for o in r.get(k, ())]
-    if not vals or any(o is None for o in vals):
+    ``rows`` long enough to tell ("?" when none is)."""
+    vals = [o for r in rows for k in ("round_others", "paired_others") for o in r.get(k, ())
+            if o is not None]
+    if not vals:
         return "?"
     return f"{min(vals):.2f}–{max(vals):.2f}"
 
