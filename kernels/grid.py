@@ -15,7 +15,6 @@ packing on every call, which dominates small calls.
 """
 
 import ctypes
-import itertools
 import os
 import threading
 import weakref
@@ -37,9 +36,10 @@ while every vertex of the block is skinned, and influences are read once per blo
 
 
 PIECES_PER_THREAD = 4
-"""A large CPU launch is cut into this many pieces per thread, which the threads take in turn: a
-thread the system slows (another process on its core) leaves its later pieces to the others,
-instead of the launch waiting for its fixed half."""
+"""A large CPU launch is cut into pieces that the threads take in turn, each
+``1 / (PIECES_PER_THREAD · threads)`` of the rows left: a thread the system slows (another
+process on its core) leaves the later pieces to the others instead of the launch waiting for its
+fixed share, and the last pieces are small, so the threads finish together."""
 
 
 MIN_WORK = 32768
@@ -262,8 +262,8 @@ def launch(kernel: wp.Kernel, dim: int | Iterable[int], inputs: Sequence[Any],
 def launch_rows(kernel: wp.Kernel, count: int, inputs: Sequence[Any], outputs: Sequence[Any],
                 device: Device, min_chunk: int = 4096, inner: tuple[int, ...] = ()) -> None:
     """Launch ``kernel`` over ``range(count)`` rows, split in chunks on the CPU: one per thread,
-    or, when there is work for it, :data:`PIECES_PER_THREAD` per thread that the threads take
-    in turn.
+    or, when there is work for it, pieces that the threads take in turn, each a share of what
+    is left (:func:`_guided`).
 
     ``kernel`` takes ``inputs``, then ``row_offset``, then ``outputs``; its grid is
     ``(rows of the chunk,) + inner``. On CUDA one launch covers everything.
@@ -278,15 +278,37 @@ def launch_rows(kernel: wp.Kernel, count: int, inputs: Sequence[Any], outputs: S
     if threads <= 1:
         run(0, count)
         return
-    pieces = threads * max(1, min(PIECES_PER_THREAD, count // min_chunk // threads))
-    bounds = [count * c // pieces for c in range(pieces + 1)]
-    if pieces == threads:
-        _pool_map([(run, bounds[c], bounds[c + 1] - bounds[c]) for c in range(pieces)])
+    if count // min_chunk // threads < 2:
+        bounds = [count * c // threads for c in range(threads + 1)]
+        _pool_map([(run, bounds[c], bounds[c + 1] - bounds[c]) for c in range(threads)])
         return
-    taken = itertools.count()  # the next piece: next() is atomic under the GIL
+    _pool_map([(_guided(run, count, threads, min_chunk),)] * threads)
+
+
+def _guided(run: Callable[[int, int], None], count: int, threads: int,
+            min_chunk: int) -> Callable[[], None]:
+    """The loop each of ``threads`` threads runs over ``range(count)`` rows: take the next piece,
+    ``1 / (PIECES_PER_THREAD · threads)`` of what is left but at least
+    ``count / (PIECES_PER_THREAD · threads)`` rows up to ``4 · min_chunk`` (and ``min_chunk``),
+    run it, until none is left. A launch of up to ``4 · min_chunk`` rows a piece is cut in
+    ``PIECES_PER_THREAD`` equal pieces per thread; a larger one in pieces that shrink to
+    ``4 · min_chunk`` rows as it ends, so a thread that another process slows holds it back by one
+    small piece at most, at the cost of a launch a piece."""
+    lock = threading.Lock()
+    taken = [0]
+    share = PIECES_PER_THREAD * threads
+    least = max(min_chunk, min(4 * min_chunk, count // share))
 
     def work() -> None:
-        while (c := next(taken)) < pieces:
-            run(bounds[c], bounds[c + 1] - bounds[c])
+        while True:
+            with lock:
+                start = taken[0]
+                left = count - start
+                if left <= 0:
+                    return
+                n = max(least, left // share)
+                n = left if left - n < min_chunk else n  # (no sliver left for last)
+                taken[0] = start + n
+            run(start, n)
 
-    _pool_map([(work,)] * threads)
+    return work

@@ -256,19 +256,23 @@ _VECTOR = """
         W = wbuf;
     }
     i8 bad = 0;  // lanes with a value the host checks refuse (with check)
-    if (check) {  // indices outside the joints read joint 0
+    if (check) {  // indices outside the joints read joint 0 (a copy only when there are some)
         typedef unsigned int u8 __attribute__((ext_vector_type(8)));
         const u8 joints_u = (unsigned)joint_count;
-        const i8 zero = 0;
+        i8 iv[4], outside[4];
         for (int q = 0; q < 4; ++q) {
-            i8 iv;
-            __builtin_memcpy(&iv, I + 8 * q, 32);
-            const i8 outside = __builtin_convertvector(iv, u8) >= joints_u;
-            bad |= outside;
-            iv = outside ? zero : iv;
-            __builtin_memcpy(ibuf + 8 * q, &iv, 32);
+            __builtin_memcpy(&iv[q], I + 8 * q, 32);
+            outside[q] = __builtin_convertvector(iv[q], u8) >= joints_u;
+            bad |= outside[q];
         }
-        I = ibuf;
+        if (__builtin_reduce_or(bad)) {
+            const i8 zero = 0;
+            for (int q = 0; q < 4; ++q) {
+                iv[q] = outside[q] ? zero : iv[q];
+                __builtin_memcpy(ibuf + 8 * q, &iv[q], 32);
+            }
+            I = ibuf;
+        }
     }
     f8 pa, pb, pc;
     __builtin_memcpy(&pa, P, 32);
@@ -286,11 +290,13 @@ _VECTOR = """
     transpose4(wq, wc);
     const V w0 = wc[0], w1 = wc[1], w2 = wc[2], w3 = wc[3];
     if (check) {  // points finite, weights finite and non-negative (-0.0 too)
-        bad |= ~(x - x == 0.0f) | ~(y - y == 0.0f) | ~(z - z == 0.0f);
-        for (int k = 0; k < 4; ++k) bad |= ~((wc[k] >= 0.0f) & (wc[k] <= 3.40282347e38f));
-        int any = 0;
-        for (int l = 0; l < 8; ++l) any |= bad[l];
-        if (any) *(volatile int*)flags.data = 1;
+        // v - v is 0 for a finite v, else NaN: the sum is 0 exactly when all seven are finite;
+        // the least weight (a NaN one is caught by the sum) is then negative or not
+        const V finite = ((x - x) + (y - y)) + ((z - z) + (w0 - w0))
+                         + (((w1 - w1) + (w2 - w2)) + (w3 - w3));
+        const V m01 = w0 < w1 ? w0 : w1, m23 = w2 < w3 ? w2 : w3;
+        bad |= (finite != 0.0f) | ((m01 < m23 ? m01 : m23) < 0.0f);
+        if (__builtin_reduce_or(bad)) *(volatile int*)flags.data = 1;
     }
     PIVOT
     MATH

@@ -549,3 +549,38 @@ def test_zero_frames_give_an_empty_result(method):
     assert dqskin.skin_points(points, idx, w, none, method, device="cpu").shape == (0, 20, 3)
     sk = dqskin.Skinner(points, idx, w, device="cpu")
     assert sk.skin(none, method).shape == (0, 20, 3)
+
+
+@pytest.mark.parametrize("count, min_chunk", [(8 * 4096, 4096), (125_000, 4096),
+                                              (409_125, 256), (40_913, 256), (9 * 4096 + 7, 4096)])
+def test_launch_rows_covers_every_row_once_in_pieces_that_shrink(monkeypatch, count, min_chunk):
+    """Two threads take the pieces of a launch: every row runs exactly once; a launch of up to
+    four minimum chunks a piece runs in equal pieces (4 a thread: a 1M-point frame as before);
+    a larger one ends in pieces of at most 5 minimum chunks, so no thread waits long on the
+    other's last piece (fixed pieces were an eighth of the launch each)."""
+    from dqskin.kernels import grid
+
+    @wp.kernel
+    def count_rows(row_offset: int, out: wp.array(dtype=wp.int32)):
+        i = wp.tid() + row_offset
+        out[i] = out[i] + 1
+
+    monkeypatch.setenv("DQSKIN_THREADS", "2")
+    pieces = []
+    launch = grid._launch
+
+    def recorded(kernel, dim, args, device):
+        pieces.append((args[0], dim[0]))
+        launch(kernel, dim, args, device)
+
+    monkeypatch.setattr(grid, "_launch", recorded)
+    out = wp.zeros(count, dtype=wp.int32, device="cpu")
+    grid.launch_rows(count_rows, count, [], [out], "cpu", min_chunk=min_chunk)
+    np.testing.assert_array_equal(out.numpy(), np.ones(count, np.int32))
+    starts = sorted(pieces)
+    assert starts[0][0] == 0 and all(a + n == b for (a, n), (b, _) in zip(starts, starts[1:]))
+    sizes = [n for _, n in starts]
+    if count // 8 <= 4 * min_chunk:
+        assert len(sizes) == 8 and max(sizes) - min(sizes) < min_chunk, sizes
+    else:
+        assert sizes[-1] <= 5 * min_chunk and len(sizes) <= 64, sizes

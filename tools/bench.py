@@ -12,7 +12,10 @@ of the mesh included, as ``UsdSkel.SkinPoints`` converts its inputs every call).
 FK: 1,000 skeletons × 64 joints. Crowds (:func:`bench_crowd`): 100 and 1,000 CesiumMen (glTF, from
 ../shared; the bundled humanoid without it) against one mesh of the same total points. Sign rules
 (:func:`bench_sign_rules`): DQS with Blender's running sum against UsdSkel's rule on a
-598,959-point CesiumMan tiling. Prints tables and writes JSON.
+598,959-point CesiumMan tiling. The one-shot and crowd ratios are also measured from calls
+alternated one by one (:func:`paired_ratios`), and every round records the minor page faults per
+call and the CPU other processes took meanwhile (:func:`machine_cpu`), in the JSON and the
+tables. Prints tables and writes JSON.
 """
 
 import argparse
@@ -36,12 +39,43 @@ from dqskin.skeleton import forward_kinematics
 JOINTS, INFLUENCES = 64, 4
 
 
+def machine_cpu():
+    """``(CPU seconds of the whole machine, of this process, minor page faults of this process)``
+    so far (the machine's from Linux's /proc/stat, the faults from ``resource``; None where
+    missing): their differences over a round say how much of it other processes took and how
+    much memory it touched first."""
+    try:
+        import resource
+        faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    except ImportError:
+        faults = None
+    try:
+        with open("/proc/stat") as f:
+            ticks = [int(x) for x in f.readline().split()[1:8]]
+        busy = (ticks[0] + ticks[1] + ticks[2] + ticks[5] + ticks[6]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, AttributeError):
+        busy = None
+    return busy, time.process_time(), faults
+
+
+def others_cores(busy0, busy1, own, wall):
+    """CPU cores other processes took over ``wall`` seconds, from two :func:`machine_cpu`
+    readings of the machine (``busy0``, ``busy1``) and this process's CPU seconds ``own``
+    meanwhile; None when unknown or when ``wall`` is under 0.2 s (the machine's count moves in
+    ticks of 10 ms)."""
+    if busy0 is None or wall < 0.2:
+        return None
+    return ((busy1 - busy0) - own) / wall
+
+
 def best_times(fns, repeat, burst_seconds=0.1, rounds=None):
     """Per-call wall time of each callable: the best over ``repeat`` rounds of the mean of a burst
     of back-to-back calls (about ``burst_seconds`` long, so steady state, as in a pipeline).
     Rounds are interleaved so machine noise hits every implementation alike, with a pause before
     each burst so the previous implementation's worker threads (TBB, BLAS) go idle. ``rounds``:
-    a dict that receives each callable's per-round times too."""
+    a dict that receives each callable's per-round records: ``seconds`` per call, ``faults``
+    (minor page faults per call), ``others`` (CPU seconds other processes used per second of
+    the round: 1.0 is one core taken)."""
     bursts = {}
     for name, fn in fns.items():
         fn()  # warm-up (kernel load, caches)
@@ -52,14 +86,49 @@ def best_times(fns, repeat, burst_seconds=0.1, rounds=None):
     for _ in range(repeat):
         for name, fn in fns.items():
             time.sleep(0.3)
+            busy0, own0, faults0 = machine_cpu()
             t0 = time.perf_counter()
             for _ in range(bursts[name]):
                 fn()
-            per_call = (time.perf_counter() - t0) / bursts[name]
+            wall = time.perf_counter() - t0
+            busy1, own1, faults1 = machine_cpu()
+            per_call = wall / bursts[name]
             best[name] = min(best[name], per_call)
             if rounds is not None:
-                rounds.setdefault(name, []).append(per_call)
+                rec = rounds.setdefault(name, {"seconds": [], "faults": [], "others": []})
+                rec["seconds"].append(per_call)
+                rec["faults"].append(None if faults0 is None else
+                                     (faults1 - faults0) / bursts[name])
+                rec["others"].append(others_cores(busy0, busy1, own1 - own0, wall))
     return best
+
+
+def paired_ratios(base, other, repeat, round_seconds=1.0):
+    """Per-round ``other`` ÷ ``base`` time from calls alternated within each round (A B B A A B
+    ...: a call of each, then the other order, so both see the same share of the machine when
+    other processes come and go): ``repeat`` rounds of about ``round_seconds``, a pause before
+    each. Returns ``{"ratio": [...], "others": [...]}`` (other processes' CPU seconds per
+    second of the round, as :func:`best_times`)."""
+    base(), other()
+    t0 = time.perf_counter()
+    base(), other()
+    pairs = max(1, int(round_seconds / max(time.perf_counter() - t0, 1e-6)))
+    out = {"ratio": [], "others": []}
+    for _ in range(repeat):
+        time.sleep(0.3)
+        spent = [0.0, 0.0]
+        busy0, own0, _ = machine_cpu()
+        w0 = time.perf_counter()
+        for k in range(pairs):
+            for i in ((0, 1) if k % 2 == 0 else (1, 0)):
+                t0 = time.perf_counter()
+                (base, other)[i]()
+                spent[i] += time.perf_counter() - t0
+        wall = time.perf_counter() - w0
+        busy1, own1, _ = machine_cpu()
+        out["ratio"].append(spent[1] / spent[0])
+        out["others"].append(others_cores(busy0, busy1, own1 - own0, wall))
+    return out
 
 
 def make_rig(rng, V):
@@ -119,10 +188,17 @@ def bench_skinning(sizes, repeat, devices, rows):
                 fns["UsdSkel " + ("serial" if serial else "parallel")] = usd
             oracle = numpy_lbs if method == "lbs" else numpy_dqs
             fns["NumPy"] = lambda oracle=oracle: oracle(points, idx, w, M)
-            res = best_times(fns, rep)
+            per_round = {}
+            res = best_times(fns, rep, rounds=per_round)
+            paired = {f"dqskin {dev} one-shot": paired_ratios(fns[f"dqskin {dev}"],
+                                                              fns[f"dqskin {dev} one-shot"], rep)
+                      for dev in devices}
             for impl, t in res.items():
+                extra = {f"paired_{k}": v for k, v in paired[impl].items()} \
+                    if impl in paired else {}
                 rows.append(dict(kind="skin", method=method, vertices=V, impl=impl, seconds=t,
-                                 mpts_per_s=V / t / 1e6))
+                                 mpts_per_s=V / t / 1e6, **extra,
+                                 **{f"round_{k}": v for k, v in per_round[impl].items()}))
 
 
 @wp.kernel
@@ -258,7 +334,7 @@ def bench_fk(devices, rows, skeletons=1000):
 
 
 def crowd_character():
-    """CesiumMan (glTF, 3,273 points, 19 joints) from ../shared, else the bundled humanoid."""
+    """CesiumMan (glTF, 3,273 points, 21 joints) from ../shared, else the bundled humanoid."""
     root = Path(__file__).resolve().parents[1]
     glb = root.parent / "shared" / "assets" / "khronos-gltf" / "CesiumMan" / "CesiumMan.glb"
     return dqskin.load(glb if glb.exists() else root / "assets" / "humanoid.usda")
@@ -320,11 +396,16 @@ def bench_crowd(devices, rows, counts=(100, 1000), frames=16, repeat=5):
                     fns["crowd end-to-end"] = lambda: (crowd.skin(t, method), wp.synchronize())
                 per_round = {}
                 res = best_times(fns, repeat, burst_seconds=0.5, rounds=per_round)
+                # the ratio again, from calls alternated one by one (same machine share)
+                paired = paired_ratios(fns["one mesh, residual"], fns["crowd skin"], repeat,
+                                       round_seconds=2.0)
                 for impl, sec in res.items():
+                    extra = {f"paired_{k}": v for k, v in paired.items()} \
+                        if impl == "crowd skin" else {}
                     rows.append(dict(kind="crowd", device=dev, method=method, instances=count,
                                      vertices=V, frames=frames, impl=impl, seconds=sec,
-                                     mpts_per_s=V * frames / sec / 1e6,
-                                     round_seconds=per_round[impl]))
+                                     mpts_per_s=V * frames / sec / 1e6, **extra,
+                                     **{f"round_{k}": v for k, v in per_round[impl].items()}))
 
 
 def bench_sign_rules(rows, copies=183, frames=48, repeat=5):
@@ -426,11 +507,13 @@ def print_sign_table(sign):
 def print_crowd_table(crowd):
     print(f"\nCrowds: {crowd[0]['frames']} frames per call (M point-frames/s; ratio = crowd "
           "skin time ÷ one-mesh time with a residual as the crowd has, best rounds; then the "
-          "median and worst of the ratios round by round; target ≤ 1.3)")
+          "median and worst of the ratios round by round, and of the ratios of calls alternated "
+          "one by one (paired); target ≤ 1.3; others: CPU cores other processes took, the "
+          "least and most over the rounds)")
     impls = list(dict.fromkeys(r["impl"] for r in crowd))
     print("| instances | points | device | method | " + " | ".join(impls)
-          + " | ratio | median | worst |")
-    print("|" + "---|" * (len(impls) + 7))
+          + " | ratio | median | worst | paired median | paired worst | others |")
+    print("|" + "---|" * (len(impls) + 10))
     for key in dict.fromkeys((r["instances"], r["device"], r["method"]) for r in crowd):
         sel = {r["impl"]: r for r in crowd
                if (r["instances"], r["device"], r["method"]) == key}
@@ -438,9 +521,21 @@ def print_crowd_table(crowd):
         ratio = sel["crowd skin"]["seconds"] / sel["one mesh, residual"]["seconds"]
         by_round = np.array(sel["crowd skin"]["round_seconds"]) / np.array(
             sel["one mesh, residual"]["round_seconds"])
+        paired = np.array(sel["crowd skin"]["paired_ratio"])
         V = next(iter(sel.values()))["vertices"]
         print(f"| {key[0]} | {V} | {key[1]} | {key[2]} | {cells} | {ratio:.2f} | "
-              f"{np.median(by_round):.2f} | {by_round.max():.2f} |")
+              f"{np.median(by_round):.2f} | {by_round.max():.2f} | {np.median(paired):.2f} | "
+              f"{paired.max():.2f} | {others_range(sel.values())} |")
+
+
+def others_range(rows):
+    """``"lo–hi"``: the least and most CPU cores other processes took over the rounds of
+    ``rows`` long enough to tell ("?" when none is)."""
+    vals = [o for r in rows for k in ("round_others", "paired_others") for o in r.get(k, ())
+            if o is not None]
+    if not vals:
+        return "?"
+    return f"{min(vals):.2f}–{max(vals):.2f}"
 
 
 def print_tables(rows):
@@ -478,8 +573,8 @@ def print_skin_table(skin):
     impls = list(dict.fromkeys(r["impl"] for r in skin))
     head = f"| {'vertices':>9} | method | " + " | ".join(f"{i:>17}" for i in impls)
     print(head + " | ×UsdSkel par. | one-shot ×UsdSkel par. | one-shot ÷ Skinner time | "
-                 "DQS/LBS time |")
-    print("|" + "---|" * (len(impls) + 6))
+                 "paired median | paired worst | others | DQS/LBS time |")
+    print("|" + "---|" * (len(impls) + 9))
     for V in dict.fromkeys(r["vertices"] for r in skin):
         for method in ("lbs", "dqs"):
             sel = {r["impl"]: r for r in skin if r["vertices"] == V and r["method"] == method}
@@ -489,8 +584,11 @@ def print_skin_table(skin):
             other = {r["impl"]: r for r in skin if r["vertices"] == V and r["method"] == "lbs"}
             dl = sel[ours]["seconds"] / other[ours]["seconds"]
             cells = " | ".join(f"{sel[i]['mpts_per_s']:17.1f}" for i in impls)
+            paired = np.array(sel[ours + " one-shot"]["paired_ratio"])
             print(f"| {V:>9} | {method:6} | {cells} | {usd / sel[ours]['seconds']:12.2f}× | "
-                  f"{usd / one:12.2f}× | {one / sel[ours]['seconds']:12.2f}× | {dl:11.2f}× |")
+                  f"{usd / one:12.2f}× | {one / sel[ours]['seconds']:12.2f}× | "
+                  f"{np.median(paired):.2f}× | {paired.max():.2f}× | "
+                  f"{others_range(sel.values())} | {dl:11.2f}× |")
 
 
 def main(argv=None):
