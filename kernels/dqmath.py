@@ -34,6 +34,13 @@ RESIDUAL_TOLERANCE = wp.constant(1.0e-6)
 """A scale/shear residual ``S`` within this of the identity (every entry) counts as rigid, as in
 UsdSkel's DQS. The one definition for the kernels and the host."""
 
+POLAR_NEAR = wp.constant(1.0e-3)
+"""Largest ``|AᵀA − I|`` entry for which :func:`polar_rotation` iterates instead of taking the
+SVD (:data:`dqskin.linalg.NEAR_ROTATION`)."""
+
+POLAR_NEWTON_STEPS = 2
+"""Polar iteration steps from within :data:`POLAR_NEAR`: float32-converged after two."""
+
 
 @wp.func
 def dq_real(a: vec8):
@@ -224,13 +231,26 @@ def polar_rotation(a: wp.mat33):
     """Rotation factor ``R`` of the polar decomposition ``A = R·S``, det(R) = +1 (as
     ``GfMatrix4d::Factor``).
 
-    Orthonormal input returns itself; otherwise ``R = U·Vᵀ`` from the SVD, negated when
+    Orthonormal input returns itself. A matrix with ``det A > 0`` within :data:`POLAR_NEAR` of a
+    rotation (every ``|AᵀA − I|`` entry: a chain of float32 joint matrices, as skinning
+    transforms are) takes :data:`POLAR_NEWTON_STEPS` steps of the polar iteration
+    ``X ← (X + X⁻ᵀ)/2``, which squares the error each step (1e-3 → 5e-7 → float32 rounding), as
+    :func:`dqskin.linalg.polar` does in float64. Otherwise ``R = U·Vᵀ`` from the SVD, negated when
     ``det A < 0`` (Gf negates all three scales of a reflection, leaving a proper rotation). ``A``
     is divided by its largest entry first (``R`` does not change), so scales near the float32
     limits neither overflow nor underflow in the SVD.
     """
     if is_rotation(a):
         return a
+    e = wp.transpose(a) * a - wp.identity(n=3, dtype=float)
+    off = wp.max(wp.max(wp.abs(e[0, 0]), wp.abs(e[1, 1])),
+                 wp.max(wp.abs(e[2, 2]), wp.abs(e[0, 1])))
+    off = wp.max(off, wp.max(wp.abs(e[0, 2]), wp.abs(e[1, 2])))
+    if off < POLAR_NEAR and wp.determinant(a) > 0.0:
+        x = a
+        for _k in range(POLAR_NEWTON_STEPS):
+            x = (x + wp.transpose(wp.inverse(x))) * 0.5
+        return x
     big = float(0.0)
     for i in range(3):
         for k in range(3):

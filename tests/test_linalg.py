@@ -73,3 +73,36 @@ def test_singular_and_degenerate_matrices_take_the_svd():
     np.testing.assert_allclose(rot[2], r[2], atol=1e-15)
     np.testing.assert_allclose(np.linalg.det(rot[:2]), 1.0, atol=1e-12)
     np.testing.assert_allclose(rot @ s, a, atol=1e-12)
+
+
+@pytest.mark.parametrize("case", ["rotation", "float32 chain", "near threshold", "past threshold",
+                                  "scaled", "reflected"])
+def test_kernel_polar_rotation_matches_scipy(case):
+    """The kernels' float32 ``polar_rotation`` (identity, polar iteration or SVD by the input)
+    against SciPy's float64 polar decomposition of the same float32 matrices."""
+    import warp as wp
+
+    from dqskin.kernels import dqmath
+
+    @wp.kernel(module="unique")
+    def polar_kernel(a: wp.array(dtype=wp.mat33), out: wp.array(dtype=wp.mat33)):
+        i = wp.tid()
+        out[i] = dqmath.polar_rotation(a[i])
+
+    rng = np.random.default_rng(11)
+    r = rotations(rng, 200)
+    chain = r.copy()
+    for _ in range(8):  # products of float32 rotations: off a rotation by float32 rounding
+        chain = (chain.astype(np.float32) @ rotations(rng, 200).astype(np.float32))
+    a = {"rotation": r, "float32 chain": chain,
+         "near threshold": perturbed(r, 4e-4, rng),
+         "past threshold": perturbed(r, 2e-3, rng),
+         "scaled": r * rng.uniform(0.01, 100, (200, 1, 3)),
+         "reflected": -r}[case].astype(np.float32)
+    wa = wp.array(a, dtype=wp.mat33, device="cpu")
+    out = wp.empty(len(a), dtype=wp.mat33, device="cpu")
+    wp.launch(polar_kernel, dim=len(a), inputs=[wa, out], device="cpu")
+    got = out.numpy().astype(np.float64)
+    tol = 5e-6 if case in ("past threshold", "scaled", "reflected") else 1e-6  # SVD: float32 svd3
+    np.testing.assert_allclose(got, scipy_rotation(a.astype(np.float64)), atol=tol)
+    np.testing.assert_allclose(np.linalg.det(got), 1.0, atol=tol)
