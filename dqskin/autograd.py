@@ -58,6 +58,7 @@ from ._warp import init_warp
 from .errors import InputError, Param
 from .kernels import grad as KG
 from .kernels.dqmath import vec8
+from .kernels.grad_dqs import dqs_points_adjoint_kernel
 from .options import METHOD_NAMES, SIGN_REFERENCES, Method, SignReference
 
 if TYPE_CHECKING:
@@ -261,13 +262,13 @@ class _Skin(torch.autograd.Function):
             if method != KG.LBS:
                 KG.launch_joints(KG.prepare_kernel, frames * joints, *a.prepare(), d)
             kernel = KG.points_kernel(method, k, running_sum)
-            KG.launch_vertices(kernel, chunks, frames, lambda c: a.point_inputs(), a.point_out,
-                               d)
+            KG.launch_vertices(kernel, chunks, frames, lambda c: a.point_inputs(),
+                               lambda c: a.point_out, d)
             if normals is not None:
                 KG.launch_joints(KG.prepare_normals_kernel, frames * joints,
                                  *a.prepare_normals(), d)
                 KG.launch_vertices(KG.normals_kernel(method, k, running_sum), chunks, frames,
-                                   lambda c: a.normal_inputs(), a.normal_out, d)
+                                   lambda c: a.normal_inputs(), lambda c: a.normal_out, d)
         if normals is None:
             ctx.mark_non_differentiable(out_n)
         return out, out_n
@@ -283,37 +284,54 @@ class _Skin(torch.autograd.Function):
         k = weights.shape[1]
         a = _SkinArrays(ctx.saved_tensors, d)
         n = len(chunks)
-        zeros = torch.zeros_like
-        adj_points, adj_weights = zeros(points), zeros(weights)
-        adj_blend = None if blend is None else zeros(blend)
-        adj_centers = None if centers is None else zeros(centers)
-        adj_normals = None if normals is None else zeros(normals)
-        # per-joint adjoints: a buffer per chunk (the chunks run at once), summed after
-        cx = torch.zeros((n, frames * joints, 4, 4), dtype=torch.float32, device=points.device)
-        cq = torch.zeros((n, dqs.shape[0], 8), dtype=torch.float32, device=points.device)
-        cs = torch.zeros((n, dqs.shape[0], 3, 3), dtype=torch.float32, device=points.device)
+        fj = frames * joints
+        # no PyTorch operation here that could start its OpenMP threads (they would spin on
+        # the cores the kernels run on): buffers zeroed and per-chunk adjoints summed in Warp
+        written = method == KG.DQS  # its adjoint kernel writes the per-vertex adjoints
         with _stream(d):
+            zeros = _Zeros(d)
+            empty = torch.empty_like
+            adj_points = empty(points) if written else zeros.like(points)
+            adj_weights = empty(weights) if written else zeros.like(weights)
+            adj_blend = None if blend is None else zeros.like(blend)
+            adj_centers = None if centers is None else zeros.like(centers)
+            adj_normals = None if normals is None else zeros.like(normals)
+            adj_x = zeros.new((fj, 4, 4))
+            # per-joint adjoints: a buffer per chunk (the chunks run at once), summed after
+            cq = zeros.new((n, dqs.shape[0], 8))
+            cs = zeros.new((n, dqs.shape[0], 3, 3))
+            g = _wp(grad, wp.vec3, d)
+            if written:
+                inputs = [a.point_inputs()[i] for i in (0, 1, 2, 3, 5, 6)]
+                KG.launch_vertices(
+                    dqs_points_adjoint_kernel(k, ctx.running_sum), chunks, frames,
+                    lambda c: [*inputs, g, joints, frames],
+                    lambda c: [_wp(adj_points, wp.vec3, d), _wp2(adj_weights, wp.float32),
+                               _wp(cq[c], vec8, d), _wp(cs[c], wp.mat33, d)],
+                    d, frame_loop=True)
+            else:
+                cx = zeros.new((n, fj, 4, 4))
 
-            def point_adj(c: int) -> list[Any]:
-                return [_wp(adj_points, wp.vec3, d), 0, None, _wp2(adj_weights, wp.float32),
-                        _wp(cx[c], wp.mat44, d), _wp(cq[c], vec8, d), _wp(cs[c], wp.mat33, d),
-                        _wp(adj_blend, wp.float32, d), _wp(adj_centers, wp.vec3, d), None, 0]
+                def point_adj(c: int) -> list[Any]:
+                    return [_wp(adj_points, wp.vec3, d), 0, None, _wp2(adj_weights, wp.float32),
+                            _wp(cx[c], wp.mat44, d), _wp(cq[c], vec8, d),
+                            _wp(cs[c], wp.mat33, d), _wp(adj_blend, wp.float32, d),
+                            _wp(adj_centers, wp.vec3, d), None, 0]
 
-            KG.launch_vertices(KG.points_kernel(method, k, ctx.running_sum), chunks, frames,
-                               lambda c: a.point_inputs(), a.point_out, d, point_adj,
-                               [_wp(grad, wp.vec3, d)])
-            adj_x, adj_q, adj_s = cx.sum(0), cq.sum(0), cs.sum(0)
+                KG.launch_vertices(KG.points_kernel(method, k, ctx.running_sum), chunks, frames,
+                                   lambda c: a.point_inputs(), lambda c: a.point_out, d,
+                                   point_adj, [g])
+                _sum_chunks(cx, adj_x, d)
             if method != KG.LBS:
                 inputs, outputs = a.prepare()
-                KG.launch_joints(KG.prepare_kernel, frames * joints, inputs, outputs, d,
+                KG.launch_joints(KG.prepare_kernel, fj, inputs, outputs, d,
                                  [_wp(adj_x, wp.mat44, d)],
-                                 [_wp(adj_q, vec8, d), _wp(adj_s, wp.mat33, d)])
+                                 [_wp(_sum_chunks(cq, None, d), vec8, d),
+                                  _wp(_sum_chunks(cs, None, d), wp.mat33, d)])
             if normals is not None and grad_n is not None:
-                cl = torch.zeros((n, frames * joints, 3, 3), dtype=torch.float32,
-                                 device=points.device)
-                cr = torch.zeros((n, frames * joints, 4), dtype=torch.float32,
-                                 device=points.device)
-                cn = torch.zeros_like(cl)
+                cl = zeros.new((n, fj, 3, 3))
+                cr = zeros.new((n, fj, 4))
+                cn = zeros.new((n, fj, 3, 3))
 
                 def normal_adj(c: int) -> list[Any]:
                     return [_wp(adj_normals, wp.vec3, d), 0, None, _wp2(adj_weights, wp.float32),
@@ -321,16 +339,45 @@ class _Skin(torch.autograd.Function):
                             _wp(cn[c], wp.mat33, d), _wp(adj_blend, wp.float32, d), 0]
 
                 KG.launch_vertices(KG.normals_kernel(method, k, ctx.running_sum), chunks, frames,
-                                   lambda c: a.normal_inputs(), a.normal_out, d, normal_adj,
-                                   [_wp(grad_n, wp.vec3, d)])
+                                   lambda c: a.normal_inputs(), lambda c: a.normal_out, d,
+                                   normal_adj, [_wp(grad_n, wp.vec3, d)])
                 inputs, outputs = a.prepare_normals()
-                KG.launch_joints(KG.prepare_normals_kernel, frames * joints, inputs, outputs, d,
+                KG.launch_joints(KG.prepare_normals_kernel, fj, inputs, outputs, d,
                                  [_wp(adj_x, wp.mat44, d)],
-                                 [_wp(cl.sum(0), wp.mat33, d), _wp(cr.sum(0), wp.quat, d),
-                                  _wp(cn.sum(0), wp.mat33, d)])
+                                 [_wp(_sum_chunks(cl, None, d), wp.mat33, d),
+                                  _wp(_sum_chunks(cr, None, d), wp.quat, d),
+                                  _wp(_sum_chunks(cn, None, d), wp.mat33, d)])
         return (adj_points, adj_weights, adj_x.reshape(transforms.shape), adj_blend, adj_centers,
                 adj_normals, None, None,
                 None, None)
+
+
+class _Zeros:
+    """Zeroed float32 tensors on a Warp device, zeroed by Warp (a PyTorch fill of a large
+    tensor would start PyTorch's OpenMP threads)."""
+
+    def __init__(self, d: wp.Device) -> None:
+        self.d = d
+        self.device = wp.device_to_torch(d)
+
+    def new(self, shape: tuple[int, ...]) -> torch.Tensor:
+        t = torch.empty(shape, dtype=torch.float32, device=self.device)
+        _wp(t, wp.float32, self.d).zero_()
+        return t
+
+    def like(self, t: torch.Tensor) -> torch.Tensor:
+        return self.new(tuple(t.shape))
+
+
+def _sum_chunks(parts: torch.Tensor, total: torch.Tensor | None, d: wp.Device) -> torch.Tensor:
+    """``parts.sum(0)`` by Warp (:func:`~dqskin.kernels.grad.sum_chunks_kernel`), into
+    ``total`` (a new tensor when None)."""
+    if total is None:
+        total = torch.empty(parts.shape[1:], dtype=torch.float32, device=parts.device)
+    flat = parts.reshape(parts.shape[0], -1)
+    KG.launch_joints(KG.sum_chunks_kernel, flat.shape[1], [_wp2(flat, wp.float32)],
+                     [_wp(total, wp.float32, d)], d)
+    return total
 
 
 class _SkinArrays:

@@ -26,6 +26,7 @@ only; per-joint adjoints go to a buffer of the chunk's own (:func:`launch_vertic
 """
 
 import functools
+import itertools
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -41,12 +42,12 @@ from .dqmath import (
     quat_from_rotation,
     vec8,
 )
-from .grid import cpu_threads, is_cpu, run_tasks
+from .grid import PIECES_PER_THREAD, cpu_threads, is_cpu, launch, run_tasks
 from .skin import dqs_apply, rotation_only
 
 __all__ = ["LBS", "DQS", "BLEND", "COR", "POLAR_STEPS", "launch_joints", "launch_vertices",
            "local_kernel", "fk_kernel", "prepare_kernel", "prepare_normals_kernel",
-           "points_kernel", "normals_kernel"]
+           "points_kernel", "normals_kernel", "sum_chunks_kernel", "vertex_chunks"]
 
 wp.set_module_options({"enable_backward": True, "max_unroll": 32})  # unrolled: differentiable
 
@@ -220,6 +221,21 @@ def prepare_normals_kernel(
         linears[i] = n
         rotations[i] = quat_from_rotation(rn)
         residuals[i] = wp.transpose(rn) * n
+
+
+@wp.kernel
+def sum_chunks_kernel(
+    parts: wp.array2d(dtype=float),
+    # outputs
+    total: wp.array(dtype=float),
+):
+    """``total[i] = Σ_c parts[c, i]`` in chunk order: the per-chunk per-joint adjoints of a
+    vertex launch (:func:`launch_vertices`), summed."""
+    i = wp.tid()
+    s = float(0.0)
+    for c in range(parts.shape[0]):
+        s = s + parts[c, i]
+    total[i] = s
 
 
 def _pivot_slot(influences: int):
@@ -417,27 +433,42 @@ def launch_joints(kernel: wp.Kernel, dim: int, inputs: Sequence[Any], outputs: S
 
 
 def vertex_chunks(vertex_count: int, frames: int, device: Device) -> list[tuple[int, int]]:
-    """``(first, rows)`` vertex ranges of a point launch: one per CPU thread for large launches,
-    one on CUDA."""
+    """``(first, rows)`` vertex ranges of a point launch: on the CPU, for large launches,
+    :data:`~.grid.PIECES_PER_THREAD` per thread, which the threads take in turn
+    (:func:`launch_vertices`); one on CUDA."""
     chunks = 1
     if is_cpu(device):
-        chunks = max(1, min(cpu_threads(), vertex_count * frames // _MIN_CHUNK, vertex_count))
+        work = vertex_count * frames // _MIN_CHUNK
+        threads = max(1, min(cpu_threads(), work, vertex_count))
+        chunks = min(vertex_count, threads * max(1, min(PIECES_PER_THREAD, work // threads)))
     bounds = [vertex_count * c // chunks for c in range(chunks + 1)]
     return [(bounds[c], bounds[c + 1] - bounds[c]) for c in range(chunks)]
 
 
 def launch_vertices(kernel: wp.Kernel, chunks: Sequence[tuple[int, int]], frames: int,
-                    inputs: Callable[[int], Sequence[Any]], outputs: Sequence[Any],
-                    device: Device, adj_inputs: Callable[[int], Sequence[Any]] | None = None,
-                    adj_outputs: Sequence[Any] | None = None) -> None:
-    """Launch a point or normal kernel over ``chunks`` (:func:`vertex_chunks`) × ``frames``, a
-    chunk per CPU thread; ``inputs(c)`` and ``adj_inputs(c)`` give chunk ``c``'s lists (its
-    per-joint adjoint buffers: chunks run at once), without ``first`` and ``rows``, which are
-    appended."""
-    def run(c: int) -> None:
-        first, rows = chunks[c]
-        adj = None if adj_inputs is None else [*adj_inputs(c), 0, 0]
-        _launch(kernel, rows * frames, [*inputs(c), first, rows], outputs, device, adj,
-                adj_outputs)
+                    inputs: Callable[[int], Sequence[Any]],
+                    outputs: Callable[[int], Sequence[Any]], device: Device,
+                    adj_inputs: Callable[[int], Sequence[Any]] | None = None,
+                    adj_outputs: Sequence[Any] | None = None, frame_loop: bool = False) -> None:
+    """Launch a point or normal kernel over ``chunks`` (:func:`vertex_chunks`) × ``frames``,
+    the CPU threads taking the chunks in turn (a thread slowed by another process leaves its
+    later chunks to the others); ``inputs(c)``, ``outputs(c)`` and ``adj_inputs(c)`` give
+    chunk ``c``'s lists (its own per-joint adjoint buffers: chunks run at once, and a
+    buffer per chunk keeps the sums' order fixed), without ``first`` and ``rows``, which are
+    appended to the inputs. ``frame_loop``: a kernel whose thread loops over the frames itself
+    (grid ``rows``, only ``first`` appended)."""
+    count = len(chunks)
+    taken = itertools.count()  # the next chunk: next() is atomic under the GIL
 
-    run_tasks([functools.partial(run, c) for c in range(len(chunks))])
+    def run() -> None:
+        while (c := next(taken)) < count:
+            first, rows = chunks[c]
+            tail = [first] if frame_loop else [first, rows]
+            dim = rows if frame_loop else rows * frames
+            if adj_inputs is None:
+                launch(kernel, dim, [*inputs(c), *tail], outputs(c), device)
+            else:
+                _launch(kernel, dim, [*inputs(c), *tail], outputs(c), device,
+                        [*adj_inputs(c), *([0] * len(tail))], adj_outputs)
+
+    run_tasks([run] * min(count, cpu_threads() if is_cpu(device) else 1))

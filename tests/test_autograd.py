@@ -431,17 +431,19 @@ def test_fit_weights_example():
     assert r["heldout_rms"] < 3e-3 and r["weights_l1"] < 0.3, r
 
 
-@pytest.mark.parametrize("make, method, rule", [
-    ("points_kernel", 3, False), ("points_kernel", 1, True), ("normals_kernel", 2, False)])
-def test_vertex_kernels_compile_for_cuda(make, method, rule, tmp_path):
+@pytest.mark.parametrize("make, args", [
+    ("points_kernel", (3, 4, False)), ("points_kernel", (1, 4, True)),
+    ("normals_kernel", (2, 4, False)), ("dqs_points_adjoint_kernel", (4, False)),
+    ("dqs_points_adjoint_kernel", (4, True))])
+def test_vertex_kernels_compile_for_cuda(make, args, tmp_path):
     """The kernels made on first use (not seen by tests/test_cuda_codegen.py), forward and
     adjoint, compile to PTX: COR (all the point code), DQS with the running sum, blended
-    normals."""
+    normals, the DQS adjoint with both sign rules."""
     import warp as wp
 
-    from dqskin.kernels import grad
+    from dqskin.kernels import grad, grad_dqs
 
-    kernel = getattr(grad, make)(method, 4, rule)
+    kernel = getattr(grad_dqs if make.startswith("dqs") else grad, make)(*args)
     paths = wp.compile_aot_module(kernel.module.name, arch=[90], use_ptx=True,
                                   module_dir=tmp_path)
     assert any(p.suffix == ".ptx" and p.stat().st_size > 1000 for p in paths), paths
