@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import weakref
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
@@ -128,6 +129,30 @@ def _same_device(tensors: dict[str, torch.Tensor | None], device: torch.device) 
     for name, t in tensors.items():
         if t is not None and t.device != device:
             raise InputError(Param(name), f": on {t.device}, the transforms on {device}")
+
+
+_INDEX_CACHE_SIZE = 8
+_index_cache: dict[int, tuple[Any, ...]] = {}
+
+
+def _indices(indices: torch.Tensor) -> tuple[torch.Tensor, int, int]:
+    """``indices`` as a contiguous int32 tensor, and its smallest and largest entries; kept for
+    the same tensor at the same version (``Tensor._version``), as a fitting loop passes it on
+    every call: the conversion and the two reductions are PyTorch operations that would
+    start PyTorch's OpenMP threads."""
+    key = id(indices)
+    hit = _index_cache.get(key)
+    if hit is not None and hit[0]() is indices and hit[1] == (
+            indices._version, indices.data_ptr(), indices.shape, indices.stride()):
+        return indices if hit[2] is None else hit[2], hit[3], hit[4]
+    idx = indices.to(torch.int32).contiguous()
+    lo, hi = (int(idx.min()), int(idx.max())) if idx.numel() else (0, -1)
+    if len(_index_cache) >= _INDEX_CACHE_SIZE:
+        _index_cache.pop(next(iter(_index_cache)))
+    _index_cache[key] = (weakref.ref(indices), (indices._version, indices.data_ptr(),
+                                                indices.shape, indices.stride()),
+                          None if idx is indices else idx, lo, hi)  # not the caller's alive
+    return idx, lo, hi
 
 
 def _parents(parents: Any, joint_count: int, device: torch.device) -> torch.Tensor:
@@ -614,8 +639,7 @@ def skin(points: torch.Tensor, indices: torch.Tensor, weights: torch.Tensor,
         raise InputError(Param("indices"), f": expected an int tensor of the weights' "
                          f"shape {tuple(weights.shape)}")
     _same_device({"points": points, "indices": indices, "weights": weights}, dev)
-    idx = indices.to(torch.int32).contiguous()
-    lo, hi = int(idx.min()), int(idx.max())
+    idx, lo, hi = _indices(indices)
     if lo < 0 or hi >= joints:
         raise InputError(Param("indices"), f": joint indices {lo}..{hi} outside "
                          f"0..{joints - 1}")

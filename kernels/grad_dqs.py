@@ -46,16 +46,15 @@ def dqs_apply_adjoint(b: vec8, x: wp.vec3, g: wp.vec3):
     c = float(0.0)
     if n2 > 1.0e-30:
         c = s * s
-    rx = wp.cross(rv, x)
-    a = wp.cross(rv, rx + rw * x) + rw * dv - dw * rv + wp.cross(rv, dv)
-    ga = wp.dot(g, a)
+    e = wp.cross(rv, x) + dv
+    ga = wp.dot(g, wp.cross(rv, e) + rw * e - dw * rv)  # g·A
+    h = wp.cross(rv, g)
+    k = h - rw * g
+    g_rw = s * wp.dot(g, e) - c * rw * ga
+    g_rv = s * (wp.cross(e, g) + wp.cross(k, x) - dw * g) - (c * ga) * rv
+    g_dv = -s * k
+    gx = g + s * (wp.cross(rv, h) - rw * h)
     grv = wp.dot(g, rv)
-    g_rw = s * (wp.dot(g, rx) + wp.dot(g, dv)) - c * rw * ga
-    g_rv = (s * (grv * x + wp.dot(rv, x) * g - 2.0 * wp.dot(g, x) * rv
-                 + rw * wp.cross(x, g) - dw * g + wp.cross(dv, g)) - (c * ga) * rv)
-    g_dv = s * (rw * g + wp.cross(g, rv))
-    rg = wp.cross(rv, g)
-    gx = g + s * (wp.cross(rv, rg) - rw * rg)
     return vec8(g_rw, g_rv[0], g_rv[1], g_rv[2], -s * grv, g_dv[0], g_dv[1], g_dv[2]), gx
 
 

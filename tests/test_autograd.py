@@ -391,6 +391,21 @@ def test_bad_input(call, match):
         call(p, i, w, x)
 
 
+def test_indices_changed_in_place_are_read_again():
+    """The int32 copy of the indices kept between calls follows in-place changes: a changed
+    joint is skinned by its new joint (against the reference), one out of range is refused."""
+    rig = random_rig(seed=16, B=1)
+    p, w, x = (rig[k].float() for k in ("points", "weights", "transforms"))
+    for idx in (rig["indices"].clone(), rig["indices"].to(torch.int32)):  # converted, as given
+        ag.skin(p, idx, w, x, "dqs")
+        idx[:, 0] = (idx[:, 0] + 1) % x.shape[1]
+        want = R.dqs(p.double(), idx.long(), w.double(), x.double())
+        assert_close(ag.skin(p, idx, w, x, "dqs").double(), want, 1e-5, "indices changed")
+        idx[0, 0] = x.shape[1]
+        with pytest.raises(dqskin.InputError, match="indices: joint indices"):
+            ag.skin(p, idx, w, x, "dqs")
+
+
 # ---------------------------------------------------------------------------------------------
 # the examples (tools/fit_pose.py, tools/fit_weights.py), shortened
 
