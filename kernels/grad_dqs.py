@@ -65,6 +65,7 @@ def dqs_points_adjoint_kernel(influences: int, running_sum: bool) -> wp.Kernel:
     Warp module of its own; a thread per vertex ``first + tid``, all frames."""
     pivot_slot = _pivot_slot(influences)
     wvec = wp.types.vector(length=influences, dtype=float)
+    ivec = wp.types.vector(length=influences, dtype=wp.int32)
 
     def kernel(
         points: wp.array(dtype=wp.vec3),
@@ -87,29 +88,34 @@ def dqs_points_adjoint_kernel(influences: int, running_sum: bool) -> wp.Kernel:
         vertex_count = weights.shape[0]
         pivot = pivot_slot(weights, v)
         gw = wvec()
+        wv = wvec()
+        iv = ivec()
+        for k in range(wp.static(influences)):
+            wv[k] = weights[v, k]
+            iv[k] = indices[v, k]
         gp_shared = wp.vec3()
         for f in range(frames):
             o = f * joint_count
             p = points[f * point_stride + v]
-            pv = dqs[o + indices[v, pivot]]
+            pv = dqs[o + iv[pivot]]
             b = vec8()
             m = wp.mat33()  # Σ wᵢ·Sᵢ
             sign = wvec()  # σᵢ
             for k in range(wp.static(influences)):
-                j = o + indices[v, k]
+                j = o + iv[k]
                 q = dqs[j]
                 if wp.static(running_sum):
                     sign[k] = dq_sign(q, b)
                 else:
                     sign[k] = dq_sign(q, pv)
-                w = weights[v, k]
+                w = wv[k]
                 b = b + q * (w * sign[k])  # dq_blend_add
                 m = m + residuals[j] * w
             gb, gx = dqs_apply_adjoint(b, m * p, grad[f * vertex_count + v])
             gs = wp.outer(gx, p)  # ∂L/∂(Σ wᵢ·Sᵢ)
             for k in range(wp.static(influences)):
-                j = o + indices[v, k]
-                w = weights[v, k]
+                j = o + iv[k]
+                w = wv[k]
                 gw[k] = gw[k] + sign[k] * wp.dot(gb, dqs[j]) + wp.ddot(gs, residuals[j])
                 wp.atomic_add(adj_dqs, j, gb * (w * sign[k]))
                 wp.atomic_add(adj_residuals, j, gs * w)
