@@ -89,10 +89,17 @@ def _stream(device: wp.Device) -> Iterator[None]:
         yield
 
 
+_EMPTY: dict[tuple[Any, wp.Device], wp.array] = {}
+
+
 def _wp(t: torch.Tensor | None, dtype: Any, device: wp.Device) -> wp.array:
-    """A 1-D Warp array of ``dtype`` over contiguous tensor ``t`` (no copy); empty for None."""
+    """A 1-D Warp array of ``dtype`` over contiguous tensor ``t`` (no copy); empty for None (one
+    per dtype and device, shared)."""
     if t is None or t.numel() == 0:
-        return wp.empty(0, dtype=dtype, device=device)
+        empty = _EMPTY.get((dtype, device))
+        if empty is None:
+            empty = _EMPTY[(dtype, device)] = wp.empty(0, dtype=dtype, device=device)
+        return empty
     shape = getattr(dtype, "_shape_", ())
     flat = t.contiguous().reshape(-1, *shape)
     return cast(wp.array, wp.from_torch(flat, dtype=dtype, requires_grad=False))
@@ -327,13 +334,12 @@ class _Skin(torch.autograd.Function):
             cs = zeros.new((n, dqs.shape[0], 3, 3))
             g = _wp(grad, wp.vec3, d)
             if written:
-                inputs = [a.point_inputs()[i] for i in (0, 1, 2, 3, 5, 6)]
-                KG.launch_vertices(
-                    dqs_points_adjoint_kernel(k, ctx.running_sum), chunks, frames,
-                    lambda c: [*inputs, g, joints, frames],
-                    lambda c: [_wp(adj_points, wp.vec3, d), _wp2(adj_weights, wp.float32),
-                               _wp(cq[c], vec8, d), _wp(cs[c], wp.mat33, d)],
-                    d, frame_loop=True)
+                args = [*(a.point_inputs()[i] for i in (0, 1, 2, 3, 5, 6)), g, joints, frames]
+                per_vertex = [_wp(adj_points, wp.vec3, d), _wp2(adj_weights, wp.float32)]
+                results = [[*per_vertex, _wp(cq[c], vec8, d), _wp(cs[c], wp.mat33, d)]
+                           for c in range(n)]
+                KG.launch_vertices(dqs_points_adjoint_kernel(k, ctx.running_sum), chunks, frames,
+                                   lambda c: args, results.__getitem__, d, frame_loop=True)
             else:
                 cx = zeros.new((n, fj, 4, 4))
 
