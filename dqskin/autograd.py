@@ -89,16 +89,16 @@ def _stream(device: wp.Device) -> Iterator[None]:
         yield
 
 
-_EMPTY: dict[tuple[Any, wp.Device], wp.array] = {}
+_EMPTY: dict[tuple[Any, str], wp.array] = {}
 
 
 def _wp(t: torch.Tensor | None, dtype: Any, device: wp.Device) -> wp.array:
     """A 1-D Warp array of ``dtype`` over contiguous tensor ``t`` (no copy); empty for None (one
     per dtype and device, shared)."""
     if t is None or t.numel() == 0:
-        empty = _EMPTY.get((dtype, device))
+        empty = _EMPTY.get((dtype, str(device)))
         if empty is None:
-            empty = _EMPTY[(dtype, device)] = wp.empty(0, dtype=dtype, device=device)
+            empty = _EMPTY[(dtype, str(device))] = wp.empty(0, dtype=dtype, device=device)
         return empty
     shape = getattr(dtype, "_shape_", ())
     flat = t.contiguous().reshape(-1, *shape)
