@@ -1,7 +1,9 @@
 """Differentiable skinning and forward kinematics for PyTorch, on dqskin's Warp kernels.
 
 Each function is a ``torch.autograd.Function`` whose forward and backward both run in Warp
-(:mod:`dqskin.kernels.grad`; the backward is the adjoint Warp generates from the forward kernel).
+(:mod:`dqskin.kernels.grad`; the backward is the adjoint Warp generates from the forward kernel,
+except for DQS points: :mod:`dqskin.kernels.grad_dqs`, the closed-form derivative of the
+normalized blend, one pass over the vertices).
 Tensors pass to Warp without a copy (``wp.from_torch``) and stay on their device (CPU or CUDA);
 the kernels run float32.
 

@@ -1,5 +1,6 @@
 """Differentiable kernels: forward kinematics and LBS / DQS / blend / COR skinning whose adjoints
-Warp generates (``wp.launch(..., adjoint=True)``), for :mod:`dqskin.autograd`.
+Warp generates (``wp.launch(..., adjoint=True)``), for :mod:`dqskin.autograd` (the DQS point
+kernel's adjoint is written out in :mod:`.grad_dqs`).
 
 They compute what :mod:`.skin` and :mod:`.fk` compute, from the same :mod:`.dqmath` functions,
 written so that every step has a derivative: no packets, no native snippets, no data-dependent
@@ -22,7 +23,8 @@ Layouts: per-(frame, joint) data flat ``(F·J,)``, frame-major; per-vertex data 
 ``(V, K)`` int32 joint indices and float32 weights as given (no sort, no padding). A point or
 normal thread handles one (frame, vertex) of a chunk of vertices ``first .. first + rows`` and all
 frames, so per-vertex adjoints (points, weights, centers, blend) are written by one CPU thread
-only; per-joint adjoints go to a buffer of the chunk's own (:func:`launch_vertices`).
+only; per-joint adjoints go to a buffer of the chunk's own (:func:`launch_vertices`), summed in
+chunk order (:func:`sum_chunks_kernel`).
 """
 
 import functools
