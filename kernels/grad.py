@@ -49,7 +49,8 @@ from .skin import dqs_apply, rotation_only
 
 __all__ = ["LBS", "DQS", "BLEND", "COR", "POLAR_STEPS", "launch_joints", "launch_vertices",
            "local_kernel", "fk_kernel", "prepare_kernel", "prepare_normals_kernel",
-           "points_kernel", "normals_kernel", "sum_chunks_kernel", "vertex_chunks"]
+           "points_kernel", "normals_kernel", "sum_chunks_kernel", "vertex_chunks",
+           "fused_cpu_flags"]
 
 wp.set_module_options({"enable_backward": True, "max_unroll": 32})  # unrolled: differentiable
 
@@ -272,9 +273,16 @@ def _vertex_kernel(kernel: Callable[..., None], kind: str, method: int, influenc
     kernel.__doc__ = (f"Skin {kind} with {label.upper()}, {influences} influences, per (frame, "
                       "vertex) of a chunk (:func:`frame_vertex`); ``out`` (F·V).")
     module = f"{__name__}.{name}"
-    wp.set_module_options({"enable_backward": True, "max_unroll": max(32, influences)},
-                          module=module)
+    wp.set_module_options({"enable_backward": True, "max_unroll": max(32, influences),
+                           "cpu_compiler_flags": fused_cpu_flags()}, module=module)
     return wp.kernel(kernel, name=name, module=module)
+
+
+def fused_cpu_flags() -> str:
+    """CPU compiler flags of the vertex kernels' modules: Warp's configured ones (its default
+    ``-march=native``) with fused multiply-adds (``-ffp-contract=fast``: fewer instructions;
+    results within float32 rounding of the unfused ones)."""
+    return f"{wp.config.cpu_compiler_flags or '-march=native'} -ffp-contract=fast"
 
 
 @functools.cache

@@ -29,7 +29,7 @@ import functools
 import warp as wp
 
 from .dqmath import dq_sign, vec8
-from .grad import _pivot_slot
+from .grad import _pivot_slot, fused_cpu_flags
 
 __all__ = ["dqs_apply_adjoint", "dqs_points_adjoint_kernel"]
 
@@ -134,8 +134,6 @@ def dqs_points_adjoint_kernel(influences: int, running_sum: bool) -> wp.Kernel:
     kernel.__doc__ = (f"Adjoint of the DQS point kernel, {influences} influences, "
                       f"{label.replace('_', ' ')} sign rule, per vertex ``first + tid``.")
     module = f"{__name__}.{name}"
-    # fused multiply-adds (fewer instructions; the adjoint need not match the forward's bits)
-    flags = f"{wp.config.cpu_compiler_flags or '-march=native'} -ffp-contract=fast"
     wp.set_module_options({"enable_backward": False, "max_unroll": max(32, influences),
-                           "cpu_compiler_flags": flags}, module=module)
+                           "cpu_compiler_flags": fused_cpu_flags()}, module=module)
     return wp.kernel(kernel, name=name, module=module)
