@@ -288,6 +288,7 @@ class _Skin(torch.autograd.Function):
         ns = torch.empty_like(nl)
         chunks = KG.vertex_chunks(verts, frames, d)
         ctx.method, ctx.running_sum, ctx.chunks = method, running_sum, chunks
+        ctx.set_materialize_grads(False)  # no zero tensor made for an output not used
         saved = (points, weights, transforms, blend, centers, normals, indices, has_center, out,
                  out_n, dqs, res, nl, nq, ns)
         ctx.save_for_backward(*saved)
@@ -308,7 +309,7 @@ class _Skin(torch.autograd.Function):
         return out, out_n
 
     @staticmethod
-    def backward(ctx: Any, grad: torch.Tensor, grad_n: torch.Tensor
+    def backward(ctx: Any, grad: torch.Tensor | None, grad_n: torch.Tensor | None
                  ) -> tuple[torch.Tensor | None, ...]:
         (points, weights, transforms, blend, centers, normals, indices, has_center, out, out_n,
          dqs, res, nl, nq, ns) = ctx.saved_tensors
@@ -334,7 +335,7 @@ class _Skin(torch.autograd.Function):
             # per-joint adjoints: a buffer per chunk (the chunks run at once), summed after
             cq = zeros.new((n, dqs.shape[0], 8))
             cs = zeros.new((n, dqs.shape[0], 3, 3))
-            g = _wp(grad, wp.vec3, d)
+            g = _wp(zeros.like(out) if grad is None else grad, wp.vec3, d)
             if written:
                 args = [*(a.point_inputs()[i] for i in (0, 1, 2, 3, 5, 6)), g, joints, frames]
                 per_vertex = [_wp(adj_points, wp.vec3, d), _wp2(adj_weights, wp.float32)]
@@ -686,7 +687,8 @@ def skin(points: torch.Tensor, indices: torch.Tensor, weights: torch.Tensor,
     out, out_n = _Skin.apply(pts, weights.contiguous(), xf, blend, cen, nrm, idx, has, code,
                              running)
     if not batched:
-        out, out_n = out[0], out_n[0] if nrm is not None else out_n
+        # squeeze, not out[0]: its backward is a view, not a zeroed (B, V, 3) copy
+        out, out_n = out.squeeze(0), out_n.squeeze(0) if nrm is not None else out_n
     return out if normals is None else (out, out_n)
 
 

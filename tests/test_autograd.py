@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 import torch_reference as R
+from torch.utils._python_dispatch import TorchDispatchMode
 
 import dqskin
 from dqskin import autograd as ag
@@ -404,6 +405,40 @@ def test_indices_changed_in_place_are_read_again():
         idx[0, 0] = x.shape[1]
         with pytest.raises(dqskin.InputError, match="indices: joint indices"):
             ag.skin(p, idx, w, x, "dqs")
+
+
+class _AtenOps(TorchDispatchMode):
+    """The ATen operations run inside the with-block."""
+
+    def __init__(self):
+        super().__init__()
+        self.ops = set()
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        self.ops.add(func.__name__)
+        return func(*args, **(kwargs or {}))
+
+
+@pytest.mark.parametrize("method", ["dqs", "lbs"])
+@pytest.mark.parametrize("batched", [False, True])
+def test_skin_runs_no_pytorch_computation(method, batched):
+    """``skin`` forward and backward allocate and view tensors and nothing else: every
+    computation is a Warp launch (a PyTorch operation on a large tensor would start PyTorch's
+    OpenMP threads, which then spin on the cores the Warp kernels use)."""
+    rig = random_rig(seed=17, V=3000, B=1)
+    p, w, x = (rig[k].float().requires_grad_() for k in ("points", "weights", "transforms"))
+    idx = rig["indices"]
+    ag.skin(p.detach(), idx, w.detach(), x.detach(), method)  # indices converted once
+    up = torch.randn(x.shape[0] if batched else 1, 3000, 3)
+    if not batched:
+        x = x[0].detach().requires_grad_()
+    allowed = {"empty.memory_format", "empty_like.default", "detach.default", "view.default",
+               "select.int", "squeeze.dim", "unsqueeze.default", "_unsafe_view.default"}
+    with _AtenOps() as forward:
+        out = ag.skin(p, idx, w, x, method)
+    with _AtenOps() as backward:
+        out.backward(up if batched else up[0])
+    assert forward.ops <= allowed and backward.ops <= allowed, (forward.ops, backward.ops)
 
 
 # ---------------------------------------------------------------------------------------------
