@@ -273,15 +273,18 @@ def _vertex_kernel(kernel: Callable[..., None], kind: str, method: int, influenc
     kernel.__doc__ = (f"Skin {kind} with {label.upper()}, {influences} influences, per (frame, "
                       "vertex) of a chunk (:func:`frame_vertex`); ``out`` (F·V).")
     module = f"{__name__}.{name}"
-    wp.set_module_options({"enable_backward": True, "max_unroll": max(32, influences),
-                           "cpu_compiler_flags": fused_cpu_flags()}, module=module)
+    options = {"enable_backward": True, "max_unroll": max(32, influences)}
+    if kind == "points" and method == DQS:  # measured faster; LBS's point kernel slower
+        options["cpu_compiler_flags"] = fused_cpu_flags()
+    wp.set_module_options(options, module=module)
     return wp.kernel(kernel, name=name, module=module)
 
 
 def fused_cpu_flags() -> str:
-    """CPU compiler flags of the vertex kernels' modules: Warp's configured ones (its default
-    ``-march=native``) with fused multiply-adds (``-ffp-contract=fast``: fewer instructions;
-    results within float32 rounding of the unfused ones)."""
+    """CPU compiler flags of the DQS point kernels' modules (forward, :mod:`.grad_dqs`'s
+    adjoint): Warp's configured ones (its default ``-march=native``) with fused multiply-adds
+    (``-ffp-contract=fast``: fewer instructions; results within float32 rounding of the unfused
+    ones)."""
     return f"{wp.config.cpu_compiler_flags or '-march=native'} -ffp-contract=fast"
 
 
