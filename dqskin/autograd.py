@@ -590,7 +590,8 @@ def skin(points: torch.Tensor, indices: torch.Tensor, weights: torch.Tensor,
     points : (V, 3) or (B, V, 3) float32 tensor
         Rest points in bind space, shared by every pose or one set per pose.
     indices : (V, K) int tensor
-        Joint of each influence, ``0 <= index < J``.
+        Joint of each influence, ``0 <= index < J``. Its int32 copy and range are kept
+        between calls for the same tensor until it changes (its ``_version``).
     weights : (V, K) float32 tensor
         Influence weights, used as given (not renormalized; UsdSkel's semantics).
     transforms : (J, 4, 4) or (B, J, 4, 4) float32 tensor
