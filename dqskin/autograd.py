@@ -1,7 +1,9 @@
 """Differentiable skinning and forward kinematics for PyTorch, on dqskin's Warp kernels.
 
 Each function is a ``torch.autograd.Function`` whose forward and backward both run in Warp
-(:mod:`dqskin.kernels.grad`; the backward is the adjoint Warp generates from the forward kernel).
+(:mod:`dqskin.kernels.grad`; the backward is the adjoint Warp generates from the forward kernel,
+except for DQS points: :mod:`dqskin.kernels.grad_dqs`, the closed-form derivative of the
+normalized blend, one pass over the vertices).
 Tensors pass to Warp without a copy (``wp.from_torch``) and stay on their device (CPU or CUDA);
 the kernels run float32.
 
@@ -40,6 +42,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import weakref
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
@@ -58,6 +61,7 @@ from ._warp import init_warp
 from .errors import InputError, Param
 from .kernels import grad as KG
 from .kernels.dqmath import vec8
+from .kernels.grad_dqs import dqs_points_adjoint_kernel
 from .options import METHOD_NAMES, SIGN_REFERENCES, Method, SignReference
 
 if TYPE_CHECKING:
@@ -87,10 +91,17 @@ def _stream(device: wp.Device) -> Iterator[None]:
         yield
 
 
+_EMPTY: dict[tuple[Any, str], wp.array] = {}
+
+
 def _wp(t: torch.Tensor | None, dtype: Any, device: wp.Device) -> wp.array:
-    """A 1-D Warp array of ``dtype`` over contiguous tensor ``t`` (no copy); empty for None."""
+    """A 1-D Warp array of ``dtype`` over contiguous tensor ``t`` (no copy); empty for None (one
+    per dtype and device, shared)."""
     if t is None or t.numel() == 0:
-        return wp.empty(0, dtype=dtype, device=device)
+        empty = _EMPTY.get((dtype, str(device)))
+        if empty is None:
+            empty = _EMPTY[(dtype, str(device))] = wp.empty(0, dtype=dtype, device=device)
+        return empty
     shape = getattr(dtype, "_shape_", ())
     flat = t.contiguous().reshape(-1, *shape)
     return cast(wp.array, wp.from_torch(flat, dtype=dtype, requires_grad=False))
@@ -127,6 +138,30 @@ def _same_device(tensors: dict[str, torch.Tensor | None], device: torch.device) 
     for name, t in tensors.items():
         if t is not None and t.device != device:
             raise InputError(Param(name), f": on {t.device}, the transforms on {device}")
+
+
+_INDEX_CACHE_SIZE = 8
+_index_cache: dict[int, tuple[Any, ...]] = {}
+
+
+def _indices(indices: torch.Tensor) -> tuple[torch.Tensor, int, int]:
+    """``indices`` as a contiguous int32 tensor, and its smallest and largest entries; kept for
+    the same tensor at the same version (``Tensor._version``), as a fitting loop passes it on
+    every call: the conversion and the two reductions are PyTorch operations that would
+    start PyTorch's OpenMP threads."""
+    key = id(indices)
+    hit = _index_cache.get(key)
+    if hit is not None and hit[0]() is indices and hit[1] == (
+            indices._version, indices.data_ptr(), indices.shape, indices.stride()):
+        return indices if hit[2] is None else hit[2], hit[3], hit[4]
+    idx = indices.to(torch.int32).contiguous()
+    lo, hi = (int(idx.min()), int(idx.max())) if idx.numel() else (0, -1)
+    if len(_index_cache) >= _INDEX_CACHE_SIZE:
+        _index_cache.pop(next(iter(_index_cache)))
+    _index_cache[key] = (weakref.ref(indices), (indices._version, indices.data_ptr(),
+                                                indices.shape, indices.stride()),
+                          None if idx is indices else idx, lo, hi)  # not the caller's alive
+    return idx, lo, hi
 
 
 def _parents(parents: Any, joint_count: int, device: torch.device) -> torch.Tensor:
@@ -253,6 +288,7 @@ class _Skin(torch.autograd.Function):
         ns = torch.empty_like(nl)
         chunks = KG.vertex_chunks(verts, frames, d)
         ctx.method, ctx.running_sum, ctx.chunks = method, running_sum, chunks
+        ctx.set_materialize_grads(False)  # no zero tensor made for an output not used
         saved = (points, weights, transforms, blend, centers, normals, indices, has_center, out,
                  out_n, dqs, res, nl, nq, ns)
         ctx.save_for_backward(*saved)
@@ -261,19 +297,19 @@ class _Skin(torch.autograd.Function):
             if method != KG.LBS:
                 KG.launch_joints(KG.prepare_kernel, frames * joints, *a.prepare(), d)
             kernel = KG.points_kernel(method, k, running_sum)
-            KG.launch_vertices(kernel, chunks, frames, lambda c: a.point_inputs(), a.point_out,
-                               d)
+            KG.launch_vertices(kernel, chunks, frames, lambda c: a.point_inputs(),
+                               lambda c: a.point_out, d)
             if normals is not None:
                 KG.launch_joints(KG.prepare_normals_kernel, frames * joints,
                                  *a.prepare_normals(), d)
                 KG.launch_vertices(KG.normals_kernel(method, k, running_sum), chunks, frames,
-                                   lambda c: a.normal_inputs(), a.normal_out, d)
+                                   lambda c: a.normal_inputs(), lambda c: a.normal_out, d)
         if normals is None:
             ctx.mark_non_differentiable(out_n)
         return out, out_n
 
     @staticmethod
-    def backward(ctx: Any, grad: torch.Tensor, grad_n: torch.Tensor
+    def backward(ctx: Any, grad: torch.Tensor | None, grad_n: torch.Tensor | None
                  ) -> tuple[torch.Tensor | None, ...]:
         (points, weights, transforms, blend, centers, normals, indices, has_center, out, out_n,
          dqs, res, nl, nq, ns) = ctx.saved_tensors
@@ -283,37 +319,53 @@ class _Skin(torch.autograd.Function):
         k = weights.shape[1]
         a = _SkinArrays(ctx.saved_tensors, d)
         n = len(chunks)
-        zeros = torch.zeros_like
-        adj_points, adj_weights = zeros(points), zeros(weights)
-        adj_blend = None if blend is None else zeros(blend)
-        adj_centers = None if centers is None else zeros(centers)
-        adj_normals = None if normals is None else zeros(normals)
-        # per-joint adjoints: a buffer per chunk (the chunks run at once), summed after
-        cx = torch.zeros((n, frames * joints, 4, 4), dtype=torch.float32, device=points.device)
-        cq = torch.zeros((n, dqs.shape[0], 8), dtype=torch.float32, device=points.device)
-        cs = torch.zeros((n, dqs.shape[0], 3, 3), dtype=torch.float32, device=points.device)
+        fj = frames * joints
+        # no PyTorch operation here that could start its OpenMP threads (they would spin on
+        # the cores the kernels run on): buffers zeroed and per-chunk adjoints summed in Warp
+        written = method == KG.DQS  # its adjoint kernel writes the per-vertex adjoints
         with _stream(d):
+            zeros = _Zeros(d)
+            empty = torch.empty_like
+            adj_points = empty(points) if written else zeros.like(points)
+            adj_weights = empty(weights) if written else zeros.like(weights)
+            adj_blend = None if blend is None else zeros.like(blend)
+            adj_centers = None if centers is None else zeros.like(centers)
+            adj_normals = None if normals is None else zeros.like(normals)
+            adj_x = zeros.new((fj, 4, 4))
+            # per-joint adjoints: a buffer per chunk (the chunks run at once), summed after
+            cq = zeros.new((n, dqs.shape[0], 8))
+            cs = zeros.new((n, dqs.shape[0], 3, 3))
+            g = _wp(zeros.like(out) if grad is None else grad, wp.vec3, d)
+            if written:
+                args = [*(a.point_inputs()[i] for i in (0, 1, 2, 3, 5, 6)), g, joints, frames]
+                per_vertex = [_wp(adj_points, wp.vec3, d), _wp2(adj_weights, wp.float32)]
+                results = [[*per_vertex, _wp(cq[c], vec8, d), _wp(cs[c], wp.mat33, d)]
+                           for c in range(n)]
+                KG.launch_vertices(dqs_points_adjoint_kernel(k, ctx.running_sum), chunks, frames,
+                                   lambda c: args, results.__getitem__, d, frame_loop=True)
+            else:
+                cx = zeros.new((n, fj, 4, 4))
 
-            def point_adj(c: int) -> list[Any]:
-                return [_wp(adj_points, wp.vec3, d), 0, None, _wp2(adj_weights, wp.float32),
-                        _wp(cx[c], wp.mat44, d), _wp(cq[c], vec8, d), _wp(cs[c], wp.mat33, d),
-                        _wp(adj_blend, wp.float32, d), _wp(adj_centers, wp.vec3, d), None, 0]
+                def point_adj(c: int) -> list[Any]:
+                    return [_wp(adj_points, wp.vec3, d), 0, None, _wp2(adj_weights, wp.float32),
+                            _wp(cx[c], wp.mat44, d), _wp(cq[c], vec8, d),
+                            _wp(cs[c], wp.mat33, d), _wp(adj_blend, wp.float32, d),
+                            _wp(adj_centers, wp.vec3, d), None, 0]
 
-            KG.launch_vertices(KG.points_kernel(method, k, ctx.running_sum), chunks, frames,
-                               lambda c: a.point_inputs(), a.point_out, d, point_adj,
-                               [_wp(grad, wp.vec3, d)])
-            adj_x, adj_q, adj_s = cx.sum(0), cq.sum(0), cs.sum(0)
+                KG.launch_vertices(KG.points_kernel(method, k, ctx.running_sum), chunks, frames,
+                                   lambda c: a.point_inputs(), lambda c: a.point_out, d,
+                                   point_adj, [g])
+                _sum_chunks(cx, adj_x, d)
             if method != KG.LBS:
                 inputs, outputs = a.prepare()
-                KG.launch_joints(KG.prepare_kernel, frames * joints, inputs, outputs, d,
+                KG.launch_joints(KG.prepare_kernel, fj, inputs, outputs, d,
                                  [_wp(adj_x, wp.mat44, d)],
-                                 [_wp(adj_q, vec8, d), _wp(adj_s, wp.mat33, d)])
+                                 [_wp(_sum_chunks(cq, None, d), vec8, d),
+                                  _wp(_sum_chunks(cs, None, d), wp.mat33, d)])
             if normals is not None and grad_n is not None:
-                cl = torch.zeros((n, frames * joints, 3, 3), dtype=torch.float32,
-                                 device=points.device)
-                cr = torch.zeros((n, frames * joints, 4), dtype=torch.float32,
-                                 device=points.device)
-                cn = torch.zeros_like(cl)
+                cl = zeros.new((n, fj, 3, 3))
+                cr = zeros.new((n, fj, 4))
+                cn = zeros.new((n, fj, 3, 3))
 
                 def normal_adj(c: int) -> list[Any]:
                     return [_wp(adj_normals, wp.vec3, d), 0, None, _wp2(adj_weights, wp.float32),
@@ -321,16 +373,45 @@ class _Skin(torch.autograd.Function):
                             _wp(cn[c], wp.mat33, d), _wp(adj_blend, wp.float32, d), 0]
 
                 KG.launch_vertices(KG.normals_kernel(method, k, ctx.running_sum), chunks, frames,
-                                   lambda c: a.normal_inputs(), a.normal_out, d, normal_adj,
-                                   [_wp(grad_n, wp.vec3, d)])
+                                   lambda c: a.normal_inputs(), lambda c: a.normal_out, d,
+                                   normal_adj, [_wp(grad_n, wp.vec3, d)])
                 inputs, outputs = a.prepare_normals()
-                KG.launch_joints(KG.prepare_normals_kernel, frames * joints, inputs, outputs, d,
+                KG.launch_joints(KG.prepare_normals_kernel, fj, inputs, outputs, d,
                                  [_wp(adj_x, wp.mat44, d)],
-                                 [_wp(cl.sum(0), wp.mat33, d), _wp(cr.sum(0), wp.quat, d),
-                                  _wp(cn.sum(0), wp.mat33, d)])
+                                 [_wp(_sum_chunks(cl, None, d), wp.mat33, d),
+                                  _wp(_sum_chunks(cr, None, d), wp.quat, d),
+                                  _wp(_sum_chunks(cn, None, d), wp.mat33, d)])
         return (adj_points, adj_weights, adj_x.reshape(transforms.shape), adj_blend, adj_centers,
                 adj_normals, None, None,
                 None, None)
+
+
+class _Zeros:
+    """Zeroed float32 tensors on a Warp device, zeroed by Warp (a PyTorch fill of a large
+    tensor would start PyTorch's OpenMP threads)."""
+
+    def __init__(self, d: wp.Device) -> None:
+        self.d = d
+        self.device = wp.device_to_torch(d)
+
+    def new(self, shape: tuple[int, ...]) -> torch.Tensor:
+        t = torch.empty(shape, dtype=torch.float32, device=self.device)
+        _wp(t, wp.float32, self.d).zero_()
+        return t
+
+    def like(self, t: torch.Tensor) -> torch.Tensor:
+        return self.new(tuple(t.shape))
+
+
+def _sum_chunks(parts: torch.Tensor, total: torch.Tensor | None, d: wp.Device) -> torch.Tensor:
+    """``parts.sum(0)`` by Warp (:func:`~dqskin.kernels.grad.sum_chunks_kernel`), into
+    ``total`` (a new tensor when None)."""
+    if total is None:
+        total = torch.empty(parts.shape[1:], dtype=torch.float32, device=parts.device)
+    flat = parts.reshape(parts.shape[0], -1)
+    KG.launch_joints(KG.sum_chunks_kernel, flat.shape[1], [_wp2(flat, wp.float32)],
+                     [_wp(total, wp.float32, d)], d)
+    return total
 
 
 class _SkinArrays:
@@ -509,7 +590,8 @@ def skin(points: torch.Tensor, indices: torch.Tensor, weights: torch.Tensor,
     points : (V, 3) or (B, V, 3) float32 tensor
         Rest points in bind space, shared by every pose or one set per pose.
     indices : (V, K) int tensor
-        Joint of each influence, ``0 <= index < J``.
+        Joint of each influence, ``0 <= index < J``. Its int32 copy and range are kept
+        between calls for the same tensor until it changes (its ``_version``).
     weights : (V, K) float32 tensor
         Influence weights, used as given (not renormalized; UsdSkel's semantics).
     transforms : (J, 4, 4) or (B, J, 4, 4) float32 tensor
@@ -567,8 +649,7 @@ def skin(points: torch.Tensor, indices: torch.Tensor, weights: torch.Tensor,
         raise InputError(Param("indices"), f": expected an int tensor of the weights' "
                          f"shape {tuple(weights.shape)}")
     _same_device({"points": points, "indices": indices, "weights": weights}, dev)
-    idx = indices.to(torch.int32).contiguous()
-    lo, hi = int(idx.min()), int(idx.max())
+    idx, lo, hi = _indices(indices)
     if lo < 0 or hi >= joints:
         raise InputError(Param("indices"), f": joint indices {lo}..{hi} outside "
                          f"0..{joints - 1}")
@@ -607,7 +688,8 @@ def skin(points: torch.Tensor, indices: torch.Tensor, weights: torch.Tensor,
     out, out_n = _Skin.apply(pts, weights.contiguous(), xf, blend, cen, nrm, idx, has, code,
                              running)
     if not batched:
-        out, out_n = out[0], out_n[0] if nrm is not None else out_n
+        # squeeze, not out[0]: its backward is a view, not a zeroed (B, V, 3) copy
+        out, out_n = out.squeeze(0), out_n.squeeze(0) if nrm is not None else out_n
     return out if normals is None else (out, out_n)
 
 

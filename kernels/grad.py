@@ -1,5 +1,6 @@
 """Differentiable kernels: forward kinematics and LBS / DQS / blend / COR skinning whose adjoints
-Warp generates (``wp.launch(..., adjoint=True)``), for :mod:`dqskin.autograd`.
+Warp generates (``wp.launch(..., adjoint=True)``), for :mod:`dqskin.autograd` (the DQS point
+kernel's adjoint is written out in :mod:`.grad_dqs`).
 
 They compute what :mod:`.skin` and :mod:`.fk` compute, from the same :mod:`.dqmath` functions,
 written so that every step has a derivative: no packets, no native snippets, no data-dependent
@@ -22,10 +23,12 @@ Layouts: per-(frame, joint) data flat ``(F·J,)``, frame-major; per-vertex data 
 ``(V, K)`` int32 joint indices and float32 weights as given (no sort, no padding). A point or
 normal thread handles one (frame, vertex) of a chunk of vertices ``first .. first + rows`` and all
 frames, so per-vertex adjoints (points, weights, centers, blend) are written by one CPU thread
-only; per-joint adjoints go to a buffer of the chunk's own (:func:`launch_vertices`).
+only; per-joint adjoints go to a buffer of the chunk's own (:func:`launch_vertices`), summed in
+chunk order (:func:`sum_chunks_kernel`).
 """
 
 import functools
+import itertools
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -41,12 +44,13 @@ from .dqmath import (
     quat_from_rotation,
     vec8,
 )
-from .grid import cpu_threads, is_cpu, run_tasks
+from .grid import PIECES_PER_THREAD, cpu_threads, is_cpu, launch, run_tasks
 from .skin import dqs_apply, rotation_only
 
 __all__ = ["LBS", "DQS", "BLEND", "COR", "POLAR_STEPS", "launch_joints", "launch_vertices",
            "local_kernel", "fk_kernel", "prepare_kernel", "prepare_normals_kernel",
-           "points_kernel", "normals_kernel"]
+           "points_kernel", "normals_kernel", "sum_chunks_kernel", "vertex_chunks",
+           "fused_cpu_flags"]
 
 wp.set_module_options({"enable_backward": True, "max_unroll": 32})  # unrolled: differentiable
 
@@ -222,6 +226,21 @@ def prepare_normals_kernel(
         residuals[i] = wp.transpose(rn) * n
 
 
+@wp.kernel
+def sum_chunks_kernel(
+    parts: wp.array2d(dtype=float),
+    # outputs
+    total: wp.array(dtype=float),
+):
+    """``total[i] = Σ_c parts[c, i]`` in chunk order: the per-chunk per-joint adjoints of a
+    vertex launch (:func:`launch_vertices`), summed."""
+    i = wp.tid()
+    s = float(0.0)
+    for c in range(parts.shape[0]):
+        s = s + parts[c, i]
+    total[i] = s
+
+
 def _pivot_slot(influences: int):
     """``@wp.func`` ``(weights, v) → slot`` of the vertex's largest weight, first on ties."""
 
@@ -254,9 +273,19 @@ def _vertex_kernel(kernel: Callable[..., None], kind: str, method: int, influenc
     kernel.__doc__ = (f"Skin {kind} with {label.upper()}, {influences} influences, per (frame, "
                       "vertex) of a chunk (:func:`frame_vertex`); ``out`` (F·V).")
     module = f"{__name__}.{name}"
-    wp.set_module_options({"enable_backward": True, "max_unroll": max(32, influences)},
-                          module=module)
+    options = {"enable_backward": True, "max_unroll": max(32, influences)}
+    if kind == "points" and method == DQS:  # measured faster; LBS's point kernel slower
+        options["cpu_compiler_flags"] = fused_cpu_flags()
+    wp.set_module_options(options, module=module)
     return wp.kernel(kernel, name=name, module=module)
+
+
+def fused_cpu_flags() -> str:
+    """CPU compiler flags of the DQS point kernels' modules (forward, :mod:`.grad_dqs`'s
+    adjoint): Warp's configured ones (its default ``-march=native``) with fused multiply-adds
+    (``-ffp-contract=fast``: fewer instructions; results within float32 rounding of the unfused
+    ones)."""
+    return f"{wp.config.cpu_compiler_flags or '-march=native'} -ffp-contract=fast"
 
 
 @functools.cache
@@ -417,27 +446,42 @@ def launch_joints(kernel: wp.Kernel, dim: int, inputs: Sequence[Any], outputs: S
 
 
 def vertex_chunks(vertex_count: int, frames: int, device: Device) -> list[tuple[int, int]]:
-    """``(first, rows)`` vertex ranges of a point launch: one per CPU thread for large launches,
-    one on CUDA."""
+    """``(first, rows)`` vertex ranges of a point launch: on the CPU, for large launches,
+    :data:`~.grid.PIECES_PER_THREAD` per thread, which the threads take in turn
+    (:func:`launch_vertices`); one on CUDA."""
     chunks = 1
     if is_cpu(device):
-        chunks = max(1, min(cpu_threads(), vertex_count * frames // _MIN_CHUNK, vertex_count))
+        work = vertex_count * frames // _MIN_CHUNK
+        threads = max(1, min(cpu_threads(), work, vertex_count))
+        chunks = min(vertex_count, threads * max(1, min(PIECES_PER_THREAD, work // threads)))
     bounds = [vertex_count * c // chunks for c in range(chunks + 1)]
     return [(bounds[c], bounds[c + 1] - bounds[c]) for c in range(chunks)]
 
 
 def launch_vertices(kernel: wp.Kernel, chunks: Sequence[tuple[int, int]], frames: int,
-                    inputs: Callable[[int], Sequence[Any]], outputs: Sequence[Any],
-                    device: Device, adj_inputs: Callable[[int], Sequence[Any]] | None = None,
-                    adj_outputs: Sequence[Any] | None = None) -> None:
-    """Launch a point or normal kernel over ``chunks`` (:func:`vertex_chunks`) × ``frames``, a
-    chunk per CPU thread; ``inputs(c)`` and ``adj_inputs(c)`` give chunk ``c``'s lists (its
-    per-joint adjoint buffers: chunks run at once), without ``first`` and ``rows``, which are
-    appended."""
-    def run(c: int) -> None:
-        first, rows = chunks[c]
-        adj = None if adj_inputs is None else [*adj_inputs(c), 0, 0]
-        _launch(kernel, rows * frames, [*inputs(c), first, rows], outputs, device, adj,
-                adj_outputs)
+                    inputs: Callable[[int], Sequence[Any]],
+                    outputs: Callable[[int], Sequence[Any]], device: Device,
+                    adj_inputs: Callable[[int], Sequence[Any]] | None = None,
+                    adj_outputs: Sequence[Any] | None = None, frame_loop: bool = False) -> None:
+    """Launch a point or normal kernel over ``chunks`` (:func:`vertex_chunks`) × ``frames``,
+    the CPU threads taking the chunks in turn (a thread slowed by another process leaves its
+    later chunks to the others); ``inputs(c)``, ``outputs(c)`` and ``adj_inputs(c)`` give
+    chunk ``c``'s lists (its own per-joint adjoint buffers: chunks run at once, and a
+    buffer per chunk keeps the sums' order fixed), without ``first`` and ``rows``, which are
+    appended to the inputs. ``frame_loop``: a kernel whose thread loops over the frames itself
+    (grid ``rows``, only ``first`` appended)."""
+    count = len(chunks)
+    taken = itertools.count()  # the next chunk: next() is atomic under the GIL
 
-    run_tasks([functools.partial(run, c) for c in range(len(chunks))])
+    def run() -> None:
+        while (c := next(taken)) < count:
+            first, rows = chunks[c]
+            tail = [first] if frame_loop else [first, rows]
+            dim = rows if frame_loop else rows * frames
+            if adj_inputs is None:
+                launch(kernel, dim, [*inputs(c), *tail], outputs(c), device)
+            else:
+                _launch(kernel, dim, [*inputs(c), *tail], outputs(c), device,
+                        [*adj_inputs(c), *([0] * len(tail))], adj_outputs)
+
+    run_tasks([run] * min(count, cpu_threads() if is_cpu(device) else 1))

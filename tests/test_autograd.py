@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 import torch_reference as R
+from torch.utils._python_dispatch import TorchDispatchMode
 
 import dqskin
 from dqskin import autograd as ag
@@ -391,6 +392,55 @@ def test_bad_input(call, match):
         call(p, i, w, x)
 
 
+def test_indices_changed_in_place_are_read_again():
+    """The int32 copy of the indices kept between calls follows in-place changes: a changed
+    joint is skinned by its new joint (against the reference), one out of range is refused."""
+    rig = random_rig(seed=16, B=1)
+    p, w, x = (rig[k].float() for k in ("points", "weights", "transforms"))
+    for idx in (rig["indices"].clone(), rig["indices"].to(torch.int32)):  # converted, as given
+        ag.skin(p, idx, w, x, "dqs")
+        idx[:, 0] = (idx[:, 0] + 1) % x.shape[1]
+        want = R.dqs(p.double(), idx.long(), w.double(), x.double())
+        assert_close(ag.skin(p, idx, w, x, "dqs").double(), want, 1e-5, "indices changed")
+        idx[0, 0] = x.shape[1]
+        with pytest.raises(dqskin.InputError, match="indices: joint indices"):
+            ag.skin(p, idx, w, x, "dqs")
+
+
+class _AtenOps(TorchDispatchMode):
+    """The ATen operations run inside the with-block."""
+
+    def __init__(self):
+        super().__init__()
+        self.ops = set()
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        self.ops.add(func.__name__)
+        return func(*args, **(kwargs or {}))
+
+
+@pytest.mark.parametrize("method", ["dqs", "lbs"])
+@pytest.mark.parametrize("batched", [False, True])
+def test_skin_runs_no_pytorch_computation(method, batched):
+    """``skin`` forward and backward allocate and view tensors and nothing else: every
+    computation is a Warp launch (a PyTorch operation on a large tensor would start PyTorch's
+    OpenMP threads, which then spin on the cores the Warp kernels use)."""
+    rig = random_rig(seed=17, V=3000, B=1)
+    p, w, x = (rig[k].float().requires_grad_() for k in ("points", "weights", "transforms"))
+    idx = rig["indices"]
+    ag.skin(p.detach(), idx, w.detach(), x.detach(), method)  # indices converted once
+    up = torch.randn(x.shape[0] if batched else 1, 3000, 3)
+    if not batched:
+        x = x[0].detach().requires_grad_()
+    allowed = {"empty.memory_format", "empty_like.default", "detach.default", "view.default",
+               "select.int", "squeeze.dim", "unsqueeze.default", "_unsafe_view.default"}
+    with _AtenOps() as forward:
+        out = ag.skin(p, idx, w, x, method)
+    with _AtenOps() as backward:
+        out.backward(up if batched else up[0])
+    assert forward.ops <= allowed and backward.ops <= allowed, (forward.ops, backward.ops)
+
+
 # ---------------------------------------------------------------------------------------------
 # the examples (tools/fit_pose.py, tools/fit_weights.py), shortened
 
@@ -431,17 +481,19 @@ def test_fit_weights_example():
     assert r["heldout_rms"] < 3e-3 and r["weights_l1"] < 0.3, r
 
 
-@pytest.mark.parametrize("make, method, rule", [
-    ("points_kernel", 3, False), ("points_kernel", 1, True), ("normals_kernel", 2, False)])
-def test_vertex_kernels_compile_for_cuda(make, method, rule, tmp_path):
+@pytest.mark.parametrize("make, args", [
+    ("points_kernel", (3, 4, False)), ("points_kernel", (1, 4, True)),
+    ("normals_kernel", (2, 4, False)), ("dqs_points_adjoint_kernel", (4, False)),
+    ("dqs_points_adjoint_kernel", (4, True))])
+def test_vertex_kernels_compile_for_cuda(make, args, tmp_path):
     """The kernels made on first use (not seen by tests/test_cuda_codegen.py), forward and
     adjoint, compile to PTX: COR (all the point code), DQS with the running sum, blended
-    normals."""
+    normals, the DQS adjoint with both sign rules."""
     import warp as wp
 
-    from dqskin.kernels import grad
+    from dqskin.kernels import grad, grad_dqs
 
-    kernel = getattr(grad, make)(method, 4, rule)
+    kernel = getattr(grad_dqs if make.startswith("dqs") else grad, make)(*args)
     paths = wp.compile_aot_module(kernel.module.name, arch=[90], use_ptx=True,
                                   module_dir=tmp_path)
     assert any(p.suffix == ".ptx" and p.stat().st_size > 1000 for p in paths), paths
