@@ -31,6 +31,9 @@ def _warp_modules(name):
 
 
 def test_skinning_kernels_are_one_warp_module_per_method():
+    from dqskin.kernels import skin
+    for spec in skin.SKIN_POINTS_KERNELS._specs:  # a method's kernels are defined on first use
+        skin.SKIN_POINTS_KERNELS[(spec[0], spec[1], False, spec[2], spec[3])]
     names = _warp_modules("skin")
     assert names == ["dqskin.kernels.skin"] + [f"dqskin.kernels.skin.{m}"
                                                for m in ("blend", "cor", "dqs", "lbs")]
