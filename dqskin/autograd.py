@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import weakref
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
@@ -140,28 +139,26 @@ def _same_device(tensors: dict[str, torch.Tensor | None], device: torch.device) 
             raise InputError(Param(name), f": on {t.device}, the transforms on {device}")
 
 
-_INDEX_CACHE_SIZE = 8
-_index_cache: dict[int, tuple[Any, ...]] = {}
-
-
-def _indices(indices: torch.Tensor) -> tuple[torch.Tensor, int, int]:
-    """``indices`` as a contiguous int32 tensor, and its smallest and largest entries; kept for
-    the same tensor at the same version (``Tensor._version``), as a fitting loop passes it on
-    every call: the conversion and the two reductions are PyTorch operations that would
-    start PyTorch's OpenMP threads."""
-    key = id(indices)
-    hit = _index_cache.get(key)
-    if hit is not None and hit[0]() is indices and hit[1] == (
-            indices._version, indices.data_ptr(), indices.shape, indices.stride()):
-        return indices if hit[2] is None else hit[2], hit[3], hit[4]
-    idx = indices.to(torch.int32).contiguous()
-    lo, hi = (int(idx.min()), int(idx.max())) if idx.numel() else (0, -1)
-    if len(_index_cache) >= _INDEX_CACHE_SIZE:
-        _index_cache.pop(next(iter(_index_cache)))
-    _index_cache[key] = (weakref.ref(indices), (indices._version, indices.data_ptr(),
-                                                indices.shape, indices.stride()),
-                          None if idx is indices else idx, lo, hi)  # not the caller's alive
-    return idx, lo, hi
+def _indices(indices: torch.Tensor, joints: int) -> torch.Tensor:
+    """``indices`` as a contiguous int32 tensor, each checked to be in ``0 .. joints - 1``
+    (:class:`InputError` otherwise). Converted and checked by Warp on every call (int32 and
+    int64 tensors: no PyTorch operation, which would start PyTorch's OpenMP threads), so
+    changes made in place by any means are read."""
+    d = _device(indices)
+    if indices.dtype not in (torch.int32, torch.int64):
+        indices = indices.to(torch.int32)
+    src = indices.contiguous().reshape(-1)
+    idx = src if src.dtype == torch.int32 else torch.empty(src.shape, dtype=torch.int32,
+                                                           device=src.device)
+    bad = wp.zeros(1, dtype=wp.int32, device=d)
+    if src.numel():
+        kernel = KG.index_check_kernel if src.dtype == torch.int32 else KG.index_narrow_kernel
+        KG.launch_joints(kernel, src.numel(), [wp.from_torch(src, requires_grad=False), joints],
+                         [wp.from_torch(idx, requires_grad=False), bad], d)
+    if int(bad.numpy()[0]):
+        raise InputError(Param("indices"), f": joint indices {int(indices.min())}.."
+                         f"{int(indices.max())} outside 0..{joints - 1}")
+    return idx.reshape(indices.shape)
 
 
 def _parents(parents: Any, joint_count: int, device: torch.device) -> torch.Tensor:
@@ -286,7 +283,7 @@ class _Skin(torch.autograd.Function):
                          dtype=torch.float32, device=dev)
         nq = torch.empty((nl.shape[0], 4), dtype=torch.float32, device=dev)
         ns = torch.empty_like(nl)
-        chunks = KG.vertex_chunks(verts, frames, d)
+        chunks = KG.vertex_chunks(verts, frames, d, frames * joints)
         ctx.method, ctx.running_sum, ctx.chunks = method, running_sum, chunks
         ctx.set_materialize_grads(False)  # no zero tensor made for an output not used
         saved = (points, weights, transforms, blend, centers, normals, indices, has_center, out,
@@ -322,7 +319,9 @@ class _Skin(torch.autograd.Function):
         fj = frames * joints
         # no PyTorch operation here that could start its OpenMP threads (they would spin on
         # the cores the kernels run on): buffers zeroed and per-chunk adjoints summed in Warp
-        written = method == KG.DQS  # its adjoint kernel writes the per-vertex adjoints
+        # the DQS adjoint kernel writes the per-vertex adjoints (of every vertex: not with no
+        # frames, where it launches nothing and they are zero)
+        written = method == KG.DQS and frames > 0
         with _stream(d):
             zeros = _Zeros(d)
             empty = torch.empty_like
@@ -408,7 +407,7 @@ def _sum_chunks(parts: torch.Tensor, total: torch.Tensor | None, d: wp.Device) -
     ``total`` (a new tensor when None)."""
     if total is None:
         total = torch.empty(parts.shape[1:], dtype=torch.float32, device=parts.device)
-    flat = parts.reshape(parts.shape[0], -1)
+    flat = parts.reshape(parts.shape[0], math.prod(parts.shape[1:]))  # (0, n) too
     KG.launch_joints(KG.sum_chunks_kernel, flat.shape[1], [_wp2(flat, wp.float32)],
                      [_wp(total, wp.float32, d)], d)
     return total
@@ -649,10 +648,7 @@ def skin(points: torch.Tensor, indices: torch.Tensor, weights: torch.Tensor,
         raise InputError(Param("indices"), f": expected an int tensor of the weights' "
                          f"shape {tuple(weights.shape)}")
     _same_device({"points": points, "indices": indices, "weights": weights}, dev)
-    idx, lo, hi = _indices(indices)
-    if lo < 0 or hi >= joints:
-        raise InputError(Param("indices"), f": joint indices {lo}..{hi} outside "
-                         f"0..{joints - 1}")
+    idx = _indices(indices, joints)
     frames = transforms.shape[0] if batched else 1
     if points.dim() == 3:
         if not batched:

@@ -317,7 +317,8 @@ def workers_early(settings: BakeSettings, loading: bool = True) -> Iterator[None
     (:mod:`dqskin.distributed`). An exception in the block (a load or a check that failed)
     stops it before it is raised. Nothing without ``workers`` or ``loading``, nor where the
     workers cannot pay whatever the shot (:func:`dqskin.distributed.free_cores`: at most one
-    core free for them, where their imports would only slow the bake here)."""
+    core for them besides this process's, where their imports would only slow the bake
+    here)."""
     if settings.workers is None or settings.scheduler or not loading:
         yield
         return
@@ -327,12 +328,12 @@ def workers_early(settings: BakeSettings, loading: bool = True) -> Iterator[None
         yield
         return
     try:
-        forkserver.prestart_workers()
-    except Exception:  # only a head start: the cluster says why it cannot start
-        pass
-    try:
+        try:
+            forkserver.prestart_workers()
+        except Exception:  # only a head start: the cluster says why it cannot start
+            pass
         yield
-    except BaseException:
+    except BaseException:  # an interrupt during the start too
         forkserver.stop_workers()
         raise
 

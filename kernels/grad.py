@@ -241,6 +241,35 @@ def sum_chunks_kernel(
     total[i] = s
 
 
+def _index_kernel(dtype: Any, name: str) -> wp.Kernel:
+    """Count in ``bad[0]`` the joint indices (``dtype``) outside ``0 .. joints - 1``; int64 ones
+    are also written to ``narrow`` as int32 (0 where out of range); int32 ones are read only
+    (``narrow`` is then the caller's indices themselves, unwritten)."""
+    wide = dtype == wp.int64
+
+    def kernel(
+        indices: wp.array(dtype=dtype),
+        joints: int,
+        # outputs
+        narrow: wp.array(dtype=wp.int32),
+        bad: wp.array(dtype=wp.int32),
+    ):
+        i = wp.tid()
+        v = indices[i]
+        out = v < dtype(0) or v >= dtype(joints)
+        if out:
+            wp.atomic_add(bad, 0, 1)
+        if wp.static(wide):
+            narrow[i] = wp.where(out, 0, wp.int32(v))
+
+    kernel.__doc__ = _index_kernel.__doc__
+    return wp.kernel(kernel, name=name)
+
+
+index_check_kernel = _index_kernel(wp.int32, "index_check_kernel")
+index_narrow_kernel = _index_kernel(wp.int64, "index_narrow_kernel")
+
+
 def _pivot_slot(influences: int):
     """``@wp.func`` ``(weights, v) → slot`` of the vertex's largest weight, first on ties."""
 
@@ -285,7 +314,8 @@ def fused_cpu_flags() -> str:
     adjoint): Warp's configured ones (its default ``-march=native``) with fused multiply-adds
     (``-ffp-contract=fast``: fewer instructions; results within float32 rounding of the unfused
     ones)."""
-    return f"{wp.config.cpu_compiler_flags or '-march=native'} -ffp-contract=fast"
+    flags = wp.config.cpu_compiler_flags  # None: Warp's default; "" (generic) kept as set
+    return f"{'-march=native' if flags is None else flags} -ffp-contract=fast"
 
 
 @functools.cache
@@ -445,15 +475,30 @@ def launch_joints(kernel: wp.Kernel, dim: int, inputs: Sequence[Any], outputs: S
     _launch(kernel, dim, inputs, outputs, device, adj_inputs, adj_outputs)
 
 
-def vertex_chunks(vertex_count: int, frames: int, device: Device) -> list[tuple[int, int]]:
+CHUNK_ADJOINT_BYTES = 1 << 28
+"""Most bytes of per-chunk per-joint adjoint buffers a backward pass allocates (each chunk
+holds ``frames × joints`` of them, :data:`_ADJOINT_BYTES_PER_JOINT` each): fewer chunks where
+more would pass it."""
+
+_ADJOINT_BYTES_PER_JOINT = 4 * (16 + 8 + 9 + 9 + 4 + 9)  # points' and normals' buffers, float32
+
+
+def vertex_chunks(vertex_count: int, frames: int, device: Device, joint_frames: int = 0
+                  ) -> list[tuple[int, int]]:
     """``(first, rows)`` vertex ranges of a point launch: on the CPU, for large launches,
     :data:`~.grid.PIECES_PER_THREAD` per thread, which the threads take in turn
-    (:func:`launch_vertices`); one on CUDA."""
+    (:func:`launch_vertices`), at most as many as keep ``joint_frames`` (frames × joints) per
+    chunk of adjoint buffers within :data:`CHUNK_ADJOINT_BYTES`; one on CUDA; none without
+    vertices or frames."""
+    if vertex_count <= 0 or frames <= 0:
+        return []
     chunks = 1
     if is_cpu(device):
         work = vertex_count * frames // _MIN_CHUNK
         threads = max(1, min(cpu_threads(), work, vertex_count))
         chunks = min(vertex_count, threads * max(1, min(PIECES_PER_THREAD, work // threads)))
+        most = CHUNK_ADJOINT_BYTES // max(1, joint_frames * _ADJOINT_BYTES_PER_JOINT)
+        chunks = max(1, min(chunks, most))
     bounds = [vertex_count * c // chunks for c in range(chunks + 1)]
     return [(bounds[c], bounds[c + 1] - bounds[c]) for c in range(chunks)]
 

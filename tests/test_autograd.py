@@ -392,19 +392,50 @@ def test_bad_input(call, match):
         call(p, i, w, x)
 
 
-def test_indices_changed_in_place_are_read_again():
-    """The int32 copy of the indices kept between calls follows in-place changes: a changed
-    joint is skinned by its new joint (against the reference), one out of range is refused."""
+@pytest.mark.parametrize("through", ["tensor", "numpy view"])
+def test_indices_changed_in_place_are_read_again(through):
+    """Indices changed in place between calls (through the tensor, or through a NumPy view of
+    it, which PyTorch's version counter does not see) are read again: a changed joint is
+    skinned by its new joint (against the reference), one out of range is refused."""
     rig = random_rig(seed=16, B=1)
     p, w, x = (rig[k].float() for k in ("points", "weights", "transforms"))
     for idx in (rig["indices"].clone(), rig["indices"].to(torch.int32)):  # converted, as given
+        view = idx if through == "tensor" else torch.from_numpy(idx.numpy())
         ag.skin(p, idx, w, x, "dqs")
-        idx[:, 0] = (idx[:, 0] + 1) % x.shape[1]
+        with torch.no_grad():
+            view[:, 0] = (view[:, 0] + 1) % x.shape[1]
         want = R.dqs(p.double(), idx.long(), w.double(), x.double())
         assert_close(ag.skin(p, idx, w, x, "dqs").double(), want, 1e-5, "indices changed")
-        idx[0, 0] = x.shape[1]
+        with torch.no_grad():
+            view[0, 0] = x.shape[1]
         with pytest.raises(dqskin.InputError, match="indices: joint indices"):
             ag.skin(p, idx, w, x, "dqs")
+
+
+def test_indices_made_in_inference_mode_are_skinned():
+    """Tensors made under ``torch.inference_mode`` (no version counter) skin as any other."""
+    rig = random_rig(seed=17, B=1)
+    p, w, x = (rig[k].float() for k in ("points", "weights", "transforms"))
+    want = R.dqs(p.double(), rig["indices"], w.double(), x.double())
+    with torch.inference_mode():
+        idx = rig["indices"].clone()
+        got = ag.skin(p, idx, w, x, "dqs")
+    assert_close(got.double(), want, 1e-5, "inference mode")
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_no_poses_give_zero_gradients(method):
+    """A batch of no poses: empty points, and zero gradients for the weights and points (the
+    DQS adjoint kernel launches nothing)."""
+    rig = random_rig(seed=18, B=1)
+    w = rig["weights"].float().requires_grad_()
+    p = rig["points"].float()[None].expand(0, -1, -1).contiguous().requires_grad_()
+    x = rig["transforms"].float()[:0].contiguous().requires_grad_()
+    out = ag.skin(p, rig["indices"], w, x, method)
+    assert out.shape == (0, w.shape[0], 3)
+    out.sum().backward()
+    assert w.grad is not None and torch.count_nonzero(w.grad) == 0
+    assert p.grad is not None and p.grad.shape == p.shape
 
 
 class _AtenOps(TorchDispatchMode):

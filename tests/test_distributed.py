@@ -322,6 +322,24 @@ def test_the_forkserver_starts_while_the_source_loads_and_a_failed_load_stops_it
     assert events == ["load"] and _forkserver_pid() is None
 
 
+def test_a_failed_load_in_dqskin_bake_stops_the_forkserver_it_started(tmp_path, monkeypatch):
+    """From Python (no CLI clean-up behind it): ``dqskin.bake(path, workers=2)`` starts the
+    workers' forkserver while it loads, and a source that fails to load stops it."""
+    import dqskin
+    import dqskin.forkserver as forkserver
+    started = []
+    monkeypatch.setattr(forkserver, "PRELOAD", ["numpy"])
+    real = forkserver.prestart_workers
+    monkeypatch.setattr(forkserver, "prestart_workers", lambda: (started.append(1), real()))
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})  # two cores
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))  # free
+    bad = tmp_path / "bad.usda"
+    bad.write_text("#usda 1.0\n(\n")
+    with pytest.raises(dqskin.InputError, match="bad.usda"):
+        dqskin.bake(bad, tmp_path / "shot.usd", workers=2)
+    assert started == [1] and _forkserver_pid() is None
+
+
 def test_a_forkserver_running_before_dqskin_is_left_running():
     """multiprocessing's one forkserver, started by someone else: prestart_workers uses it and
     the bake's clean-up (stop_workers) does not stop it."""

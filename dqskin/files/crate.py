@@ -463,11 +463,15 @@ class CrateSamples:
         """Queue ``write(*args)`` of ``size`` bytes (a method of the file) for the writer thread,
         in order after the queued ones; waits while :data:`WRITES_AHEAD` are queued. An error
         of a queued write is raised here or later."""
+        self._room()
+        self._queued.append(_writer().submit(write, *args))
+        self._pos += size
+
+    def _room(self) -> None:
+        """Wait while :data:`WRITES_AHEAD` writes are queued (raising a queued write's error)."""
         while len(self._queued) >= WRITES_AHEAD:
             self._queued[0].result()  # then dropped: an interrupt while waiting leaves it queued
             self._queued.popleft()
-        self._queued.append(_writer().submit(write, *args))
-        self._pos += size
 
     def _drain(self) -> None:
         """Wait for every queued write (raising the first error)."""
@@ -512,6 +516,9 @@ class CrateSamples:
             raise InputError(f"{self.path}: the layer is closed")
         new: dict[str, _Attribute] = {}  # attributes first added by these blocks
         checked = [self._checked(*block, new=new) for block in blocks]
+        # waits (and errors of earlier writes) before the records change: what they record
+        # is then queued at once
+        self._room()
         self._align()  # (every record's size is a multiple of 8: the blocks stay aligned)
         writes: list[tuple[Callable[..., object], tuple[Any, ...]]] = []
         size = 0
