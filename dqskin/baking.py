@@ -307,6 +307,14 @@ def bake(scene: Scene | str | Path, out: str | Path, times: npt.ArrayLike | None
         return {"usd": _bake_usd, "npz": _bake_npz, "frames": _bake_frames}[kind](job)
 
 
+HEAD_START_CORES = 3
+"""Free cores (:func:`dqskin.distributed.free_cores`) from which :func:`workers_early` starts
+the workers' forkserver while the source loads: its imports then take a core of their own,
+beside the two that the bake's skinning and writer threads keep busy; on fewer it would slow
+every bake that ends in this process (a short shot), so the forkserver starts only once the
+first clip says the workers may pay."""
+
+
 @contextlib.contextmanager
 def workers_early(settings: BakeSettings, loading: bool = True) -> Iterator[None]:
     """The block that loads a bake's source (``loading``) and bakes it: with
@@ -316,15 +324,14 @@ def workers_early(settings: BakeSettings, loading: bool = True) -> Iterator[None
     the clip bake then uses it or stops it once it has measured whether the workers pay
     (:mod:`dqskin.distributed`). An exception in the block (a load or a check that failed)
     stops it before it is raised. Nothing without ``workers`` or ``loading``, nor where the
-    workers cannot pay whatever the shot (:func:`dqskin.distributed.free_cores`: at most one
-    core for them besides this process's, where their imports would only slow the bake
-    here)."""
+    forkserver's imports would slow the bake here (:func:`dqskin.distributed.free_cores`:
+    fewer than :data:`HEAD_START_CORES` cores free)."""
     if settings.workers is None or settings.scheduler or not loading:
         yield
         return
     from . import forkserver
     from .distributed import free_cores
-    if min(settings.workers, free_cores()[1]) <= 1:  # they cannot pay: no head start
+    if settings.workers <= 1 or free_cores()[1] < HEAD_START_CORES:  # no head start
         yield
         return
     try:

@@ -291,9 +291,9 @@ def test_refused_worker_arguments_start_no_forkserver(tmp_path, monkeypatch, cap
 def test_the_forkserver_starts_while_the_source_loads_and_a_failed_load_stops_it(
         tmp_path, monkeypatch, capsys):
     """``dqskin skin --workers 2`` starts the workers' forkserver before it loads the input
-    (its imports overlap the load) where two cores are free for them, and not where the
-    machine's load leaves one (they could not pay, whatever the shot); an output it refuses
-    (a clip bake to .npz) never starts it, and an input that fails to load stops it before
+    (its imports overlap the load) where three cores are free, and not where the machine's
+    load or size leaves two (its imports would slow the bake); an output it refuses (a clip
+    bake to .npz) never starts it, and an input that fails to load stops it before
     the error is reported."""
     import dqskin.forkserver as forkserver
     import dqskin.readers as readers
@@ -305,7 +305,7 @@ def test_the_forkserver_starts_while_the_source_loads_and_a_failed_load_stops_it
                                                                  real()))
     monkeypatch.setattr(readers, "load", lambda *a, **k: (events.append("load"),
                                                           real_load(*a, **k))[1])
-    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})  # two cores
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3})  # four cores
     monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))  # free
     out = tmp_path / "shot.npz"
     assert main(["skin", str(HUMANOID), "--out", str(out), "--workers", "2"]) != 0
@@ -317,7 +317,12 @@ def test_the_forkserver_starts_while_the_source_loads_and_a_failed_load_stops_it
     assert "bad.usda" in capsys.readouterr().err
     assert events == ["forkserver", "load"] and _forkserver_pid() is None
     events.clear()
-    monkeypatch.setattr(os, "getloadavg", lambda: (2.0, 2.0, 2.0))  # one core busy elsewhere
+    monkeypatch.setattr(os, "getloadavg", lambda: (3.0, 3.0, 3.0))  # two cores busy elsewhere
+    assert main(["skin", str(bad), "--out", str(tmp_path / "shot.usd"), "--workers", "2"]) != 0
+    assert events == ["load"] and _forkserver_pid() is None
+    events.clear()
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})  # two free cores: the
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))  # bake's own threads' share
     assert main(["skin", str(bad), "--out", str(tmp_path / "shot.usd"), "--workers", "2"]) != 0
     assert events == ["load"] and _forkserver_pid() is None
 
@@ -331,7 +336,7 @@ def test_a_failed_load_in_dqskin_bake_stops_the_forkserver_it_started(tmp_path, 
     monkeypatch.setattr(forkserver, "PRELOAD", ["numpy"])
     real = forkserver.prestart_workers
     monkeypatch.setattr(forkserver, "prestart_workers", lambda: (started.append(1), real()))
-    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})  # two cores
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3})  # four cores
     monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))  # free
     bad = tmp_path / "bad.usda"
     bad.write_text("#usda 1.0\n(\n")
