@@ -150,12 +150,16 @@ def _indices(indices: torch.Tensor, joints: int) -> torch.Tensor:
     src = indices.contiguous().reshape(-1)
     idx = src if src.dtype == torch.int32 else torch.empty(src.shape, dtype=torch.int32,
                                                            device=src.device)
-    bad = wp.zeros(1, dtype=wp.int32, device=d)
-    if src.numel():
-        kernel = KG.index_check_kernel if src.dtype == torch.int32 else KG.index_narrow_kernel
-        KG.launch_joints(kernel, src.numel(), [wp.from_torch(src, requires_grad=False), joints],
-                         [wp.from_torch(idx, requires_grad=False), bad], d)
-    if int(bad.numpy()[0]):
+    with _stream(d):  # on PyTorch's stream, as its tensors were made
+        bad = wp.zeros(1, dtype=wp.int32, device=d)
+        if src.numel():
+            kernel = (KG.index_check_kernel if src.dtype == torch.int32
+                      else KG.index_narrow_kernel)
+            KG.launch_joints(kernel, src.numel(),
+                             [wp.from_torch(src, requires_grad=False), joints],
+                             [wp.from_torch(idx, requires_grad=False), bad], d)
+        count = int(bad.numpy()[0])  # (waits for the stream on CUDA)
+    if count:
         raise InputError(Param("indices"), f": joint indices {int(indices.min())}.."
                          f"{int(indices.max())} outside 0..{joints - 1}")
     return idx.reshape(indices.shape)
