@@ -21,7 +21,7 @@ import warp as wp
 
 from .grid import FRAME_BLOCK
 from .layout import InfluenceLayout, contiguous_vec4, contiguous_vec4i
-from .packets import VECTOR_END, VECTOR_PRELUDE
+from .packets import STORE_VECTOR, VECTOR_END, VECTOR_PRELUDE
 
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
@@ -125,25 +125,7 @@ _VECTOR = """
     MATH
 #undef LOAD
 #undef SQRT
-    const f8 o0 = SHUF(SHUF(ox, oy, 0, 8, -1, 1, 9, -1, 2, 10),
-                       oz, 0, 1, 8, 3, 4, 9, 6, 7);
-    const f8 o1 = SHUF(SHUF(ox, oy, -1, 3, 11, -1, 4, 12, -1, 5),
-                       oz, 10, 1, 2, 11, 4, 5, 12, 7);
-    const f8 o2 = SHUF(SHUF(ox, oy, 13, -1, 6, 14, -1, 7, 15, -1),
-                       oz, 0, 13, 2, 3, 14, 5, 6, 15);
-    float* O = (float*)out.data + 3 * (out_base + n0);
-    if (n == 8) {
-        __builtin_memcpy(O, &o0, 32);
-        __builtin_memcpy(O + 8, &o1, 32);
-        __builtin_memcpy(O + 16, &o2, 32);
-    } else {
-        float ob[24];
-        __builtin_memcpy(ob, &o0, 32);
-        __builtin_memcpy(ob + 8, &o1, 32);
-        __builtin_memcpy(ob + 16, &o2, 32);
-        for (int e = 0; e < 3 * n; ++e) O[e] = ob[e];
-    }
-    return 0;"""
+    STORE_OUTPUT""".replace("    STORE_OUTPUT", STORE_VECTOR.replace("FIRST", "n0"))
 
 
 def vector_packet_source(scalar_on_cpu: bool = False) -> str:

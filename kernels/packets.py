@@ -238,6 +238,30 @@ columns)`` (eight rows of four floats into four ``f8``); close it with :data:`VE
 
 VECTOR_END = "\n#undef SHUF\n"
 
+STORE_VECTOR = """    // interleave x, y, z back into 24 floats
+    const f8 o0 = SHUF(SHUF(ox, oy, 0, 8, -1, 1, 9, -1, 2, 10),
+                       oz, 0, 1, 8, 3, 4, 9, 6, 7);
+    const f8 o1 = SHUF(SHUF(ox, oy, -1, 3, 11, -1, 4, 12, -1, 5),
+                       oz, 10, 1, 2, 11, 4, 5, 12, 7);
+    const f8 o2 = SHUF(SHUF(ox, oy, 13, -1, 6, 14, -1, 7, 15, -1),
+                       oz, 0, 13, 2, 3, 14, 5, 6, 15);
+    float* O = (float*)out.data + 3 * (out_base + FIRST);
+    if (n == 8) {
+        __builtin_memcpy(O, &o0, 32);
+        __builtin_memcpy(O + 8, &o1, 32);
+        __builtin_memcpy(O + 16, &o2, 32);
+    } else {
+        float ob[24];
+        __builtin_memcpy(ob, &o0, 32);
+        __builtin_memcpy(ob + 8, &o1, 32);
+        __builtin_memcpy(ob + 16, &o2, 32);
+        for (int e = 0; e < 3 * n; ++e) O[e] = ob[e];
+    }
+    return 0;"""
+"""The end of a packet body (at ``    STORE_OUTPUT``): ``ox, oy, oz`` (a quantity of eight rows
+each) interleaved and stored from row ``FIRST`` of ``out``, all eight or the ``n`` of a partial
+last packet."""
+
 _VECTOR = """
     typedef f8 V;
     const float* P = (const float*)points.data + 3 * (point_base + v0);
@@ -300,26 +324,7 @@ _VECTOR = """
     }
     PIVOT
     MATH
-    // interleave x, y, z back into 24 floats
-    const f8 o0 = SHUF(SHUF(ox, oy, 0, 8, -1, 1, 9, -1, 2, 10),
-                       oz, 0, 1, 8, 3, 4, 9, 6, 7);
-    const f8 o1 = SHUF(SHUF(ox, oy, -1, 3, 11, -1, 4, 12, -1, 5),
-                       oz, 10, 1, 2, 11, 4, 5, 12, 7);
-    const f8 o2 = SHUF(SHUF(ox, oy, 13, -1, 6, 14, -1, 7, 15, -1),
-                       oz, 0, 13, 2, 3, 14, 5, 6, 15);
-    float* O = (float*)out.data + 3 * (out_base + v0);
-    if (n == 8) {
-        __builtin_memcpy(O, &o0, 32);
-        __builtin_memcpy(O + 8, &o1, 32);
-        __builtin_memcpy(O + 16, &o2, 32);
-    } else {
-        float ob[24];
-        __builtin_memcpy(ob, &o0, 32);
-        __builtin_memcpy(ob + 8, &o1, 32);
-        __builtin_memcpy(ob + 16, &o2, 32);
-        for (int e = 0; e < 3 * n; ++e) O[e] = ob[e];
-    }
-    return 0;"""
+    STORE_OUTPUT""".replace("    STORE_OUTPUT", STORE_VECTOR.replace("FIRST", "v0"))
 
 _VECTOR_PIVOT = """i8 slot = 0;  // the first largest weight's slot, lane by lane
     f8 best = wc[0];
