@@ -178,8 +178,8 @@ def test_records_are_head_row_and_padding(tmp_path, monkeypatch, mode, width):
     head = RNG.bytes(8)
     f = AppendFile(tmp_path / "f.bin", direct=mode == "direct")
     assert f.append([b"\x01" * 100]) == 100
-    assert f.append_records(head, rows, 4) == 700 * (8 + width + 4)
-    assert f.append_records(head, rows, 0, select) == len(select) * (8 + width)
+    assert f.append_records([(head, rows, 4, None)]) == 700 * (8 + width + 4)
+    assert f.append_records([(head, rows, 0, select)]) == len(select) * (8 + width)
     f.append([b"\x02" * 5])
     assert f.size == 100 + 700 * (8 + width + 4) + len(select) * (8 + width) + 5
     f.close()
@@ -205,7 +205,7 @@ def test_records_refused_midway_go_buffered(tmp_path, monkeypatch):
 
     monkeypatch.setattr(os, "pwrite", refuse)
     rows = RNG.integers(0, 256, (300, 40), dtype=np.uint8)
-    f.append_records(b"h", rows, 3)
+    f.append_records([(b"h", rows, 3, None)])
     assert not f.direct
     f.close()
     assert (tmp_path / "f.bin").read_bytes() == b"".join(b"h" + r.tobytes() + bytes(3)
@@ -241,8 +241,8 @@ def test_a_failed_write_of_the_tail_keeps_it_staged(tmp_path, monkeypatch):
 def test_records_must_be_rows_of_bytes(tmp_path):
     f = AppendFile(tmp_path / "f.bin")
     with pytest.raises(ValueError, match="uint8 rows"):
-        f.append_records(b"h", np.zeros((2, 3), np.float32))
-    assert f.append_records(b"", np.zeros((5, 0), np.uint8)) == 0
+        f.append_records([(b"h", np.zeros((2, 3), np.float32), 0, None)])
+    assert f.append_records([(b"", np.zeros((5, 0), np.uint8), 0, None)]) == 0
     f.close()
     assert (tmp_path / "f.bin").read_bytes() == b""
 

@@ -55,7 +55,7 @@ import numpy.typing as npt
 from pxr import Sdf
 
 from ..errors import InputError
-from .direct import AppendFile, BytesLike
+from .direct import AppendFile, BytesLike, Records
 
 __all__ = ["BOOTSTRAP", "CrateSamples", "Hasher", "UnsupportedCrate", "VERSION", "VALUE_TYPES"]
 
@@ -326,13 +326,6 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_writer)
 
 
-def _run_writes(writes: Sequence[tuple[Callable[..., object], tuple[Any, ...]]]) -> None:
-    """Run the file writes of one :meth:`CrateSamples.add_many`, in order (on the writer
-    thread)."""
-    for write, args in writes:
-        write(*args)
-
-
 def _close_after(file: AppendFile, queued: collections.deque[Future[Any]],
                  wait: bool = True) -> None:
     """Close ``file`` (an abandoned :class:`~.direct.AppendFile`: nothing staged is written)
@@ -374,25 +367,41 @@ class _Attribute:
         self.last: tuple[np.ndarray, int] | None = None  # (copy of the last frame added, its rep)
 
 
-def _holds(rows: np.ndarray, last: np.ndarray | None) -> np.ndarray:
-    """Which frames of ``rows`` (F, K) equal the frame before them (the first: ``last``, a
-    (K,) array or None), as a crate file stores an array once: a few elements of every
-    frame (a strided view, no copy) are compared first, the whole frame only when they match
-    (a hold, not a move)."""
-    F, K = rows.shape
-    same = np.zeros(F, bool)
-    if F == 0 or K == 0:
-        return same
-    step = -(-K // 16)  # at most 16 evenly spaced elements
-    probe = rows[:, ::step]
-    np.equal(probe[1:], probe[:-1]).all(axis=1, out=same[1:])
-    if last is not None and last.shape == (K,):
-        same[0] = bool(np.equal(probe[0], last[::step]).all())
+def _holds(rows: Sequence[np.ndarray], lasts: Sequence[np.ndarray | None]) -> np.ndarray:
+    """Which frames of each block ``rows[b]`` ((F_b, K_b) floats) equal the frame before them
+    (a block's first: ``lasts[b]``, a (K_b,) array or None), as a crate file stores an array
+    once; one (sum of F_b,) bool array, the blocks in order. A few elements of every frame are
+    compared first (up to 16 evenly spaced ones, gathered for all blocks of the same frame
+    count at once), the whole frame only when they all match (a hold, not a move)."""
+    F = np.array([len(r) for r in rows], np.intp)
+    starts = np.cumsum(F) - F
+    same = np.zeros(int(F.sum()), bool)
+    by_count: dict[int, list[int]] = {}
+    for k, r in enumerate(rows):
+        if len(r) and r.shape[1]:
+            by_count.setdefault(len(r), []).append(k)
+    for count, blocks in by_count.items():
+        probes, firsts = [], []
+        for k in blocks:
+            r, last = rows[k], lasts[k]
+            step = -(-r.shape[1] // 16)
+            probes.append(r[:, ::step])
+            firsts.append(last[::step] if last is not None and last.shape == r.shape[1:]
+                          else np.full(probes[-1].shape[1], np.nan, r.dtype))  # never equal
+        probe = np.concatenate(probes, axis=1)
+        eq = np.empty(probe.shape, bool)
+        np.equal(probe[0], np.concatenate(firsts), out=eq[0])
+        np.equal(probe[1:], probe[:-1], out=eq[1:])
+        widths = np.array([p.shape[1] for p in probes])
+        held = np.logical_and.reduceat(eq, np.cumsum(widths) - widths, axis=1)  # (count, B)
+        same[starts[blocks] + np.arange(count)[:, None]] = held
     if same.any():
-        for f in np.flatnonzero(same):
-            before = rows[f - 1] if f else last
+        for i in np.flatnonzero(same):
+            k = int(np.searchsorted(starts, i, side="right")) - 1
+            f = i - starts[k]
+            before = rows[k][f - 1] if f else lasts[k]
             assert before is not None  # frame 0 is a hold only after a last frame
-            same[f] = np.array_equal(rows[f], before)
+            same[i] = np.array_equal(rows[k][f], before)
     return same
 
 
@@ -431,6 +440,7 @@ class CrateSamples:
         self.time_codes_per_second = float(time_codes_per_second)
         self._base = None if base is None else _Base(base)
         self._attrs: dict[str, _Attribute] = {}  # attribute path → its samples, first-added order
+        self._keys: dict[str, str] = {}  # an attribute as added → its path's spelling
         self._file: AppendFile | None = AppendFile(self.path, direct=direct)
         self._pos = 0
         self._queued: collections.deque[Future[Any]] = collections.deque()  # not yet known done
@@ -515,32 +525,45 @@ class CrateSamples:
         if self._file is None:
             raise InputError(f"{self.path}: the layer is closed")
         new: dict[str, _Attribute] = {}  # attributes first added by these blocks
-        checked = [self._checked(*block, new=new) for block in blocks]
+        seen: dict[int, tuple[Any, np.ndarray]] = {}  # times checked, by id (blocks share them)
+        checked = [self._checked(*block, new=new, seen=seen) for block in blocks]
         # waits (and errors of earlier writes) before the records change: what they record
         # is then queued at once
         self._room()
         self._align()  # (every record's size is a multiple of 8: the blocks stay aligned)
-        writes: list[tuple[Callable[..., object], tuple[Any, ...]]] = []
+        groups: list[Records] = []
         size = 0
-        for key, rec, t, v, kind in checked:
-            if not t.size:
+        run: list[tuple[str, _Attribute, np.ndarray, np.ndarray, str]] = []
+        keys: set[str] = set()
+        for item in checked:
+            if not item[2].size:
                 continue
-            self._attrs.setdefault(key, rec)
-            size += self._plan(rec, t, v, kind, self._pos + size, writes)
-        if writes:
-            self._write_later(_run_writes, writes, size=size)
+            self._attrs.setdefault(item[0], item[1])
+            if item[0] in keys:  # an attribute again: after its earlier block is recorded
+                size += self._plan(run, self._pos + size, groups)
+                run, keys = [], set()
+            run.append(item)
+            keys.add(item[0])
+        if run:
+            size += self._plan(run, self._pos + size, groups)
+        if groups:
+            self._write_later(self._open().append_records, groups, size=size)
 
     def _checked(self, attr: str, type_name: str, times: npt.ArrayLike, values: npt.ArrayLike,
-                 info: Sequence[tuple[str, str]] = (), *, new: dict[str, _Attribute]
+                 info: Sequence[tuple[str, str]] = (), *, new: dict[str, _Attribute],
+                 seen: dict[int, tuple[Any, np.ndarray]]
                  ) -> tuple[str, _Attribute, np.ndarray, np.ndarray, str]:
         """``(key, record, times, values, kind)`` of one :meth:`add` (InputError naming
         ``attr`` for what it refuses); the record is the attribute's, or one of ``new`` (the
-        records of attributes first added in the same :meth:`add_many`, made here)."""
+        records of attributes first added in the same :meth:`add_many`, made here). ``seen``:
+        the times objects of the same call already checked (by id; with the object, so the id
+        stays its own), and their float64 arrays."""
         kind = VALUE_TYPES.get(type_name)
         if kind is None:
             raise InputError(f"{attr}: cannot write type {type_name!r} as crate samples; one of "
                              f"{', '.join(VALUE_TYPES)}")
-        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        known = seen.get(id(times))
+        t = known[1] if known is not None else np.atleast_1d(np.asarray(times, dtype=np.float64))
         if kind == "vec3f[]":
             v = np.asarray(values, dtype=np.float32)
             ok = v.ndim == 3 and v.shape[2] == 3
@@ -555,60 +578,76 @@ class CrateSamples:
             raise InputError(f"{attr}: expected {len(t)} frames of "
                              f"{'(N, 3)' if kind == 'vec3f[]' else '(4, 4)'} values, got "
                              f"{np.shape(values)}")
-        if not np.all(np.isfinite(t)):
-            raise InputError(f"{attr}: sample times must be finite")
-        path = Sdf.Path(attr) if attr else Sdf.Path()
-        key = str(path)  # one spelling per attribute (a variant selection's spaces)
-        rec = self._attrs.get(key) or new.get(key)
+        if known is None:
+            if not np.all(np.isfinite(t)):
+                raise InputError(f"{attr}: sample times must be finite")
+            seen[id(times)] = (times, t)
+        # an attribute added before: its path was checked then (one parse per attribute)
+        key = self._keys.get(attr, "")
+        rec = self._attrs.get(key) or new.get(key) if key else None
         if rec is None:
-            if not (path.IsAbsolutePath() and path.IsPrimPropertyPath()):
-                raise InputError(f"{attr}: not an attribute path (/Prim.name)")
-            if self._base is not None:
-                self._check_base_spec(self._base, path, type_name)
-            elif path.ContainsPrimVariantSelection():
-                raise InputError(f"{attr}: a variant's attribute needs a base layer that "
-                                 "declares it")
-            rec = new[key] = _Attribute(type_name, tuple(info))
-        elif rec.type_name != type_name:
+            path = Sdf.Path(attr) if attr else Sdf.Path()
+            key = str(path)  # one spelling per attribute (a variant selection's spaces)
+            rec = self._attrs.get(key) or new.get(key)
+            if rec is None:
+                if not (path.IsAbsolutePath() and path.IsPrimPropertyPath()):
+                    raise InputError(f"{attr}: not an attribute path (/Prim.name)")
+                if self._base is not None:
+                    self._check_base_spec(self._base, path, type_name)
+                elif path.ContainsPrimVariantSelection():
+                    raise InputError(f"{attr}: a variant's attribute needs a base layer that "
+                                     "declares it")
+                rec = new[key] = _Attribute(type_name, tuple(info))
+            self._keys[attr] = key
+        if rec.type_name != type_name:
             raise InputError(f"{attr}: added as {rec.type_name} before, now {type_name}")
         return key, rec, t, v, kind
 
-    def _plan(self, rec: _Attribute, t: np.ndarray, v: np.ndarray, kind: str, pos: int,
-              writes: list[tuple[Callable[..., object], tuple[Any, ...]]]) -> int:
-        """Record the samples of one block at file offset ``pos`` (8-byte aligned) in ``rec``
-        and append the file writes that store them to ``writes``; returns their bytes."""
-        F = len(t)
-        n = v.shape[1] if kind == "vec3f[]" else 1
-        if n == 0:  # an empty array is inlined: payload 0, nothing in the file
+    def _plan(self, run: "Sequence[tuple[str, _Attribute, np.ndarray, np.ndarray, str]]",
+              pos: int, groups: list[Records]) -> int:
+        """Record the samples of the blocks ``run`` (checked, each of another attribute) from
+        file offset ``pos`` (8-byte aligned) on, in order, and append the records that store
+        them to ``groups``; returns their bytes. Each frame's value rep is that of the last
+        frame written up to it (before the block: the attribute's last one's), computed for
+        all blocks at once."""
+        rows = [v.reshape(len(t), -1) for _, _, t, v, _ in run]
+        F = np.array([len(r) for r in rows], np.intp)
+        vec = np.array([kind == "vec3f[]" for *_, kind in run])
+        n = np.array([r.shape[1] // 3 for r in rows], np.int64)  # points of a vec3f[] block
+        empty = np.repeat(vec & (n == 0), F)  # an empty array is inlined: nothing in the file
+        lasts = [None if rec.last is None else rec.last[0] for _, rec, *_ in run]
+        written = ~_holds(rows, lasts)
+        written[empty] = False
+        ends = np.cumsum(F)
+        starts = ends - F
+        upto = np.cumsum(written)
+        nth = upto - np.repeat(upto[starts] - written[starts], F)  # its block's written so far
+        count = nth[ends - 1]
+        pad = np.where(vec, -(12 * n) % 8, 0)
+        stride = np.where(vec, 8 + 12 * n + pad, 128)
+        sizes = stride * count
+        at = pos + np.cumsum(sizes) - sizes  # where each block's records start
+        head = np.where(vec, np.uint64(_rep(_VEC3F, array=True)), np.uint64(_rep(_MATRIX4D)))
+        prior = np.array([0 if rec.last is None else rec.last[1] for _, rec, *_ in run],
+                         np.uint64)
+        offset = np.repeat(at, F) + np.repeat(stride, F) * np.maximum(nth - 1, 0)
+        reps = np.where(nth > 0, np.repeat(head, F) | offset.astype(np.uint64),
+                        np.repeat(prior, F))
+        reps[empty] = _rep(_VEC3F, array=True)
+        last_reps = reps[ends - 1].tolist()
+        counts, frames, lo, hi = count.tolist(), F.tolist(), starts.tolist(), ends.tolist()
+        for k, (_, rec, t, _, _) in enumerate(run):
             rec.times.append(t)
-            rec.reps.append(np.full(F, _rep(_VEC3F, array=True), np.uint64))
-            return 0
-        file = self._open()
-        rows = v.reshape(F, -1)
-        last = rec.last
-        held = _holds(rows, None if last is None else last[0])
-        count = F - int(np.count_nonzero(held))
-        if kind == "vec3f[]":
-            pad = -(12 * n) % 8
-            stride, head = 8 + 12 * n + pad, _rep(_VEC3F, array=True)
-            if count:  # one record (count, floats[, padding]) per frame written
-                writes.append((file.append_records, (
-                    struct.pack("<Q", n), rows.view(np.uint8), pad,
-                    None if count == F else np.flatnonzero(~held))))
-        else:
-            stride, head = 128, _rep(_MATRIX4D)
-            if count:
-                writes.append((file.append, (
-                    [rows[f] for f in np.flatnonzero(~held)] if count < F else [rows],)))
-        # each frame's rep: that of the last frame written up to it (before this block: last's)
-        reps = np.empty(count + 1, np.uint64)
-        reps[0] = 0 if last is None else last[1]
-        reps[1:] = np.uint64(head | pos) + np.uint64(stride) * np.arange(count, dtype=np.uint64)
-        frame_reps = reps[np.cumsum(~held)] if count < F else reps[1:]
-        rec.last = (rows[-1].copy(), int(frame_reps[-1]))
-        rec.times.append(t)
-        rec.reps.append(frame_reps)
-        return stride * count
+            rec.reps.append(reps[lo[k]:hi[k]])
+            r = rows[k]
+            if not r.size:  # (an empty array's frames: the last one written stays)
+                continue
+            rec.last = (r[-1].copy(), last_reps[k])
+            if counts[k]:
+                groups.append((struct.pack("<Q", int(n[k])) if vec[k] else b"", r.view(np.uint8),
+                               int(pad[k]), None if counts[k] == frames[k]
+                               else np.flatnonzero(written[lo[k]:hi[k]])))
+        return int(sizes.sum())
 
     @staticmethod
     def _check_base_spec(base: _Base, path: Sdf.Path, type_name: str) -> None:

@@ -27,7 +27,7 @@ import numpy.typing as npt
 
 from ..errors import InputError
 
-__all__ = ["BLOCK", "STAGE", "AppendFile", "BytesLike", "enabled", "nbytes", "pays"]
+__all__ = ["BLOCK", "STAGE", "AppendFile", "BytesLike", "Records", "enabled", "nbytes", "pays"]
 
 BytesLike = bytes | bytearray | memoryview | np.ndarray
 """What the writers take: bytes, or a C-contiguous array written as its raw bytes."""
@@ -142,6 +142,9 @@ def _writev(fd: int, buffers: Sequence[BytesLike]) -> int:
 
 _WRITEV_MAX = 1024  # IOV_MAX on Linux
 
+Records = tuple[bytes, np.ndarray, int, "npt.ArrayLike | None"]
+"""One group of :meth:`AppendFile.append_records`: ``(head, rows, pad, select)``."""
+
 
 class AppendFile:
     """A new file (created or truncated) written by appending, then :meth:`pwrite` at an offset
@@ -169,6 +172,7 @@ class AppendFile:
         self._view: np.ndarray | None = None  # the stage's bytes: set while direct I/O is on
         self._fill = 0  # bytes staged
         self._block: np.ndarray | None = None  # records gathered for a buffered write
+        self._blocked = 0  # bytes of them in it
         self._direct = False
         self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | _CLOEXEC,
                                        mode)
@@ -213,37 +217,60 @@ class AppendFile:
         self.size += total
         return total
 
-    def append_records(self, head: bytes, rows: np.ndarray, pad: int = 0,
-                       select: npt.ArrayLike | None = None) -> int:
-        """Append one record per row of ``rows`` ((K, M) uint8, each row contiguous; with
-        ``select``, only those row indices, in that order): ``head``, the row's M bytes, ``pad``
-        zero bytes. Direct: the records are copied straight into the stage, many rows a copy (no
-        block of them made first); buffered: copied into a block of up to :data:`STAGE` bytes,
-        one write each (a record larger than that: ``writev`` of its parts). Returns the bytes
-        appended."""
-        rows = np.asarray(rows)
-        if rows.ndim != 2 or rows.dtype != np.uint8:
-            raise InputError(f"append_records: expected (K, M) uint8 rows, got {rows.dtype} "
-                             f"{rows.shape}")
-        index = np.arange(len(rows)) if select is None else np.asarray(select)
+    def append_records(self, groups: Sequence[Records]) -> int:
+        """Append, for each ``(head, rows, pad, select)`` of ``groups`` in order, one record per
+        row of ``rows`` ((K, M) uint8, each row contiguous; with ``select``, only those row
+        indices, in that order): ``head``, the row's M bytes, ``pad`` zero bytes.
+
+        Direct: the records are copied straight into the stage, many rows a copy; buffered:
+        copied into a block of up to :data:`STAGE` bytes, the groups one after the other, one
+        write each time it fills and one at the end (a record larger than the block:
+        ``writev`` of its parts). Returns the bytes appended; raises InputError for rows that
+        are not (K, M) uint8."""
+        checked: list[tuple[bytes, np.ndarray, int, np.ndarray | None]] = []
+        for head, rows, pad, select in groups:
+            rows = np.asarray(rows)
+            if rows.ndim != 2 or rows.dtype != np.uint8:
+                raise InputError(f"append_records: expected (K, M) uint8 rows, got {rows.dtype} "
+                                 f"{rows.shape}")
+            if rows.shape[1] > 1 and rows.strides[1] != 1:
+                rows = np.ascontiguousarray(rows)
+            index = None if select is None else np.asarray(select, np.intp)
+            if (len(rows) if index is None else len(index)) and len(head) + rows.shape[1] + pad:
+                checked.append((head, rows, int(pad), index))
+        try:
+            return sum(self._append_group(*group) for group in checked)
+        finally:
+            self._write_block()
+
+    def _write_block(self) -> None:
+        """Write the records gathered in the block (buffered)."""
+        if self._blocked:
+            assert self._block is not None
+            done, self._blocked = self._blocked, 0  # (not written again after an error)
+            self._append_buffered([self._block[:done]])
+
+    def _append_group(self, head: bytes, rows: np.ndarray, pad: int,
+                      index: np.ndarray | None) -> int:
+        """One group of :meth:`append_records`, copied (into the stage, or a block written
+        through the page cache)."""
         h, m = len(head), rows.shape[1]
         stride = h + m + pad
-        total = stride * len(index)
-        if not total:
-            return 0
+        count = len(rows) if index is None else len(index)
+        total = stride * count
         hv = np.frombuffer(head, np.uint8)
         a = 0
-        while a < len(index) and self._direct:
+        while a < count and self._direct:
             room = (STAGE - self._fill) // stride
             if not room:
                 self._write_stage()  # leaves less than a block staged
                 room = (STAGE - self._fill) // stride
             if not room or not self._direct:  # a record larger than the stage; refused
                 break
-            k = min(room, len(index) - a)
+            k = min(room, count - a)
             dst = self._staged()[self._fill:self._fill + k * stride].reshape(k, stride)
             dst[:, :h] = hv
-            dst[:, h:h + m] = rows[a:a + k] if select is None else rows[index[a:a + k]]
+            dst[:, h:h + m] = rows[a:a + k] if index is None else rows[index[a:a + k]]
             dst[:, h + m:] = 0
             if self.observe is not None:
                 self.observe(dst)
@@ -252,25 +279,34 @@ class AppendFile:
             if self._fill == STAGE:
                 self._write_stage()
         self.size += stride * a
+        if a < count and not self._direct and self._block is None:
+            self._block = np.empty(STAGE, np.uint8)
         block = self._block
-        if a < len(index) and not self._direct and block is None:
-            block = self._block = np.empty(STAGE, np.uint8)
-        per = 0 if block is None else len(block) // stride  # records a write takes
-        while block is not None and a < len(index) and not self._direct and per:
-            # buffered: the records copied into one block at a time, one write each (no Python
-            # object per record: the writer thread seldom needs the GIL)
-            k = min(per, len(index) - a)
-            dst = block[:k * stride].reshape(k, stride)
+        while block is not None and a < count and not self._direct:
+            # buffered: the records copied into the block (after other groups' records), one
+            # write each time it fills (no Python object per record: the writer thread
+            # seldom needs the GIL)
+            room = (len(block) - self._blocked) // stride
+            if not room:
+                if not self._blocked:  # a record larger than the block
+                    break
+                self._write_block()
+                continue
+            k = min(room, count - a)
+            dst = block[self._blocked:self._blocked + k * stride].reshape(k, stride)
             dst[:, :h] = hv
-            dst[:, h:h + m] = rows[a:a + k] if select is None else rows[index[a:a + k]]
+            dst[:, h:h + m] = rows[a:a + k] if index is None else rows[index[a:a + k]]
             dst[:, h + m:] = 0
             if self.observe is not None:
                 self.observe(dst)
-            self.size += self._append_buffered([dst])
+            self._blocked += k * stride
+            self.size += k * stride
             a += k
-        if a < len(index):  # the rest record by record (each across stages, or larger)
+        if a < count:  # the rest record by record (each across stages, or larger)
+            self._write_block()
             zeros = bytes(pad)
-            self.append([part for i in index[a:] for part in (head, rows[i], zeros)])
+            rest = range(a, count) if index is None else index[a:]
+            self.append([part for i in rest for part in (head, rows[i], zeros)])
         return total
 
     def _append_buffered(self, buffers: Sequence[BytesLike]) -> int:
