@@ -564,3 +564,48 @@ def test_add_many_takes_an_attribute_twice_and_refuses_before_writing_any(tmp_pa
     ref = _sdf_layer(24.0, 1.0, 5.0, [("/M.points", "point3f[]", [1.0, 2.0, 3.0, 4.0, 5.0],
                                        np.concatenate([a, b]), ())])
     assert Sdf.Layer.FindOrOpen(str(path)).ExportToString() == ref.ExportToString()
+
+
+def test_chunks_of_many_attributes_store_each_held_frame_once(tmp_path):
+    """``add_many`` of many attributes at once, as a bake adds a chunk (point counts 0, 1, odd
+    and even: padded records; matrices; 2 frames of most attributes and 1 of others in one
+    call; an attribute twice in one call): each frame equal to its attribute's frame before it
+    (within a block, across blocks, across calls, after the same attribute's block in the same
+    call) is stored once, a frame off at one element the probe skips is stored, and every time
+    reads its own values (Sdf's layer of the same samples, as text)."""
+    counts = [0, 1, 3, 16, 17, 1000]
+    pattern = [0, 0, 1, 1, 2, 2, 2, 3]  # distinct frame of each of the 8 times
+    attrs = []  # (path, type name, (8, ...) values)
+    for k, n in enumerate(counts):
+        distinct = _samples(4, n)
+        if n == 1000:
+            distinct[3] = distinct[2]
+            distinct[3, 0, 1] += 1.0  # element 1 of 3000: not among the 16 probed
+        attrs.append((f"/M{k}.points", "point3f[]", distinct[np.roll(pattern, k)]))
+    m = RNG.normal(size=(4, 4, 4))
+    attrs.append(("/X.xformOp:transform", "matrix4d", m[pattern]))
+    # the calls: times 0-1 of all; 2-3 (/M2 as two blocks, /M4 only at 2); 4-6 (/M4 at 3-6); 7
+    calls = [[(a, [0, 1]) for a in range(len(attrs))],
+             [(a, [2, 3]) for a in range(len(attrs)) if a not in (2, 4)]
+             + [(2, [2]), (4, [2]), (2, [3])],
+             [(a, [4, 5, 6]) for a in range(len(attrs)) if a != 4] + [(4, [3, 4, 5, 6])],
+             [(a, [7]) for a in range(len(attrs))]]
+
+    def write(path, moving):
+        crate = CrateSamples(path, 24.0)
+        for call in calls:
+            crate.add_many([(attrs[a][0], attrs[a][1], np.array(ts, float),
+                             attrs[a][2][ts] + (np.array(ts)[:, None, None] if moving else 0),
+                             ()) for a, ts in call])
+        crate.close(0, 7)
+        return path.stat().st_size
+
+    held = write(tmp_path / "held.usdc", False)
+    moving = write(tmp_path / "moving.usdc", True)
+    record = [8 + 12 * n + (-12 * n) % 8 if n else 0 for n in counts] + [128]
+    again = [sum(np.array_equal(v[f], v[f - 1]) for f in range(1, 8)) for _, _, v in attrs]
+    assert list(np.roll(pattern, 5)[3:5]) == [2, 3] and again[-2] == 3  # 3 after 2: stored
+    assert moving - held == sum(r * h for r, h in zip(record, again))
+    ref = _sdf_layer(24.0, 0.0, 7.0, [(p, t, np.arange(8.0), v, ()) for p, t, v in attrs])
+    assert Sdf.Layer.FindOrOpen(str(tmp_path / "held.usdc")).ExportToString() == \
+        ref.ExportToString()

@@ -166,26 +166,41 @@ def test_a_crate_layer_written_past_the_cache_is_the_buffered_one(tmp_path, monk
             np.asarray(layer.QueryTimeSample("/A/B.points", float(k))), points[k])
 
 
-@pytest.mark.parametrize("mode", ["direct", "buffered"])
+@pytest.mark.parametrize("mode", ["direct", "buffered", "observed"])
 @pytest.mark.parametrize("width", [12, 36, 3 * 4096 + 20])  # the last: a record over the stage
 def test_records_are_head_row_and_padding(tmp_path, monkeypatch, mode, width):
-    """``append_records``: per row (all, or the selected ones in their order), the head, the
-    row's bytes and the zero padding, after bytes already appended and before more, the stage
-    (3 blocks) crossed at every offset; records wider than the stage too."""
+    """``append_records``: per row of each group (all, or the selected ones in their order),
+    the head, the row's bytes and the zero padding, the groups of one call one after the other
+    (heads, widths and padding of their own; a group's records after another's in one block,
+    or record by record), after bytes already appended and before more, the stage (3 blocks)
+    crossed at every offset; records wider than the stage too. Observed: every byte seen, in
+    file order."""
     monkeypatch.setattr(direct, "STAGE", 3 * direct.BLOCK)
     rows = RNG.integers(0, 256, (700, width), dtype=np.uint8)
+    other = RNG.integers(0, 256, (300, 2 * width + 1), dtype=np.uint8)[:, 1:]  # strided rows
     select = np.array([5, 3, 3, 699, 0] + list(range(10, 400, 7)))
     head = RNG.bytes(8)
     f = AppendFile(tmp_path / "f.bin", direct=mode == "direct")
+    seen: list[bytes] = []
+    if mode == "observed":
+        f.observe = lambda b: seen.append(memoryview(b).cast("B").tobytes())
     assert f.append([b"\x01" * 100]) == 100
     assert f.append_records([(head, rows, 4, None)]) == 700 * (8 + width + 4)
-    assert f.append_records([(head, rows, 0, select)]) == len(select) * (8 + width)
+    groups = [(head, rows, 0, select), (b"abc", other[::3], 5, None), (b"", rows[:0], 3, None),
+              (b"", other, 0, [7, 2]), (b"z", rows[:3], 1, None)]
+    assert f.append_records(groups) == len(select) * (8 + width) + 100 * (3 + 2 * width + 5) \
+        + 2 * 2 * width + 3 * (1 + width + 1)
     f.append([b"\x02" * 5])
-    assert f.size == 100 + 700 * (8 + width + 4) + len(select) * (8 + width) + 5
     f.close()
     want = b"\x01" * 100 + b"".join(head + r.tobytes() + bytes(4) for r in rows) \
-        + b"".join(head + rows[i].tobytes() for i in select) + b"\x02" * 5
+        + b"".join(head + rows[i].tobytes() for i in select) \
+        + b"".join(b"abc" + r.tobytes() + bytes(5) for r in other[::3]) \
+        + other[7].tobytes() + other[2].tobytes() \
+        + b"".join(b"z" + r.tobytes() + b"\0" for r in rows[:3]) + b"\x02" * 5
     assert (tmp_path / "f.bin").read_bytes() == want
+    assert f.size == len(want)
+    if mode == "observed":
+        assert b"".join(seen) == want
 
 
 def test_records_refused_midway_go_buffered(tmp_path, monkeypatch):

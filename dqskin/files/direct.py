@@ -288,7 +288,7 @@ class AppendFile:
             # seldom needs the GIL)
             room = (len(block) - self._blocked) // stride
             if not room:
-                if not self._blocked:  # a record larger than the block
+                if not self._blocked:  # a record larger than the block (written below)
                     break
                 self._write_block()
                 continue
@@ -303,7 +303,6 @@ class AppendFile:
             self.size += k * stride
             a += k
         if a < count:  # the rest record by record (each across stages, or larger)
-            self._write_block()
             zeros = bytes(pad)
             rest = range(a, count) if index is None else index[a:]
             self.append([part for i in rest for part in (head, rows[i], zeros)])
