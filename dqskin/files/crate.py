@@ -1,14 +1,14 @@
 """Time samples streamed straight into a USD crate file (``.usdc``), without an Sdf layer.
 
 A layer that holds nothing but time samples (a clip layer of :mod:`.usd_clips`) is written here
-as its arrays arrive: :meth:`CrateSamples.add` queues a block of frames of one attribute for
-the writer thread (a :class:`~.direct.AppendFile`: the frames copied into its aligned stage and
-written past the page cache, or ``writev`` of the frames in place; the GIL released, no ``Vt``
-array per frame; once written, nothing kept but each sample's time and file offset, and a copy
-of each attribute's last frame), and :meth:`CrateSamples.close` writes what makes it a
-layer: the prims (as ``over``), the attributes with their sample tables, the layer's time range
-and rate, the structural sections and the table of contents. Memory holds a few blocks, not the
-layer.
+as its arrays arrive: :meth:`CrateSamples.add_many` queues a chunk of frames of many
+attributes for the writer thread as one write (a :class:`~.direct.AppendFile`: the frames
+copied into its aligned stage and written past the page cache, or into a block written through
+it; the GIL released, no ``Vt`` array per frame; once written, nothing kept but each sample's
+time and file offset, and a copy of each attribute's last frame), and
+:meth:`CrateSamples.close` writes what makes it a layer: the prims (as ``over``), the
+attributes with their sample tables, the layer's time range and rate, the structural sections
+and the table of contents. Memory holds a few blocks, not the layer.
 
 The file is crate version 0.8.0, what usd-core writes by default (with a ``base``, the base's
 version), laid out as ``pxr/usd/sdf/crateFile.cpp`` reads it:
