@@ -139,6 +139,8 @@ class MeshBatch:
             points[sl] = np.asarray(m.points, np.float64) @ g[:3, :3].T + g[:3, 3]
             blend[sl] = m.blend_or_default()
         self.skinner = Skinner(points, influences, None, blend_weights=blend, device=device)
+        # bind_normals of rest normals, by meshes: made once, as the rest points above are
+        self._rest_normals: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray, list[slice]]] = {}
 
     @property
     def vertex_count(self) -> int:
@@ -174,7 +176,11 @@ class MeshBatch:
         """``(vectors (Fp, N, 3) float32 bind space, vector_vertex (N,) int32, slices)`` of the
         normals of ``meshes`` (indices): a mesh's deformed normals in ``per_mesh`` (F, N, 3),
         else its rest normals; normals move by the inverse transpose of the geom-bind linear
-        part."""
+        part. Rest normals only: made once per ``meshes`` (read-only arrays)."""
+        rest = not any(i in per_mesh for i in meshes)
+        done = self._rest_normals.get(tuple(meshes)) if rest else None
+        if done is not None:
+            return done
         blocks, vv, counts = [], [], []
         per_frame = any(np.ndim(per_mesh[i]) == 3 for i in meshes if i in per_mesh)
         for i in meshes:
@@ -194,7 +200,11 @@ class MeshBatch:
         slices, _ = _ranges(counts)
         axis = 1 if blocks[0].ndim == 3 else 0
         vectors = np.concatenate(blocks, axis=axis).astype(np.float32)
-        return vectors, np.concatenate(vv).astype(np.int32), slices
+        result = vectors, np.concatenate(vv).astype(np.int32), slices
+        if rest:
+            vectors.flags.writeable = result[1].flags.writeable = False
+            self._rest_normals[tuple(meshes)] = result
+        return result
 
 
 def skin_batch(batch: MeshBatch, skinning_transforms: npt.ArrayLike | wp.array, method: Method,

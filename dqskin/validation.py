@@ -12,7 +12,7 @@ exactly what ``dqskin skin`` (every writer) and the Python API refuse.
   skinning (``info`` then needs no device).
 """
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, cast
 
 import numpy as np
@@ -152,12 +152,33 @@ def check_transforms(name: str, transforms: npt.ArrayLike, joint_names: Sequence
     return x
 
 
+def _finite_bases(arrays: "Iterable[npt.ArrayLike]") -> bool:
+    """Whether every array of ``arrays`` is a view of a NumPy array of its dtype that the views
+    cover at least three quarters of (so checking it costs little more than checking them) and
+    that is all finite; False means only "not shown" (check them one by one)."""
+    bases: dict[int, tuple[np.ndarray, int]] = {}
+    for a in arrays:
+        base = getattr(a, "base", None)
+        if not (isinstance(a, np.ndarray) and isinstance(base, np.ndarray)
+                and base.dtype == a.dtype):
+            return False
+        covered = bases.get(id(base), (base, 0))[1]
+        bases[id(base)] = (base, covered + a.size)
+    return all(4 * covered >= 3 * base.size and bool(np.isfinite(base).all())
+               for base, covered in bases.values())
+
+
 def check_skinned(path: str, result: "SkinnedFrames") -> None:
     """Raise InputError (a ValueError) if any array of a :class:`dqskin.scene.SkinnedFrames` is
     not finite (joint transforms too large for float32, or degenerate), naming the mesh, the
-    array and the time."""
+    array and the time. Arrays that are views of one larger array (the meshes of a batch) are
+    checked through it at once when they cover most of it; mesh by mesh only when it is not all
+    finite (to name the first bad one)."""
     for what in ("points", "normals", "velocities"):
-        for mesh, a in getattr(result, what).items():
+        arrays = getattr(result, what)
+        if _finite_bases(arrays.values()):
+            continue
+        for mesh, a in arrays.items():
             bad = ~np.isfinite(np.asarray(a)).all(axis=tuple(range(1, np.ndim(a))))
             if bad.any():
                 t = float(result.times[int(np.argmax(bad))])

@@ -299,6 +299,36 @@ def test_pipelined_chunks_are_checked_once_by_the_check(shared_assets, tmp_path)
     assert os.listdir(tmp_path) == []
 
 
+def test_check_skinned_through_a_shared_array():
+    """check_skinned on meshes that are column views of one (F, V, 3) array (a batch's result,
+    checked through it): a NaN or an infinity is named by its mesh and time wherever it is;
+    one in columns no mesh holds (padding) is not the meshes' and passes; so do arrays of
+    their own and a view of a small part of a large array."""
+    from dqskin.scene import SkinnedFrames
+    from dqskin.validation import check_skinned
+
+    times = np.array([1.0, 2.0, 3.0])
+    for bad, where, want in (((1, 7, 2), np.nan, "b.*points.*time 2"),
+                             ((2, 0, 0), -np.inf, "a.*points.*time 3"),
+                             ((0, 9, 1), np.inf, "b.*points.*time 1"),
+                             ((1, 12, 0), np.nan, None)):  # column 12: no mesh's
+        base = np.ones((3, 13, 3), np.float32)
+        base[bad] = where
+        result = SkinnedFrames(times, {"a": base[:, :4], "b": base[:, 4:12]})
+        if want is None:
+            check_skinned("SRC", result)
+        else:
+            with pytest.raises(ValueError, match=f"SRC: {want}"):
+                check_skinned("SRC", result)
+    big = np.ones((3, 100, 3), np.float32)
+    big[0, 50, 0] = np.nan  # outside the one view: not its value
+    check_skinned("SRC", SkinnedFrames(times, {"a": big[:, :10]}, {"a": np.ones((3, 4, 3))}))
+    own = np.ones((3, 4, 3), np.float32)
+    own[2, 1, 1] = np.nan
+    with pytest.raises(ValueError, match="SRC: a: skinned normals .* time 3"):
+        check_skinned("SRC", SkinnedFrames(times, {"a": big[:, :10]}, {"a": own}))
+
+
 def test_vt_arrays_hold_each_frame_exactly(monkeypatch):
     """vec3f_arrays (copies into Vt's own storage through the buffer protocol; FromNumpy for
     small arrays): each array equals its frame, for small and large, strided and float64 input,
