@@ -75,22 +75,32 @@ _DQS_SORTED = """
             for (int c = 0; c < 8; ++c) B[c] += T[c] * s;
         }"""
 
-# the four joints first, the pivot's real part selected among them by ``slot`` (no loads of its
-# own: faster than loading the pivot lane by lane)
+# the four real parts first (eight rows of four floats, one transpose each), the pivot's real
+# part selected among them by ``slot`` (no loads of its own: faster than loading the pivot lane
+# by lane), the four signs; then the dual parts, one joint at a time: fewer quantities live at
+# once than with the four joints loaded whole (which spill registers), the same terms in the
+# same order
 _DQS_SEARCHED = """
-        V T[4][8], B[8], p[4];
-        for (int k = 0; k < 4; ++k) LOAD(k, T[k]);
+        V R[4][4], B[8], p[4], sk[4];
+        for (int k = 0; k < 4; ++k) LOADR(k, R[k]);
         const i8 s1 = 1, s2 = 2, s3 = 3;
         for (int c = 0; c < 4; ++c)
-            p[c] = slot == s1 ? T[1][c] : slot == s2 ? T[2][c] : slot == s3 ? T[3][c] : T[0][c];
+            p[c] = slot == s1 ? R[1][c] : slot == s2 ? R[2][c] : slot == s3 ? R[3][c] : R[0][c];
         const V wk[4] = {w0, w1, w2, w3};
         for (int k = 0; k < 4; ++k) {
-            const V dot = p[0] * T[k][0] + p[1] * T[k][1] + p[2] * T[k][2] + p[3] * T[k][3];
-            const V s = dot < 0.0f ? -wk[k] : wk[k];
+            const V dot = p[0] * R[k][0] + p[1] * R[k][1] + p[2] * R[k][2] + p[3] * R[k][3];
+            sk[k] = dot < 0.0f ? -wk[k] : wk[k];
+        }
+        for (int c = 0; c < 4; ++c) B[c] = R[0][c] * sk[0];
+        for (int k = 1; k < 4; ++k)
+            for (int c = 0; c < 4; ++c) B[c] += R[k][c] * sk[k];
+        for (int k = 0; k < 4; ++k) {
+            V D[4];
+            LOADD(k, D);
             if (k == 0)
-                for (int c = 0; c < 8; ++c) B[c] = T[k][c] * s;
+                for (int c = 0; c < 4; ++c) B[4 + c] = D[c] * sk[k];
             else
-                for (int c = 0; c < 8; ++c) B[c] += T[k][c] * s;
+                for (int c = 0; c < 4; ++c) B[4 + c] += D[c] * sk[k];
         }"""
 
 # the running sum (Blender): each sign against the blend so far, in input order, from the pairwise
@@ -173,9 +183,13 @@ _SCALAR = """
         PIVOT
 #define LOAD(K, OUT) for (int c = 0; c < WIDTH; ++c) OUT[c] = J[WIDTH * I[K] + c]
 #define LOADS(K, OUT) for (int c = 0; c < 9; ++c) OUT[c] = RS[9 * I[K] + c]
+#define LOADR(K, OUT) for (int c = 0; c < 4; ++c) OUT[c] = J[WIDTH * I[K] + c]
+#define LOADD(K, OUT) for (int c = 0; c < 4; ++c) OUT[c] = J[WIDTH * I[K] + 4 + c]
         MATH
 #undef LOAD
 #undef LOADS
+#undef LOADR
+#undef LOADD
         float* O = (float*)out.data + 3 * (out_base + v0 + i);
         O[0] = ox; O[1] = oy; O[2] = oz;
     }
@@ -340,6 +354,14 @@ _VECTOR_LOAD_DQ = """
         for (int i = 0; i < 8; ++i) __builtin_memcpy(&r_[i], J + 32 * I[4 * i + (K)], 32); \\
         transpose8(r_, OUT); } while (0)"""
 
+_VECTOR_LOAD_HALVES = """
+#define LOADR(K, OUT) do { f4 q_[8]; \\
+        for (int i = 0; i < 8; ++i) __builtin_memcpy(&q_[i], J + 32 * I[4 * i + (K)], 16); \\
+        transpose4(q_, OUT); } while (0)
+#define LOADD(K, OUT) do { f4 q_[8]; \\
+        for (int i = 0; i < 8; ++i) __builtin_memcpy(&q_[i], J + 32 * I[4 * i + (K)] + 16, 16); \\
+        transpose4(q_, OUT); } while (0)"""
+
 _VECTOR_LOAD_RESIDUAL = """
 #define LOADS(K, OUT) do { f8 r_[8]; \\
         for (int i = 0; i < 8; ++i) __builtin_memcpy(&r_[i], RS + 36 * I[4 * i + (K)], 32); \\
@@ -366,10 +388,10 @@ def packet_source(method: str, rule: str = "sorted", scalar_on_cpu: bool = False
         undef = "\n#undef LOAD"
     else:
         math = _DQS_RESIDUAL + _DQS_RULES[rule] + _DQS_APPLY
-        width, load = 8, _VECTOR_LOAD_DQ + _VECTOR_LOAD_RESIDUAL
+        width, load = 8, _VECTOR_LOAD_DQ + _VECTOR_LOAD_HALVES + _VECTOR_LOAD_RESIDUAL
         scalar_base = "const float* RS = (const float*)residuals.data + 9 * (long long)o;"
         vector_base = "const char* RS = (const char*)residuals.data + 36 * (long long)o;"
-        undef = "\n#undef LOAD\n#undef LOADS"
+        undef = "\n#undef LOAD\n#undef LOADS\n#undef LOADR\n#undef LOADD"
     searched = method == "dqs" and rule == "searched"
     scalar_pivot = _SCALAR_PIVOT if searched else ""
     vector_pivot = _VECTOR_PIVOT if searched else ""
