@@ -42,8 +42,9 @@ from .dqmath import mat34, vec8
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 # ---------------------------------------------------------------------------------------------
-# the arithmetic, over V (f8 or float). LOAD(k, T) fills T[] with influence k's joint data;
-# x, y, z, w0..w3 (and for searched DQS the pivot's real part p0..p3) are loaded before.
+# the arithmetic, over V (f8 or float). LOAD(k, T) fills T[] with influence k's joint data
+# (DQS: LOADR / LOADD its real / dual part only, LOADS its residual);
+# x, y, z, w0..w3 are loaded before.
 
 # frames with scale/shear: p_s = Σ wₖ·Sₖ·p first (Sₖ the 3×3 residuals, from element o)
 _DQS_RESIDUAL = """
@@ -76,17 +77,21 @@ _DQS_SORTED = """
         }"""
 
 # the four real parts first (eight rows of four floats, one transpose each), the pivot's real
-# part selected among them by ``slot`` (no loads of its own: faster than loading the pivot lane
-# by lane), the four signs; then the dual parts, one joint at a time: fewer quantities live at
+# part selected among them while the first largest weight is searched (no loads of its own:
+# faster than loading the pivot lane by lane), the four signs; then the dual parts, one joint at a time: fewer quantities live at
 # once than with the four joints loaded whole (which spill registers), the same terms in the
 # same order
 _DQS_SEARCHED = """
         V R[4][4], B[8], p[4], sk[4];
         for (int k = 0; k < 4; ++k) LOADR(k, R[k]);
-        const i8 s1 = 1, s2 = 2, s3 = 3;
-        for (int c = 0; c < 4; ++c)
-            p[c] = slot == s1 ? R[1][c] : slot == s2 ? R[2][c] : slot == s3 ? R[3][c] : R[0][c];
         const V wk[4] = {w0, w1, w2, w3};
+        V best = w0;  // the first largest weight's real part
+        for (int c = 0; c < 4; ++c) p[c] = R[0][c];
+        for (int k = 1; k < 4; ++k) {
+            const auto more = wk[k] > best;
+            best = more ? wk[k] : best;
+            for (int c = 0; c < 4; ++c) p[c] = more ? R[k][c] : p[c];
+        }
         for (int k = 0; k < 4; ++k) {
             const V dot = p[0] * R[k][0] + p[1] * R[k][1] + p[2] * R[k][2] + p[3] * R[k][3];
             sk[k] = dot < 0.0f ? -wk[k] : wk[k];
@@ -180,7 +185,6 @@ _SCALAR = """
         RESIDUAL_BASE
         V x = P[0], y = P[1], z = P[2];
         const V w0 = W[0], w1 = W[1], w2 = W[2], w3 = W[3];
-        PIVOT
 #define LOAD(K, OUT) for (int c = 0; c < WIDTH; ++c) OUT[c] = J[WIDTH * I[K] + c]
 #define LOADS(K, OUT) for (int c = 0; c < 9; ++c) OUT[c] = RS[9 * I[K] + c]
 #define LOADR(K, OUT) for (int c = 0; c < 4; ++c) OUT[c] = J[WIDTH * I[K] + c]
@@ -194,17 +198,6 @@ _SCALAR = """
         O[0] = ox; O[1] = oy; O[2] = oz;
     }
     return 0;"""
-
-_SCALAR_PIVOT = """typedef int i8;
-        i8 slot = 0;  // the first largest weight's slot
-        V best = w0;
-        const V wc[4] = {w0, w1, w2, w3};
-        for (int k = 1; k < 4; ++k) {
-            if (wc[k] > best) {
-                slot = k;
-                best = wc[k];
-            }
-        }"""
 
 # ---------------------------------------------------------------------------------------------
 # vector branch: eight vertices in the lanes of f8
@@ -336,18 +329,8 @@ _VECTOR = """
         bad |= (finite != 0.0f) | ((m01 < m23 ? m01 : m23) < 0.0f);
         if (__builtin_reduce_or(bad)) *(volatile int*)flags.data = 1;
     }
-    PIVOT
     MATH
     STORE_OUTPUT""".replace("    STORE_OUTPUT", STORE_VECTOR.replace("FIRST", "v0"))
-
-_VECTOR_PIVOT = """i8 slot = 0;  // the first largest weight's slot, lane by lane
-    f8 best = wc[0];
-    for (int k = 1; k < 4; ++k) {
-        const i8 more = wc[k] > best;
-        const i8 kv = k;
-        slot = more ? kv : slot;
-        best = more ? wc[k] : best;
-    }"""
 
 _VECTOR_LOAD_DQ = """
 #define LOAD(K, OUT) do { f8 r_[8]; \\
@@ -392,13 +375,9 @@ def packet_source(method: str, rule: str = "sorted", scalar_on_cpu: bool = False
         scalar_base = "const float* RS = (const float*)residuals.data + 9 * (long long)o;"
         vector_base = "const char* RS = (const char*)residuals.data + 36 * (long long)o;"
         undef = "\n#undef LOAD\n#undef LOADS\n#undef LOADR\n#undef LOADD"
-    searched = method == "dqs" and rule == "searched"
-    scalar_pivot = _SCALAR_PIVOT if searched else ""
-    vector_pivot = _VECTOR_PIVOT if searched else ""
-    scalar = (_SCALAR.replace("PIVOT", scalar_pivot).replace("MATH", math)
+    scalar = (_SCALAR.replace("MATH", math)
               .replace("RESIDUAL_BASE", scalar_base))
-    vector = VECTOR_PRELUDE + (_VECTOR.replace("PIVOT", vector_pivot)
-                               .replace("RESIDUAL_BASE", vector_base)
+    vector = VECTOR_PRELUDE + (_VECTOR.replace("RESIDUAL_BASE", vector_base)
                                .replace("    MATH", load + math + undef)) + VECTOR_END
     cond = "1" if scalar_on_cpu else "defined(__CUDA_ARCH__)"
     body = f"""
