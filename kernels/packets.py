@@ -286,25 +286,6 @@ _VECTOR = """
         I = ibuf;
         W = wbuf;
     }
-    i8 bad = 0;  // lanes with a value the host checks refuse (with check)
-    if (check) {  // indices outside the joints read joint 0 (a copy only when there are some)
-        typedef unsigned int u8 __attribute__((ext_vector_type(8)));
-        const u8 joints_u = (unsigned)joint_count;
-        i8 iv[4], outside[4];
-        for (int q = 0; q < 4; ++q) {
-            __builtin_memcpy(&iv[q], I + 8 * q, 32);
-            outside[q] = __builtin_convertvector(iv[q], u8) >= joints_u;
-            bad |= outside[q];
-        }
-        if (__builtin_reduce_or(bad)) {
-            const i8 zero = 0;
-            for (int q = 0; q < 4; ++q) {
-                iv[q] = outside[q] ? zero : iv[q];
-                __builtin_memcpy(ibuf + 8 * q, &iv[q], 32);
-            }
-            I = ibuf;
-        }
-    }
     f8 pa, pb, pc;
     __builtin_memcpy(&pa, P, 32);
     __builtin_memcpy(&pb, P + 8, 32);
@@ -320,14 +301,31 @@ _VECTOR = """
     f8 wc[4];
     transpose4(wq, wc);
     const V w0 = wc[0], w1 = wc[1], w2 = wc[2], w3 = wc[3];
-    if (check) {  // points finite, weights finite and non-negative (-0.0 too)
-        // v - v is 0 for a finite v, else NaN: the sum is 0 exactly when all seven are finite;
-        // the least weight (a NaN one is caught by the sum) is then negative or not
-        const V finite = ((x - x) + (y - y)) + ((z - z) + (w0 - w0))
-                         + (((w1 - w1) + (w2 - w2)) + (w3 - w3));
-        const V m01 = w0 < w1 ? w0 : w1, m23 = w2 < w3 ? w2 : w3;
-        bad |= (finite != 0.0f) | ((m01 < m23 ? m01 : m23) < 0.0f);
-        if (__builtin_reduce_or(bad)) *(volatile int*)flags.data = 1;
+    if (check) {  // one test of every input of the eight vertices, as unsigned integers:
+        // an index at or above joint_count (a negative one is large); a point coordinate whose
+        // magnitude's bits exceed the largest finite float's (inf, NaN); a weight whose bits do,
+        // -0.0 made +0.0 first (negative, inf, NaN)
+        typedef unsigned int u8 __attribute__((ext_vector_type(8)));
+        u8 iv[4];
+        for (int q = 0; q < 4; ++q) __builtin_memcpy(&iv[q], I + 8 * q, 32);
+        auto umax = [](u8 a, u8 b) { return a > b ? a : b; };
+        const u8 largest = umax(umax(iv[0], iv[1]), umax(iv[2], iv[3]));
+        const u8 magnitude = 0x7fffffffu;
+        const u8 values = umax(
+            umax(umax(__builtin_bit_cast(u8, x) & magnitude, __builtin_bit_cast(u8, y) & magnitude),
+                 umax(__builtin_bit_cast(u8, z) & magnitude, __builtin_bit_cast(u8, w0 + 0.0f))),
+            umax(__builtin_bit_cast(u8, w1 + 0.0f),
+                 umax(__builtin_bit_cast(u8, w2 + 0.0f), __builtin_bit_cast(u8, w3 + 0.0f))));
+        const u8 joints_u = (unsigned)joint_count, finite_max = 0x7f7fffffu;
+        if (__builtin_reduce_or((largest >= joints_u) | (values > finite_max))) {
+            *(volatile int*)flags.data = 1;
+            for (int q = 0; q < 4; ++q) {  // indices outside the joints read joint 0
+                const u8 zero = 0;
+                iv[q] = iv[q] >= joints_u ? zero : iv[q];
+                __builtin_memcpy(ibuf + 8 * q, &iv[q], 32);
+            }
+            I = ibuf;
+        }
     }
     MATH
     STORE_OUTPUT""".replace("    STORE_OUTPUT", STORE_VECTOR.replace("FIRST", "v0"))
