@@ -76,6 +76,18 @@ _DQS_SORTED = """
             for (int c = 0; c < 8; ++c) B[c] += T[c] * s;
         }"""
 
+# the dual parts of a blend whose real parts and signed weights ``sk`` are done: one joint at a
+# time, each component's terms in input order
+_DUAL_PARTS = """
+        for (int k = 0; k < 4; ++k) {
+            V D[4];
+            LOADD(k, D);
+            if (k == 0)
+                for (int c = 0; c < 4; ++c) B[4 + c] = D[c] * sk[k];
+            else
+                for (int c = 0; c < 4; ++c) B[4 + c] += D[c] * sk[k];
+        }"""
+
 # the four real parts first (eight rows of four floats, one transpose each), the pivot's real
 # part selected among them while the first largest weight is searched (no loads of its own:
 # faster than loading the pivot lane by lane), the four signs; then the dual parts, one joint at a time: fewer quantities live at
@@ -99,22 +111,16 @@ _DQS_SEARCHED = """
         for (int c = 0; c < 4; ++c) B[c] = R[0][c] * sk[0];
         for (int k = 1; k < 4; ++k)
             for (int c = 0; c < 4; ++c) B[c] += R[k][c] * sk[k];
-        for (int k = 0; k < 4; ++k) {
-            V D[4];
-            LOADD(k, D);
-            if (k == 0)
-                for (int c = 0; c < 4; ++c) B[4 + c] = D[c] * sk[k];
-            else
-                for (int c = 0; c < 4; ++c) B[4 + c] += D[c] * sk[k];
-        }"""
+        DUAL_PARTS"""
 
 # the running sum (Blender): each sign against the blend so far, in input order, from the pairwise
 # dots of the four real parts (as :func:`.skin.dq_gather`: b_k · d_k = Σ_{m<k} s_m·w_m·(d_m · d_k),
-# the first term's sign +1), the lanes carrying their own sums; all four joints loaded first
+# the first term's sign +1), the lanes carrying their own sums; the four real parts loaded first,
+# then the dual parts one joint at a time (as the searched rule)
 _DQS_RUNNING = """
-        V T[4][8], B[8];
-        for (int k = 0; k < 4; ++k) LOAD(k, T[k]);
-#define RDOT(A, C) (T[A][0] * T[C][0] + T[A][1] * T[C][1] + T[A][2] * T[C][2] + T[A][3] * T[C][3])
+        V R[4][4], B[8];
+        for (int k = 0; k < 4; ++k) LOADR(k, R[k]);
+#define RDOT(A, C) (R[A][0] * R[C][0] + R[A][1] * R[C][1] + R[A][2] * R[C][2] + R[A][3] * R[C][3])
         const V a1 = w0 * RDOT(0, 1);
         const V s1 = a1 < 0.0f ? -w1 : w1;
         const V a2 = w0 * RDOT(0, 2) + s1 * RDOT(1, 2);
@@ -122,12 +128,15 @@ _DQS_RUNNING = """
         const V a3 = w0 * RDOT(0, 3) + s1 * RDOT(1, 3) + s2 * RDOT(2, 3);
         const V s3 = a3 < 0.0f ? -w3 : w3;
 #undef RDOT
-        for (int c = 0; c < 8; ++c) B[c] = T[0][c] * w0;
-        for (int c = 0; c < 8; ++c) B[c] += T[1][c] * s1;
-        for (int c = 0; c < 8; ++c) B[c] += T[2][c] * s2;
-        for (int c = 0; c < 8; ++c) B[c] += T[3][c] * s3;"""
+        const V sk[4] = {w0, s1, s2, s3};
+        for (int c = 0; c < 4; ++c) B[c] = R[0][c] * w0;
+        for (int k = 1; k < 4; ++k)
+            for (int c = 0; c < 4; ++c) B[c] += R[k][c] * sk[k];
+        DUAL_PARTS"""
 
-_DQS_RULES = {"sorted": _DQS_SORTED, "searched": _DQS_SEARCHED, "running": _DQS_RUNNING}
+_DQS_RULES = {"sorted": _DQS_SORTED,
+              "searched": _DQS_SEARCHED.replace("        DUAL_PARTS", _DUAL_PARTS),
+              "running": _DQS_RUNNING.replace("        DUAL_PARTS", _DUAL_PARTS)}
 
 # dqs_apply: x + 2·(r⃗×(r⃗×x + r_w·x) + r_w·d⃗ − d_w·r⃗ + r⃗×d⃗)/|r|²
 _DQS_APPLY = """
