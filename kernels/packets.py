@@ -90,9 +90,9 @@ _DUAL_PARTS = """
 
 # the four real parts first (eight rows of four floats, one transpose each), the pivot's real
 # part selected among them while the first largest weight is searched (no loads of its own:
-# faster than loading the pivot lane by lane), the four signs; then the dual parts, one joint at a time: fewer quantities live at
-# once than with the four joints loaded whole (which spill registers), the same terms in the
-# same order
+# faster than loading the pivot lane by lane), the four signs; then the dual parts
+# (_DUAL_PARTS): fewer quantities live at once than with the four joints loaded whole (which
+# spill registers), the same terms in the same order
 _DQS_SEARCHED = """
         V R[4][4], B[8], p[4], sk[4];
         for (int k = 0; k < 4; ++k) LOADR(k, R[k]);
