@@ -310,30 +310,29 @@ _VECTOR = """
     f8 wc[4];
     transpose4(wq, wc);
     const V w0 = wc[0], w1 = wc[1], w2 = wc[2], w3 = wc[3];
-    if (check) {  // one test of every input of the eight vertices, as unsigned integers
-        // (sixteen at a time, from memory): an index at or above joint_count (a negative one is
-        // large); a point coordinate whose magnitude's bits exceed the largest finite float's
-        // (inf, NaN); a weight whose bits do, -0.0 made +0.0 first (negative, inf, NaN)
-        typedef unsigned int u16 __attribute__((ext_vector_type(16)));
-        typedef float f16 __attribute__((ext_vector_type(16)));
-        u16 i0, i1, p0, p1;
-        f16 wa, wb;
-        __builtin_memcpy(&i0, I, 64);
-        __builtin_memcpy(&i1, I + 16, 64);
-        __builtin_memcpy(&p0, P, 64);
-        __builtin_memcpy(&p1, P + 8, 64);  // (rows 8 .. 15 twice)
-        __builtin_memcpy(&wa, W, 64);
-        __builtin_memcpy(&wb, W + 16, 64);
-        auto umax = [](u16 a, u16 b) { return a > b ? a : b; };
-        const u16 magnitude = 0x7fffffffu, finite_max = 0x7f7fffffu;
-        const u16 values = umax(umax(p0 & magnitude, p1 & magnitude),
-                                umax(__builtin_bit_cast(u16, wa + 0.0f),
-                                     __builtin_bit_cast(u16, wb + 0.0f)));
-        const u16 joints_u = (unsigned)joint_count;
-        if (__builtin_reduce_or((umax(i0, i1) >= joints_u) | (values > finite_max))) {
+    if (check) {  // one test of every input of the eight vertices, as unsigned integers:
+        // an index at or above joint_count (a negative one is large); a point coordinate whose
+        // magnitude's bits exceed the largest finite float's (inf, NaN); a weight whose bits do,
+        // -0.0 made +0.0 first (negative, inf, NaN)
+        typedef unsigned int u8 __attribute__((ext_vector_type(8)));
+        u8 iv[4];
+        for (int q = 0; q < 4; ++q) __builtin_memcpy(&iv[q], I + 8 * q, 32);
+        auto umax = [](u8 a, u8 b) { return a > b ? a : b; };
+        const u8 largest = umax(umax(iv[0], iv[1]), umax(iv[2], iv[3]));
+        const u8 magnitude = 0x7fffffffu;
+        const u8 values = umax(
+            umax(umax(__builtin_bit_cast(u8, x) & magnitude, __builtin_bit_cast(u8, y) & magnitude),
+                 umax(__builtin_bit_cast(u8, z) & magnitude, __builtin_bit_cast(u8, w0 + 0.0f))),
+            umax(__builtin_bit_cast(u8, w1 + 0.0f),
+                 umax(__builtin_bit_cast(u8, w2 + 0.0f), __builtin_bit_cast(u8, w3 + 0.0f))));
+        const u8 joints_u = (unsigned)joint_count, finite_max = 0x7f7fffffu;
+        if (__builtin_reduce_or((largest >= joints_u) | (values > finite_max))) {
             *(volatile int*)flags.data = 1;
-            for (int e = 0; e < 32; ++e)  // indices outside the joints read joint 0
-                ibuf[e] = (unsigned)I[e] >= (unsigned)joint_count ? 0 : I[e];
+            for (int q = 0; q < 4; ++q) {  // indices outside the joints read joint 0
+                const u8 zero = 0;
+                iv[q] = iv[q] >= joints_u ? zero : iv[q];
+                __builtin_memcpy(ibuf + 8 * q, &iv[q], 32);
+            }
             I = ibuf;
         }
     }
