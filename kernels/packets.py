@@ -6,10 +6,11 @@ Warp's CPU back end compiles a kernel to one scalar loop over its threads. A DQS
 of ~100 dependent scalar operations (gather, sign tests, blend, normalization, transform); the
 core's out-of-order window holds about two such chains, so the loop runs at the chain's latency,
 not at the machine's width. Here one thread skins vertices ``v0 .. v0 + 7``: it loads each
-influence's joint data as rows (one 32-byte ``vec8`` or 48-byte affine per vertex), transposes
-them with shuffles so that lane ``i`` of vector ``c`` is component ``c`` of vertex ``i``, and runs
-the arithmetic once for all eight (AVX2, NEON or SSE, as the CPU has; ``tools/bench.py``'s
-"Kernels alone" table compares it with minimal scalar kernels).
+influence's joint data as rows (one 32-byte ``vec8`` or 48-byte affine per vertex; the
+input-order DQS rules its two 16-byte halves, real part then dual part, which keeps fewer
+quantities live), transposes them with shuffles so that lane ``i`` of vector ``c`` is component
+``c`` of vertex ``i``, and runs the arithmetic once for all eight (AVX2, NEON or SSE, as the
+CPU has; ``tools/bench.py``'s "Kernels alone" table compares it with minimal scalar kernels).
 
 The arithmetic is the scalar kernels' (:func:`.skin.dqs_apply`, :func:`.blend.affine_gather`),
 term for term and in the same order; it is written once, over a type ``V``: ``f8`` (eight lanes)
@@ -27,8 +28,9 @@ of exactly ``-0.0`` or NaN flips nothing, as ``wp.sign``. A zero blend leaves th
 unchanged. The last packet of a frame may hold fewer than eight vertices: its missing lanes read
 lane 0's joints with zero weights and are not stored.
 With ``check`` the snippets also check their inputs (a one-shot call's, unchecked on the host:
-one pass over the caller's arrays fewer) and flag what the host checks would refuse; an index
-out of range never reads outside the joints.
+one pass over the caller's arrays fewer) and flag what the host checks would refuse (one test of
+all the packet's indices, coordinates and weights); an index out of range never reads outside
+the joints.
 
 Arrays are the flat 1-D views of :mod:`.skin` (contiguous): ``points`` / ``out`` element
 ``base + v``, ``indices`` / ``weights`` one ``vec4i`` / ``vec4`` per vertex (one group), joint data
