@@ -754,6 +754,7 @@ class _OneCall(Skinner):
             d, V = self.device, self.vertex_count
             layout.indices = wp.array(ptr=addresses[1], shape=(V,), dtype=wp.vec4i, device=d)
             layout.weights = wp.array(ptr=addresses[2], shape=(V,), dtype=wp.vec4, device=d)
+            layout.blend = _empty(wp.float32, d)  # (LBS and DQS read none: nothing of this call)
             hit = cache[key] = (
                 wp.array(ptr=addresses[0], shape=(1, V), dtype=wp.vec3, device=d), layout)
         return hit
