@@ -179,7 +179,6 @@ class Skinner:
         self._cache: dict[Any, Any] = {}
         self._lock = threading.Lock()
         d = self.device
-        self._points = self._upload(pts[None])
         self._rest_points = pts  # mesh space; bind space (float64) only when "cor" needs it
         self.faces = None if faces is None else check_faces(faces, self.vertex_count)
         self.cor = CorOptions() if cor is None else cor
@@ -194,9 +193,9 @@ class Skinner:
                 raise InputError(f"blend_weights: expected ({self.vertex_count},) values in [0, 1]")
             self._blend = wp.array(b, dtype=wp.float32, device=d)
         self._no_centers = _empty(wp.vec4, d)
-        # the default: UsdSkel's rule (built now, so that a one-shot call's upload aliases)
-        self._inf = self.influences.layout(d, self._layout_order, blend=self._blend,
-                                           centers=self._no_centers, copy=self._copy_uploads)
+        # the rest points (1, V) and the default layout: UsdSkel's rule (built now, so that a
+        # one-shot call's upload aliases)
+        self._points, self._inf = self._device_mesh()
         # (COR, running sum) → the kernels' InfluenceLayout
         self._layouts: dict[tuple[bool, bool], K.InfluenceLayout] = {}
 
@@ -217,6 +216,12 @@ class Skinner:
             c4[ok, :3], c4[ok, 3] = c[ok], 1.0
             self._centers = c, wp.array(c4, dtype=wp.vec4, device=self.device)
         return self._centers[0]
+
+    def _device_mesh(self):
+        """``(rest points (1, V) wp.vec3, default InfluenceLayout)`` on the device."""
+        return (self._upload(self._rest_points[None]),
+                self.influences.layout(self.device, self._layout_order, blend=self._blend,
+                                       centers=self._no_centers, copy=self._copy_uploads))
 
     def _influences(self, code, sign_reference):
         """The kernels' :class:`~dqskin.kernels.layout.InfluenceLayout` for a method code and
@@ -243,8 +248,9 @@ class Skinner:
     instead of a host pass over each; any other launch checks them on the host first."""
 
     def _kernel_checks(self, code, inf, joint_count):
-        """The zeroed (1,) flags array of a launch that checks unchecked inputs, or None (checked
-        inputs; or checked on the host now, where no packet kernel runs)."""
+        """``(zeroed (1,) int32 flags array, its NumPy view)`` of a launch that checks unchecked
+        inputs (the CPU's), or None (checked inputs; or checked on the host now, where no packet
+        kernel runs)."""
         if not self._unchecked:
             return None
         if not K.takes_packets(code, inf.running_sum, inf.groups, joint_count,
@@ -253,9 +259,10 @@ class Skinner:
             return None
         flags = self._cache.get(("checks",))
         if flags is None:
-            flags = self._cache[("checks",)] = wp.zeros(1, dtype=wp.int32, device=self.device)
+            a = wp.zeros(1, dtype=wp.int32, device=self.device)
+            flags = self._cache[("checks",)] = a, a.numpy()
         else:
-            flags.zero_()
+            flags[1][0] = 0
         return flags
 
     def _check_values(self, joint_count=None):
@@ -481,8 +488,9 @@ class Skinner:
                 flags if isinstance(flags, np.ndarray) else flags.numpy())
             checks = self._kernel_checks(code, inf, prep["joints"].affines.shape[1])
             K.skin_points(method=code, points=src, influences=inf, joints=prep["joints"],
-                          rigid=rigid, out=out, device=self.device, flags=checks)
-            if checks is not None and checks.numpy()[0]:  # name the problem as the host would
+                          rigid=rigid, out=out, device=self.device,
+                          flags=None if checks is None else checks[0])
+            if checks is not None and checks[1][0]:  # name the problem as the host would
                 self._check_values(prep["joints"].affines.shape[1])
                 raise RuntimeError("skin_points: the kernel refused inputs the host accepts")
             self._output(out, output_transforms, frames, normals=False)
@@ -709,7 +717,44 @@ class _OneCall(Skinner):
     _layout_order = "input"
     _reuse_output = False  # the result is the output array itself, not a copy
 
-    def __init__(self, *args, unchecked=False, **kwargs):
+    def __init__(self, points, joint_indices, joint_weights, *, unchecked=False, **kwargs):
         self._unchecked = unchecked
-        super().__init__(*args, **kwargs)
+        self._given = (points, joint_indices, joint_weights)
+        super().__init__(points, joint_indices, joint_weights, **kwargs)
         self._cache = _thread_buffers(self.device)
+
+    def _device_mesh(self):
+        if not self._unchecked:
+            return super()._device_mesh()
+        return self._views(False)
+
+    def _influences(self, code, sign_reference):
+        if (self._unchecked and code == K.DQS
+                and _check_sign_reference(sign_reference) == "running_sum"):
+            return self._views(True)[1]
+        return super()._influences(code, sign_reference)
+
+    def _views(self, running):
+        """With :attr:`_unchecked` (the caller's arrays read in place, as they are: CPU, (V, 3)
+        float32 points, (V, 4) int32 indices and float32 weights, C-contiguous): ``(points
+        (1, V), InfluenceLayout)`` of the default rule (``running``: of the running sum) from the
+        thread's cache (:func:`_thread_buffers`), so that a call makes no Warp objects for its
+        inputs. The first call on the same memory builds them as :class:`Skinner` does, then
+        points their arrays at views that own nothing (an address, a shape and a type: one made
+        for an earlier array at the same address with the same shape views this one, and keeps
+        nothing alive)."""
+        points, idx, wts = self._given
+        addresses = points.ctypes.data, idx.ctypes.data, wts.ctypes.data
+        key = ("views", *addresses, self.vertex_count, running)
+        cache = _thread_buffers(self.device)  # (self._cache is set after the constructor)
+        hit = cache.get(key)
+        if hit is None:
+            layout = (super()._influences(K.DQS, "running_sum") if running
+                      else super()._device_mesh()[1])
+            d, V = self.device, self.vertex_count
+            layout.indices = wp.array(ptr=addresses[1], shape=(V,), dtype=wp.vec4i, device=d)
+            layout.weights = wp.array(ptr=addresses[2], shape=(V,), dtype=wp.vec4, device=d)
+            layout.blend = _empty(wp.float32, d)  # (LBS and DQS read none: nothing of this call)
+            hit = cache[key] = (
+                wp.array(ptr=addresses[0], shape=(1, V), dtype=wp.vec3, device=d), layout)
+        return hit

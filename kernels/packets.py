@@ -6,10 +6,11 @@ Warp's CPU back end compiles a kernel to one scalar loop over its threads. A DQS
 of ~100 dependent scalar operations (gather, sign tests, blend, normalization, transform); the
 core's out-of-order window holds about two such chains, so the loop runs at the chain's latency,
 not at the machine's width. Here one thread skins vertices ``v0 .. v0 + 7``: it loads each
-influence's joint data as rows (one 32-byte ``vec8`` or 48-byte affine per vertex), transposes
-them with shuffles so that lane ``i`` of vector ``c`` is component ``c`` of vertex ``i``, and runs
-the arithmetic once for all eight (AVX2, NEON or SSE, as the CPU has; ``tools/bench.py``'s
-"Kernels alone" table compares it with minimal scalar kernels).
+influence's joint data as rows (one 32-byte ``vec8`` or 48-byte affine per vertex; the
+input-order DQS rules its two 16-byte halves, real part then dual part, which keeps fewer
+quantities live), transposes them with shuffles so that lane ``i`` of vector ``c`` is component
+``c`` of vertex ``i``, and runs the arithmetic once for all eight (AVX2, NEON or SSE, as the
+CPU has; ``tools/bench.py``'s "Kernels alone" table compares it with minimal scalar kernels).
 
 The arithmetic is the scalar kernels' (:func:`.skin.dqs_apply`, :func:`.blend.affine_gather`),
 term for term and in the same order; it is written once, over a type ``V``: ``f8`` (eight lanes)
@@ -27,8 +28,9 @@ of exactly ``-0.0`` or NaN flips nothing, as ``wp.sign``. A zero blend leaves th
 unchanged. The last packet of a frame may hold fewer than eight vertices: its missing lanes read
 lane 0's joints with zero weights and are not stored.
 With ``check`` the snippets also check their inputs (a one-shot call's, unchecked on the host:
-one pass over the caller's arrays fewer) and flag what the host checks would refuse; an index
-out of range never reads outside the joints.
+one pass over the caller's arrays fewer) and flag what the host checks would refuse (one test of
+all the packet's indices, coordinates and weights); an index out of range never reads outside
+the joints.
 
 Arrays are the flat 1-D views of :mod:`.skin` (contiguous): ``points`` / ``out`` element
 ``base + v``, ``indices`` / ``weights`` one ``vec4i`` / ``vec4`` per vertex (one group), joint data
@@ -42,8 +44,9 @@ from .dqmath import mat34, vec8
 wp.set_module_options({"enable_backward": False})  # forward-only kernels
 
 # ---------------------------------------------------------------------------------------------
-# the arithmetic, over V (f8 or float). LOAD(k, T) fills T[] with influence k's joint data;
-# x, y, z, w0..w3 (and for searched DQS the pivot's real part p0..p3) are loaded before.
+# the arithmetic, over V (f8 or float). LOAD(k, T) fills T[] with influence k's joint data
+# (DQS: LOADR / LOADD its real / dual part only, LOADS its residual);
+# x, y, z, w0..w3 are loaded before.
 
 # frames with scale/shear: p_s = Σ wₖ·Sₖ·p first (Sₖ the 3×3 residuals, from element o)
 _DQS_RESIDUAL = """
@@ -75,31 +78,51 @@ _DQS_SORTED = """
             for (int c = 0; c < 8; ++c) B[c] += T[c] * s;
         }"""
 
-# the four joints first, the pivot's real part selected among them by ``slot`` (no loads of its
-# own: faster than loading the pivot lane by lane)
-_DQS_SEARCHED = """
-        V T[4][8], B[8], p[4];
-        for (int k = 0; k < 4; ++k) LOAD(k, T[k]);
-        const i8 s1 = 1, s2 = 2, s3 = 3;
-        for (int c = 0; c < 4; ++c)
-            p[c] = slot == s1 ? T[1][c] : slot == s2 ? T[2][c] : slot == s3 ? T[3][c] : T[0][c];
-        const V wk[4] = {w0, w1, w2, w3};
+# the dual parts of a blend whose real parts and signed weights ``sk`` are done: one joint at a
+# time, each component's terms in input order
+_DUAL_PARTS = """
         for (int k = 0; k < 4; ++k) {
-            const V dot = p[0] * T[k][0] + p[1] * T[k][1] + p[2] * T[k][2] + p[3] * T[k][3];
-            const V s = dot < 0.0f ? -wk[k] : wk[k];
+            V D[4];
+            LOADD(k, D);
             if (k == 0)
-                for (int c = 0; c < 8; ++c) B[c] = T[k][c] * s;
+                for (int c = 0; c < 4; ++c) B[4 + c] = D[c] * sk[k];
             else
-                for (int c = 0; c < 8; ++c) B[c] += T[k][c] * s;
+                for (int c = 0; c < 4; ++c) B[4 + c] += D[c] * sk[k];
         }"""
+
+# the four real parts first (eight rows of four floats, one transpose each), the pivot's real
+# part selected among them while the first largest weight is searched (no loads of its own:
+# faster than loading the pivot lane by lane), the four signs; then the dual parts
+# (_DUAL_PARTS): fewer quantities live at once than with the four joints loaded whole (which
+# spill registers), the same terms in the same order
+_DQS_SEARCHED = """
+        V R[4][4], B[8], p[4], sk[4];
+        for (int k = 0; k < 4; ++k) LOADR(k, R[k]);
+        const V wk[4] = {w0, w1, w2, w3};
+        V best = w0;  // the first largest weight's real part
+        for (int c = 0; c < 4; ++c) p[c] = R[0][c];
+        for (int k = 1; k < 4; ++k) {
+            const auto more = wk[k] > best;
+            best = more ? wk[k] : best;
+            for (int c = 0; c < 4; ++c) p[c] = more ? R[k][c] : p[c];
+        }
+        for (int k = 0; k < 4; ++k) {
+            const V dot = p[0] * R[k][0] + p[1] * R[k][1] + p[2] * R[k][2] + p[3] * R[k][3];
+            sk[k] = dot < 0.0f ? -wk[k] : wk[k];
+        }
+        for (int c = 0; c < 4; ++c) B[c] = R[0][c] * sk[0];
+        for (int k = 1; k < 4; ++k)
+            for (int c = 0; c < 4; ++c) B[c] += R[k][c] * sk[k];
+        DUAL_PARTS"""
 
 # the running sum (Blender): each sign against the blend so far, in input order, from the pairwise
 # dots of the four real parts (as :func:`.skin.dq_gather`: b_k · d_k = Σ_{m<k} s_m·w_m·(d_m · d_k),
-# the first term's sign +1), the lanes carrying their own sums; all four joints loaded first
+# the first term's sign +1), the lanes carrying their own sums; the four real parts loaded first,
+# then the dual parts one joint at a time (as the searched rule)
 _DQS_RUNNING = """
-        V T[4][8], B[8];
-        for (int k = 0; k < 4; ++k) LOAD(k, T[k]);
-#define RDOT(A, C) (T[A][0] * T[C][0] + T[A][1] * T[C][1] + T[A][2] * T[C][2] + T[A][3] * T[C][3])
+        V R[4][4], B[8];
+        for (int k = 0; k < 4; ++k) LOADR(k, R[k]);
+#define RDOT(A, C) (R[A][0] * R[C][0] + R[A][1] * R[C][1] + R[A][2] * R[C][2] + R[A][3] * R[C][3])
         const V a1 = w0 * RDOT(0, 1);
         const V s1 = a1 < 0.0f ? -w1 : w1;
         const V a2 = w0 * RDOT(0, 2) + s1 * RDOT(1, 2);
@@ -107,12 +130,15 @@ _DQS_RUNNING = """
         const V a3 = w0 * RDOT(0, 3) + s1 * RDOT(1, 3) + s2 * RDOT(2, 3);
         const V s3 = a3 < 0.0f ? -w3 : w3;
 #undef RDOT
-        for (int c = 0; c < 8; ++c) B[c] = T[0][c] * w0;
-        for (int c = 0; c < 8; ++c) B[c] += T[1][c] * s1;
-        for (int c = 0; c < 8; ++c) B[c] += T[2][c] * s2;
-        for (int c = 0; c < 8; ++c) B[c] += T[3][c] * s3;"""
+        const V sk[4] = {w0, s1, s2, s3};
+        for (int c = 0; c < 4; ++c) B[c] = R[0][c] * w0;
+        for (int k = 1; k < 4; ++k)
+            for (int c = 0; c < 4; ++c) B[c] += R[k][c] * sk[k];
+        DUAL_PARTS"""
 
-_DQS_RULES = {"sorted": _DQS_SORTED, "searched": _DQS_SEARCHED, "running": _DQS_RUNNING}
+_DQS_RULES = {"sorted": _DQS_SORTED,
+              "searched": _DQS_SEARCHED.replace("        DUAL_PARTS", _DUAL_PARTS),
+              "running": _DQS_RUNNING.replace("        DUAL_PARTS", _DUAL_PARTS)}
 
 # dqs_apply: x + 2·(r⃗×(r⃗×x + r_w·x) + r_w·d⃗ − d_w·r⃗ + r⃗×d⃗)/|r|²
 _DQS_APPLY = """
@@ -170,27 +196,19 @@ _SCALAR = """
         RESIDUAL_BASE
         V x = P[0], y = P[1], z = P[2];
         const V w0 = W[0], w1 = W[1], w2 = W[2], w3 = W[3];
-        PIVOT
 #define LOAD(K, OUT) for (int c = 0; c < WIDTH; ++c) OUT[c] = J[WIDTH * I[K] + c]
 #define LOADS(K, OUT) for (int c = 0; c < 9; ++c) OUT[c] = RS[9 * I[K] + c]
+#define LOADR(K, OUT) for (int c = 0; c < 4; ++c) OUT[c] = J[WIDTH * I[K] + c]
+#define LOADD(K, OUT) for (int c = 0; c < 4; ++c) OUT[c] = J[WIDTH * I[K] + 4 + c]
         MATH
 #undef LOAD
 #undef LOADS
+#undef LOADR
+#undef LOADD
         float* O = (float*)out.data + 3 * (out_base + v0 + i);
         O[0] = ox; O[1] = oy; O[2] = oz;
     }
     return 0;"""
-
-_SCALAR_PIVOT = """typedef int i8;
-        i8 slot = 0;  // the first largest weight's slot
-        V best = w0;
-        const V wc[4] = {w0, w1, w2, w3};
-        for (int k = 1; k < 4; ++k) {
-            if (wc[k] > best) {
-                slot = k;
-                best = wc[k];
-            }
-        }"""
 
 # ---------------------------------------------------------------------------------------------
 # vector branch: eight vertices in the lanes of f8
@@ -279,25 +297,6 @@ _VECTOR = """
         I = ibuf;
         W = wbuf;
     }
-    i8 bad = 0;  // lanes with a value the host checks refuse (with check)
-    if (check) {  // indices outside the joints read joint 0 (a copy only when there are some)
-        typedef unsigned int u8 __attribute__((ext_vector_type(8)));
-        const u8 joints_u = (unsigned)joint_count;
-        i8 iv[4], outside[4];
-        for (int q = 0; q < 4; ++q) {
-            __builtin_memcpy(&iv[q], I + 8 * q, 32);
-            outside[q] = __builtin_convertvector(iv[q], u8) >= joints_u;
-            bad |= outside[q];
-        }
-        if (__builtin_reduce_or(bad)) {
-            const i8 zero = 0;
-            for (int q = 0; q < 4; ++q) {
-                iv[q] = outside[q] ? zero : iv[q];
-                __builtin_memcpy(ibuf + 8 * q, &iv[q], 32);
-            }
-            I = ibuf;
-        }
-    }
     f8 pa, pb, pc;
     __builtin_memcpy(&pa, P, 32);
     __builtin_memcpy(&pb, P + 8, 32);
@@ -313,32 +312,47 @@ _VECTOR = """
     f8 wc[4];
     transpose4(wq, wc);
     const V w0 = wc[0], w1 = wc[1], w2 = wc[2], w3 = wc[3];
-    if (check) {  // points finite, weights finite and non-negative (-0.0 too)
-        // v - v is 0 for a finite v, else NaN: the sum is 0 exactly when all seven are finite;
-        // the least weight (a NaN one is caught by the sum) is then negative or not
-        const V finite = ((x - x) + (y - y)) + ((z - z) + (w0 - w0))
-                         + (((w1 - w1) + (w2 - w2)) + (w3 - w3));
-        const V m01 = w0 < w1 ? w0 : w1, m23 = w2 < w3 ? w2 : w3;
-        bad |= (finite != 0.0f) | ((m01 < m23 ? m01 : m23) < 0.0f);
-        if (__builtin_reduce_or(bad)) *(volatile int*)flags.data = 1;
+    if (check) {  // one test of every input of the eight vertices, as unsigned integers:
+        // an index at or above joint_count (a negative one is large); a point coordinate whose
+        // magnitude's bits exceed the largest finite float's (inf, NaN); a weight whose bits do,
+        // -0.0 made +0.0 first (negative, inf, NaN)
+        typedef unsigned int u8 __attribute__((ext_vector_type(8)));
+        u8 iv[4];
+        for (int q = 0; q < 4; ++q) __builtin_memcpy(&iv[q], I + 8 * q, 32);
+        auto umax = [](u8 a, u8 b) { return a > b ? a : b; };
+        const u8 largest = umax(umax(iv[0], iv[1]), umax(iv[2], iv[3]));
+        const u8 magnitude = 0x7fffffffu;
+        const u8 values = umax(
+            umax(umax(__builtin_bit_cast(u8, x) & magnitude, __builtin_bit_cast(u8, y) & magnitude),
+                 umax(__builtin_bit_cast(u8, z) & magnitude, __builtin_bit_cast(u8, w0 + 0.0f))),
+            umax(__builtin_bit_cast(u8, w1 + 0.0f),
+                 umax(__builtin_bit_cast(u8, w2 + 0.0f), __builtin_bit_cast(u8, w3 + 0.0f))));
+        const u8 joints_u = (unsigned)joint_count, finite_max = 0x7f7fffffu;
+        if (__builtin_reduce_or((largest >= joints_u) | (values > finite_max))) {
+            *(volatile int*)flags.data = 1;
+            for (int q = 0; q < 4; ++q) {  // indices outside the joints read joint 0
+                const u8 zero = 0;
+                iv[q] = iv[q] >= joints_u ? zero : iv[q];
+                __builtin_memcpy(ibuf + 8 * q, &iv[q], 32);
+            }
+            I = ibuf;
+        }
     }
-    PIVOT
     MATH
     STORE_OUTPUT""".replace("    STORE_OUTPUT", STORE_VECTOR.replace("FIRST", "v0"))
-
-_VECTOR_PIVOT = """i8 slot = 0;  // the first largest weight's slot, lane by lane
-    f8 best = wc[0];
-    for (int k = 1; k < 4; ++k) {
-        const i8 more = wc[k] > best;
-        const i8 kv = k;
-        slot = more ? kv : slot;
-        best = more ? wc[k] : best;
-    }"""
 
 _VECTOR_LOAD_DQ = """
 #define LOAD(K, OUT) do { f8 r_[8]; \\
         for (int i = 0; i < 8; ++i) __builtin_memcpy(&r_[i], J + 32 * I[4 * i + (K)], 32); \\
         transpose8(r_, OUT); } while (0)"""
+
+_VECTOR_LOAD_HALVES = """
+#define LOADR(K, OUT) do { f4 q_[8]; \\
+        for (int i = 0; i < 8; ++i) __builtin_memcpy(&q_[i], J + 32 * I[4 * i + (K)], 16); \\
+        transpose4(q_, OUT); } while (0)
+#define LOADD(K, OUT) do { f4 q_[8]; \\
+        for (int i = 0; i < 8; ++i) __builtin_memcpy(&q_[i], J + 32 * I[4 * i + (K)] + 16, 16); \\
+        transpose4(q_, OUT); } while (0)"""
 
 _VECTOR_LOAD_RESIDUAL = """
 #define LOADS(K, OUT) do { f8 r_[8]; \\
@@ -366,17 +380,13 @@ def packet_source(method: str, rule: str = "sorted", scalar_on_cpu: bool = False
         undef = "\n#undef LOAD"
     else:
         math = _DQS_RESIDUAL + _DQS_RULES[rule] + _DQS_APPLY
-        width, load = 8, _VECTOR_LOAD_DQ + _VECTOR_LOAD_RESIDUAL
+        width, load = 8, _VECTOR_LOAD_DQ + _VECTOR_LOAD_HALVES + _VECTOR_LOAD_RESIDUAL
         scalar_base = "const float* RS = (const float*)residuals.data + 9 * (long long)o;"
         vector_base = "const char* RS = (const char*)residuals.data + 36 * (long long)o;"
-        undef = "\n#undef LOAD\n#undef LOADS"
-    searched = method == "dqs" and rule == "searched"
-    scalar_pivot = _SCALAR_PIVOT if searched else ""
-    vector_pivot = _VECTOR_PIVOT if searched else ""
-    scalar = (_SCALAR.replace("PIVOT", scalar_pivot).replace("MATH", math)
+        undef = "\n#undef LOAD\n#undef LOADS\n#undef LOADR\n#undef LOADD"
+    scalar = (_SCALAR.replace("MATH", math)
               .replace("RESIDUAL_BASE", scalar_base))
-    vector = VECTOR_PRELUDE + (_VECTOR.replace("PIVOT", vector_pivot)
-                               .replace("RESIDUAL_BASE", vector_base)
+    vector = VECTOR_PRELUDE + (_VECTOR.replace("RESIDUAL_BASE", vector_base)
                                .replace("    MATH", load + math + undef)) + VECTOR_END
     cond = "1" if scalar_on_cpu else "defined(__CUDA_ARCH__)"
     body = f"""

@@ -584,3 +584,46 @@ def test_launch_rows_covers_every_row_once_in_pieces_that_shrink(monkeypatch, co
         assert len(sizes) == 8 and max(sizes) - min(sizes) < min_chunk, sizes
     else:
         assert sizes[-1] <= 5 * min_chunk and len(sizes) <= 64, sizes
+
+
+@pytest.mark.parametrize("rule", ["largest_weight", "running_sum"])
+def test_one_shot_views_follow_the_callers_memory_and_keep_nothing_alive(rule):
+    """A one-shot call reads the caller's float32 / int32 arrays in place through views kept by
+    address and shape: later calls read values changed in place, a new array of points,
+    indices or weights (the others the same objects), or arrays of another length at the same
+    address, each give their own result, and no caller array outlives its last reference."""
+    import gc
+    import weakref
+
+    from test_sign_reference import dqs_reference
+
+    def want(points, idx, w, M):
+        if rule == "largest_weight":
+            return dqs64(points, idx, w, M)
+        return dqs_reference(points.astype(np.float64), idx, w.astype(np.float64), M[None],
+                             rule)[0]
+
+    rng = np.random.default_rng(41)
+    points, idx, w, M = rig(rng, V=45)
+    store = np.zeros((45, 3), np.float32)  # views of 37 and 45 rows at one address
+    calls = [lambda: (points, idx, w), lambda: (points * 1.5, idx, w),
+             lambda: (points, idx[:, ::-1].copy(), w), lambda: (points, idx, w[:, ::-1].copy()),
+             lambda: (store[:37], idx[:37], w[:37]), lambda: (store, idx, w)]
+    for change in range(2):
+        if change:  # in place
+            points[:] = rng.normal(size=points.shape)
+            idx[:] = rng.integers(0, 12, size=idx.shape)
+            store[:] = rng.normal(size=store.shape)
+        for i, call in enumerate(calls):
+            p, ix, wt = call()
+            got = dqskin.skin_points(p, ix, wt, M, "dqs", sign_reference=rule, device="cpu")
+            np.testing.assert_allclose(got, want(p, ix, wt, M), atol=5e-5,
+                                       err_msg=f"call {i}, change {change}")
+    refs = []
+    for V in (20, 20, 33):
+        p, ix, wt, M = rig(rng, V=V)
+        dqskin.skin_points(p, ix, wt, M, "dqs", sign_reference=rule, device="cpu")
+        refs += [weakref.ref(a) for a in (p, ix, wt)]
+        del p, ix, wt
+        gc.collect()
+        assert all(r() is None for r in refs), "a one-shot call kept a caller's array alive"

@@ -240,6 +240,32 @@ def test_checked_packets_flag_what_the_host_refuses(rule, bad, V):
             np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("rule", ["lbs", "searched"])
+def test_checked_packets_flag_a_bad_value_in_every_lane_and_slot(rule):
+    """The input check of a packet covers each of its eight vertices and each coordinate, index
+    and weight of a vertex (the check reduces them all to one test): one bad value at a time, in
+    every position of a full packet and of the last vertex of a tail, is flagged by both
+    branches; -0.0 in any weight slot is not."""
+    rng = np.random.default_rng(5)
+    points, idx, w, M = rig(rng, 11, F=1)
+    cases = []
+    for v in [*range(8), 10]:
+        cases += [("point", v, c, [np.nan, np.inf, -np.inf][(v + c) % 3]) for c in range(3)]
+        cases += [("index", v, k, [-1, J, 1 << 30][(v + k) % 3]) for k in range(4)]
+        cases += [("weight", v, k, [-0.5, np.nan, np.inf, -0.0][(v + k) % 4]) for k in range(4)]
+    for what, v, slot, value in cases:
+        p, i, wt = points.copy(), idx.copy(), w.copy()
+        if what == "point":
+            p[0, v, slot] = value
+        elif what == "index":
+            i[v, slot] = value
+        else:
+            wt[v, slot] = value
+        want = 0 if what == "weight" and value == 0.0 else 1
+        _, flagged = run_both(rule, p, i, wt, M, check=True)
+        assert flagged == [want, want], (what, v, slot, value)
+
+
 def antipodal_rig(rng, V, F=2):
     """A :func:`rig` whose joints rotate about one axis by angles spread over ±π (many pairs of
     real parts on opposite hemispheres, the running sum's signs changing along the blend), one
