@@ -138,9 +138,9 @@ def handlers_installed(pid):
 def test_ctrl_c_during_start_up(tmp_path, delay):
     """Ctrl-C at any moment once dqskin.cli.main runs (its imports, Warp's init, loading the
     asset, checking it): 130, one line, nothing written."""
-    # 9,601 distinct poses (samples past the animation's end cost little to write): about two
-    # seconds of work on a quiet machine, so that the longest delay still lands before the end
-    proc = start("skin", HUMANOID, "--out", tmp_path / "x.usdc", "--frames", "0:48:0.005",
+    # 19,201 distinct poses (samples past the animation's end cost little to write): two to
+    # three seconds of work on a quiet machine, so that the longest delay still lands before the end
+    proc = start("skin", HUMANOID, "--out", tmp_path / "x.usdc", "--frames", "0:48:0.0025",
                  "--no-velocities", "--no-clips")
     end = time.monotonic() + 120
     while not handlers_installed(proc.pid):
