@@ -16,6 +16,8 @@ skin through :func:`dqskin.crowd.skin_batch`, the rigidly bound USD prims throug
    (:func:`space_track`).
 """
 
+import copy
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -35,7 +37,8 @@ if TYPE_CHECKING:
     from .readers.usd import RigidPrim
     from .scene import Mesh, Scene
 
-__all__ = ["SkinnedFrames", "one_launch", "rigid_transforms", "skin_scene"]
+__all__ = ["POSE_BLOCK_BYTES", "POSE_BLOCK_CHUNKS", "SkinnedFrames", "chunk_skinner",
+           "one_launch", "rigid_transforms", "skin_scene"]
 
 
 @dataclass
@@ -75,11 +78,60 @@ def skin_scene(scene: "Scene", times: npt.ArrayLike, options: SkinOptions,
     """Skin every mesh of ``scene`` at ``times`` (checked) with ``options``; ``cache`` keeps
     the uploaded skinners and batches between calls (:attr:`dqskin.Scene._skinners`)."""
     t = check_times(times)
-    result = SkinnedFrames(t)
-    poses = _Poses(scene, t, options, cache, one_launch(scene, options))
+    return _skin(_Poses(scene, t, options, cache, one_launch(scene, options)))
+
+
+def _skin(poses: "_Poses") -> SkinnedFrames:
+    result = SkinnedFrames(poses.t)
     for batch in poses.batches():
         batch.skin(result)
     return result
+
+
+POSE_BLOCK_BYTES = 16 << 20
+"""Joint transforms (and rates) :func:`chunk_skinner` samples at once: the poses of up to
+:data:`POSE_BLOCK_CHUNKS` chunks, as many as fit."""
+
+POSE_BLOCK_CHUNKS = 8
+"""Most chunks whose poses :func:`chunk_skinner` samples at once."""
+
+
+def chunk_skinner(scene: "Scene", times: npt.ArrayLike, slices: "Sequence[slice]",
+                  options: SkinOptions, cache: dict[Any, Any]
+                  ) -> "Callable[[int], SkinnedFrames]":
+    """A function that skins chunk ``k`` of ``times`` (checked; the frames ``times[slices[k]]``,
+    consecutive slices) as :func:`skin_scene` does, with the same results: the skeletons'
+    poses (animation sampled, forward kinematics, joint rates) are computed for a block of
+    consecutive chunks at once (:data:`POSE_BLOCK_BYTES`, :data:`POSE_BLOCK_CHUNKS`) and sliced
+    per chunk, so a stream of short chunks pays their per-call cost once a block. Call it
+    from one thread at a time, in any order (a chunk outside the block held computes its
+    block)."""
+    t = check_times(times)
+    batched = one_launch(scene, options)
+    joints = sum(scene.skeletons[s].joint_count for s in {m.skeleton for m in scene.meshes})
+    # float32 transforms, float64 rates and local transforms: ~320 bytes a joint and frame
+    most = max(1, POSE_BLOCK_BYTES // max(1, 320 * joints))
+    block_of: list[int] = []  # each chunk's block
+    spans: list[list[int]] = []  # each block's [first frame, end frame, chunks]
+    for sl in slices:
+        span = spans[-1] if spans else None
+        if (span is None or span[1] - span[0] + sl.stop - sl.start > most
+                or span[2] == POSE_BLOCK_CHUNKS):
+            span = [sl.start, sl.start, 0]
+            spans.append(span)
+        span[1], span[2] = sl.stop, span[2] + 1
+        block_of.append(len(spans) - 1)
+    held: dict[int, _Poses] = {}  # the block computed last
+
+    def skin(k: int) -> SkinnedFrames:
+        b = block_of[k]
+        lo, hi, _ = spans[b]
+        if b not in held:
+            held.clear()  # (the previous block's memory goes first)
+            held[b] = _Poses(scene, t[lo:hi], options, cache, batched)
+        sl = slices[k]
+        return _skin(held[b].frames(slice(sl.start - lo, sl.stop - lo)))
+    return skin
 
 
 class _Poses:
@@ -115,6 +167,17 @@ class _Poses:
             self.all_rates = np.empty((len(t), self.joints.joint_count, 4, 4), np.float64)
             for s, loc in zip(used, local):
                 self.all_rates[:, self.where[s]] = self._rates(s, loc)
+
+    def frames(self, sl: slice) -> "_Poses":
+        """These poses at the frames ``sl`` of :attr:`t` (views, no copy)."""
+        part = copy.copy(self)
+        part.t = self.t[sl]
+        part.xforms = {s: x[sl] for s, x in self.xforms.items()}
+        part.rates = {s: r[sl] for s, r in self.rates.items()}
+        if self.batched:
+            part.all_xforms = self.all_xforms[sl]
+            part.all_rates = None if self.all_rates is None else self.all_rates[sl]
+        return part
 
     def _rates(self, s, local):
         skel = self.scene.skeletons[s]

@@ -284,12 +284,14 @@ class Scene:
         The next chunk is skinned on a worker thread while the caller consumes the current one
         (Warp launches and NumPy release the GIL, so the two overlap). The chunks' large arrays
         are reused from one chunk to the next once the caller has dropped them
-        (:func:`dqskin.kernels.buffers.reusing`): results the caller keeps stay its own.
-        ``buffers``: the :class:`~dqskin.kernels.buffers.BufferPool` to take them from and give
-        them back to (e.g. one per process across many calls); default, one of this call's.
+        (:func:`dqskin.kernels.buffers.reusing`): results the caller keeps stay its own. The
+        skeletons' poses are sampled for several chunks at once
+        (:func:`dqskin.pipeline.chunk_skinner`). ``buffers``: the
+        :class:`~dqskin.kernels.buffers.BufferPool` to take them from and give them back to
+        (e.g. one per process across many calls); default, one of this call's.
         """
         from .kernels import buffers as KB
-        from .pipeline import skin_scene
+        from .pipeline import chunk_skinner
         t = check_times(times)
         sizes = list(chunk) if isinstance(chunk, (list, tuple)) else [chunk]
         if not sizes or any(isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1
@@ -305,16 +307,17 @@ class Scene:
             slices = [slice(lo, min(lo + chunk, len(t))) for lo in range(0, len(t), chunk)]
         pool = KB.BufferPool() if buffers is None else buffers
         opts = SkinOptions.build(options, **changes)
+        skin_chunk = chunk_skinner(self, t, slices, opts, self._skinners)
 
-        def skin(tt: np.ndarray) -> SkinnedFrames:
+        def skin(k: int) -> SkinnedFrames:
             with KB.reusing(pool):
-                return skin_scene(self, tt, opts, self._skinners)
+                return skin_chunk(k)
 
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqskin-skin") as ex:
-            fut = ex.submit(skin, t[slices[0]])
+            fut = ex.submit(skin, 0)
             for k, sl in enumerate(slices):
                 res = fut.result()
                 if k + 1 < len(slices):
-                    fut = ex.submit(skin, t[slices[k + 1]])
+                    fut = ex.submit(skin, k + 1)
                 yield sl, res
                 del res  # the caller's to keep or drop: its buffers can serve the next chunk

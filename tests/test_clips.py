@@ -892,6 +892,33 @@ def test_skin_chunks_of_given_sizes_cover_the_frames_in_order(humanoid):
             list(scene.skin_chunks(t, bad))
 
 
+@pytest.mark.parametrize("sign", ["largest_weight", "running_sum"])  # one launch; per mesh
+def test_chunks_whose_poses_are_sampled_in_blocks_equal_skinning_their_frames(humanoid,
+                                                                            monkeypatch, sign):
+    """``chunk_skinner`` (what ``Scene.skin_chunks`` skins with) samples the poses of several
+    chunks at once, in blocks cut by chunk count and by bytes: each chunk's points, normals and
+    velocities are bit for bit those of skinning its frames alone, chunks taken in any order."""
+    from dqskin import pipeline
+
+    scene = humanoid["scene"]
+    assert len(scene.meshes) > 1  # (the one-launch batch)
+    t = np.asarray(scene.times[:11], np.float64)
+    opts = SkinOptions(method="dqs", sign_reference=sign, normals=True, velocities=True)
+    joints = sum(s.joint_count for s in scene.skeletons)
+    for chunks, most in ((2, 1 << 30), (8, 4 * 320 * joints)):  # blocks of 2 chunks; 4 frames
+        monkeypatch.setattr(pipeline, "POSE_BLOCK_CHUNKS", chunks)
+        monkeypatch.setattr(pipeline, "POSE_BLOCK_BYTES", most)
+        slices = [slice(0, 3), slice(3, 4), slice(4, 6), slice(6, 9), slice(9, 11)]
+        skin = pipeline.chunk_skinner(scene, t, slices, opts, scene._skinners)
+        for k in (3, 0, 1, 4, 2, 2):
+            got, want = skin(k), scene.skin(t[slices[k]], options=opts)
+            np.testing.assert_array_equal(got.times, t[slices[k]])
+            for what in ("points", "normals", "velocities"):
+                assert getattr(got, what).keys() == getattr(want, what).keys()
+                for name, a in getattr(want, what).items():
+                    np.testing.assert_array_equal(getattr(got, what)[name], a)
+
+
 def test_skin_chunks_reuse_the_buffers_of_chunks_the_caller_dropped(humanoid, monkeypatch):
     """``Scene.skin_chunks`` skins each chunk into the buffers of chunks the caller has dropped
     (:func:`dqskin.kernels.buffers.reusing`; every buffer pooled here): a stream of eight chunks
