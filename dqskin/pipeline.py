@@ -102,8 +102,9 @@ def chunk_skinner(scene: "Scene", times: npt.ArrayLike, slices: "Sequence[slice]
     """A function that skins chunk ``k`` of ``times`` (checked; the frames ``times[slices[k]]``,
     consecutive slices) as :func:`skin_scene` does, with the same results: the skeletons'
     poses (animation sampled, forward kinematics, joint rates) are computed for a block of
-    consecutive chunks at once (:data:`POSE_BLOCK_BYTES`, :data:`POSE_BLOCK_CHUNKS`) and sliced
-    per chunk, so a stream of short chunks pays their per-call cost once a block. Call it
+    consecutive chunks at once (:data:`POSE_BLOCK_BYTES`, :data:`POSE_BLOCK_CHUNKS`; the first
+    chunk alone, so that the first result comes as soon as it can) and sliced per chunk, so a
+    stream of short chunks pays their per-call cost once a block. Call it
     from one thread at a time, in any order (a chunk outside the block held computes its
     block)."""
     t = check_times(times)
@@ -116,7 +117,7 @@ def chunk_skinner(scene: "Scene", times: npt.ArrayLike, slices: "Sequence[slice]
     for sl in slices:
         span = spans[-1] if spans else None
         if (span is None or span[1] - span[0] + sl.stop - sl.start > most
-                or span[2] == POSE_BLOCK_CHUNKS):
+                or span[2] == (1 if len(spans) == 1 else POSE_BLOCK_CHUNKS)):
             span = [sl.start, sl.start, 0]
             spans.append(span)
         span[1], span[2] = sl.stop, span[2] + 1
