@@ -106,8 +106,14 @@ def chunk_skinner(scene: "Scene", times: npt.ArrayLike, slices: "Sequence[slice]
     chunk alone, so that the first result comes as soon as it can) and sliced per chunk, so a
     stream of short chunks pays their per-call cost once a block. Call it
     from one thread at a time, in any order (a chunk outside the block held computes its
-    block)."""
+    block). ``slices`` must follow one another (each starting where the one before ends). A
+    block's poses are those of the scene when its first chunk is skinned; when they cannot be
+    computed (a bad pose), each of its chunks computes its own, so the error is raised by the
+    chunk that holds the bad frame."""
     t = check_times(times)
+    for a, b in zip(slices, slices[1:]):
+        if b.start != a.stop:
+            raise InputError(f"slices: {b} does not start where {a} ends")
     batched = one_launch(scene, options)
     joints = sum(scene.skeletons[s].joint_count for s in {m.skeleton for m in scene.meshes})
     # float32 transforms, float64 rates and local transforms: ~320 bytes a joint and frame
@@ -122,16 +128,23 @@ def chunk_skinner(scene: "Scene", times: npt.ArrayLike, slices: "Sequence[slice]
             spans.append(span)
         span[1], span[2] = sl.stop, span[2] + 1
         block_of.append(len(spans) - 1)
-    held: dict[int, _Poses] = {}  # the block computed last
+    held: dict[int, _Poses | None] = {}  # the block computed last (None: chunk by chunk)
 
     def skin(k: int) -> SkinnedFrames:
-        b = block_of[k]
-        lo, hi, _ = spans[b]
+        b, sl = block_of[k], slices[k]
+        lo, hi, chunks = spans[b]
         if b not in held:
             held.clear()  # (the previous block's memory goes first)
-            held[b] = _Poses(scene, t[lo:hi], options, cache, batched)
-        sl = slices[k]
-        return _skin(held[b].frames(slice(sl.start - lo, sl.stop - lo)))
+            try:
+                held[b] = _Poses(scene, t[lo:hi], options, cache, batched)
+            except Exception:
+                if chunks == 1:
+                    raise
+                held[b] = None
+        poses = held[b]
+        if poses is None:
+            return _skin(_Poses(scene, t[sl], options, cache, batched))
+        return _skin(poses.frames(slice(sl.start - lo, sl.stop - lo)))
     return skin
 
 

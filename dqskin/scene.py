@@ -307,6 +307,8 @@ class Scene:
             slices = [slice(lo, min(lo + chunk, len(t))) for lo in range(0, len(t), chunk)]
         pool = KB.BufferPool() if buffers is None else buffers
         opts = SkinOptions.build(options, **changes)
+        if not slices:  # no times
+            return
         skin_chunk = chunk_skinner(self, t, slices, opts, self._skinners)
 
         def skin(k: int) -> SkinnedFrames:

@@ -86,7 +86,8 @@ _scratch = threading.local()
 def _thread_buffers(device):
     """The work buffers (transforms, per-joint data) of every :class:`_OneCall` on this thread and
     device: each call refills them before use and they never leave it, so a one-shot call reuses
-    its predecessor's instead of allocating them. Cleared when it holds many shapes."""
+    its predecessor's instead of allocating them; and the non-owning views of callers' arrays
+    with their influence layouts (by address and shape). Cleared when it holds many entries."""
     caches = getattr(_scratch, "caches", None)
     if caches is None:
         caches = _scratch.caches = {}

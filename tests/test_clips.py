@@ -917,6 +917,26 @@ def test_chunks_whose_poses_are_sampled_in_blocks_equal_skinning_their_frames(hu
                 assert getattr(got, what).keys() == getattr(want, what).keys()
                 for name, a in getattr(want, what).items():
                     np.testing.assert_array_equal(getattr(got, what)[name], a)
+    with pytest.raises(ValueError, match="does not start where"):
+        pipeline.chunk_skinner(scene, t, [slice(0, 2), slice(4, 6), slice(2, 4)], opts,
+                               scene._skinners)
+    # a bad pose at frame 7, in the block of chunks 1 to 4: the chunks before it come out, and
+    # the error is raised by the chunk that holds it
+    monkeypatch.setattr(pipeline, "POSE_BLOCK_CHUNKS", 8)
+    monkeypatch.setattr(pipeline, "POSE_BLOCK_BYTES", 1 << 30)  # chunks 1 to 4: one block
+    local = type(scene).local_transforms
+
+    def bad_at_7(self, times, *args, **kwargs):
+        if np.any(np.asarray(times) >= t[7]):
+            raise ValueError(f"a bad pose at {t[7]:g}")
+        return local(self, times, *args, **kwargs)
+    monkeypatch.setattr(type(scene), "local_transforms", bad_at_7)
+    got = []
+    with pytest.raises(ValueError, match="a bad pose"):
+        for sl, _ in scene.skin_chunks(t, [3, 1, 2, 3, 2], options=opts):
+            got.append(sl)
+    assert got == [slice(0, 3), slice(3, 4), slice(4, 6)]
+    assert list(scene.skin_chunks(t[:0], 4, options=opts)) == []
 
 
 def test_skin_chunks_reuse_the_buffers_of_chunks_the_caller_dropped(humanoid, monkeypatch):
