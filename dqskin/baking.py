@@ -99,9 +99,9 @@ class BakeSettings:
         fewer for a USD cache when 256 frames of its samples exceed
         :data:`~dqskin.writers.usd_cache.CHUNK_BYTES`); with clips, frames per clip layer
         (default :func:`dqskin.writers.usd_clips.clip_frames`: 128, more for a mesh whose 128
-        frames hold under 32 MB of samples; with workers, shorter for four or more a task slot
-        and evened out over them, so possibly fewer than 128; with ``resume``, the earlier
-        bake's).
+        frames hold under 32 MB of samples; on a ``scheduler``'s workers, or ``workers``
+        started without the two clips first, shorter for four or more a task slot and evened
+        out over them, so possibly fewer than 128; with ``resume``, the earlier bake's).
     force : bool
         Overwrite existing outputs (never the input); the last writer wins. In a clip folder
         only the files dqskin made are replaced; another tool's file where the bake writes is

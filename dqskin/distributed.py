@@ -451,14 +451,16 @@ def _bake_clips_measured(scene, out, times, options, settings, threads, source):
     """:func:`_bake_clips` with ``workers=N`` (a LocalCluster of its own): the clips are baked
     here (one :func:`run_here` stream) and the second one timed (wall and CPU); the
     LocalCluster starts for the rest only when it would save at least
-    :func:`workers_pay_seconds` (:func:`workers_choice`), else they are baked here too. The
-    result's ``chose`` says which (None when nothing was left to bake)."""
+    :func:`workers_pay_seconds` (:func:`workers_choice`), else they are baked here too. Clips
+    are planned as ``--clips`` plans them in one process. The result's ``chose`` says which
+    (None when nothing was left to bake)."""
     s = settings
     tasks: list[dict[str, Any]] = []
     bake = None
     try:
-        # clips as for the cluster's task slots (one per worker)
-        bake, jobs = _plan(scene, out, times, options, s, source, max(1, int(s.workers)))
+        # clips as a bake in this process plans them, so that one the workers do not pay for is
+        # that bake (where they pay, the shot holds many clips for them to take in turn)
+        bake, jobs = _plan(scene, out, times, options, s, source, None)
         bar = _bar(len(bake.bounds), len(bake.bounds) - len(jobs), s.progress)
 
         def done(result):

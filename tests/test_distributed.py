@@ -136,6 +136,31 @@ def test_the_measured_bake_hands_the_clips_after_the_second_to_the_workers(
     check(reference, shot)
 
 
+def test_a_measured_bake_the_workers_do_not_pay_for_is_the_clips_bake(reference, tmp_path,
+                                                                      monkeypatch):
+    """``workers=2`` where they cannot pay plans its clips as ``clips=True`` in one process
+    does (not for the workers' task slots): the same clip layers, byte for byte."""
+    import dqskin.distributed as dist
+    from dqskin.writers import usd_clips
+    monkeypatch.setenv("DQSKIN_WORKERS_PAY_SECONDS", "1e9")
+    monkeypatch.setattr(dist.forkserver, "prestart_workers", lambda: None)
+    # 10-frame clips in one process (5 for the 49 frames); for two slots, 9 frames (6 clips)
+    monkeypatch.setattr(usd_clips, "CLIP_CHUNK", 10)
+    monkeypatch.setattr(usd_clips, "CLIP_BYTES", 1)
+    scene = reference["scene"]
+    here, measured = tmp_path / "here.usd", tmp_path / "measured.usd"
+    bake(scene, here, clips=True)
+    said = bake(scene, measured, workers=2)
+    assert "baked in this process, not on 2 worker processes (" in said
+    layers = sorted(p.name for p in clips_folder(here).glob("*.usdc"))
+    assert len(layers) == 5 and len(scene.times) == 49
+    assert usd_clips.clip_frames(scene, 49, workers=2) == 9
+    assert sorted(p.name for p in clips_folder(measured).glob("*.usdc")) == layers
+    for name in layers:
+        assert (clips_folder(here) / name).read_bytes() == \
+            (clips_folder(measured) / name).read_bytes()
+
+
 def _start(args, log):
     env = {k: v for k, v in os.environ.items()  # the workers' budget from --nthreads alone
            if k not in ("DQSKIN_THREADS", "PXR_WORK_THREAD_LIMIT")}
