@@ -271,12 +271,8 @@ class AppendFile:
             if not room or not self._direct:  # a record larger than the stage; refused
                 break
             k = min(room, count - a)
-            dst = self._staged()[self._fill:self._fill + k * stride].reshape(k, stride)
-            dst[:, :h] = hv
-            dst[:, h:h + m] = rows[a:a + k] if index is None else rows[index[a:a + k]]
-            dst[:, h + m:] = 0
-            if self.observe is not None:
-                self.observe(dst)
+            self._records(self._staged()[self._fill:self._fill + k * stride], hv, rows,
+                          index, a, k)
             self._fill += k * stride
             a += k
             if self._fill == STAGE:
@@ -296,12 +292,8 @@ class AppendFile:
                 self._write_block()
                 continue
             k = min(room, count - a)
-            dst = block[self._blocked:self._blocked + k * stride].reshape(k, stride)
-            dst[:, :h] = hv
-            dst[:, h:h + m] = rows[a:a + k] if index is None else rows[index[a:a + k]]
-            dst[:, h + m:] = 0
-            if self.observe is not None:
-                self.observe(dst)
+            self._records(block[self._blocked:self._blocked + k * stride], hv, rows, index, a,
+                          k)
             self._blocked += k * stride
             self.size += k * stride
             a += k
@@ -310,6 +302,18 @@ class AppendFile:
             rest = range(a, count) if index is None else index[a:]
             self.append([part for i in rest for part in (head, rows[i], zeros)])
         return total
+
+    def _records(self, dst: np.ndarray, head: np.ndarray, rows: np.ndarray,
+                 index: np.ndarray | None, a: int, k: int) -> None:
+        """Copy records ``a .. a + k - 1`` of a group (``head``, the row, zero padding) into the
+        bytes ``dst`` (``k`` records long) and show them to :attr:`observe`."""
+        out = dst.reshape(k, -1)
+        h, m = len(head), rows.shape[1]
+        out[:, :h] = head
+        out[:, h:h + m] = rows[a:a + k] if index is None else rows[index[a:a + k]]
+        out[:, h + m:] = 0
+        if self.observe is not None:
+            self.observe(out)
 
     def _append_buffered(self, buffers: Sequence[BytesLike]) -> int:
         if self._view is not None:  # bytes a failed switch left staged come first
